@@ -1,0 +1,49 @@
+"""Typed messages of the palpation graph (units in field names: mm, kPa, N, N/mm, rad, ns, s).
+
+Every type is a frozen, keyword-only ``palpa.Message`` encoded as a msgpack map; ``palpa.lookup(name)`` finds it
+by the name carried in the envelope header. Stamps (``stamp_ns``) are host wall-clock ns since the Unix epoch,
+taken when the measurement was made (not when it was published).
+
+Evolution policy: add fields only with defaults; never reuse, rename or retype a field; a new meaning gets a new
+type name. See docs/wire.md.
+"""
+
+from messages.probe import (
+    DeviceStatus,
+    IndenterDisplacements,
+    PressureCommand,
+    PressureState,
+    ProbeHeights,
+)
+from messages.robot import EStop, PlanWaypoint, RobotPose, ScanPlan, ScanStatus
+from messages.std import Text
+from messages.stiffness import (
+    DetectedInclusion,
+    Inclusions,
+    StiffnessFit,
+    StiffnessMap,
+    StiffnessSample,
+)
+from palpa.runtime_msgs import ClockTick, Heartbeat, LogRecord
+
+__all__ = [
+    "ClockTick",
+    "DetectedInclusion",
+    "DeviceStatus",
+    "EStop",
+    "Heartbeat",
+    "IndenterDisplacements",
+    "Inclusions",
+    "LogRecord",
+    "PlanWaypoint",
+    "PressureCommand",
+    "PressureState",
+    "ProbeHeights",
+    "RobotPose",
+    "ScanPlan",
+    "ScanStatus",
+    "StiffnessFit",
+    "StiffnessMap",
+    "StiffnessSample",
+    "Text",
+]

@@ -1,0 +1,49 @@
+"""palpa: a ROS-style node graph without ROS — typed msgpack messages over ZeroMQ, YAML launch files, MCAP logs.
+
+Layering (imports point downwards only)::
+
+    palpa.cli        command-line verbs (bus, topic, node, launch, record, play, bag)
+    palpa.launch     launch files and the process supervisor
+    palpa.record     MCAP recording and replay
+    palpa.node       the Node API: publishers, subscriptions, timers, parameters
+    palpa.transport  ZeroMQ (and, in palpa.testing, in-memory) transports
+    palpa.bus        the XSUB/XPUB proxy and latched-value cache
+    palpa.wire       the envelope; palpa.message the typed-message base and registry
+
+This package knows nothing about palpation: the domain lives in ``messages``, ``models`` and ``nodes``.
+"""
+
+from palpa.address import BusAddress
+from palpa.clock import Clock, MockClock, SystemClock
+from palpa.errors import BusError, DecodeError, LaunchError, PalpaError, ParamError, RegistryError
+from palpa.message import Message, json_schema, lookup, registered
+from palpa.node import Node, Publisher, RawMessage, Subscription, Timer
+from palpa.params import Params
+from palpa.runner import run_node
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "BusAddress",
+    "BusError",
+    "Clock",
+    "DecodeError",
+    "LaunchError",
+    "Message",
+    "MockClock",
+    "Node",
+    "PalpaError",
+    "ParamError",
+    "Params",
+    "Publisher",
+    "RawMessage",
+    "RegistryError",
+    "Subscription",
+    "SystemClock",
+    "Timer",
+    "__version__",
+    "json_schema",
+    "lookup",
+    "registered",
+    "run_node",
+]

@@ -1,0 +1,240 @@
+"""The bus: one XSUB/XPUB proxy per graph plus a last-value cache for latched topics.
+
+Publishers connect to the proxy's XSUB (``pub`` endpoint), subscribers to its XPUB (``sub``); the proxy itself runs
+in libzmq (``zmq.proxy_steerable``), so no Python touches the hot path. Latched topics (a calibration, the scan
+plan, the map) are kept by a small ROUTER service on the ``latch`` endpoint: a publisher that declares a topic
+latched sends each message there as well (``SET``), and a subscriber asks for the last value when it subscribes
+(``GET``), so a late joiner gets it without disturbing anyone else. Topics the *graph* declares latched (launch
+``bus.latched``) are cached from a capture of the proxy stream, filtered by prefix inside libzmq.
+
+Latch protocol (DEALER -> ROUTER), every frame bytes:
+    SET topic header payload [blobs...]      no reply
+    GET prefix                                -> VAL topic header payload [blobs...], one per cached topic that
+                                                 starts with prefix (none when nothing matches)
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import zmq
+import zmq.auth
+from zmq.auth.thread import ThreadAuthenticator
+
+from palpa.address import BusAddress
+from palpa.errors import BusError
+
+__all__ = ["Bus", "CurveServer", "is_loopback_endpoint"]
+
+log = logging.getLogger("palpa.bus")
+
+_LOOPBACK_HOSTS = ("127.", "localhost", "[::1]", "::1")
+
+
+def is_loopback_endpoint(endpoint: str) -> bool:
+    """True for ipc/inproc endpoints and tcp endpoints on a loopback address."""
+    if not endpoint.startswith("tcp://"):
+        return True
+    host = endpoint[len("tcp://") :].rpartition(":")[0]
+    return host.startswith(_LOOPBACK_HOSTS)
+
+
+@dataclass(frozen=True)
+class CurveServer:
+    """CURVE settings of a bus: its secret key file and the folder of authorised client public keys."""
+
+    secret_key_file: Path
+    authorized_clients_dir: Path
+
+
+class Bus:
+    """A running proxy + last-value cache. ``start()`` binds and returns the resolved address; ``stop()`` ends it."""
+
+    def __init__(
+        self,
+        address: BusAddress,
+        *,
+        latched_topics: Iterable[str] = (),
+        hwm: int = 10_000,
+        curve: CurveServer | None = None,
+    ) -> None:
+        self._requested = address
+        self._latched_topics = sorted(set(latched_topics))
+        self._hwm = hwm
+        self._curve = curve
+        self._ctx = zmq.Context()
+        self._auth: ThreadAuthenticator | None = None
+        self._threads: list[threading.Thread] = []
+        self._stop = threading.Event()
+        self._cache: dict[bytes, list[bytes]] = {}
+        self._cache_lock = threading.Lock()
+        self.address: BusAddress | None = None
+
+    def _secure(self, sock: zmq.Socket[bytes]) -> None:
+        if self._curve is None:
+            return
+        public, secret = zmq.auth.load_certificate(str(self._curve.secret_key_file))
+        if secret is None:
+            raise BusError(f"{self._curve.secret_key_file}: not a CURVE secret key file")
+        sock.curve_secretkey = secret
+        sock.curve_publickey = public
+        sock.curve_server = True
+
+    def _bind(self, sock: zmq.Socket[bytes], endpoint: str) -> str:
+        if not is_loopback_endpoint(endpoint) and self._curve is None:
+            raise BusError(
+                f"refusing to bind {endpoint} without CURVE keys: binding beyond loopback needs "
+                "--curve-secret and --curve-clients (see docs/wire.md)"
+            )
+        self._secure(sock)
+        try:
+            sock.bind(endpoint)
+        except zmq.ZMQError as exc:
+            raise BusError(f"cannot bind {endpoint}: {exc}") from None
+        return str(sock.getsockopt_string(zmq.LAST_ENDPOINT))
+
+    def start(self) -> BusAddress:
+        """Bind all three endpoints and start the proxy and cache threads."""
+        if self._curve is not None:
+            self._auth = ThreadAuthenticator(self._ctx)
+            self._auth.start()
+            self._auth.configure_curve(domain="*", location=str(self._curve.authorized_clients_dir))
+        xsub = self._ctx.socket(zmq.XSUB)
+        xpub = self._ctx.socket(zmq.XPUB)
+        router = self._ctx.socket(zmq.ROUTER)
+        for sock in (xsub, xpub):
+            sock.sndhwm = self._hwm
+            sock.rcvhwm = self._hwm
+            sock.linger = 0
+        router.linger = 0
+        try:
+            pub = self._bind(xsub, self._requested.pub)
+            sub = self._bind(xpub, self._requested.sub)
+            latch = self._bind(router, self._requested.latch)
+        except BusError:
+            for sock in (xsub, xpub, router):
+                sock.close(0)
+            self._shutdown_ctx()
+            raise
+        self.address = BusAddress(pub, sub, latch)
+
+        capture: zmq.Socket[bytes] | None = None
+        capture_sub: zmq.Socket[bytes] | None = None
+        if self._latched_topics:
+            capture = self._ctx.socket(zmq.PUB)
+            capture.linger = 0
+            capture.bind("inproc://palpa-capture")
+            capture_sub = self._ctx.socket(zmq.SUB)
+            capture_sub.linger = 0
+            capture_sub.connect("inproc://palpa-capture")
+            for topic in self._latched_topics:
+                capture_sub.setsockopt(zmq.SUBSCRIBE, topic.encode())
+        control = self._ctx.socket(zmq.PAIR)
+        control.linger = 0
+        control.bind("inproc://palpa-proxy-control")
+        self._control = self._ctx.socket(zmq.PAIR)
+        self._control.linger = 0
+        self._control.connect("inproc://palpa-proxy-control")
+
+        def proxy() -> None:
+            try:
+                zmq.proxy_steerable(xsub, xpub, capture, control)
+            except zmq.ZMQError as exc:  # context terminated
+                log.debug("proxy ended: %s", exc)
+            finally:
+                for sock in (xsub, xpub, control):
+                    sock.close(0)
+                if capture is not None:
+                    capture.close(0)
+
+        def cache() -> None:
+            try:
+                self._serve_cache(router, capture_sub)
+            finally:
+                router.close(0)
+                if capture_sub is not None:
+                    capture_sub.close(0)
+
+        for target, name in ((proxy, "palpa-proxy"), (cache, "palpa-lvc")):
+            thread = threading.Thread(target=target, name=name, daemon=True)
+            thread.start()
+            self._threads.append(thread)
+        return self.address
+
+    def _serve_cache(self, router: zmq.Socket[bytes], capture_sub: zmq.Socket[bytes] | None) -> None:
+        poller = zmq.Poller()
+        poller.register(router, zmq.POLLIN)
+        exact = {t.encode() for t in self._latched_topics}
+        if capture_sub is not None:
+            poller.register(capture_sub, zmq.POLLIN)
+        while not self._stop.is_set():
+            events = dict(poller.poll(100))
+            if capture_sub is not None and capture_sub in events:
+                while True:
+                    try:
+                        frames = capture_sub.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    if len(frames) >= 3 and frames[0] in exact:
+                        with self._cache_lock:
+                            self._cache[frames[0]] = frames[1:]
+            if router in events:
+                while True:
+                    try:
+                        frames = router.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    self._handle_latch(router, frames)
+
+    def _handle_latch(self, router: zmq.Socket[bytes], frames: list[bytes]) -> None:
+        if len(frames) < 3 and not (len(frames) == 2 and frames[1] == b"GET"):
+            log.warning("latch: ignoring a request of %d frames", len(frames))
+            return
+        ident, verb = frames[0], frames[1]
+        topic = frames[2] if len(frames) > 2 else b""
+        if verb == b"SET" and len(frames) >= 5:
+            with self._cache_lock:
+                self._cache[topic] = frames[3:]
+        elif verb == b"GET":
+            with self._cache_lock:
+                hits = [(t, v) for t, v in self._cache.items() if t.startswith(topic)]
+            for cached_topic, value in hits:
+                router.send_multipart([ident, b"VAL", cached_topic, *value])
+        else:
+            log.warning("latch: ignoring unknown request %r", verb[:16])
+
+    def cached_topics(self) -> list[str]:
+        """Topics with a cached last value."""
+        with self._cache_lock:
+            return sorted(t.decode(errors="replace") for t in self._cache)
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Stop the proxy and the cache, close every socket, and (for ipc) let libzmq remove the socket files."""
+        self._stop.set()
+        if self.address is not None:
+            try:
+                self._control.send(b"TERMINATE")
+            except zmq.ZMQError:
+                pass
+        for thread in self._threads:
+            thread.join(timeout_s)
+        if self.address is not None:
+            self._control.close(0)
+        self._shutdown_ctx()
+
+    def _shutdown_ctx(self) -> None:
+        if self._auth is not None:
+            self._auth.stop()
+            self._auth = None
+        self._ctx.term()
+
+    def __enter__(self) -> Bus:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

@@ -1,0 +1,40 @@
+"""The exception tree of the runtime.
+
+Every expected failure a user can cause (a bad launch file, a wrong parameter, an unreachable bus) raises a
+subclass of :class:`PalpaError`; the CLI prints its message as one line and exits 1. Anything else is a bug.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "BusError",
+    "DecodeError",
+    "LaunchError",
+    "PalpaError",
+    "ParamError",
+    "RegistryError",
+]
+
+
+class PalpaError(Exception):
+    """Base of every error the runtime raises on purpose."""
+
+
+class RegistryError(PalpaError):
+    """A message type name is unknown, or two types claim the same name."""
+
+
+class DecodeError(PalpaError):
+    """A frame could not be decoded into the expected type; the message says which field and why."""
+
+
+class ParamError(PalpaError):
+    """A node parameter is missing, unknown or of the wrong type."""
+
+
+class BusError(PalpaError):
+    """The bus address is malformed or the bus cannot be reached or started."""
+
+
+class LaunchError(PalpaError):
+    """A launch file is invalid or a launched graph failed."""

@@ -1,0 +1,472 @@
+"""The Node API: publishers, typed subscriptions (callback or iterator), timers, parameters, heartbeats.
+
+A node is a small class::
+
+    class Talker(Node):
+        class Params(palpa.Params):
+            rate_hz: float = 10.0
+
+        def setup(self) -> None:
+            self.out = self.publisher("chatter", Text)
+            self.timer(1.0 / self.params.rate_hz, self.tick)
+
+        def tick(self) -> None:
+            self.out.publish(Text(text="hello"))
+
+and ``palpa.run_node(Talker)`` is its ``main()``. A bare ``Node(name="script")`` is also an iterator source:
+``for msg in node.subscribe("camera/indenters", IndenterDisplacements): ...``.
+
+Bad input never kills a node: a malformed frame, an unknown or wrong type, or a payload that does not validate is
+counted on its topic and logged at most every few seconds with what was wrong (the field path).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import time
+import traceback
+from collections import deque
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from typing import Any, ClassVar, Generic, NamedTuple, TypeVar, get_type_hints
+
+import msgspec
+
+from palpa.address import BusAddress, from_env
+from palpa.clock import Clock, SystemClock
+from palpa.errors import DecodeError
+from palpa.message import Message
+from palpa.params import Params, convert_params
+from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat, LogRecord, TopicCounters
+from palpa.transport import Delivery, Transport, ZmqTransport
+from palpa.wire import Header, SequenceTracker, TopicStats, decode_header, encode_header
+
+__all__ = ["Node", "Publisher", "RawMessage", "Subscription", "Timer"]
+
+M = TypeVar("M", bound=Message)
+_ERROR_LOG_INTERVAL_NS = 5_000_000_000
+_encoder = msgspec.msgpack.Encoder()
+
+
+class _NoParams(Params):
+    pass
+
+
+class RawMessage(NamedTuple):
+    """An envelope delivered undecoded (recorder, ``topic echo``): the payload bytes exactly as received."""
+
+    topic: str
+    header: Header
+    payload: bytes
+    blobs: list[bytes]
+    from_cache: bool
+    recv_ns: int
+
+
+class Publisher(Generic[M]):
+    """Publishes one message type on one topic; ``publish`` returns the sequence number it used."""
+
+    def __init__(self, node: Node, topic: str, msg_type: type[M], latched: bool) -> None:
+        self.node = node
+        self.topic = topic
+        self.type = msg_type
+        self.latched = latched
+        self.seq = 0
+        self._topic_b = topic.encode()
+        self._type_name = msg_type.type_name
+
+    def publish(self, msg: M, *, blobs: Sequence[bytes] = (), stamp_ns: int | None = None) -> int:
+        """Serialise and send ``msg`` (plus optional binary blobs). ``stamp_ns`` defaults to the node clock."""
+        if type(msg) is not self.type:
+            raise TypeError(
+                f"publisher {self.topic!r} carries {self._type_name}, not {type(msg).__name__}"
+            )
+        self.seq += 1
+        stamp = self.node.clock.now_ns() if stamp_ns is None else stamp_ns
+        header = encode_header(
+            Header(type=self._type_name, seq=self.seq, stamp=stamp, node=self.node.name, latched=self.latched)
+        )
+        self.node._transport.send([self._topic_b, header, _encoder.encode(msg), *blobs], self.latched)
+        return self.seq
+
+
+class Subscription(Generic[M]):
+    """A typed subscription. With a callback, messages are handed to it; without, iterate it (or ``next()``)."""
+
+    def __init__(
+        self,
+        node: Node,
+        topic: str,
+        msg_type: type[M],
+        callback: Callable[[M], object] | None,
+        queue_size: int,
+    ) -> None:
+        self.node = node
+        self.topic = topic
+        self.type = msg_type
+        self.callback = callback
+        self.stats = TopicStats()
+        self.queue: deque[M] = deque(maxlen=queue_size)
+        self.last_header: Header | None = None
+        self.last_blobs: list[bytes] = []
+        self.decoder = msgspec.msgpack.Decoder(msg_type)
+
+    def next(self, timeout_s: float | None = None) -> M | None:
+        """The next message, spinning the node while waiting; None on timeout or shutdown."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while not self.queue:
+            if self.node.is_shutdown:
+                return None
+            remaining = 0.1 if deadline is None else min(0.1, deadline - time.monotonic())
+            if remaining <= 0:
+                return None
+            self.node.spin_once(remaining)
+        return self.queue.popleft()
+
+    def __iter__(self) -> Iterator[M]:
+        return self
+
+    def __next__(self) -> M:
+        msg = self.next()
+        if msg is None:
+            raise StopIteration
+        return msg
+
+
+class _RawSubscription(NamedTuple):
+    prefix: bytes
+    callback: Callable[[RawMessage], object]
+
+
+class Timer:
+    """A periodic (or one-shot) callback on the node's clock."""
+
+    def __init__(self, period_ns: int, callback: Callable[[], object], due_ns: int, oneshot: bool) -> None:
+        self.period_ns = period_ns
+        self.callback = callback
+        self.due_ns = due_ns
+        self.oneshot = oneshot
+        self.cancelled = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
+def _handler_type(callback: Callable[..., object]) -> type[Message]:
+    try:
+        hints = get_type_hints(callback)
+    except Exception as exc:  # unresolvable annotations
+        raise TypeError(f"cannot read the message type of {callback!r}: {exc}") from None
+    hints.pop("return", None)
+    for hint in hints.values():
+        if isinstance(hint, type) and issubclass(hint, Message):
+            return hint
+    raise TypeError(
+        f"{getattr(callback, '__qualname__', callback)!r} has no Message-typed parameter: annotate it "
+        "or pass the type explicitly: subscribe(topic, Type, callback)"
+    )
+
+
+class _BusLogHandler(logging.Handler):
+    def __init__(self, node: Node) -> None:
+        super().__init__(logging.INFO)
+        self._node = node
+        self._busy = False
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if self._busy or self._node._log_pub is None or self._node._closed:
+            return
+        self._busy = True
+        try:
+            self._node._log_pub.publish(
+                LogRecord(node=self._node.name, level=record.levelname, text=record.getMessage(),
+                          stamp_ns=self._node.clock.now_ns())
+            )
+        except Exception:  # a log line must never take the node down
+            pass
+        finally:
+            self._busy = False
+
+
+class Node:
+    """Base class of every node. Override :meth:`setup` to declare publishers, subscriptions and timers."""
+
+    Params: ClassVar[type[Params]] = _NoParams
+    params: Any
+
+    def __init__(
+        self,
+        name: str | None = None,
+        params: Mapping[str, Any] | Params | None = None,
+        *,
+        transport: Transport | None = None,
+        clock: Clock | None = None,
+        namespace: str = "",
+        remap: Mapping[str, str] | None = None,
+        bus: str | BusAddress | None = None,
+        heartbeat_s: float = 1.0,
+    ) -> None:
+        self.name = name or _snake(type(self).__name__)
+        self.params = convert_params(type(self).Params, params, where=f"node {self.name!r}")
+        self.clock: Clock = clock or SystemClock()
+        self.namespace = namespace.strip("/")
+        self.remap = dict(remap or {})
+        if transport is None:
+            address = bus if isinstance(bus, BusAddress) else (BusAddress.parse(bus) if bus else from_env())
+            transport = ZmqTransport(address)
+        self._transport = transport
+        self._subs: dict[bytes, Subscription[Any]] = {}
+        self._raw: list[_RawSubscription] = []
+        self._raw_stats: dict[str, TopicStats] = {}
+        self._pubs: dict[str, Publisher[Any]] = {}
+        self._timers: list[Timer] = []
+        self._tracker = SequenceTracker()
+        self._raw_tracker = SequenceTracker()
+        self._last_error_log: dict[str, int] = {}
+        self._shutdown = False
+        self._closed = False
+        self._started_ns = time.monotonic_ns()
+        self.handler_errors = 0
+        self.exit_code = 0
+        self.log = logging.getLogger(f"palpa.node.{self.name}")
+        self._log_pub: Publisher[LogRecord] | None = None
+        self._bus_handler = _BusLogHandler(self)
+        self.log.addHandler(self._bus_handler)
+        self._log_pub = self.publisher(LOG_TOPIC, LogRecord)
+        self._hb_pub = self.publisher(HEARTBEAT_TOPIC, Heartbeat)
+        if heartbeat_s > 0:
+            self.timer(heartbeat_s, self._heartbeat, first_in_s=0.0)
+        self.setup()
+
+    # -- declaration -------------------------------------------------------------------------------
+    def setup(self) -> None:
+        """Declare publishers, subscriptions and timers here (``self.params`` is ready)."""
+
+    def on_shutdown(self) -> None:
+        """Called once before the node's sockets close: stop hardware, flush files."""
+
+    def resolve(self, topic: str) -> str:
+        """The topic name on the bus after remapping and namespacing (``/x`` is absolute; ``_palpa/`` is global)."""
+        topic = self.remap.get(topic, topic)
+        if topic.startswith("/"):
+            return topic[1:]
+        if topic.startswith("_palpa/") or not self.namespace:
+            return topic
+        resolved = f"{self.namespace}/{topic}"
+        return self.remap.get(resolved, resolved)
+
+    def publisher(self, topic: str, msg_type: type[M], *, latched: bool = False) -> Publisher[M]:
+        """A publisher of ``msg_type`` on ``topic``. Latched topics are replayed to subscribers that join late."""
+        resolved = self.resolve(topic)
+        existing = self._pubs.get(resolved)
+        if existing is not None:
+            if existing.type is not msg_type:
+                raise TypeError(f"topic {resolved!r} already published as {existing.type.type_name}")
+            return existing
+        pub = Publisher(self, resolved, msg_type, latched)
+        self._pubs[resolved] = pub
+        return pub
+
+    def subscribe(
+        self,
+        topic: str,
+        type_or_callback: type[M] | Callable[[M], object],
+        callback: Callable[[M], object] | None = None,
+        *,
+        queue_size: int = 1000,
+    ) -> Subscription[M]:
+        """Subscribe to ``topic``: ``subscribe(t, self.on_msg)`` (type from the annotation),
+        ``subscribe(t, Type, cb)``, or ``subscribe(t, Type)`` to iterate."""
+        if isinstance(type_or_callback, type):
+            msg_type: type[Any] = type_or_callback
+        else:
+            callback = type_or_callback
+            msg_type = _handler_type(callback)
+        if not (isinstance(msg_type, type) and issubclass(msg_type, Message)):
+            raise TypeError(f"subscribe({topic!r}): {msg_type!r} is not a palpa Message type")
+        resolved = self.resolve(topic)
+        key = resolved.encode()
+        if key in self._subs:
+            raise ValueError(f"node {self.name!r} already subscribes to {resolved!r}")
+        sub: Subscription[M] = Subscription(self, resolved, msg_type, callback, queue_size)
+        self._subs[key] = sub
+        self._transport.subscribe(key, request_latched=True)
+        return sub
+
+    def subscribe_raw(self, prefix: str, callback: Callable[[RawMessage], object]) -> None:
+        """Every envelope whose topic starts with ``prefix`` (``""`` for all), undecoded."""
+        key = prefix.encode()
+        self._raw.append(_RawSubscription(key, callback))
+        self._transport.subscribe(key, request_latched=True)
+
+    def timer(
+        self, period_s: float, callback: Callable[[], object], *, oneshot: bool = False,
+        first_in_s: float | None = None,
+    ) -> Timer:
+        """Call ``callback`` every ``period_s`` seconds of node-clock time (first after ``first_in_s``)."""
+        if period_s <= 0:
+            raise ValueError(f"timer period must be > 0 s, got {period_s}")
+        period_ns = int(period_s * 1e9)
+        first = period_ns if first_in_s is None else int(first_in_s * 1e9)
+        t = Timer(period_ns, callback, self.clock.now_ns() + first, oneshot)
+        self._timers.append(t)
+        return t
+
+    # -- running -----------------------------------------------------------------------------------
+    @property
+    def is_shutdown(self) -> bool:
+        return self._shutdown
+
+    def request_shutdown(self, exit_code: int | None = None) -> None:
+        """Ask the loop to stop (optionally with the process exit code); safe from signal handlers."""
+        if exit_code is not None:
+            self.exit_code = exit_code
+        self._shutdown = True
+
+    def next_timer_due_ns(self) -> int | None:
+        """When the earliest live timer fires (node-clock ns), or None."""
+        live = [t.due_ns for t in self._timers if not t.cancelled]
+        return min(live) if live else None
+
+    def spin_once(self, timeout_s: float = 0.0) -> None:
+        """Run due timers, wait up to ``timeout_s`` (less if a timer is due sooner) and dispatch what arrived."""
+        self._run_timers()
+        due = self.next_timer_due_ns()
+        if due is not None and self.clock.is_real():
+            timeout_s = max(0.0, min(timeout_s, (due - self.clock.now_ns()) / 1e9))
+        elif not self.clock.is_real():
+            timeout_s = 0.0 if self._timers else timeout_s
+        for delivery in self._transport.poll(int(timeout_s * 1000)):
+            self._dispatch(delivery)
+        self._run_timers()
+
+    def spin(self) -> None:
+        """Run until :meth:`request_shutdown` (or a signal, under :func:`palpa.run_node`)."""
+        while not self._shutdown:
+            self.spin_once(0.1)
+
+    def close(self, linger_s: float = 0.5) -> None:
+        """Call :meth:`on_shutdown`, then close the sockets with a bounded linger. Idempotent."""
+        if self._closed:
+            return
+        self._shutdown = True
+        try:
+            self.on_shutdown()
+        finally:
+            self._closed = True
+            self.log.removeHandler(self._bus_handler)
+            self._transport.close(int(linger_s * 1000))
+
+    def __enter__(self) -> Node:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- internals ---------------------------------------------------------------------------------
+    def _run_timers(self) -> None:
+        now = self.clock.now_ns()
+        for t in list(self._timers):
+            if t.cancelled:
+                self._timers.remove(t)
+                continue
+            if t.due_ns <= now:
+                if t.oneshot:
+                    t.cancelled = True
+                else:
+                    # skip missed periods rather than firing a burst after a stall
+                    t.due_ns += t.period_ns * max(1, (now - t.due_ns) // t.period_ns + 1)
+                self._call(t.callback)
+
+    def _call(self, fn: Callable[..., object], *args: object) -> None:
+        try:
+            fn(*args)
+        except Exception:
+            self.handler_errors += 1
+            self.log.error("error in %s:\n%s", getattr(fn, "__qualname__", fn), traceback.format_exc())
+
+    def _count_error(self, topic: str, stats: TopicStats, text: str) -> None:
+        stats.decode_errors += 1
+        stats.last_error = text
+        now = time.monotonic_ns()
+        if now - self._last_error_log.get(topic, -_ERROR_LOG_INTERVAL_NS) >= _ERROR_LOG_INTERVAL_NS:
+            self._last_error_log[topic] = now
+            self.log.warning("dropped a bad message on %r (%d so far): %s", topic, stats.decode_errors, text)
+
+    def _dispatch(self, delivery: Delivery) -> None:
+        frames = delivery.frames
+        topic_b = frames[0]
+        sub = self._subs.get(topic_b)
+        raws = [r for r in self._raw if topic_b.startswith(r.prefix)] if self._raw else []
+        if sub is None and not raws:
+            return  # a prefix match that is not our topic
+        topic = topic_b.decode(errors="replace")
+        if len(frames) < 3:
+            stats = sub.stats if sub is not None else self._raw_stats.setdefault(topic, TopicStats())
+            self._count_error(topic, stats, f"envelope has {len(frames)} frames, expected at least 3")
+            return
+        try:
+            header = decode_header(frames[1])
+        except DecodeError as exc:
+            stats = sub.stats if sub is not None else self._raw_stats.setdefault(topic, TopicStats())
+            self._count_error(topic, stats, str(exc))
+            return
+        if raws:
+            rstats = self._raw_stats.setdefault(topic, TopicStats())
+            if self._raw_tracker.observe(topic, header.node, header.seq, rstats):
+                raw = RawMessage(topic, header, frames[2], frames[3:], delivery.from_cache, time.time_ns())
+                for r in raws:
+                    self._call(r.callback, raw)
+        if sub is None:
+            return
+        if delivery.from_cache and self._tracker.seen_at_least(topic, header.node, header.seq):
+            return
+        if not self._tracker.observe(topic, header.node, header.seq, sub.stats):
+            return
+        if header.type != sub.type.type_name:
+            self._count_error(topic, sub.stats, f"expected type {sub.type.type_name}, got {header.type}")
+            return
+        try:
+            msg = sub.decoder.decode(frames[2])
+        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+            self._count_error(topic, sub.stats, f"{header.type}: {exc}")
+            return
+        sub.last_header = header
+        sub.last_blobs = frames[3:]
+        if sub.callback is not None:
+            self._call(sub.callback, msg)
+        else:
+            sub.queue.append(msg)
+
+    def counters(self) -> dict[str, TopicStats]:
+        """Receive counters per subscribed topic (typed and raw)."""
+        out = {s.topic: s.stats for s in self._subs.values()}
+        out.update(self._raw_stats)
+        return out
+
+    def _heartbeat(self) -> None:
+        subs = {s.topic: s.type.type_name for s in self._subs.values()}
+        subs.update({r.prefix.decode() + "*": "*" for r in self._raw})
+        self._hb_pub.publish(
+            Heartbeat(
+                node=self.name,
+                pid=os.getpid(),
+                host=socket.gethostname(),
+                publishes={p.topic: p.type.type_name for p in self._pubs.values()},
+                subscribes=subs,
+                counters={t: TopicCounters(**s.as_dict()) for t, s in self.counters().items()},
+                sent={p.topic: p.seq for p in self._pubs.values()},
+                uptime_s=(time.monotonic_ns() - self._started_ns) / 1e9,
+            )
+        )
+
+
+def _snake(name: str) -> str:
+    out = []
+    for i, ch in enumerate(name):
+        if ch.isupper() and i and not name[i - 1].isupper():
+            out.append("_")
+        out.append(ch.lower())
+    return "".join(out)
+

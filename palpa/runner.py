@@ -1,0 +1,123 @@
+"""Running a node as a process: command-line parameters, signals, exit codes.
+
+``run_node(MyNode)`` is a node's whole ``main()``. It accepts::
+
+    --name NAME  --namespace NS  --bus ADDRESS  -p/--param KEY=VALUE (VALUE is YAML: 3, 2.5, true, [1, 2])
+    --params-json JSON  --params-file FILE.yaml  --remap FROM:=TO  --debug
+
+SIGINT and SIGTERM ask the node to stop; it finishes its current callback, runs ``on_shutdown`` and closes its
+sockets with a bounded linger. The process exits with ``node.exit_code`` (0 unless the node set it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import yaml
+
+from palpa.errors import PalpaError
+from palpa.node import Node
+
+__all__ = ["node_arg_parser", "params_from_args", "run_node"]
+
+
+def node_arg_parser(prog: str) -> argparse.ArgumentParser:
+    """The command-line options every node understands."""
+    ap = argparse.ArgumentParser(prog=prog, description=f"run the palpa node {prog}")
+    ap.add_argument("--name", help="node name (default: from the class)")
+    ap.add_argument("--namespace", default="", help="prefix for relative topic names")
+    ap.add_argument("--bus", help="bus address (default: $PALPA_BUS or ipc:///tmp/palpa-<uid>)")
+    ap.add_argument("-p", "--param", action="append", default=[], metavar="KEY=VALUE",
+                    help="set a parameter; VALUE is parsed as YAML (repeatable)")
+    ap.add_argument("--params-json", help="all parameters as one JSON object (used by the launcher)")
+    ap.add_argument("--params-file", type=Path, help="parameters from a YAML mapping")
+    ap.add_argument("--remap", action="append", default=[], metavar="FROM:=TO", help="rename a topic")
+    ap.add_argument("--debug", action="store_true", help="debug logging and tracebacks")
+    return ap
+
+
+def params_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    """Merge parameters: file, then JSON, then each -p in order (later wins)."""
+    params: dict[str, Any] = {}
+    if args.params_file is not None:
+        try:
+            loaded = yaml.safe_load(args.params_file.read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            raise PalpaError(f"--params-file {args.params_file}: {exc}") from None
+        if not isinstance(loaded, dict):
+            raise PalpaError(f"--params-file {args.params_file}: expected a mapping of parameters")
+        params.update(loaded)
+    if args.params_json:
+        try:
+            loaded = json.loads(args.params_json)
+        except json.JSONDecodeError as exc:
+            raise PalpaError(f"--params-json: {exc}") from None
+        if not isinstance(loaded, dict):
+            raise PalpaError("--params-json: expected a JSON object")
+        params.update(loaded)
+    for item in args.param:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise PalpaError(f"--param {item!r}: expected KEY=VALUE")
+        try:
+            params[key] = yaml.safe_load(value) if value else ""
+        except yaml.YAMLError as exc:
+            raise PalpaError(f"--param {key}: value is not valid YAML: {exc}") from None
+    return params
+
+
+def _remaps(items: Sequence[str]) -> dict[str, str]:
+    out = {}
+    for item in items:
+        src, sep, dst = item.partition(":=")
+        if not sep or not src or not dst:
+            raise PalpaError(f"--remap {item!r}: expected FROM:=TO")
+        out[src] = dst
+    return out
+
+
+def run_node(cls: type[Node], argv: Sequence[str] | None = None, *, prog: str | None = None) -> None:
+    """Parse the command line, run the node until it stops or a signal arrives, and exit with its code."""
+    sys.exit(run_node_code(cls, argv, prog=prog))
+
+
+def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: str | None = None) -> int:
+    """:func:`run_node` without the ``sys.exit``: returns the exit code."""
+    args = node_arg_parser(prog or cls.__name__).parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.debug else logging.INFO,
+        format="%(levelname)s %(name)s: %(message)s",
+        stream=sys.stderr,
+    )
+    try:
+        node = cls(
+            name=args.name,
+            params=params_from_args(args),
+            namespace=args.namespace,
+            remap=_remaps(args.remap),
+            bus=args.bus,
+        )
+    except PalpaError as exc:
+        if args.debug:
+            raise
+        print(f"{prog or cls.__name__}: {exc}", file=sys.stderr)
+        return 2
+
+    def stop(signum: int, frame: FrameType | None) -> None:
+        node.request_shutdown()
+
+    signal.signal(signal.SIGINT, stop)
+    signal.signal(signal.SIGTERM, stop)
+    try:
+        node.spin()
+    finally:
+        node.close()
+    return node.exit_code

@@ -1,0 +1,55 @@
+"""Messages the runtime itself publishes: heartbeats (``_palpa/heartbeat``) and logs (``_palpa/log``)."""
+
+from __future__ import annotations
+
+import msgspec
+
+from palpa.message import Message
+
+__all__ = ["CLOCK_TOPIC", "HEARTBEAT_TOPIC", "LOG_TOPIC", "ClockTick", "Heartbeat", "LogRecord", "TopicCounters"]
+
+HEARTBEAT_TOPIC = "_palpa/heartbeat"
+LOG_TOPIC = "_palpa/log"
+CLOCK_TOPIC = "_palpa/clock"
+
+
+class TopicCounters(msgspec.Struct, frozen=True, kw_only=True):
+    """Receive counters of one subscribed topic (see palpa.wire.TopicStats)."""
+
+    received: int = 0
+    gaps: int = 0
+    duplicates: int = 0
+    restarts: int = 0
+    decode_errors: int = 0
+
+
+class Heartbeat(Message, frozen=True, kw_only=True):
+    """Published by every node once a second so tools can list the graph (``palpa node list``)."""
+
+    node: str
+    pid: int
+    host: str
+    publishes: dict[str, str]
+    """Topic -> message type name."""
+    subscribes: dict[str, str]
+    """Topic -> message type name ('*' for raw/prefix subscriptions)."""
+    counters: dict[str, TopicCounters]
+    sent: dict[str, int]
+    """Topic -> messages published so far."""
+    uptime_s: float
+    state: str = "running"
+
+
+class LogRecord(Message, frozen=True, kw_only=True):
+    """One log line of a node. ``level`` is a Python logging level name (DEBUG, INFO, WARNING, ERROR)."""
+
+    node: str
+    level: str
+    text: str
+    stamp_ns: int
+
+
+class ClockTick(Message, frozen=True, kw_only=True):
+    """Simulation / replay time (topic ``_palpa/clock``), published by ``palpa play --clock``."""
+
+    sim_ns: int

@@ -1,0 +1,145 @@
+"""Transports move envelopes between a node and the bus; the node never touches sockets itself.
+
+:class:`ZmqTransport` talks to a real bus; :class:`palpa.testing.MemoryBus` provides an in-memory one so node
+logic is tested without sockets. Both deliver ``Delivery`` items: the frames of one envelope
+``[topic, header, payload, *blobs]`` and whether it came from the latched cache.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import NamedTuple, Protocol
+
+import zmq
+import zmq.auth
+
+from palpa.address import BusAddress
+from palpa.errors import BusError
+
+__all__ = ["Delivery", "Transport", "ZmqTransport", "curve_client_options"]
+
+
+class Delivery(NamedTuple):
+    frames: list[bytes]
+    from_cache: bool
+
+
+class Transport(Protocol):
+    """What a node needs from the bus."""
+
+    def send(self, frames: Sequence[bytes], latched: bool) -> None:
+        """Publish one envelope; ``latched`` also stores it as the topic's last value."""
+        ...
+
+    def subscribe(self, prefix: bytes, request_latched: bool) -> None:
+        """Receive envelopes whose topic starts with ``prefix``; optionally ask the cache for its last value."""
+        ...
+
+    def unsubscribe(self, prefix: bytes) -> None: ...
+
+    def poll(self, timeout_ms: int) -> list[Delivery]:
+        """Wait up to ``timeout_ms`` for envelopes and return every one that is ready (maybe none)."""
+        ...
+
+    def close(self, linger_ms: int) -> None: ...
+
+
+def curve_client_options() -> dict[str, bytes] | None:
+    """CURVE client keys from the environment, or None when the bus is not encrypted.
+
+    ``PALPA_BUS_SERVER_KEY``: the server's public key (Z85 text, or a path to its ``.key`` file);
+    ``PALPA_CURVE_SECRET``: the path to this client's ``.key_secret`` file (its public key must be authorised
+    on the bus).
+    """
+    server = os.environ.get("PALPA_BUS_SERVER_KEY")
+    if not server:
+        return None
+    secret_file = os.environ.get("PALPA_CURVE_SECRET")
+    if not secret_file:
+        raise BusError("PALPA_BUS_SERVER_KEY is set but PALPA_CURVE_SECRET (client secret key file) is not")
+    if Path(server).is_file():
+        server_public, _ = zmq.auth.load_certificate(server)
+    else:
+        server_public = server.encode()
+    public, secret = zmq.auth.load_certificate(secret_file)
+    if secret is None:
+        raise BusError(f"PALPA_CURVE_SECRET={secret_file}: not a secret key file")
+    return {"server": server_public, "public": public, "secret": secret}
+
+
+class ZmqTransport:
+    """A PUB socket to the proxy, a SUB socket from it, and a DEALER to the latched-value cache."""
+
+    def __init__(
+        self,
+        address: BusAddress,
+        *,
+        sndhwm: int = 10_000,
+        rcvhwm: int = 10_000,
+        context: zmq.Context[zmq.Socket[bytes]] | None = None,
+    ) -> None:
+        self._ctx = context or zmq.Context.instance()
+        curve = curve_client_options()
+        self._pub = self._ctx.socket(zmq.PUB)
+        self._sub = self._ctx.socket(zmq.SUB)
+        self._latch = self._ctx.socket(zmq.DEALER)
+        self._pub.sndhwm = sndhwm
+        self._sub.rcvhwm = rcvhwm
+        for sock in (self._pub, self._sub, self._latch):
+            if curve is not None:
+                sock.curve_serverkey = curve["server"]
+                sock.curve_publickey = curve["public"]
+                sock.curve_secretkey = curve["secret"]
+        try:
+            self._pub.connect(address.pub)
+            self._sub.connect(address.sub)
+            self._latch.connect(address.latch)
+        except zmq.ZMQError as exc:
+            self.close(0)
+            raise BusError(f"cannot connect to bus {address}: {exc}") from None
+        self._poller = zmq.Poller()
+        self._poller.register(self._sub, zmq.POLLIN)
+        self._poller.register(self._latch, zmq.POLLIN)
+        self._closed = False
+
+    def send(self, frames: Sequence[bytes], latched: bool) -> None:
+        self._pub.send_multipart(frames, copy=False)
+        if latched:
+            self._latch.send_multipart([b"SET", *frames], copy=False)
+
+    def subscribe(self, prefix: bytes, request_latched: bool) -> None:
+        self._sub.setsockopt(zmq.SUBSCRIBE, prefix)
+        if request_latched:
+            self._latch.send_multipart([b"GET", prefix])
+
+    def unsubscribe(self, prefix: bytes) -> None:
+        self._sub.setsockopt(zmq.UNSUBSCRIBE, prefix)
+
+    def poll(self, timeout_ms: int, max_batch: int = 1000) -> list[Delivery]:
+        out: list[Delivery] = []
+        events = dict(self._poller.poll(timeout_ms))
+        if self._sub in events:
+            recv = self._sub.recv_multipart
+            for _ in range(max_batch):
+                try:
+                    out.append(Delivery(recv(zmq.NOBLOCK), False))
+                except zmq.Again:
+                    break
+        if self._latch in events:
+            while True:
+                try:
+                    frames = self._latch.recv_multipart(zmq.NOBLOCK)
+                except zmq.Again:
+                    break
+                if frames and frames[0] == b"VAL" and len(frames) >= 4:
+                    out.append(Delivery(frames[1:], True))
+        return out
+
+    def close(self, linger_ms: int) -> None:
+        if getattr(self, "_closed", False):
+            return
+        self._closed = True
+        for sock in (self._pub, self._sub, self._latch):
+            sock.close(linger_ms)
