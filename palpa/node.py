@@ -268,6 +268,13 @@ class Node:
         self._pubs[resolved] = pub
         return pub
 
+    def publish_raw(
+        self, topic: str, header: Header, payload: bytes, blobs: Sequence[bytes] = (), *, latched: bool = False
+    ) -> None:
+        """Send an already-encoded payload with a caller-made header (the player keeps recorded sequence numbers,
+        types and publisher names). ``topic`` is used as given (no remapping); nothing is validated."""
+        self._transport.send([topic.encode(), encode_header(header), payload, *blobs], latched)
+
     def subscribe(
         self,
         topic: str,

@@ -1,0 +1,47 @@
+"""The smallest real graph: a talker and a listener (used by the runtime tests and the docs)."""
+
+from __future__ import annotations
+
+import palpa
+from messages import Text
+
+
+class Talker(palpa.Node):
+    """Publishes ``Text`` on ``chatter`` at ``rate_hz``; stops by itself after ``count`` messages if set."""
+
+    class Params(palpa.Params):
+        rate_hz: float = 10.0
+        text: str = "hello"
+        count: int = 0
+        """Stop (exit 0) after this many messages; 0 runs until stopped."""
+
+    def setup(self) -> None:
+        self.out = self.publisher("chatter", Text)
+        self.timer(1.0 / self.params.rate_hz, self.tick, first_in_s=0.0)
+
+    def tick(self) -> None:
+        seq = self.out.publish(Text(text=f"{self.params.text} {self.out.seq + 1}", stamp_ns=self.clock.now_ns()))
+        if self.params.count and seq >= self.params.count:
+            self.request_shutdown(0)
+
+
+class Listener(palpa.Node):
+    """Logs every ``Text`` heard on ``chatter`` and republishes its length on ``chatter_len``."""
+
+    def setup(self) -> None:
+        self.heard = 0
+        self.out = self.publisher("chatter_len", Text)
+        self.subscribe("chatter", self.on_text)
+
+    def on_text(self, msg: Text) -> None:
+        self.heard += 1
+        self.log.info("heard %r", msg.text)
+        self.out.publish(Text(text=str(len(msg.text)), stamp_ns=msg.stamp_ns))
+
+
+def talker_main() -> None:
+    palpa.run_node(Talker)
+
+
+if __name__ == "__main__":
+    talker_main()

@@ -1,0 +1,70 @@
+"""``palpa bus``: run the graph's proxy and latched-value cache in the foreground."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from pathlib import Path
+from types import FrameType
+
+from palpa.address import BusAddress, default_address
+from palpa.bus import Bus, CurveServer
+from palpa.errors import BusError
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("bus", help="run the bus (XSUB/XPUB proxy + latched cache)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--ipc", metavar="PATH", help="ipc base path (default /tmp/palpa-<uid>)")
+    where.add_argument("--tcp", metavar="HOST[:PORT]",
+                       help="tcp on HOST; PORT, PORT+1, PORT+2, or OS-chosen ports when PORT is omitted/0")
+    where.add_argument("--address", help="an explicit address (any form palpa accepts)")
+    p.add_argument("--latched", action="append", default=[], metavar="TOPIC",
+                   help="cache this topic's last message for late joiners (repeatable)")
+    p.add_argument("--hwm", type=int, default=10_000, help="high-water mark of the proxy sockets (messages)")
+    p.add_argument("--curve-secret", type=Path, help="the bus's CURVE secret key file (palpa keygen)")
+    p.add_argument("--curve-clients", type=Path, help="folder of authorised client public key files")
+    p.add_argument("--address-file", type=Path, help="also write the resolved address to this file")
+    p.set_defaults(func=run)
+
+
+def resolve_address(args: argparse.Namespace) -> BusAddress:
+    if args.address:
+        return BusAddress.parse(args.address)
+    if args.tcp:
+        host, sep, port = args.tcp.rpartition(":") if ":" in args.tcp else (args.tcp, "", "")
+        if not sep or port in ("", "0", "*"):
+            host = host or args.tcp
+            return BusAddress(f"tcp://{host}:*", f"tcp://{host}:*", f"tcp://{host}:*")
+        return BusAddress.parse(f"tcp://{host}:{port}")
+    return BusAddress.parse(f"ipc://{args.ipc}" if args.ipc else default_address())
+
+
+def run(args: argparse.Namespace) -> int:
+    curve = None
+    if args.curve_secret or args.curve_clients:
+        if not (args.curve_secret and args.curve_clients):
+            raise BusError("CURVE needs both --curve-secret and --curve-clients")
+        curve = CurveServer(args.curve_secret, args.curve_clients)
+    bus = Bus(resolve_address(args), latched_topics=args.latched, hwm=args.hwm, curve=curve)
+    address = bus.start()
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    if args.address_file:
+        args.address_file.write_text(str(address) + "\n")
+    # the ready line: launchers and tests wait for it
+    print(f"palpa bus ready {address}", flush=True)
+    try:
+        while not stop.wait(0.5):
+            pass
+    finally:
+        bus.stop()
+    print("palpa bus stopped", file=sys.stderr, flush=True)
+    return 0

@@ -1,0 +1,203 @@
+"""``palpa topic list|echo|hz|pub``: look at and poke the running graph."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from typing import Any
+
+import msgspec
+import yaml
+
+from palpa.cli.common import add_bus_arg, bus_address, import_message_modules
+from palpa.errors import PalpaError, RegistryError
+from palpa.message import lookup
+from palpa.node import Node, RawMessage
+from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
+from palpa.wire import TopicStats
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("topic", help="list, echo, measure or publish topics")
+    verbs = p.add_subparsers(dest="topic_verb", metavar="VERB", required=True)
+
+    ls = verbs.add_parser("list", help="topics seen in node heartbeats, with types and publishers")
+    ls.add_argument("--wait", type=float, default=1.5, help="seconds to listen for heartbeats")
+    add_bus_arg(ls)
+    ls.set_defaults(func=run_list)
+
+    echo = verbs.add_parser("echo", help="print messages on a topic")
+    echo.add_argument("topic")
+    echo.add_argument("--raw", action="store_true", help="print the envelope header and payload bytes")
+    echo.add_argument("-n", "--count", type=int, default=0, help="stop after N messages")
+    echo.add_argument("--timeout", type=float, default=0.0, help="give up after S seconds (0: never)")
+    add_bus_arg(echo)
+    echo.set_defaults(func=run_echo)
+
+    hz = verbs.add_parser("hz", help="rate from publish stamps, gaps from sequence numbers")
+    hz.add_argument("topic")
+    hz.add_argument("--window", type=int, default=1000, help="stamps in the rolling window")
+    hz.add_argument("--duration", type=float, default=0.0, help="stop after S seconds (0: never)")
+    add_bus_arg(hz)
+    hz.set_defaults(func=run_hz)
+
+    pub = verbs.add_parser("pub", help="publish a message given as YAML")
+    pub.add_argument("topic")
+    pub.add_argument("type", help="message type name, e.g. Text")
+    pub.add_argument("data", help="fields as YAML, e.g. '{text: hi}'")
+    pub.add_argument("--rate", type=float, default=0.0, help="repeat at HZ (0: once)")
+    pub.add_argument("--count", type=int, default=0, help="with --rate: stop after N (0: never)")
+    pub.add_argument("--latched", action="store_true", help="latch the message on the bus")
+    add_bus_arg(pub)
+    pub.set_defaults(func=run_pub)
+
+
+def _tool_node(args: argparse.Namespace, name: str) -> Node:
+    import_message_modules()
+    return Node(name=f"_{name}_{int(time.time() * 1000) % 100000}", bus=bus_address(args), heartbeat_s=0)
+
+
+def collect_heartbeats(node: Node, wait_s: float) -> dict[str, Heartbeat]:
+    """Listen for ``wait_s`` seconds and return the latest heartbeat of every node."""
+    sub = node.subscribe(HEARTBEAT_TOPIC, Heartbeat)
+    seen: dict[str, Heartbeat] = {}
+    deadline = time.monotonic() + wait_s
+    while (remaining := deadline - time.monotonic()) > 0:
+        hb = sub.next(remaining)
+        if hb is not None:
+            seen[hb.node] = hb
+    return seen
+
+
+def run_list(args: argparse.Namespace) -> int:
+    with _tool_node(args, "topic_list") as node:
+        beats = collect_heartbeats(node, args.wait)
+    topics: dict[str, dict[str, Any]] = {}
+    for hb in beats.values():
+        for topic, tname in hb.publishes.items():
+            if topic.startswith("_palpa/"):
+                continue
+            entry = topics.setdefault(topic, {"type": tname, "pub": [], "sub": []})
+            entry["pub"].append(hb.node)
+        for topic, tname in hb.subscribes.items():
+            entry = topics.setdefault(topic, {"type": tname, "pub": [], "sub": []})
+            entry["sub"].append(hb.node)
+    if not topics:
+        print("no topics (no node heartbeats heard; is the graph running on this bus?)", file=sys.stderr)
+        return 1
+    for topic in sorted(topics):
+        e = topics[topic]
+        print(f"{topic}  [{e['type']}]  pub: {', '.join(e['pub']) or '-'}  sub: {', '.join(e['sub']) or '-'}")
+    return 0
+
+
+def _to_builtins(raw: RawMessage) -> Any:
+    try:
+        cls = lookup(raw.header.type)
+        return msgspec.to_builtins(msgspec.msgpack.decode(raw.payload, type=cls))
+    except (RegistryError, msgspec.ValidationError, msgspec.DecodeError):
+        return msgspec.msgpack.decode(raw.payload)  # unknown type: still readable
+
+
+def run_echo(args: argparse.Namespace) -> int:
+    count = 0
+    deadline = time.monotonic() + args.timeout if args.timeout > 0 else math.inf
+
+    def on_raw(raw: RawMessage) -> None:
+        nonlocal count
+        if raw.topic != args.topic:
+            return
+        count += 1
+        if args.raw:
+            print(json.dumps({"topic": raw.topic, "header": msgspec.to_builtins(raw.header),
+                              "payload_hex": raw.payload.hex(), "blobs": [len(b) for b in raw.blobs]}))
+        else:
+            body = _to_builtins(raw)
+            print(f"--- {raw.topic} [{raw.header.type}] seq={raw.header.seq} from {raw.header.node}")
+            print(yaml.safe_dump(body, sort_keys=False, default_flow_style=None, width=120).rstrip())
+        sys.stdout.flush()
+
+    with _tool_node(args, "echo") as node:
+        node.subscribe_raw(args.topic, on_raw)
+        while (not args.count or count < args.count) and time.monotonic() < deadline:
+            node.spin_once(0.1)
+    if args.count and count < args.count:
+        raise PalpaError(f"{args.topic}: got {count} of {args.count} messages before the timeout")
+    return 0
+
+
+def run_hz(args: argparse.Namespace) -> int:
+    stamps: list[int] = []
+    stats = TopicStats()
+    from palpa.wire import SequenceTracker
+
+    tracker = SequenceTracker()
+    started = time.monotonic()
+    last_print = started
+
+    def on_raw(raw: RawMessage) -> None:
+        if raw.topic != args.topic or raw.from_cache:
+            return
+        if tracker.observe(raw.topic, raw.header.node, raw.header.seq, stats):
+            stamps.append(raw.header.stamp)
+            del stamps[: -args.window]
+
+    with _tool_node(args, "hz") as node:
+        node.subscribe_raw(args.topic, on_raw)
+        while not args.duration or time.monotonic() - started < args.duration:
+            node.spin_once(0.1)
+            if time.monotonic() - last_print >= 1.0:
+                last_print = time.monotonic()
+                print(hz_line(stamps, stats), flush=True)
+    print(hz_line(stamps, stats), flush=True)
+    return 0
+
+
+def hz_line(stamps: list[int], stats: TopicStats) -> str:
+    """One line of rate statistics from publish stamps (ns) and sequence counters."""
+    if len(stamps) < 2:
+        return f"no rate yet ({stats.received} received)"
+    dts = [(b - a) / 1e9 for a, b in zip(stamps, stamps[1:], strict=False)]
+    mean = sum(dts) / len(dts)
+    std = math.sqrt(sum((d - mean) ** 2 for d in dts) / len(dts))
+    rate = 1.0 / mean if mean > 0 else math.inf
+    return (f"rate {rate:.2f} Hz  min {min(dts) * 1e3:.2f} ms  max {max(dts) * 1e3:.2f} ms  "
+            f"std {std * 1e3:.2f} ms  window {len(stamps)}  received {stats.received}  gaps {stats.gaps}")
+
+
+def run_pub(args: argparse.Namespace) -> int:
+    import_message_modules()
+    cls = lookup(args.type)
+    try:
+        fields = yaml.safe_load(args.data)
+    except yaml.YAMLError as exc:
+        raise PalpaError(f"data is not valid YAML: {exc}") from None
+    if fields is None:
+        fields = {}
+    if "stamp_ns" in {f.name for f in msgspec.structs.fields(cls)} and "stamp_ns" not in fields:
+        fields["stamp_ns"] = time.time_ns()
+    try:
+        msg = msgspec.convert(fields, cls)
+    except msgspec.ValidationError as exc:
+        raise PalpaError(f"{args.type}: {exc}") from None
+    with _tool_node(args, "pub") as node:
+        pub = node.publisher(args.topic, cls, latched=args.latched)
+        # let the PUB socket connect before the first message (the bus drops sends to no one)
+        deadline = time.monotonic() + 0.3
+        while time.monotonic() < deadline:
+            node.spin_once(0.05)
+        sent = 0
+        period = 1.0 / args.rate if args.rate > 0 else 0.0
+        next_t = time.monotonic()
+        while True:
+            pub.publish(msg)
+            sent += 1
+            if not period or (args.count and sent >= args.count):
+                break
+            next_t += period
+            while (wait := next_t - time.monotonic()) > 0:
+                node.spin_once(min(wait, 0.1))
+    return 0
