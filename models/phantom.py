@@ -1,0 +1,465 @@
+"""Phantom files (the simulated world) and their ground truth.
+
+File format (a contract other tools write; docs/physics.md and DESIGN.md): units mm, kPa, N/mm;
+origin at one corner of the phantom footprint, z up, table at z = 0, so the surface height is the
+local thickness. Unknown keys are errors; the optional keys ``name`` and ``description`` (free
+text) are the only additions to DESIGN.md's list.
+
+Profile of a domed top ``thickness_mm: {center: C, edge: E}``: along y only (as the paper's
+Fig. 12 phantom), a parabola t(y) = E + (C - E) * (1 - (2y/Ly - 1)^2): C on the centre line
+y = Ly/2, E at y = 0 and y = Ly, constant along x. Outside the footprint the thickness is 0 (bare
+table) and material properties are nan.
+
+An inclusion is a vertical cylinder: radius_mm around center_mm, its top depth_mm below the
+local surface (so it follows a domed top), height_mm tall or down to the table. Where inclusions
+overlap, the later one in the file wins. The buried-inclusion response felt by an indenter
+(``effective_modulus``) is the stress-bulb model documented in docs/physics.md.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+from typing import Annotated, Any
+
+import msgspec
+import numpy as np
+import numpy.typing as npt
+import yaml
+from scipy.special import chndtr
+
+FloatArray = npt.NDArray[np.float64]
+ArrayLike = float | FloatArray
+
+_Pos = Annotated[float, msgspec.Meta(gt=0)]
+_NonNeg = Annotated[float, msgspec.Meta(ge=0)]
+
+# Defaults of the contact models behind effective_modulus / spring_constant (docs/physics.md).
+DEFAULT_CONTACT_RADIUS_MM = 2.0  # flat-punch radius of one camera-probe indenter tip
+MIN_CONTACT_FRACTION = 0.05  # contact radius floor, as a fraction of r, for grazing contact
+_GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(24)
+
+
+class PhantomError(ValueError):
+    """A phantom file or dict is invalid; the message names the source, the key path and why."""
+
+    def __init__(self, source: str, key: str, reason: str, line: int | None = None) -> None:
+        self.source, self.key, self.reason, self.line = source, key, reason, line
+        where = f"{source}: {key}: " if key else f"{source}: "
+        super().__init__(where + reason + (f" (line {line})" if line else ""))
+
+
+class DomedThickness(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Thickness (mm) on the centre line y = Ly/2 and at the y edges of a domed top."""
+
+    center: _Pos
+    edge: _Pos
+
+
+class Inclusion(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """A stiff (or soft) vertical cylinder inside the phantom; exactly one material key is given."""
+
+    center_mm: tuple[float, float]
+    radius_mm: _Pos
+    depth_mm: _NonNeg
+    youngs_modulus_kpa: _Pos | None = None
+    spring_constant_n_per_mm: _Pos | None = None
+    height_mm: _Pos | None = None
+
+
+class Noise(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """Sensor noise standard deviations the simulator adds (mm, kPa, pixels)."""
+
+    displacement_mm: _NonNeg = 0.005
+    pressure_kpa: _NonNeg = 0.01
+    pixel: _NonNeg = 0.3
+
+
+class Phantom(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """A validated phantom; build it with ``load_phantom`` or ``parse_phantom``.
+
+    Queries take x, y (mm) as floats or broadcastable arrays and return a float for scalar input.
+    """
+
+    size_mm: tuple[_Pos, _Pos]
+    thickness_mm: _Pos | DomedThickness
+    youngs_modulus_kpa: _Pos | None = None
+    spring_constant_n_per_mm: _Pos | None = None
+    poisson_ratio: Annotated[float, msgspec.Meta(ge=0, le=0.5)] = 0.5
+    inclusions: tuple[Inclusion, ...] = ()
+    noise: Noise = msgspec.field(default_factory=Noise)
+    name: str = ""
+    description: str = ""
+
+    @property
+    def is_spring_sample(self) -> bool:
+        """True for a sample of springs (paper 2, Table I) rather than tissue."""
+        return self.spring_constant_n_per_mm is not None
+
+    # ------------------------------------------------------------------ geometry
+
+    def _inside(self, x: FloatArray, y: FloatArray) -> npt.NDArray[np.bool_]:
+        lx, ly = self.size_mm
+        inside: npt.NDArray[np.bool_] = (x >= 0) & (x <= lx) & (y >= 0) & (y <= ly)
+        return inside
+
+    def thickness(self, x: ArrayLike, y: ArrayLike) -> ArrayLike:
+        """Local thickness (mm) at (x, y); 0 outside the footprint."""
+        xa, ya = np.broadcast_arrays(_f64(x), _f64(y))
+        t = self.thickness_mm
+        if isinstance(t, DomedThickness):
+            u = 2.0 * ya / self.size_mm[1] - 1.0
+            prof = t.edge + (t.center - t.edge) * (1.0 - u * u)
+        else:
+            prof = np.full(xa.shape, float(t))
+        return _out(np.where(self._inside(xa, ya), prof, 0.0), x, y)
+
+    def surface_z(self, x: ArrayLike, y: ArrayLike) -> ArrayLike:
+        """Height (mm) of the top surface above the table at (x, y): the local thickness."""
+        return self.thickness(x, y)
+
+    def inclusion_at(self, x: ArrayLike, y: ArrayLike) -> int | npt.NDArray[np.int64]:
+        """Index of the inclusion whose footprint contains (x, y) (the later one if several), else -1."""
+        xa, ya = np.broadcast_arrays(_f64(x), _f64(y))
+        idx = np.full(xa.shape, -1, dtype=np.int64)
+        for i, inc in enumerate(self.inclusions):
+            cx, cy = inc.center_mm
+            idx[(xa - cx) ** 2 + (ya - cy) ** 2 <= inc.radius_mm**2] = i
+        idx[~self._inside(xa, ya)] = -1
+        if np.ndim(x) == 0 and np.ndim(y) == 0:
+            return int(idx)
+        return idx
+
+    # ------------------------------------------------------------------ material
+
+    def _background(self) -> float:
+        value = self.spring_constant_n_per_mm if self.is_spring_sample else self.youngs_modulus_kpa
+        return float(value)  # type: ignore[arg-type]  # validation guarantees one is set
+
+    def _inclusion_value(self, inc: Inclusion) -> float:
+        value = inc.spring_constant_n_per_mm if self.is_spring_sample else inc.youngs_modulus_kpa
+        return float(value)  # type: ignore[arg-type]
+
+    def _require_tissue(self, what: str) -> None:
+        if self.is_spring_sample:
+            raise ValueError(
+                f"phantom {self.name or '(unnamed)'}: {what}() needs a tissue phantom "
+                "(youngs_modulus_kpa); this is a spring sample, use spring_constant()"
+            )
+
+    def youngs_modulus(self, x: ArrayLike, y: ArrayLike, depth: ArrayLike = 0.0) -> ArrayLike:
+        """Ground-truth Young's modulus (kPa) at (x, y) and depth (mm) below the local surface.
+
+        nan outside the footprint, above the surface (depth < 0) or below the table.
+        """
+        self._require_tissue("youngs_modulus")
+        xa, ya, da = np.broadcast_arrays(_f64(x), _f64(y), _f64(depth))
+        t = _f64(self.thickness(xa, ya))
+        e = np.full(xa.shape, self._background())
+        for inc in self.inclusions:
+            cx, cy = inc.center_mm
+            bottom = t if inc.height_mm is None else np.minimum(inc.depth_mm + inc.height_mm, t)
+            hit = (
+                ((xa - cx) ** 2 + (ya - cy) ** 2 <= inc.radius_mm**2)
+                & (da >= inc.depth_mm)
+                & (da <= bottom)
+            )
+            e[hit] = self._inclusion_value(inc)
+        e[~self._inside(xa, ya) | (da < 0) | (da > t)] = np.nan
+        return _out(e, x, y, depth)
+
+    def _bulb_fractions(
+        self, x: FloatArray, y: FloatArray, c: FloatArray, d: FloatArray
+    ) -> FloatArray:
+        """Fraction phi_i (..., n_inclusions) of the indenter's stress bulb inside each inclusion.
+
+        Depth weight: on-axis vertical stress under a uniformly loaded disc of radius c,
+        g(z) ~ 1 - z^3 / (z^2 + c^2)^1.5, with z measured down from the indenter tip (which sits d
+        below the surface). Lateral weight at depth z: an isotropic Gaussian of per-axis variance
+        c^2/4 + z^2 (the second moment of the disc convolved with Boussinesq's point-load stress).
+        The fraction of that Gaussian inside a disc of radius R at lateral distance l is a
+        non-central chi-square CDF with 2 degrees of freedom. Normalised by the bulb inside the
+        tissue (z up to thickness - d) so the table does not count: its effect is the thickness
+        correction of the contact law.
+        """
+        t = _f64(self.thickness(x, y))
+        z_max = np.maximum(t - d, 1e-9)
+        norm = _bulb_cdf(z_max, c)
+        phis = []
+        for inc in self.inclusions:
+            cx, cy = inc.center_mm
+            lat2 = (x - cx) ** 2 + (y - cy) ** 2
+            bottom = t if inc.height_mm is None else np.minimum(inc.depth_mm + inc.height_mm, t)
+            z0 = np.clip(inc.depth_mm - d, 0.0, z_max)
+            z1 = np.clip(bottom - d, z0, z_max)
+            half = 0.5 * (z1 - z0)
+            z = (z0 + z1)[..., None] * 0.5 + half[..., None] * _GL_NODES
+            cc = c[..., None]
+            dens = (1.0 - z**3 / (z * z + cc * cc) ** 1.5) / (2.0 * cc)
+            var = cc * cc / 4.0 + z * z
+            lateral = chndtr(inc.radius_mm**2 / var, 2.0, lat2[..., None] / var)
+            integral = half * np.sum(_GL_WEIGHTS * dens * lateral, axis=-1)
+            phis.append(np.where(norm > 0, integral / norm, 0.0))
+        if not phis:
+            return np.zeros((*x.shape, 0))
+        phi = np.stack(phis, -1)
+        total = phi.sum(-1, keepdims=True)
+        # Overlapping inclusions could count one volume twice; never let the sum exceed 1.
+        out: FloatArray = np.where(total > 1.0, phi / np.maximum(total, 1e-300), phi)
+        return out
+
+    def _mixed(self, x: FloatArray, y: FloatArray, c: FloatArray, d: FloatArray) -> FloatArray:
+        """Background blended linearly with each inclusion by its bulb fraction; nan off the phantom."""
+        base = self._background()
+        value = np.full(x.shape, base)
+        if self.inclusions:
+            phi = self._bulb_fractions(x, y, c, d)
+            values = np.array([self._inclusion_value(inc) for inc in self.inclusions])
+            value = base + np.sum(phi * (values - base), axis=-1)
+        out: FloatArray = np.where(self._inside(x, y), value, np.nan)
+        return out
+
+    def effective_modulus(
+        self, x: ArrayLike, y: ArrayLike, indenter_radius_mm: float, depth_mm: ArrayLike
+    ) -> ArrayLike:
+        """Young's modulus (kPa) felt by a sphere of radius r (mm) indenting depth_mm at (x, y).
+
+        Contact radius c = sqrt(r d) (eq. 5, floored at ``MIN_CONTACT_FRACTION * r``);
+        E_eff = E_bg + sum_i phi_i (E_i - E_bg) with phi_i from ``_bulb_fractions``. E_eff falls
+        with the inclusion's depth, lateral distance, smaller radius and lower stiffness ratio,
+        and is radially symmetric about an inclusion's axis on a flat phantom.
+        """
+        self._require_tissue("effective_modulus")
+        if not (math.isfinite(indenter_radius_mm) and indenter_radius_mm > 0):
+            raise ValueError(
+                f"effective_modulus: indenter_radius_mm must be > 0, got {indenter_radius_mm!r}"
+            )
+        xa, ya, da = np.broadcast_arrays(_f64(x), _f64(y), _f64(depth_mm))
+        c = np.maximum(
+            np.sqrt(indenter_radius_mm * np.clip(da, 0.0, None)),
+            MIN_CONTACT_FRACTION * indenter_radius_mm,
+        )
+        return _out(self._mixed(xa, ya, c, np.clip(da, 0.0, None)), x, y, depth_mm)
+
+    def spring_constant(
+        self,
+        x: ArrayLike,
+        y: ArrayLike,
+        contact_radius_mm: float = DEFAULT_CONTACT_RADIUS_MM,
+        depth_mm: ArrayLike = 0.0,
+    ) -> ArrayLike:
+        """Local stiffness K_t (N/mm) felt by one small indenter at (x, y).
+
+        Spring sample: the file's spring constant (an inclusion's inside its footprint). Tissue:
+        a rigid flat punch of radius a = contact_radius_mm on an elastic half-space,
+        K_t = 2 a E_eff / (1 - nu^2), with E_eff the stress-bulb modulus for contact radius a at
+        depth_mm (kPa converted to N/mm^2). 26.4 kPa and a = 2 mm give 0.14 N/mm.
+        """
+        xa, ya, da = np.broadcast_arrays(_f64(x), _f64(y), _f64(depth_mm))
+        if self.is_spring_sample:
+            k = np.full(xa.shape, self._background())
+            idx = np.asarray(self.inclusion_at(xa, ya))
+            for i, inc in enumerate(self.inclusions):
+                k[idx == i] = self._inclusion_value(inc)
+            k[~self._inside(xa, ya)] = np.nan
+            return _out(k, x, y, depth_mm)
+        if not (math.isfinite(contact_radius_mm) and contact_radius_mm > 0):
+            raise ValueError(
+                f"spring_constant: contact_radius_mm must be > 0, got {contact_radius_mm!r}"
+            )
+        c = np.full(xa.shape, float(contact_radius_mm))
+        e_kpa = self._mixed(xa, ya, c, np.clip(da, 0.0, None))
+        k = 2.0 * contact_radius_mm * e_kpa * 1e-3 / (1.0 - self.poisson_ratio**2)
+        return _out(k, x, y, depth_mm)
+
+
+def _f64(x: ArrayLike) -> FloatArray:
+    return np.asarray(x, dtype=np.float64)
+
+
+def _out(value: FloatArray, *args: object) -> ArrayLike:
+    if all(np.ndim(a) == 0 for a in args):  # type: ignore[arg-type]
+        return float(value)
+    return value
+
+
+def _bulb_cdf(z: FloatArray, c: FloatArray) -> FloatArray:
+    """Integral of the normalised on-axis stress density from 0 to z (-> 1 as z -> inf)."""
+    q = np.sqrt(z * z + c * c)
+    out: FloatArray = (z + 2.0 * c - q - c * c / q) / (2.0 * c)
+    return out
+
+
+# ---------------------------------------------------------------------- loading and validation
+
+_AT = re.compile(r"^(?P<msg>.*?)(?: - at `\$(?P<path>[^`]*)`)?$", re.S)
+_UNKNOWN = re.compile(r"Object contains unknown field `(?P<key>[^`]*)`")
+_MISSING = re.compile(r"Object missing required field `(?P<key>[^`]*)`")
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else key
+
+
+_TYPE_WORDS = {
+    "float": "a number",
+    "int": "an integer",
+    "object": "a mapping",
+    "array": "a list",
+    "str": "a string",
+    "null": "nothing",
+}
+_CONSTRAINT = re.compile(r"^Expected `[^`]*` (?P<op>[<>]=?) (?P<bound>\S+)$")
+_EXPECTED = re.compile(r"^Expected `(?P<want>[^`]*)`, got `(?P<got>[^`]*)`$")
+_LENGTH = re.compile(r"^Expected `array` of length (?P<n>\d+), got \d+$")
+_ALLOWED = {"": Phantom, "noise": Noise, "thickness_mm": DomedThickness}
+
+
+def _lookup(data: Any, key: str) -> Any:
+    """The raw value at a key path in the undecoded data, or a sentinel when absent."""
+    node = data
+    for part in re.findall(r"[^.\[\]]+|\[\d+\]", key):
+        try:
+            node = node[int(part[1:-1])] if part.startswith("[") else node[part]
+        except (KeyError, IndexError, TypeError, ValueError):
+            return _MISSING_VALUE
+    return node
+
+
+_MISSING_VALUE = object()
+
+
+def _translate(err: msgspec.ValidationError, data: Any) -> tuple[str, str]:
+    """(key path, reason) from a msgspec error such as "Expected `float` > 0.0 - at `$.a[1].b`"."""
+    m = _AT.match(str(err))
+    msg, path = (m.group("msg"), (m.group("path") or "").lstrip(".")) if m else (str(err), "")
+    if u := _UNKNOWN.fullmatch(msg):
+        parent = re.sub(r"\[\d+\]$", "", path)
+        struct = Inclusion if parent == "inclusions" else _ALLOWED.get(parent)
+        allowed = f" (allowed: {', '.join(struct.__struct_fields__)})" if struct else ""
+        return _join(path, u.group("key")), "unknown key" + allowed
+    if u := _MISSING.fullmatch(msg):
+        return _join(path, u.group("key")), "required key missing"
+    value = _lookup(data, path)
+    got = "" if value is _MISSING_VALUE else f", got {value!r}"
+    if n := _LENGTH.fullmatch(msg):
+        return path, f"expected a list of {n.group('n')} numbers{got}"
+    if c := _CONSTRAINT.fullmatch(msg):
+        return path, f"must be {c.group('op')} {c.group('bound')}{got}"
+    if e := _EXPECTED.fullmatch(msg):
+        wants = [_TYPE_WORDS.get(w.strip(), w.strip()) for w in e.group("want").split("|")]
+        want = " or ".join(w for w in wants if w != "nothing")
+        return path, f"expected {want}{got}"
+    return path, msg[0].lower() + msg[1:] + got
+
+
+def _check_finite(obj: Any, path: str, source: str) -> None:
+    if isinstance(obj, float) and not math.isfinite(obj):
+        raise PhantomError(source, path, f"must be a finite number, got {obj}")
+    if isinstance(obj, msgspec.Struct):
+        for f in obj.__struct_fields__:
+            _check_finite(getattr(obj, f), _join(path, f), source)
+    elif isinstance(obj, tuple):
+        for i, item in enumerate(obj):
+            _check_finite(item, f"{path}[{i}]", source)
+
+
+def _validate(ph: Phantom, source: str) -> None:
+    _check_finite(ph, "", source)
+    tissue, spring = ph.youngs_modulus_kpa is not None, ph.spring_constant_n_per_mm is not None
+    if tissue == spring:
+        raise PhantomError(
+            source,
+            "youngs_modulus_kpa",
+            "give exactly one of youngs_modulus_kpa (tissue) or spring_constant_n_per_mm (spring sample)"
+            + (", got both" if tissue else ", got neither"),
+        )
+    own, other = (
+        ("spring_constant_n_per_mm", "youngs_modulus_kpa")
+        if spring
+        else ("youngs_modulus_kpa", "spring_constant_n_per_mm")
+    )
+    lx, ly = ph.size_mm
+    for i, inc in enumerate(ph.inclusions):
+        at = f"inclusions[{i}]"
+        if getattr(inc, other) is not None:
+            raise PhantomError(source, f"{at}.{other}", f"not allowed in a phantom that uses {own}")
+        if getattr(inc, own) is None:
+            raise PhantomError(source, f"{at}.{own}", "required key missing")
+        cx, cy = inc.center_mm
+        if not (0 <= cx <= lx and 0 <= cy <= ly):
+            raise PhantomError(
+                source,
+                f"{at}.center_mm",
+                f"must lie inside the footprint [0, {lx}] x [0, {ly}] mm, got [{cx}, {cy}]",
+            )
+        local = float(ph.thickness(cx, cy))
+        if inc.depth_mm >= local:
+            raise PhantomError(
+                source,
+                f"{at}.depth_mm",
+                f"must be less than the local thickness {local:.1f} mm, got {inc.depth_mm}",
+            )
+
+
+def parse_phantom(data: Any, source: str = "<phantom>") -> Phantom:
+    """Validate a decoded phantom mapping (e.g. from YAML); source names it in errors."""
+    if not isinstance(data, dict):
+        raise PhantomError(
+            source, "", f"expected a mapping at the top level, got {type(data).__name__}"
+        )
+    try:
+        ph = msgspec.convert(data, Phantom)
+    except msgspec.ValidationError as e:
+        key, reason = _translate(e, data)
+        raise PhantomError(source, key, reason) from None
+    _validate(ph, source)
+    return ph
+
+
+def _line_of(text: str, key: str) -> int | None:
+    """1-based line of the deepest YAML node on the key path (e.g. "inclusions[1].depth_mm")."""
+    try:
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return None
+    line = None if node is None else node.start_mark.line + 1
+    for part in re.findall(r"[^.\[\]]+|\[\d+\]", key):
+        if isinstance(node, yaml.MappingNode) and not part.startswith("["):
+            hit = [(k, v) for k, v in node.value if k.value == part]
+            if not hit:
+                break
+            line, node = hit[0][0].start_mark.line + 1, hit[0][1]
+        elif isinstance(node, yaml.SequenceNode) and part.startswith("["):
+            i = int(part[1:-1])
+            if i >= len(node.value):
+                break
+            node = node.value[i]
+            line = node.start_mark.line + 1
+        else:
+            break
+    return line
+
+
+def load_phantom(path: str | Path) -> Phantom:
+    """Read and validate a phantom YAML file; errors are ``PhantomError`` naming file, key and line."""
+    source = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except OSError as e:
+        raise PhantomError(source, "", f"cannot read: {e.strerror or e}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        raise PhantomError(
+            source,
+            "",
+            f"invalid YAML: {getattr(e, 'problem', None) or e}",
+            None if mark is None else mark.line + 1,
+        ) from None
+    try:
+        return parse_phantom(data, source)
+    except PhantomError as e:
+        raise PhantomError(source, e.key, e.reason, _line_of(text, e.key)) from None
