@@ -271,6 +271,10 @@ class ForceCalibration:
         return _out(np.clip(self.gain * p + self.offset, 0.0, None), pressure_kpa)
 
     def pressure_kpa(self, force_n: ArrayLike) -> ArrayLike:
-        """Internal pressure (kPa) that yields force (N); F <= 0 maps to ``contact_pressure_kpa``."""
+        """Internal pressure (kPa) that yields force (N); F <= 0 maps to ``contact_pressure_kpa``.
+
+        Never negative: with a positive offset, forces below it are unreachable and map to 0 kPa.
+        """
         f = np.clip(_f64(force_n), 0.0, None)
-        return _out((f - self.offset) / self.gain * self.pressure_unit_kpa, force_n)
+        p = np.clip((f - self.offset) / self.gain * self.pressure_unit_kpa, 0.0, None)
+        return _out(p, force_n)

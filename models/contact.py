@@ -198,7 +198,8 @@ def corrected_depth(
         g = _hertz_g(dp, r, nu)
         # d/dd [g * poly]: g ~ d^1.5, chi ~ d^0.5
         slope = g * (1.5 * poly + 0.5 * chi * dpoly) / dp
-        step = np.where(f > 0, (e * g * poly - f) / (e * slope), 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):  # F = 0 rows are masked out
+            step = np.where(f > 0, (e * g * poly - f) / (e * slope), 0.0)
         d = np.where(f > 0, d - step, 0.0)
         if np.all(np.abs(step) <= tol_mm):
             break
