@@ -1,0 +1,192 @@
+"""Stiffness map (issue 8): robust per-cell binning and inclusion detection."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from models.stiffness_map import (
+    Inclusion,
+    StiffnessGrid,
+    detect_inclusions,
+    fill_gaps,
+    to_inclusions_json,
+)
+
+BASE = 26.4  # kPa, the papers' background silicone
+
+
+def field(
+    x: np.ndarray, y: np.ndarray, blobs: list[tuple[float, float, float, float]]
+) -> np.ndarray:
+    """Background plus cylindrical inclusions (cx, cy, radius, stiffness ratio)."""
+    v = np.full(np.broadcast(x, y).shape, BASE)
+    for cx, cy, r, ratio in blobs:
+        v = np.where(np.hypot(x - cx, y - cy) <= r, BASE * ratio, v)
+    return v
+
+
+def scan(
+    blobs: list[tuple[float, float, float, float]],
+    *,
+    seed: int,
+    n: int = 40_000,
+    noise: float = 0.05,
+    keep: object = None,
+) -> StiffnessGrid:
+    """Dense random samples over a 60 x 60 mm phantom with relative Gaussian noise and 1 %
+    wild outliers (x3), binned at 1 mm."""
+    rng = np.random.default_rng(seed)
+    x, y = rng.uniform(0, 60, n), rng.uniform(0, 60, n)
+    v = field(x, y, blobs) * (1 + noise * rng.standard_normal(n))
+    v[rng.random(n) < 0.01] *= 3.0
+    if keep is not None:
+        m = keep(x, y)  # type: ignore[operator]
+        x, y, v = x[m], y[m], v[m]
+    g = StiffnessGrid(0, 0, 60, 60, 1.0)
+    g.add(x, y, v)
+    return g
+
+
+def test_grid_shape_centres_and_medians() -> None:
+    g = StiffnessGrid(10, 20, 14, 23, 1.0, min_count=2)
+    assert (g.nx, g.ny) == (4, 3)
+    g.add([10.2, 10.7, 10.5], [20.5, 20.5, 20.1], [1.0, 100.0, 2.0])  # cell (0, 0)
+    g.add(14.0, 23.0, 5.0)  # the far corner belongs to the last cell
+    g.add([13.5, 13.5], [21.5, 21.5], [7.0, 9.0])
+    assert g.add([9.99, 14.01, math.nan, 11.0], [21, 21, 21, 21], [1, 1, 1, math.inf]) == 0
+    assert g.dropped == 4 and len(g) == 6
+    s = g.snapshot()
+    np.testing.assert_allclose(s.x_mm, [10.5, 11.5, 12.5, 13.5])
+    np.testing.assert_allclose(s.y_mm, [20.5, 21.5, 22.5])
+    assert s.stiffness.shape == s.count.shape == s.spread.shape == (3, 4)
+    assert s.count[0, 0] == 3 and s.count[2, 3] == 1 and s.count[1, 3] == 2
+    assert s.stiffness[0, 0] == 2.0  # median: the 100 outlier does not move it
+    assert s.spread[0, 0] == pytest.approx(1.4826 * 1.0)  # MAD of (1, 2, 100) around 2 is 1
+    assert s.stiffness[1, 3] == 8.0  # even count: mean of the middle pair
+    assert math.isnan(s.stiffness[2, 3])  # one sample < min_count
+    assert np.isnan(s.stiffness).sum() == 12 - 2
+    with pytest.raises(ValueError):
+        s.stiffness[0, 0] = 1.0  # snapshots are read-only
+
+
+def test_incremental_and_vectorised_add_agree() -> None:
+    rng = np.random.default_rng(0)
+    x, y, v = rng.uniform(0, 20, 3000), rng.uniform(0, 10, 3000), rng.normal(5, 1, 3000)
+    one = StiffnessGrid(0, 0, 20, 10, 2.0)
+    one.add(x, y, v)
+    many = StiffnessGrid(0, 0, 20, 10, 2.0)
+    for i in range(0, 3000, 7):
+        many.add(x[i : i + 7], y[i : i + 7], v[i : i + 7])
+        if i % 700 == 0:
+            many.snapshot()  # interleaved snapshots must not change the result
+    a, b = one.snapshot(), many.snapshot()
+    np.testing.assert_array_equal(a.stiffness, b.stiffness)
+    np.testing.assert_array_equal(a.spread, b.spread)
+    np.testing.assert_array_equal(a.count, b.count)
+    # ~60 normal samples per cell: the MAD-based spread estimates sigma = 1.
+    assert np.nanmedian(a.spread) == pytest.approx(1.0, abs=0.15)
+
+
+def test_grid_rejects_bad_geometry() -> None:
+    for args in ((0, 0, 0, 1, 1), (0, 0, 1, 1, 0), (0, 0, math.nan, 1, 1)):
+        with pytest.raises(ValueError, match="StiffnessGrid"):
+            StiffnessGrid(*args)
+
+
+@pytest.mark.parametrize(
+    "blobs",
+    [
+        [(15.0, 15.0, 4.0, 6.0)],
+        [
+            (15.0, 15.0, 4.0, 6.0),
+            (45.0, 20.0, 3.0, 3.0),
+            (30.0, 45.0, 5.0, 1.6),
+            (48, 48, 2.0, 4.0),
+        ],
+    ],
+)
+def test_known_blobs_found_within_1_mm(blobs: list[tuple[float, float, float, float]]) -> None:
+    found = detect_inclusions(scan(blobs, seed=1).snapshot())
+    assert len(found) == len(blobs), found
+    for cx, cy, r, ratio in blobs:
+        best = min(found, key=lambda i: math.hypot(i.x_mm - cx, i.y_mm - cy))
+        assert math.hypot(best.x_mm - cx, best.y_mm - cy) <= 1.0
+        assert best.radius_mm == pytest.approx(r, abs=1.0)
+        assert best.contrast == pytest.approx(ratio, rel=0.25)
+        assert best.area_mm2 == pytest.approx(best.cells * 1.0)
+    assert [i.contrast for i in found] == sorted((i.contrast for i in found), reverse=True)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_flat_noisy_field_has_no_false_positives(seed: int) -> None:
+    assert detect_inclusions(scan([], seed=seed, noise=0.08).snapshot()) == []
+
+
+def test_two_close_blobs_are_separated() -> None:
+    blobs = [(25.0, 30.0, 3.5, 4.0), (35.0, 30.0, 3.5, 4.0)]  # 3 mm of tissue between them
+    found = detect_inclusions(scan(blobs, seed=7).snapshot())
+    assert len(found) == 2
+    xs = sorted(i.x_mm for i in found)
+    assert xs == pytest.approx([25.0, 35.0], abs=1.0)
+    assert all(i.y_mm == pytest.approx(30.0, abs=1.0) for i in found)
+
+
+def test_missed_line_and_unscanned_area() -> None:
+    blob = [(20.5, 30.0, 4.0, 5.0)]
+
+    def keep(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        missed_line = (x >= 20) & (x < 21)  # one empty cell column through the blob
+        unscanned = (x > 40) & (y > 40)  # a corner never visited
+        return ~missed_line & ~unscanned
+
+    snap = scan(blob, seed=3, keep=keep).snapshot()
+    assert np.isnan(snap.stiffness[:, 20]).all() and np.isnan(snap.stiffness[45, 45])
+    found = detect_inclusions(snap)
+    assert len(found) == 1  # bridged, not split in two halves
+    assert math.hypot(found[0].x_mm - 20.5, found[0].y_mm - 30.0) <= 1.0
+    split = detect_inclusions(snap, gap_fill=False)
+    assert len(split) == 2
+
+
+def test_fill_gaps_bridges_single_holes_only() -> None:
+    g = np.ones((6, 6))
+    g[:, 2] = np.nan  # a missed line: filled
+    g[0:2, 4:6] = np.nan  # a 2x2 hole in the corner: its cells see < 4 valid neighbours
+    out = fill_gaps(g)
+    assert np.isfinite(out[:, 2]).all()
+    assert np.isnan(out[0, 5]) and np.isnan(g).sum() == 10  # input untouched
+
+
+def test_smoothing_and_min_area_options() -> None:
+    snap = scan([(30.0, 30.0, 5.0, 4.0)], seed=4).snapshot()
+    assert len(detect_inclusions(snap, smooth=True)) == 1
+    assert detect_inclusions(snap, min_area_mm2=200.0) == []  # blob area ~79 mm^2
+    tiny = scan([(30.0, 30.0, 0.8, 6.0)], seed=4, n=80_000).snapshot()
+    assert detect_inclusions(tiny, smooth=True) == []  # a ~2-cell feature is erased
+
+
+def test_degenerate_maps() -> None:
+    empty = StiffnessGrid(0, 0, 10, 10, 1.0).snapshot()
+    assert detect_inclusions(empty) == []
+    g = StiffnessGrid(0, 0, 10, 10, 1.0, min_count=1)
+    xs, ys = np.meshgrid(np.arange(10) + 0.5, np.arange(10) + 0.5)
+    g.add(xs, ys, -1.0)
+    with pytest.raises(ValueError, match="baseline"):
+        detect_inclusions(g.snapshot())
+
+
+def test_inclusions_json_matches_design_contract() -> None:
+    inc = Inclusion(
+        x_mm=1.5, y_mm=2.0, radius_mm=3.0, contrast=4.5, peak=9.0, area_mm2=28.0, cells=28
+    )
+    out = to_inclusions_json([inc])
+    assert out == [{"x_mm": 1.5, "y_mm": 2.0, "radius_mm": 3.0, "contrast": 4.5}]
+    assert json.loads(json.dumps(out)) == out
+    found = detect_inclusions(scan([(15.0, 15.0, 4.0, 6.0)], seed=2).snapshot())
+    rec = to_inclusions_json(found)[0]
+    assert set(rec) == {"x_mm", "y_mm", "radius_mm", "contrast"}
+    assert all(type(v) is float for v in rec.values())
