@@ -10,7 +10,9 @@ latched sends each message there as well (``SET``), and a subscriber asks for th
 Latch protocol (DEALER -> ROUTER), every frame bytes:
     SET topic header payload [blobs...]      no reply
     GET prefix                                -> VAL topic header payload [blobs...], one per cached topic that
-                                                 starts with prefix (none when nothing matches)
+                                                 starts with prefix (none when nothing matches); later SETs on
+                                                 matching topics are pushed to the asker too, so a value set
+                                                 while its subscription is still propagating is not lost
 """
 
 from __future__ import annotations
@@ -72,6 +74,7 @@ class Bus:
         self._stop = threading.Event()
         self._cache: dict[bytes, list[bytes]] = {}
         self._cache_lock = threading.Lock()
+        self._watchers: dict[bytes, set[bytes]] = {}
         self.address: BusAddress | None = None
 
     def _secure(self, sock: zmq.Socket[bytes]) -> None:
@@ -111,6 +114,7 @@ class Bus:
             sock.rcvhwm = self._hwm
             sock.linger = 0
         router.linger = 0
+        router.router_mandatory = True
         try:
             pub = self._bind(xsub, self._requested.pub)
             sub = self._bind(xpub, self._requested.sub)
@@ -199,13 +203,25 @@ class Bus:
         if verb == b"SET" and len(frames) >= 5:
             with self._cache_lock:
                 self._cache[topic] = frames[3:]
+            for prefix, idents in list(self._watchers.items()):
+                if topic.startswith(prefix):
+                    for watcher in list(idents):
+                        if watcher != ident:
+                            self._send(router, prefix, watcher, [b"VAL", topic, *frames[3:]])
         elif verb == b"GET":
+            self._watchers.setdefault(topic, set()).add(ident)
             with self._cache_lock:
                 hits = [(t, v) for t, v in self._cache.items() if t.startswith(topic)]
             for cached_topic, value in hits:
-                router.send_multipart([ident, b"VAL", cached_topic, *value])
+                self._send(router, topic, ident, [b"VAL", cached_topic, *value])
         else:
             log.warning("latch: ignoring unknown request %r", verb[:16])
+
+    def _send(self, router: zmq.Socket[bytes], prefix: bytes, ident: bytes, frames: list[bytes]) -> None:
+        try:
+            router.send_multipart([ident, *frames], zmq.NOBLOCK)
+        except zmq.ZMQError:  # the asker is gone (or not keeping up): forget it
+            self._watchers.get(prefix, set()).discard(ident)
 
     def cached_topics(self) -> list[str]:
         """Topics with a cached last value."""
@@ -213,7 +229,7 @@ class Bus:
             return sorted(t.decode(errors="replace") for t in self._cache)
 
     def stop(self, timeout_s: float = 2.0) -> None:
-        """Stop the proxy and the cache, close every socket, and (for ipc) let libzmq remove the socket files."""
+        """Stop the proxy and the cache, close every socket and remove ipc socket files."""
         self._stop.set()
         if self.address is not None:
             try:
@@ -225,6 +241,10 @@ class Bus:
         if self.address is not None:
             self._control.close(0)
         self._shutdown_ctx()
+        if self.address is not None:
+            for endpoint in (self.address.pub, self.address.sub, self.address.latch):
+                if endpoint.startswith("ipc://"):
+                    Path(endpoint[len("ipc://") :]).unlink(missing_ok=True)
 
     def _shutdown_ctx(self) -> None:
         if self._auth is not None:

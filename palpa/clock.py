@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from typing import Protocol
 
-__all__ = ["Clock", "MockClock", "SystemClock"]
+__all__ = ["Clock", "MockClock", "SystemClock", "TopicClock"]
 
 
 class Clock(Protocol):
@@ -58,3 +58,27 @@ class MockClock:
         if now_ns < self._now:
             raise ValueError(f"a clock cannot go backwards ({now_ns} < {self._now})")
         self._now = now_ns
+
+
+class TopicClock:
+    """Simulation time driven by ``ClockTick`` messages on ``_palpa/clock`` (``palpa play --clock``).
+
+    Before the first tick the time is 0 and no timer fires; afterwards it is the latest tick's ``sim_ns``. A node
+    gets one with ``--sim-clock`` (or ``PALPA_SIM_CLOCK=1``), so it behaves on a bag as it did live.
+    """
+
+    def __init__(self) -> None:
+        self._now = 0
+        self.started = False
+
+    def now_ns(self) -> int:
+        return self._now
+
+    def is_real(self) -> bool:
+        return True
+
+    def update(self, sim_ns: int) -> None:
+        """Take a tick; time never goes backwards except on a big jump back (a looped recording restarts)."""
+        if sim_ns >= self._now or self._now - sim_ns > 1_000_000_000:
+            self._now = sim_ns
+        self.started = True

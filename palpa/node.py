@@ -34,11 +34,19 @@ from typing import Any, ClassVar, Generic, NamedTuple, TypeVar, get_type_hints
 import msgspec
 
 from palpa.address import BusAddress, from_env
-from palpa.clock import Clock, SystemClock
+from palpa.clock import Clock, SystemClock, TopicClock
 from palpa.errors import DecodeError
 from palpa.message import Message
 from palpa.params import Params, convert_params
-from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat, LogRecord, TopicCounters
+from palpa.runtime_msgs import (
+    CLOCK_TOPIC,
+    HEARTBEAT_TOPIC,
+    LOG_TOPIC,
+    ClockTick,
+    Heartbeat,
+    LogRecord,
+    TopicCounters,
+)
 from palpa.transport import Delivery, Transport, ZmqTransport
 from palpa.wire import Header, SequenceTracker, TopicStats, decode_header, encode_header
 
@@ -206,10 +214,14 @@ class Node:
         remap: Mapping[str, str] | None = None,
         bus: str | BusAddress | None = None,
         heartbeat_s: float = 1.0,
+        sim_clock: bool | None = None,
     ) -> None:
         self.name = name or _snake(type(self).__name__)
+        if sim_clock is None:
+            sim_clock = os.environ.get("PALPA_SIM_CLOCK", "") not in ("", "0")
         self.params = convert_params(type(self).Params, params, where=f"node {self.name!r}")
-        self.clock: Clock = clock or SystemClock()
+        self._topic_clock = TopicClock() if sim_clock and clock is None else None
+        self.clock: Clock = clock or self._topic_clock or SystemClock()
         self.namespace = namespace.strip("/")
         self.remap = dict(remap or {})
         if transport is None:
@@ -235,6 +247,8 @@ class Node:
         self.log.addHandler(self._bus_handler)
         self._log_pub = self.publisher(LOG_TOPIC, LogRecord)
         self._hb_pub = self.publisher(HEARTBEAT_TOPIC, Heartbeat)
+        if self._topic_clock is not None:
+            self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
         if heartbeat_s > 0:
             self.timer(heartbeat_s, self._heartbeat, first_in_s=0.0)
         self.setup()
@@ -371,8 +385,20 @@ class Node:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def _on_clock(self, tick: ClockTick) -> None:
+        clock = self._topic_clock
+        if clock is None:
+            return
+        if not clock.started:
+            # timers declared before time existed count from the first tick
+            for t in self._timers:
+                t.due_ns += tick.sim_ns
+        clock.update(tick.sim_ns)
+
     # -- internals ---------------------------------------------------------------------------------
     def _run_timers(self) -> None:
+        if self._shutdown or (self._topic_clock is not None and not self._topic_clock.started):
+            return
         now = self.clock.now_ns()
         for t in list(self._timers):
             if t.cancelled:

@@ -3,7 +3,7 @@
 ``run_node(MyNode)`` is a node's whole ``main()``. It accepts::
 
     --name NAME  --namespace NS  --bus ADDRESS  -p/--param KEY=VALUE (VALUE is YAML: 3, 2.5, true, [1, 2])
-    --params-json JSON  --params-file FILE.yaml  --remap FROM:=TO  --debug
+    --params-json JSON  --params-file FILE.yaml  --remap FROM:=TO  --sim-clock  --debug
 
 SIGINT and SIGTERM ask the node to stop; it finishes its current callback, runs ``on_shutdown`` and closes its
 sockets with a bounded linger. The process exits with ``node.exit_code`` (0 unless the node set it).
@@ -40,6 +40,8 @@ def node_arg_parser(prog: str) -> argparse.ArgumentParser:
     ap.add_argument("--params-json", help="all parameters as one JSON object (used by the launcher)")
     ap.add_argument("--params-file", type=Path, help="parameters from a YAML mapping")
     ap.add_argument("--remap", action="append", default=[], metavar="FROM:=TO", help="rename a topic")
+    ap.add_argument("--sim-clock", action="store_true", default=None,
+                    help="follow simulation time on _palpa/clock (also PALPA_SIM_CLOCK=1)")
     ap.add_argument("--debug", action="store_true", help="debug logging and tracebacks")
     return ap
 
@@ -104,6 +106,7 @@ def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: s
             namespace=args.namespace,
             remap=_remaps(args.remap),
             bus=args.bus,
+            sim_clock=args.sim_clock,
         )
     except PalpaError as exc:
         if args.debug:

@@ -1,0 +1,86 @@
+"""Shared fixtures: short ipc paths, a bus per test (in-process or as a process), process cleanup."""
+
+from __future__ import annotations
+
+import os
+import secrets
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO / "tests"))
+
+from procs import ProcessGroup  # noqa: E402
+
+from palpa.address import BusAddress  # noqa: E402
+from palpa.bus import Bus  # noqa: E402
+
+
+def short_ipc_base() -> str:
+    """A fresh ipc base path well under the 107-character limit (pytest's tmp dirs are too long)."""
+    return f"/tmp/pt-{os.getpid()}-{secrets.token_hex(3)}"
+
+
+def bus_spec(transport: str) -> BusAddress:
+    if transport == "ipc":
+        return BusAddress.parse(f"ipc://{short_ipc_base()}")
+    return BusAddress("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")
+
+
+@pytest.fixture(params=["ipc", "tcp"])
+def transport(request: pytest.FixtureRequest) -> str:
+    return str(request.param)
+
+
+@pytest.fixture
+def bus(transport: str) -> Iterator[BusAddress]:
+    """An in-process bus over ipc and over tcp (the test runs once for each)."""
+    b = Bus(bus_spec(transport), latched_topics=["graph/latched"])
+    address = b.start()
+    try:
+        yield address
+    finally:
+        b.stop()
+
+
+@pytest.fixture
+def ipc_bus() -> Iterator[BusAddress]:
+    b = Bus(bus_spec("ipc"))
+    address = b.start()
+    try:
+        yield address
+    finally:
+        b.stop()
+
+
+@pytest.fixture
+def procs() -> Iterator[ProcessGroup]:
+    """Start processes through this; all are killed (and their output dumped on failure) at the end."""
+    group = ProcessGroup()
+    try:
+        yield group
+    finally:
+        group.cleanup()
+
+
+def palpa_cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "palpa.cli.main", *args]
+
+
+@pytest.fixture
+def env_for() -> object:
+    def make(address: BusAddress, **extra: str) -> dict[str, str]:
+        env = dict(os.environ)
+        env["PALPA_BUS"] = str(address)
+        env["PYTHONUNBUFFERED"] = "1"
+        env.update(extra)
+        return env
+
+    return make
+
+
+__all__ = ["palpa_cmd", "short_ipc_base", "subprocess"]

@@ -1,0 +1,93 @@
+"""Child processes for tests: output captured to files, waits with deadlines, always cleaned up."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+
+class Proc:
+    """One child process whose stdout+stderr go to a file that tests can poll."""
+
+    def __init__(self, cmd: Sequence[str], env: dict[str, str] | None, cwd: str | None) -> None:
+        fd, name = tempfile.mkstemp(prefix="palpa-test-", suffix=".log")
+        self.log_path = Path(name)
+        self._log = os.fdopen(fd, "wb")
+        self.cmd = list(cmd)
+        self.popen = subprocess.Popen(
+            self.cmd, stdout=self._log, stderr=subprocess.STDOUT, env=env, cwd=cwd, start_new_session=True
+        )
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    def output(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def wait_for_output(self, needle: str, timeout: float = 10.0) -> str:
+        """Wait until ``needle`` appears in the output; return the line. Fails with the output on timeout."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            for line in self.output().splitlines():
+                if needle in line:
+                    return line
+            if self.popen.poll() is not None:
+                raise AssertionError(f"{self.cmd} exited {self.popen.returncode} before {needle!r}:\n{self.output()}")
+            time.sleep(0.02)
+        raise AssertionError(f"timed out waiting for {needle!r} from {self.cmd}:\n{self.output()}")
+
+    def signal(self, sig: int) -> None:
+        if self.popen.poll() is None:
+            os.kill(self.popen.pid, sig)
+
+    def wait(self, timeout: float) -> int:
+        try:
+            return self.popen.wait(timeout)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"{self.cmd} did not exit within {timeout} s:\n{self.output()}") from None
+
+    def stop(self, timeout: float = 5.0) -> int:
+        """SIGINT, then wait (bounded); returns the exit code."""
+        self.signal(signal.SIGINT)
+        return self.wait(timeout)
+
+
+class ProcessGroup:
+    def __init__(self) -> None:
+        self.procs: list[Proc] = []
+
+    def start(self, cmd: Sequence[str], env: dict[str, str] | None = None, cwd: str | None = None) -> Proc:
+        p = Proc(cmd, env, cwd)
+        self.procs.append(p)
+        return p
+
+    def cleanup(self) -> None:
+        for p in self.procs:
+            if p.popen.poll() is None:
+                try:
+                    os.killpg(p.popen.pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+                p.popen.wait(5)
+            p._log.close()
+            p.log_path.unlink(missing_ok=True)
+
+
+def wait_until(cond: Callable[[], object], timeout: float = 10.0, what: str = "condition",
+               step: Callable[[], None] | None = None) -> None:
+    """Poll ``cond`` (calling ``step`` between polls, e.g. a node's spin_once) until true or the deadline."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if cond():
+            return
+        if step is not None:
+            step()
+        else:
+            time.sleep(0.01)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")

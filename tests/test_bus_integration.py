@@ -1,0 +1,316 @@
+"""Multi-process tests over a real bus, each run over ipc and tcp: delivery, latching, prefix filtering,
+clean shutdown, fuzzing a live node, a foreign (non-palpa) client, and CURVE."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import sys
+import time
+
+import msgpack
+import pytest
+import zmq
+from conftest import palpa_cmd, short_ipc_base
+from procs import ProcessGroup, wait_until
+
+import palpa
+from messages import Text
+from palpa.address import BusAddress
+from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
+
+
+def heartbeats(node: palpa.Node) -> palpa.Subscription[Heartbeat]:
+    existing = node._subs.get(HEARTBEAT_TOPIC.encode())
+    return existing if existing is not None else node.subscribe(HEARTBEAT_TOPIC, Heartbeat)
+
+
+def wait_heartbeat(node: palpa.Node, name: str, timeout: float = 10.0) -> Heartbeat:
+    sub = heartbeats(node)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        hb = sub.next(0.2)
+        if hb is not None and hb.node == name:
+            return hb
+    raise AssertionError(f"no heartbeat from {name!r} within {timeout} s")
+
+
+def test_talker_to_listener_processes(bus: BusAddress, procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]
+    env = env_for(bus)
+    listener = procs.start(palpa_cmd("run", "nodes.demo:Listener"), env=env)
+    with palpa.Node(name="probe", bus=bus, heartbeat_s=0) as probe:
+        wait_heartbeat(probe, "listener")
+        lens = probe.subscribe("chatter_len", Text)
+        talker = procs.start(palpa_cmd("run", "nodes.demo:Talker", "-p", "rate_hz=100", "-p", "count=300"), env=env)
+        got = []
+        deadline = time.monotonic() + 15
+        while len(got) < 50 and time.monotonic() < deadline:
+            msg = lens.next(0.2)
+            if msg is not None:
+                got.append(msg)
+        assert len(got) >= 50, listener.output()
+        assert talker.wait(15) == 0  # exits 0 by itself after count messages
+        assert lens.stats.gaps == 0
+    assert listener.stop(5) == 0
+    assert "heard 'hello" in listener.output()
+
+
+def test_latched_topic_reaches_slow_joiner(bus: BusAddress) -> None:
+    with palpa.Node(name="planner", bus=bus, heartbeat_s=0) as planner:
+        pub = planner.publisher("robot/plan", Text, latched=True)
+        pub.publish(Text(text="plan v1"))
+        pub.publish(Text(text="plan v2"))
+        # the joiner connects after both were sent: only the cache can give it v2
+        with palpa.Node(name="late", bus=bus, heartbeat_s=0) as late:
+            sub = late.subscribe("robot/plan", Text)
+            got_cached = []
+            while Text(text="plan v2") not in got_cached:
+                msg = sub.next(5.0)
+                assert msg is not None, got_cached
+                got_cached.append(msg)
+            # v1 only if the cache answered before v2 reached it; never twice, never after v2
+            assert got_cached in ([Text(text="plan v2")], [Text(text="plan v1"), Text(text="plan v2")])
+            # live updates follow once the subscription has propagated (ZeroMQ's slow-joiner window)
+            deadline = time.monotonic() + 5
+            got = None
+            while got is None:
+                pub.publish(Text(text="plan v3"))
+                got = sub.next(0.05)
+                assert time.monotonic() < deadline
+            assert got == Text(text="plan v3")
+            late.spin_once(0.2)
+            assert all(m == Text(text="plan v3") for m in sub.queue)  # v2 never comes twice
+
+
+def test_graph_declared_latched_topic(bus: BusAddress) -> None:
+    """The fixture's bus latches ``graph/latched`` for every publisher, latched or not."""
+    with palpa.Node(name="plain", bus=bus, heartbeat_s=0) as node:
+        pub = node.publisher("graph/latched", Text)
+        with palpa.Node(name="warm", bus=bus, heartbeat_s=0) as warm:  # makes sure the proxy path is up
+            s = warm.subscribe("graph/latched", Text)
+            deadline = time.monotonic() + 5
+            while s.next(0.05) is None and time.monotonic() < deadline:
+                pub.publish(Text(text="calibration"))
+        with palpa.Node(name="late", bus=bus, heartbeat_s=0) as late:
+            assert late.subscribe("graph/latched", Text).next(5.0) == Text(text="calibration")
+
+
+def test_prefix_subscriptions_do_not_leak(bus: BusAddress) -> None:
+    with palpa.Node(name="a", bus=bus, heartbeat_s=0) as a, palpa.Node(name="b", bus=bus, heartbeat_s=0) as b:
+        exact = b.subscribe("a/b", Text)
+        long_pub = a.publisher("a/bc", Text)
+        pub = a.publisher("a/b", Text)
+        deadline = time.monotonic() + 5
+        while exact.next(0.05) is None and time.monotonic() < deadline:
+            long_pub.publish(Text(text="leak"))
+            pub.publish(Text(text="ok"))
+        for _ in range(20):
+            long_pub.publish(Text(text="leak"))
+        pub.publish(Text(text="last"))
+        wait_until(lambda: any(m.text == "last" for m in exact.queue), 5, "last", step=lambda: b.spin_once(0.05))
+        assert all(m.text != "leak" for m in exact.queue)
+
+
+def test_sigint_stops_node_promptly(ipc_bus: BusAddress, procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]
+    p = procs.start(palpa_cmd("run", "nodes.demo:Listener"), env=env_for(ipc_bus))
+    with palpa.Node(name="probe", bus=ipc_bus, heartbeat_s=0) as probe:
+        wait_heartbeat(probe, "listener")
+    t0 = time.monotonic()
+    assert p.stop(5) == 0
+    assert time.monotonic() - t0 < 3.0
+
+
+def test_bad_params_exit_with_one_line(ipc_bus: BusAddress, procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]
+    p = procs.start(palpa_cmd("run", "nodes.demo:Talker", "-p", "rate_hz=fast"), env=env_for(ipc_bus))
+    assert p.wait(10) == 2
+    out = p.output().strip().splitlines()
+    assert out == ["nodes.demo:Talker: node 'talker': parameter 'rate_hz': Expected `float`, got `str`"]
+
+
+def test_fuzz_frames_never_kill_a_node(ipc_bus: BusAddress, procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]
+    """>= 10 000 random, truncated and wrong-typed frames: the node survives and its counters match."""
+    node = procs.start(palpa_cmd("run", "nodes.demo:Listener"), env=env_for(ipc_bus))
+    rng = random.Random(1234)
+    ctx = zmq.Context.instance()
+    pub = ctx.socket(zmq.PUB)
+    pub.sndhwm = 100_000
+    pub.connect(ipc_bus.pub)
+    good_header = lambda seq: msgpack.packb({"type": "Text", "seq": seq, "stamp": 1, "node": "fuzzer"})  # noqa: E731
+    bad = 0
+    seq = 0
+    with palpa.Node(name="probe", bus=ipc_bus, heartbeat_s=0) as probe:
+        wait_heartbeat(probe, "listener")
+        # wait until our raw PUB is connected: a good message must come through
+        lens = probe.subscribe("chatter_len", Text)
+        deadline = time.monotonic() + 10
+        while lens.next(0.05) is None:
+            seq += 1
+            pub.send_multipart([b"chatter", good_header(seq), msgpack.packb({"text": "warmup"})])
+            assert time.monotonic() < deadline, node.output()
+        warm = seq
+        for i in range(10_000):
+            kind = i % 5
+            if kind == 0:
+                frames = [b"chatter", bytes(rng.getrandbits(8) for _ in range(rng.randint(0, 30)))]
+            elif kind == 1:
+                frames = [b"chatter", bytes(rng.getrandbits(8) for _ in range(rng.randint(1, 30))),
+                          bytes(rng.getrandbits(8) for _ in range(rng.randint(0, 30)))]
+                if frames[1][:1] in (b"\x84", b"\x85"):
+                    frames[1] = b"\xc1" + frames[1]
+            elif kind == 2:
+                seq += 1
+                frames = [b"chatter", good_header(seq), msgpack.packb({"text": rng.randint(0, 9)})]
+            elif kind == 3:
+                seq += 1
+                frames = [b"chatter", good_header(seq), msgpack.packb({"text": "x"})[: rng.randint(0, 3)]]
+            else:
+                seq += 1
+                frames = [b"chatter", msgpack.packb({"type": "RobotPose", "seq": seq, "stamp": 1, "node": "fuzzer"}),
+                          msgpack.packb({"text": "wrong type"})]
+            pub.send_multipart(frames)
+            bad += 1
+            if i % 500 == 0:
+                probe.spin_once(0)
+        seq += 1
+        pub.send_multipart([b"chatter", good_header(seq), msgpack.packb({"text": "survivor"})])
+        hb_sub = heartbeats(probe)
+        deadline = time.monotonic() + 20
+        counters = None
+        while time.monotonic() < deadline:
+            hb = hb_sub.next(0.5)
+            if hb is not None and hb.node == "listener":
+                counters = hb.counters["chatter"]
+                if counters.received >= warm + 1 and counters.decode_errors + counters.received >= bad + warm + 1:
+                    break
+        assert counters is not None, node.output()
+        assert counters.decode_errors == bad, node.output()
+        assert counters.gaps == 0
+        assert node.popen.poll() is None
+    pub.close(0)
+    assert node.stop(5) == 0
+    assert "dropped a bad message on 'chatter'" in node.output()
+
+
+def test_foreign_client_plain_pyzmq(bus: BusAddress) -> None:
+    """A client written from docs/wire.md alone (pyzmq + msgpack, no palpa) publishes and subscribes."""
+    ctx = zmq.Context.instance()
+    sub = ctx.socket(zmq.SUB)
+    sub.connect(bus.sub)
+    sub.setsockopt(zmq.SUBSCRIBE, b"chatter")
+    pub = ctx.socket(zmq.PUB)
+    pub.connect(bus.pub)
+    with palpa.Node(name="native", bus=bus, heartbeat_s=0) as native:
+        heard = native.subscribe("from_foreign", Text)
+        talk = native.publisher("chatter", Text)
+        seq = 0
+        got_native = None
+        deadline = time.monotonic() + 10
+        while got_native is None and time.monotonic() < deadline:
+            seq += 1
+            header = msgpack.packb({"type": "Text", "seq": seq, "stamp": time.time_ns(), "node": "foreign"})
+            pub.send_multipart([b"from_foreign", header, msgpack.packb({"text": "hi from C", "stamp_ns": 0})])
+            got_native = heard.next(0.05)
+        assert got_native == Text(text="hi from C")
+        deadline = time.monotonic() + 10
+        frames = None
+        while frames is None and time.monotonic() < deadline:
+            talk.publish(Text(text="hi from palpa"))
+            if sub.poll(50):
+                frames = sub.recv_multipart()
+        assert frames is not None and frames[0] == b"chatter"
+        header = msgpack.unpackb(frames[1])
+        assert header["type"] == "Text" and header["node"] == "native" and header["seq"] >= 1
+        assert msgpack.unpackb(frames[2])["text"] == "hi from palpa"
+    sub.close(0)
+    pub.close(0)
+
+
+def test_curve_bus_rejects_unknown_clients(tmp_path, procs: ProcessGroup) -> None:  # type: ignore[no-untyped-def]
+    keys = tmp_path / "keys"
+    clients = tmp_path / "clients"
+    clients.mkdir()
+    keys.mkdir()
+    import zmq.auth
+
+    zmq.auth.create_certificates(str(keys), "server")
+    zmq.auth.create_certificates(str(keys), "good")
+    zmq.auth.create_certificates(str(keys), "evil")
+    (clients / "good.key").write_bytes((keys / "good.key").read_bytes())
+    bus = procs.start(palpa_cmd("bus", "--tcp", "127.0.0.1", "--curve-secret", str(keys / "server.key_secret"),
+                                "--curve-clients", str(clients)))
+    line = bus.wait_for_output("palpa bus ready", 10)
+    address = BusAddress.parse(line.split("ready ", 1)[1])
+    base_env = {"PALPA_BUS_SERVER_KEY": str(keys / "server.key")}
+
+    def make(name: str, who: str) -> palpa.Node:
+        old = dict(os.environ)
+        os.environ.update(base_env, PALPA_CURVE_SECRET=str(keys / f"{who}.key_secret"))
+        try:
+            return palpa.Node(name=name, bus=address, heartbeat_s=0)
+        finally:
+            os.environ.clear()
+            os.environ.update(old)
+
+    with make("good_pub", "good") as good_pub, make("good_sub", "good") as good_sub, \
+            make("evil_sub", "evil") as evil_sub:
+        ok = good_sub.subscribe("secret", Text)
+        bad = evil_sub.subscribe("secret", Text)
+        pub = good_pub.publisher("secret", Text)
+        deadline = time.monotonic() + 10
+        while ok.next(0.05) is None:
+            pub.publish(Text(text="tumour at (12, 30)"))
+            evil_sub.spin_once(0)
+            assert time.monotonic() < deadline
+        for _ in range(20):
+            pub.publish(Text(text="tumour at (12, 30)"))
+            evil_sub.spin_once(0.02)
+        assert not bad.queue and bad.stats.received == 0
+    assert bus.stop(5) == 0
+
+
+def test_bus_refuses_public_bind_without_curve(procs: ProcessGroup) -> None:
+    p = procs.start(palpa_cmd("bus", "--tcp", "0.0.0.0"))
+    assert p.wait(10) == 1
+    assert "refusing to bind tcp://0.0.0.0:* without CURVE keys" in p.output()
+
+
+def test_bus_process_ready_line_and_clean_stop(procs: ProcessGroup) -> None:
+    base = short_ipc_base()
+    p = procs.start(palpa_cmd("bus", "--ipc", base))
+    p.wait_for_output("palpa bus ready", 10)
+    assert os.path.exists(base + ".pub")
+    p.signal(signal.SIGTERM)
+    assert p.wait(5) == 0
+    assert not os.path.exists(base + ".pub")
+
+
+@pytest.mark.parametrize("verb", [["topic", "echo", "nope", "-n", "1", "--timeout", "0.3"]])
+def test_cli_expected_failure_is_one_line(ipc_bus: BusAddress, procs: ProcessGroup, env_for, verb) -> None:  # type: ignore[no-untyped-def]
+    p = procs.start(palpa_cmd(*verb), env=env_for(ipc_bus))
+    assert p.wait(10) == 1
+    assert p.output().strip().splitlines() == ["palpa topic: nope: got 0 of 1 messages before the timeout"]
+
+
+def test_topic_cli_tools(ipc_bus: BusAddress, procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]
+    env = env_for(ipc_bus)
+    procs.start(palpa_cmd("run", "nodes.demo:Talker", "-p", "rate_hz=200"), env=env)
+    echo = procs.start(palpa_cmd("topic", "echo", "chatter", "-n", "2", "--timeout", "10"), env=env)
+    assert echo.wait(15) == 0 and "text: hello" in echo.output()
+    hz = procs.start(palpa_cmd("topic", "hz", "chatter", "--duration", "1.5"), env=env)
+    assert hz.wait(15) == 0
+    last = hz.output().strip().splitlines()[-1]
+    assert last.startswith("rate ") and " gaps 0" in last
+    rate = float(last.split()[1])
+    assert 150 < rate < 250
+    nl = procs.start(palpa_cmd("node", "list", "-v"), env=env)
+    assert nl.wait(15) == 0 and "talker  pid" in nl.output() and "pub chatter [Text]" in nl.output()
+    tl = procs.start(palpa_cmd("topic", "list"), env=env)
+    assert tl.wait(15) == 0 and "chatter  [Text]  pub: talker" in tl.output()
+    lis = procs.start(palpa_cmd("topic", "echo", "typed", "-n", "1", "--timeout", "10"), env=env)
+    pub = procs.start(palpa_cmd("topic", "pub", "typed", "Text", "{text: typed by hand}", "--rate", "20",
+                                "--count", "100"), env=env)
+    assert lis.wait(15) == 0 and "typed by hand" in lis.output()
+    pub.signal(signal.SIGINT)
+    pub.wait(5)
+    _ = sys  # keep import for type checkers

@@ -1,0 +1,161 @@
+"""Unit tests of the runtime: addresses, params, sequence tracking, and node behaviour on the in-memory bus."""
+
+from __future__ import annotations
+
+import msgspec
+import pytest
+
+import palpa
+from messages import Text
+from nodes.demo import Listener, Talker
+from palpa.address import BusAddress
+from palpa.errors import BusError, ParamError
+from palpa.testing import MemoryBus, NodeHarness
+from palpa.wire import Header, SequenceTracker, TopicStats, encode_header
+
+
+def test_address_forms() -> None:
+    a = BusAddress.parse("ipc:///tmp/palpa-x")
+    assert (a.pub, a.sub, a.latch) == ("ipc:///tmp/palpa-x.pub", "ipc:///tmp/palpa-x.sub", "ipc:///tmp/palpa-x.latch")
+    t = BusAddress.parse("tcp://127.0.0.1:7400")
+    assert (t.pub, t.sub, t.latch) == ("tcp://127.0.0.1:7400", "tcp://127.0.0.1:7401", "tcp://127.0.0.1:7402")
+    assert BusAddress.parse(str(t)) == t
+
+
+@pytest.mark.parametrize("bad", ["ipc://", "tcp://nohost", "tcp://h:abc", "udp://x", "pub=a;sub=b",
+                                 "ipc:///tmp/" + "x" * 120, "tcp://127.0.0.1:0"])
+def test_address_errors_are_clear(bad: str) -> None:
+    with pytest.raises(BusError, match="bus address"):
+        BusAddress.parse(bad)
+
+
+def test_params_validated_with_names() -> None:
+    with pytest.raises(ParamError, match=r"node 'talker': parameter 'rate_hz': Expected `float`, got `str`"):
+        Talker(params={"rate_hz": "fast"}, transport=MemoryBus().transport())
+    with pytest.raises(ParamError, match="unknown field `rte_hz`.*declared parameters: rate_hz"):
+        Talker(params={"rte_hz": 3}, transport=MemoryBus().transport())
+    node = Talker(params={"rate_hz": 5}, transport=MemoryBus().transport())
+    assert node.params.rate_hz == 5.0
+
+
+def test_sequence_tracker_classifies() -> None:
+    tr, st = SequenceTracker(), TopicStats()
+    assert [tr.observe("t", "n", s, st) for s in (1, 2, 5, 5, 6, 1)] == [True, True, True, False, True, True]
+    assert (st.received, st.gaps, st.duplicates, st.restarts) == (5, 2, 1, 1)
+    # two publishers on one topic are tracked separately
+    assert tr.observe("t", "m", 1, st) and st.gaps == 2
+
+
+def test_talker_listener_on_memory_bus() -> None:
+    bus = MemoryBus()
+    h = NodeHarness(Listener, bus=bus)
+    talker = Talker(params={"rate_hz": 10, "count": 3}, transport=bus.transport(), clock=h.clock, heartbeat_s=0)
+    for _ in range(5):
+        talker.spin_once(0)
+        h.advance(0.1)
+    assert [m.text for m in h.published("chatter_len")] == ["7", "7", "7"]
+    assert talker.is_shutdown and talker.exit_code == 0
+
+
+def test_exact_topic_match_no_prefix_leak() -> None:
+    h = NodeHarness(Listener)
+    h.publish("chatterbox", Text(text="not for you"))
+    h.publish("chatter", Text(text="yes"))
+    assert h.node.heard == 1
+
+
+def test_bad_frames_are_counted_not_fatal() -> None:
+    h = NodeHarness(Listener)
+    good = encode_header(Header(type="Text", seq=1, stamp=1, node="x"))
+    h.publish_raw([b"chatter"])  # too few frames
+    h.publish_raw([b"chatter", b"\xff\x00", b""])  # bad header
+    h.publish_raw([b"chatter", encode_header(Header(type="RobotPose", seq=2, stamp=1, node="x")),
+                   msgspec.msgpack.encode({"text": "wrong type"})])
+    h.publish_raw([b"chatter", encode_header(Header(type="Text", seq=3, stamp=1, node="x")),
+                   msgspec.msgpack.encode({"text": 42})])
+    stats = h.node.counters()["chatter"]
+    assert stats.last_error == "Text: Expected `str`, got `int` - at `$.text`"
+    h.publish_raw([b"chatter", good, b"\xc1"])  # never-used msgpack byte
+    assert stats.decode_errors == 5
+    h.publish("chatter", Text(text="still alive"))
+    assert h.node.heard == 1
+
+
+def test_handler_type_from_annotation_and_iterator_form() -> None:
+    bus = MemoryBus()
+    script = palpa.Node(name="script", transport=bus.transport(), heartbeat_s=0)
+    sub = script.subscribe("chatter", Text)
+    talker = Talker(params={"count": 2}, transport=bus.transport(), heartbeat_s=0)
+    talker.spin_once(0)
+    got = [sub.next(timeout_s=0.5) for _ in range(1)]
+    assert got[0] is not None and got[0].text == "hello 1"
+
+    class Bad(palpa.Node):
+        def setup(self) -> None:
+            self.subscribe("x", self.handler)
+
+        def handler(self, msg: int) -> None: ...
+
+    with pytest.raises(TypeError, match="no Message-typed parameter"):
+        Bad(transport=bus.transport())
+
+
+def test_latched_topics_reach_late_joiners_once() -> None:
+    bus = MemoryBus()
+    pub_node = palpa.Node(name="planner", transport=bus.transport(), heartbeat_s=0)
+    pub = pub_node.publisher("plan", Text, latched=True)
+    pub.publish(Text(text="v1"))
+    pub.publish(Text(text="v2"))
+    late = palpa.Node(name="late", transport=bus.transport(), heartbeat_s=0)
+    sub = late.subscribe("plan", Text)
+    assert sub.next(0.1) == Text(text="v2")
+    assert sub.next(0.0) is None
+
+
+def test_remap_and_namespace() -> None:
+    h = NodeHarness(Listener, namespace="left", remap={"chatter": "/talk"})
+    h.publish("talk", Text(text="abc"))
+    assert h.node.heard == 1
+    assert [m.text for m in h.published("left/chatter_len")] == ["3"]
+
+
+def test_handler_exception_is_logged_and_node_survives() -> None:
+    class Fragile(palpa.Node):
+        def setup(self) -> None:
+            self.seen = 0
+            self.subscribe("chatter", self.on_text)
+
+        def on_text(self, msg: Text) -> None:
+            self.seen += 1
+            raise RuntimeError("boom")
+
+    h = NodeHarness(Fragile)
+    h.publish("chatter", Text(text="a"))
+    h.publish("chatter", Text(text="b"))
+    assert h.node.seen == 2 and h.node.handler_errors == 2
+    logs = [m for m in h.published("_palpa/log") if m.level == "ERROR"]
+    assert logs and "boom" in logs[0].text
+
+
+def test_publisher_refuses_wrong_type() -> None:
+    node = palpa.Node(name="n", transport=MemoryBus().transport(), heartbeat_s=0)
+    pub = node.publisher("chatter", Text)
+    with pytest.raises(TypeError, match="carries Text"):
+        pub.publish(palpa.runtime_msgs.ClockTick(sim_ns=1))  # type: ignore[arg-type]
+
+
+def test_sim_clock_follows_clock_topic() -> None:
+    from palpa.runtime_msgs import ClockTick
+
+    bus = MemoryBus()
+    node = Talker(params={"rate_hz": 10}, transport=bus.transport(), heartbeat_s=0, sim_clock=True)
+    ticker = palpa.Node(name="player", transport=bus.transport(), heartbeat_s=0)
+    pub = ticker.publisher("_palpa/clock", ClockTick)
+    spy = palpa.Node(name="spy", transport=bus.transport(), heartbeat_s=0)
+    sub = spy.subscribe("chatter", Text)
+    for i in range(10):
+        pub.publish(ClockTick(sim_ns=1_000_000_000 + i * 50_000_000))
+        node.spin_once(0)
+    spy.spin_once(0)
+    # 0.45 s of sim time at 10 Hz: first tick at t0 then every 100 ms, none before time existed
+    assert [m.stamp_ns for m in sub.queue] == [1_000_000_000 + i * 100_000_000 for i in range(5)]
