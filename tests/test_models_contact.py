@@ -169,7 +169,7 @@ def test_bad_arguments_raise_clear_errors(call: object, match: str) -> None:
         call()  # type: ignore[operator]
 
 
-@settings(max_examples=50)
+@settings(max_examples=50, deadline=None)
 @given(e=moduli, t=thicknesses)
 def test_fit_recovers_any_modulus_on_clean_data(e: float, t: float) -> None:
     d = np.linspace(0.1, 3.0, 40)
