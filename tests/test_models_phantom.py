@@ -280,6 +280,8 @@ def test_far_from_inclusions_the_background_is_recovered() -> None:
     flat = parse_phantom(_tissue(), "t")
     assert flat.effective_modulus(30.0, 30.0, 4.0, 1.0) == E_BG
     assert math.isnan(ph.effective_modulus(61.0, 30.0, 4.0, 1.0))
+    # An indenter pushed to the table has no tissue bulb left: defined as the background.
+    assert ph.effective_modulus(30.0, 30.0, 4.0, 10.0) == E_BG
 
 
 def test_lateral_response_is_symmetric_peaked_and_bounded() -> None:
