@@ -48,12 +48,21 @@ from palpa.runtime_msgs import (
     TopicCounters,
 )
 from palpa.transport import Delivery, Transport, ZmqTransport
-from palpa.wire import Header, SequenceTracker, TopicStats, decode_header, encode_header
+from palpa.wire import (
+    Header,
+    HeaderTemplate,
+    SequenceTracker,
+    TopicStats,
+    encode_header,
+    split_envelope,
+)
 
 __all__ = ["Node", "Publisher", "RawMessage", "Subscription", "Timer"]
 
 M = TypeVar("M", bound=Message)
 _ERROR_LOG_INTERVAL_NS = 5_000_000_000
+DEFAULT_BATCH = 64
+"""Messages a publisher coalesces at most into one ZeroMQ message while inside a callback."""
 _encoder = msgspec.msgpack.Encoder()
 
 
@@ -73,16 +82,27 @@ class RawMessage(NamedTuple):
 
 
 class Publisher(Generic[M]):
-    """Publishes one message type on one topic; ``publish`` returns the sequence number it used."""
+    """Publishes one message type on one topic; ``publish`` returns the sequence number it used.
 
-    def __init__(self, node: Node, topic: str, msg_type: type[M], latched: bool) -> None:
+    Batching: messages published from inside a callback or timer are coalesced (up to ``batch`` per ZeroMQ
+    message) and leave when the callback returns, so a burst costs one send and a single message no extra
+    latency. Outside callbacks each publish is sent at once, unless the publisher was made with an explicit
+    ``batch`` (then call :meth:`flush`, or let the node's loop do it).
+    """
+
+    def __init__(self, node: Node, topic: str, msg_type: type[M], latched: bool, batch: int | None) -> None:
         self.node = node
         self.topic = topic
         self.type = msg_type
         self.latched = latched
         self.seq = 0
+        self.batch = 1 if latched else max(1, DEFAULT_BATCH if batch is None else batch)
+        self._always_batch = batch is not None and self.batch > 1
         self._topic_b = topic.encode()
         self._type_name = msg_type.type_name
+        self._header = HeaderTemplate(self._type_name, node.name, latched)
+        self._pending_headers: list[bytes] = []
+        self._pending_payloads: list[bytes] = []
 
     def publish(self, msg: M, *, blobs: Sequence[bytes] = (), stamp_ns: int | None = None) -> int:
         """Serialise and send ``msg`` (plus optional binary blobs). ``stamp_ns`` defaults to the node clock."""
@@ -91,12 +111,33 @@ class Publisher(Generic[M]):
                 f"publisher {self.topic!r} carries {self._type_name}, not {type(msg).__name__}"
             )
         self.seq += 1
-        stamp = self.node.clock.now_ns() if stamp_ns is None else stamp_ns
-        header = encode_header(
-            Header(type=self._type_name, seq=self.seq, stamp=stamp, node=self.node.name, latched=self.latched)
-        )
-        self.node._transport.send([self._topic_b, header, _encoder.encode(msg), *blobs], self.latched)
+        node = self.node
+        header = self._header.pack(self.seq, node.clock.now_ns() if stamp_ns is None else stamp_ns)
+        if self.batch > 1 and not blobs and (node._depth or self._always_batch):
+            if not self._pending_headers:
+                node._dirty.append(self)
+            self._pending_headers.append(header)
+            self._pending_payloads.append(_encoder.encode(msg))
+            if len(self._pending_headers) >= self.batch:
+                self.flush()
+            return self.seq
+        if self._pending_headers:
+            self.flush()
+        node._transport.send([self._topic_b, header, _encoder.encode(msg), *blobs], self.latched)
         return self.seq
+
+    def flush(self) -> None:
+        """Send batched messages now (the node also flushes after every callback and timer)."""
+        headers = self._pending_headers
+        if not headers:
+            return
+        if len(headers) == 1:
+            frames = [self._topic_b, headers[0], self._pending_payloads[0]]
+        else:
+            frames = [self._topic_b, HeaderTemplate.pack_batch(headers), *self._pending_payloads]
+        self._pending_headers = []
+        self._pending_payloads = []
+        self.node._transport.send(frames, False)
 
 
 class Subscription(Generic[M]):
@@ -232,6 +273,8 @@ class Node:
         self._raw: list[_RawSubscription] = []
         self._raw_stats: dict[str, TopicStats] = {}
         self._pubs: dict[str, Publisher[Any]] = {}
+        self._dirty: list[Publisher[Any]] = []
+        self._depth = 0
         self._timers: list[Timer] = []
         self._tracker = SequenceTracker()
         self._raw_tracker = SequenceTracker()
@@ -270,15 +313,22 @@ class Node:
         resolved = f"{self.namespace}/{topic}"
         return self.remap.get(resolved, resolved)
 
-    def publisher(self, topic: str, msg_type: type[M], *, latched: bool = False) -> Publisher[M]:
-        """A publisher of ``msg_type`` on ``topic``. Latched topics are replayed to subscribers that join late."""
+    def publisher(
+        self, topic: str, msg_type: type[M], *, latched: bool = False, batch: int | None = None
+    ) -> Publisher[M]:
+        """A publisher of ``msg_type`` on ``topic``. Latched topics are replayed to subscribers that join late.
+
+        Inside callbacks, messages are coalesced up to ``batch`` (default :data:`DEFAULT_BATCH`) per ZeroMQ message
+        and sent when the callback returns. An explicit ``batch > 1`` also batches outside callbacks (flush with
+        ``Publisher.flush()`` or the node's loop); ``batch=1`` never batches.
+        """
         resolved = self.resolve(topic)
         existing = self._pubs.get(resolved)
         if existing is not None:
             if existing.type is not msg_type:
                 raise TypeError(f"topic {resolved!r} already published as {existing.type.type_name}")
             return existing
-        pub = Publisher(self, resolved, msg_type, latched)
+        pub = Publisher(self, resolved, msg_type, latched, batch)
         self._pubs[resolved] = pub
         return pub
 
@@ -374,6 +424,7 @@ class Node:
         self._shutdown = True
         try:
             self.on_shutdown()
+            self.flush()
         finally:
             self._closed = True
             self.log.removeHandler(self._bus_handler)
@@ -413,11 +464,22 @@ class Node:
                 self._call(t.callback)
 
     def _call(self, fn: Callable[..., object], *args: object) -> None:
+        self._depth += 1
         try:
             fn(*args)
         except Exception:
             self.handler_errors += 1
             self.log.error("error in %s:\n%s", getattr(fn, "__qualname__", fn), traceback.format_exc())
+        finally:
+            self._depth -= 1
+        if self._dirty and not self._depth:
+            self.flush()
+
+    def flush(self) -> None:
+        """Send every batched message still pending."""
+        dirty, self._dirty = self._dirty, []
+        for pub in dirty:
+            pub.flush()
 
     def _count_error(self, topic: str, stats: TopicStats, text: str) -> None:
         stats.decode_errors += 1
@@ -435,25 +497,27 @@ class Node:
         if sub is None and not raws:
             return  # a prefix match that is not our topic
         topic = topic_b.decode(errors="replace")
-        if len(frames) < 3:
-            stats = sub.stats if sub is not None else self._raw_stats.setdefault(topic, TopicStats())
-            self._count_error(topic, stats, f"envelope has {len(frames)} frames, expected at least 3")
-            return
         try:
-            header = decode_header(frames[1])
+            items = split_envelope(frames)
         except DecodeError as exc:
             stats = sub.stats if sub is not None else self._raw_stats.setdefault(topic, TopicStats())
             self._count_error(topic, stats, str(exc))
             return
-        if raws:
-            rstats = self._raw_stats.setdefault(topic, TopicStats())
-            if self._raw_tracker.observe(topic, header.node, header.seq, rstats):
-                raw = RawMessage(topic, header, frames[2], frames[3:], delivery.from_cache, time.time_ns())
-                for r in raws:
-                    self._call(r.callback, raw)
-        if sub is None:
-            return
-        if delivery.from_cache and self._tracker.seen_at_least(topic, header.node, header.seq):
+        cached = delivery.from_cache
+        for header, payload, blobs in items:
+            if raws:
+                rstats = self._raw_stats.setdefault(topic, TopicStats())
+                if not (cached and self._raw_tracker.seen_at_least(topic, header.node, header.seq)) and \
+                        self._raw_tracker.observe(topic, header.node, header.seq, rstats):
+                    raw = RawMessage(topic, header, payload, blobs, cached, time.time_ns())
+                    for r in raws:
+                        self._call(r.callback, raw)
+            if sub is not None:
+                self._deliver(sub, topic, header, payload, blobs, cached)
+
+    def _deliver(self, sub: Subscription[Any], topic: str, header: Header, payload: bytes,
+                 blobs: list[bytes], cached: bool) -> None:
+        if cached and self._tracker.seen_at_least(topic, header.node, header.seq):
             return
         if not self._tracker.observe(topic, header.node, header.seq, sub.stats):
             return
@@ -461,12 +525,12 @@ class Node:
             self._count_error(topic, sub.stats, f"expected type {sub.type.type_name}, got {header.type}")
             return
         try:
-            msg = sub.decoder.decode(frames[2])
+            msg = sub.decoder.decode(payload)
         except (msgspec.ValidationError, msgspec.DecodeError) as exc:
             self._count_error(topic, sub.stats, f"{header.type}: {exc}")
             return
         sub.last_header = header
-        sub.last_blobs = frames[3:]
+        sub.last_blobs = blobs
         if sub.callback is not None:
             self._call(sub.callback, msg)
         else:

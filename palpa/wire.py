@@ -7,12 +7,20 @@ A message is one ZeroMQ multipart message::
     frame 2  payload  msgpack map of the message's fields (plain ``msgpack.unpackb`` reads it)
     frame 3+ blobs    optional raw binary attachments (e.g. a debug image), never msgpack-encoded
 
+A *batch* carries several messages of one topic in one ZeroMQ message (a publisher under load coalesces them)::
+
+    frame 0  topic
+    frame 1  msgpack ARRAY of n header maps
+    frame 2..n+1  the n payloads, in order (a batch has no blobs)
+
+A receiver tells the two apart by frame 1's first byte (a msgpack map vs an array).
 ZeroMQ subscriptions match by prefix, so a receiver compares frame 0 to its topic exactly before decoding.
 ``seq`` counts from 1 per (publisher node, topic); receivers count gaps to make high-water-mark drops visible.
 """
 
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -22,10 +30,13 @@ from palpa.errors import DecodeError
 
 __all__ = [
     "Header",
+    "HeaderTemplate",
     "SequenceTracker",
     "TopicStats",
     "decode_header",
+    "encode_batch_header",
     "encode_header",
+    "split_envelope",
 ]
 
 
@@ -41,6 +52,7 @@ class Header(msgspec.Struct, frozen=True, omit_defaults=True):
 
 _header_encoder = msgspec.msgpack.Encoder()
 _header_decoder = msgspec.msgpack.Decoder(Header)
+_batch_decoder = msgspec.msgpack.Decoder(list[Header])
 
 
 def encode_header(header: Header) -> bytes:
@@ -54,6 +66,55 @@ def decode_header(frame: bytes) -> Header:
         return _header_decoder.decode(frame)
     except (msgspec.ValidationError, msgspec.DecodeError) as exc:
         raise DecodeError(f"bad envelope header: {exc}") from None
+
+
+def encode_batch_header(headers: list[Header]) -> bytes:
+    """Serialise the headers of a batch (frame 1 of a batch envelope)."""
+    return _header_encoder.encode(headers)
+
+
+class HeaderTemplate:
+    """Fast header encoding for one publisher: the constant fields are packed once, ``seq`` and ``stamp`` per
+    message (as msgpack uint64, valid for every msgpack reader)."""
+
+    _tail = struct.Struct(">Q7sQ")
+
+    def __init__(self, type_name: str, node: str, latched: bool) -> None:
+        enc = msgspec.msgpack.encode
+        entries = 5 if latched else 4
+        self._prefix = (
+            bytes([0x80 | entries]) + enc("type") + enc(type_name) + enc("node") + enc(node)
+            + (enc("latched") + enc(True) if latched else b"") + enc("seq") + b"\xcf"
+        )
+        self._mid = enc("stamp") + b"\xcf"
+
+    def pack(self, seq: int, stamp_ns: int) -> bytes:
+        """The header map of one message."""
+        return self._prefix + self._tail.pack(seq, self._mid, stamp_ns)
+
+    @staticmethod
+    def pack_batch(headers: list[bytes]) -> bytes:
+        """Frame 1 of a batch from packed single headers (msgpack array 16)."""
+        return b"\xdc" + len(headers).to_bytes(2, "big") + b"".join(headers)
+
+
+def split_envelope(frames: list[bytes]) -> list[tuple[Header, bytes, list[bytes]]]:
+    """(header, payload, blobs) for each message in an envelope, single or batch.
+
+    Raises :class:`DecodeError` saying what is wrong with a malformed envelope.
+    """
+    if len(frames) < 3:
+        raise DecodeError(f"envelope has {len(frames)} frames, expected at least 3")
+    first = frames[1][:1]
+    if first and (0x90 <= first[0] <= 0x9F or first[0] in (0xDC, 0xDD)):
+        try:
+            headers = _batch_decoder.decode(frames[1])
+        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+            raise DecodeError(f"bad batch header: {exc}") from None
+        if len(headers) != len(frames) - 2:
+            raise DecodeError(f"batch header lists {len(headers)} messages but {len(frames) - 2} payloads follow")
+        return [(h, frames[2 + i], []) for i, h in enumerate(headers)]
+    return [(decode_header(frames[1]), frames[2], frames[3:])]
 
 
 @dataclass

@@ -159,3 +159,38 @@ def test_sim_clock_follows_clock_topic() -> None:
     spy.spin_once(0)
     # 0.45 s of sim time at 10 Hz: first tick at t0 then every 100 ms, none before time existed
     assert [m.stamp_ns for m in sub.queue] == [1_000_000_000 + i * 100_000_000 for i in range(5)]
+
+
+def test_batched_publisher_delivers_in_order_after_each_callback() -> None:
+    class Burst(palpa.Node):
+        def setup(self) -> None:
+            self.out = self.publisher("burst", Text, batch=8)
+            self.subscribe("go", self.on_go)
+
+        def on_go(self, msg: Text) -> None:
+            for i in range(20):
+                self.out.publish(Text(text=str(i)))
+
+    bus = MemoryBus()
+    h = NodeHarness(Burst, bus=bus)
+    sent: list[int] = []
+    orig = h.node._transport.send
+
+    def spy(frames, latched):  # type: ignore[no-untyped-def]
+        if frames[0] == b"burst":
+            sent.append(len(frames) - 2)
+        orig(frames, latched)
+
+    h.node._transport.send = spy  # type: ignore[method-assign]
+    h.publish("go", Text(text="now"))
+    assert [m.text for m in h.published("burst")] == [str(i) for i in range(20)]
+    assert sent == [8, 8, 4]  # two full batches, the rest flushed when the callback returned
+
+
+def test_malformed_batch_is_counted() -> None:
+    h = NodeHarness(Listener)
+    hdrs = msgspec.msgpack.encode([Header(type="Text", seq=1, stamp=1, node="x"),
+                                   Header(type="Text", seq=2, stamp=1, node="x")])
+    h.publish_raw([b"chatter", hdrs, msgspec.msgpack.encode({"text": "only one payload"})])
+    assert h.node.counters()["chatter"].decode_errors == 1
+    assert "batch header lists 2 messages but 1 payloads follow" in h.node.counters()["chatter"].last_error

@@ -107,6 +107,14 @@ class Source:
             text = path.read_text(encoding="utf-8")
         except UnicodeDecodeError as exc:
             raise LaunchError(f"{name}:1:1: not a UTF-8 text file ({exc.reason})") from None
+        except OSError as exc:
+            raise LaunchError(f"{name}: cannot read: {exc.strerror}") from None
+        return cls.from_text(text, name, path)
+
+    @classmethod
+    def from_text(cls, text: str, name: str, path: Path | None = None) -> Source:
+        """Parse YAML ``text`` named ``name`` in messages (``path`` is the file it came from, if any)."""
+        path = path if path is not None else Path(name)
         try:
             root = yaml.compose(text, Loader=_Loader)  # noqa: S506 - _Loader derives from SafeLoader
         except yaml.MarkedYAMLError as exc:

@@ -1,0 +1,303 @@
+"""Bus benchmark: palpa vs raw pyzmq vs zenoh-python, throughput (lossless?) and latency at 1 kHz.
+
+    .venv/bin/python bench/bus.py [--n 200000] [--latency-n 2000]
+
+Each contender: a publisher process sends N 100-byte typed messages as fast as it can; this process receives,
+decodes and counts them (losses = N - received). Then 1 kHz latency (publish stamp -> receive, p50/p99).
+palpa runs publisher -> proxy (`palpa bus`, its own process) -> subscriber, once unbatched and once with
+publisher-side batching; raw pyzmq runs PUB -> SUB direct with [topic, msgpack] frames; zenoh runs peer to peer
+over loopback tcp with blocking congestion control. The last line is one JSON object with every figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import secrets
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import zmq
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+import palpa  # noqa: E402
+from palpa.address import BusAddress  # noqa: E402
+
+
+class Blob(palpa.Message, frozen=True, kw_only=True):
+    """The benchmark message: ~100 bytes of msgpack."""
+
+    stamp_ns: int
+    seq: int
+    data: bytes
+
+
+def make_msg(i: int) -> Blob:
+    return Blob(stamp_ns=time.time_ns(), seq=i, data=b"x" * 64)
+
+
+PAYLOAD_SIZE = len(msgspec.msgpack.encode(make_msg(0)))
+DONE_GRACE_S = 1.0
+
+
+# ---------------------------------------------------------------- publishers (child processes)
+def pace(i: int, t0: float, rate: float) -> None:
+    if rate > 0:
+        target = t0 + i / rate
+        while (d := target - time.perf_counter()) > 0:
+            if d > 0.002:
+                time.sleep(d - 0.001)
+
+
+def pub_palpa(args: argparse.Namespace) -> None:
+    """A node that publishes from a timer, as a driver would: at the fixed rate, or in bursts of 1000 per tick
+    (so the default in-callback batching applies unless --batch 1)."""
+    node = palpa.Node(name="bench_pub", bus=args.bus, heartbeat_s=0)
+    pub = node.publisher("bench", Blob, batch=None if args.batch > 1 else 1)
+    time.sleep(args.settle)  # let the subscription propagate (benchmark only: no readiness API for a raw test)
+    sent = 0
+    t0 = time.perf_counter()
+
+    def tick() -> None:
+        nonlocal sent
+        if args.rate > 0:
+            due = min(args.n, int((time.perf_counter() - t0) * args.rate) + 1)
+        else:
+            due = min(args.n, sent + 1000)
+        while sent < due:
+            pub.publish(make_msg(sent))
+            sent += 1
+        if sent >= args.n:
+            node.request_shutdown()
+
+    node.timer(0.0002 if args.rate > 0 else 1e-6, tick, first_in_s=0.0)
+    node.spin()
+    node.close(linger_s=10)
+
+
+def pub_zmq(args: argparse.Namespace) -> None:
+    ctx = zmq.Context()
+    sock = ctx.socket(zmq.PUB)
+    sock.sndhwm = args.hwm
+    sock.connect(args.endpoint)
+    time.sleep(args.settle)
+    enc = msgspec.msgpack.Encoder()
+    t0 = time.perf_counter()
+    for i in range(args.n):
+        pace(i, t0, args.rate)
+        sock.send_multipart([b"bench", enc.encode(make_msg(i))])
+    sock.close(10_000)
+    ctx.term()
+
+
+def pub_zenoh(args: argparse.Namespace) -> None:
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("connect/endpoints", json.dumps([args.endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    pub = session.declare_publisher("bench", congestion_control=zenoh.CongestionControl.BLOCK)
+    time.sleep(args.settle)
+    enc = msgspec.msgpack.Encoder()
+    t0 = time.perf_counter()
+    for i in range(args.n):
+        pace(i, t0, args.rate)
+        pub.put(enc.encode(make_msg(i)))
+    time.sleep(0.5)
+    session.close()
+
+
+# ---------------------------------------------------------------- receivers (this process)
+class Counter:
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.count = 0
+        self.first = 0.0
+        self.last = 0.0
+        self.latencies: list[int] = []
+
+    def hit(self, msg: Blob) -> None:
+        now = time.perf_counter()
+        if self.count == 0:
+            self.first = now
+        self.count += 1
+        self.last = now
+        self.latencies.append(time.time_ns() - msg.stamp_ns)
+
+    def result(self) -> dict[str, Any]:
+        span = self.last - self.first
+        lat = sorted(self.latencies[len(self.latencies) // 10 :])  # skip warm-up
+        return {
+            "received": self.count,
+            "lost": self.n - self.count,
+            "msg_per_s": round((self.count - 1) / span) if span > 0 and self.count > 1 else 0,
+            "p50_us": round(lat[len(lat) // 2] / 1e3, 1) if lat else None,
+            "p99_us": round(lat[int(len(lat) * 0.99)] / 1e3, 1) if lat else None,
+        }
+
+
+def spawn(role: str, n: int, rate: float, extra: list[str]) -> subprocess.Popen[bytes]:
+    return subprocess.Popen([sys.executable, __file__, "--role", role, "--n", str(n), "--rate", str(rate), *extra])
+
+
+def wait_done(proc: subprocess.Popen[bytes], counter: Counter, poll: Any, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    done_at = None
+    while time.monotonic() < deadline:
+        poll()
+        if counter.count >= counter.n:
+            break
+        if proc.poll() is not None:
+            done_at = done_at or time.monotonic()
+            if time.monotonic() - done_at > DONE_GRACE_S:
+                break
+    proc.wait(10)
+
+
+def run_palpa(n: int, rate: float, batch: int, bus: str, settle: float) -> dict[str, Any]:
+    counter = Counter(n)
+    node = palpa.Node(name="bench_sub", bus=bus, heartbeat_s=0)
+    node.subscribe("bench", Blob, counter.hit, queue_size=1)
+    proc = spawn("palpa", n, rate, ["--bus", bus, "--batch", str(batch), "--settle", str(settle)])
+    wait_done(proc, counter, lambda: node.spin_once(0.05), 120)
+    gaps = node.counters()["bench"].gaps
+    node.close(0)
+    return {**counter.result(), "gaps": gaps}
+
+
+def run_zmq(n: int, rate: float, hwm: int, settle: float) -> dict[str, Any]:
+    counter = Counter(n)
+    ctx = zmq.Context()
+    sub = ctx.socket(zmq.SUB)
+    sub.rcvhwm = hwm
+    sub.setsockopt(zmq.SUBSCRIBE, b"bench")
+    endpoint = f"ipc:///tmp/pb-{secrets.token_hex(3)}"
+    sub.bind(endpoint)
+    dec = msgspec.msgpack.Decoder(Blob)
+    proc = spawn("zmq", n, rate, ["--endpoint", endpoint, "--hwm", str(hwm), "--settle", str(settle)])
+
+    def poll() -> None:
+        if sub.poll(50):
+            for _ in range(1000):
+                try:
+                    frames = sub.recv_multipart(zmq.NOBLOCK)
+                except zmq.Again:
+                    break
+                if frames[0] == b"bench":
+                    counter.hit(dec.decode(frames[1]))
+
+    wait_done(proc, counter, poll, 120)
+    sub.close(0)
+    ctx.term()
+    return counter.result()
+
+
+def run_zenoh(n: int, rate: float, settle: float) -> dict[str, Any] | str:
+    try:
+        import zenoh
+    except ImportError:
+        return "zenoh not installed (pip install eclipse-zenoh)"
+    counter = Counter(n)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    endpoint = f"tcp/127.0.0.1:{port}"
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    session = zenoh.open(conf)
+    dec = msgspec.msgpack.Decoder(Blob)
+    subscriber = session.declare_subscriber("bench", zenoh.handlers.FifoChannel(1_000_000))
+
+    def poll() -> None:
+        got = 0
+        while got < 1000:
+            sample = subscriber.try_recv()
+            if sample is None:
+                time.sleep(0.0005) if got == 0 else None
+                return
+            counter.hit(dec.decode(sample.payload.to_bytes()))
+            got += 1
+
+    proc = spawn("zenoh", n, rate, ["--endpoint", endpoint, "--settle", str(settle)])
+    wait_done(proc, counter, poll, 120)
+    subscriber.undeclare()
+    session.close()
+    return counter.result()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--role")
+    ap.add_argument("--n", type=int, default=200_000)
+    ap.add_argument("--latency-n", type=int, default=2000)
+    ap.add_argument("--rate", type=float, default=0.0)
+    ap.add_argument("--bus")
+    ap.add_argument("--endpoint")
+    ap.add_argument("--batch", type=int, default=1)
+    ap.add_argument("--hwm", type=int, default=1_000_000)
+    ap.add_argument("--settle", type=float, default=0.5)
+    ap.add_argument("--skip-zenoh", action="store_true")
+    args = ap.parse_args()
+    if args.role:
+        {"palpa": pub_palpa, "zmq": pub_zmq, "zenoh": pub_zenoh}[args.role](args)
+        return
+
+    base = f"/tmp/pb-{secrets.token_hex(3)}"
+    bus_proc = subprocess.Popen(
+        [sys.executable, "-m", "palpa.cli.main", "bus", "--ipc", base, "--hwm", "1000000"],
+        stdout=subprocess.PIPE, text=True,
+    )
+    try:
+        assert bus_proc.stdout is not None
+        line = bus_proc.stdout.readline()
+        if "ready" not in line:
+            raise SystemExit(f"bus did not start: {line!r}")
+        bus = str(BusAddress.parse(f"ipc://{base}"))
+        os.environ["PALPA_BUS"] = bus
+        results: dict[str, Any] = {"payload_bytes": PAYLOAD_SIZE, "n": args.n}
+        results["raw_pyzmq"] = run_zmq(args.n, 0, args.hwm, args.settle)
+        results["palpa"] = run_palpa(args.n, 0, 1, bus, args.settle)
+        results["palpa_batched"] = run_palpa(args.n, 0, 64, bus, args.settle)
+        if not args.skip_zenoh:
+            results["zenoh"] = run_zenoh(args.n, 0, args.settle)
+        lat_n = args.latency_n
+        results["latency_1khz"] = {
+            "raw_pyzmq": run_zmq(lat_n, 1000, args.hwm, args.settle),
+            "palpa": run_palpa(lat_n, 1000, 1, bus, args.settle),
+            "palpa_batched": run_palpa(lat_n, 1000, 64, bus, args.settle),
+        }
+        if not args.skip_zenoh:
+            results["latency_1khz"]["zenoh"] = run_zenoh(lat_n, 1000, args.settle)
+    finally:
+        bus_proc.terminate()
+        bus_proc.wait(10)
+
+    raw = results["raw_pyzmq"]["msg_per_s"] or 1
+    results["ratio_palpa_vs_raw"] = round(results["palpa"]["msg_per_s"] / raw, 2)
+    results["ratio_palpa_batched_vs_raw"] = round(results["palpa_batched"]["msg_per_s"] / raw, 2)
+    z = results.get("zenoh")
+    if isinstance(z, dict) and z["msg_per_s"]:
+        results["ratio_palpa_batched_vs_zenoh"] = round(results["palpa_batched"]["msg_per_s"] / z["msg_per_s"], 2)
+
+    print(f"{'contender':<16}{'msg/s':>10}{'lost':>8}{'p50 us @1k':>12}{'p99 us @1k':>12}")
+    for name in ("raw_pyzmq", "palpa", "palpa_batched", "zenoh"):
+        r = results.get(name)
+        lat = results["latency_1khz"].get(name)
+        if isinstance(r, dict) and isinstance(lat, dict):
+            print(f"{name:<16}{r['msg_per_s']:>10}{r['lost']:>8}{lat['p50_us']:>12}{lat['p99_us']:>12}")
+    print(json.dumps(results))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,472 @@
+"""Loading a launch file into a :class:`~palpa.launch.plan.LaunchPlan`: args, substitutions, includes, validation.
+
+Order of work for each file: read the YAML with marks; validate and resolve ``args`` (given value, else default,
+else an error); apply substitutions to everything else; validate the result against
+:class:`~palpa.launch.schema.LaunchFile`; load includes (paths relative to the including file, cycles refused);
+collect the nodes. When every file is in, each ``node:`` class is imported and its params are validated with
+:func:`palpa.params.convert_params`. Every error reads ``file:line:col: what was expected``.
+
+Substitutions, inside any string value (not keys):
+
+* ``$(arg NAME)``            the arg's value; a string that is exactly this keeps the value's YAML type
+* ``$(env NAME)``            an environment variable (an error if unset); ``$(env NAME default words)`` otherwise
+* ``$(dirname)``             the folder of the launch file being read (absolute)
+* ``$(run_dir)``             the run directory (``runs/<timestamp>`` unless ``--run-dir``)
+* ``$$(``                    a literal ``$(``
+"""
+
+from __future__ import annotations
+
+import difflib
+import importlib
+import json
+import os
+import re
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from palpa.errors import BusError, LaunchError, ParamError
+from palpa.launch.plan import RECORDER_NAME, RECORDER_TARGET, LaunchPlan, NodeSpec
+from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, RecordDecl
+from palpa.launch.source import Mark, Path_, Source, display_path
+from palpa.node import Node
+from palpa.params import convert_params
+
+__all__ = ["load_launch", "parse_overrides"]
+
+_SUBST_RE = re.compile(r"\$\$\(|\$\(([^()]*)\)|\$\(")
+_ERR_PATH_RE = re.compile(r"^(?P<what>.*) - at `\$(?P<path>[^`]*)`$", re.S)
+_PATH_PART_RE = re.compile(r"\.([A-Za-z_][\w-]*)|\[(\d+)\]|\[\.\.\.\]")
+_RESERVED_NAMES = {"launch"}
+
+
+def parse_overrides(items: list[str]) -> dict[str, Any]:
+    """``name:=value`` words from the command line -> {name: value}; values are YAML scalars (``3`` is an int,
+    ``true`` a bool, ``[1, 2]`` a list)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        name, sep, text = item.partition(":=")
+        if not sep or not name:
+            raise LaunchError(f"argument {item!r}: expected name:=value")
+        out[name] = _parse_value(text, f"argument {name}:=")
+    return out
+
+
+def _parse_value(text: str, where: str) -> Any:
+    if not text.strip():
+        return ""
+    try:
+        return Source.from_text(text, where).data
+    except LaunchError as exc:
+        raise LaunchError(f"{where}{text}: not a valid YAML value ({str(exc).partition(': ')[2]})") from None
+
+
+@dataclass
+class _Given:
+    """Values handed to a file's args, and where they came from (for errors)."""
+
+    values: dict[str, Any]
+    marks: dict[str, Mark | None]
+    origin: str  # "the command line" or "the include at file:line:col"
+
+
+@dataclass
+class _Collected:
+    plan: LaunchPlan
+    top: Source | None = None
+    node_sources: list[tuple[Source, Path_, NodeSpec]] = field(default_factory=list)
+    names: dict[str, str] = field(default_factory=dict)
+    stack: list[Path] = field(default_factory=list)
+
+
+def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
+                run_dir: str | Path = "runs/<timestamp>") -> LaunchPlan:
+    """Read, resolve and validate a launch file (and its includes). Raises :class:`LaunchError` naming
+    ``file:line:col`` and what was expected. Nothing is started."""
+    path = Path(file)
+    if not path.is_file():
+        raise LaunchError(f"{display_path(path)}: no such launch file")
+    plan = LaunchPlan(file=path.resolve(), run_dir=Path(os.path.abspath(run_dir)))
+    given = _Given(dict(overrides or {}), {k: None for k in overrides or {}}, "the command line")
+    col = _Collected(plan)
+    _load_file(path.resolve(), given, "", col, top=True)
+    _validate_nodes(col)
+    return plan
+
+
+# -- one file -----------------------------------------------------------------------------------------
+def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, top: bool) -> None:
+    src = Source.read(path)
+    if top:
+        col.top = src
+    col.plan.files.append(src.name)
+    col.stack.append(path)
+    if src.data is None:
+        raise LaunchError(f"{src.name}:1:1: empty launch file: expected a mapping with 'nodes' (and optionally "
+                          "args, include, bus, record, progress)")
+    if not isinstance(src.data, dict):
+        raise src.error((), f"a launch file is a mapping (nodes:, args:, ...), not a {_kind(src.data)}")
+    data: dict[str, Any] = dict(src.data)
+    args = _resolve_args(src, data.pop("args", []), given, col.plan.run_dir)
+    if top:
+        col.plan.args = dict(args)
+    subst = {k: _substitute(src, v, (k,), args, col.plan.run_dir) for k, v in data.items()}
+    decl = _convert(src, subst, LaunchFile)
+
+    for key in ("bus", "record", "progress"):
+        if not top and getattr(decl, key) is not None:
+            raise src.error((key,), f"only the top-level launch file may set '{key}' (this file is included)",
+                            key=True)
+    if top:
+        if decl.bus is not None:
+            col.plan.bus = decl.bus
+            try:
+                col.plan.bus_request()
+            except BusError as exc:
+                raise src.error(("bus",), str(exc)) from None
+        col.plan.description = decl.description
+        col.plan.progress_topic = decl.progress.topic if decl.progress is not None else None
+        if decl.progress is not None and not decl.progress.topic:
+            raise src.error(("progress", "topic"), "progress topic must not be empty")
+        _record(src, decl, col.plan)
+    for i, entry in enumerate(decl.python_path):
+        p = Path(entry)
+        p = p if p.is_absolute() else path.parent / p
+        if not p.is_dir():
+            raise src.error(("python_path", i), f"python_path entry {entry!r}: no such folder ({p})")
+        if str(p) not in col.plan.python_path:
+            col.plan.python_path.append(str(p))
+    for i, inc in enumerate(decl.include):
+        _include(src, i, inc, namespace, col)
+    for i, nd in enumerate(decl.nodes):
+        spec = _node_spec(src, i, nd, namespace, col)
+        col.plan.nodes.append(spec)
+        col.node_sources.append((src, ("nodes", i), spec))
+    col.stack.pop()
+
+
+def _record(src: Source, decl: LaunchFile, plan: LaunchPlan) -> None:
+    rec = decl.record
+    if rec is None or rec is False:
+        return
+    plan.record = RecordDecl() if rec is True else rec
+    for key in ("topics", "exclude"):
+        for i, rx in enumerate(getattr(plan.record, key)):
+            try:
+                re.compile(rx)
+            except re.error as exc:
+                raise src.error(("record", key, i), f"not a regular expression: {exc}") from None
+
+
+def _resolve_args(src: Source, raw: Any, given: _Given, run_dir: Path) -> dict[str, Any]:
+    decls = _convert(src, raw, list[ArgDecl], ("args",))
+    values: dict[str, Any] = {}
+    declared: dict[str, int] = {}
+    for i, decl in enumerate(decls):
+        if decl.name in declared:
+            raise src.error(("args", i, "name"), f"arg {decl.name!r} is declared twice")
+        declared[decl.name] = i
+        if decl.name in given.values:
+            values[decl.name] = given.values[decl.name]
+        elif decl.default is not msgspec.UNSET:
+            values[decl.name] = _substitute(src, decl.default, ("args", i, "default"), values, run_dir)
+        else:
+            how = (f"pass {decl.name}:=VALUE" if given.origin == "the command line"
+                   else f"add {decl.name}: VALUE to the include's args")
+            raise src.error(("args", i), f"arg {decl.name!r} has no default and was not given by {given.origin} "
+                                         f"({how})")
+    for name in given.values:
+        if name not in declared:
+            hint = _did_you_mean(name, declared)
+            names = ", ".join(declared) or "none"
+            mark = given.marks.get(name)
+            where = f"{mark}: " if mark is not None else f"{src.name}: "
+            raise LaunchError(f"{where}unknown arg {name!r} given by {given.origin}{hint} "
+                              f"(args of {src.name}: {names})")
+    return values
+
+
+def _include(src: Source, i: int, inc: IncludeDecl, namespace: str, col: _Collected) -> None:
+    target = Path(inc.file)
+    target = (target if target.is_absolute() else src.path.parent / target).resolve()
+    if not target.is_file():
+        raise src.error(("include", i, "file"), f"included launch file {inc.file!r} does not exist ({target})")
+    if target in col.stack:
+        chain = " -> ".join(display_path(p) for p in [*col.stack[col.stack.index(target):], target])
+        raise src.error(("include", i, "file"), f"include cycle: {chain}")
+    marks = {k: src.mark(("include", i, "args", k), key=True) for k in inc.args}
+    given = _Given(dict(inc.args), dict(marks), f"the include at {src.mark(('include', i))}")
+    ns = "/".join(filter(None, [namespace.strip("/"), inc.namespace.strip("/")]))
+    _load_file(target, given, ns, col, top=False)
+
+
+def _node_spec(src: Source, i: int, nd: NodeDecl, namespace: str, col: _Collected) -> NodeSpec:
+    where = ("nodes", i)
+    if (nd.node is None) == (nd.cmd is None):
+        what = "both" if nd.node is not None else "neither"
+        raise src.error(where, f"node {nd.name!r} has {what} of 'node' and 'cmd': give exactly one "
+                               "(node: package.module:Class, or cmd: [program, args...])")
+    if nd.name in col.names:
+        raise src.error((*where, "name"), f"duplicate node name {nd.name!r} (first at {col.names[nd.name]})")
+    if nd.name in _RESERVED_NAMES:
+        raise src.error((*where, "name"), f"node name {nd.name!r} is reserved (its log would clash with the "
+                                          "launcher's own)")
+    if nd.name == RECORDER_NAME and col.plan.record is not None:
+        raise src.error((*where, "name"), "node name 'recorder' is taken by the record section's recorder")
+    col.names[nd.name] = str(src.mark(where))
+    for key, value in nd.remap.items():
+        if not key or not value:
+            raise src.error((*where, "remap", key), "remap entries are topic: topic, both non-empty")
+    try:
+        json.dumps(nd.params, allow_nan=True)
+    except (TypeError, ValueError) as exc:
+        raise src.error((*where, "params"), f"params must be plain data: {exc}") from None
+    ns = "/".join(filter(None, [namespace.strip("/"), nd.namespace.strip("/")]))
+    return NodeSpec(
+        name=nd.name, target=nd.node, cmd=list(nd.cmd) if nd.cmd is not None else None, params=dict(nd.params),
+        remap=dict(nd.remap), namespace=ns, env=dict(nd.env), respawn=nd.respawn, respawn_delay=nd.respawn_delay,
+        respawn_max_retries=nd.respawn_max_retries, required=nd.required, sigterm_timeout=nd.sigterm_timeout,
+        sigkill_timeout=nd.sigkill_timeout, output=nd.output, where=str(src.mark(where)),
+    )
+
+
+# -- node classes and params --------------------------------------------------------------------------
+def _validate_nodes(col: _Collected) -> None:
+    saved = list(sys.path)
+    sys.path[:0] = [p for p in col.plan.python_path if p not in sys.path]
+    try:
+        for src, where, spec in col.node_sources:
+            if spec.target is None:
+                continue
+            cls = _import_node_class(src, (*where, "node"), spec.target)
+            try:
+                convert_params(cls.Params, spec.params, where=f"node {spec.name!r}")
+            except ParamError as exc:
+                raise _param_error(src, (*where, "params"), spec, str(exc)) from None
+        rec = col.plan.recorder()
+        if rec is not None:
+            _validate_recorder(col, rec)
+    finally:
+        sys.path[:] = saved
+
+
+def _validate_recorder(col: _Collected, rec: NodeSpec) -> None:
+    try:
+        module = importlib.import_module(RECORDER_TARGET.partition(":")[0])
+    except ImportError:
+        col.plan.recorder_available = False  # --check still passes; launching says so
+        return
+    cls = getattr(module, RECORDER_TARGET.partition(":")[2], None)
+    if not (isinstance(cls, type) and issubclass(cls, Node)):
+        return
+    col.plan.recorder_available = True
+    src = col.top if col.top is not None else Source.read(col.plan.file)
+    try:
+        convert_params(cls.Params, rec.params, where="record")
+    except ParamError as exc:
+        raise src.error(("record",), f"the recorder does not accept these settings: {exc}") from None
+
+
+def _import_node_class(src: Source, where: Path_, target: str) -> type[Node]:
+    module_name, _, class_name = target.partition(":")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        extra = "" if exc.name == module_name else f" (while importing it: {exc})"
+        raise src.error(where, f"cannot import module {module_name!r}{extra}: is it installed, or in the "
+                               "launch file's python_path?") from None
+    except Exception as exc:  # any error raised by the module's own code at import time
+        raise src.error(where, f"importing {module_name!r} failed: {type(exc).__name__}: {exc}") from None
+    cls = getattr(module, class_name, None)
+    if cls is None:
+        names = [n for n, v in vars(module).items() if isinstance(v, type) and issubclass(v, Node) and v is not Node]
+        raise src.error(where, f"module {module_name!r} has no {class_name!r}{_did_you_mean(class_name, names)}")
+    if not (isinstance(cls, type) and issubclass(cls, Node)):
+        raise src.error(where, f"{target!r} is not a palpa.Node subclass")
+    return cls
+
+
+def _param_error(src: Source, where: Path_, spec: NodeSpec, text: str) -> LaunchError:
+    text = text.removeprefix(f"node {spec.name!r}: ")
+    unknown = re.search(r"unknown field `([^`]+)`", text)
+    if unknown:
+        name = unknown.group(1)
+        declared = re.search(r"\(declared parameters: (.*)\)$", text)
+        names = declared.group(1).split(", ") if declared else []
+        return src.error((*where, name), f"node {spec.name!r} ({spec.target}) has no parameter {name!r}"
+                                         f"{_did_you_mean(name, names)}; declared: {', '.join(names) or 'none'}",
+                         key=True)
+    bad = re.match(r"parameter '([^'.\[]+)[^']*': (.*)$", text, re.S)
+    if bad:
+        return src.error((*where, bad.group(1)), f"param {bad.group(1)!r} of node {spec.name!r}: "
+                                                 f"{_lower_first(bad.group(2))}")
+    return src.error(where, f"params of node {spec.name!r}: {text}")
+
+
+# -- substitutions --------------------------------------------------------------------------------------
+def _substitute(src: Source, value: Any, path: Path_, args: Mapping[str, Any], run_dir: Path) -> Any:
+    if isinstance(value, str):
+        return _subst_str(src, value, path, args, run_dir)
+    if isinstance(value, list):
+        return [_substitute(src, v, (*path, i), args, run_dir) for i, v in enumerate(value)]
+    if isinstance(value, dict):
+        return {k: _substitute(src, v, (*path, k), args, run_dir) for k, v in value.items()}
+    return value
+
+
+def _subst_str(src: Source, text: str, path: Path_, args: Mapping[str, Any], run_dir: Path) -> Any:
+    if "$(" not in text:
+        return text
+    whole = re.fullmatch(r"\$\(\s*arg\s+([^()\s]+)\s*\)", text)
+    if whole:
+        return _arg(src, path, whole.group(1), args)
+    out: list[str] = []
+    pos = 0
+    for m in _SUBST_RE.finditer(text):
+        out.append(text[pos:m.start()])
+        pos = m.end()
+        token = m.group(0)
+        if token == "$$(":
+            out.append("$(")
+        elif token == "$(":
+            raise src.error(path, f"unterminated substitution in {text!r}: expected $(...) with a closing ')' "
+                                  "(write $$( for a literal '$(')")
+        else:
+            value = _evaluate(src, path, m.group(1), args, run_dir)
+            out.append(value if isinstance(value, str) else json.dumps(value))
+    out.append(text[pos:])
+    return "".join(out)
+
+
+def _evaluate(src: Source, path: Path_, expr: str, args: Mapping[str, Any], run_dir: Path) -> Any:
+    words = expr.split()
+    kind = words[0] if words else ""
+    if kind == "arg" and len(words) == 2:
+        return _arg(src, path, words[1], args)
+    if kind == "env" and len(words) >= 2:
+        value = os.environ.get(words[1])
+        if value is not None:
+            return value
+        if len(words) > 2:
+            return " ".join(words[2:])
+        raise src.error(path, f"environment variable {words[1]!r} is not set and $(env {words[1]}) has no "
+                              f"default (write $(env {words[1]} DEFAULT))")
+    if kind == "dirname" and len(words) == 1:
+        return str(src.path.parent)
+    if kind == "run_dir" and len(words) == 1:
+        return str(run_dir)
+    raise src.error(path, f"unknown substitution $({expr}): expected $(arg NAME), $(env NAME [DEFAULT]), "
+                          "$(dirname) or $(run_dir)")
+
+
+def _arg(src: Source, path: Path_, name: str, args: Mapping[str, Any]) -> Any:
+    if name in args:
+        return args[name]
+    if path[:1] == ("args",):
+        raise src.error(path, f"$(arg {name}): not declared before this arg (an arg's default may only use "
+                              f"args declared above it)")
+    names = ", ".join(args) or "none"
+    raise src.error(path, f"$(arg {name}): no such arg{_did_you_mean(name, args)} (declared: {names})")
+
+
+# -- validation against the schema ----------------------------------------------------------------------
+def _convert(src: Source, data: Any, typ: Any, base: Path_ = ()) -> Any:
+    try:
+        return msgspec.convert(data, typ, strict=True)
+    except msgspec.ValidationError as exc:
+        raise _validation_error(src, base, str(exc), data) from None
+
+
+def _validation_error(src: Source, base: Path_, text: str, data: Any) -> LaunchError:
+    m = _ERR_PATH_RE.match(text)
+    what, rel = (m.group("what"), m.group("path")) if m else (text, "")
+    path: Path_ = base
+    for part in _PATH_PART_RE.finditer(rel):
+        if part.group(1) is not None:
+            path = (*path, part.group(1))
+        elif part.group(2) is not None:
+            path = (*path, int(part.group(2)))
+        else:  # a value inside a dict: msgspec does not say which key, so find the first of the wrong kind
+            got = re.search(r"got `(\w+)`", what)
+            container = src.get(path)
+            if isinstance(container, dict) and got:
+                for k, v in container.items():
+                    if _kind_name(v) == got.group(1):
+                        path = (*path, k)
+                        break
+    label = _label(path)
+    unknown = re.match(r"Object contains unknown field `([^`]+)`", what)
+    if unknown:
+        key = unknown.group(1)
+        allowed = _allowed_keys(path)
+        return src.error((*path, key), f"unknown key {key!r} in {label}{_did_you_mean(key, allowed)}; expected "
+                                       f"one of: {', '.join(allowed)}", key=True)
+    missing = re.match(r"Object missing required field `([^`]+)`", what)
+    if missing:
+        return src.error(path, f"{label} is missing the required key {missing.group(1)!r}")
+    return src.error(path, f"{label}: {_lower_first(what)}")
+
+
+def _allowed_keys(path: Path_) -> list[str]:
+    typ: Any = LaunchFile
+    for part in path:
+        if isinstance(part, int):
+            continue
+        hints = {f.name: f.type for f in msgspec.structs.fields(typ)} if isinstance(typ, type) else {}
+        sub = hints.get(str(part))
+        typ = _struct_in(sub)
+        if typ is None:
+            return []
+    return [f.name for f in msgspec.structs.fields(typ)] if isinstance(typ, type) else []
+
+
+def _struct_in(t: Any) -> Any:
+    """The Struct type inside an annotation like ``list[X]``, ``X | None`` or ``Annotated[...]``."""
+    if isinstance(t, type) and issubclass(t, msgspec.Struct):
+        return t
+    for arg in getattr(t, "__args__", ()):
+        found = _struct_in(arg)
+        if found is not None:
+            return found
+    origin = getattr(t, "__origin__", None)
+    return _struct_in(origin) if origin is not None and origin is not t else None
+
+
+def _label(path: Path_) -> str:
+    if not path:
+        return "the launch file"
+    text = str(path[0])
+    for part in path[1:]:
+        text += f"[{part}]" if isinstance(part, int) else f".{part}"
+    return text
+
+
+def _kind(value: Any) -> str:
+    return {"object": "mapping", "array": "list", "str": "string", "null": "null"}.get(_kind_name(value),
+                                                                                      _kind_name(value))
+
+
+def _kind_name(value: Any) -> str:
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "bool"
+    if isinstance(value, dict):
+        return "object"
+    if isinstance(value, list):
+        return "array"
+    return type(value).__name__
+
+
+def _lower_first(text: str) -> str:
+    return text[:1].lower() + text[1:]
+
+
+def _did_you_mean(name: str, choices: Any) -> str:
+    close = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.6)
+    return f" (did you mean {close[0]!r}?)" if close else ""

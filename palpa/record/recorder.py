@@ -1,0 +1,354 @@
+"""The recorder node: every envelope on the bus (or the topics asked for) into MCAP, payload bytes untouched.
+
+Run it as ``palpa record ...``, ``palpa run palpa.record.recorder:Recorder -p output=run.mcap``, or from a
+launch file's ``record:`` section. SIGINT/SIGTERM finalise the file (summary, indexes, drop counts); a SIGKILL
+loses at most the last ``flush_period_s`` (0.5 s) of messages, and ``palpa bag recover`` rebuilds the index.
+
+What gets recorded: topics matching ``topics`` (regexes over the whole name; empty = all) and not ``exclude``.
+Runtime topics (``_palpa/...``) only when a pattern starting with ``_palpa`` names them, except ``_palpa/log``
+which is always kept (a run's log lines are part of its record; exclude it explicitly to drop it). Heartbeats
+are not recorded by default but feed the node list stored in the file.
+"""
+
+from __future__ import annotations
+
+import socket
+import time
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import mcap
+import msgspec
+
+import palpa
+from palpa.errors import ParamError
+from palpa.node import Node, RawMessage
+from palpa.record.format import (
+    BLOBS_SCHEMA,
+    BLOBS_SCHEMA_NAME,
+    BLOBS_TOPIC_PREFIX,
+    LAUNCH_ATTACHMENT,
+    MD_DROPS,
+    MD_NODES,
+    MD_RECORDING,
+    MESSAGE_ENCODING,
+    META_BLOBS_OF,
+    META_LATCHED,
+    META_PUBLISHER,
+    META_SCHEMA,
+    META_SEQ_BASE,
+    META_TYPE,
+    SCHEMA_ENCODING,
+    BagError,
+    TopicFilter,
+    dumps,
+    schema_bytes,
+    split_path,
+)
+from palpa.record.writer import COMPRESSIONS, BagWriter
+from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat
+
+__all__ = ["Recorder"]
+
+_ChannelKey = tuple[str, str, str, bool, int]  # topic, publisher, type, latched, sequence epoch (seq >> 32)
+_heartbeat_decoder = msgspec.msgpack.Decoder(Heartbeat)
+_blobs_encoder = msgspec.msgpack.Encoder()
+_COUNTERS = ("received", "gaps", "duplicates", "restarts", "decode_errors")
+
+
+class Recorder(Node):
+    """Writes bus traffic to ``output`` (MCAP). See the module docstring for what is recorded."""
+
+    class Params(palpa.Params):
+        output: str
+        """File to write; with splitting, pieces are ``<stem>-0001.mcap``, ``<stem>-0002.mcap``, ..."""
+        topics: list[str] = []
+        """Regexes matched against whole topic names; empty records every (non-runtime) topic."""
+        exclude: list[str] = []
+        split_size_mb: float = 0.0
+        """Start a new file when this one reaches this size (MB, 1e6 bytes); 0: never."""
+        split_duration_s: float = 0.0
+        """Start a new file after this many seconds (checked every flush_period_s); 0: never."""
+        force: bool = False
+        """Overwrite ``output`` (and stale split pieces of it) if it exists."""
+        launch_file: str = ""
+        """A resolved launch file to store in the recording as the attachment launch.resolved.yaml."""
+        compression: str = "zstd"
+        """Chunk compression: zstd, lz4 or none."""
+        flush_period_s: float = 0.5
+        """Close the open chunk at least this often (s): the most a SIGKILL can lose. At most 1 s."""
+        fsync: bool = False
+        """Also fsync on every flush (survives power loss, costs disk latency)."""
+
+    def setup(self) -> None:
+        p = self.params
+        where = f"node {self.name!r}"
+        if not p.output:
+            raise ParamError(f"{where}: parameter 'output': a file path is required")
+        if p.split_size_mb < 0 or p.split_duration_s < 0:
+            raise ParamError(f"{where}: split_size_mb and split_duration_s must be >= 0")
+        if not 0 < p.flush_period_s <= 1.0:
+            raise ParamError(f"{where}: parameter 'flush_period_s' must be in (0, 1] s, got {p.flush_period_s}")
+        if p.compression not in COMPRESSIONS:
+            raise ParamError(f"{where}: parameter 'compression' must be one of {', '.join(COMPRESSIONS)}")
+        self._launch_text = b""
+        if p.launch_file:
+            try:
+                self._launch_text = Path(p.launch_file).read_bytes()
+            except OSError as exc:
+                raise ParamError(f"{where}: parameter 'launch_file': cannot read {p.launch_file}: {exc}") from None
+        self._filter = TopicFilter(p.topics, p.exclude, always=(LOG_TOPIC,))
+        self._splitting = p.split_size_mb > 0 or p.split_duration_s > 0
+        self._split_bytes = int(p.split_size_mb * 1e6) if p.split_size_mb > 0 else 1 << 62
+        self._started_ns = time.time_ns()
+        self._host = socket.gethostname()
+        self._prepare_output()
+        self._ids: dict[_ChannelKey, int] = {}
+        self._blob_ids: dict[int, int] = {}
+        self._schema_ids: dict[str, int] = {}
+        self._schema_cache: dict[str, bytes | None] = {}
+        self._latched: dict[_ChannelKey, RawMessage] = {}
+        self._bus_latched: set[str] = set()
+        self._nodes: dict[str, str] = {}
+        self._nodes_dirty = False
+        self._seen = 0
+        self._failed = False
+        self.files: list[Path] = []
+        self.recorded = 0
+        self._file_index = 0
+        self._counter_base: dict[str, dict[str, int]] = {}
+        self._writer = self._open_file()
+        self.subscribe_raw("", self._on_raw)
+        self.timer(p.flush_period_s, self._tick)
+        self.log.info("recording to %s", self._writer.path)
+
+    # -- files -------------------------------------------------------------------------------------------
+    def _prepare_output(self) -> None:
+        out = Path(self.params.output)
+        if not out.parent.is_dir():
+            raise BagError(f"cannot record to {out}: directory {out.parent} does not exist")
+        first = split_path(out, 1) if self._splitting else out
+        if first.exists() and not self.params.force:
+            raise BagError(f"{first} already exists (use --force / force: true to overwrite)")
+        if self._splitting and self.params.force:
+            i = 1
+            while (piece := split_path(out, i)).exists():
+                piece.unlink()
+                i += 1
+
+    def _open_file(self) -> BagWriter:
+        self._file_index += 1
+        out = Path(self.params.output)
+        path = split_path(out, self._file_index) if self._splitting else out
+        writer = BagWriter(path, compression=self.params.compression, fsync=self.params.fsync,
+                           overwrite=self.params.force or self._file_index > 1,
+                           library=f"palpa/{palpa.__version__}; mcap-python/{mcap.__version__}")
+        self._writer = writer
+        self.files.append(path)
+        self._ids = {}
+        self._blob_ids = {}
+        self._schema_ids = {}
+        self._opened_ns = time.time_ns()
+        self._split_due_ns = (self.clock.now_ns() + int(self.params.split_duration_s * 1e9)
+                              if self.params.split_duration_s > 0 else None)
+        writer.add_metadata(MD_RECORDING, {
+            "palpa_version": palpa.__version__,
+            "mcap_library": mcap.__version__,
+            "host": self._host,
+            "recorder": self.name,
+            "started_ns": str(self._started_ns),
+            "file_opened_ns": str(self._opened_ns),
+            "file_index": str(self._file_index),
+            "output": str(out),
+            "params": dumps(msgspec.to_builtins(self.params)),
+        })
+        if self._launch_text:
+            writer.add_attachment(LAUNCH_ATTACHMENT, "application/yaml", self._launch_text,
+                                  log_time=self._opened_ns)
+        if self._nodes:
+            writer.add_metadata(MD_NODES, self._nodes)
+        self._counter_base = {t: s.as_dict() for t, s in self.counters().items()}
+        # a split piece must stand alone: the last value of every latched topic opens it
+        for key, raw in self._latched.items():
+            cid = self._channel_for(key)
+            if cid:
+                writer.add_message(cid, self._opened_ns, raw.header.stamp, raw.header.seq & 0xFFFF_FFFF,
+                                   raw.payload)
+                if raw.blobs:
+                    self._write_blobs(cid, raw, self._opened_ns)
+        writer.flush()
+        return writer
+
+    def _close_file(self) -> None:
+        w = self._writer
+        if w.finished:
+            return
+        drops: dict[str, str] = {}
+        for topic, stats in self.counters().items():
+            if not self._filter(topic):
+                continue
+            base = self._counter_base.get(topic, {})
+            now = stats.as_dict()
+            delta = {k: now[k] - base.get(k, 0) for k in _COUNTERS}
+            if any(delta.values()):
+                drops[topic] = dumps(delta)
+        w.add_metadata(MD_DROPS, drops)
+        w.add_metadata(MD_NODES, self._nodes)
+        w.finish()
+        self.recorded += w.message_count
+
+    def _roll(self) -> None:
+        self._close_file()
+        self._open_file()
+        self.log.info("split: now recording to %s", self._writer.path)
+
+    # -- channels ----------------------------------------------------------------------------------------
+    def _schema_id(self, type_name: str) -> int:
+        sid = self._schema_ids.get(type_name)
+        if sid is not None:
+            return sid
+        if type_name not in self._schema_cache:
+            data = self._schema_cache[type_name] = schema_bytes(type_name)
+            if data is None:
+                self.log.warning("message type %r is not importable here: its channels are recorded without "
+                                 "a schema (set PALPA_MESSAGES to the module that defines it)", type_name)
+        data = self._schema_cache[type_name]
+        sid = self._writer.register_schema(type_name, SCHEMA_ENCODING, data) if data else 0
+        self._schema_ids[type_name] = sid
+        return sid
+
+    def _channel_for(self, key: _ChannelKey) -> int:
+        topic, node, type_name, latched, epoch = key
+        if not self._filter(topic):
+            self._ids[key] = 0
+            return 0
+        sid = self._schema_id(type_name)
+        md = {META_TYPE: type_name, META_PUBLISHER: node, META_LATCHED: "true" if latched else "false"}
+        if epoch:
+            md[META_SEQ_BASE] = str(epoch << 32)
+        if not sid:
+            md[META_SCHEMA] = f"none: type {type_name!r} was not importable by the recorder"
+        cid = self._writer.register_channel(topic, MESSAGE_ENCODING, sid, md)
+        self._ids[key] = cid
+        return cid
+
+    def _write_blobs(self, cid: int, raw: RawMessage, log_time: int) -> None:
+        bid = self._blob_ids.get(cid)
+        if bid is None:
+            sid = self._schema_ids.get(BLOBS_SCHEMA_NAME)
+            if sid is None:
+                sid = self._schema_ids[BLOBS_SCHEMA_NAME] = self._writer.register_schema(
+                    BLOBS_SCHEMA_NAME, SCHEMA_ENCODING, BLOBS_SCHEMA)
+            bid = self._blob_ids[cid] = self._writer.register_channel(
+                BLOBS_TOPIC_PREFIX + raw.topic, MESSAGE_ENCODING, sid, {META_BLOBS_OF: str(cid)})
+        self._writer.add_message(bid, log_time, raw.header.stamp, raw.header.seq & 0xFFFF_FFFF,
+                                 _blobs_encoder.encode([bytes(b) for b in raw.blobs]))
+
+    # -- the hot path ------------------------------------------------------------------------------------
+    def _on_raw(self, raw: RawMessage) -> None:
+        if self._failed:
+            return
+        self._seen += 1
+        topic = raw.topic
+        h = raw.header
+        if topic == HEARTBEAT_TOPIC:
+            self._on_heartbeat(raw.payload)
+        key = (topic, h.node, h.type, h.latched, h.seq >> 32)
+        cid = self._ids.get(key)
+        try:
+            if cid is None:
+                cid = self._channel_for(key)
+            if not cid:
+                return
+            w = self._writer
+            w.add_message(cid, raw.recv_ns, h.stamp, h.seq & 0xFFFF_FFFF, raw.payload)
+            if raw.blobs:
+                self._write_blobs(cid, raw, raw.recv_ns)
+            if h.latched or raw.from_cache or topic in self._bus_latched:
+                if raw.from_cache:
+                    self._bus_latched.add(topic)
+                self._latched[key] = raw
+            if w.size >= self._split_bytes:
+                self._roll()
+        except (OSError, BagError) as exc:
+            self._fail(exc)
+
+    def _on_heartbeat(self, payload: bytes) -> None:
+        try:
+            hb = _heartbeat_decoder.decode(payload)
+        except (msgspec.ValidationError, msgspec.DecodeError):
+            return
+        text = dumps({"pid": hb.pid, "host": hb.host, "publishes": hb.publishes, "subscribes": hb.subscribes})
+        if self._nodes.get(hb.node) != text:
+            self._nodes[hb.node] = text
+            self._nodes_dirty = True
+
+    def _tick(self) -> None:
+        if self._failed:
+            return
+        try:
+            if self._nodes_dirty:
+                self._nodes_dirty = False
+                self._writer.add_metadata(MD_NODES, self._nodes)
+            if self._split_due_ns is not None and self.clock.now_ns() >= self._split_due_ns:
+                self._roll()
+            else:
+                self._writer.flush()
+        except (OSError, BagError) as exc:
+            self._fail(exc)
+
+    def _fail(self, exc: Exception) -> None:
+        self._failed = True
+        self.log.error("recording to %s failed: %s; stopping (the file is recoverable with "
+                       "`palpa bag recover`)", self._writer.path, exc)
+        try:
+            self._writer.abandon()
+        except OSError:
+            pass
+        self.request_shutdown(1)
+
+    # -- lifecycle ---------------------------------------------------------------------------------------
+    def spin(self) -> None:
+        """Spin until asked to stop, then take what already arrived (bounded) before the file is closed."""
+        super().spin()
+        deadline = time.monotonic() + 1.0
+        while time.monotonic() < deadline:
+            before = self._seen
+            self.spin_once(0.05)
+            if self._seen == before:
+                break
+
+    def on_shutdown(self) -> None:
+        if self._failed:
+            return
+        try:
+            self._close_file()
+        except (OSError, BagError) as exc:
+            self._fail(exc)
+            return
+        self.log.info("%s", self.report())
+
+    def drops(self) -> dict[str, dict[str, int]]:
+        """Counters of every recorded topic with a gap, duplicate, restart or decode error (whole run)."""
+        out = {}
+        for topic, stats in self.counters().items():
+            d = stats.as_dict()
+            if self._filter(topic) and (d["gaps"] or d["decode_errors"] or d["restarts"]):
+                out[topic] = d
+        return out
+
+    def report(self) -> str:
+        """One paragraph: messages, files, and drops per topic (sequence gaps)."""
+        files = ", ".join(str(f) for f in self.files)
+        text = f"recorded {self.recorded} messages in {len(self.files)} file(s): {files}"
+        drops = self.drops()
+        if not drops:
+            return text + "; no drops (no sequence gaps)"
+        parts = [f"{t}: {d['gaps']} missing" + (f", {d['restarts']} restarts" if d["restarts"] else "")
+                 + (f", {d['decode_errors']} bad" if d["decode_errors"] else "") for t, d in sorted(drops.items())]
+        return text + "; DROPS " + "; ".join(parts)
+
+    def describe(self) -> Mapping[str, Any]:
+        """Machine-readable summary (tests, bench)."""
+        return {"files": [str(f) for f in self.files], "recorded": self.recorded, "drops": self.drops()}
