@@ -29,7 +29,7 @@ import time
 import traceback
 from collections import deque
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from typing import Any, ClassVar, Generic, NamedTuple, TypeVar, get_type_hints
+from typing import Any, ClassVar, Generic, NamedTuple, TypeVar, cast, get_type_hints
 
 import msgspec
 
@@ -37,7 +37,8 @@ from palpa.address import BusAddress, from_env
 from palpa.clock import Clock, SystemClock, TopicClock
 from palpa.errors import DecodeError
 from palpa.message import Message
-from palpa.params import Params, convert_params
+from palpa.params import Params as ParamsBase
+from palpa.params import convert_params
 from palpa.runtime_msgs import (
     CLOCK_TOPIC,
     HEARTBEAT_TOPIC,
@@ -66,7 +67,7 @@ DEFAULT_BATCH = 64
 _encoder = msgspec.msgpack.Encoder()
 
 
-class _NoParams(Params):
+class _NoParams(ParamsBase):
     pass
 
 
@@ -241,13 +242,13 @@ class _BusLogHandler(logging.Handler):
 class Node:
     """Base class of every node. Override :meth:`setup` to declare publishers, subscriptions and timers."""
 
-    Params: ClassVar[type[Params]] = _NoParams
+    Params: ClassVar[type[ParamsBase]] = _NoParams
     params: Any
 
     def __init__(
         self,
         name: str | None = None,
-        params: Mapping[str, Any] | Params | None = None,
+        params: Mapping[str, Any] | ParamsBase | None = None,
         *,
         transport: Transport | None = None,
         clock: Clock | None = None,
@@ -360,7 +361,7 @@ class Node:
         key = resolved.encode()
         if key in self._subs:
             raise ValueError(f"node {self.name!r} already subscribes to {resolved!r}")
-        sub: Subscription[M] = Subscription(self, resolved, msg_type, callback, queue_size)
+        sub: Subscription[M] = Subscription(self, resolved, cast("type[M]", msg_type), callback, queue_size)
         self._subs[key] = sub
         self._transport.subscribe(key, request_latched=True)
         return sub

@@ -15,7 +15,7 @@ __all__ = ["Params", "convert_params", "describe_params"]
 P = TypeVar("P", bound="Params")
 
 
-class Params(msgspec.Struct, kw_only=True, forbid_unknown_fields=True, frozen=True):
+class Params(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     """Base of a node's parameter set. Subclass it with typed fields and defaults."""
 
 
@@ -23,8 +23,9 @@ def convert_params(cls: type[P], values: Mapping[str, Any] | P | None, *, where:
     """Validate ``values`` into ``cls``; raises :class:`ParamError` naming the parameter and what was wrong."""
     if isinstance(values, cls):
         return values
+    data: dict[str, Any] = dict(values) if isinstance(values, Mapping) else {}
     try:
-        return msgspec.convert(dict(values or {}), cls, strict=True)
+        return msgspec.convert(data, cls, strict=True)
     except msgspec.ValidationError as exc:
         text = str(exc)
         # msgspec says "... - at `$.name`": turn the JSON path into a parameter name.
