@@ -245,9 +245,10 @@ def _validate_nodes(col: _Collected) -> None:
                 continue
             cls = _import_node_class(src, (*where, "node"), spec.target)
             try:
-                convert_params(cls.Params, spec.params, where=f"node {spec.name!r}")
+                params = convert_params(cls.Params, spec.params, where=f"node {spec.name!r}")
             except ParamError as exc:
                 raise _param_error(src, (*where, "params"), spec, str(exc)) from None
+            col.plan.node_params[spec.name] = msgspec.to_builtins(params)
         rec = col.plan.recorder()
         if rec is not None:
             _validate_recorder(col, rec)

@@ -102,6 +102,8 @@ class LaunchPlan:
     record: RecordDecl | None = None
     progress_topic: str | None = None
     recorder_available: bool = False
+    node_params: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Node name -> every parameter of a ``node:`` entry, defaults included (filled by the loader)."""
     files: list[str] = field(default_factory=list)
     """Every launch file read, the top-level one first."""
 

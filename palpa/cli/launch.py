@@ -1,0 +1,143 @@
+"""``palpa launch FILE [name:=value ...]``: run a whole graph from a launch file (see docs/launch.md).
+
+``--check`` validates only and prints the resolved graph; ``--schema`` prints the JSON Schema of launch files.
+Errors read ``file:line:col: what was expected`` and exit 1 (a traceback only with ``--debug``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from palpa.errors import PalpaError
+from palpa.launch import LaunchPlan, Supervisor, json_schema, load_launch, parse_overrides
+from palpa.launch.plan import RECORDER_NAME
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("launch", help="run a graph from a launch file (or --check it)",
+                       description="Run a graph from a YAML launch file: the bus, then the nodes; Ctrl-C stops "
+                                   "them (SIGINT, then SIGTERM, then SIGKILL).")
+    p.add_argument("file", nargs="?", type=Path, help="the launch file")
+    p.add_argument("overrides", nargs="*", metavar="name:=value", help="set an arg (value parsed as YAML)")
+    p.add_argument("--check", action="store_true", help="validate only and print the resolved graph")
+    p.add_argument("--schema", action="store_true", help="print the JSON Schema of launch files and exit")
+    p.add_argument("--run-dir", type=Path, help="where logs and the resolved file go (default runs/<timestamp>)")
+    p.add_argument("--bus-address", metavar="ADDRESS",
+                   help="bind the bus here instead (ipc:///path, tcp://HOST:PORT, or tcp://HOST for OS ports)")
+    shown = p.add_mutually_exclusive_group()
+    shown.add_argument("--progress", dest="progress", action="store_true", default=None,
+                       help="show the progress bar even when stdout is not a terminal")
+    shown.add_argument("--no-progress", dest="progress", action="store_false",
+                       help="never show the progress bar (node output stays on screen)")
+    p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    debug = bool(getattr(args, "debug", False))
+    try:
+        return _run(args)
+    except PalpaError as exc:
+        if debug:
+            raise
+        print(str(exc), file=sys.stderr)
+        return 1
+
+
+def _run(args: argparse.Namespace) -> int:
+    if args.schema:
+        print(json.dumps(json_schema(), indent=2))
+        return 0
+    if args.file is None:
+        raise PalpaError("palpa launch: give a launch file (or --schema)")
+    overrides = parse_overrides(list(args.overrides))
+    if args.check:
+        run_dir = args.run_dir or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+        plan = load_launch(args.file, overrides, run_dir=run_dir)
+        print(describe(plan))
+        return 0
+    run_dir, created = _make_run_dir(args.run_dir)
+    try:
+        plan = load_launch(args.file, overrides, run_dir=run_dir)
+    except PalpaError:
+        if created:
+            try:
+                run_dir.rmdir()
+            except OSError:
+                pass
+        raise
+    return Supervisor(plan, bus_address=args.bus_address, progress=args.progress).run()
+
+
+def _make_run_dir(chosen: Path | None) -> tuple[Path, bool]:
+    """``chosen`` (created if missing), or a new ``runs/<YYYYmmdd-HHMMSS>[-n]``; True if we created it."""
+    if chosen is not None:
+        existed = chosen.is_dir()
+        chosen.mkdir(parents=True, exist_ok=True)
+        return chosen, not existed
+    base = Path("runs") / time.strftime("%Y%m%d-%H%M%S")
+    base.parent.mkdir(parents=True, exist_ok=True)
+    for n in range(1000):
+        path = base if n == 0 else base.with_name(f"{base.name}-{n}")
+        try:
+            path.mkdir()
+            return path, True
+        except FileExistsError:
+            continue
+    raise PalpaError(f"cannot make a fresh run directory next to {base}")
+
+
+def describe(plan: LaunchPlan) -> str:
+    """The resolved graph in readable YAML (what ``--check`` prints)."""
+    doc: dict[str, Any] = {}
+    if plan.description:
+        doc["description"] = plan.description
+    doc["files"] = list(plan.files)
+    doc["args"] = dict(plan.args)
+    if plan.python_path:
+        doc["python_path"] = list(plan.python_path)
+    bus = plan.bus
+    doc["bus"] = {
+        "transport": bus.transport,
+        "endpoint": bus.endpoint or ("a fresh ipc path per run" if bus.transport == "ipc"
+                                     else "tcp://127.0.0.1, ports chosen by the OS"),
+        "latched": list(bus.latched), "hwm": bus.hwm,
+    }
+    rec = plan.recorder()
+    if rec is not None:
+        doc["record"] = {"node": f"{RECORDER_NAME} ({rec.target})", "params": rec.params}
+        if not plan.recorder_available:
+            doc["record"]["note"] = "the recorder is not importable here: launching this file will fail"
+    if plan.progress_topic:
+        doc["progress"] = {"topic": plan.progress_topic}
+    nodes: dict[str, Any] = {}
+    for spec in plan.nodes:
+        entry: dict[str, Any] = {"run": spec.target if spec.target else list(spec.cmd or [])}
+        if spec.namespace:
+            entry["namespace"] = spec.namespace
+        entry["params"] = plan.node_params.get(spec.name, spec.params)
+        if spec.target and spec.params:
+            entry["set here"] = sorted(spec.params)
+        for key in ("remap", "env"):
+            if getattr(spec, key):
+                entry[key] = getattr(spec, key)
+        flags = [f for f in ("required", "respawn") if getattr(spec, f)]
+        if spec.respawn:
+            flags.append(f"respawn_delay {spec.respawn_delay:g} s, max retries {spec.respawn_max_retries}")
+        if flags:
+            entry["flags"] = flags
+        entry["stop"] = (f"SIGINT, SIGTERM after {spec.sigterm_timeout:g} s, SIGKILL after "
+                         f"{spec.sigkill_timeout:g} s more")
+        entry["output"] = spec.output
+        entry["from"] = spec.where
+        nodes[spec.name] = entry
+    doc["nodes"] = nodes
+    head = f"{plan.files[0] if plan.files else plan.file}: ok ({len(plan.nodes)} nodes)\n"
+    return head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=120).rstrip()

@@ -1,0 +1,509 @@
+"""Running a :class:`~palpa.launch.plan.LaunchPlan`: the bus first (in this process), then the recorder (if the
+file records) until its heartbeat is heard, then the nodes; supervise them; stop them in stages.
+
+Everything happens on the calling thread (which must be the main thread: signals, and PR_SET_PDEATHSIG fires
+when the thread that forked a child exits): one loop waits on the children's output pipes and a signal wake-up
+fd, reaps exits, respawns with backoff, escalates stops, and spins an in-process node for heartbeats/progress.
+
+Stopping (Ctrl-C, SIGTERM, SIGHUP, or a required node's exit): every node gets SIGINT (to its process group),
+SIGTERM after its ``sigterm_timeout``, SIGKILL after a further ``sigkill_timeout``; the recorder is stopped the
+same way once the others are gone, then the bus. A second Ctrl-C moves every stopping node on to the next signal
+at once. The launcher names each node that needed SIGTERM or SIGKILL.
+
+Exit code: the required node's exit code when one ended the launch (128+N if killed by signal N); otherwise 0,
+unless a node failed (exited non-zero, or gave up respawning, without being asked to stop): then 1.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import selectors
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from types import FrameType
+from typing import Any, TextIO
+
+from palpa.address import BusAddress
+from palpa.bus import Bus
+from palpa.errors import LaunchError
+from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
+from palpa.launch.process import Child
+from palpa.launch.progress import ProgressView, progress_fields
+from palpa.node import Node, RawMessage
+from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
+
+__all__ = ["Supervisor", "exit_text"]
+
+# Lines shown on screen even while a progress bar hides the rest: a log level near the start, or a traceback.
+_LOUD_RE = re.compile(r"^\W{0,3}(WARN|WARNING|ERROR|CRITICAL|FATAL)\b|^Traceback \(most recent call last\)")
+_BACKOFF_CAP_S = 60.0
+_STABLE_S = 30.0  # a run at least this long resets the respawn backoff
+_REAP_GRACE_S = 3.0  # after SIGKILL, how long to wait for the kernel before giving up on a process
+_MAX_LINE = 65536
+_STEP_S = 0.05
+_COLORS = ("36", "33", "35", "32", "34", "91", "96", "93", "95", "92")
+_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+def exit_text(code: int) -> str:
+    """'exit code 3' or 'killed by SIGKILL' for a Popen return code."""
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit code {code}"
+
+
+@dataclass
+class _Proc:
+    spec: NodeSpec
+    log: TextIO
+    color: str = ""
+    child: Child | None = None
+    state: str = "idle"  # idle | running | backoff | stopping | done
+    starts: int = 0
+    failures: int = 0  # consecutive exits that were answered by a respawn
+    started_at: float = 0.0
+    respawn_at: float = 0.0
+    stage: int = 0  # while stopping: 1 SIGINT sent, 2 SIGTERM sent, 3 SIGKILL sent
+    deadline: float = 0.0
+    buf: bytes = b""
+    tail: deque[str] = field(default_factory=lambda: deque(maxlen=15))
+    outcome: str = "not started"
+    failed: bool = False
+    escalated: str | None = None
+
+
+class Supervisor:
+    """Runs one launch plan to the end. ``run()`` returns the launch's exit code.
+
+    ``bus_address`` overrides the plan's bus (any form ``palpa --bus`` accepts, or ``tcp://HOST`` for
+    OS-chosen ports); ``progress`` True/False forces the progress bar on/off (None: only on a terminal)."""
+
+    def __init__(self, plan: LaunchPlan, *, bus_address: str | None = None, out: TextIO | None = None,
+                 err: TextIO | None = None, progress: bool | None = None) -> None:
+        self.plan = plan
+        self.out = out or sys.stdout
+        self.err = err or sys.stderr
+        self._bus_override = bus_address
+        self._progress_opt = progress
+        self._procs: list[_Proc] = []
+        self._recorder: _Proc | None = None
+        self._sel = selectors.DefaultSelector()
+        self._signals: list[int] = []
+        self._stopping = False
+        self._all_started = False
+        self._reason = ""
+        self._code: int | None = None
+        self._heard: set[str] = set()
+        self._view: ProgressView | None = None
+        self._node: Node | None = None
+        self._color = self.out.isatty() and not os.environ.get("NO_COLOR")
+        self.address: BusAddress | None = None
+        self._launch_log: TextIO | None = None
+        self._wake_r, self._wake_w = socket.socketpair()
+        for s in (self._wake_r, self._wake_w):
+            s.setblocking(False)
+
+    # -- public ----------------------------------------------------------------------------------------
+    def request_stop(self) -> None:
+        """Ask the launch to stop as if Ctrl-C was pressed (safe from other threads and signal handlers)."""
+        self._signals.append(signal.SIGINT)
+        try:
+            self._wake_w.send(b"\0")
+        except OSError:
+            pass
+
+    def run(self) -> int:
+        """Start everything, supervise until the launch ends, stop everything; returns the exit code."""
+        plan = self.plan
+        rec_spec = plan.recorder()
+        if rec_spec is not None and not plan.recorder_available:
+            raise LaunchError(f"{plan.files[0] if plan.files else plan.file}: the file asks to record, but "
+                              "palpa.record.recorder:Recorder is not importable here")
+        plan.run_dir.mkdir(parents=True, exist_ok=True)
+        self._launch_log = open(plan.run_dir / "launch.log", "a", encoding="utf-8", buffering=1)  # noqa: SIM115
+        (plan.run_dir / "launch.resolved.yaml").write_text(plan.to_yaml(), encoding="utf-8")
+        old = self._install_signals()
+        bus: Bus | None = None
+        try:
+            bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched, hwm=plan.bus.hwm)
+            self.address = bus.start()
+            (plan.run_dir / "bus.address").write_text(f"{self.address}\n", encoding="utf-8")
+            self._say(f"bus at {self.address}; run directory {plan.run_dir}")
+            self._start_observer()
+            for i, spec in enumerate(plan.nodes):
+                self._procs.append(self._make_proc(spec, i))
+            if rec_spec is not None:
+                self._recorder = self._make_proc(rec_spec, len(plan.nodes))
+                self._start_recorder()
+            if not self._stopping:
+                for p in self._procs:
+                    if self._stopping:
+                        break
+                    self._spawn(p)
+                self._all_started = True
+                self._check_all_exited()
+            self._run_until(lambda: self._stopping)
+            self._stop(self._procs)
+            self._run_until(lambda: all(p.state in ("done", "idle") for p in self._procs))
+            if self._recorder is not None:
+                self._stop([self._recorder])
+                self._run_until(lambda: self._recorder is None or self._recorder.state in ("done", "idle"))
+        finally:
+            self._teardown(bus, old)
+        return self._finish()
+
+    # -- phases ----------------------------------------------------------------------------------------
+    def _start_observer(self) -> None:
+        topic = self.plan.progress_topic
+        show = self._progress_opt if self._progress_opt is not None else self.out.isatty()
+        if self._recorder is None and self.plan.record is None and not (topic and show):
+            return
+        self._node = Node(name="_launch", bus=self.address, heartbeat_s=0)
+        self._node.subscribe(HEARTBEAT_TOPIC, Heartbeat, self._on_heartbeat)
+        if topic and show:
+            self._view = ProgressView(topic, self.out, terminal=self.out.isatty())
+            self._node.subscribe_raw(topic, self._on_progress)
+
+    def _start_recorder(self) -> None:
+        rec = self._recorder
+        if rec is None or self.plan.record is None:
+            return
+        self._spawn(rec)
+        timeout = self.plan.record.ready_timeout_s
+        ready = self._run_until(lambda: RECORDER_NAME in self._heard or rec.state != "running" or self._stopping,
+                                timeout_s=timeout)
+        if RECORDER_NAME in self._heard:
+            self._say(f"recorder ready: recording to {self.plan.run_dir / 'recording.mcap'}")
+            return
+        if self._stopping:
+            return
+        why = "exited before it was ready" if ready else f"sent no heartbeat within {timeout:g} s"
+        self._request_stop(f"the recorder {why} (see {self.plan.run_dir / 'recorder.log'})", 1)
+
+    def _stop(self, procs: list[_Proc]) -> None:
+        now = time.monotonic()
+        for p in procs:
+            if p.state == "running" and p.child is not None:
+                p.state, p.stage = "stopping", 1
+                p.deadline = now + p.spec.sigterm_timeout
+                p.child.signal(signal.SIGINT)
+            elif p.state == "backoff":
+                p.state, p.outcome = "done", p.outcome + "; not respawned (launch stopping)"
+
+    def _run_until(self, cond: Callable[[], bool], timeout_s: float | None = None) -> bool:
+        """Step the loop until ``cond()``; False if ``timeout_s`` passed first."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while not cond():
+            if deadline is not None and time.monotonic() >= deadline:
+                return False
+            self._step()
+        return True
+
+    # -- the loop --------------------------------------------------------------------------------------
+    def _step(self) -> None:
+        for key, _ in self._sel.select(_STEP_S):
+            if key.data is None:
+                try:
+                    while self._wake_r.recv(4096):
+                        pass
+                except OSError:
+                    pass
+            else:
+                self._read(key.data)
+        self._handle_signals()
+        now = time.monotonic()
+        for p in self._all():
+            if p.state in ("running", "stopping") and p.child is not None and p.child.exited():
+                self._on_exit(p)
+            elif p.state == "stopping" and now >= p.deadline:
+                self._escalate(p)
+            elif p.state == "backoff" and now >= p.respawn_at and not self._stopping:
+                self._spawn(p)
+        if self._node is not None:
+            self._node.spin_once(0)
+
+    def _all(self) -> list[_Proc]:
+        return self._procs + ([self._recorder] if self._recorder is not None else [])
+
+    def _handle_signals(self) -> None:
+        while self._signals:
+            sig = self._signals.pop(0)
+            name = signal.Signals(sig).name
+            if not self._stopping:
+                self._request_stop(f"stopped by {name}", None)
+            else:
+                self._say(f"{name} again: moving every stopping node on to the next signal now", "WARNING")
+                for p in self._all():
+                    if p.state == "stopping":
+                        self._escalate(p)
+
+    def _escalate(self, p: _Proc) -> None:
+        if p.child is None:
+            return
+        now = time.monotonic()
+        name = p.spec.name
+        if p.stage == 1:
+            self._say(f"{name} did not stop within {p.spec.sigterm_timeout:g} s of SIGINT: sending SIGTERM",
+                      "WARNING")
+            p.stage, p.deadline, p.escalated = 2, now + p.spec.sigkill_timeout, "SIGTERM"
+            p.child.signal(signal.SIGTERM)
+        elif p.stage == 2:
+            self._say(f"{name} did not stop within {p.spec.sigkill_timeout:g} s of SIGTERM: sending SIGKILL",
+                      "WARNING")
+            p.stage, p.deadline, p.escalated = 3, now + _REAP_GRACE_S, "SIGKILL"
+            p.child.signal(signal.SIGKILL)
+        else:
+            self._say(f"{name} (pid {p.child.pid}) is still there {_REAP_GRACE_S:g} s after SIGKILL "
+                      "(stuck in the kernel?); giving up on it", "ERROR")
+            self._drop_output(p)
+            p.state, p.outcome, p.failed = "done", "could not be stopped", True
+
+    # -- children --------------------------------------------------------------------------------------
+    def _make_proc(self, spec: NodeSpec, index: int) -> _Proc:
+        log = open(self.plan.run_dir / f"{spec.name}.log", "a", encoding="utf-8", buffering=1)  # noqa: SIM115
+        color = _COLORS[index % len(_COLORS)] if self._color else ""
+        return _Proc(spec=spec, log=log, color=color)
+
+    def _spawn(self, p: _Proc) -> None:
+        spec = p.spec
+        env = spec.child_env(dict(os.environ), bus=self.address, run_dir=self.plan.run_dir,
+                             python_path=self.plan.python_path)
+        argv = spec.argv()
+        p.starts += 1
+        p.started_at = time.monotonic()
+        p.buf = b""
+        try:
+            p.child = Child(argv, env)
+        except OSError as exc:
+            p.child = None
+            self._say(f"cannot start {spec.name}: {argv[0]}: {exc.strerror or exc}", "ERROR")
+            p.state = "running"
+            self._after_exit(p, 127)
+            return
+        p.state = "running"
+        self._sel.register(p.child.fd, selectors.EVENT_READ, p)
+        again = f" (start {p.starts})" if p.starts > 1 else ""
+        p.log.write(f"[launch] started pid {p.child.pid}{again}: {' '.join(argv)}\n")
+        self._say(f"started {spec.name} pid {p.child.pid}{again}")
+
+    def _read(self, p: _Proc) -> None:
+        if p.child is None:
+            return
+        data = p.child.read()
+        if data is None:
+            self._drop_output(p)
+            return
+        self._take(p, data)
+
+    def _take(self, p: _Proc, data: bytes) -> None:
+        buf = p.buf + data
+        *lines, rest = buf.split(b"\n")
+        for raw in lines:
+            self._line(p, raw.decode("utf-8", errors="replace").rstrip("\r"))
+        if len(rest) > _MAX_LINE:
+            self._line(p, rest.decode("utf-8", errors="replace"))
+            rest = b""
+        p.buf = rest
+
+    def _drop_output(self, p: _Proc) -> None:
+        """Read what is left in the pipe, flush a last partial line, stop watching the pipe."""
+        if p.child is None:
+            return
+        for _ in range(64):
+            data = p.child.read()
+            if not data:
+                break
+            self._take(p, data)
+        if p.buf:
+            self._line(p, p.buf.decode("utf-8", errors="replace"))
+            p.buf = b""
+        try:
+            self._sel.unregister(p.child.fd)
+        except (KeyError, ValueError):
+            pass
+        p.child.close_output()
+
+    def _on_exit(self, p: _Proc) -> None:
+        child = p.child
+        if child is None or child.returncode is None:
+            return
+        self._drop_output(p)
+        code = child.returncode
+        p.log.write(f"[launch] pid {child.pid} ended: {exit_text(code)}\n")
+        if p.state == "stopping":
+            p.state = "done"
+            p.outcome = {1: "stopped on SIGINT", 2: "needed SIGTERM", 3: "needed SIGKILL"}[p.stage]
+            if p.escalated:
+                self._say(f"{p.spec.name} {p.outcome} to stop ({exit_text(code)})", "WARNING")
+            return
+        if self._stopping:
+            p.state, p.outcome = "done", f"exited while stopping ({exit_text(code)})"
+            return
+        self._after_exit(p, code)
+
+    def _after_exit(self, p: _Proc, code: int) -> None:
+        """A node ended on its own: respawn it, end the launch (required), or carry on without it."""
+        spec, now = p.spec, time.monotonic()
+        if now - p.started_at >= _STABLE_S:
+            p.failures = 0
+        retries = spec.respawn_max_retries
+        if code != 0 and (spec.output == "log" or self._view is not None):
+            for line in p.tail:
+                self._show(f"[{spec.name}] {line}", loud=True)
+        if spec.respawn and (retries < 0 or p.failures < retries):
+            p.failures += 1
+            delay = min(_BACKOFF_CAP_S, spec.respawn_delay * 2 ** (p.failures - 1))
+            p.state, p.respawn_at = "backoff", now + delay
+            p.outcome = f"{exit_text(code)}; respawning"
+            of = f"{p.failures}/{retries}" if retries >= 0 else f"{p.failures}"
+            self._say(f"{spec.name} ended ({exit_text(code)}); respawning in {delay:.2f} s (retry {of})",
+                      "WARNING")
+            return
+        p.state = "done"
+        p.failed = code != 0
+        if spec.respawn:
+            p.outcome = f"gave up after {p.failures} retries (last: {exit_text(code)})"
+            p.failed = True
+            self._say(f"{spec.name}: giving up after {p.failures} retries (last: {exit_text(code)})", "ERROR")
+        else:
+            p.outcome = f"ended by itself ({exit_text(code)})"
+        if spec.required:
+            status = 128 - code if code < 0 else code
+            self._request_stop(f"required node {spec.name} ended ({exit_text(code)})", status)
+        elif p is self._recorder:
+            self._say(f"the recorder ended ({exit_text(code)}): the recording is incomplete", "ERROR")
+            p.failed = True
+        elif not spec.respawn:
+            level = "INFO" if code == 0 else "WARNING"
+            self._say(f"{spec.name} ended ({exit_text(code)}); it is not required, the graph keeps running", level)
+        self._check_all_exited()
+
+    def _check_all_exited(self) -> None:
+        if self._all_started and not self._stopping and all(p.state == "done" for p in self._procs):
+            self._request_stop("every node has ended", None)
+
+    def _request_stop(self, reason: str, code: int | None) -> None:
+        if self._stopping:
+            return
+        self._stopping, self._reason, self._code = True, reason, code
+        self._say(f"stopping: {reason}", "WARNING" if code else "INFO")
+
+    # -- output ------------------------------------------------------------------------------------------
+    def _line(self, p: _Proc, text: str) -> None:
+        try:
+            p.log.write(text + "\n")
+        except (OSError, ValueError):
+            pass
+        p.tail.append(text)
+        if p.spec.output != "screen":
+            return
+        loud = bool(_LOUD_RE.search(text))
+        if self._view is not None and not loud:
+            return
+        prefix = f"\x1b[{p.color}m[{p.spec.name}]\x1b[0m" if p.color else f"[{p.spec.name}]"
+        self._show(f"{prefix} {text}", loud=loud)
+
+    def _show(self, text: str, *, loud: bool, stream: TextIO | None = None) -> None:
+        if self._view is not None:
+            if loud:
+                self._view.print(text)
+            return
+        s = stream or self.out
+        try:
+            s.write(text + "\n")
+            s.flush()
+        except (OSError, ValueError):
+            pass
+
+    def _say(self, text: str, level: str = "INFO") -> None:
+        if self._launch_log is not None:
+            try:
+                self._launch_log.write(f"{time.strftime('%H:%M:%S')} {level} {text}\n")
+            except (OSError, ValueError):
+                pass
+        self._show(f"[launch] {text}", loud=level != "INFO", stream=self.err)
+
+    # -- observer callbacks ------------------------------------------------------------------------------
+    def _on_heartbeat(self, hb: Heartbeat) -> None:
+        self._heard.add(hb.node)
+
+    def _on_progress(self, raw: RawMessage) -> None:
+        if self._view is None or raw.topic != self._view.topic:
+            return
+        fields = progress_fields(raw.payload)
+        if fields is not None:
+            self._view.update(fields)
+
+    # -- signals and teardown ----------------------------------------------------------------------------
+    def _install_signals(self) -> dict[int, Any]:
+        old: dict[int, Any] = {}
+        if threading.current_thread() is not threading.main_thread():
+            return old  # embedded use: the caller stops us with request_stop()
+
+        def on_signal(signum: int, frame: FrameType | None) -> None:
+            self._signals.append(signum)
+
+        for sig in _SIGNALS:
+            old[sig] = signal.signal(sig, on_signal)
+        old[-1] = signal.set_wakeup_fd(self._wake_w.fileno(), warn_on_full_buffer=False)
+        self._sel.register(self._wake_r.fileno(), selectors.EVENT_READ, None)
+        return old
+
+    def _teardown(self, bus: Bus | None, old: dict[int, Any]) -> None:
+        # only reached with children still running if something raised: do not leave them behind
+        for p in self._all():
+            if p.state in ("running", "stopping") and p.child is not None and not p.child.exited():
+                p.child.signal(signal.SIGKILL)
+                try:
+                    p.child.popen.wait(_REAP_GRACE_S)
+                except subprocess.TimeoutExpired:
+                    pass
+                p.child.exited()
+                p.state, p.outcome, p.failed = "done", "killed (launcher error)", True
+        if self._view is not None:
+            self._view.close()
+            self._view = None  # the summary goes to stderr like every launcher message
+        if self._node is not None:
+            self._node.close(0)
+        if bus is not None:
+            bus.stop()
+        if -1 in old:
+            signal.set_wakeup_fd(old.pop(-1))
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+        for p in self._all():
+            p.log.close()
+        self._sel.close()
+        self._wake_r.close()
+        self._wake_w.close()
+
+    def _finish(self) -> int:
+        code = self._code if self._code is not None else 0
+        failed = [p.spec.name for p in self._all() if p.failed]
+        reason = self._reason or "ended"
+        if code == 0 and failed:
+            code = 1
+            reason += f"; failed: {', '.join(failed)}"
+        width = max((len(p.spec.name) for p in self._all()), default=4)
+        lines = [f"summary (logs in {self.plan.run_dir}):"]
+        for p in self._all():
+            mark = "!" if (p.failed or p.escalated) else " "
+            starts = f"  (started {p.starts} times)" if p.starts > 1 else ""
+            lines.append(f" {mark} {p.spec.name:<{width}}  {p.outcome}{starts}")
+        lines.append(f"launch ended: {reason}; exit code {code}")
+        for line in lines:
+            self._say(line, "WARNING" if line.startswith(" !") else "NOTICE")
+        if self._launch_log is not None:
+            self._launch_log.close()
+        return code
