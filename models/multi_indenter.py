@@ -45,6 +45,7 @@ __all__ = [
     "ProbeContact",
     "ProbeGeometry",
     "StiffnessSolution",
+    "advance_range_mm",
     "forward",
     "solve_batch",
     "solve_exact",
@@ -227,6 +228,27 @@ def forward(
     dx = np.minimum(dx_free, geometry.stroke_mm)
     dt = np.where(contact, overlap - dx, 0.0)
     return ProbeContact(dx, dt, contact, saturated)
+
+
+def advance_range_mm(
+    geometry: ProbeGeometry, k_t_n_per_mm: float, pan_rad: float = 0.0, tilt_rad: float = 0.0
+) -> tuple[float, float]:
+    """Advances (mm past first contact) usable for a solve: above the first, every indenter
+    touches; up to the second, none is at its stroke end. The first exceeds the second when
+    the tilt is too steep for the stroke. Example: the paper's 18 mm press needs a stroke of
+    16.7 mm on the 0.63 N/mm spring; with our 10 mm stroke the flat limit is 10.8 mm.
+    """
+    gap = [
+        x * math.tan(pan_rad) + y * math.tan(tilt_rad)
+        for x, y in zip(geometry.x_mm, geometry.y_mm, strict=True)
+    ]
+    offset = [g - min(gap) for g in gap]
+    kt = k_t_n_per_mm
+    top = min(
+        geometry.stroke_mm * (k + kt) / kt + o
+        for k, o in zip(geometry.k_n_per_mm, offset, strict=True)
+    )
+    return max(offset), top
 
 
 class StiffnessSolution(NamedTuple):

@@ -14,6 +14,7 @@ from models.multi_indenter import (
     REASONS,
     ProbeGeometry,
     StiffnessSolution,
+    advance_range_mm,
     forward,
     solve_batch,
     solve_exact,
@@ -103,6 +104,19 @@ def test_forward_partial_contact_and_saturation() -> None:
     assert deep.dx_mm.max() == G.stroke_mm
     np.testing.assert_allclose(deep.dx_mm + deep.dt_mm, 18.0)
     assert not solve_exact(deep.dx_mm).valid
+
+
+@pytest.mark.parametrize(
+    ("k", "pan", "tilt"), [(0.63, 0.0, 0.0), (0.29, 15.0, 0.0), (0.4, -9.0, 12.0)]
+)
+def test_advance_range_brackets_contact_and_stroke(k: float, pan: float, tilt: float) -> None:
+    lo, hi = advance_range_mm(G, k, pan * DEG, tilt * DEG)
+    assert lo < hi
+    for adv, touching, saturated in ((lo - 1e-6, False, False), (lo + 1e-6, True, False),
+                                     (hi - 1e-6, True, False), (hi + 1e-6, True, True)):  # fmt: skip
+        c = forward(G, k, adv, pan * DEG, tilt * DEG)
+        assert c.contact.all() == touching and c.saturated.any() == saturated
+    assert advance_range_mm(G, 0.63)[1] == pytest.approx(10 * 0.68 / 0.63)  # < the paper's 18 mm
 
 
 def test_forward_broadcasts() -> None:
