@@ -13,6 +13,7 @@ Run by hand: ``python -m emulators.fibre_daq`` prints the port path and streams 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import random
 import threading
 import time
@@ -284,15 +285,12 @@ def main(argv: list[str] | None = None) -> int:
     emu = FibreDaqEmulator(source, args.rate, noise_counts=args.noise, drift_ppm=args.drift_ppm, link_path=args.link)
     rng = random.Random()
     faults: list[Callable[[], None]] = [emu.inject_garbage, emu.drop_next, emu.corrupt_next, emu.truncate_next]
-    with emu:
+    with emu, contextlib.suppress(KeyboardInterrupt):  # Ctrl-C may come right after the print
         print(emu.port, flush=True)
-        try:
-            while True:
-                time.sleep(1.0)
-                if args.chaos > 0 and rng.random() < args.chaos:
-                    rng.choice(faults)()
-        except KeyboardInterrupt:
-            pass
+        while True:
+            time.sleep(1.0)
+            if args.chaos > 0 and rng.random() < args.chaos:
+                rng.choice(faults)()
     return 0
 
 
