@@ -26,6 +26,7 @@ IntArray = npt.NDArray[np.int64]
 
 __all__ = [
     "Inclusion",
+    "background",
     "MapSnapshot",
     "StiffnessGrid",
     "detect_inclusions",
@@ -179,6 +180,18 @@ def fill_gaps(stiffness: FloatArray, min_neighbors: int = 4) -> FloatArray:
     return out
 
 
+def background(stiffness: npt.ArrayLike) -> tuple[float, float]:
+    """Healthy-tissue baseline of a map: (median, 1.4826 * MAD) over its finite cells, in
+    the map's unit; (nan, nan) for a map without data. This is the ``baseline`` that
+    :func:`detect_inclusions` compares against (before its optional gap fill/smoothing)."""
+    values = np.asarray(stiffness, dtype=np.float64)
+    values = values[np.isfinite(values)]
+    if values.size == 0:
+        return math.nan, math.nan
+    base = float(np.median(values))
+    return base, _MAD_TO_SIGMA * float(np.median(np.abs(values - base)))
+
+
 @dataclass(frozen=True, slots=True)
 class Inclusion:
     """A region stiffer than the background: excess-weighted centroid (mm), equivalent radius
@@ -223,11 +236,10 @@ def detect_inclusions(
     valid = np.isfinite(grid)
     if valid.sum() < min_valid_cells:
         return []
-    base = float(np.median(grid[valid]))
+    base, sigma = background(grid)
     if not base > 0:
         raise ValueError(f"detect_inclusions: baseline stiffness must be > 0, got {base}")
-    mad = float(np.median(np.abs(grid[valid] - base)))
-    threshold = base + max(k_mad * _MAD_TO_SIGMA * mad, rel_threshold * base)
+    threshold = base + max(k_mad * sigma, rel_threshold * base)
     stiff = valid & (grid > threshold)
     labels, n = ndimage.label(stiff, structure=np.ones((3, 3), dtype=bool))
     if n == 0:
