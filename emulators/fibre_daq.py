@@ -20,6 +20,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Self
 
 from emulators.pty_device import PtyDevice
 from nodes.drivers.fibre import (
@@ -112,7 +113,7 @@ class FibreDaqEmulator(PtyDevice):
 
     # -- lifecycle -------------------------------------------------------------------
 
-    def start(self) -> FibreDaqEmulator:
+    def start(self) -> Self:
         """Create the pty and start streaming."""
         super().start()
         with self._state_lock:

@@ -30,6 +30,7 @@ import threading
 import tty
 from pathlib import Path
 from types import TracebackType
+from typing import Self
 
 _MAX_LINE = 4096  # bytes without a terminator before the partial input is discarded
 
@@ -82,7 +83,7 @@ class PtyDevice:
         with self._lock:
             return self._master_fd is not None
 
-    def start(self) -> PtyDevice:
+    def start(self) -> Self:
         """Create the pty and the symlink, and start the reader thread. Returns self."""
         if self._thread is not None:
             raise RuntimeError(f"PtyDevice {self.port} already started")
@@ -111,7 +112,7 @@ class PtyDevice:
             with contextlib.suppress(OSError):
                 self._own_dir.rmdir()
 
-    def __enter__(self) -> PtyDevice:
+    def __enter__(self) -> Self:
         return self.start() if self._thread is None else self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
