@@ -1,0 +1,74 @@
+"""Matching measurements by time stamp, never by arrival order.
+
+:class:`StampedBuffer` keeps the recent history of one signal (a pose, a pressure) and answers "what was it at
+time t?" by linear interpolation between the samples around t. A question about a time outside the history,
+or inside a hole wider than ``max_gap_ns``, gets None: the caller marks its sample invalid (stale data).
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_left
+from collections.abc import Sequence
+
+__all__ = ["StampedBuffer"]
+
+
+class StampedBuffer:
+    """A time-ordered history of vector samples with interpolation at arbitrary stamps (ns)."""
+
+    def __init__(self, horizon_ns: int = 2_000_000_000, max_gap_ns: int = 100_000_000) -> None:
+        if horizon_ns <= 0 or max_gap_ns <= 0:
+            raise ValueError("horizon_ns and max_gap_ns must be > 0")
+        self.horizon_ns = horizon_ns
+        self.max_gap_ns = max_gap_ns
+        self._t: list[int] = []
+        self._v: list[tuple[float, ...]] = []
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    @property
+    def latest_stamp(self) -> int | None:
+        return self._t[-1] if self._t else None
+
+    def latest(self) -> tuple[float, ...] | None:
+        return self._v[-1] if self._v else None
+
+    def add(self, stamp_ns: int, values: Sequence[float]) -> None:
+        """Append a sample; one older than the newest is inserted in order; a repeated stamp replaces."""
+        v = tuple(float(x) for x in values)
+        if not self._t or stamp_ns > self._t[-1]:
+            self._t.append(stamp_ns)
+            self._v.append(v)
+        else:
+            i = bisect_left(self._t, stamp_ns)
+            if i < len(self._t) and self._t[i] == stamp_ns:
+                self._v[i] = v
+            else:
+                self._t.insert(i, stamp_ns)
+                self._v.insert(i, v)
+        cutoff = self._t[-1] - self.horizon_ns
+        if self._t[0] < cutoff:
+            k = bisect_left(self._t, cutoff)
+            del self._t[:k]
+            del self._v[:k]
+
+    def at(self, stamp_ns: int, max_extrapolate_ns: int = 0) -> tuple[float, ...] | None:
+        """The value at ``stamp_ns``: interpolated between neighbours no further apart than ``max_gap_ns``;
+        held from the nearest end sample if ``stamp_ns`` is within ``max_extrapolate_ns`` of it; else None."""
+        t = self._t
+        if not t:
+            return None
+        i = bisect_left(t, stamp_ns)
+        if i < len(t) and t[i] == stamp_ns:
+            return self._v[i]
+        if i == 0:
+            return self._v[0] if t[0] - stamp_ns <= max_extrapolate_ns else None
+        if i == len(t):
+            return self._v[-1] if stamp_ns - t[-1] <= max_extrapolate_ns else None
+        t0, t1 = t[i - 1], t[i]
+        if t1 - t0 > self.max_gap_ns:
+            return None
+        w = (stamp_ns - t0) / (t1 - t0)
+        a, b = self._v[i - 1], self._v[i]
+        return tuple(x + w * (y - x) for x, y in zip(a, b, strict=True))

@@ -1,0 +1,102 @@
+"""Simulated pressure regulator: the first-order, rate-limited plant of ``models.regulator`` behind the
+:class:`nodes.drivers.pressure.PressureDriver` interface, on the node's (possibly simulated) clock."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from models.regulator import RegulatorPlant
+from nodes.drivers.pressure import (
+    FLAG_CLAMPED,
+    PressureCounters,
+    PressureNotConnectedError,
+    PressureReading,
+    PressureStatus,
+)
+
+__all__ = ["SimPressureDriver"]
+
+
+class SimPressureDriver:
+    """A regulator that follows its set-point with lag ``tau_s`` and slew limit, never above ``max_kpa``.
+
+    ``stuck_at_kpa`` (fault injection) freezes the output as a jammed valve would; ``lost`` makes every call raise
+    as an unplugged device does.
+    """
+
+    def __init__(
+        self,
+        clock: Callable[[], int],
+        max_kpa: float,
+        *,
+        tau_s: float = 0.05,
+        rate_limit_kpa_s: float = 50.0,
+        noise_kpa: float = 0.0,
+        seed: int = 0,
+    ) -> None:
+        self._clock = clock
+        self._max = float(max_kpa)
+        self._plant = RegulatorPlant(tau_s=tau_s, rate_limit_kpa_s=rate_limit_kpa_s, max_kpa=max_kpa)
+        self._noise = noise_kpa
+        self._rng = np.random.default_rng(seed)
+        self._setpoint = 0.0
+        self._t: int | None = None
+        self._polls = 0
+        self._clamped = 0
+        self.stuck_at_kpa: float | None = None
+        self.lost = False
+
+    def _advance(self) -> None:
+        now = self._clock()
+        if self._t is not None and now > self._t:
+            self._plant.step(self._setpoint, (now - self._t) / 1e9)
+        self._t = now
+
+    def _reading(self, flags: frozenset[str] = frozenset()) -> PressureReading:
+        if self.lost:
+            raise PressureNotConnectedError("sim: device lost (fault injection)")
+        self._advance()
+        self._polls += 1
+        p = self._plant.pressure_kpa if self.stuck_at_kpa is None else self.stuck_at_kpa
+        if self._noise:
+            p = max(0.0, p + float(self._rng.normal(0.0, self._noise)))
+        return PressureReading(self._t or 0, self._setpoint, p, flags)
+
+    def open(self) -> None:
+        self._t = self._clock()
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+    def set_setpoint(self, kpa: float) -> PressureReading:
+        if not math.isfinite(kpa):
+            raise ValueError(f"set-point must be a finite number of kPa, got {kpa!r}")
+        self._advance()
+        target = min(max(kpa, 0.0), self._max)
+        flags = frozenset({FLAG_CLAMPED}) if target != kpa else frozenset()
+        self._clamped += kpa > self._max
+        self._setpoint = target
+        return self._reading(flags)
+
+    def hold(self) -> PressureReading:
+        return self._reading(frozenset({"HLD"}))
+
+    def vent(self) -> PressureReading:
+        return self.set_setpoint(0.0)
+
+    def read(self, timeout_s: float = 0.0) -> PressureReading | None:
+        return self._reading()
+
+    def status(self) -> PressureStatus:
+        return PressureStatus(
+            connected=not self.lost,
+            last_error="sim: device lost" if self.lost else None,
+            counters=PressureCounters(polls=self._polls, clamped=self._clamped),
+            max_kpa=self._max,
+            commanded_kpa=self._setpoint,
+            last_reading=None,
+            port="sim",
+        )

@@ -1,0 +1,121 @@
+"""Fibre-optic reader node: the air-float probe's four displacement sensors -> ``probe/heights``.
+
+``driver: serial`` reads the DAQ line protocol (docs/devices.md) through pyserial; ``driver: sim`` computes the
+heights from the phantom, the robot pose (``robot/pose``) and the probe pressure (``pressure/state``). Both publish
+the same topics: ``probe/heights`` (h1..h4 mm, raw values, eqs. 1-3 depth and tilt) and ``probe/status``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Literal
+
+import palpa
+from messages import DeviceStatus, PressureState, ProbeHeights, RobotPose
+from models.airfloat import DEFAULT_INDENTER_RADIUS_MM, DEFAULT_SPS_RADIUS_MM, indentation_from_heights
+from nodes.common import phantom_from_param
+from nodes.drivers.fibre import FibreDriver, FibreSample, SerialFibreDriver
+from nodes.drivers.fibre_sim import SimFibreDriver
+
+__all__ = ["FibreReader"]
+
+
+class FibreReader(palpa.Node):
+    """Polls a fibre driver and publishes every sample it gives."""
+
+    class Params(palpa.Params):
+        driver: Literal["sim", "serial"] = "sim"
+        rate_hz: float = 500.0
+        """Sensor sample rate asked of the device (or simulated)."""
+        poll_hz: float = 100.0
+        """How often the node drains the driver's queue."""
+        port: str = "/dev/ttyACM0"
+        baudrate: int = 115200
+        calibration: str = ""
+        """Calibration YAML of the four channels (serial driver)."""
+        phantom: str = ""
+        """Phantom YAML (sim driver)."""
+        noise_mm: float = -1.0
+        """Sim sensor noise σ (mm); negative: the phantom file's value."""
+        sps_radius_mm: float = DEFAULT_SPS_RADIUS_MM
+        indenter_radius_mm: float = DEFAULT_INDENTER_RADIUS_MM
+        stroke_mm: float = 10.0
+        seed: int = 0
+
+    def setup(self) -> None:
+        p = self.params
+        self.heights = self.publisher("probe/heights", ProbeHeights)
+        self.status_pub = self.publisher("probe/status", DeviceStatus, latched=True)
+        self.driver: FibreDriver
+        if p.driver == "sim":
+            sim = SimFibreDriver(
+                phantom_from_param(p.phantom, self.name), self.clock.now_ns, rate_hz=p.rate_hz,
+                sps_radius_mm=p.sps_radius_mm, indenter_radius_mm=p.indenter_radius_mm, stroke_mm=p.stroke_mm,
+                noise_mm=None if p.noise_mm < 0 else p.noise_mm, seed=p.seed,
+            )
+            self.subscribe("robot/pose", self.on_pose)
+            self.subscribe("pressure/state", self.on_pressure)
+            self.driver = sim
+            self._sim: SimFibreDriver | None = sim
+        else:
+            self.driver = SerialFibreDriver(p.port, p.baudrate, p.calibration, require_device=False,
+                                            clock=self.clock.now_ns)
+            self._sim = None
+        self.driver.open()
+        if p.driver == "serial":
+            self._set_rate()
+        self._last_connected: bool | None = None
+        self.timer(1.0 / p.poll_hz, self.poll)
+        self.timer(1.0, self.publish_status, first_in_s=0.0)
+
+    def _set_rate(self) -> None:
+        try:
+            self.driver.set_rate(self.params.rate_hz)
+        except Exception as exc:  # the device may be absent now; the driver re-sends the rate on replug
+            self.log.warning("could not set the sample rate yet: %s", exc)
+
+    def on_pose(self, msg: RobotPose) -> None:
+        if self._sim is not None:
+            self._sim.set_pose(msg.stamp_ns, msg.x_mm, msg.y_mm, msg.z_mm)
+
+    def on_pressure(self, msg: PressureState) -> None:
+        if self._sim is not None:
+            self._sim.set_pressure(msg.stamp_ns, msg.measured_kpa)
+
+    def poll(self) -> None:
+        for sample in self.driver.read(0.0):
+            self.publish_sample(sample)
+        connected = self.driver.status().connected
+        if connected != self._last_connected:
+            self.publish_status()
+
+    def publish_sample(self, s: FibreSample) -> None:
+        h1, h2, h3, h4 = s.heights_mm
+        d_in, tilt = indentation_from_heights(h1, h2, h3, h4, self.params.sps_radius_mm,
+                                              self.params.indenter_radius_mm)
+        self.heights.publish(ProbeHeights(
+            stamp_ns=s.stamp_ns or s.host_stamp_ns, seq=s.seq, h_mm=s.heights_mm, raw=s.raw,
+            d_in_mm=float(d_in), tilt_rad=float(tilt), device_stamp_ns=s.device_stamp_ns,
+        ))
+
+    def publish_status(self) -> None:
+        st = self.driver.status()
+        if st.connected != self._last_connected:
+            if st.connected:
+                self.log.info("sensor up (%s)", st.port)
+            elif self._last_connected is not None:
+                self.log.warning("sensor DOWN (%s): %s", st.port, st.last_error)
+        self._last_connected = st.connected
+        self.status_pub.publish(DeviceStatus(
+            stamp_ns=self.clock.now_ns(), device="fibre", connected=st.connected,
+            state="ok" if st.connected else "down", message=st.last_error or "",
+            counters={k: int(v) for k, v in dataclasses.asdict(st.counters).items()},
+            clock_offset_ns=st.clock_offset_ns or 0,
+        ))
+
+    def on_shutdown(self) -> None:
+        self.driver.close()
+
+
+if __name__ == "__main__":
+    palpa.run_node(FibreReader)
