@@ -19,19 +19,19 @@ multi-drop bus)::
 Faults: :meth:`fail_next` (``?`` replies), :meth:`mute_next`/:attr:`muted` (no reply),
 :meth:`stick_valve` (read-back far from the set-point), unplug/replug (:class:`PtyDevice`).
 
-Run by hand: ``python -m emulators.alicat`` prints the port path and runs until Ctrl-C.
+Run by hand: ``python -m emulators.alicat`` prints the port path and runs until Ctrl-C
+(or SIGTERM).
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import random
 import threading
 import time
 from collections.abc import Callable
 
-from emulators.pty_device import PtyDevice
+from emulators.pty_device import PtyDevice, serve_until_signal
 from models.regulator import RegulatorPlant
 from nodes.drivers.pressure import KPA_PER_UNIT
 
@@ -236,10 +236,7 @@ def main(argv: list[str] | None = None) -> int:
         noise_kpa=args.noise,
         link_path=args.link,
     )
-    with emu, contextlib.suppress(KeyboardInterrupt):  # Ctrl-C may come right after the print
-        print(emu.port, flush=True)
-        threading.Event().wait()
-    return 0
+    return serve_until_signal(emu)
 
 
 if __name__ == "__main__":

@@ -7,13 +7,13 @@ request: garbage bytes, dropped lines (sequence gaps), corrupt checksums, trunca
 unplug/replug. Its clock is a 32-bit microsecond counter with configurable start value and
 drift, like a microcontroller's ``micros()``.
 
-Run by hand: ``python -m emulators.fibre_daq`` prints the port path and streams until Ctrl-C.
+Run by hand: ``python -m emulators.fibre_daq`` prints the port path and streams until Ctrl-C
+(or SIGTERM).
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import random
 import threading
 import time
@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Self
 
-from emulators.pty_device import PtyDevice
+from emulators.pty_device import PtyDevice, serve_until_signal
 from nodes.drivers.fibre import (
     CHANNELS,
     CLOCK_MOD_US,
@@ -133,6 +133,8 @@ class FibreDaqEmulator(PtyDevice):
 
     def replug(self, reboot: bool = True) -> None:
         """Plug back in; with ``reboot`` the device restarts (seq 0, clock 0, boot rate)."""
+        if self.plugged:
+            raise RuntimeError(f"FibreDaqEmulator {self.port} is already plugged in")
         if reboot:
             self._clock_start_us = 0
             self._boot()
@@ -286,13 +288,12 @@ def main(argv: list[str] | None = None) -> int:
     emu = FibreDaqEmulator(source, args.rate, noise_counts=args.noise, drift_ppm=args.drift_ppm, link_path=args.link)
     rng = random.Random()
     faults: list[Callable[[], None]] = [emu.inject_garbage, emu.drop_next, emu.corrupt_next, emu.truncate_next]
-    with emu, contextlib.suppress(KeyboardInterrupt):  # Ctrl-C may come right after the print
-        print(emu.port, flush=True)
-        while True:
-            time.sleep(1.0)
-            if args.chaos > 0 and rng.random() < args.chaos:
-                rng.choice(faults)()
-    return 0
+
+    def chaos() -> None:
+        if args.chaos > 0 and rng.random() < args.chaos:
+            rng.choice(faults)()
+
+    return serve_until_signal(emu, chaos)
 
 
 if __name__ == "__main__":

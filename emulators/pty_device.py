@@ -25,9 +25,11 @@ import contextlib
 import errno
 import os
 import select
+import signal
 import tempfile
 import threading
 import tty
+from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 from typing import Self
@@ -257,3 +259,26 @@ class PtyDevice:
                     continue
                 if data:
                     self.handle_bytes(data)
+
+
+def serve_until_signal(device: PtyDevice, on_tick: Callable[[], None] | None = None, tick_s: float = 1.0) -> int:
+    """Command-line main loop: start ``device``, print its port, run until SIGINT/SIGTERM.
+
+    Handlers are installed explicitly: a background job of a non-interactive shell starts
+    with SIGINT ignored, and a launcher stops its children with SIGTERM; either way the
+    emulator removes its symlink on the way out. ``on_tick`` runs every ``tick_s``.
+    Returns the exit status (0).
+    """
+    stop = threading.Event()
+
+    def _on_signal(_signum: int, _frame: object) -> None:
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, _on_signal)
+    with device:
+        print(device.port, flush=True)
+        while not stop.wait(tick_s):
+            if on_tick is not None:
+                on_tick()
+    return 0

@@ -364,9 +364,16 @@ def test_overrun_when_caller_does_not_read(make_emu: Callable[..., FibreDaqEmula
 # --- command-line emulator ----------------------------------------------------------
 
 
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as for a background job of a script
+
+
 def test_cli_prints_port_and_stops_on_ctrl_c(make_driver: Callable[..., SerialFibreDriver]) -> None:
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "emulators.fibre_daq", "--rate", "200"], cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "emulators.fibre_daq", "--rate", "200"],
+        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=_ignore_sigint,
+    )
     try:
         sel = selectors.DefaultSelector()
         assert proc.stdout is not None

@@ -265,7 +265,7 @@ def test_device_units_are_converted(make_emu: Callable[..., AlicatEmulator], mak
     assert poll(drv).measured_kpa == pytest.approx(30.0, abs=0.01)
 
 
-def test_cli_prints_port_and_stops_on_ctrl_c(make_driver: Callable[..., AlicatPressureDriver]) -> None:
+def test_cli_prints_port_and_stops_on_sigterm(make_driver: Callable[..., AlicatPressureDriver]) -> None:
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "emulators.alicat"], cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
@@ -276,7 +276,7 @@ def test_cli_prints_port_and_stops_on_ctrl_c(make_driver: Callable[..., AlicatPr
         port = proc.stdout.readline().decode().strip()
         drv = make_driver(port)
         assert drv.set_setpoint(12.5).setpoint_kpa == 12.5
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=10.0) == 0
         assert not Path(port).exists()
     finally:
