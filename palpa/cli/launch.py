@@ -7,6 +7,7 @@ Errors read ``file:line:col: what was expected`` and exit 1 (a traceback only wi
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 import time
@@ -68,10 +69,8 @@ def _run(args: argparse.Namespace) -> int:
         plan = load_launch(args.file, overrides, run_dir=run_dir)
     except PalpaError:
         if created:
-            try:
+            with contextlib.suppress(OSError):
                 run_dir.rmdir()
-            except OSError:
-                pass
         raise
     return Supervisor(plan, bus_address=args.bus_address, progress=args.progress).run()
 

@@ -113,7 +113,7 @@ class LaunchPlan:
             return None
         params: dict[str, Any] = {
             "output": str(self.run_dir / "recording.mcap"),
-            "topics": list(self.record.topics) or [".*"],
+            "topics": list(self.record.topics),
             "exclude": list(self.record.exclude),
             "launch_file": str(self.run_dir / "launch.resolved.yaml"),
         }

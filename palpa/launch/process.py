@@ -9,6 +9,7 @@ group (see :meth:`Child.exited`).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
 import signal
@@ -96,10 +97,8 @@ class Child:
         else:
             if info is None:
                 return False
-        try:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
             os.killpg(self.pid, signal.SIGKILL)
-        except (ProcessLookupError, PermissionError):
-            pass
         self.returncode = self.popen.wait()
         return True
 
@@ -114,10 +113,8 @@ class Child:
         return data if data else None
 
     def close_output(self) -> None:
-        try:
+        with contextlib.suppress(OSError):
             self._out.close()
-        except OSError:
-            pass
 
 
 def process_alive(pid: int) -> bool:

@@ -141,10 +141,11 @@ class LaunchFile(_Decl):
 def json_schema() -> dict[str, Any]:
     """The JSON Schema of a launch file, generated from :class:`LaunchFile`. Wherever a number or boolean is
     expected, a ``$(arg name)`` string is accepted too (it is replaced by the arg's native value on load)."""
-    schema = copy.deepcopy(msgspec.json.schema(LaunchFile))
+    schema: dict[str, Any] = copy.deepcopy(msgspec.json.schema(LaunchFile))
     schema["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     schema["title"] = "palpa launch file"
-    return _allow_arg_substitution(schema)
+    out: dict[str, Any] = _allow_arg_substitution(schema)
+    return out
 
 
 def _allow_arg_substitution(schema: Any) -> Any:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 import os
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,8 @@ Path_ = tuple[str | int, ...]
 _PLAIN = "!palpa/plain"
 _MERGE = "tag:yaml.org,2002:merge"
 _STR = "tag:yaml.org,2002:str"
+_SEQ = "tag:yaml.org,2002:seq"
+_MAP = "tag:yaml.org,2002:map"
 _INT_RE = re.compile(r"^[-+]?[0-9]+$")
 _FLOAT_RE = re.compile(r"^[-+]?(\.[0-9]+|[0-9]+(\.[0-9]*)?)([eE][-+]?[0-9]+)?$")
 _NULLS = {"", "~", "null", "Null", "NULL"}
@@ -61,7 +64,7 @@ class _Loader(yaml.SafeLoader):
     def resolve(self, kind: type[Node], value: Any, implicit: tuple[bool, bool]) -> str:
         if kind is ScalarNode and implicit[0]:
             return _MERGE if value == "<<" else _PLAIN
-        return str(super().resolve(kind, value, implicit))
+        return str(super().resolve(kind, value, implicit))  # type: ignore[no-untyped-call]
 
 
 def parse_scalar(text: str) -> Any:
@@ -162,6 +165,8 @@ class Source:
         self.value_marks[path] = self._mk(node)
         if isinstance(node, ScalarNode):
             return self._scalar(node)
+        if node.tag not in (_SEQ, _MAP):
+            raise LaunchError(f"{self._mk(node)}: unsupported YAML tag {node.tag!r} (launch files are plain data)")
         if isinstance(node, SequenceNode):
             return [self._build(item, (*path, i)) for i, item in enumerate(node.value)]
         if isinstance(node, MappingNode):
@@ -174,7 +179,7 @@ class Source:
             return parse_scalar(value)
         if node.tag == _STR:
             return value
-        tags = {
+        tags: dict[str, Callable[[str], Any]] = {
             "tag:yaml.org,2002:int": int,
             "tag:yaml.org,2002:float": float,
             "tag:yaml.org,2002:bool": lambda v: _BOOLS[v],

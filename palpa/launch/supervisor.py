@@ -16,6 +16,7 @@ unless a node failed (exited non-zero, or gave up respawning, without being aske
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import selectors
@@ -28,6 +29,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import datetime
 from types import FrameType
 from typing import Any, TextIO
 
@@ -37,6 +39,7 @@ from palpa.errors import LaunchError
 from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
 from palpa.launch.process import Child
 from palpa.launch.progress import ProgressView, progress_fields
+from palpa.launch.reaper import Reaper
 from palpa.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 
@@ -87,10 +90,12 @@ class Supervisor:
     """Runs one launch plan to the end. ``run()`` returns the launch's exit code.
 
     ``bus_address`` overrides the plan's bus (any form ``palpa --bus`` accepts, or ``tcp://HOST`` for
-    OS-chosen ports); ``progress`` True/False forces the progress bar on/off (None: only on a terminal)."""
+    OS-chosen ports); ``progress`` True/False forces the progress bar on/off (None: only on a terminal);
+    ``reaper`` False leaves only PR_SET_PDEATHSIG to clean up after a killed launcher (tests use it to prove
+    that mechanism alone)."""
 
     def __init__(self, plan: LaunchPlan, *, bus_address: str | None = None, out: TextIO | None = None,
-                 err: TextIO | None = None, progress: bool | None = None) -> None:
+                 err: TextIO | None = None, progress: bool | None = None, reaper: bool = True) -> None:
         self.plan = plan
         self.out = out or sys.stdout
         self.err = err or sys.stderr
@@ -110,6 +115,8 @@ class Supervisor:
         self._color = self.out.isatty() and not os.environ.get("NO_COLOR")
         self.address: BusAddress | None = None
         self._launch_log: TextIO | None = None
+        self._use_reaper = reaper
+        self._reaper: Reaper | None = None
         self._wake_r, self._wake_w = socket.socketpair()
         for s in (self._wake_r, self._wake_w):
             s.setblocking(False)
@@ -118,10 +125,8 @@ class Supervisor:
     def request_stop(self) -> None:
         """Ask the launch to stop as if Ctrl-C was pressed (safe from other threads and signal handlers)."""
         self._signals.append(signal.SIGINT)
-        try:
+        with contextlib.suppress(OSError):
             self._wake_w.send(b"\0")
-        except OSError:
-            pass
 
     def run(self) -> int:
         """Start everything, supervise until the launch ends, stop everything; returns the exit code."""
@@ -136,6 +141,10 @@ class Supervisor:
         old = self._install_signals()
         bus: Bus | None = None
         try:
+            if self._use_reaper:
+                self._reaper = Reaper()
+                self._say(f"reaper pid {self._reaper.pid} will kill the nodes' process groups if this launcher "
+                          "is killed")
             bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched, hwm=plan.bus.hwm)
             self.address = bus.start()
             (plan.run_dir / "bus.address").write_text(f"{self.address}\n", encoding="utf-8")
@@ -292,6 +301,9 @@ class Supervisor:
             self._after_exit(p, 127)
             return
         p.state = "running"
+        if self._reaper is not None and not self._reaper.add(p.child.pid):
+            self._say("the reaper process is gone: a killed launcher may leave grandchildren behind", "WARNING")
+            self._reaper = None
         self._sel.register(p.child.fd, selectors.EVENT_READ, p)
         again = f" (start {p.starts})" if p.starts > 1 else ""
         p.log.write(f"[launch] started pid {p.child.pid}{again}: {' '.join(argv)}\n")
@@ -328,10 +340,8 @@ class Supervisor:
         if p.buf:
             self._line(p, p.buf.decode("utf-8", errors="replace"))
             p.buf = b""
-        try:
+        with contextlib.suppress(KeyError, ValueError):
             self._sel.unregister(p.child.fd)
-        except (KeyError, ValueError):
-            pass
         p.child.close_output()
 
     def _on_exit(self, p: _Proc) -> None:
@@ -339,13 +349,14 @@ class Supervisor:
         if child is None or child.returncode is None:
             return
         self._drop_output(p)
+        if self._reaper is not None:
+            self._reaper.remove(child.pid)
         code = child.returncode
         p.log.write(f"[launch] pid {child.pid} ended: {exit_text(code)}\n")
         if p.state == "stopping":
             p.state = "done"
             p.outcome = {1: "stopped on SIGINT", 2: "needed SIGTERM", 3: "needed SIGKILL"}[p.stage]
-            if p.escalated:
-                self._say(f"{p.spec.name} {p.outcome} to stop ({exit_text(code)})", "WARNING")
+            self._say(f"{p.spec.name} {p.outcome} ({exit_text(code)})", "WARNING" if p.escalated else "INFO")
             return
         if self._stopping:
             p.state, p.outcome = "done", f"exited while stopping ({exit_text(code)})"
@@ -401,10 +412,8 @@ class Supervisor:
 
     # -- output ------------------------------------------------------------------------------------------
     def _line(self, p: _Proc, text: str) -> None:
-        try:
+        with contextlib.suppress(OSError, ValueError):
             p.log.write(text + "\n")
-        except (OSError, ValueError):
-            pass
         p.tail.append(text)
         if p.spec.output != "screen":
             return
@@ -429,7 +438,8 @@ class Supervisor:
     def _say(self, text: str, level: str = "INFO") -> None:
         if self._launch_log is not None:
             try:
-                self._launch_log.write(f"{time.strftime('%H:%M:%S')} {level} {text}\n")
+                stamp = datetime.now().strftime("%H:%M:%S.%f")[:-3]
+                self._launch_log.write(f"{stamp} {level} {text}\n")
             except (OSError, ValueError):
                 pass
         self._show(f"[launch] {text}", loud=level != "INFO", stream=self.err)
@@ -465,10 +475,8 @@ class Supervisor:
         for p in self._all():
             if p.state in ("running", "stopping") and p.child is not None and not p.child.exited():
                 p.child.signal(signal.SIGKILL)
-                try:
+                with contextlib.suppress(subprocess.TimeoutExpired):
                     p.child.popen.wait(_REAP_GRACE_S)
-                except subprocess.TimeoutExpired:
-                    pass
                 p.child.exited()
                 p.state, p.outcome, p.failed = "done", "killed (launcher error)", True
         if self._view is not None:
@@ -478,6 +486,8 @@ class Supervisor:
             self._node.close(0)
         if bus is not None:
             bus.stop()
+        if self._reaper is not None:
+            self._reaper.close()
         if -1 in old:
             signal.set_wakeup_fd(old.pop(-1))
         for sig, handler in old.items():

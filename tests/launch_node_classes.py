@@ -1,0 +1,38 @@
+"""Palpa node classes for the launch tests (imported through a launch file's python_path)."""
+
+from __future__ import annotations
+
+import palpa
+
+
+class LaunchTestProgress(palpa.Message, frozen=True, kw_only=True):
+    """A stand-in for a scan status: only the field names matter to the launcher."""
+
+    progress: float
+    state: str = ""
+    line: int = 0
+    lines: int = 0
+
+
+class ProgressTicker(palpa.Node):
+    """Publishes progress from 0 to 1 in ``steps`` steps every ``period_s``, warns once halfway, then exits 0."""
+
+    class Params(palpa.Params):
+        steps: int = 10
+        period_s: float = 0.1
+        topic: str = "test/status"
+
+    def setup(self) -> None:
+        self.step = 0
+        self.out = self.publisher(self.params.topic, LaunchTestProgress)
+        self.timer(self.params.period_s, self.tick)
+
+    def tick(self) -> None:
+        self.step += 1
+        n = self.params.steps
+        self.out.publish(LaunchTestProgress(progress=self.step / n, state="scanning", line=self.step, lines=n))
+        self.log.info("step %d of %d", self.step, n)
+        if self.step == n // 2:
+            self.log.warning("halfway there")
+        if self.step >= n:
+            self.request_shutdown(0)
