@@ -24,6 +24,8 @@ An MCAP file written by palpa holds:
 
 from __future__ import annotations
 
+import contextlib
+import glob
 import importlib
 import json
 import os
@@ -56,6 +58,7 @@ __all__ = [
     "import_message_modules",
     "schema_bytes",
     "split_path",
+    "split_pieces",
 ]
 
 MESSAGE_ENCODING = "msgpack"
@@ -97,10 +100,8 @@ def import_message_modules() -> None:
         return
     _imported = True
     for name in ["messages", *filter(None, os.environ.get("PALPA_MESSAGES", "").split(","))]:
-        try:
+        with contextlib.suppress(ImportError):
             importlib.import_module(name.strip())
-        except ImportError:
-            pass
 
 
 def schema_bytes(type_name: str) -> bytes | None:
@@ -113,11 +114,21 @@ def schema_bytes(type_name: str) -> bytes | None:
     return json.dumps(json_schema(cls), sort_keys=True).encode()
 
 
+def _split_parts(base: str | os.PathLike[str]) -> tuple[Path, str, str]:
+    p = Path(base)
+    return p.parent, (p.stem if p.suffix else p.name), (p.suffix or ".mcap")
+
+
 def split_path(base: str | os.PathLike[str], index: int) -> Path:
     """The path of piece ``index`` (1-based) of a split recording: ``run.mcap`` -> ``run-0001.mcap``."""
-    p = Path(base)
-    suffix = p.suffix or ".mcap"
-    return p.with_name(f"{p.stem if p.suffix else p.name}-{index:04d}{suffix}")
+    parent, stem, suffix = _split_parts(base)
+    return parent / f"{stem}-{index:04d}{suffix}"
+
+
+def split_pieces(base: str | os.PathLike[str]) -> list[Path]:
+    """Existing pieces of a split recording named ``base``, in order."""
+    parent, stem, suffix = _split_parts(base)
+    return sorted(parent.glob(f"{glob.escape(stem)}-[0-9][0-9][0-9][0-9]{suffix}"))
 
 
 def _compile(patterns: Sequence[str], what: str) -> list[re.Pattern[str]]:

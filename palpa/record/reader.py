@@ -24,6 +24,7 @@ from palpa.record.format import (
     META_TYPE,
     BagError,
     split_path,
+    split_pieces,
 )
 
 __all__ = ["BagMessage", "ChannelInfo", "channel_info", "iter_bag", "iter_file", "resolve_bag_paths"]
@@ -87,9 +88,7 @@ def resolve_bag_paths(specs: str | os.PathLike[str] | Sequence[str | os.PathLike
                 raise BagError(f"{p}: directory holds no .mcap files")
             out.extend(found)
         else:
-            pieces = []
-            while (piece := split_path(p, len(pieces) + 1)).is_file():
-                pieces.append(piece)
+            pieces = split_pieces(p)
             if not pieces:
                 raise BagError(f"{p}: no such recording (nor split pieces {split_path(p, 1).name}, ...)")
             out.extend(pieces)

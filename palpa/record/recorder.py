@@ -12,6 +12,7 @@ are not recorded by default but feed the node list stored in the file.
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import time
 from collections.abc import Mapping
@@ -45,6 +46,7 @@ from palpa.record.format import (
     dumps,
     schema_bytes,
     split_path,
+    split_pieces,
 )
 from palpa.record.writer import COMPRESSIONS, BagWriter
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat
@@ -52,7 +54,6 @@ from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat
 __all__ = ["Recorder"]
 
 _ChannelKey = tuple[str, str, str, bool, int]  # topic, publisher, type, latched, sequence epoch (seq >> 32)
-_heartbeat_decoder = msgspec.msgpack.Decoder(Heartbeat)
 _blobs_encoder = msgspec.msgpack.Encoder()
 _COUNTERS = ("received", "gaps", "duplicates", "restarts", "decode_errors")
 
@@ -80,6 +81,10 @@ class Recorder(Node):
         """Close the open chunk at least this often (s): the most a SIGKILL can lose. At most 1 s."""
         fsync: bool = False
         """Also fsync on every flush (survives power loss, costs disk latency)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs["sim_clock"] = False  # its flush timer must run on wall time even in a sim-clock graph
+        super().__init__(*args, **kwargs)
 
     def setup(self) -> None:
         p = self.params
@@ -112,7 +117,6 @@ class Recorder(Node):
         self._bus_latched: set[str] = set()
         self._nodes: dict[str, str] = {}
         self._nodes_dirty = False
-        self._seen = 0
         self._failed = False
         self.files: list[Path] = []
         self.recorded = 0
@@ -120,6 +124,7 @@ class Recorder(Node):
         self._counter_base: dict[str, dict[str, int]] = {}
         self._writer = self._open_file()
         self.subscribe_raw("", self._on_raw)
+        self.subscribe(HEARTBEAT_TOPIC, Heartbeat, self._on_heartbeat)
         self.timer(p.flush_period_s, self._tick)
         self.log.info("recording to %s", self._writer.path)
 
@@ -131,18 +136,19 @@ class Recorder(Node):
         first = split_path(out, 1) if self._splitting else out
         if first.exists() and not self.params.force:
             raise BagError(f"{first} already exists (use --force / force: true to overwrite)")
-        if self._splitting and self.params.force:
-            i = 1
-            while (piece := split_path(out, i)).exists():
+        if self._splitting:
+            old = split_pieces(out)
+            if old and not self.params.force:
+                raise BagError(f"{old[0]} already exists (use --force / force: true to overwrite)")
+            for piece in old:  # stale pieces of an earlier, longer run would read as part of this one
                 piece.unlink()
-                i += 1
 
     def _open_file(self) -> BagWriter:
         self._file_index += 1
         out = Path(self.params.output)
         path = split_path(out, self._file_index) if self._splitting else out
         writer = BagWriter(path, compression=self.params.compression, fsync=self.params.fsync,
-                           overwrite=self.params.force or self._file_index > 1,
+                           overwrite=self.params.force,
                            library=f"palpa/{palpa.__version__}; mcap-python/{mcap.__version__}")
         self._writer = writer
         self.files.append(path)
@@ -247,17 +253,13 @@ class Recorder(Node):
 
     # -- the hot path ------------------------------------------------------------------------------------
     def _on_raw(self, raw: RawMessage) -> None:
-        if self._failed:
-            return
-        self._seen += 1
-        topic = raw.topic
         h = raw.header
-        if topic == HEARTBEAT_TOPIC:
-            self._on_heartbeat(raw.payload)
-        key = (topic, h.node, h.type, h.latched, h.seq >> 32)
+        key = (raw.topic, h.node, h.type, h.latched, h.seq >> 32)
         cid = self._ids.get(key)
         try:
             if cid is None:
+                if self._failed:
+                    return
                 cid = self._channel_for(key)
             if not cid:
                 return
@@ -265,20 +267,16 @@ class Recorder(Node):
             w.add_message(cid, raw.recv_ns, h.stamp, h.seq & 0xFFFF_FFFF, raw.payload)
             if raw.blobs:
                 self._write_blobs(cid, raw, raw.recv_ns)
-            if h.latched or raw.from_cache or topic in self._bus_latched:
+            if h.latched or raw.from_cache or (self._bus_latched and raw.topic in self._bus_latched):
                 if raw.from_cache:
-                    self._bus_latched.add(topic)
+                    self._bus_latched.add(raw.topic)
                 self._latched[key] = raw
-            if w.size >= self._split_bytes:
+            if w.written >= self._split_bytes:
                 self._roll()
         except (OSError, BagError) as exc:
             self._fail(exc)
 
-    def _on_heartbeat(self, payload: bytes) -> None:
-        try:
-            hb = _heartbeat_decoder.decode(payload)
-        except (msgspec.ValidationError, msgspec.DecodeError):
-            return
+    def _on_heartbeat(self, hb: Heartbeat) -> None:
         text = dumps({"pid": hb.pid, "host": hb.host, "publishes": hb.publishes, "subscribes": hb.subscribes})
         if self._nodes.get(hb.node) != text:
             self._nodes[hb.node] = text
@@ -300,12 +298,11 @@ class Recorder(Node):
 
     def _fail(self, exc: Exception) -> None:
         self._failed = True
+        self._ids = {}
         self.log.error("recording to %s failed: %s; stopping (the file is recoverable with "
                        "`palpa bag recover`)", self._writer.path, exc)
-        try:
+        with contextlib.suppress(OSError):
             self._writer.abandon()
-        except OSError:
-            pass
         self.request_shutdown(1)
 
     # -- lifecycle ---------------------------------------------------------------------------------------
@@ -313,10 +310,10 @@ class Recorder(Node):
         """Spin until asked to stop, then take what already arrived (bounded) before the file is closed."""
         super().spin()
         deadline = time.monotonic() + 1.0
-        while time.monotonic() < deadline:
-            before = self._seen
+        while time.monotonic() < deadline and not self._failed:
+            before = (self._file_index, self._writer.size)
             self.spin_once(0.05)
-            if self._seen == before:
+            if (self._file_index, self._writer.size) == before:
                 break
 
     def on_shutdown(self) -> None:
@@ -327,7 +324,7 @@ class Recorder(Node):
         except (OSError, BagError) as exc:
             self._fail(exc)
             return
-        self.log.info("%s", self.report())
+        (self.log.warning if self.drops() else self.log.info)("%s", self.report())
 
     def drops(self) -> dict[str, dict[str, int]]:
         """Counters of every recorded topic with a gap, duplicate, restart or decode error (whole run)."""

@@ -109,6 +109,8 @@ class BagWriter:
         except OSError as exc:
             raise BagError(f"cannot create {self.path}: {exc}") from None
         self._pos = 0
+        self.written = 0
+        """Bytes handed to the file so far (updated when a chunk closes; cheap to poll per message)."""
         self._buf = bytearray()
         self._index: dict[int, list[int]] = {}
         self._schemas: dict[int, Schema] = {}
@@ -129,11 +131,12 @@ class BagWriter:
     def _write(self, data: bytes | bytearray | memoryview) -> None:
         self._file.write(data)
         self._pos += len(data)
+        self.written = self._pos
 
     def _write_record(self, record: McapRecord) -> tuple[int, int]:
         rb = RecordBuilder()
         record.write(rb)
-        data = rb.end()
+        data: bytes = rb.end()  # type: ignore[no-untyped-call]
         offset = self._pos
         self._write(data)
         return offset, len(data)
@@ -186,8 +189,7 @@ class BagWriter:
             if channel_id not in self._channels:
                 raise BagError(f"{self.path}: message on unregistered channel id {channel_id}")
             entries = self._index[channel_id] = []
-        entries.append(log_time)
-        entries.append(len(buf))
+        entries += (log_time, len(buf))
         buf += _MESSAGE.pack(Opcode.MESSAGE, _MESSAGE_FIXED + len(data), channel_id, sequence, log_time,
                              publish_time)
         buf += data
@@ -285,7 +287,7 @@ class BagWriter:
         summary_offset_start = summary_start + rb.count
         for o in offsets:
             o.write(rb)
-        summary = rb.end()
+        summary: bytes = rb.end()  # type: ignore[no-untyped-call]
         footer_head = struct.pack("<BQQQ", Opcode.FOOTER, 8 + 8 + 4, summary_start, summary_offset_start)
         crc = zlib.crc32(footer_head, zlib.crc32(summary))
         self._write(summary)

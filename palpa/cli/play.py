@@ -1,0 +1,55 @@
+"""``palpa play FILE ...``: republish a recording with its original timing (a thin CLI over the Player node)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from palpa.cli.common import add_bus_arg
+from palpa.errors import PalpaError
+from palpa.record.player import Player
+from palpa.runner import run_node_code
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("play", help="replay a recording onto the bus")
+    p.add_argument("files", nargs="+", metavar="FILE",
+                   help="a .mcap file, a split recording's base name, or a run directory")
+    p.add_argument("--rate", type=float, default=1.0, help="speed factor (default 1.0)")
+    p.add_argument("--loop", action="store_true", help="start over at the end")
+    p.add_argument("--start-offset", type=float, default=0.0, metavar="S", help="skip the first S seconds")
+    p.add_argument("--topics", nargs="+", default=[], metavar="REGEX",
+                   help="play only topics matching these regexes (whole name)")
+    p.add_argument("--exclude", action="append", default=[], metavar="REGEX", help="skip matching topics")
+    p.add_argument("--remap", action="append", default=[], metavar="FROM:=TO", help="publish FROM as TO")
+    p.add_argument("--clock", action="store_true", help="publish the recording's time on _palpa/clock")
+    p.add_argument("--clock-hz", type=float, default=100.0, help="clock ticks per second (default 100)")
+    p.add_argument("--name", default="player", help="node name (default: player)")
+    add_bus_arg(p)
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    remap = {}
+    for item in args.remap:
+        src, sep, dst = item.partition(":=")
+        if not sep or not src or not dst:
+            raise PalpaError(f"--remap {item!r}: expected FROM:=TO")
+        remap[src] = dst
+    params = {
+        "file": args.files if len(args.files) > 1 else args.files[0],
+        "rate": args.rate,
+        "loop": args.loop,
+        "start_offset_s": args.start_offset,
+        "topics": args.topics,
+        "exclude": args.exclude,
+        "remap": remap,
+        "clock": args.clock,
+        "clock_hz": args.clock_hz,
+    }
+    argv = ["--name", args.name, "--params-json", json.dumps(params)]
+    if args.bus:
+        argv += ["--bus", args.bus]
+    if getattr(args, "debug", False):
+        argv.append("--debug")
+    return run_node_code(Player, argv, prog="palpa play")

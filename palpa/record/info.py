@@ -1,0 +1,186 @@
+"""``palpa bag info``: what a recording holds, read from the file alone (no message code needed).
+
+Finished files answer from their summary section (fast); a file without one (a killed recorder) is scanned and
+its drops are counted from the recorded sequence numbers.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from mcap.reader import make_reader
+from mcap.records import Attachment, Channel, McapRecord, Metadata
+
+from palpa.record.format import MD_DROPS, MD_NODES, MD_RECORDING, MD_RECOVERY, META_SCHEMA, BagError
+from palpa.record.reader import channel_info, iter_file
+from palpa.wire import SequenceTracker, TopicStats
+
+__all__ = ["bag_info", "format_info"]
+
+
+def _file_info(path: Path) -> dict[str, Any]:
+    """Per-file facts: channels with counts, times, metadata (last record of each name), attachments."""
+    metadata: dict[str, dict[str, str]] = {}
+    attachments: list[dict[str, Any]] = []
+    channels: dict[int, Channel] = {}
+    counts: dict[int, int] = {}
+    start = end = 0
+    finalized = True
+    damage = ""
+    try:
+        with open(path, "rb") as fh:
+            reader = make_reader(fh)
+            summary = reader.get_summary() if _has_footer(fh) else None
+            if summary is not None and summary.statistics is not None:
+                stats = summary.statistics
+                channels = dict(summary.channels)
+                counts = dict(stats.channel_message_counts)
+                start, end = stats.message_start_time, stats.message_end_time
+                for md in reader.iter_metadata():
+                    metadata[md.name] = md.metadata
+                for att in reader.iter_attachments():
+                    attachments.append({"name": att.name, "media_type": att.media_type, "bytes": len(att.data)})
+            else:
+                finalized = False
+    except BagError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a damaged summary: fall back to scanning
+        finalized = False
+        damage = str(exc)
+    drops: dict[str, dict[str, int]] | None = None
+    if not finalized:
+        tracker = SequenceTracker()
+        scanned: dict[str, TopicStats] = {}
+
+        def on_record(rec: McapRecord) -> None:
+            if isinstance(rec, Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, Metadata):
+                metadata[rec.name] = rec.metadata
+            elif isinstance(rec, Attachment):
+                attachments.append({"name": rec.name, "media_type": rec.media_type, "bytes": len(rec.data)})
+
+        def on_damage(text: str) -> None:
+            nonlocal damage
+            damage = text
+
+        for m in iter_file(path, on_damage=on_damage, on_record=on_record):
+            counts[m.channel_id] = counts.get(m.channel_id, 0) + 1
+            start = m.log_time if not start else min(start, m.log_time)
+            end = max(end, m.log_time)
+            tracker.observe(m.topic, m.node, m.seq, scanned.setdefault(m.topic, TopicStats()))
+        drops = {t: s.as_dict() for t, s in scanned.items()}
+    if drops is None:
+        drops = {t: json.loads(v) for t, v in metadata.get(MD_DROPS, {}).items()}
+    return {"path": str(path), "bytes": path.stat().st_size, "finalized": finalized, "damage": damage,
+            "start_ns": start, "end_ns": end, "channels": channels, "counts": counts, "metadata": metadata,
+            "attachments": attachments, "drops": drops}
+
+
+def _has_footer(fh: Any) -> bool:
+    fh.seek(-8, os.SEEK_END)
+    ok = bool(fh.read(8) == b"\x89MCAP0\r\n")
+    fh.seek(0)
+    return ok
+
+
+def bag_info(paths: Sequence[Path]) -> dict[str, Any]:
+    """Everything ``bag info`` prints, as plain data (also ``--json``)."""
+    files = [_file_info(p) for p in paths]
+    topics: dict[str, dict[str, Any]] = {}
+    for f in files:
+        for cid, ch in f["channels"].items():
+            info = channel_info(ch)
+            if info.blobs_of:
+                continue
+            t = topics.setdefault(ch.topic, {"types": [], "publishers": [], "messages": 0, "latched": False,
+                                             "schema": True, "drops": {"gaps": 0, "restarts": 0,
+                                                                       "decode_errors": 0}})
+            if info.type and info.type not in t["types"]:
+                t["types"].append(info.type)
+            if info.node and info.node not in t["publishers"]:
+                t["publishers"].append(info.node)
+            t["messages"] += f["counts"].get(cid, 0)
+            t["latched"] = t["latched"] or info.latched
+            if ch.schema_id == 0:
+                t["schema"] = False
+                t["schema_note"] = ch.metadata.get(META_SCHEMA, "no schema")
+        for topic, d in f["drops"].items():
+            if topic in topics:
+                for k in ("gaps", "restarts", "decode_errors"):
+                    topics[topic]["drops"][k] += int(d.get(k, 0))
+    starts = [f["start_ns"] for f in files if f["start_ns"]]
+    start = min(starts) if starts else 0
+    end = max((f["end_ns"] for f in files), default=0)
+    duration = (end - start) / 1e9 if start else 0.0
+    for t in topics.values():
+        t["rate_hz"] = t["messages"] / duration if duration > 0 else 0.0
+    nodes: dict[str, Any] = {}
+    recording: dict[str, str] = {}
+    for f in files:
+        for name, text in f["metadata"].get(MD_NODES, {}).items():
+            nodes[name] = json.loads(text)
+        recording = recording or f["metadata"].get(MD_RECORDING, {})
+    return {
+        "files": [{"path": f["path"], "bytes": f["bytes"], "finalized": f["finalized"], "damage": f["damage"],
+                   "recovered": f["metadata"].get(MD_RECOVERY)} for f in files],
+        "start_ns": start, "end_ns": end, "duration_s": duration,
+        "messages": sum(t["messages"] for t in topics.values()),
+        "topics": dict(sorted(topics.items())),
+        "nodes": dict(sorted(nodes.items())),
+        "recording": recording,
+        "attachments": [a for f in files for a in f["attachments"]],
+    }
+
+
+def _when(ns: int) -> str:
+    return datetime.fromtimestamp(ns / 1e9, UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3] + " UTC" if ns else "-"
+
+
+def format_info(info: dict[str, Any]) -> str:
+    """The human-readable report."""
+    lines = []
+    for f in info["files"]:
+        state = "complete" if f["finalized"] else "NOT FINALIZED (run `palpa bag recover`)"
+        if f["recovered"]:
+            state += f", recovered from {f['recovered'].get('source', '?')}"
+        lines.append(f"file:        {f['path']}  ({f['bytes'] / 1e6:.2f} MB, {state})")
+        if f["damage"]:
+            lines.append(f"             damage: {f['damage']}")
+    lines.append(f"duration:    {info['duration_s']:.3f} s  ({_when(info['start_ns'])} -> {_when(info['end_ns'])})")
+    lines.append(f"messages:    {info['messages']}")
+    rec = info["recording"]
+    if rec:
+        lines.append(f"recorded by: palpa {rec.get('palpa_version', '?')} on {rec.get('host', '?')} "
+                     f"(node {rec.get('recorder', '?')}, mcap {rec.get('mcap_library', '?')})")
+    lines.append(f"topics ({len(info['topics'])}):")
+    width = max((len(t) for t in info["topics"]), default=5)
+    total_gaps = 0
+    for topic, t in info["topics"].items():
+        d = t["drops"]
+        total_gaps += d["gaps"]
+        extra = [f"{d['gaps']} dropped"] if d["gaps"] else []
+        if d["restarts"]:
+            extra.append(f"{d['restarts']} publisher restarts")
+        if t["latched"]:
+            extra.append("latched")
+        if not t["schema"]:
+            extra.append(t.get("schema_note", "no schema"))
+        lines.append(f"  {topic:<{width}}  {'/'.join(t['types']) or '?':<22} {t['messages']:>9} msgs "
+                     f"{t['rate_hz']:>9.2f} Hz  from {', '.join(t['publishers']) or '?'}"
+                     + (f"  [{'; '.join(extra)}]" if extra else ""))
+    lines.append(f"drops:       {total_gaps} messages missing by sequence number" if total_gaps
+                 else "drops:       none (no sequence gaps)")
+    if info["nodes"]:
+        lines.append(f"nodes ({len(info['nodes'])}):")
+        for name, n in info["nodes"].items():
+            pubs = ", ".join(sorted(n.get("publishes", {})))
+            lines.append(f"  {name} (pid {n.get('pid', '?')} on {n.get('host', '?')}) publishes: {pubs or '-'}")
+    for a in info["attachments"]:
+        lines.append(f"attachment:  {a['name']} ({a['media_type']}, {a['bytes']} bytes)")
+    return "\n".join(lines)

@@ -1,0 +1,199 @@
+"""The player node: republishes a recording with its original timing, sequence numbers, types and publishers.
+
+``palpa play FILE`` and the launch-file node ``palpa.record.player:Player`` are the same class, so a launch file
+can replace live sources with a recording while the downstream nodes run live (docs/recording.md).
+
+Timing: message i is sent at ``t0 + (log_time_i - start) / rate`` where ``start`` is the first recorded log time
+plus ``start_offset_s``. The loop sleeps (servicing the node: heartbeats, timers) until ~1.5 ms before a message
+is due and busy-waits the rest, so the send-time error stays well under 2 ms at 1 kHz. Each envelope keeps the
+recorded type, sequence number and publisher name; its ``stamp`` is the new publish time. Latched messages are
+re-published latched. With ``clock: true`` the node publishes ``ClockTick(sim_ns=<recorded time>)`` on
+``_palpa/clock`` at ``clock_hz`` so nodes that follow the sim clock see the recording's time.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import palpa
+from palpa.errors import ParamError
+from palpa.node import Node, RawMessage
+from palpa.record.format import TopicFilter
+from palpa.record.reader import BagMessage, iter_bag, resolve_bag_paths
+from palpa.runtime_msgs import CLOCK_TOPIC, ClockTick
+from palpa.wire import Header
+
+__all__ = ["Player"]
+
+_BUSY_WAIT_S = 0.0015  # sleep until this close to a deadline, then spin on the clock
+_READY_TOPIC = "_palpa/player_ready/"
+
+
+class Player(Node):
+    """Plays a recording (a file, several files, a split set's base name, or a run directory) onto the bus."""
+
+    class Params(palpa.Params):
+        file: str | list[str]
+        """The recording: a .mcap file, a list of files, a split set's base name, or a directory."""
+        rate: float = 1.0
+        """Playback speed factor (2.0: twice as fast)."""
+        loop: bool = False
+        topics: list[str] = []
+        """Regexes matched against whole topic names; empty plays every non-runtime topic."""
+        exclude: list[str] = []
+        remap: dict[str, str] = {}
+        """Recorded topic -> topic to publish on."""
+        start_offset_s: float = 0.0
+        """Skip this many seconds from the start (latched messages before it are still published first)."""
+        clock: bool = False
+        """Publish the recording's time on _palpa/clock (ClockTick)."""
+        clock_hz: float = 100.0
+        exit_when_done: bool = True
+        """Stop the node (exit 0) after the last message; otherwise keep running until stopped."""
+        ready_timeout_s: float = 5.0
+        """Before playing, wait up to this long for the bus to echo a probe (so the first messages are not lost
+        to ZeroMQ's slow joiner)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs["sim_clock"] = False  # it is the source of sim time, never a follower
+        super().__init__(*args, **kwargs)
+
+    def setup(self) -> None:
+        p = self.params
+        where = f"node {self.name!r}"
+        if not p.rate > 0:
+            raise ParamError(f"{where}: parameter 'rate' must be > 0, got {p.rate}")
+        if p.start_offset_s < 0:
+            raise ParamError(f"{where}: parameter 'start_offset_s' must be >= 0, got {p.start_offset_s}")
+        if p.clock and not p.clock_hz > 0:
+            raise ParamError(f"{where}: parameter 'clock_hz' must be > 0, got {p.clock_hz}")
+        self.paths: list[Path] = resolve_bag_paths(p.file if isinstance(p.file, str) else list(p.file))
+        self._filter = TopicFilter(p.topics, p.exclude)
+        self._clock_pub = self.publisher(CLOCK_TOPIC, ClockTick) if p.clock else None
+        self._ready = False
+        self.subscribe_raw(_READY_TOPIC + self.name, self._on_ready)
+        self.played = 0
+        self.passes = 0
+        self.late_max_s = 0.0
+        self._next_tick = 0.0
+
+    # -- helpers -----------------------------------------------------------------------------------------
+    def _on_ready(self, raw: RawMessage) -> None:
+        if raw.header.node == self.name:
+            self._ready = True
+
+    def _wait_ready(self) -> None:
+        """Publish a probe until it comes back through the bus: from then on, our PUB socket has every
+        subscription the proxy knows of, so nothing we send is dropped for lack of a route."""
+        deadline = time.monotonic() + self.params.ready_timeout_s
+        seq = 0
+        while not self._ready and not self.is_shutdown:
+            if time.monotonic() > deadline:
+                self.log.warning("the bus did not echo a probe within %.1f s; playing anyway",
+                                 self.params.ready_timeout_s)
+                return
+            seq += 1
+            self.publish_raw(_READY_TOPIC + self.name, Header(type="", seq=seq, stamp=time.time_ns(),
+                                                               node=self.name), b"\xc0")
+            self.spin_once(0.02)
+
+    def _topic(self, topic: str) -> str:
+        topic = self.params.remap.get(topic, topic)
+        return self.remap.get(topic, topic)
+
+    def _send(self, m: BagMessage) -> None:
+        header = Header(type=m.type, seq=m.seq, stamp=time.time_ns(), node=m.node, latched=m.latched)
+        self.publish_raw(self._topic(m.topic), header, m.payload, m.blobs, latched=m.latched)
+        self.played += 1
+
+    def _tick_clock(self, sim_ns: int) -> None:
+        if self._clock_pub is not None:
+            self._clock_pub.publish(ClockTick(sim_ns=sim_ns))
+
+    def _wait_until(self, due: float, t0: float, start_ns: int) -> bool:
+        """Wait for perf_counter() >= due, servicing the node and the clock; False when asked to stop."""
+        rate = self.params.rate
+        period = 1.0 / self.params.clock_hz
+        while True:
+            now = time.perf_counter()
+            if self._clock_pub is not None and now >= self._next_tick:
+                self._tick_clock(start_ns + int((now - t0) * rate * 1e9))
+                self._next_tick = max(self._next_tick + period, now)
+            remaining = due - now
+            if remaining <= 0:
+                return True
+            if self.is_shutdown:
+                return False
+            if remaining > _BUSY_WAIT_S + 0.0005:
+                timeout = remaining - _BUSY_WAIT_S
+                if self._clock_pub is not None:
+                    timeout = min(timeout, max(0.0, self._next_tick - now))
+                self.spin_once(min(timeout, 0.1))
+
+    # -- playing -----------------------------------------------------------------------------------------
+    def _play_pass(self) -> bool:
+        """Play the recording once; False when interrupted by a shutdown request."""
+        offset_ns = int(self.params.start_offset_s * 1e9)
+        rate = self.params.rate
+        start_ns: int | None = None  # recorded time that t0 stands for: the first message + the offset
+        t0 = 0.0
+        selected = 0
+        held: dict[tuple[str, str], BagMessage] = {}  # latched messages before the start offset
+        last_latched: dict[tuple[str, str], int] = {}
+        for m in iter_bag(self.paths, on_damage=self.log.warning):
+            if start_ns is None:
+                start_ns = m.log_time + offset_ns
+            wanted = self._filter(m.topic)
+            if m.log_time < start_ns:
+                if wanted and m.latched:
+                    held[(m.topic, m.node)] = m
+                continue
+            if t0 == 0.0:
+                t0 = time.perf_counter()
+                self._next_tick = t0
+                self._tick_clock(start_ns)
+                for h in held.values():
+                    self._send(h)
+                    last_latched[(h.topic, h.node)] = h.seq
+                held.clear()
+            if not wanted:
+                continue
+            selected += 1
+            if m.latched:
+                key = (m.topic, m.node)
+                if last_latched.get(key) == m.seq:
+                    continue  # the copy that opens the next piece of a split recording
+                last_latched[key] = m.seq
+            due = t0 + (m.log_time - start_ns) / 1e9 / rate
+            if not self._wait_until(due, t0, start_ns):
+                return False
+            self._send(m)
+            self.late_max_s = max(self.late_max_s, time.perf_counter() - due)
+        for h in held.values():  # the offset was past the last message: still deliver the latched state
+            self._send(h)
+        if not selected and not held:
+            self.log.warning("nothing to play in %s (no message matches the topic filter%s)",
+                             ", ".join(map(str, self.paths)), " after the start offset" if offset_ns else "")
+        return True
+
+    def spin(self) -> None:
+        """Play (and loop) until done or stopped; then exit, or keep the node alive if exit_when_done is off."""
+        self._wait_ready()
+        started = time.monotonic()
+        while not self.is_shutdown:
+            if not self._play_pass():
+                break
+            self.passes += 1
+            if not self.params.loop:
+                break
+        if self.is_shutdown:
+            return
+        self.log.info("played %d messages from %s in %.2f s (%d pass%s)", self.played,
+                      ", ".join(map(str, self.paths)), time.monotonic() - started, self.passes,
+                      "" if self.passes == 1 else "es")
+        if self.params.exit_when_done:
+            self.request_shutdown(0)
+            return
+        super().spin()
