@@ -507,7 +507,9 @@ class Node:
         cached = delivery.from_cache
         for header, payload, blobs in items:
             if raws:
-                rstats = self._raw_stats.setdefault(topic, TopicStats())
+                rstats = self._raw_stats.get(topic)
+                if rstats is None:  # not setdefault: that builds a TopicStats per message (~15% of the recorder)
+                    rstats = self._raw_stats[topic] = TopicStats()
                 if not (cached and self._raw_tracker.seen_at_least(topic, header.node, header.seq)) and \
                         self._raw_tracker.observe(topic, header.node, header.seq, rstats):
                     raw = RawMessage(topic, header, payload, blobs, cached, time.time_ns())
