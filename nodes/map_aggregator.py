@@ -1,0 +1,136 @@
+"""Map aggregator node: valid ``stiffness/sample`` messages -> a gridded map, detected inclusions, files.
+
+Publishes the map (``map/stiffness``) and inclusions (``map/inclusions``), both latched, at ``publish_hz`` while
+scanning; when the scan reports ``done`` on ``robot/scan_status`` (and again on shutdown, with everything received
+by then) it writes ``map.npz``, ``map.png`` and ``inclusions.json`` into ``output_dir``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+import palpa
+from messages import DetectedInclusion, Inclusions, ScanPlan, ScanStatus, StiffnessMap, StiffnessSample
+from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, background, detect_inclusions
+from nodes.map_output import write_outputs
+
+__all__ = ["MapAggregator"]
+
+
+class MapAggregator(palpa.Node):
+    """Bins samples, detects inclusions, writes the scan's outputs."""
+
+    class Params(palpa.Params):
+        output_dir: str = "out"
+        region_mm: list[float] = []
+        """x0, y0, x1, y1 of the grid; empty: taken from the scan plan (``robot/plan``)."""
+        resolution_mm: float = 2.0
+        min_count: int = 3
+        """Samples a cell needs to count."""
+        publish_hz: float = 1.0
+        k_mad: float = 4.0
+        rel_threshold: float = 0.2
+        """A cell is stiff above baseline + max(k_mad * robust σ, rel_threshold * baseline)."""
+        min_area_mm2: float = 0.0
+        """Smallest inclusion reported (0: two cells)."""
+        title: str = ""
+        """Shown on map.png (e.g. phantom and run); default: the output directory."""
+
+    def setup(self) -> None:
+        p = self.params
+        self.map_pub = self.publisher("map/stiffness", StiffnessMap, latched=True)
+        self.inc_pub = self.publisher("map/inclusions", Inclusions, latched=True)
+        self.grid: StiffnessGrid | None = None
+        self.unit = ""
+        self.samples = 0
+        self.pending: list[tuple[float, float, float]] = []
+        self.written = 0
+        self.changed = False
+        if p.region_mm:
+            if len(p.region_mm) != 4:
+                raise palpa.ParamError(f"{self.name}: region_mm needs x0, y0, x1, y1, got {p.region_mm}")
+            self._make_grid(*p.region_mm)
+        self.subscribe("stiffness/sample", self.on_sample)
+        self.subscribe("robot/plan", self.on_plan)
+        self.subscribe("robot/scan_status", self.on_status)
+        self.timer(1.0 / p.publish_hz, self.publish_map)
+
+    def _make_grid(self, x0: float, y0: float, x1: float, y1: float) -> None:
+        self.grid = StiffnessGrid(x0, y0, x1, y1, self.params.resolution_mm, min_count=self.params.min_count)
+        if self.pending:
+            xs, ys, vs = zip(*self.pending, strict=True)
+            self.grid.add(np.array(xs), np.array(ys), np.array(vs))
+            self.pending.clear()
+
+    def on_plan(self, plan: ScanPlan) -> None:
+        if self.grid is None:
+            self._make_grid(*plan.region_mm)
+            self.log.info("map region from the scan plan: %s mm", plan.region_mm)
+
+    def on_sample(self, s: StiffnessSample) -> None:
+        if not s.valid:
+            return
+        self.unit = s.unit
+        self.samples += 1
+        self.changed = True
+        if self.grid is None:
+            self.pending.append((s.x_mm, s.y_mm, s.value))
+        else:
+            self.grid.add(s.x_mm, s.y_mm, s.value)
+
+    def on_status(self, st: ScanStatus) -> None:
+        if st.state == "done":
+            self.log.info("scan done: writing the map")
+            self.publish_map(final=True)
+
+    def _detect(self, snap: MapSnapshot) -> tuple[list[Inclusion], float]:
+        p = self.params
+        try:
+            found = detect_inclusions(snap, k_mad=p.k_mad, rel_threshold=p.rel_threshold,
+                                      min_area_mm2=p.min_area_mm2 or None)
+        except ValueError as exc:
+            self.log.warning("no inclusion detection: %s", exc)
+            found = []
+        return found, background(snap.stiffness)[0]
+
+    def publish_map(self, final: bool = False) -> None:
+        if self.grid is None or (not self.changed and not final):
+            return
+        self.changed = False
+        snap = self.grid.snapshot()
+        found, base = self._detect(snap)
+        now = self.clock.now_ns()
+        self.map_pub.publish(StiffnessMap(
+            stamp_ns=now, unit=self.unit, x_mm=snap.x_mm.tolist(), y_mm=snap.y_mm.tolist(),
+            stiffness=snap.stiffness.ravel().tolist(), count=snap.count.ravel().astype(int).tolist(),
+            spread=snap.spread.ravel().tolist(), samples=self.samples, final=final,
+        ))
+        self.inc_pub.publish(Inclusions(
+            stamp_ns=now, unit=self.unit, baseline=float(base), final=final,
+            inclusions=[DetectedInclusion(x_mm=i.x_mm, y_mm=i.y_mm, radius_mm=i.radius_mm, contrast=i.contrast)
+                        for i in found],
+        ))
+        if final:
+            self.write(snap, found)
+
+    def write(self, snap: MapSnapshot, found: list[Inclusion]) -> None:
+        out = Path(self.params.output_dir)
+        title = self.params.title or f"stiffness map — {out}"
+        title += f"\n{self.samples} samples, {len(found)} inclusion(s), {time.strftime('%Y-%m-%d %H:%M')}"
+        paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title)
+        self.written += 1
+        for inc in found:
+            self.log.info("inclusion at (%.1f, %.1f) mm, radius %.1f mm, contrast %.2f",
+                          inc.x_mm, inc.y_mm, inc.radius_mm, inc.contrast)
+        self.log.info("map written: %s", ", ".join(str(p) for p in paths))
+
+    def on_shutdown(self) -> None:
+        if self.grid is not None and self.samples:
+            self.publish_map(final=True)
+
+
+if __name__ == "__main__":
+    palpa.run_node(MapAggregator)

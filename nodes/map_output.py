@@ -1,0 +1,71 @@
+"""Writing a scan's outputs (the file formats are a contract other tools read, see DESIGN.md):
+
+* ``map.npz``: ``stiffness`` (ny, nx) grid (NaN = no data), ``x_mm`` (nx) and ``y_mm`` (ny) cell centres,
+  ``count`` (ny, nx) samples per cell; plus ``spread`` (robust σ per cell) and ``unit`` (a 0-d string).
+* ``map.png``: heat map with axes in mm, detected inclusions circled, a title naming the run.
+* ``inclusions.json``: a list of ``{x_mm, y_mm, radius_mm, contrast}``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from models.stiffness_map import Inclusion, MapSnapshot, to_inclusions_json
+
+__all__ = ["write_outputs"]
+
+
+def _atomic_write(path: Path, data: bytes) -> None:
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_bytes(data)
+    os.replace(tmp, path)
+
+
+def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str,
+                  title: str) -> list[Path]:
+    """Write the three files (each atomically: a reader never sees half a file); returns their paths."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    npz = out_dir / "map.npz"
+    tmp = out_dir / "map.tmp.npz"
+    np.savez_compressed(tmp, stiffness=snap.stiffness, x_mm=snap.x_mm, y_mm=snap.y_mm, count=snap.count,
+                        spread=snap.spread, unit=np.array(unit))
+    os.replace(tmp, npz)
+    js = out_dir / "inclusions.json"
+    _atomic_write(js, (json.dumps(to_inclusions_json(inclusions), indent=2) + "\n").encode())
+    png = out_dir / "map.png"
+    _atomic_write(png, _render_png(snap, inclusions, unit=unit, title=title))
+    return [npz, png, js]
+
+
+def _render_png(snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str, title: str) -> bytes:
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Circle
+
+    r = snap.resolution_mm
+    extent = (float(snap.x_mm[0] - r / 2), float(snap.x_mm[-1] + r / 2),
+              float(snap.y_mm[0] - r / 2), float(snap.y_mm[-1] + r / 2))
+    fig, ax = plt.subplots(figsize=(6.4, 5.4), dpi=100)
+    data = np.ma.masked_invalid(snap.stiffness)
+    im = ax.imshow(data, origin="lower", extent=extent, cmap="viridis", interpolation="nearest")
+    fig.colorbar(im, ax=ax, label=f"stiffness ({unit})")
+    for i, inc in enumerate(inclusions, 1):
+        ax.add_patch(Circle((inc.x_mm, inc.y_mm), inc.radius_mm, fill=False, color="red", lw=1.5))
+        ax.annotate(f"{i}: ×{inc.contrast:.1f}", (inc.x_mm, inc.y_mm + inc.radius_mm + 0.8), color="red",
+                    ha="center", fontsize=8)
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(title, fontsize=9)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()

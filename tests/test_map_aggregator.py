@@ -1,0 +1,58 @@
+"""Map aggregator node: bins samples, detects inclusions, writes the three files of DESIGN.md."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from messages import ScanPlan, ScanStatus, StiffnessSample
+from nodes.map_aggregator import MapAggregator
+from palpa.testing import NodeHarness
+
+
+def sample(x: float, y: float, v: float, valid: bool = True) -> StiffnessSample:
+    return StiffnessSample(stamp_ns=0, model="airfloat", x_mm=x, y_mm=y, z_mm=0.0, value=v, unit="kPa",
+                           valid=valid, reason="" if valid else "no_contact")
+
+
+def test_map_from_plan_region_detects_blob_and_writes_files(tmp_path: Path) -> None:
+    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path), "resolution_mm": 2.0, "title": "unit test"})
+    h.publish("robot/plan", ScanPlan(stamp_ns=0, mode="sweep", region_mm=(0.0, 0.0, 40.0, 40.0), spacing_mm=2.0,
+                                     speed_mm_s=10.0, lines=20, estimated_duration_s=1.0, waypoints=[]))
+    rng = np.random.default_rng(3)
+    for x in np.arange(0.5, 40, 1.0):
+        for y in np.arange(0.5, 40, 1.0):
+            v = 26.4 * (1 + 2.0 * math.exp(-((x - 12) ** 2 + (y - 25) ** 2) / (2 * 3.0**2)))
+            h.publish("stiffness/sample", sample(float(x), float(y), v + rng.normal(0, 0.3)))
+    h.publish("stiffness/sample", sample(5.0, 5.0, 1e6, valid=False))  # invalid: ignored
+    h.advance(1.0)
+    live = h.published("map/inclusions")[-1]
+    assert not live.final and len(live.inclusions) == 1
+    h.publish("robot/scan_status", ScanStatus(stamp_ns=0, state="done", line=20, lines=20, progress=1.0, eta_s=0))
+    final = h.published("map/inclusions")[-1]
+    assert final.final and abs(final.baseline - 26.4) < 0.5
+    inc = final.inclusions[0]
+    assert math.hypot(inc.x_mm - 12, inc.y_mm - 25) < 1.0 and inc.contrast > 2.5
+
+    data = np.load(tmp_path / "map.npz")
+    assert data["stiffness"].shape == (20, 20) and data["x_mm"].shape == (20,) and data["y_mm"].shape == (20,)
+    assert data["count"].sum() == 1600 and str(data["unit"]) == "kPa"
+    records = json.loads((tmp_path / "inclusions.json").read_text())
+    assert list(records[0]) == ["x_mm", "y_mm", "radius_mm", "contrast"]
+    assert (tmp_path / "map.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    m = h.published("map/stiffness")[-1]
+    assert len(m.stiffness) == 400 and m.samples == 1600
+    h.close()
+
+
+def test_flat_map_has_no_inclusions(tmp_path: Path) -> None:
+    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path), "region_mm": [0, 0, 30, 30]})
+    rng = np.random.default_rng(4)
+    for x in np.arange(0.5, 30, 1.0):
+        for y in np.arange(0.5, 30, 1.0):
+            h.publish("stiffness/sample", sample(float(x), float(y), 26.4 + rng.normal(0, 1.0)))
+    h.close()  # shutdown writes the final map too
+    assert json.loads((tmp_path / "inclusions.json").read_text()) == []
