@@ -24,9 +24,17 @@ from palpa.launch.plan import RECORDER_NAME
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("launch", help="run a graph from a launch file (or --check it)",
                        description="Run a graph from a YAML launch file: the bus, then the nodes; Ctrl-C stops "
-                                   "them (SIGINT, then SIGTERM, then SIGKILL).")
-    p.add_argument("file", nargs="?", type=Path, help="the launch file")
-    p.add_argument("overrides", nargs="*", metavar="name:=value", help="set an arg (value parsed as YAML)")
+                                   "them (SIGINT, then SIGTERM, then SIGKILL). Options may come before or after "
+                                   "the file.")
+    _add_options(p)
+    # argparse cannot mix options into positionals that follow them, so everything from the file on is parsed
+    # again by _parse_rest (options included)
+    p.add_argument("rest", nargs=argparse.REMAINDER, metavar="FILE [name:=value ...]",
+                   help="the launch file, then arg overrides (value parsed as YAML)")
+    p.set_defaults(func=run)
+
+
+def _add_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--check", action="store_true", help="validate only and print the resolved graph")
     p.add_argument("--schema", action="store_true", help="print the JSON Schema of launch files and exit")
     p.add_argument("--run-dir", type=Path, help="where logs and the resolved file go (default runs/<timestamp>)")
@@ -38,7 +46,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     shown.add_argument("--no-progress", dest="progress", action="store_false",
                        help="never show the progress bar (node output stays on screen)")
     p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
-    p.set_defaults(func=run)
+
+
+def _parse_rest(args: argparse.Namespace) -> argparse.Namespace:
+    inner = argparse.ArgumentParser(prog="palpa launch", add_help=False)
+    _add_options(inner)
+    inner.add_argument("file", nargs="?", type=Path)
+    inner.add_argument("overrides", nargs="*", metavar="name:=value")
+    return inner.parse_intermixed_args(list(args.rest), namespace=args)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -53,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    args = _parse_rest(args)
     if args.schema:
         print(json.dumps(json_schema(), indent=2))
         return 0

@@ -136,7 +136,7 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
         _record(src, decl, col.plan)
     for i, entry in enumerate(decl.python_path):
         p = Path(entry)
-        p = p if p.is_absolute() else path.parent / p
+        p = (p if p.is_absolute() else path.parent / p).resolve()
         if not p.is_dir():
             raise src.error(("python_path", i), f"python_path entry {entry!r}: no such folder ({p})")
         if str(p) not in col.plan.python_path:

@@ -1,0 +1,85 @@
+"""Every launch file in launch/ is smoke-tested: ``--check`` passes, and launched it produces a message on each
+topic it should, then stops on Ctrl-C with exit 0 (or ends by itself with the expected code).
+
+Adding a launch file? Add its entry to SMOKE: arg overrides for a quick run, the topics it must produce, and a
+timeout. The test fails for a file without an entry.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+from conftest import palpa_cmd
+from procs import ProcessGroup, wait_until
+
+import palpa
+from palpa.node import RawMessage
+
+REPO = Path(__file__).resolve().parent.parent
+LAUNCH_DIR = REPO / "launch"
+
+
+@dataclass(frozen=True)
+class Smoke:
+    args: list[str] = field(default_factory=list)
+    """Arg overrides (name:=value) for a quick run."""
+    topics: list[str] = field(default_factory=list)
+    """Topics that must each carry at least one message."""
+    timeout: float = 30.0
+    """Seconds to see every topic (and, after Ctrl-C, to stop)."""
+    exit_code: int = 0
+    """Expected exit code (a file whose required node ends it may end by itself)."""
+
+
+SMOKE: dict[str, Smoke] = {
+    "talker_listener.yaml": Smoke(args=["rate:=20.0"], topics=["chatter", "chatter_len"], timeout=30),
+}
+
+FILES = sorted(p.name for p in LAUNCH_DIR.glob("*.yaml"))
+
+
+def test_every_launch_file_has_a_smoke_entry() -> None:
+    missing = [f for f in FILES if f not in SMOKE]
+    stale = [f for f in SMOKE if f not in FILES]
+    assert not missing, f"add an entry to SMOKE in {__file__} for: {', '.join(missing)}"
+    assert not stale, f"SMOKE names launch files that do not exist: {', '.join(stale)}"
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_launch_file_runs_and_produces_its_topics(name: str, procs: ProcessGroup, tmp_path: Path) -> None:
+    entry = SMOKE.get(name)
+    if entry is None:
+        pytest.fail(f"launch/{name} has no entry in SMOKE ({__file__})")
+    file = LAUNCH_DIR / name
+    check = subprocess.run([sys.executable, "-m", "palpa.cli.main", "launch", "--check", str(file), *entry.args],
+                           capture_output=True, text=True, timeout=60, cwd=REPO)
+    assert check.returncode == 0, check.stderr
+
+    run_dir = tmp_path / "run"
+    proc = procs.start(palpa_cmd("launch", str(file), "--run-dir", str(run_dir), "--no-progress", *entry.args),
+                       cwd=str(REPO))
+    address_file = run_dir / "bus.address"
+    wait_until(lambda: address_file.exists() and address_file.read_text().endswith("\n") or
+               proc.popen.poll() is not None, 20, "the launcher's bus.address")
+    assert address_file.exists(), proc.output()
+    seen: set[str] = set()
+
+    def on_raw(raw: RawMessage) -> None:
+        seen.add(raw.topic)
+
+    with palpa.Node(name="smoke", bus=address_file.read_text().strip(), heartbeat_s=0) as probe:
+        probe.subscribe_raw("", on_raw)
+        deadline = time.monotonic() + entry.timeout
+        while not set(entry.topics) <= seen and time.monotonic() < deadline and proc.popen.poll() is None:
+            probe.spin_once(0.1)
+    missing = sorted(set(entry.topics) - seen)
+    assert not missing, f"no message on {missing} within {entry.timeout} s:\n{proc.output()}"
+    proc.signal(signal.SIGINT)
+    code = proc.wait(entry.timeout)
+    assert code == entry.exit_code, proc.output()
