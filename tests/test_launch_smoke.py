@@ -56,7 +56,17 @@ def test_launch_file_runs_and_produces_its_topics(name: str, procs: ProcessGroup
     entry = SMOKE.get(name)
     if entry is None:
         pytest.fail(f"launch/{name} has no entry in SMOKE ({__file__})")
-    file = LAUNCH_DIR / name
+    smoke(LAUNCH_DIR / name, entry, procs, tmp_path)
+
+
+def test_custom_node_example_launches(procs: ProcessGroup, tmp_path: Path) -> None:
+    """examples/custom_node: a node from a file outside the package, found through the file's python_path."""
+    smoke(REPO / "examples" / "custom_node" / "launch.yaml", Smoke(args=["suffix:=?!"], topics=["chatter", "shout"]),
+          procs, tmp_path)
+
+
+def smoke(file: Path, entry: Smoke, procs: ProcessGroup, tmp_path: Path) -> None:
+    """--check, launch, wait for a message on each topic (a node of our own on the run's bus), Ctrl-C."""
     check = subprocess.run([sys.executable, "-m", "palpa.cli.main", "launch", "--check", str(file), *entry.args],
                            capture_output=True, text=True, timeout=60, cwd=REPO)
     assert check.returncode == 0, check.stderr
