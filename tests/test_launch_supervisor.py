@@ -251,3 +251,18 @@ def test_progress_bar_hides_node_chatter_but_not_warnings(procs: ProcessGroup, t
     assert "launch ended: required node ticker ended (exit code 0); exit code 0" in out  # the summary stays
     assert "INFO this line only goes to the log" in (run_dir / "loud.log").read_text()
     assert "step 3 of 20" in (run_dir / "ticker.log").read_text()
+
+
+def test_launch_ends_when_every_node_has_ended_and_exit_0_is_not_respawned(procs: ProcessGroup,
+                                                                            tmp_path: Path) -> None:
+    file = write(tmp_path, f"""
+        nodes:
+          - {{name: first, cmd: {prog("quit", "0", "0.2")}, respawn: true, respawn_delay: 0.1}}
+          - {{name: second, cmd: {prog("quit", "0", "0.4")}}}
+    """)
+    run_dir = tmp_path / "run"
+    proc = launch(procs, file, run_dir)
+    assert proc.wait(30) == 0, proc.output()
+    out = proc.output()
+    assert "stopping: every node has ended" in out
+    assert len(starts(run_dir, "first")) == 1 and "respawning" not in out

@@ -74,7 +74,8 @@ class NodeDecl(_Decl):
     remap: Annotated[dict[str, str], Meta(description="topic -> topic")] = {}
     namespace: Namespace = ""
     env: Annotated[dict[str, str], Meta(description="extra environment variables (strings)")] = {}
-    respawn: Annotated[bool, Meta(description="start again when it exits")] = False
+    respawn: Annotated[bool, Meta(description="start again when it fails (exits non-zero or is killed); exit "
+                                              "code 0 means it has finished")] = False
     respawn_delay: Annotated[float, Meta(gt=0.0, description="seconds before the first respawn; doubles after "
                                                               "each consecutive one (capped at 60 s)")] = 1.0
     respawn_max_retries: Annotated[int, Meta(ge=-1, description="consecutive respawns before giving up; "

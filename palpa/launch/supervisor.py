@@ -364,7 +364,8 @@ class Supervisor:
         self._after_exit(p, code)
 
     def _after_exit(self, p: _Proc, code: int) -> None:
-        """A node ended on its own: respawn it, end the launch (required), or carry on without it."""
+        """A node ended on its own: respawn it (if it failed and asks for it), end the launch (required), or
+        carry on without it. Exit code 0 means the node has finished: it is never respawned."""
         spec, now = p.spec, time.monotonic()
         if now - p.started_at >= _STABLE_S:
             p.failures = 0
@@ -372,7 +373,7 @@ class Supervisor:
         if code != 0 and (spec.output == "log" or self._view is not None):
             for line in p.tail:
                 self._show(f"[{spec.name}] {line}", loud=True)
-        if spec.respawn and (retries < 0 or p.failures < retries):
+        if spec.respawn and code != 0 and (retries < 0 or p.failures < retries):
             p.failures += 1
             delay = min(_BACKOFF_CAP_S, spec.respawn_delay * 2 ** (p.failures - 1))
             p.state, p.respawn_at = "backoff", now + delay
@@ -383,9 +384,9 @@ class Supervisor:
             return
         p.state = "done"
         p.failed = code != 0
-        if spec.respawn:
+        gave_up = spec.respawn and code != 0
+        if gave_up:
             p.outcome = f"gave up after {p.failures} retries (last: {exit_text(code)})"
-            p.failed = True
             self._say(f"{spec.name}: giving up after {p.failures} retries (last: {exit_text(code)})", "ERROR")
         else:
             p.outcome = f"ended by itself ({exit_text(code)})"
@@ -395,7 +396,7 @@ class Supervisor:
         elif p is self._recorder:
             self._say(f"the recorder ended ({exit_text(code)}): the recording is incomplete", "ERROR")
             p.failed = True
-        elif not spec.respawn:
+        elif not gave_up:
             level = "INFO" if code == 0 else "WARNING"
             self._say(f"{spec.name} ended ({exit_text(code)}); it is not required, the graph keeps running", level)
         self._check_all_exited()
