@@ -68,7 +68,8 @@ class Recorder(Node):
         """Regexes matched against whole topic names; empty records every (non-runtime) topic."""
         exclude: list[str] = []
         split_size_mb: float = 0.0
-        """Start a new file when this one reaches this size (MB, 1e6 bytes); 0: never."""
+        """Start a new file once this one holds this many MB (1e6 bytes); checked whenever a chunk is closed,
+        so a piece can exceed it by up to one chunk (1 MB). 0: never."""
         split_duration_s: float = 0.0
         """Start a new file after this many seconds (checked every flush_period_s); 0: never."""
         force: bool = False
@@ -289,10 +290,10 @@ class Recorder(Node):
             if self._nodes_dirty:
                 self._nodes_dirty = False
                 self._writer.add_metadata(MD_NODES, self._nodes)
-            if self._split_due_ns is not None and self.clock.now_ns() >= self._split_due_ns:
+            self._writer.flush()
+            due = self._split_due_ns is not None and self.clock.now_ns() >= self._split_due_ns
+            if due or self._writer.written >= self._split_bytes:
                 self._roll()
-            else:
-                self._writer.flush()
         except (OSError, BagError) as exc:
             self._fail(exc)
 
