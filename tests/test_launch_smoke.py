@@ -59,21 +59,26 @@ def test_launch_file_runs_and_produces_its_topics(name: str, procs: ProcessGroup
     smoke(LAUNCH_DIR / name, entry, procs, tmp_path)
 
 
-def test_custom_node_example_launches(procs: ProcessGroup, tmp_path: Path) -> None:
-    """examples/custom_node: a node from a file outside the package, found through the file's python_path."""
+@pytest.mark.parametrize("transport", ["ipc", "tcp"])
+def test_custom_node_example_launches(procs: ProcessGroup, tmp_path: Path, transport: str) -> None:
+    """examples/custom_node: a node from a file outside the package, found through the file's python_path;
+    over the default ipc bus and over tcp with OS-chosen ports (--bus-address)."""
+    extra = ["--bus-address", "tcp://127.0.0.1"] if transport == "tcp" else []
     smoke(REPO / "examples" / "custom_node" / "launch.yaml", Smoke(args=["suffix:=?!"], topics=["chatter", "shout"]),
-          procs, tmp_path)
+          procs, tmp_path, extra)
+    address = (tmp_path / "run" / "bus.address").read_text()
+    assert address.startswith("pub=tcp://127.0.0.1:" if transport == "tcp" else "pub=ipc:///tmp/palpa-")
 
 
-def smoke(file: Path, entry: Smoke, procs: ProcessGroup, tmp_path: Path) -> None:
+def smoke(file: Path, entry: Smoke, procs: ProcessGroup, tmp_path: Path, extra: list[str] | None = None) -> None:
     """--check, launch, wait for a message on each topic (a node of our own on the run's bus), Ctrl-C."""
     check = subprocess.run([sys.executable, "-m", "palpa.cli.main", "launch", "--check", str(file), *entry.args],
                            capture_output=True, text=True, timeout=60, cwd=REPO)
     assert check.returncode == 0, check.stderr
 
     run_dir = tmp_path / "run"
-    proc = procs.start(palpa_cmd("launch", str(file), "--run-dir", str(run_dir), "--no-progress", *entry.args),
-                       cwd=str(REPO))
+    proc = procs.start(palpa_cmd("launch", str(file), "--run-dir", str(run_dir), "--no-progress", *(extra or []),
+                                 *entry.args), cwd=str(REPO))
     address_file = run_dir / "bus.address"
     wait_until(lambda: address_file.exists() and address_file.read_text().endswith("\n") or
                proc.popen.poll() is not None, 20, "the launcher's bus.address")

@@ -6,18 +6,12 @@ else an error); apply substitutions to everything else; validate the result agai
 collect the nodes. When every file is in, each ``node:`` class is imported and its params are validated with
 :func:`palpa.params.convert_params`. Every error reads ``file:line:col: what was expected``.
 
-Substitutions, inside any string value (not keys):
-
-* ``$(arg NAME)``            the arg's value; a string that is exactly this keeps the value's YAML type
-* ``$(env NAME)``            an environment variable (an error if unset); ``$(env NAME default words)`` otherwise
-* ``$(dirname)``             the folder of the launch file being read (absolute)
-* ``$(run_dir)``             the run directory (``runs/<timestamp>`` unless ``--run-dir``)
-* ``$$(``                    a literal ``$(``
+Substitutions are applied by :mod:`palpa.launch.subst`; validation errors are worded by
+:mod:`palpa.launch.validate`.
 """
 
 from __future__ import annotations
 
-import difflib
 import importlib
 import json
 import os
@@ -34,14 +28,13 @@ from palpa.errors import BusError, LaunchError, ParamError
 from palpa.launch.plan import RECORDER_NAME, RECORDER_TARGET, LaunchPlan, NodeSpec
 from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, RecordDecl
 from palpa.launch.source import Mark, Path_, Source, display_path
+from palpa.launch.subst import substitute
+from palpa.launch.validate import convert, did_you_mean, kind, lower_first
 from palpa.node import Node
 from palpa.params import convert_params
 
 __all__ = ["load_launch", "parse_overrides"]
 
-_SUBST_RE = re.compile(r"\$\$\(|\$\(([^()]*)\)|\$\(")
-_ERR_PATH_RE = re.compile(r"^(?P<what>.*) - at `\$(?P<path>[^`]*)`$", re.S)
-_PATH_PART_RE = re.compile(r"\.([A-Za-z_][\w-]*)|\[(\d+)\]|\[\.\.\.\]")
 _RESERVED_NAMES = {"launch"}
 
 
@@ -110,13 +103,13 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
         raise LaunchError(f"{src.name}:1:1: empty launch file: expected a mapping with 'nodes' (and optionally "
                           "args, include, bus, record, progress)")
     if not isinstance(src.data, dict):
-        raise src.error((), f"a launch file is a mapping (nodes:, args:, ...), not a {_kind(src.data)}")
+        raise src.error((), f"a launch file is a mapping (nodes:, args:, ...), not a {kind(src.data)}")
     data: dict[str, Any] = dict(src.data)
     args = _resolve_args(src, data.pop("args", []), given, col.plan.run_dir)
     if top:
         col.plan.args = dict(args)
-    subst = {k: _substitute(src, v, (k,), args, col.plan.run_dir) for k, v in data.items()}
-    decl = _convert(src, subst, LaunchFile)
+    subst = {k: substitute(src, v, (k,), args, col.plan.run_dir) for k, v in data.items()}
+    decl = convert(src, subst, LaunchFile)
 
     for key in ("bus", "record", "progress"):
         if not top and getattr(decl, key) is not None:
@@ -164,7 +157,7 @@ def _record(src: Source, decl: LaunchFile, plan: LaunchPlan) -> None:
 
 
 def _resolve_args(src: Source, raw: Any, given: _Given, run_dir: Path) -> dict[str, Any]:
-    decls = _convert(src, raw, list[ArgDecl], ("args",))
+    decls = convert(src, raw, list[ArgDecl], ("args",))
     values: dict[str, Any] = {}
     declared: dict[str, int] = {}
     for i, decl in enumerate(decls):
@@ -174,7 +167,7 @@ def _resolve_args(src: Source, raw: Any, given: _Given, run_dir: Path) -> dict[s
         if decl.name in given.values:
             values[decl.name] = given.values[decl.name]
         elif decl.default is not msgspec.UNSET:
-            values[decl.name] = _substitute(src, decl.default, ("args", i, "default"), values, run_dir)
+            values[decl.name] = substitute(src, decl.default, ("args", i, "default"), values, run_dir)
         else:
             how = (f"pass {decl.name}:=VALUE" if given.origin == "the command line"
                    else f"add {decl.name}: VALUE to the include's args")
@@ -182,7 +175,7 @@ def _resolve_args(src: Source, raw: Any, given: _Given, run_dir: Path) -> dict[s
                                          f"({how})")
     for name in given.values:
         if name not in declared:
-            hint = _did_you_mean(name, declared)
+            hint = did_you_mean(name, declared)
             names = ", ".join(declared) or "none"
             mark = given.marks.get(name)
             where = f"{mark}: " if mark is not None else f"{src.name}: "
@@ -286,7 +279,7 @@ def _import_node_class(src: Source, where: Path_, target: str) -> type[Node]:
     cls = getattr(module, class_name, None)
     if cls is None:
         names = [n for n, v in vars(module).items() if isinstance(v, type) and issubclass(v, Node) and v is not Node]
-        raise src.error(where, f"module {module_name!r} has no {class_name!r}{_did_you_mean(class_name, names)}")
+        raise src.error(where, f"module {module_name!r} has no {class_name!r}{did_you_mean(class_name, names)}")
     if not (isinstance(cls, type) and issubclass(cls, Node)):
         raise src.error(where, f"{target!r} is not a palpa.Node subclass")
     return cls
@@ -300,174 +293,10 @@ def _param_error(src: Source, where: Path_, spec: NodeSpec, text: str) -> Launch
         declared = re.search(r"\(declared parameters: (.*)\)$", text)
         names = declared.group(1).split(", ") if declared else []
         return src.error((*where, name), f"node {spec.name!r} ({spec.target}) has no parameter {name!r}"
-                                         f"{_did_you_mean(name, names)}; declared: {', '.join(names) or 'none'}",
+                                         f"{did_you_mean(name, names)}; declared: {', '.join(names) or 'none'}",
                          key=True)
     bad = re.match(r"parameter '([^'.\[]+)[^']*': (.*)$", text, re.S)
     if bad:
         return src.error((*where, bad.group(1)), f"param {bad.group(1)!r} of node {spec.name!r}: "
-                                                 f"{_lower_first(bad.group(2))}")
+                                                 f"{lower_first(bad.group(2))}")
     return src.error(where, f"params of node {spec.name!r}: {text}")
-
-
-# -- substitutions --------------------------------------------------------------------------------------
-def _substitute(src: Source, value: Any, path: Path_, args: Mapping[str, Any], run_dir: Path) -> Any:
-    if isinstance(value, str):
-        return _subst_str(src, value, path, args, run_dir)
-    if isinstance(value, list):
-        return [_substitute(src, v, (*path, i), args, run_dir) for i, v in enumerate(value)]
-    if isinstance(value, dict):
-        return {k: _substitute(src, v, (*path, k), args, run_dir) for k, v in value.items()}
-    return value
-
-
-def _subst_str(src: Source, text: str, path: Path_, args: Mapping[str, Any], run_dir: Path) -> Any:
-    if "$(" not in text:
-        return text
-    whole = re.fullmatch(r"\$\(\s*arg\s+([^()\s]+)\s*\)", text)
-    if whole:
-        return _arg(src, path, whole.group(1), args)
-    out: list[str] = []
-    pos = 0
-    for m in _SUBST_RE.finditer(text):
-        out.append(text[pos:m.start()])
-        pos = m.end()
-        token = m.group(0)
-        if token == "$$(":
-            out.append("$(")
-        elif token == "$(":
-            raise src.error(path, f"unterminated substitution in {text!r}: expected $(...) with a closing ')' "
-                                  "(write $$( for a literal '$(')")
-        else:
-            value = _evaluate(src, path, m.group(1), args, run_dir)
-            out.append(value if isinstance(value, str) else json.dumps(value))
-    out.append(text[pos:])
-    return "".join(out)
-
-
-def _evaluate(src: Source, path: Path_, expr: str, args: Mapping[str, Any], run_dir: Path) -> Any:
-    words = expr.split()
-    kind = words[0] if words else ""
-    if kind == "arg" and len(words) == 2:
-        return _arg(src, path, words[1], args)
-    if kind == "env" and len(words) >= 2:
-        value = os.environ.get(words[1])
-        if value is not None:
-            return value
-        if len(words) > 2:
-            return " ".join(words[2:])
-        raise src.error(path, f"environment variable {words[1]!r} is not set and $(env {words[1]}) has no "
-                              f"default (write $(env {words[1]} DEFAULT))")
-    if kind == "dirname" and len(words) == 1:
-        return str(src.path.parent)
-    if kind == "run_dir" and len(words) == 1:
-        return str(run_dir)
-    raise src.error(path, f"unknown substitution $({expr}): expected $(arg NAME), $(env NAME [DEFAULT]), "
-                          "$(dirname) or $(run_dir)")
-
-
-def _arg(src: Source, path: Path_, name: str, args: Mapping[str, Any]) -> Any:
-    if name in args:
-        return args[name]
-    if path[:1] == ("args",):
-        raise src.error(path, f"$(arg {name}): not declared before this arg (an arg's default may only use "
-                              f"args declared above it)")
-    names = ", ".join(args) or "none"
-    raise src.error(path, f"$(arg {name}): no such arg{_did_you_mean(name, args)} (declared: {names})")
-
-
-# -- validation against the schema ----------------------------------------------------------------------
-def _convert(src: Source, data: Any, typ: Any, base: Path_ = ()) -> Any:
-    try:
-        return msgspec.convert(data, typ, strict=True)
-    except msgspec.ValidationError as exc:
-        raise _validation_error(src, base, str(exc), data) from None
-
-
-def _validation_error(src: Source, base: Path_, text: str, data: Any) -> LaunchError:
-    m = _ERR_PATH_RE.match(text)
-    what, rel = (m.group("what"), m.group("path")) if m else (text, "")
-    path: Path_ = base
-    for part in _PATH_PART_RE.finditer(rel):
-        if part.group(1) is not None:
-            path = (*path, part.group(1))
-        elif part.group(2) is not None:
-            path = (*path, int(part.group(2)))
-        else:  # a value inside a dict: msgspec does not say which key, so find the first of the wrong kind
-            got = re.search(r"got `(\w+)`", what)
-            container = src.get(path)
-            if isinstance(container, dict) and got:
-                for k, v in container.items():
-                    if _kind_name(v) == got.group(1):
-                        path = (*path, k)
-                        break
-    label = _label(path)
-    unknown = re.match(r"Object contains unknown field `([^`]+)`", what)
-    if unknown:
-        key = unknown.group(1)
-        allowed = _allowed_keys(path)
-        return src.error((*path, key), f"unknown key {key!r} in {label}{_did_you_mean(key, allowed)}; expected "
-                                       f"one of: {', '.join(allowed)}", key=True)
-    missing = re.match(r"Object missing required field `([^`]+)`", what)
-    if missing:
-        return src.error(path, f"{label} is missing the required key {missing.group(1)!r}")
-    return src.error(path, f"{label}: {_lower_first(what)}")
-
-
-def _allowed_keys(path: Path_) -> list[str]:
-    typ: Any = LaunchFile
-    for part in path:
-        if isinstance(part, int):
-            continue
-        hints = {f.name: f.type for f in msgspec.structs.fields(typ)} if isinstance(typ, type) else {}
-        sub = hints.get(str(part))
-        typ = _struct_in(sub)
-        if typ is None:
-            return []
-    return [f.name for f in msgspec.structs.fields(typ)] if isinstance(typ, type) else []
-
-
-def _struct_in(t: Any) -> Any:
-    """The Struct type inside an annotation like ``list[X]``, ``X | None`` or ``Annotated[...]``."""
-    if isinstance(t, type) and issubclass(t, msgspec.Struct):
-        return t
-    for arg in getattr(t, "__args__", ()):
-        found = _struct_in(arg)
-        if found is not None:
-            return found
-    origin = getattr(t, "__origin__", None)
-    return _struct_in(origin) if origin is not None and origin is not t else None
-
-
-def _label(path: Path_) -> str:
-    if not path:
-        return "the launch file"
-    text = str(path[0])
-    for part in path[1:]:
-        text += f"[{part}]" if isinstance(part, int) else f".{part}"
-    return text
-
-
-def _kind(value: Any) -> str:
-    return {"object": "mapping", "array": "list", "str": "string", "null": "null"}.get(_kind_name(value),
-                                                                                      _kind_name(value))
-
-
-def _kind_name(value: Any) -> str:
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return "bool"
-    if isinstance(value, dict):
-        return "object"
-    if isinstance(value, list):
-        return "array"
-    return type(value).__name__
-
-
-def _lower_first(text: str) -> str:
-    return text[:1].lower() + text[1:]
-
-
-def _did_you_mean(name: str, choices: Any) -> str:
-    close = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import re
 import selectors
 import signal
 import socket
@@ -29,13 +28,13 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from datetime import datetime
 from types import FrameType
 from typing import Any, TextIO
 
 from palpa.address import BusAddress
 from palpa.bus import Bus
 from palpa.errors import LaunchError
+from palpa.launch.output import Screen
 from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
 from palpa.launch.process import Child
 from palpa.launch.progress import ProgressView, progress_fields
@@ -45,14 +44,11 @@ from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 
 __all__ = ["Supervisor", "exit_text"]
 
-# Lines shown on screen even while a progress bar hides the rest: a log level near the start, or a traceback.
-_LOUD_RE = re.compile(r"^\W{0,3}(WARN|WARNING|ERROR|CRITICAL|FATAL)\b|^Traceback \(most recent call last\)")
 _BACKOFF_CAP_S = 60.0
 _STABLE_S = 30.0  # a run at least this long resets the respawn backoff
 _REAP_GRACE_S = 3.0  # after SIGKILL, how long to wait for the kernel before giving up on a process
 _MAX_LINE = 65536
 _STEP_S = 0.05
-_COLORS = ("36", "33", "35", "32", "34", "91", "96", "93", "95", "92")
 _SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 
 
@@ -110,11 +106,9 @@ class Supervisor:
         self._reason = ""
         self._code: int | None = None
         self._heard: set[str] = set()
-        self._view: ProgressView | None = None
+        self._screen = Screen(self.out, self.err)
         self._node: Node | None = None
-        self._color = self.out.isatty() and not os.environ.get("NO_COLOR")
         self.address: BusAddress | None = None
-        self._launch_log: TextIO | None = None
         self._use_reaper = reaper
         self._reaper: Reaper | None = None
         self._wake_r, self._wake_w = socket.socketpair()
@@ -136,19 +130,19 @@ class Supervisor:
             raise LaunchError(f"{plan.files[0] if plan.files else plan.file}: the file asks to record, but "
                               "palpa.record.recorder:Recorder is not importable here")
         plan.run_dir.mkdir(parents=True, exist_ok=True)
-        self._launch_log = open(plan.run_dir / "launch.log", "a", encoding="utf-8", buffering=1)  # noqa: SIM115
+        self._screen.open_launch_log(plan.run_dir / "launch.log")
         (plan.run_dir / "launch.resolved.yaml").write_text(plan.to_yaml(), encoding="utf-8")
         old = self._install_signals()
         bus: Bus | None = None
         try:
             if self._use_reaper:
                 self._reaper = Reaper()
-                self._say(f"reaper pid {self._reaper.pid} will kill the nodes' process groups if this launcher "
-                          "is killed")
+                self._screen.say(f"reaper pid {self._reaper.pid} will kill the nodes' process groups if this "
+                                 "launcher is killed")
             bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched, hwm=plan.bus.hwm)
             self.address = bus.start()
             (plan.run_dir / "bus.address").write_text(f"{self.address}\n", encoding="utf-8")
-            self._say(f"bus at {self.address}; run directory {plan.run_dir}")
+            self._screen.say(f"bus at {self.address}; run directory {plan.run_dir}")
             self._start_observer()
             for i, spec in enumerate(plan.nodes):
                 self._procs.append(self._make_proc(spec, i))
@@ -181,7 +175,7 @@ class Supervisor:
         self._node = Node(name="_launch", bus=self.address, heartbeat_s=0)
         self._node.subscribe(HEARTBEAT_TOPIC, Heartbeat, self._on_heartbeat)
         if topic and show:
-            self._view = ProgressView(topic, self.out, terminal=self.out.isatty())
+            self._screen.view = ProgressView(topic, self.out, terminal=self.out.isatty())
             self._node.subscribe_raw(topic, self._on_progress)
 
     def _start_recorder(self) -> None:
@@ -193,7 +187,7 @@ class Supervisor:
         ready = self._run_until(lambda: RECORDER_NAME in self._heard or rec.state != "running" or self._stopping,
                                 timeout_s=timeout)
         if RECORDER_NAME in self._heard:
-            self._say(f"recorder ready: recording to {self.plan.run_dir / 'recording.mcap'}")
+            self._screen.say(f"recorder ready: recording to {self.plan.run_dir / 'recording.mcap'}")
             return
         if self._stopping:
             return
@@ -252,7 +246,7 @@ class Supervisor:
             if not self._stopping:
                 self._request_stop(f"stopped by {name}", None)
             else:
-                self._say(f"{name} again: moving every stopping node on to the next signal now", "WARNING")
+                self._screen.say(f"{name} again: moving every stopping node on to the next signal now", "WARNING")
                 for p in self._all():
                     if p.state == "stopping":
                         self._escalate(p)
@@ -263,17 +257,17 @@ class Supervisor:
         now = time.monotonic()
         name = p.spec.name
         if p.stage == 1:
-            self._say(f"{name} did not stop within {p.spec.sigterm_timeout:g} s of SIGINT: sending SIGTERM",
+            self._screen.say(f"{name} did not stop within {p.spec.sigterm_timeout:g} s of SIGINT: sending SIGTERM",
                       "WARNING")
             p.stage, p.deadline, p.escalated = 2, now + p.spec.sigkill_timeout, "SIGTERM"
             p.child.signal(signal.SIGTERM)
         elif p.stage == 2:
-            self._say(f"{name} did not stop within {p.spec.sigkill_timeout:g} s of SIGTERM: sending SIGKILL",
+            self._screen.say(f"{name} did not stop within {p.spec.sigkill_timeout:g} s of SIGTERM: sending SIGKILL",
                       "WARNING")
             p.stage, p.deadline, p.escalated = 3, now + _REAP_GRACE_S, "SIGKILL"
             p.child.signal(signal.SIGKILL)
         else:
-            self._say(f"{name} (pid {p.child.pid}) is still there {_REAP_GRACE_S:g} s after SIGKILL "
+            self._screen.say(f"{name} (pid {p.child.pid}) is still there {_REAP_GRACE_S:g} s after SIGKILL "
                       "(stuck in the kernel?); giving up on it", "ERROR")
             self._drop_output(p)
             p.state, p.outcome, p.failed = "done", "could not be stopped", True
@@ -281,7 +275,7 @@ class Supervisor:
     # -- children --------------------------------------------------------------------------------------
     def _make_proc(self, spec: NodeSpec, index: int) -> _Proc:
         log = open(self.plan.run_dir / f"{spec.name}.log", "a", encoding="utf-8", buffering=1)  # noqa: SIM115
-        color = _COLORS[index % len(_COLORS)] if self._color else ""
+        color = self._screen.color_for(index)
         return _Proc(spec=spec, log=log, color=color)
 
     def _spawn(self, p: _Proc) -> None:
@@ -296,18 +290,18 @@ class Supervisor:
             p.child = Child(argv, env)
         except OSError as exc:
             p.child = None
-            self._say(f"cannot start {spec.name}: {argv[0]}: {exc.strerror or exc}", "ERROR")
+            self._screen.say(f"cannot start {spec.name}: {argv[0]}: {exc.strerror or exc}", "ERROR")
             p.state = "running"
             self._after_exit(p, 127)
             return
         p.state = "running"
         if self._reaper is not None and not self._reaper.add(p.child.pid):
-            self._say("the reaper process is gone: a killed launcher may leave grandchildren behind", "WARNING")
+            self._screen.say("the reaper process is gone: a killed launcher may leave grandchildren behind", "WARNING")
             self._reaper = None
         self._sel.register(p.child.fd, selectors.EVENT_READ, p)
         again = f" (start {p.starts})" if p.starts > 1 else ""
         p.log.write(f"[launch] started pid {p.child.pid}{again}: {' '.join(argv)}\n")
-        self._say(f"started {spec.name} pid {p.child.pid}{again}")
+        self._screen.say(f"started {spec.name} pid {p.child.pid}{again}")
 
     def _read(self, p: _Proc) -> None:
         if p.child is None:
@@ -317,6 +311,12 @@ class Supervisor:
             self._drop_output(p)
             return
         self._take(p, data)
+
+    def _line(self, p: _Proc, text: str) -> None:
+        with contextlib.suppress(OSError, ValueError):
+            p.log.write(text + "\n")
+        p.tail.append(text)
+        self._screen.node_line(p.spec.name, p.color, p.spec.output, text)
 
     def _take(self, p: _Proc, data: bytes) -> None:
         buf = p.buf + data
@@ -356,7 +356,7 @@ class Supervisor:
         if p.state == "stopping":
             p.state = "done"
             p.outcome = {1: "stopped on SIGINT", 2: "needed SIGTERM", 3: "needed SIGKILL"}[p.stage]
-            self._say(f"{p.spec.name} {p.outcome} ({exit_text(code)})", "WARNING" if p.escalated else "INFO")
+            self._screen.say(f"{p.spec.name} {p.outcome} ({exit_text(code)})", "WARNING" if p.escalated else "INFO")
             return
         if self._stopping:
             p.state, p.outcome = "done", f"exited while stopping ({exit_text(code)})"
@@ -370,16 +370,16 @@ class Supervisor:
         if now - p.started_at >= _STABLE_S:
             p.failures = 0
         retries = spec.respawn_max_retries
-        if code != 0 and (spec.output == "log" or self._view is not None):
-            for line in p.tail:
-                self._show(f"[{spec.name}] {line}", loud=True)
+        if code != 0 and (spec.output == "log" or self._screen.view is not None):
+            for line in p.tail:  # what it said last, since its lines were not on screen
+                self._screen.show(f"[{spec.name}] {line}", loud=True)
         if spec.respawn and code != 0 and (retries < 0 or p.failures < retries):
             p.failures += 1
             delay = min(_BACKOFF_CAP_S, spec.respawn_delay * 2 ** (p.failures - 1))
             p.state, p.respawn_at = "backoff", now + delay
             p.outcome = f"{exit_text(code)}; respawning"
             of = f"{p.failures}/{retries}" if retries >= 0 else f"{p.failures}"
-            self._say(f"{spec.name} ended ({exit_text(code)}); respawning in {delay:.2f} s (retry {of})",
+            self._screen.say(f"{spec.name} ended ({exit_text(code)}); respawning in {delay:.2f} s (retry {of})",
                       "WARNING")
             return
         p.state = "done"
@@ -387,18 +387,19 @@ class Supervisor:
         gave_up = spec.respawn and code != 0
         if gave_up:
             p.outcome = f"gave up after {p.failures} retries (last: {exit_text(code)})"
-            self._say(f"{spec.name}: giving up after {p.failures} retries (last: {exit_text(code)})", "ERROR")
+            self._screen.say(f"{spec.name}: giving up after {p.failures} retries (last: {exit_text(code)})", "ERROR")
         else:
             p.outcome = f"ended by itself ({exit_text(code)})"
         if spec.required:
             status = 128 - code if code < 0 else code
             self._request_stop(f"required node {spec.name} ended ({exit_text(code)})", status)
         elif p is self._recorder:
-            self._say(f"the recorder ended ({exit_text(code)}): the recording is incomplete", "ERROR")
+            self._screen.say(f"the recorder ended ({exit_text(code)}): the recording is incomplete", "ERROR")
             p.failed = True
         elif not gave_up:
             level = "INFO" if code == 0 else "WARNING"
-            self._say(f"{spec.name} ended ({exit_text(code)}); it is not required, the graph keeps running", level)
+            self._screen.say(f"{spec.name} ended ({exit_text(code)}); it is not required, the graph keeps "
+                             "running", level)
         self._check_all_exited()
 
     def _check_all_exited(self) -> None:
@@ -409,52 +410,19 @@ class Supervisor:
         if self._stopping:
             return
         self._stopping, self._reason, self._code = True, reason, code
-        self._say(f"stopping: {reason}", "WARNING" if code else "INFO")
-
-    # -- output ------------------------------------------------------------------------------------------
-    def _line(self, p: _Proc, text: str) -> None:
-        with contextlib.suppress(OSError, ValueError):
-            p.log.write(text + "\n")
-        p.tail.append(text)
-        if p.spec.output != "screen":
-            return
-        loud = bool(_LOUD_RE.search(text))
-        if self._view is not None and not loud:
-            return
-        prefix = f"\x1b[{p.color}m[{p.spec.name}]\x1b[0m" if p.color else f"[{p.spec.name}]"
-        self._show(f"{prefix} {text}", loud=loud)
-
-    def _show(self, text: str, *, loud: bool, stream: TextIO | None = None) -> None:
-        if self._view is not None:
-            if loud:
-                self._view.print(text)
-            return
-        s = stream or self.out
-        try:
-            s.write(text + "\n")
-            s.flush()
-        except (OSError, ValueError):
-            pass
-
-    def _say(self, text: str, level: str = "INFO") -> None:
-        if self._launch_log is not None:
-            try:
-                stamp = datetime.now().strftime("%H:%M:%S.%f")[:-3]
-                self._launch_log.write(f"{stamp} {level} {text}\n")
-            except (OSError, ValueError):
-                pass
-        self._show(f"[launch] {text}", loud=level != "INFO", stream=self.err)
+        self._screen.say(f"stopping: {reason}", "WARNING" if code else "INFO")
 
     # -- observer callbacks ------------------------------------------------------------------------------
     def _on_heartbeat(self, hb: Heartbeat) -> None:
         self._heard.add(hb.node)
 
     def _on_progress(self, raw: RawMessage) -> None:
-        if self._view is None or raw.topic != self._view.topic:
+        view = self._screen.view
+        if view is None or raw.topic != view.topic:
             return
         fields = progress_fields(raw.payload)
         if fields is not None:
-            self._view.update(fields)
+            view.update(fields)
 
     # -- signals and teardown ----------------------------------------------------------------------------
     def _install_signals(self) -> dict[int, Any]:
@@ -480,9 +448,7 @@ class Supervisor:
                     p.child.popen.wait(_REAP_GRACE_S)
                 p.child.exited()
                 p.state, p.outcome, p.failed = "done", "killed (launcher error)", True
-        if self._view is not None:
-            self._view.close()
-            self._view = None  # the summary goes to stderr like every launcher message
+        self._screen.close_view()  # the summary goes to stderr like every launcher message
         if self._node is not None:
             self._node.close(0)
         if bus is not None:
@@ -514,7 +480,6 @@ class Supervisor:
             lines.append(f" {mark} {p.spec.name:<{width}}  {p.outcome}{starts}")
         lines.append(f"launch ended: {reason}; exit code {code}")
         for line in lines:
-            self._say(line, "WARNING" if line.startswith(" !") else "NOTICE")
-        if self._launch_log is not None:
-            self._launch_log.close()
+            self._screen.say(line, "WARNING" if line.startswith(" !") else "NOTICE")
+        self._screen.close()
         return code
