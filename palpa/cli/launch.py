@@ -76,8 +76,7 @@ def _run(args: argparse.Namespace) -> int:
         raise PalpaError("palpa launch: give a launch file (or --schema)")
     overrides = parse_overrides(list(args.overrides))
     if args.check:
-        run_dir = args.run_dir or Path("runs") / time.strftime("%Y%m%d-%H%M%S")
-        plan = load_launch(args.file, overrides, run_dir=run_dir)
+        plan = load_launch(args.file, overrides, run_dir=args.run_dir)
         print(describe(plan))
         return 0
     run_dir, created = _make_run_dir(args.run_dir)

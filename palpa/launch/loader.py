@@ -17,6 +17,7 @@ import json
 import os
 import re
 import sys
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -78,12 +79,16 @@ class _Collected:
 
 
 def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
-                run_dir: str | Path = "runs/<timestamp>") -> LaunchPlan:
+                run_dir: str | Path | None = None) -> LaunchPlan:
     """Read, resolve and validate a launch file (and its includes). Raises :class:`LaunchError` naming
-    ``file:line:col`` and what was expected. Nothing is started."""
+    ``file:line:col`` and what was expected. Nothing is started. ``overrides`` are arg values (native types, see
+    :func:`parse_overrides`); ``run_dir`` is what ``$(run_dir)`` means (default ``runs/<YYYYmmdd-HHMMSS>``
+    under the working directory)."""
     path = Path(file)
     if not path.is_file():
         raise LaunchError(f"{display_path(path)}: no such launch file")
+    if run_dir is None:  # what the run directory will be called (the supervisor makes it)
+        run_dir = Path("runs") / time.strftime("%Y%m%d-%H%M%S")
     plan = LaunchPlan(file=path.resolve(), run_dir=Path(os.path.abspath(run_dir)))
     given = _Given(dict(overrides or {}), {k: None for k in overrides or {}}, "the command line")
     col = _Collected(plan)

@@ -141,7 +141,9 @@ class Supervisor:
                                  "launcher is killed")
             bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched, hwm=plan.bus.hwm)
             self.address = bus.start()
-            (plan.run_dir / "bus.address").write_text(f"{self.address}\n", encoding="utf-8")
+            tmp = plan.run_dir / ".bus.address.tmp"  # readers never see a half-written address
+            tmp.write_text(f"{self.address}\n", encoding="utf-8")
+            os.replace(tmp, plan.run_dir / "bus.address")
             self._screen.say(f"bus at {self.address}; run directory {plan.run_dir}")
             self._start_observer()
             for i, spec in enumerate(plan.nodes):
