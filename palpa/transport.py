@@ -20,6 +20,8 @@ from palpa.errors import BusError
 
 __all__ = ["Delivery", "Transport", "ZmqTransport", "curve_client_options"]
 
+_SUBSCRIPTIONS_GRACE_MS = 100
+
 
 class Delivery(NamedTuple):
     frames: list[bytes]
@@ -79,10 +81,13 @@ class ZmqTransport:
         sndhwm: int = 10_000,
         rcvhwm: int = 10_000,
         context: zmq.Context[zmq.Socket[bytes]] | None = None,
+        connect_timeout_s: float = 2.0,
     ) -> None:
         self._ctx = context or zmq.Context.instance()
         curve = curve_client_options()
-        self._pub = self._ctx.socket(zmq.PUB)
+        # an XPUB, not a PUB: it hears the proxy's subscriptions, so the constructor can wait until they have
+        # arrived; a PUB would silently drop the first messages published while they are still on their way
+        self._pub = self._ctx.socket(zmq.XPUB)
         self._sub = self._ctx.socket(zmq.SUB)
         self._latch = self._ctx.socket(zmq.DEALER)
         self._pub.sndhwm = sndhwm
@@ -92,17 +97,44 @@ class ZmqTransport:
                 sock.curve_serverkey = curve["server"]
                 sock.curve_publickey = curve["public"]
                 sock.curve_secretkey = curve["secret"]
+        monitor = self._pub.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED)
         try:
             self._pub.connect(address.pub)
             self._sub.connect(address.sub)
             self._latch.connect(address.latch)
         except zmq.ZMQError as exc:
+            self._pub.disable_monitor()
+            monitor.close(0)
             self.close(0)
             raise BusError(f"cannot connect to bus {address}: {exc}") from None
         self._poller = zmq.Poller()
         self._poller.register(self._sub, zmq.POLLIN)
         self._poller.register(self._latch, zmq.POLLIN)
+        self._poller.register(self._pub, zmq.POLLIN)
         self._closed = False
+        self.connected = self._await_proxy(monitor, connect_timeout_s)
+
+    def _await_proxy(self, monitor: zmq.Socket[bytes], timeout_s: float) -> bool:
+        """Wait (bounded) for the publisher's handshake with the proxy and for the proxy's first subscriptions,
+        so the first message published is not lost; returns False when the bus did not answer in time."""
+        try:
+            if not monitor.poll(int(timeout_s * 1000)):
+                return False
+            monitor.recv_multipart()
+            # the proxy forwards every current subscription on attach; none at all means nobody listens yet
+            if self._pub.poll(_SUBSCRIPTIONS_GRACE_MS):
+                self._drain_subscriptions()
+            return True
+        finally:
+            self._pub.disable_monitor()
+            monitor.close(0)
+
+    def _drain_subscriptions(self) -> None:
+        while True:
+            try:
+                self._pub.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                return
 
     def send(self, frames: Sequence[bytes], latched: bool) -> None:
         self._pub.send_multipart(frames, copy=False)
@@ -120,6 +152,8 @@ class ZmqTransport:
     def poll(self, timeout_ms: int, max_batch: int = 1000) -> list[Delivery]:
         out: list[Delivery] = []
         events = dict(self._poller.poll(timeout_ms))
+        if self._pub in events:
+            self._drain_subscriptions()
         if self._sub in events:
             recv = self._sub.recv_multipart
             for _ in range(max_batch):
