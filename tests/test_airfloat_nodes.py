@@ -134,3 +134,25 @@ def test_fibre_sim_rate_and_no_contact_when_lifted() -> None:
     assert 480 <= len(heights) <= 520
     assert {m.reason for m in g.published("stiffness/sample")} == {"no_contact"}
     assert pose.params.z_mm == 40.0
+
+
+def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Issue 6 acceptance as processes: launch/airfloat_sim.yaml over the 10.8 kPa phantom."""
+    from launching import launched, spin_until
+
+    with launched(procs, "launch/airfloat_sim.yaml", tmp_path / "run", "phantom:=phantoms/flat_10k.yaml",
+                  "pressure_kpa:=33.5") as (proc, node):
+        samples = node.subscribe("stiffness/sample", StiffnessSample)
+        got: list[StiffnessSample] = []
+
+        def enough() -> bool:
+            while samples.queue:
+                m = samples.queue.popleft()
+                if m.valid:
+                    got.append(m)
+            return len(got) >= 300
+
+        spin_until(node, enough, 60, "300 valid samples", proc)
+    e = float(np.median([m.value for m in got[-200:]]))
+    d = float(np.median([m.d_in_mm for m in got[-200:]]))
+    assert 1.0 <= d <= 3.0 and abs(e / 10.8 - 1) < 0.10, (d, e)

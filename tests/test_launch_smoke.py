@@ -39,6 +39,8 @@ class Smoke:
 
 SMOKE: dict[str, Smoke] = {
     "talker_listener.yaml": Smoke(args=["rate:=20.0"], topics=["chatter", "chatter_len"], timeout=30),
+    "airfloat_sim.yaml": Smoke(topics=["robot/pose", "pressure/state", "probe/heights", "probe/status",
+                                       "stiffness/sample"], timeout=40),
 }
 
 FILES = sorted(p.name for p in LAUNCH_DIR.glob("*.yaml"))

@@ -1,0 +1,39 @@
+"""Run a launch file as a process and listen on its bus (for acceptance tests of whole graphs)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from conftest import palpa_cmd
+from procs import Proc, ProcessGroup, wait_until
+
+import palpa
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@contextmanager
+def launched(procs: ProcessGroup, file: str, run_dir: Path, *args: str) -> Iterator[tuple[Proc, palpa.Node]]:
+    """Start ``palpa launch FILE args`` with its run directory in ``run_dir``; yield the process and a node on
+    its bus. The launch is interrupted (SIGINT) at the end if still running."""
+    proc = procs.start(palpa_cmd("launch", str(REPO / file), "--run-dir", str(run_dir), "--no-progress", *args),
+                       cwd=str(REPO))
+    address_file = run_dir / "bus.address"
+    wait_until(lambda: (address_file.exists() and address_file.read_text().endswith("\n"))
+               or proc.popen.poll() is not None, 30, "the launcher's bus.address")
+    assert address_file.exists(), proc.output()
+    with palpa.Node(name="acceptance", bus=address_file.read_text().strip(), heartbeat_s=0) as node:
+        yield proc, node
+    if proc.popen.poll() is None:
+        proc.stop(30)
+
+
+def spin_until(node: palpa.Node, cond: Callable[[], bool], timeout: float, what: str, proc: Proc) -> None:
+    deadline = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}:\n{proc.output()[-4000:]}")
+        node.spin_once(0.1)
