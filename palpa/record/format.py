@@ -13,8 +13,9 @@ An MCAP file written by palpa holds:
 * **messages** whose data are the wire payload bytes exactly as received; ``log_time`` is when the recorder
   received it, ``publish_time`` the envelope stamp, ``sequence`` the envelope sequence number;
 * blobs (envelope frames 3+) of a message, when it has any, as one message on a companion channel
-  ``_palpa/blobs/<topic>`` (metadata ``palpa.blobs_of`` = the main channel id) written right after it with the
-  same log time and sequence; its data is a msgpack array of the raw blob frames;
+  ``_palpa/blobs/<topic>`` (metadata ``palpa.blobs_of`` = the main channel id) written right BEFORE it with the
+  same log time and sequence (so a reader never has to look ahead); its data is a msgpack array of the raw
+  blob frames;
 * **metadata** records ``palpa.recording`` (palpa version, host, recorder parameters, split index),
   ``palpa.nodes`` (node name -> JSON of its last heartbeat: pid, host, publishes, subscribes; rewritten when the
   graph changes, the last one wins), ``palpa.drops`` (topic -> JSON counters; written when a file is closed, or by
@@ -41,6 +42,7 @@ __all__ = [
     "BLOBS_TOPIC_PREFIX",
     "BagError",
     "LAUNCH_ATTACHMENT",
+    "MAGIC",
     "MD_DROPS",
     "MD_NODES",
     "MD_RECORDING",
@@ -61,6 +63,7 @@ __all__ = [
     "split_pieces",
 ]
 
+MAGIC = b"\x89MCAP0\r\n"
 MESSAGE_ENCODING = "msgpack"
 SCHEMA_ENCODING = "jsonschema"
 

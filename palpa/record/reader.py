@@ -6,17 +6,24 @@ need the summary section, so a file left by a killed recorder still plays up to 
 
 from __future__ import annotations
 
+import io
 import os
+import struct
+import zlib
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import NamedTuple
+from typing import BinaryIO, NamedTuple
 
+import lz4.frame
 import msgspec
+import zstandard
+from mcap.data_stream import ReadDataStream
 from mcap.exceptions import InvalidMagic
-from mcap.records import Channel, DataEnd, McapRecord, Message
-from mcap.stream_reader import StreamReader
+from mcap.opcode import Opcode
+from mcap.records import Attachment, Channel, Chunk, DataEnd, Header, McapRecord, Metadata, Schema
 
 from palpa.record.format import (
+    MAGIC,
     META_BLOBS_OF,
     META_LATCHED,
     META_PUBLISHER,
@@ -27,7 +34,16 @@ from palpa.record.format import (
     split_pieces,
 )
 
-__all__ = ["BagMessage", "ChannelInfo", "channel_info", "iter_bag", "iter_file", "resolve_bag_paths"]
+__all__ = [
+    "BagMessage",
+    "ChannelInfo",
+    "RawRecord",
+    "channel_info",
+    "iter_bag",
+    "iter_file",
+    "iter_records",
+    "resolve_bag_paths",
+]
 
 _blob_decoder = msgspec.msgpack.Decoder(list[bytes])
 
@@ -95,6 +111,96 @@ def resolve_bag_paths(specs: str | os.PathLike[str] | Sequence[str | os.PathLike
     return out
 
 
+class RawRecord(NamedTuple):
+    """A Message record, unparsed beyond its fixed fields (cheaper than mcap.records.Message)."""
+
+    channel_id: int
+    sequence: int
+    log_time: int
+    publish_time: int
+    data: bytes
+
+
+_RECORD_HEAD = struct.Struct("<BQ")
+_MESSAGE_FIELDS = struct.Struct("<HIQQ")
+
+
+def _decompress(chunk: Chunk) -> bytes:
+    if chunk.compression == "zstd":
+        data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+    elif chunk.compression == "lz4":
+        data = lz4.frame.decompress(chunk.data)
+    elif chunk.compression == "":
+        data = chunk.data
+    else:
+        raise BagError(f"unsupported chunk compression {chunk.compression!r}")
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise BagError("chunk CRC mismatch")
+    return bytes(data)
+
+
+_PARSERS: dict[int, Callable[[ReadDataStream], McapRecord]] = {
+    Opcode.HEADER: Header.read,
+    Opcode.SCHEMA: Schema.read,
+    Opcode.CHANNEL: Channel.read,
+    Opcode.METADATA: Metadata.read,
+    Opcode.ATTACHMENT: Attachment.read,
+    Opcode.DATA_END: DataEnd.read,
+}
+_MAX_RECORD = 4 << 30
+
+
+def _walk_chunk(data: bytes) -> Iterator[McapRecord | RawRecord]:
+    pos, end = 0, len(data)
+    while pos < end:
+        opcode, length = _RECORD_HEAD.unpack_from(data, pos)
+        body = pos + 9
+        pos = body + length
+        if pos > end:
+            raise BagError("a record runs past the end of its chunk")
+        if opcode == Opcode.MESSAGE:
+            cid, seq, log_time, publish_time = _MESSAGE_FIELDS.unpack_from(data, body)
+            yield RawRecord(cid, seq, log_time, publish_time, data[body + 22:pos])
+        elif opcode in (Opcode.CHANNEL, Opcode.SCHEMA):
+            yield _PARSERS[opcode](ReadDataStream(io.BytesIO(data[body:pos])))
+
+
+def iter_records(fh: BinaryIO) -> Iterator[McapRecord | RawRecord]:
+    """The data section of an MCAP stream in file order: Header, Schema, Channel, Metadata, Attachment records
+    (parsed by the ``mcap`` library), messages as :class:`RawRecord`, then DataEnd, where it stops.
+
+    Chunks are decompressed and CRC-checked, then walked one message at a time, and index records are skipped
+    unparsed: ``mcap``'s StreamReader parses a whole chunk and every Message Index entry up front, which stalls
+    a player for 10-20 ms at each 1 MB chunk. Raises :class:`BagError` (or a parser's error) where the data is
+    damaged or ends before DataEnd (a file whose writer never finished it).
+    """
+    if fh.read(8) != MAGIC:
+        raise InvalidMagic("file does not start with the MCAP magic bytes")
+    read = fh.read
+    while True:
+        head = read(9)
+        if len(head) < 9:
+            raise BagError("the data ends without a DataEnd record (the writer did not finish the file)"
+                           if not head else "truncated record header")
+        opcode, length = _RECORD_HEAD.unpack(head)
+        if length > _MAX_RECORD:
+            raise BagError(f"record of {length} bytes: the file is damaged")
+        body = read(length)
+        if len(body) < length:
+            raise BagError("truncated record")
+        if opcode == Opcode.CHUNK:
+            yield from _walk_chunk(_decompress(Chunk.read(ReadDataStream(io.BytesIO(body)))))
+        elif opcode == Opcode.MESSAGE:
+            cid, seq, log_time, publish_time = _MESSAGE_FIELDS.unpack_from(body, 0)
+            yield RawRecord(cid, seq, log_time, publish_time, body[22:])
+        elif opcode in _PARSERS:
+            rec = _PARSERS[opcode](ReadDataStream(io.BytesIO(body)))
+            yield rec
+            if opcode == Opcode.DATA_END:
+                return
+        # Message Index, Chunk Index and other index/summary records: not needed to read forward
+
+
 def iter_file(
     path: Path,
     *,
@@ -102,19 +208,20 @@ def iter_file(
     on_damage: Callable[[str], None] | None = None,
     on_record: Callable[[McapRecord], None] | None = None,
 ) -> Iterator[BagMessage]:
-    """Messages of one file in file order, blobs joined back to their message.
+    """Messages of one file in file order, blobs joined back to their message (each message is yielded as soon
+    as it is read: no look-ahead, so a player's timing does not wait on the next chunk).
 
     A truncated or damaged file raises :class:`BagError` after yielding everything before the damage, unless
     ``on_damage`` is given: it is then called with a description and iteration simply ends. ``on_record`` sees
     every non-message record (Header, Schema, Channel, Metadata, Attachment) as it is read.
     """
     channels: dict[int, ChannelInfo] = {}
-    pending: BagMessage | None = None
+    blobs: tuple[int, int, tuple[bytes, ...]] | None = None  # (main channel, sequence, frames), written first
     count = 0
     damage = ""
     try:
         with open(path, "rb") as fh:
-            records = StreamReader(fh, validate_crcs=True).records
+            records = iter_records(fh)
             while True:
                 try:
                     rec = next(records)
@@ -125,32 +232,29 @@ def iter_file(
                 except Exception as exc:  # noqa: BLE001 - any parse failure means the rest is unreadable
                     damage = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
                     break
-                if isinstance(rec, Message):
+                if isinstance(rec, RawRecord):
                     info = channels.get(rec.channel_id)
                     if info is None:
                         raise BagError(f"{path}: message on channel {rec.channel_id} before its Channel record")
                     if info.blobs_of:
-                        if (pending is not None and pending.channel_id == info.blobs_of
-                                and (pending.seq - channels[info.blobs_of].seq_base) == rec.sequence):
-                            pending = pending._replace(blobs=tuple(_blob_decoder.decode(rec.data)))
+                        blobs = (info.blobs_of, rec.sequence, tuple(_blob_decoder.decode(rec.data)))
                         continue
-                    if pending is not None:
-                        yield pending
+                    frames: tuple[bytes, ...] = ()
+                    if blobs is not None:
+                        if blobs[0] == rec.channel_id and blobs[1] == rec.sequence:
+                            frames = blobs[2]
+                        blobs = None
                     count += 1
-                    pending = BagMessage(info.topic, info.type, info.node, info.seq_base + rec.sequence,
-                                         rec.log_time, rec.publish_time, rec.data, (), info.latched,
-                                         rec.channel_id, file_index)
+                    yield BagMessage(info.topic, info.type, info.node, info.seq_base + rec.sequence,
+                                     rec.log_time, rec.publish_time, rec.data, frames, info.latched,
+                                     rec.channel_id, file_index)
                     continue
                 if isinstance(rec, Channel):
                     channels[rec.id] = channel_info(rec)
-                elif isinstance(rec, DataEnd):
-                    break  # the summary section repeats what we have seen
                 if on_record is not None:
                     on_record(rec)
     except OSError as exc:
         raise BagError(f"cannot read {path}: {exc}") from None
-    if pending is not None:
-        yield pending
     if damage:
         text = (f"{path}: unreadable after message {count} ({damage}); the file was not closed cleanly "
                 f"(`palpa bag recover {path}` rebuilds it)")

@@ -180,10 +180,10 @@ class Recorder(Node):
         for key, raw in self._latched.items():
             cid = self._channel_for(key)
             if cid:
-                writer.add_message(cid, self._opened_ns, raw.header.stamp, raw.header.seq & 0xFFFF_FFFF,
-                                   raw.payload)
                 if raw.blobs:
                     self._write_blobs(cid, raw, self._opened_ns)
+                writer.add_message(cid, self._opened_ns, raw.header.stamp, raw.header.seq & 0xFFFF_FFFF,
+                                   raw.payload)
         writer.flush()
         return writer
 
@@ -265,9 +265,9 @@ class Recorder(Node):
             if not cid:
                 return
             w = self._writer
-            w.add_message(cid, raw.recv_ns, h.stamp, h.seq & 0xFFFF_FFFF, raw.payload)
-            if raw.blobs:
+            if raw.blobs:  # before the message, so a reader has them when the message comes
                 self._write_blobs(cid, raw, raw.recv_ns)
+            w.add_message(cid, raw.recv_ns, h.stamp, h.seq & 0xFFFF_FFFF, raw.payload)
             if h.latched or raw.from_cache or (self._bus_latched and raw.topic in self._bus_latched):
                 if raw.from_cache:
                     self._bus_latched.add(raw.topic)

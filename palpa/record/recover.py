@@ -13,11 +13,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mcap.exceptions import InvalidMagic
-from mcap.records import Attachment, Channel, DataEnd, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+from mcap.records import Attachment, Channel, DataEnd, Metadata, Schema
 
 from palpa.record.format import MD_DROPS, MD_RECOVERY, META_BLOBS_OF, BagError, dumps
-from palpa.record.reader import ChannelInfo, channel_info
+from palpa.record.reader import ChannelInfo, RawRecord, channel_info, iter_records
 from palpa.record.writer import BagWriter
 from palpa.wire import SequenceTracker, TopicStats
 
@@ -67,7 +66,7 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str] | None = No
         infos: dict[int, ChannelInfo] = {}
         tracker = SequenceTracker()
         stats: dict[str, TopicStats] = {}
-        records = StreamReader(fh, validate_crcs=True).records
+        records = iter_records(fh)
         while True:
             try:
                 rec = next(records)
@@ -78,7 +77,7 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str] | None = No
             except Exception as exc:  # noqa: BLE001 - the first unreadable record ends the usable prefix
                 report.damage = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
                 break
-            if isinstance(rec, Message):
+            if isinstance(rec, RawRecord):
                 new = channel_map.get(rec.channel_id)
                 if new is None:
                     report.damage = f"message on channel {rec.channel_id} before its Channel record"

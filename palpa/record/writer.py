@@ -46,11 +46,10 @@ from mcap.records import (
     SummaryOffset,
 )
 
-from palpa.record.format import BagError
+from palpa.record.format import MAGIC, BagError
 
 __all__ = ["COMPRESSIONS", "BagWriter"]
 
-MAGIC = b"\x89MCAP0\r\n"
 _MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel id, sequence, log time, publish time
 _MESSAGE_INDEX = struct.Struct("<BQHI")  # opcode, record length, channel id, byte length of the entries
 _MESSAGE_FIXED = 2 + 4 + 8 + 8

@@ -1,0 +1,162 @@
+"""Record and replay with real processes on a real bus: replay timing at 1 kHz, a byte-identical round trip
+(record, play, record again), and a bag from one graph replayed into a fresh graph reproducing the downstream
+node's output (nodes.demo Talker -> Listener)."""
+
+from __future__ import annotations
+
+import signal
+import statistics
+from collections.abc import Iterator
+from pathlib import Path
+
+import msgspec
+import pytest
+from conftest import palpa_cmd, short_ipc_base
+from procs import ProcessGroup, wait_until
+
+from messages import Text
+from palpa.address import BusAddress
+from palpa.bus import Bus
+from palpa.node import Node, RawMessage
+from palpa.record.reader import iter_bag
+from palpa.record.testing import Rec, check_official, write_bag
+from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
+
+MS = 1_000_000
+
+
+class Graph:
+    """A bus, its processes and a watcher node that sees heartbeats; everything stopped in close()."""
+
+    def __init__(self) -> None:
+        self.bus = Bus(BusAddress.parse(f"ipc://{short_ipc_base()}"))
+        self.address = self.bus.start()
+        self.procs = ProcessGroup()
+        self.env = {**__import__("os").environ, "PALPA_BUS": str(self.address), "PYTHONUNBUFFERED": "1"}
+        self.watch = Node(name="watch", bus=self.address, heartbeat_s=0)
+        self.beats: dict[str, Heartbeat] = {}
+        self.watch.subscribe(HEARTBEAT_TOPIC, Heartbeat, lambda hb: self.beats.__setitem__(hb.node, hb))
+
+    def start(self, *args: str):  # type: ignore[no-untyped-def]
+        return self.procs.start(palpa_cmd(*args), env=self.env)
+
+    def wait_for(self, cond, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]
+        wait_until(cond, timeout, what, step=lambda: self.watch.spin_once(0.05))
+
+    def wait_nodes(self, *names: str) -> None:
+        self.wait_for(lambda: all(n in self.beats for n in names), 20, f"heartbeats of {names}")
+
+    def received(self, node: str, topic: str) -> int:
+        hb = self.beats.get(node)
+        c = hb.counters.get(topic) if hb is not None else None
+        return c.received if c is not None else 0
+
+    def close(self) -> None:
+        try:
+            self.watch.close(0)
+            self.procs.cleanup()
+        finally:
+            self.bus.stop()
+
+
+@pytest.fixture
+def graph() -> Iterator[Graph]:
+    g = Graph()
+    try:
+        yield g
+    finally:
+        g.close()
+
+
+@pytest.fixture(scope="module")
+def talker_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Graph 1: Talker -> Listener, everything recorded (chatter and the listener's chatter_len)."""
+    bag = tmp_path_factory.mktemp("graph1") / "graph1.mcap"
+    g = Graph()
+    try:
+        rec = g.start("record", "-o", str(bag), "chatter", "chatter_len")
+        listener = g.start("run", "nodes.demo:Listener")
+        g.wait_nodes("recorder", "listener")
+        talker = g.start("run", "nodes.demo:Talker", "-p", "rate_hz=100", "-p", "count=120")
+        assert talker.wait(30) == 0
+        g.wait_for(lambda: g.received("recorder", "chatter") > 100
+                   and g.received("recorder", "chatter_len") == g.received("recorder", "chatter"),
+                   10, "the recorder to see every chatter_len")
+        assert rec.stop(10) == 0, rec.output()
+        assert listener.stop(10) == 0
+    finally:
+        g.close()
+    return bag
+
+
+def _stream(bag: Path, topic: str) -> list[tuple[str, int, str, bytes]]:
+    return [(m.node, m.seq, m.type, m.payload) for m in iter_bag([bag]) if m.topic == topic]
+
+
+def _steal_ticks() -> int:
+    """CPU time the hypervisor took from this VM so far (USER_HZ ticks, all CPUs); 0 where unknown."""
+    try:
+        fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
+        return int(fields[8]) if fields[0] == "cpu" and len(fields) > 8 else 0
+    except (OSError, ValueError):
+        return 0
+
+
+def test_replay_timing_p99_within_2ms_at_1khz(graph: Graph, tmp_path: Path) -> None:
+    """Send time of each message against its schedule, from the envelope stamps the player sets when sending.
+
+    The spec (p99 <= 2 ms at 1 kHz) is asserted whenever the VM kept its CPUs during the run; when the hypervisor
+    stole CPU time (seen in /proc/stat: multi-ms stalls no process can avoid) the bound is relaxed to 10 ms,
+    which still fails a player that drifts, bursts or sleeps with coarse (>= 10 ms) granularity.
+    """
+    n, t0 = 1500, 1_700_000_000_000_000_000
+    payload = msgspec.msgpack.encode(Text(text="imu sample", stamp_ns=0))
+    bag = write_bag(tmp_path / "khz.mcap", [Rec("imu", t0 + i * MS, payload, i + 1) for i in range(n)])
+    got: list[RawMessage] = []
+    graph.watch.subscribe_raw("imu", got.append)
+    player = graph.start("play", str(bag))
+    graph.wait_for(lambda: bool(got) or player.popen.poll() is not None, 30, "the replay to start")
+    steal_before = _steal_ticks()
+    graph.wait_for(lambda: len(got) >= n or player.popen.poll() is not None, 30, "the replay")
+    stolen = _steal_ticks() - steal_before
+    assert player.wait(10) == 0, player.output()
+    graph.wait_for(lambda: len(got) >= n, 5, "every message")
+    assert [r.header.seq for r in got] == list(range(1, n + 1))
+    # each send time against its schedule (log time offset), up to the constant start offset
+    offsets = [r.header.stamp - (t0 + (r.header.seq - 1) * MS) for r in got]
+    base = statistics.median(offsets)
+    errors = sorted(abs(o - base) / MS for o in offsets)
+    p50, p99 = errors[len(errors) // 2], errors[int(0.99 * (len(errors) - 1))]
+    bound = 2.0 if stolen <= 5 else 10.0
+    text = f"p50 {p50:.3f} ms, p99 {p99:.3f} ms, max {errors[-1]:.3f} ms; CPU stolen by the host: {stolen * 10} ms"
+    print(text)
+    assert p50 <= 0.5 and p99 <= bound, text
+
+
+def test_round_trip_is_byte_identical(graph: Graph, talker_bag: Path, tmp_path: Path) -> None:
+    bag2 = tmp_path / "again.mcap"
+    rec = graph.start("record", "-o", str(bag2), "chatter")
+    graph.wait_nodes("recorder")
+    player = graph.start("play", str(talker_bag), "--topics", "chatter")
+    assert player.wait(30) == 0, player.output()
+    assert rec.stop(10) == 0, rec.output()
+    check_official(bag2)
+    first, again = _stream(talker_bag, "chatter"), _stream(bag2, "chatter")
+    assert len(first) > 100
+    assert again == first  # same publisher, sequence numbers, type and payload bytes
+
+
+def test_replayed_bag_reproduces_downstream_output(graph: Graph, talker_bag: Path, tmp_path: Path) -> None:
+    expected = _stream(talker_bag, "chatter_len")
+    assert [s for _, s, _, _ in expected] == list(range(1, len(expected) + 1))  # graph 1 lost nothing
+    bag3 = tmp_path / "downstream.mcap"
+    rec = graph.start("record", "-o", str(bag3), "chatter_len")
+    listener = graph.start("run", "nodes.demo:Listener")
+    graph.wait_nodes("recorder", "listener")
+    player = graph.start("play", str(talker_bag), "--topics", "chatter", "--rate", "2")
+    assert player.wait(30) == 0, player.output()
+    graph.wait_for(lambda: graph.received("recorder", "chatter_len") >= len(expected), 10,
+                   "the listener's output to be recorded")
+    listener.signal(signal.SIGINT)
+    assert rec.stop(10) == 0, rec.output()
+    assert _stream(bag3, "chatter_len") == expected
