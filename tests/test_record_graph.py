@@ -107,14 +107,15 @@ def test_replay_timing_p99_within_2ms_at_1khz(graph: Graph, tmp_path: Path) -> N
 
     The spec (p99 <= 2 ms at 1 kHz) is asserted whenever the VM kept its CPUs during the run; when the hypervisor
     stole CPU time (seen in /proc/stat: multi-ms stalls no process can avoid) the bound is relaxed to 10 ms,
-    which still fails a player that drifts, bursts or sleeps with coarse (>= 10 ms) granularity.
+    which still fails a player that drifts, bursts or sleeps with coarse (>= 10 ms) granularity. The player runs
+    with --realtime: on this shared 2-core VM other users' processes otherwise delay wake-ups by a time slice.
     """
     n, t0 = 1500, 1_700_000_000_000_000_000
     payload = msgspec.msgpack.encode(Text(text="imu sample", stamp_ns=0))
     bag = write_bag(tmp_path / "khz.mcap", [Rec("imu", t0 + i * MS, payload, i + 1) for i in range(n)])
     got: list[RawMessage] = []
     graph.watch.subscribe_raw("imu", got.append)
-    player = graph.start("play", str(bag))
+    player = graph.start("play", str(bag), "--realtime")  # falls back (with a warning) where not permitted
     graph.wait_for(lambda: bool(got) or player.popen.poll() is not None, 30, "the replay to start")
     steal_before = _steal_ticks()
     graph.wait_for(lambda: len(got) >= n or player.popen.poll() is not None, 30, "the replay")

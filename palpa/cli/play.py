@@ -24,6 +24,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--remap", action="append", default=[], metavar="FROM:=TO", help="publish FROM as TO")
     p.add_argument("--clock", action="store_true", help="publish the recording's time on _palpa/clock")
     p.add_argument("--clock-hz", type=float, default=100.0, help="clock ticks per second (default 100)")
+    p.add_argument("--realtime", action="store_true",
+                   help="real-time scheduling while playing (needs root/CAP_SYS_NICE; steadier timing on a busy host)")
     p.add_argument("--name", default="player", help="node name (default: player)")
     add_bus_arg(p)
     p.set_defaults(func=run)
@@ -46,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
         "remap": remap,
         "clock": args.clock,
         "clock_hz": args.clock_hz,
+        "realtime": args.realtime,
     }
     argv = ["--name", args.name, "--params-json", json.dumps(params)]
     if args.bus:

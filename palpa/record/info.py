@@ -8,19 +8,23 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import Attachment, Channel, McapRecord, Metadata
+from mcap.records import Attachment, Channel, ChunkIndex, McapRecord, Metadata
 
 from palpa.record.format import MD_DROPS, MD_NODES, MD_RECORDING, MD_RECOVERY, META_SCHEMA, BagError
 from palpa.record.reader import channel_info, iter_file
 from palpa.wire import SequenceTracker, TopicStats
 
 __all__ = ["bag_info", "format_info"]
+
+_INDEX_HEAD = struct.Struct("<BQHI")
 
 
 def _file_info(path: Path) -> dict[str, Any]:
@@ -29,6 +33,7 @@ def _file_info(path: Path) -> dict[str, Any]:
     attachments: list[dict[str, Any]] = []
     channels: dict[int, Channel] = {}
     counts: dict[int, int] = {}
+    spans: dict[int, tuple[int, int]] = {}
     start = end = 0
     finalized = True
     damage = ""
@@ -41,6 +46,7 @@ def _file_info(path: Path) -> dict[str, Any]:
                 channels = dict(summary.channels)
                 counts = dict(stats.channel_message_counts)
                 start, end = stats.message_start_time, stats.message_end_time
+                spans = _channel_spans(fh, summary.chunk_indexes)
                 for md in reader.iter_metadata():
                     metadata[md.name] = md.metadata
                 for att in reader.iter_attachments():
@@ -71,6 +77,8 @@ def _file_info(path: Path) -> dict[str, Any]:
 
         for m in iter_file(path, on_damage=on_damage, on_record=on_record):
             counts[m.channel_id] = counts.get(m.channel_id, 0) + 1
+            first, last = spans.get(m.channel_id, (m.log_time, m.log_time))
+            spans[m.channel_id] = (min(first, m.log_time), max(last, m.log_time))
             start = m.log_time if not start else min(start, m.log_time)
             end = max(end, m.log_time)
             tracker.observe(m.topic, m.node, m.seq, scanned.setdefault(m.topic, TopicStats()))
@@ -78,8 +86,27 @@ def _file_info(path: Path) -> dict[str, Any]:
     if drops is None:
         drops = {t: json.loads(v) for t, v in metadata.get(MD_DROPS, {}).items()}
     return {"path": str(path), "bytes": path.stat().st_size, "finalized": finalized, "damage": damage,
-            "start_ns": start, "end_ns": end, "channels": channels, "counts": counts, "metadata": metadata,
+            "start_ns": start, "end_ns": end, "channels": channels, "counts": counts, "spans": spans,
+            "metadata": metadata,
             "attachments": attachments, "drops": drops}
+
+
+def _channel_spans(fh: Any, chunk_indexes: Sequence[ChunkIndex]) -> dict[int, tuple[int, int]]:
+    """First and last log time per channel, from the first and last entry of each Message Index record
+    (entries are in write order, which is log-time order for files palpa writes)."""
+    spans: dict[int, tuple[int, int]] = {}
+    for ci in chunk_indexes:
+        for cid, offset in ci.message_index_offsets.items():
+            fh.seek(offset)
+            opcode, _length, _cid, nbytes = _INDEX_HEAD.unpack(fh.read(_INDEX_HEAD.size))
+            if opcode != Opcode.MESSAGE_INDEX or nbytes < 16:
+                continue
+            (first,) = struct.unpack("<Q", fh.read(8))
+            fh.seek(offset + _INDEX_HEAD.size + nbytes - 16)
+            (last,) = struct.unpack("<Q", fh.read(8))
+            lo, hi = spans.get(cid, (first, last))
+            spans[cid] = (min(lo, first, last), max(hi, first, last))
+    return spans
 
 
 def _has_footer(fh: Any) -> bool:
@@ -106,6 +133,10 @@ def bag_info(paths: Sequence[Path]) -> dict[str, Any]:
             if info.node and info.node not in t["publishers"]:
                 t["publishers"].append(info.node)
             t["messages"] += f["counts"].get(cid, 0)
+            if cid in f["spans"]:
+                lo, hi = f["spans"][cid]
+                t["first_ns"] = min(t.get("first_ns", lo), lo)
+                t["last_ns"] = max(t.get("last_ns", hi), hi)
             t["latched"] = t["latched"] or info.latched
             if ch.schema_id == 0:
                 t["schema"] = False
@@ -119,7 +150,8 @@ def bag_info(paths: Sequence[Path]) -> dict[str, Any]:
     end = max((f["end_ns"] for f in files), default=0)
     duration = (end - start) / 1e9 if start else 0.0
     for t in topics.values():
-        t["rate_hz"] = t["messages"] / duration if duration > 0 else 0.0
+        span = (t.get("last_ns", 0) - t.get("first_ns", 0)) / 1e9
+        t["rate_hz"] = (t["messages"] - 1) / span if t["messages"] > 1 and span > 0 else 0.0
     nodes: dict[str, Any] = {}
     recording: dict[str, str] = {}
     for f in files:

@@ -25,6 +25,7 @@ import msgspec
 import palpa
 from palpa.errors import ParamError
 from palpa.node import Node, RawMessage
+from palpa.params import convert_params
 from palpa.record.format import (
     BLOBS_SCHEMA,
     BLOBS_SCHEMA_NAME,
@@ -51,45 +52,52 @@ from palpa.record.format import (
 from palpa.record.writer import COMPRESSIONS, BagWriter
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat
 
-__all__ = ["Recorder"]
+__all__ = ["RecorderParams", "Recorder"]
 
 _ChannelKey = tuple[str, str, str, bool, int]  # topic, publisher, type, latched, sequence epoch (seq >> 32)
 _blobs_encoder = msgspec.msgpack.Encoder()
 _COUNTERS = ("received", "gaps", "duplicates", "restarts", "decode_errors")
 
 
+class RecorderParams(palpa.Params):
+    """Parameters of :class:`Recorder`."""
+
+    output: str
+    """File to write; with splitting, pieces are ``<stem>-0001.mcap``, ``<stem>-0002.mcap``, ..."""
+    topics: list[str] = []
+    """Regexes matched against whole topic names; empty records every (non-runtime) topic."""
+    exclude: list[str] = []
+    split_size_mb: float = 0.0
+    """Start a new file once this one holds this many MB (1e6 bytes); checked whenever a chunk is closed,
+    so a piece can exceed it by up to one chunk (1 MB). 0: never."""
+    split_duration_s: float = 0.0
+    """Start a new file after this many seconds (checked every flush_period_s); 0: never."""
+    force: bool = False
+    """Overwrite ``output`` (and stale split pieces of it) if it exists."""
+    launch_file: str = ""
+    """A resolved launch file to store in the recording as the attachment launch.resolved.yaml."""
+    compression: str = "zstd"
+    """Chunk compression: zstd, lz4 or none."""
+    flush_period_s: float = 0.5
+    """Close the open chunk at least this often (s): the most a SIGKILL can lose. At most 1 s."""
+    fsync: bool = False
+    """Also fsync on every flush (survives power loss, costs disk latency)."""
+
+
 class Recorder(Node):
     """Writes bus traffic to ``output`` (MCAP). See the module docstring for what is recorded."""
 
-    class Params(palpa.Params):
-        output: str
-        """File to write; with splitting, pieces are ``<stem>-0001.mcap``, ``<stem>-0002.mcap``, ..."""
-        topics: list[str] = []
-        """Regexes matched against whole topic names; empty records every (non-runtime) topic."""
-        exclude: list[str] = []
-        split_size_mb: float = 0.0
-        """Start a new file once this one holds this many MB (1e6 bytes); checked whenever a chunk is closed,
-        so a piece can exceed it by up to one chunk (1 MB). 0: never."""
-        split_duration_s: float = 0.0
-        """Start a new file after this many seconds (checked every flush_period_s); 0: never."""
-        force: bool = False
-        """Overwrite ``output`` (and stale split pieces of it) if it exists."""
-        launch_file: str = ""
-        """A resolved launch file to store in the recording as the attachment launch.resolved.yaml."""
-        compression: str = "zstd"
-        """Chunk compression: zstd, lz4 or none."""
-        flush_period_s: float = 0.5
-        """Close the open chunk at least this often (s): the most a SIGKILL can lose. At most 1 s."""
-        fsync: bool = False
-        """Also fsync on every flush (survives power loss, costs disk latency)."""
+    Params = RecorderParams
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
+    def __init__(self, name: str | None = None, params: Mapping[str, Any] | RecorderParams | None = None,
+                 **kwargs: Any) -> None:
         kwargs["sim_clock"] = False  # its flush timer must run on wall time even in a sim-clock graph
-        super().__init__(*args, **kwargs)
+        where = f"node {name or 'recorder'!r}"
+        checked = convert_params(RecorderParams, params, where=where)
+        self._check(checked, where)  # before any socket: a bad file or parameter fails at once, bus or not
+        super().__init__(name, checked, **kwargs)
 
-    def setup(self) -> None:
-        p = self.params
-        where = f"node {self.name!r}"
+    def _check(self, p: RecorderParams, where: str) -> None:
         if not p.output:
             raise ParamError(f"{where}: parameter 'output': a file path is required")
         if p.split_size_mb < 0 or p.split_duration_s < 0:
@@ -107,9 +115,12 @@ class Recorder(Node):
         self._filter = TopicFilter(p.topics, p.exclude, always=(LOG_TOPIC,))
         self._splitting = p.split_size_mb > 0 or p.split_duration_s > 0
         self._split_bytes = int(p.split_size_mb * 1e6) if p.split_size_mb > 0 else 1 << 62
+        self._prepare_output(p)
+
+    def setup(self) -> None:
+        p = self.params
         self._started_ns = time.time_ns()
         self._host = socket.gethostname()
-        self._prepare_output()
         self._ids: dict[_ChannelKey, int] = {}
         self._blob_ids: dict[int, int] = {}
         self._schema_ids: dict[str, int] = {}
@@ -130,16 +141,16 @@ class Recorder(Node):
         self.log.info("recording to %s", self._writer.path)
 
     # -- files -------------------------------------------------------------------------------------------
-    def _prepare_output(self) -> None:
-        out = Path(self.params.output)
+    def _prepare_output(self, p: RecorderParams) -> None:
+        out = Path(p.output)
         if not out.parent.is_dir():
             raise BagError(f"cannot record to {out}: directory {out.parent} does not exist")
         first = split_path(out, 1) if self._splitting else out
-        if first.exists() and not self.params.force:
+        if first.exists() and not p.force:
             raise BagError(f"{first} already exists (use --force / force: true to overwrite)")
         if self._splitting:
             old = split_pieces(out)
-            if old and not self.params.force:
+            if old and not p.force:
                 raise BagError(f"{old[0]} already exists (use --force / force: true to overwrite)")
             for piece in old:  # stale pieces of an earlier, longer run would read as part of this one
                 piece.unlink()
