@@ -161,3 +161,32 @@ def test_replayed_bag_reproduces_downstream_output(graph: Graph, talker_bag: Pat
     listener.signal(signal.SIGINT)
     assert rec.stop(10) == 0, rec.output()
     assert _stream(bag3, "chatter_len") == expected
+
+
+REPLAY_LAUNCH = """\
+description: replay chatter from a recording while the listener runs live (docs/recording.md)
+args:
+  - {name: bag, description: the recording to replay}
+record: {topics: [chatter_len]}
+nodes:
+  - name: listener
+    node: nodes.demo:Listener
+  - name: replay
+    node: palpa.record.player:Player
+    params: {file: $(arg bag), topics: [chatter], wait_for: [listener]}
+    required: true
+"""
+
+
+def test_launch_file_replaces_a_live_source(talker_bag: Path, tmp_path: Path) -> None:
+    """The documented recipe: a Player node in a launch file instead of the talker; the live listener's output
+    (recorded by the launch's record section) is the one of the original run."""
+    launch = tmp_path / "replay.yaml"
+    launch.write_text(REPLAY_LAUNCH)
+    procs = ProcessGroup()
+    try:
+        run = procs.start(palpa_cmd("launch", str(launch), f"bag:={talker_bag}", "--run-dir", str(tmp_path / "run")))
+        assert run.wait(60) == 0, run.output()
+    finally:
+        procs.cleanup()
+    assert _stream(tmp_path / "run" / "recording.mcap", "chatter_len") == _stream(talker_bag, "chatter_len")

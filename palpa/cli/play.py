@@ -24,6 +24,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--remap", action="append", default=[], metavar="FROM:=TO", help="publish FROM as TO")
     p.add_argument("--clock", action="store_true", help="publish the recording's time on _palpa/clock")
     p.add_argument("--clock-hz", type=float, default=100.0, help="clock ticks per second (default 100)")
+    p.add_argument("--wait-for", nargs="+", default=[], metavar="NODE",
+                   help="play only once these nodes' heartbeats are heard (bounded by 10 s)")
     p.add_argument("--realtime", action="store_true",
                    help="real-time scheduling while playing (needs root/CAP_SYS_NICE; steadier timing on a busy host)")
     p.add_argument("--name", default="player", help="node name (default: player)")
@@ -49,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
         "clock": args.clock,
         "clock_hz": args.clock_hz,
         "realtime": args.realtime,
+        "wait_for": args.wait_for,
     }
     argv = ["--name", args.name, "--params-json", json.dumps(params)]
     if args.bus:

@@ -26,7 +26,7 @@ from palpa.node import Node, RawMessage
 from palpa.params import convert_params
 from palpa.record.format import TopicFilter
 from palpa.record.reader import BagMessage, iter_bag, resolve_bag_paths
-from palpa.runtime_msgs import CLOCK_TOPIC, ClockTick
+from palpa.runtime_msgs import CLOCK_TOPIC, HEARTBEAT_TOPIC, ClockTick, Heartbeat
 from palpa.wire import Header
 
 __all__ = ["PlayerParams", "Player"]
@@ -56,13 +56,20 @@ class PlayerParams(palpa.Params):
     clock_hz: float = 100.0
     exit_when_done: bool = True
     """Stop the node (exit 0) after the last message; otherwise keep running until stopped."""
+    exit_delay_s: float = 0.5
+    """With exit_when_done: keep the node up this long after the last message, so that in a launch file
+    (player ``required: true``) the live downstream nodes finish with the last messages before they are
+    stopped."""
     realtime: bool = False
     """Ask the OS for real-time scheduling (SCHED_FIFO, priority 10) while playing, so other busy processes do not
     delay sends by whole time slices (measured at 1 kHz on a loaded 2-core VM: p99 3.8 ms -> 0.002 ms). Needs
     root or CAP_SYS_NICE; without them the player warns and plays normally."""
-    ready_timeout_s: float = 5.0
-    """Before playing, wait up to this long for the bus to echo a probe (so the first messages are not lost
-    to ZeroMQ's slow joiner)."""
+    wait_for: list[str] = []
+    """Node names to hear (heartbeats) before playing: the downstream nodes of a launch file, so they have
+    subscribed when the first message goes out."""
+    ready_timeout_s: float = 10.0
+    """Before playing, wait up to this long for ``wait_for`` and for the bus to echo a probe (so the first
+    messages are not lost to ZeroMQ's slow joiner); then play anyway, with a warning."""
 
 
 class Player(Node):
@@ -91,6 +98,9 @@ class Player(Node):
         self._clock_pub = self.publisher(CLOCK_TOPIC, ClockTick) if p.clock else None
         self._ready = False
         self.subscribe_raw(_READY_TOPIC + self.name, self._on_ready)
+        self._waiting = set(p.wait_for)
+        if self._waiting:
+            self.subscribe(HEARTBEAT_TOPIC, Heartbeat, self._on_heartbeat)
         self.played = 0
         self.passes = 0
         self.late_max_s = 0.0
@@ -102,15 +112,20 @@ class Player(Node):
         if raw.header.node == self.name:
             self._ready = True
 
+    def _on_heartbeat(self, hb: Heartbeat) -> None:
+        self._waiting.discard(hb.node)
+
     def _wait_ready(self) -> None:
-        """Publish a probe until it comes back through the bus: from then on, our PUB socket has every
-        subscription the proxy knows of, so nothing we send is dropped for lack of a route."""
+        """Wait for the ``wait_for`` nodes' heartbeats, and publish a probe until it comes back through the bus:
+        from then on our publisher has every subscription the proxy knows of, so nothing is dropped for lack of
+        a route."""
         deadline = time.monotonic() + self.params.ready_timeout_s
         seq = 0
-        while not self._ready and not self.is_shutdown:
+        while (self._waiting or not self._ready) and not self.is_shutdown:
             if time.monotonic() > deadline:
-                self.log.warning("the bus did not echo a probe within %.1f s; playing anyway",
-                                 self.params.ready_timeout_s)
+                missing = f"nodes {sorted(self._waiting)} not heard" if self._waiting else "no probe echo"
+                self.log.warning("not ready after %.1f s (%s); playing anyway", self.params.ready_timeout_s,
+                                 missing)
                 return
             seq += 1
             self.publish_raw(_READY_TOPIC + self.name, Header(type="", seq=seq, stamp=time.time_ns(),
@@ -234,6 +249,9 @@ class Player(Node):
                       ", ".join(map(str, self.paths)), time.monotonic() - started, self.passes,
                       "" if self.passes == 1 else "es")
         if self.params.exit_when_done:
+            end = time.monotonic() + self.params.exit_delay_s
+            while not self.is_shutdown and (left := end - time.monotonic()) > 0:
+                self.spin_once(min(left, 0.1))
             self.request_shutdown(0)
             return
         super().spin()
