@@ -22,7 +22,6 @@ from dataclasses import dataclass
 from enum import Enum
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 Pose = tuple[float, float, float, float, float, float]
 Twist = tuple[float, float, float, float, float, float]
@@ -31,7 +30,42 @@ TICK_S = 0.002
 _TICK_NS = 2_000_000
 _MM_PER_RAD = 1000.0  # path length that one radian of pure tool rotation counts as
 _EPS_MM = 1e-9
+_MIN_BLEND_MM = 1e-6  # blends below this are treated as none
+_MIN_BLEND_SPEED_FRACTION = 0.2  # blends slower than this fraction of the path speed become stops
 _BEZIER_SAMPLES = 65
+
+
+def _quat(rotvec: np.ndarray | Sequence[float]) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of a rotation vector."""
+    v = np.asarray(rotvec, float)
+    angle = float(np.linalg.norm(v))
+    if angle < 1e-12:
+        return np.array([1.0, 0.5 * v[0], 0.5 * v[1], 0.5 * v[2]])
+    return np.concatenate(([math.cos(angle / 2)], v * (math.sin(angle / 2) / angle)))
+
+
+def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Quaternion of rotation a applied after rotation b."""
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
+
+
+def _rotvec(q: np.ndarray) -> np.ndarray:
+    """Rotation vector (angle <= pi) of a quaternion."""
+    q = q / np.linalg.norm(q)
+    if q[0] < 0:
+        q = -q
+    s = float(np.linalg.norm(q[1:]))
+    if s < 1e-12:
+        return np.asarray(2.0 * q[1:], float)
+    return np.asarray(q[1:] * (2.0 * math.atan2(s, q[0]) / s), float)
+
+
+def _turn(q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
+    """Rotation vector taking orientation q0 to q1 (in the base frame)."""
+    return _rotvec(_qmul(q1, q0 * np.array([1.0, -1.0, -1.0, -1.0])))
 
 
 class ArmStatus(Enum):
@@ -70,12 +104,12 @@ class _Primitive:
     """A piece of path parametrised by length u in [0, length]: a line, a pure rotation, or a
     quadratic Bezier blend. Orientation is slerped linearly in u from rot0 to rot1."""
 
-    def __init__(self, p0: np.ndarray, p1: np.ndarray, rot0: Rotation, rot1: Rotation,
+    def __init__(self, p0: np.ndarray, p1: np.ndarray, rot0: np.ndarray, rot1: np.ndarray,
                  vmax: float, accel: float, index: int, ctrl: np.ndarray | None = None,
                  rotvec0: np.ndarray | None = None) -> None:
         self.p0, self.p1, self.ctrl, self.rot0 = p0, p1, ctrl, rot0
-        self.rotvec0 = rot0.as_rotvec() if rotvec0 is None else rotvec0
-        self.dw = (rot1 * rot0.inv()).as_rotvec()  # rotation to apply over the whole primitive
+        self.rotvec0 = _rotvec(rot0) if rotvec0 is None else rotvec0
+        self.dw = _turn(rot0, rot1)  # rotation to apply over the whole primitive
         self.accel, self.index = accel, index
         angle_mm = float(np.linalg.norm(self.dw)) * _MM_PER_RAD
         if ctrl is None:
@@ -109,7 +143,7 @@ class _Primitive:
     def rotvec(self, u: float) -> np.ndarray:
         if not np.any(self.dw):
             return self.rotvec0
-        return np.asarray((Rotation.from_rotvec(self.dw * (u / self.length)) * self.rot0).as_rotvec(), float)
+        return _rotvec(_qmul(_quat(self.dw * (u / self.length)), self.rot0))
 
     def twist_per_mm(self, u: float) -> tuple[np.ndarray, np.ndarray]:
         """(linear direction, angular rate) per mm of path at u."""
@@ -170,20 +204,29 @@ class _Plan:
         self.count = len(targets)
         pts = [np.asarray(start[:3], float)] + [np.asarray(t.pose[:3], float) for t in targets]
         rvs = [np.asarray(start[3:], float)] + [np.asarray(t.pose[3:], float) for t in targets]
-        rots = [Rotation.from_rotvec(r) for r in rvs]
+        rots = [_quat(r) for r in rvs]
         seg_len = [float(np.linalg.norm(pts[i + 1] - pts[i])) for i in range(len(targets))]
         # effective blend radius at waypoint i (between segment i and i+1); blends never overlap
         blend = [0.0] * len(targets)
         for i in range(len(targets) - 1):
-            if seg_len[i] > _EPS_MM and seg_len[i + 1] > _EPS_MM:
-                blend[i] = min(targets[i].blend_mm, 0.5 * seg_len[i], 0.5 * seg_len[i + 1])
+            if seg_len[i] <= _EPS_MM or seg_len[i + 1] <= _EPS_MM:
+                continue
+            r = min(targets[i].blend_mm, 0.5 * seg_len[i], 0.5 * seg_len[i + 1])
+            cos_turn = float(np.dot(pts[i + 1] - pts[i], pts[i + 2] - pts[i + 1])) / (seg_len[i] * seg_len[i + 1])
+            half = 0.5 * math.acos(min(1.0, max(-1.0, cos_turn)))
+            # tightest radius of the blend curve: r cos^2(turn/2) / sin(turn/2); a blend the arm
+            # would crawl through (near reversals) is replaced by a stop at the waypoint
+            rho = r * math.cos(half) ** 2 / max(math.sin(half), 1e-12)
+            v_min = min(targets[i].speed_mm_s, targets[i + 1].speed_mm_s)
+            a_min = min(targets[i].accel_mm_s2, targets[i + 1].accel_mm_s2)
+            if r >= _MIN_BLEND_MM and math.sqrt(a_min * rho) >= _MIN_BLEND_SPEED_FRACTION * v_min:
+                blend[i] = r
         prims: list[_Primitive] = []
         smooth: list[bool] = []  # smooth[k]: junction before primitive k is tangent-continuous
 
-        def at(i: int, frac: float) -> tuple[np.ndarray, Rotation]:
+        def at(i: int, frac: float) -> tuple[np.ndarray, np.ndarray]:
             """Position and orientation at fraction frac of segment i (waypoint i-1 -> i)."""
-            turn = (rots[i + 1] * rots[i].inv()).as_rotvec()
-            return pts[i] + (pts[i + 1] - pts[i]) * frac, Rotation.from_rotvec(turn * frac) * rots[i]
+            return pts[i] + (pts[i + 1] - pts[i]) * frac, _qmul(_quat(_turn(rots[i], rots[i + 1]) * frac), rots[i])
 
         for i, tgt in enumerate(targets):
             v, a = tgt.speed_mm_s, tgt.accel_mm_s2
@@ -202,9 +245,11 @@ class _Plan:
             if blend[i] > 0:
                 nxt = targets[i + 1]
                 q0, q1 = at(i + 1, blend[i] / seg_len[i + 1])
-                prims.append(_Primitive(p_b, q0, r_b, q1, min(v, nxt.speed_mm_s),
-                                        min(a, nxt.accel_mm_s2), i + 1, ctrl=pts[i + 1]))
-                smooth.append(True)
+                curve = _Primitive(p_b, q0, r_b, q1, min(v, nxt.speed_mm_s),
+                                   min(a, nxt.accel_mm_s2), i + 1, ctrl=pts[i + 1])
+                if curve.length > _EPS_MM:
+                    prims.append(curve)
+                    smooth.append(True)
         self.prims = prims
         self.starts = [0.0]
         for p in prims:
@@ -276,7 +321,7 @@ class ArmModel:
         self._vel_accel = 1.0
         self._vel_end: int | None = None
         self._vel_stopping = False
-        self._rot = Rotation.from_rotvec(self._pose[3:])
+        self._rot = _quat(self._pose[3:])
 
     # ----------------------------------------------------------------- state
     @property
@@ -326,7 +371,7 @@ class ArmModel:
         if self.is_moving:
             raise RuntimeError("ArmModel.set_pose: the arm is moving; stop it first")
         self._pose = _as_pose(pose, "ArmModel.set_pose: pose")
-        self._rot = Rotation.from_rotvec(self._pose[3:])
+        self._rot = _quat(self._pose[3:])
 
     # -------------------------------------------------------------- commands
     def move_l(self, pose: Sequence[float], speed_mm_s: float, accel_mm_s2: float) -> None:
@@ -372,7 +417,7 @@ class ArmModel:
                 vel[part] *= cap / norm
         self._pending = None
         if self._mode != "speed":
-            self._rot = Rotation.from_rotvec(self._pose[3:])
+            self._rot = _quat(self._pose[3:])
         self._mode, self._status = "speed", ArmStatus.MOVING
         self._vel_target = vel
         self._vel_accel = min(accel_mm_s2, self.max_accel_mm_s2)
@@ -450,7 +495,7 @@ class ArmModel:
 
     def _finish(self, pose: Pose, status: ArmStatus, index: int | None = None) -> None:
         self._pose, self._twist, self._mode, self._status = pose, np.zeros(6), "idle", status
-        self._rot = Rotation.from_rotvec(pose[3:])
+        self._rot = _quat(pose[3:])
         if index is not None:
             self._index = index
         if self._pending is not None:
@@ -492,8 +537,8 @@ class ArmModel:
         pos = np.asarray(self._pose[:3]) + mean[:3] * TICK_S
         rotvec = np.asarray(self._pose[3:])
         if np.any(mean[3:]):
-            self._rot = Rotation.from_rotvec(mean[3:] * TICK_S) * self._rot
-            rotvec = self._rot.as_rotvec()
+            self._rot = _qmul(_quat(mean[3:] * TICK_S), self._rot)
+            rotvec = _rotvec(self._rot)
         self._twist = new
         self._pose = _as_tuple(np.concatenate((pos, rotvec)))
         if self._vel_end is not None and self._ticks + 1 >= self._vel_end:

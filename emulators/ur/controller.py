@@ -16,7 +16,6 @@ from typing import Any, Protocol
 from emulators.ur.rtde import OUTPUT_TYPES
 from emulators.ur.script import RtdeControlProgram, ScriptError, program_name
 from models.arm import TICK_S, ArmModel, ArmTarget, Pose
-from models.contact import hertz_force
 
 RUNTIME_STOPPING, RUNTIME_STOPPED, RUNTIME_PLAYING = 0, 1, 2
 ROBOT_MODE_RUNNING = 7
@@ -338,7 +337,10 @@ class UrController:
             except ValueError:  # e.g. a spring sample: no modulus to press into
                 e_kpa = math.nan
             nu = float(getattr(self.phantom, "poisson_ratio", 0.5))
-            # Hertz contact of the spherical tip (paper 1, eq. 6 solved for F)
+            # Hertz contact of the spherical tip (paper 1, eq. 6 solved for F); imported here
+            # because models.contact pulls in scipy.optimize, which slows every emulator start
+            from models.contact import hertz_force
+
             fz = float(hertz_force(e_kpa, depth, c.tip_radius_mm, nu)) if math.isfinite(e_kpa) else 0.0
         self.force = [0.0, 0.0, fz, 0.0, 0.0, 0.0]
         if fz > c.force_limit_n:
