@@ -265,8 +265,9 @@ class Recorder(Node):
 
     # -- the hot path ------------------------------------------------------------------------------------
     def _on_raw(self, raw: RawMessage) -> None:
-        h = raw.header
-        key = (raw.topic, h.node, h.type, h.latched, h.seq >> 32)
+        topic, h, payload, blobs, cached, recv_ns = raw  # one unpack: cheaper than six NamedTuple lookups
+        seq = h.seq
+        key = (topic, h.node, h.type, h.latched, seq >> 32)
         cid = self._ids.get(key)
         try:
             if cid is None:
@@ -276,12 +277,12 @@ class Recorder(Node):
             if not cid:
                 return
             w = self._writer
-            if raw.blobs:  # before the message, so a reader has them when the message comes
-                self._write_blobs(cid, raw, raw.recv_ns)
-            w.add_message(cid, raw.recv_ns, h.stamp, h.seq & 0xFFFF_FFFF, raw.payload)
-            if h.latched or raw.from_cache or (self._bus_latched and raw.topic in self._bus_latched):
-                if raw.from_cache:
-                    self._bus_latched.add(raw.topic)
+            if blobs:  # before the message, so a reader has them when the message comes
+                self._write_blobs(cid, raw, recv_ns)
+            w.add_message(cid, recv_ns, h.stamp, seq & 0xFFFF_FFFF, payload)
+            if h.latched or cached or (self._bus_latched and topic in self._bus_latched):
+                if cached:
+                    self._bus_latched.add(topic)
                 self._latched[key] = raw
             if w.written >= self._split_bytes:
                 self._roll()
