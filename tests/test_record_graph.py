@@ -86,6 +86,7 @@ def talker_bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
         assert listener.stop(10) == 0
     finally:
         g.close()
+    check_official(bag)
     return bag
 
 
@@ -160,6 +161,7 @@ def test_replayed_bag_reproduces_downstream_output(graph: Graph, talker_bag: Pat
                    "the listener's output to be recorded")
     listener.signal(signal.SIGINT)
     assert rec.stop(10) == 0, rec.output()
+    check_official(bag3)
     assert _stream(bag3, "chatter_len") == expected
 
 
@@ -189,4 +191,6 @@ def test_launch_file_replaces_a_live_source(talker_bag: Path, tmp_path: Path) ->
         assert run.wait(60) == 0, run.output()
     finally:
         procs.cleanup()
-    assert _stream(tmp_path / "run" / "recording.mcap", "chatter_len") == _stream(talker_bag, "chatter_len")
+    recording = tmp_path / "run" / "recording.mcap"
+    assert check_official(recording).attachments["launch.resolved.yaml"]  # the launcher's record section
+    assert _stream(recording, "chatter_len") == _stream(talker_bag, "chatter_len")

@@ -123,6 +123,11 @@ def test_drops_are_counted_from_sequence_gaps(tmp_path: Path) -> None:
         h.publish_raw(_frames("chatter", "Text", seq, payload))
     h.close()
     assert "DROPS chatter: 14 missing" in h.node.report()  # 4-6 and 9-19
+    h2 = NodeHarness(Recorder, {"output": str(tmp_path / "r2.mcap")})
+    for seq in (1, 2, 1, 2):  # the publisher restarted: not a drop
+        h2.publish_raw(_frames("chatter", "Text", seq, payload))
+    h2.close()
+    assert h2.node.report().endswith("no drops (no sequence gaps); also chatter: 1 restarts")
     assert json.loads(check_official(out).metadata[MD_DROPS]["chatter"])["gaps"] == 14
 
 

@@ -337,10 +337,11 @@ class Recorder(Node):
         except (OSError, BagError) as exc:
             self._fail(exc)
             return
-        (self.log.warning if self.drops() else self.log.info)("%s", self.report())
+        lost = any(d["gaps"] for d in self.drops().values())
+        (self.log.warning if lost else self.log.info)("%s", self.report())
 
     def drops(self) -> dict[str, dict[str, int]]:
-        """Counters of every recorded topic with a gap, duplicate, restart or decode error (whole run)."""
+        """Counters of every recorded topic that lost messages, saw a publisher restart or a bad envelope."""
         out = {}
         for topic, stats in self.counters().items():
             d = stats.as_dict()
@@ -349,16 +350,12 @@ class Recorder(Node):
         return out
 
     def report(self) -> str:
-        """One paragraph: messages, files, and drops per topic (sequence gaps)."""
+        """One line: messages and files, then the topics that lost messages (sequence gaps), if any."""
         files = ", ".join(str(f) for f in self.files)
         text = f"recorded {self.recorded} messages in {len(self.files)} file(s): {files}"
-        drops = self.drops()
-        if not drops:
-            return text + "; no drops (no sequence gaps)"
-        parts = [f"{t}: {d['gaps']} missing" + (f", {d['restarts']} restarts" if d["restarts"] else "")
-                 + (f", {d['decode_errors']} bad" if d["decode_errors"] else "") for t, d in sorted(drops.items())]
-        return text + "; DROPS " + "; ".join(parts)
-
-    def describe(self) -> Mapping[str, Any]:
-        """Machine-readable summary (tests, bench)."""
-        return {"files": [str(f) for f in self.files], "recorded": self.recorded, "drops": self.drops()}
+        counters = sorted(self.drops().items())
+        lost = [f"{t}: {d['gaps']} missing" for t, d in counters if d["gaps"]]
+        text += ("; DROPS " + "; ".join(lost)) if lost else "; no drops (no sequence gaps)"
+        other = [f"{t}: " + ", ".join(f"{d[k]} {k.replace('_', ' ')}" for k in ("restarts", "decode_errors") if d[k])
+                 for t, d in counters if d["restarts"] or d["decode_errors"]]
+        return text + ("; also " + "; ".join(other) if other else "")
