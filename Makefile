@@ -12,8 +12,11 @@ $(STAMP): pyproject.toml
 	$(BIN)/pip install -e '.[dev,bench]'
 	touch $(STAMP)
 
+# the simulated air-float scan of the four-tumour phantom; prints where the map and inclusions were written
 demo: $(STAMP)
-	$(BIN)/palpa launch launch/scan_sim.yaml
+	@run=runs/demo-$$(date +%Y%m%d-%H%M%S); \
+	$(BIN)/palpa launch launch/scan_sim.yaml --run-dir $$run && \
+	$(BIN)/python -m nodes.scan_report $$run --phantom phantoms/airfloat_tumours.yaml
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -10,6 +10,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Literal
 
+import numpy as np
+
 import palpa
 from messages import DeviceStatus, PressureState, ProbeHeights, RobotPose
 from models.airfloat import DEFAULT_INDENTER_RADIUS_MM, DEFAULT_SPS_RADIUS_MM, indentation_from_heights
@@ -27,7 +29,7 @@ class FibreReader(palpa.Node):
         driver: Literal["sim", "serial"] = "sim"
         rate_hz: float = 500.0
         """Sensor sample rate asked of the device (or simulated)."""
-        poll_hz: float = 100.0
+        poll_hz: float = 50.0
         """How often the node drains the driver's queue."""
         port: str = "/dev/ttyACM0"
         baudrate: int = 115200
@@ -83,20 +85,22 @@ class FibreReader(palpa.Node):
             self._sim.set_pressure(msg.stamp_ns, msg.measured_kpa)
 
     def poll(self) -> None:
-        for sample in self.driver.read(0.0):
-            self.publish_sample(sample)
+        samples = self.driver.read(0.0)
+        if samples:
+            self.publish_samples(samples)
         connected = self.driver.status().connected
         if connected != self._last_connected:
             self.publish_status()
 
-    def publish_sample(self, s: FibreSample) -> None:
-        h1, h2, h3, h4 = s.heights_mm
-        d_in, tilt = indentation_from_heights(h1, h2, h3, h4, self.params.sps_radius_mm,
+    def publish_samples(self, samples: list[FibreSample]) -> None:
+        h = np.array([s.heights_mm for s in samples], dtype=float)
+        d_in, tilt = indentation_from_heights(h[:, 0], h[:, 1], h[:, 2], h[:, 3], self.params.sps_radius_mm,
                                               self.params.indenter_radius_mm)
-        self.heights.publish(ProbeHeights(
-            stamp_ns=s.stamp_ns or s.host_stamp_ns, seq=s.seq, h_mm=s.heights_mm, raw=s.raw,
-            d_in_mm=float(d_in), tilt_rad=float(tilt), device_stamp_ns=s.device_stamp_ns,
-        ))
+        for s, d, t in zip(samples, np.atleast_1d(d_in).tolist(), np.atleast_1d(tilt).tolist(), strict=True):
+            self.heights.publish(ProbeHeights(
+                stamp_ns=s.stamp_ns or s.host_stamp_ns, seq=s.seq, h_mm=s.heights_mm, raw=s.raw,
+                d_in_mm=d, tilt_rad=t, device_stamp_ns=s.device_stamp_ns,
+            ))
 
     def publish_status(self) -> None:
         st = self.driver.status()

@@ -257,6 +257,7 @@ class Node:
         bus: str | BusAddress | None = None,
         heartbeat_s: float = 1.0,
         sim_clock: bool | None = None,
+        wait_for_clock_s: float = 30.0,
     ) -> None:
         self.name = name or _snake(type(self).__name__)
         if sim_clock is None:
@@ -293,6 +294,7 @@ class Node:
         self._hb_pub = self.publisher(HEARTBEAT_TOPIC, Heartbeat)
         if self._topic_clock is not None:
             self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
+            self._await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0:
             self.timer(heartbeat_s, self._heartbeat, first_in_s=0.0)
         self.setup()
@@ -397,7 +399,9 @@ class Node:
         self._shutdown = True
 
     def next_timer_due_ns(self) -> int | None:
-        """When the earliest live timer fires (node-clock ns), or None."""
+        """When the earliest live timer fires (node-clock ns), or None (also once shutdown was requested)."""
+        if self._shutdown:
+            return None
         live = [t.due_ns for t in self._timers if not t.cancelled]
         return min(live) if live else None
 
@@ -436,6 +440,17 @@ class Node:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def _await_first_tick(self, timeout_s: float) -> None:
+        """Simulated time does not exist before the first tick: wait for it (bounded) so that setup() and
+        everything after it reads a real time."""
+        deadline = time.monotonic() + timeout_s
+        clock = self._topic_clock
+        while clock is not None and not clock.started and time.monotonic() < deadline:
+            self.spin_once(0.05)
+        if clock is not None and not clock.started and timeout_s > 0:
+            self.log.warning("no simulation time on %s after %.0f s; timers wait for the first tick",
+                             CLOCK_TOPIC, timeout_s)
 
     def _on_clock(self, tick: ClockTick) -> None:
         clock = self._topic_clock

@@ -148,7 +148,8 @@ def test_sim_clock_follows_clock_topic() -> None:
     from palpa.runtime_msgs import ClockTick
 
     bus = MemoryBus()
-    node = Talker(params={"rate_hz": 10}, transport=bus.transport(), heartbeat_s=0, sim_clock=True)
+    node = Talker(params={"rate_hz": 10}, transport=bus.transport(), heartbeat_s=0, sim_clock=True,
+                  wait_for_clock_s=0)
     ticker = palpa.Node(name="player", transport=bus.transport(), heartbeat_s=0)
     pub = ticker.publisher("_palpa/clock", ClockTick)
     spy = palpa.Node(name="spy", transport=bus.transport(), heartbeat_s=0)

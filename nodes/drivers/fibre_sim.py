@@ -52,6 +52,7 @@ class SimFibreDriver:
         self._seq = 0
         self._samples = 0
         self._open = False
+        self._e_guess: float | None = None
 
     # inputs from the bus
     def set_pose(self, stamp_ns: int, x_mm: float, y_mm: float, z_mm: float) -> None:
@@ -109,9 +110,9 @@ class SimFibreDriver:
         pressure = np.array([(self._pressure.at(t, 500_000_000) or (0.0,))[0] for t in keep])
         heights = self._heights(xyz[:, 0], xyz[:, 1], xyz[:, 2], pressure)
         out = []
-        for i, t in enumerate(keep):
+        for t, h in zip(keep, heights.tolist(), strict=True):
             self._seq += 1
-            h = tuple(float(v) for v in heights[i])
+            h = tuple(h)
             out.append(FibreSample(host_stamp_ns=t, device_stamp_ns=t, seq=self._seq,
                                    raw=h, heights_mm=h, stamp_ns=t))  # type: ignore[arg-type]
         self._samples += len(out)
@@ -126,10 +127,14 @@ class SimFibreDriver:
         depth = np.zeros_like(x)
         touch = inside & (force > 0) & (gap < self._stroke)
         if np.any(touch):
-            e = np.full(int(touch.sum()), float(ph.youngs_modulus_kpa))
-            for _ in range(3):  # the felt modulus depends on how deep the indenter goes
+            # the felt modulus depends on how deep the indenter goes: a fixed point, warm-started from the
+            # previous batch (the probe moves little between batches), so two rounds converge
+            e = np.full(int(touch.sum()), self._e_guess or float(ph.youngs_modulus_kpa))
+            for _ in range(2):
                 d = np.asarray(corrected_depth(force[touch], e, self._r, thickness[touch], ph.poisson_ratio))
                 e = np.asarray(ph.effective_modulus(x[touch], y[touch], self._r, d), dtype=float)
+            d = np.asarray(corrected_depth(force[touch], e, self._r, thickness[touch], ph.poisson_ratio))
+            self._e_guess = float(e[-1])
             depth[touch] = d
         xs, ys = np.where(inside, x, np.clip(x, 0, ph.size_mm[0])), np.where(inside, y, np.clip(y, 0, ph.size_mm[1]))
         h = np.stack(heights_over_phantom(ph, xs, ys, z_face, depth, self._a, self._r), axis=-1)

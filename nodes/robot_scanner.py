@@ -1,0 +1,289 @@
+"""Robot scanner node: plans a raster over the phantom, checks it against the safety limits, drives the arm
+along it and reports progress; exits 0 when the scan is complete (so a launch can make it ``required``).
+
+Safety is enforced here whatever the driver: a plan that leaves the workspace box or exceeds the speed or
+acceleration cap is refused before any motion (naming the waypoint); while moving, a watchdog stops the arm when
+the probe's data goes stale (``watch_topic``) or ``pressure/state`` reports a fault, and ``robot/estop`` stops it
+at once. The arm's pose is published on ``robot/pose``; the plan, latched, on ``robot/plan`` before motion.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Literal
+
+import palpa
+from messages import (
+    EStop,
+    IndenterDisplacements,
+    PlanWaypoint,
+    PressureState,
+    ProbeHeights,
+    RobotPose,
+    ScanPlan,
+    ScanStatus,
+)
+from models.raster import RasterPlan, Waypoint, WorkspaceBox, WorkspaceViolation, check_workspace, indent_raster, sweep_raster
+from nodes.drivers.robot import MotionStatus, RobotDriver
+from nodes.scan_progress import PathProgressMeter
+
+__all__ = ["RobotScanner"]
+
+_STOPPING_FAULTS = {"device_lost", "over_pressure", "tracking_error"}
+
+
+class RobotScanner(palpa.Node):
+    """Raster scan with a safety envelope."""
+
+    class Params(palpa.Params):
+        driver: Literal["sim", "ur_rtde"] = "sim"
+        mode: Literal["sweep", "indent"] = "sweep"
+        region_mm: tuple[float, float, float, float] = (5.0, 5.0, 55.0, 55.0)
+        """x0, y0, x1, y1 of the raster in the phantom frame."""
+        spacing_mm: float = 2.0
+        speed_mm_s: float = 10.0
+        axis: Literal["x", "y"] = "y"
+        """Lines run parallel to this axis (the paper's Fig. 12 scan: y)."""
+        contact_z_mm: float = 5.0
+        """Probe face height while sweeping (sweep), or the surface height pressed from (indent)."""
+        indent_depth_mm: float = 3.0
+        hold_s: float = 0.5
+        point_spacing_mm: float = 0.0
+        """Indent mode: spacing of points along a line (0: same as spacing_mm)."""
+        approach_clearance_mm: float = 5.0
+        retract_clearance_mm: float = 15.0
+        transit_speed_mm_s: float = 40.0
+        approach_speed_mm_s: float = 10.0
+        accel_mm_s2: float = 500.0
+        home_mm: tuple[float, float, float] = (0.0, 0.0, 40.0)
+        """Start pose of the simulated arm (phantom frame)."""
+        workspace_mm: tuple[float, float, float, float, float, float] = (-10.0, -10.0, 0.5, 70.0, 70.0, 60.0)
+        """xmin, ymin, zmin, xmax, ymax, zmax: the arm never leaves this box."""
+        max_speed_mm_s: float = 50.0
+        max_accel_mm_s2: float = 1000.0
+        watch_topic: Literal["probe/heights", "camera/indenters", ""] = "probe/heights"
+        """Probe data that must stay fresh while moving ('' disables the watchdog: bench tests only)."""
+        watchdog_s: float = 0.1
+        startup_timeout_s: float = 10.0
+        """How long to wait for the probe's first data before giving up."""
+        pose_rate_hz: float = 250.0
+        linger_s: float = 0.5
+        """After the scan: keep publishing this long so the last samples reach the map, then exit."""
+        # drivers
+        time_scale: float = 1.0
+        """Sim driver: simulated seconds per clock second (use the graph's sim clock instead when you can)."""
+        robot_host: str = "127.0.0.1"
+        frame_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        """Phantom frame origin in the robot base frame (mm)."""
+        tool_rotvec: tuple[float, float, float] = (0.0, math.pi, 0.0)
+        """Fixed tool orientation (rotation vector, rad): probe pointing down."""
+
+    def setup(self) -> None:
+        p = self.params
+        self.pose_pub = self.publisher("robot/pose", RobotPose)
+        self.plan_pub = self.publisher("robot/plan", ScanPlan, latched=True)
+        self.status_pub = self.publisher("robot/scan_status", ScanStatus, latched=True)
+        self.state = "planning"
+        self.message = ""
+        self.line = 0
+        self.last_probe_ns: int | None = None
+        self.segments: list[tuple[int, int]] = []
+        self.segment = 0
+        self.hold_until_ns: int | None = None
+        self.started_ns = self.clock.now_ns()
+        self.driver: RobotDriver = self._make_driver()
+        self.driver.connect()
+        self.plan = self._plan()
+        self.meter = PathProgressMeter(self.plan.waypoints, self.plan.duration_s)
+        self.check_plan()  # raises before any motion
+        self._publish_plan()
+        if p.watch_topic == "probe/heights":
+            self.subscribe("probe/heights", ProbeHeights, self.on_probe)
+        elif p.watch_topic == "camera/indenters":
+            self.subscribe("camera/indenters", IndenterDisplacements, self.on_probe)
+        self.subscribe("pressure/state", self.on_pressure)
+        self.subscribe("robot/estop", self.on_estop)
+        self.set_state("waiting", f"waiting for probe data on {p.watch_topic}" if p.watch_topic else "")
+        self.timer(1.0 / p.pose_rate_hz, self.publish_pose, first_in_s=0.0)
+        self.timer(0.01, self.supervise)
+        self.timer(0.2, self.publish_status)
+
+    # -- planning --------------------------------------------------------------------------------
+    def _make_driver(self) -> RobotDriver:
+        p = self.params
+        if p.driver == "sim":
+            from nodes.drivers.robot_sim import SimRobotDriver
+
+            return SimRobotDriver(home_mm=tuple(p.home_mm), clock=self.clock.now_ns, time_scale=p.time_scale)
+        from nodes.drivers.robot_urrtde import URRtdeDriver
+
+        return URRtdeDriver(p.robot_host, frame_offset_mm=tuple(p.frame_offset_mm),
+                            tool_rotvec=tuple(p.tool_rotvec))
+
+    def _plan(self) -> RasterPlan:
+        p = self.params
+        x0, y0, x1, y1 = p.region_mm
+        common: dict[str, Any] = dict(
+            spacing_mm=p.spacing_mm, speed_mm_s=p.speed_mm_s, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
+            approach_clearance_mm=p.approach_clearance_mm, retract_clearance_mm=p.retract_clearance_mm,
+            transit_speed_mm_s=p.transit_speed_mm_s, approach_speed_mm_s=p.approach_speed_mm_s,
+        )
+        if p.mode == "sweep":
+            return sweep_raster(x0, y0, x1, y1, contact_z_mm=p.contact_z_mm, **common)
+        return indent_raster(x0, y0, x1, y1, contact_z_mm=p.contact_z_mm, depth_mm=p.indent_depth_mm,
+                             hold_s=p.hold_s, point_spacing_mm=p.point_spacing_mm or None, **common)
+
+    def check_plan(self) -> None:
+        """Refuse a plan (and the path from the current pose to it) that leaves the box or exceeds a cap."""
+        p = self.params
+        x0, y0, z0, x1, y1, z1 = p.workspace_mm
+        try:
+            box = WorkspaceBox(x0, x1, y0, y1, z0, z1)
+        except ValueError as exc:
+            raise palpa.ParamError(f"{self.name}: workspace_mm: {exc}") from None
+        x, y, z = self.driver.state().pose[:3]
+        start = Waypoint(x, y, z, 0.0, 0.0, 0.0, 0.0, -1, "transit")
+        try:
+            check_workspace([start], box)
+        except WorkspaceViolation as exc:
+            raise palpa.ParamError(f"{self.name}: refusing to move: the arm's current pose is outside the "
+                                   f"workspace box ({exc})") from None
+        try:
+            check_workspace(self.plan.waypoints, box)
+        except WorkspaceViolation as exc:
+            raise palpa.ParamError(f"{self.name}: refusing the plan before any motion: {exc}") from None
+        for i, w in enumerate(self.plan.waypoints):
+            if w.speed_mm_s > p.max_speed_mm_s or w.accel_mm_s2 > p.max_accel_mm_s2:
+                raise palpa.ParamError(
+                    f"{self.name}: refusing the plan before any motion: waypoint {i} ({w.kind}, line {w.line}) "
+                    f"asks {w.speed_mm_s:g} mm/s, {w.accel_mm_s2:g} mm/s² over the caps "
+                    f"{p.max_speed_mm_s:g} mm/s, {p.max_accel_mm_s2:g} mm/s²")
+        # indent mode holds at press points: run the path in segments that end at each hold
+        cuts = [i for i, w in enumerate(self.plan.waypoints) if w.hold_s > 0]
+        start_i = 0
+        for c in cuts:
+            self.segments.append((start_i, c))
+            start_i = c + 1
+        if start_i < len(self.plan.waypoints):
+            self.segments.append((start_i, len(self.plan.waypoints) - 1))
+
+    def _publish_plan(self) -> None:
+        p, plan = self.params, self.plan
+        self.plan_pub.publish(ScanPlan(
+            stamp_ns=self.clock.now_ns(), mode=plan.mode, region_mm=tuple(p.region_mm),  # type: ignore[arg-type]
+            spacing_mm=plan.line_spacing_mm, speed_mm_s=p.speed_mm_s, lines=plan.line_count,
+            estimated_duration_s=plan.duration_s,
+            waypoints=[PlanWaypoint(x_mm=w.x_mm, y_mm=w.y_mm, z_mm=w.z_mm, speed_mm_s=w.speed_mm_s, kind=w.kind,
+                                    line=w.line, hold_s=w.hold_s) for w in plan.waypoints],
+        ))
+        self.log.info("plan: %s, %d lines, %d waypoints, ~%.0f s", plan.mode, plan.line_count,
+                      len(plan.waypoints), plan.duration_s)
+
+    # -- inputs ----------------------------------------------------------------------------------
+    def on_probe(self, msg: ProbeHeights | IndenterDisplacements) -> None:
+        self.last_probe_ns = self.clock.now_ns()
+
+    def on_pressure(self, msg: PressureState) -> None:
+        bad = _STOPPING_FAULTS.intersection(msg.faults)
+        if bad and self.state in ("waiting", "scanning"):
+            self.halt("fault", f"pressure fault {', '.join(sorted(bad))}")
+
+    def on_estop(self, msg: EStop) -> None:
+        if msg.engaged and self.state not in ("done", "estop"):
+            self.halt("estop", f"e-stop: {msg.reason or 'engaged'}")
+
+    # -- running ---------------------------------------------------------------------------------
+    def halt(self, state: str, why: str) -> None:
+        """Stop the arm now and end the scan as ``state`` (fault, estop, stopped)."""
+        try:
+            self.driver.stop(self.params.max_accel_mm_s2)
+        finally:
+            self.log.error("STOP (%s): %s", state, why)
+            self.set_state(state, why)
+            self.finish(1 if state == "fault" else 2)
+
+    def set_state(self, state: str, message: str = "") -> None:
+        self.state, self.message = state, message
+        self.publish_status()
+
+    def finish(self, code: int) -> None:
+        self.timer(self.params.linger_s, lambda: self.request_shutdown(code), oneshot=True)
+
+    def supervise(self) -> None:
+        now = self.clock.now_ns()
+        p = self.params
+        if self.state == "waiting":
+            if self.last_probe_ns is not None or not p.watch_topic:
+                self.set_state("scanning")
+                self._start_segment()
+            elif (now - self.started_ns) / 1e9 > p.startup_timeout_s:
+                self.halt("fault", f"no probe data on {p.watch_topic} within {p.startup_timeout_s:g} s")
+            return
+        if self.state != "scanning":
+            return
+        if p.watch_topic and self.last_probe_ns is not None and (now - self.last_probe_ns) / 1e9 > p.watchdog_s:
+            self.halt("fault", f"probe data on {p.watch_topic} stale for more than {p.watchdog_s * 1000:.0f} ms")
+            return
+        box = p.workspace_mm
+        x, y, z = self.driver.state().pose[:3]
+        if not (box[0] - 0.5 <= x <= box[3] + 0.5 and box[1] - 0.5 <= y <= box[4] + 0.5 and
+                box[2] - 0.5 <= z <= box[5] + 0.5):
+            self.halt("fault", f"TCP at ({x:.1f}, {y:.1f}, {z:.1f}) mm is outside the workspace box")
+            return
+        prog = self.driver.progress()
+        if prog.status in (MotionStatus.PROTECTIVE_STOP, MotionStatus.DISCONNECTED, MotionStatus.FAULT):
+            self.halt("fault", f"robot {prog.status.name.lower()}: {prog.message}")
+            return
+        seg_start, seg_end = self.segments[self.segment]
+        self.meter.update(seg_start + prog.index, self.driver.state().pose[:3])
+        if self.hold_until_ns is not None:
+            if now >= self.hold_until_ns:
+                self.hold_until_ns = None
+                self.segment += 1
+                self._start_segment()
+            return
+        if prog.status == MotionStatus.DONE:
+            hold = self.plan.waypoints[seg_end].hold_s
+            if hold > 0:
+                self.hold_until_ns = now + int(hold * 1e9)
+            else:
+                self.segment += 1
+                self._start_segment()
+        elif prog.status == MotionStatus.STOPPED:
+            self.halt("stopped", prog.message or "the arm stopped")
+
+    def _start_segment(self) -> None:
+        if self.segment >= len(self.segments):
+            self.meter.complete()
+            self.set_state("done", f"scan complete in {(self.clock.now_ns() - self.started_ns) / 1e9:.1f} s")
+            self.log.info("scan complete")
+            self.finish(0)
+            return
+        a, b = self.segments[self.segment]
+        self.driver.move_path(self.plan.waypoints[a : b + 1])
+
+    # -- outputs ---------------------------------------------------------------------------------
+    def publish_pose(self) -> None:
+        st = self.driver.state()
+        x, y, z, rx, ry, rz = st.pose
+        sx, sy, sz = st.speed_mm_s[:3]
+        self.pose_pub.publish(RobotPose(stamp_ns=st.stamp_ns, x_mm=x, y_mm=y, z_mm=z, rx_rad=rx, ry_rad=ry,
+                                        rz_rad=rz, speed_mm_s=math.sqrt(sx * sx + sy * sy + sz * sz),
+                                        force_z_n=st.force_n[2]))
+
+    def publish_status(self) -> None:
+        self.status_pub.publish(ScanStatus(
+            stamp_ns=self.clock.now_ns(), state=self.state, line=self.meter.line, lines=self.plan.line_count,
+            progress=self.meter.progress, eta_s=self.meter.eta_s, message=self.message,
+        ))
+
+    def on_shutdown(self) -> None:
+        try:
+            if self.state not in ("done",):
+                self.driver.stop(self.params.max_accel_mm_s2)
+        finally:
+            self.driver.close()
+
+
+if __name__ == "__main__":
+    palpa.run_node(RobotScanner)
