@@ -233,41 +233,51 @@ class UrController:
             elif name.startswith("input_double_register_"):
                 self.in_double[int(name.rsplit("_", 1)[1])] = float(value)  # type: ignore[arg-type]
 
-    def read_outputs(self, names: Sequence[str]) -> list[object]:
-        return [self.output(n) for n in names]
-
     def output(self, name: str) -> object:
         """Current value of an RTDE output field, in UR's units (m, rad, N, s)."""
-        p, v = self.arm.pose, self.arm.tcp_speed
+        return self.getter(name)()
+
+    def getter(self, name: str) -> Callable[[], object]:
+        """A function returning the current value of RTDE output `name` (resolved once per
+        recipe, so streaming 500 packages a second costs one call per field)."""
+        arm = self.arm
         if name in ("actual_TCP_pose", "target_TCP_pose"):
-            return (p[0] / 1000, p[1] / 1000, p[2] / 1000, p[3], p[4], p[5])
+            return lambda: tuple(v / 1000 if i < 3 else v for i, v in enumerate(arm.pose))
         if name in ("actual_TCP_speed", "target_TCP_speed"):
-            return (v[0] / 1000, v[1] / 1000, v[2] / 1000, v[3], v[4], v[5])
+            return lambda: tuple(v / 1000 if i < 3 else v for i, v in enumerate(arm.tcp_speed))
         if name in ("actual_TCP_force", "ft_raw_wrench"):
-            return tuple(f - o for f, o in zip(self.force, self._force_offset, strict=True))
-        simple: dict[str, object] = {
-            "timestamp": self.ticks * TICK_S, "runtime_state": self.runtime_state,
-            "robot_status_bits": self.robot_status_bits, "safety_status_bits": self.safety_status_bits,
-            "robot_mode": ROBOT_MODE_RUNNING, "safety_mode": self.safety_mode, "safety_status": self.safety_mode,
-            "speed_scaling": 1.0, "target_speed_fraction": 1.0, "actual_main_voltage": 48.0,
-            "actual_robot_voltage": 48.0, "joint_mode": (253,) * 6, "joint_temperatures": (30.0,) * 6,
-            "actual_joint_voltage": (48.0,) * 6, "tcp_force_scalar": math.hypot(*self.force[:3]),
+            return lambda: tuple(f - o for f, o in zip(self.force, self._force_offset, strict=True))
+        dynamic: dict[str, Callable[[], object]] = {
+            "timestamp": lambda: self.ticks * TICK_S,
+            "runtime_state": lambda: self.runtime_state,
+            "robot_status_bits": lambda: self.robot_status_bits,
+            "safety_status_bits": lambda: self.safety_status_bits,
+            "safety_mode": lambda: self.safety_mode,
+            "safety_status": lambda: self.safety_mode,
+            "tcp_force_scalar": lambda: math.hypot(*self.force[:3]),
         }
-        if name in simple:
-            return simple[name]
+        if name in dynamic:
+            return dynamic[name]
+        constant: dict[str, object] = {
+            "robot_mode": ROBOT_MODE_RUNNING, "speed_scaling": 1.0, "target_speed_fraction": 1.0,
+            "actual_main_voltage": 48.0, "actual_robot_voltage": 48.0, "joint_mode": (253,) * 6,
+            "joint_temperatures": (30.0,) * 6, "actual_joint_voltage": (48.0,) * 6,
+        }
+        if name in constant:
+            value = constant[name]
+            return lambda: value
         kind, _, idx = name.rpartition("_")
-        if kind == "output_int_register":
-            return self.out_int[int(idx)]
-        if kind == "output_double_register":
-            return self.out_double[int(idx)]
-        if kind == "input_int_register":
-            return self.in_int[int(idx)]
-        if kind == "input_double_register":
-            return self.in_double[int(idx)]
-        t = OUTPUT_TYPES[name]  # not modelled: a zero of the right shape
+        registers: dict[str, list[int] | list[float]] = {
+            "output_int_register": self.out_int, "output_double_register": self.out_double,
+            "input_int_register": self.in_int, "input_double_register": self.in_double}
+        if kind in registers:
+            regs, i = registers[kind], int(idx)
+            return lambda: regs[i]
+        t = OUTPUT_TYPES[name]  # not modelled (joints, I/O, ...): a zero of the right shape
         width = {"VECTOR3D": 3, "VECTOR6D": 6, "VECTOR6INT32": 6}.get(t, 0)
         zero: object = 0.0 if t in ("DOUBLE", "VECTOR3D", "VECTOR6D") else (False if t == "BOOL" else 0)
-        return (zero,) * width if width else zero
+        fixed = (zero,) * width if width else zero
+        return lambda: fixed
 
     # ------------------------------------------------------------------ tick
     def tick(self) -> None:

@@ -119,6 +119,7 @@ class OutputRecipe:
     names: list[str]
     types: list[str]
     packer: struct.Struct
+    getters: list[Callable[[], object]]
     period_ticks: int
     next_tick: int = 0
 
@@ -135,17 +136,17 @@ class RtdeSession:
     """Protocol state of one RTDE connection. `handle` answers one client message (returns the
     reply frames); `due_packages` builds the data packages due at a controller tick.
 
-    `read_outputs(names)` returns the current values of output fields (vectors as sequences);
-    `write_inputs(names, values)` applies an input data package. Both are called with whatever
-    lock the caller holds; the session itself has no threads and no socket.
+    `getter(name)` returns a function giving the current value of an output field (vectors as
+    sequences); `write_inputs(names, values)` applies an input data package. Both are called
+    with whatever lock the caller holds; the session itself has no threads and no socket.
     """
 
     def __init__(self, controller_version: tuple[int, int, int, int],
-                 read_outputs: Callable[[Sequence[str]], list[object]],
+                 getter: Callable[[str], Callable[[], object]],
                  write_inputs: Callable[[Sequence[str], Sequence[object]], None],
                  log: Callable[[str], None], tick_hz: float = MAX_RATE_HZ) -> None:
         self.controller_version = controller_version
-        self._read, self._write, self._log = read_outputs, write_inputs, log
+        self._getter, self._write, self._log = getter, write_inputs, log
         self.tick_hz = tick_hz
         self.protocol = 1
         self.outputs: list[OutputRecipe] = []
@@ -194,7 +195,7 @@ class RtdeSession:
             if tick < r.next_tick:
                 continue
             r.next_tick = max(r.next_tick + r.period_ticks, tick + 1)
-            values = flatten(self._read(r.names))
+            values = flatten([g() for g in r.getters])
             out.append(frame(MSG_DATA, struct.pack(">B", r.recipe_id) + r.packer.pack(*values)))
         return out
 
@@ -211,7 +212,8 @@ class RtdeSession:
             self._log(f"RTDE output setup refused: frequency {freq} Hz, unknown fields {missing}")
             return frame(MSG_SETUP_OUTPUTS, struct.pack(">B", 0) + ",".join(types).encode())
         period = max(1, round(self.tick_hz / freq))
-        recipe = OutputRecipe(len(self.outputs) + 1, names, types, recipe_struct(types), period, tick + 1)
+        recipe = OutputRecipe(len(self.outputs) + 1, names, types, recipe_struct(types),
+                              [self._getter(n) for n in names], period, tick + 1)
         self.outputs.append(recipe)
         return frame(MSG_SETUP_OUTPUTS, struct.pack(">B", recipe.recipe_id) + ",".join(types).encode())
 

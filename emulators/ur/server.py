@@ -300,7 +300,7 @@ class UrEmulator:
 
     def _serve_rtde(self, conn: _Conn) -> None:
         ctl = self.controller
-        session = RtdeSession(ctl.config.controller_version, ctl.read_outputs, ctl.write_inputs, ctl.log)
+        session = RtdeSession(ctl.config.controller_version, ctl.getter, ctl.write_inputs, ctl.log)
         with self._guard:
             self._sessions.append((conn, session))
         while not conn.closed:

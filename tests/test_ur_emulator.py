@@ -1,0 +1,371 @@
+"""The UR controller emulator, driven by the real ur_rtde client and by raw protocol clients.
+
+ur_rtde's Python calls hold the GIL while they block, so every test that uses ur_rtde runs
+the emulator in a child process (UrEmulatorProcess) on its own random 127.x.y.z address.
+Protocol-level tests without ur_rtde run the emulator in-process with OS-chosen ports.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import socket
+import struct
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from emulators.ur import ControllerConfig, FaultPlan, UrController, UrEmulator
+from emulators.ur.process import UrEmulatorProcess
+from emulators.ur.script import ScriptReceiver, parse_path
+from models.arm import ArmTarget
+
+rtde_control = pytest.importorskip("rtde_control")
+rtde_receive = pytest.importorskip("rtde_receive")
+
+DOWN = math.pi
+HOME_M = (0.3, 0.0, 0.3, 0.0, DOWN, 0.0)
+
+
+def random_host() -> str:
+    return UrEmulatorProcess.on_random_loopback().host
+
+
+@pytest.fixture
+def emu(request: pytest.FixtureRequest) -> Iterator[UrEmulatorProcess]:
+    """A fresh emulator process; extra CLI flags by indirect parametrisation."""
+    args = ["--unlock-delay", "0", *getattr(request, "param", ())]
+    proc = UrEmulatorProcess.on_random_loopback(args)
+    proc.start()
+    try:
+        yield proc
+    finally:
+        code = proc.stop()
+        print(proc.log())  # shown by pytest when the test failed
+        assert code == 0, f"emulator exited with {code}"
+
+
+def emu_args(*args: str) -> pytest.MarkDecorator:
+    return pytest.mark.parametrize("emu", [args], indirect=True, ids=["-".join(a.strip("-") for a in args)])
+
+
+class Clients:
+    """ur_rtde receive + control interfaces, always disconnected at the end."""
+
+    def __init__(self, host: str, control: bool = True) -> None:
+        self.r = rtde_receive.RTDEReceiveInterface(host)
+        self.c = rtde_control.RTDEControlInterface(host) if control else None
+
+    def close(self) -> None:
+        for iface in (self.c, self.r):
+            if iface is not None:
+                with contextlib.suppress(RuntimeError):
+                    iface.disconnect()
+
+
+@pytest.fixture
+def clients(emu: UrEmulatorProcess) -> Iterator[Clients]:
+    cl = Clients(emu.host)
+    try:
+        yield cl
+    finally:
+        cl.close()
+
+
+def wait_for(cond: Any, timeout_s: float, what: str, poll_s: float = 0.005) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not cond():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+        time.sleep(poll_s)
+
+
+def reached(pose: list[float], target: list[float], tol_m: float = 1e-4) -> bool:
+    """Position within tol_m (0.1 mm) of the target."""
+    return max(abs(a - b) for a, b in zip(pose[:3], target[:3], strict=True)) < tol_m
+
+
+def raster(n: int = 20, speed: float = 0.1, accel: float = 2.0, blend: float = 0.0005) -> list[list[float]]:
+    """n waypoints of a boustrophedon over 10 mm lines 2 mm apart, starting 20 mm below home
+    (ur_rtde path rows: x, y, z, rx, ry, rz in m and rad, speed, acceleration, blend)."""
+    path = []
+    for i in range(n):
+        line, end = divmod(i, 2)
+        y = 0.01 if (line % 2 == 0) == (end == 1) else 0.0
+        path.append([0.3 + 0.002 * line, y, 0.28, 0.0, DOWN, 0.0, speed, accel, blend if i < n - 1 else 0.0])
+    return path
+
+
+# --------------------------------------------------------------------------------- with ur_rtde
+
+
+@pytest.mark.timeout(15)
+def test_connect_and_moveL_reaches_the_pose(emu: UrEmulatorProcess, clients: Clients) -> None:
+    assert clients.r.getActualTCPPose() == pytest.approx(list(HOME_M))
+    assert clients.c.isProgramRunning()
+    target = [0.32, 0.015, 0.26, 0.0, DOWN, 0.0]
+    assert clients.c.moveL(target, 0.1, 0.5)  # synchronous: returns once the move is done
+    assert emu.state()["pose_mm"][:3] == pytest.approx([320.0, 15.0, 260.0], abs=1e-6)
+    # the receive interface has its own stream, which may trail the control one by a few packages
+    wait_for(lambda: reached(clients.r.getActualTCPPose(), target), 2.0, "the streamed pose to arrive")
+
+
+@pytest.mark.timeout(15)
+def test_raster_path_of_20_waypoints_reports_progress(emu: UrEmulatorProcess, clients: Clients) -> None:
+    path = raster(20)
+    assert clients.c.moveL(path, True)  # asynchronous
+    seen: list[int] = []
+    wait_for(lambda: clients.c.getAsyncOperationProgress() >= 0, 2.0, "the path to start")
+    while (p := clients.c.getAsyncOperationProgress()) >= 0:
+        if not seen or seen[-1] != p:
+            seen.append(p)
+        time.sleep(0.002)
+    assert seen == sorted(seen) and seen[0] == 0 and seen[-1] == 19
+    assert len(seen) >= 15  # 10 mm lines at 100 mm/s: each waypoint is current for tens of ms
+    assert emu.state()["pose_mm"][:3] == pytest.approx([v * 1000 for v in path[-1][:3]], abs=1e-6)
+    wait_for(lambda: reached(clients.r.getActualTCPPose(), path[-1]), 2.0, "the streamed pose to arrive")
+    assert clients.c.getAsyncOperationProgressEx().isAsyncOperationRunning() is False
+
+
+@pytest.mark.timeout(15)
+@emu_args("--pstop-after-waypoints", "5")
+def test_protective_stop_mid_path_is_seen_by_the_client(emu: UrEmulatorProcess, clients: Clients) -> None:
+    path = raster(20)
+    assert clients.c.moveL(path, True)
+    wait_for(clients.r.isProtectiveStopped, 5.0, "the protective stop")
+    assert clients.r.getSafetyStatusBits() & (1 << 2)
+    assert not clients.c.isProgramRunning()
+    wait_for(lambda: emu.state()["moving"] is False, 2.0, "the arm to stop")
+    stopped_at = clients.r.getActualTCPPose()
+    assert stopped_at[:3] != pytest.approx(path[-1][:3], abs=1e-3)
+    assert 4 <= emu.state()["path_index"] <= 6
+    # the controller refuses motion until the stop is unlocked; then the script runs again
+    assert clients.c.moveL([0.3, 0.0, 0.3, 0.0, DOWN, 0.0], 0.1, 1.0) is False
+    assert emu.command("unlock")["reply"] == "Protective stop releasing"
+    assert clients.c.reuploadScript()
+    wait_for(clients.c.isProgramRunning, 2.0, "the control script to run again")
+    assert clients.c.moveL([0.3, 0.0, 0.3, 0.0, DOWN, 0.0], 0.1, 1.0)
+
+
+@pytest.mark.timeout(15)
+@emu_args("--local-control")
+def test_dashboard_refusing_remote_control_is_a_clear_error(emu: UrEmulatorProcess) -> None:
+    with pytest.raises(RuntimeError, match="enable remote control"):
+        rtde_control.RTDEControlInterface(emu.host)
+    assert emu.command("program")["source"] == ""  # refused before any script was sent
+
+
+@pytest.mark.timeout(15)
+def test_reconnect_after_a_dropped_connection(emu: UrEmulatorProcess, clients: Clients) -> None:
+    emu.command("drop 0.5")  # close every connection and refuse new ones for 0.5 s
+    wait_for(lambda: not clients.r.isConnected(), 3.0, "the receive interface to notice")
+    wait_for(lambda: not clients.c.isConnected(), 3.0, "the control interface to give up")
+    emu.wait_state(lambda st: st["clients"] == 0, 2.0)
+    deadline = time.monotonic() + 3.0
+    while True:  # the refusal window is short; retry until it has passed
+        try:
+            assert clients.r.reconnect()
+            break
+        except RuntimeError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+    assert clients.c.reconnect()
+    assert clients.c.moveL([0.31, 0.0, 0.3, 0.0, DOWN, 0.0], 0.1, 1.0)
+    wait_for(lambda: reached(clients.r.getActualTCPPose(), [0.31, 0.0, 0.3]), 2.0, "the new pose")
+
+
+@pytest.mark.timeout(15)
+def test_short_streaming_pause_is_tolerated_and_the_watchdog_stops_the_program(
+        emu: UrEmulatorProcess, clients: Clients) -> None:
+    t0 = clients.r.getTimestamp()
+    emu.command("pause 0.5")
+    wait_for(lambda: clients.r.getTimestamp() > t0 + 0.6, 3.0, "the stream to resume")
+    assert clients.r.isConnected() and clients.c.isConnected()
+    assert clients.c.setWatchdog(10.0)  # then never kicked: the program must stop within 0.1 s
+    wait_for(lambda: not clients.c.isProgramRunning(), 2.0, "the watchdog to stop the program")
+    assert any("watchdog" in m for m in emu.command("messages")["messages"])
+
+
+@pytest.mark.timeout(15)
+def test_stopL_decelerates_an_async_move(emu: UrEmulatorProcess, clients: Clients) -> None:
+    assert clients.c.moveL([0.3, 0.1, 0.3, 0.0, DOWN, 0.0], 0.1, 1.0, True)
+    wait_for(lambda: clients.r.getActualTCPSpeed()[1] > 0.09, 2.0, "cruising speed")
+    y0 = emu.state()["pose_mm"][1]
+    clients.c.stopL(2.0)  # 0.1 m/s at 2 m/s^2: 2.5 mm to rest (returns at rest)
+    st = emu.wait_state(lambda st: not st["moving"], 2.0)
+    assert 1.0 < st["pose_mm"][1] - y0 < 10.0  # ~2.5 mm plus what the call's latency allows
+    assert st["pose_mm"][1] < 90.0
+
+
+@pytest.mark.timeout(15)
+def test_upper_range_registers(emu: UrEmulatorProcess) -> None:
+    flags = rtde_control.RTDEControlInterface.FLAG_UPLOAD_SCRIPT | rtde_control.RTDEControlInterface.FLAG_UPPER_RANGE_REGISTERS
+    c = rtde_control.RTDEControlInterface(emu.host, -1.0, flags)
+    try:
+        assert c.moveL([0.3, 0.02, 0.3, 0.0, DOWN, 0.0], 0.1, 1.0)
+        assert emu.state()["pose_mm"][1] == pytest.approx(20.0, abs=1e-6)
+    finally:
+        c.disconnect()
+
+
+# ------------------------------------------------------------------------ without ur_rtde
+
+
+def _recv_exact(sock: socket.socket, n: int) -> bytes:
+    buf = b""
+    while len(buf) < n:
+        chunk = sock.recv(n - len(buf))
+        assert chunk, "connection closed"
+        buf += chunk
+    return buf
+
+
+def rtde_call(sock: socket.socket, msg_type: bytes, payload: bytes = b"") -> tuple[bytes, bytes]:
+    sock.sendall(struct.pack(">HB", 3 + len(payload), msg_type[0]) + payload)
+    return rtde_read(sock)
+
+
+def rtde_read(sock: socket.socket) -> tuple[bytes, bytes]:
+    size, kind = struct.unpack(">HB", _recv_exact(sock, 3))
+    return bytes([kind]), _recv_exact(sock, size - 3)
+
+
+@pytest.fixture
+def inproc() -> Iterator[UrEmulator]:
+    emulator = UrEmulator(random_host(), dashboard_port=0, script_port=0, rtde_port=0, log=lambda m: None)
+    with emulator:
+        yield emulator
+    assert emulator.threads_alive() == []
+
+
+@pytest.mark.timeout(10)
+def test_rtde_protocol_types_recipe_ids_and_500_hz_stream(inproc: UrEmulator) -> None:
+    with socket.create_connection((inproc.host, inproc.ports["rtde"]), timeout=5) as s:
+        assert rtde_call(s, b"V", struct.pack(">H", 2)) == (b"V", b"\x01")
+        kind, body = rtde_call(s, b"v")
+        assert kind == b"v" and struct.unpack(">IIII", body)[:2] == (5, 11)
+        kind, body = rtde_call(s, b"O", struct.pack(">d", 500.0) + b"timestamp,no_such_field,")
+        assert body[0] == 0 and body[1:].decode().split(",") == ["DOUBLE", "NOT_FOUND"]
+        names = b"timestamp,runtime_state,actual_TCP_pose,safety_status_bits,output_int_register_0,"
+        kind, body = rtde_call(s, b"O", struct.pack(">d", 500.0) + names)
+        assert body[0] == 1 and body[1:].decode().split(",") == ["DOUBLE", "UINT32", "VECTOR6D", "UINT32", "INT32"]
+        ids = [rtde_call(s, b"I", f"input_int_register_{i},input_double_register_{i},".encode())[1][0] for i in range(3)]
+        assert ids == [1, 2, 3]
+        s.sendall(struct.pack(">HB", 3 + 1 + 12, ord("U")) + struct.pack(">Bid", 2, 7, 0.5))  # writes reg 1
+        assert rtde_call(s, b"S") == (b"S", b"\x01")
+        stamps = []
+        while len(stamps) < 20:
+            kind, body = rtde_read(s)
+            if kind == b"U":
+                values = struct.unpack(">BdI6dIi", body)
+                assert values[0] == 1 and values[2] == 1 and values[3:6] == pytest.approx((0.3, 0.0, 0.3))
+                stamps.append(values[1])
+        steps = [round((b - a) / 0.002) for a, b in zip(stamps, stamps[1:], strict=False)]
+        assert min(steps) >= 1 and steps.count(1) >= len(steps) // 2  # one package per 2 ms tick
+    with inproc.controller.lock:
+        assert inproc.controller.in_int[1] == 7 and inproc.controller.in_double[1] == 0.5
+
+
+@pytest.mark.timeout(10)
+def test_dashboard_replies_and_local_control(inproc: UrEmulator) -> None:
+    with socket.create_connection((inproc.host, inproc.ports["dashboard"]), timeout=5) as s:
+        f = s.makefile("rw", newline="\n")
+        assert "Dashboard Server" in f.readline()
+
+        def ask(cmd: str) -> str:
+            f.write(cmd + "\n")
+            f.flush()
+            return f.readline().strip()
+
+        assert "5.11" in ask("PolyscopeVersion")
+        assert ask("get serial number").isdigit()
+        assert ask("is in remote control") == "true"
+        assert ask("safetystatus") == "Safetystatus: NORMAL"
+        inproc.protective_stop("test")
+        assert ask("safetymode") == "Safetymode: PROTECTIVE_STOP"
+        assert ask("unlock protective stop").startswith("Cannot unlock protective stop until 5s")
+        inproc.set_remote_control(False)
+        assert ask("is in remote control") == "false"
+        assert "not allowed" in ask("stop")
+        assert ask("robotmode") == "Robotmode: RUNNING"  # read-only commands still answer
+        assert ask("bogus").startswith("could not understand")
+        assert ask("quit") == "Disconnected"
+
+
+def test_unlock_waits_for_the_configured_delay() -> None:
+    ctl = UrController(ControllerConfig(unlock_delay_s=0.1))
+    ctl.protective_stop("test")
+    assert ctl.unlock_protective_stop().startswith("Cannot unlock protective stop")
+    for _ in range(60):
+        ctl.tick()
+    assert ctl.unlock_protective_stop() == "Protective stop releasing" and not ctl.protective_stopped
+
+
+class FlatPhantom:
+    """A 10 mm thick slab of 26.4 kPa tissue (no models.phantom needed)."""
+
+    youngs_modulus_kpa = 26.4
+    poisson_ratio = 0.5
+
+    def surface_z(self, x_mm: float, y_mm: float) -> float:
+        return 10.0
+
+
+def test_contact_force_follows_hertz_and_the_force_limit_protective_stops() -> None:
+    cfg = ControllerConfig(home_pose=(20.0, 20.0, 12.0, 0.0, DOWN, 0.0), force_limit_n=1.0)
+    ctl = UrController(cfg, phantom=FlatPhantom())
+    ctl.tick()
+    assert ctl.force[2] == 0.0  # 2 mm above the surface
+    ctl.arm.move_l((20.0, 20.0, 9.0, 0.0, DOWN, 0.0), 20.0, 400.0)  # 1 mm into the tissue
+    for _ in range(200):
+        ctl.tick()
+    # eq. 6 solved for F: 8 E d sqrt(r d) / (6 (1 - nu^2)), E in N/mm^2
+    expected = 8 * 26.4e-3 * 1.0 * math.sqrt(3.5 * 1.0) / (6 * 0.75)
+    assert ctl.force[2] == pytest.approx(expected, rel=1e-6)
+    assert ctl.output("actual_TCP_force")[2] == pytest.approx(expected)  # type: ignore[index]
+    ctl.arm.move_l((20.0, 20.0, 0.0, 0.0, DOWN, 0.0), 20.0, 400.0)  # press on: the force limit trips
+    for _ in range(600):
+        ctl.tick()
+    assert ctl.protective_stopped and ctl.arm.pose[2] > 3.0 and not ctl.arm.is_moving  # ~1 N at 4.4 mm
+    assert any("exceeds the 1 N limit" in m for m in ctl.messages)
+
+
+def test_fault_plan_fires_once_timed_from_the_first_motion() -> None:
+    ctl = UrController()
+    ctl.arm_faults(FaultPlan(pstop_at_s=0.1, pause_stream_at_s=0.05, pause_stream_for_s=0.2))
+    for _ in range(100):
+        ctl.tick()
+    assert not ctl.protective_stopped  # nothing moved yet
+    ctl.start_motion([ArmTarget((350.0, 0.0, 300.0, 0.0, DOWN, 0.0), 50.0, 500.0)])
+    for _ in range(30):
+        ctl.tick()
+    assert ctl.ticks < ctl.stream_paused_until
+    for _ in range(30):
+        ctl.tick()
+    assert ctl.protective_stopped and ctl.faults is not None and ctl.faults.fired == {"pause", "pstop_t"}
+
+
+def test_script_receiver_and_injected_path_parsing() -> None:
+    rx = ScriptReceiver()
+    text = ("def rtde_control():\n    global reg_offset_float = # float register offset\n24    global x = 1\n"
+            "    def exec_move_path():\n        # inject move path\n\tsignal_async_progress(0)\n"
+            "\tmovel(p[0.3,1e-05,-0.2,0,3.14159,0],a=1.2,v=0.25,r=0)\n\tsignal_async_progress(1)\n"
+            "\tmovel(p[0.31,0.01,0.2,0,3.14159,0],a=1.2,v=0.25,r=0.002)\n    end\nend\nstopl(2)\n")
+    units = [u for i in range(0, len(text), 7) for u in rx.feed(text[i:i + 7])]  # arrives in pieces
+    assert [k for k, _ in units] == ["program", "statement"] and units[1][1] == "stopl(2)"
+    moves = parse_path(units[0][1])
+    assert [m.values[1] for m in moves] == [1e-05, 0.01] and moves[1].r == 0.002 and moves[0].v == 0.25
+
+
+@pytest.mark.timeout(10)
+def test_cli_reports_a_busy_address_and_exits_1(inproc: UrEmulator) -> None:
+    cmd = [sys.executable, "-m", "emulators.ur", "--host", inproc.host, "--dashboard-port", str(inproc.ports["dashboard"]),
+           "--script-port", "0", "--rtde-port", "0"]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=8)
+    assert res.returncode == 1
+    assert f"cannot listen on {inproc.host}:{inproc.ports['dashboard']} (dashboard)" in res.stderr
