@@ -63,7 +63,7 @@ class RobotScanner(palpa.Node):
         max_accel_mm_s2: float = 1000.0
         watch_topic: Literal["probe/heights", "camera/indenters", ""] = "probe/heights"
         """Probe data that must stay fresh while moving ('' disables the watchdog: bench tests only)."""
-        watchdog_s: float = 0.1
+        watchdog_s: float = 0.05
         startup_timeout_s: float = 10.0
         """How long to wait for the probe's first data before giving up."""
         pose_rate_hz: float = 250.0

@@ -1,0 +1,116 @@
+"""Robot scanner safety and progress, on the simulated arm (deterministic, mock clock)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import pytest
+
+import palpa
+from messages import EStop, PressureState, ProbeHeights
+from nodes.robot_scanner import RobotScanner
+from palpa.testing import NodeHarness
+
+SMALL: dict[str, Any] = {"region_mm": [10, 10, 20, 20], "spacing_mm": 5, "speed_mm_s": 20, "home_mm": [10, 10, 20]}
+
+
+def heights(h: NodeHarness[RobotScanner]) -> None:
+    h.publish("probe/heights", ProbeHeights(stamp_ns=h.clock.now_ns(), seq=0, h_mm=(1, 1, 1, 2), raw=(0, 0, 0, 0),
+                                            d_in_mm=1.0, tilt_rad=0.0))
+
+
+def run_with_probe(h: NodeHarness[RobotScanner], seconds: float, step: float = 0.002) -> None:
+    for _ in range(int(seconds / step)):
+        heights(h)
+        h.advance(step)
+
+
+def speed(h: NodeHarness[RobotScanner]) -> float:
+    return float(h.published("robot/pose")[-1].speed_mm_s)
+
+
+def test_scan_completes_with_progress_and_exit_0() -> None:
+    h = NodeHarness(RobotScanner, SMALL)
+    plan = h.published("robot/plan")
+    assert len(plan) == 1 and plan[0].lines == 3 and plan[0].waypoints  # latched plan before any motion
+    assert h.published("robot/scan_status")[-1].state == "waiting"
+    seen_progress = []
+    for _ in range(200):
+        run_with_probe(h, 0.1)
+        st = h.published("robot/scan_status")[-1]
+        seen_progress.append(st.progress)
+        if h.node.is_shutdown:
+            break
+    assert h.node.is_shutdown and h.node.exit_code == 0
+    assert st.state == "done" and st.progress == 1.0 and st.eta_s == 0.0
+    assert seen_progress == sorted(seen_progress) and 0 < seen_progress[len(seen_progress) // 2] < 1
+    poses = h.published("robot/pose")
+    rate = len(poses) / ((poses[-1].stamp_ns - poses[0].stamp_ns) / 1e9)
+    assert rate >= 125
+
+
+def test_plan_leaving_the_box_is_refused_before_motion() -> None:
+    with pytest.raises(palpa.ParamError, match=r"refusing the plan before any motion: waypoint \d+ .*x"):
+        NodeHarness(RobotScanner, {**SMALL, "region_mm": [10, 10, 80, 20]})
+
+
+def test_speed_over_cap_is_refused() -> None:
+    with pytest.raises(palpa.ParamError, match=r"waypoint \d+ .* asks 80 mm/s.* over the caps 50 mm/s"):
+        NodeHarness(RobotScanner, {**SMALL, "speed_mm_s": 80.0})
+
+
+def test_start_outside_the_box_is_refused() -> None:
+    with pytest.raises(palpa.ParamError, match="current pose is outside the workspace box"):
+        NodeHarness(RobotScanner, {**SMALL, "home_mm": [10, 10, 65]})
+
+
+def moving(h: NodeHarness[RobotScanner]) -> None:
+    for _ in range(300):
+        run_with_probe(h, 0.05)
+        if speed(h) > 15:
+            return
+    raise AssertionError("the arm never got up to speed")
+
+
+def test_stale_probe_data_stops_the_arm_within_100_ms() -> None:
+    h = NodeHarness(RobotScanner, SMALL)
+    moving(h)
+    stale_from = h.clock.now_ns()
+    h.advance(0.1)  # no more probe data
+    st = h.published("robot/scan_status")[-1]
+    assert st.state == "fault" and "stale" in st.message
+    last = h.published("robot/pose")[-1]  # the pose stream runs at 250 Hz: the last one is within 4 ms
+    assert stale_from + 96_000_000 <= last.stamp_ns <= stale_from + 100_000_000 and last.speed_mm_s == 0.0
+    h.advance(1.0)
+    assert h.node.exit_code == 1
+
+
+def test_pressure_fault_stops_the_arm() -> None:
+    h = NodeHarness(RobotScanner, SMALL)
+    moving(h)
+    h.publish("pressure/state", PressureState(stamp_ns=h.clock.now_ns(), setpoint_kpa=0, measured_kpa=70,
+                                              force_n=0, mode="vent", max_kpa=60, faults=["over_pressure"]))
+    run_with_probe(h, 0.1)
+    st = h.published("robot/scan_status")[-1]
+    assert st.state == "fault" and "over_pressure" in st.message and speed(h) == 0.0
+
+
+def test_estop_stops_at_once() -> None:
+    h = NodeHarness(RobotScanner, SMALL)
+    moving(h)
+    h.publish("robot/estop", EStop(stamp_ns=h.clock.now_ns(), reason="operator"))
+    assert h.published("robot/scan_status")[-1].state == "estop"  # in the same callback
+    run_with_probe(h, 0.05)  # 20 mm/s at 1000 mm/s^2 stops in 20 ms
+    assert speed(h) == 0.0
+    pose = h.published("robot/pose")[-1]
+    run_with_probe(h, 0.2)
+    assert math.isclose(h.published("robot/pose")[-1].x_mm, pose.x_mm)
+
+
+def test_no_probe_data_at_start_is_a_fault_without_motion() -> None:
+    h = NodeHarness(RobotScanner, {**SMALL, "startup_timeout_s": 1.0})
+    h.advance(1.5)
+    st = h.published("robot/scan_status")[-1]
+    assert st.state == "fault" and "no probe data" in st.message
+    assert all(p.speed_mm_s == 0.0 for p in h.published("robot/pose"))
