@@ -1,11 +1,12 @@
 """BagWriter: writes one chunked, indexed MCAP file, fast enough for the recorder's hot path.
 
-Every record except two is serialised by the ``mcap`` library's own record classes (Header, Schema, Channel,
-Chunk, ChunkIndex, Metadata, Attachment, Statistics, DataEnd, SummaryOffset, Footer). The two exceptions are
-the per-message records: the Message record inside a chunk and the Message Index records after it are packed
-with one ``struct`` call each, because ``mcap.writer.Writer.add_message`` costs ~5 us per message here (about
-200 k msg/s of 100 B, measured) — half the recorder's whole budget at 100 k msg/s. The byte layout is the one the
-spec and ``mcap.records.Message.write`` define; the tests read every file back with ``mcap.reader.make_reader``.
+Every record except three is serialised by the ``mcap`` library's own record classes (Header, Schema, Channel,
+ChunkIndex, Metadata, Attachment, Statistics, DataEnd, SummaryOffset, Footer). The exceptions are on the hot
+path: the Message records inside a chunk and the Message Index records after it are packed with one ``struct``
+call each, because ``mcap.writer.Writer.add_message`` costs ~5 us per message here (about 200 k msg/s of 100 B,
+measured) — half the recorder's whole budget at 100 k msg/s; and the Chunk record's header is packed by hand so
+a chunk of large messages is not copied twice more through a RecordBuilder. The byte layouts are the spec's
+(and ``mcap.records``'s); the tests read every file back with ``mcap.reader.make_reader``, CRCs checked.
 
 Crash safety: Schema and Channel records are written straight into the data section (outside chunks) when they
 are registered, and :meth:`BagWriter.flush` closes the open chunk and hands everything to the OS. A process
@@ -33,7 +34,6 @@ from mcap.records import (
     Attachment,
     AttachmentIndex,
     Channel,
-    Chunk,
     ChunkIndex,
     DataEnd,
     Footer,
@@ -52,17 +52,18 @@ __all__ = ["COMPRESSIONS", "BagWriter"]
 
 _MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel id, sequence, log time, publish time
 _MESSAGE_INDEX = struct.Struct("<BQHI")  # opcode, record length, channel id, byte length of the entries
+_CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, record length, start, end, uncompressed size, crc, name length
 _MESSAGE_FIXED = 2 + 4 + 8 + 8
 _LITTLE = sys.byteorder == "little"
 
 
-def _compressor(name: str) -> Callable[[bytes], bytes]:
+def _compressor(name: str) -> Callable[[bytearray], bytes | bytearray]:
     if name == "zstd":
         return zstandard.ZstdCompressor(level=1).compress
     if name == "lz4":
         return lz4.frame.compress  # type: ignore[no-any-return]
     if name == "":
-        return bytes
+        return lambda data: data
     raise BagError(f"unknown compression {name!r}: expected one of zstd, lz4, none")
 
 
@@ -214,17 +215,22 @@ class BagWriter:
     def _close_chunk(self) -> None:
         if not self._buf:
             return
-        data = bytes(self._buf)
+        data = self._buf  # compressed, checksummed and written as is: no copy of a possibly large buffer
         self._buf = bytearray()
         index = self._index
         self._index = {}
         start = min(min(e[0::2]) for e in index.values())
         end = max(max(e[0::2]) for e in index.values())
         compressed = self._compress(data)
-        chunk_offset, chunk_length = self._write_record(
-            Chunk(compression=self._compression, data=compressed, message_start_time=start,
-                  message_end_time=end, uncompressed_crc=zlib.crc32(data), uncompressed_size=len(data))
-        )
+        name = self._compression.encode()
+        # the Chunk record, laid out as mcap.records.Chunk.write does, but without copying the data twice
+        # through a RecordBuilder: start, end, uncompressed size, crc, compression, records
+        body_len = 8 + 8 + 8 + 4 + 4 + len(name) + 8 + len(compressed)
+        chunk_offset = self._pos
+        self._write(_CHUNK_HEAD.pack(Opcode.CHUNK, body_len, start, end, len(data), zlib.crc32(data), len(name))
+                    + name + struct.pack("<Q", len(compressed)))
+        self._write(compressed)
+        chunk_length = self._pos - chunk_offset
         offsets: dict[int, int] = {}
         index_start = self._pos
         for channel_id, entries in index.items():
