@@ -19,7 +19,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--loop", action="store_true", help="start over at the end")
     p.add_argument("--start-offset", type=float, default=0.0, metavar="S", help="skip the first S seconds")
     p.add_argument("--topics", nargs="+", default=[], metavar="REGEX",
-                   help="play only topics matching these regexes (whole name)")
+                   help="play only topics matching these regexes (whole name); put FILE before this option")
     p.add_argument("--exclude", action="append", default=[], metavar="REGEX", help="skip matching topics")
     p.add_argument("--remap", action="append", default=[], metavar="FROM:=TO", help="publish FROM as TO")
     p.add_argument("--clock", action="store_true", help="publish the recording's time on _palpa/clock")
