@@ -216,7 +216,7 @@ class URRtdeDriver:
 
     # -------------------------------------------------------------- internals
     def _latch(self, status: MotionStatus, message: str) -> None:
-        where = f" at waypoint {self._index} of {self._count}" if self._moving else ""
+        where = f" (the path was at waypoint {self._index} of {self._count})" if self._moving else ""
         self._status, self._message = status, f"{message}{where}"
         self._moving = False
         log.error("UR at %s: %s: %s", self.host, status.value, self._message)
@@ -299,18 +299,15 @@ class URRtdeDriver:
             self._teardown_locked()
 
     def _teardown_locked(self) -> None:
+        """Stop the script (which stops any motion) and drop both interfaces. ur_rtde's
+        destructors disconnect (0.5 s each); calling disconnect() too would wait twice."""
         rc, rr, self._rc, self._rr = self._rc, self._rr, None, None
         if rc is not None:
             try:
                 if rc.isConnected():
                     rc.stopScript()
-                rc.disconnect()
             except RuntimeError as e:
-                log.warning("UR at %s: closing the control interface: %s", self.host, e)
-        if rr is not None:
-            try:
-                rr.disconnect()
-            except RuntimeError as e:
-                log.warning("UR at %s: closing the receive interface: %s", self.host, e)
-        if rc is not None and self._status not in _LATCHED and self._moving:
-            self._status, self._message, self._moving = MotionStatus.STOPPED, "driver closed during the motion", False
+                log.warning("UR at %s: stopping the control script: %s", self.host, e)
+            if self._status not in _LATCHED and self._moving:
+                self._status, self._message, self._moving = MotionStatus.STOPPED, "driver closed during the motion", False
+        del rc, rr  # the last references: both interfaces disconnect here

@@ -1,0 +1,268 @@
+"""Robot drivers: the sim driver on a mock clock, the ur_rtde driver against the UR emulator.
+
+The ur_rtde tests run the emulator in a child process on a random 127.x.y.z address (ur_rtde's
+Python calls hold the GIL while they block, so an in-process emulator would starve).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+from typing import Any
+
+import pytest
+
+from emulators.ur.process import UrEmulatorProcess
+from models.raster import sweep_raster
+from nodes.drivers.robot import (
+    MotionStatus,
+    PathPoint,
+    RobotConnectionError,
+    RobotDriver,
+    RobotDriverError,
+)
+from nodes.drivers.robot_sim import SimRobotDriver
+from palpa.clock import MockClock
+
+pytest.importorskip("rtde_control")
+from nodes.drivers.robot_urrtde import URRtdeDriver  # noqa: E402
+
+OFFSET = (300.0, -40.0, 100.0)  # phantom origin in the robot base frame (mm)
+HOME = (0.0, 0.0, 40.0)  # phantom frame
+HOME_ARG = ",".join(str(h + o) for h, o in zip(HOME, OFFSET, strict=True)) + f",0,{math.pi},0"
+
+
+def raster(n: int = 20, speed: float = 100.0) -> list[PathPoint]:
+    """A boustrophedon of n waypoints over 10 mm lines, 2 mm apart, 20 mm above the table."""
+    pts = []
+    for i in range(n):
+        line, end = divmod(i, 2)
+        y = 10.0 if (line % 2 == 0) == (end == 1) else 0.0
+        pts.append(PathPoint(5.0 + 2.0 * line, y, 20.0, speed, 2000.0, 0.5))
+    return pts
+
+
+def wait_status(driver: RobotDriver, timeout_s: float, poll_s: float = 0.005) -> list[tuple[MotionStatus, int]]:
+    """Poll progress() until the status leaves MOVING; return the (status, index) changes seen."""
+    seen: list[tuple[MotionStatus, int]] = []
+    deadline = time.monotonic() + timeout_s
+    while True:
+        p = driver.progress()
+        if not seen or seen[-1] != (p.status, p.index):
+            seen.append((p.status, p.index))
+        if p.status is not MotionStatus.MOVING:
+            return seen
+        if time.monotonic() > deadline:
+            raise AssertionError(f"still moving after {timeout_s} s: {seen[-5:]}")
+        time.sleep(poll_s)
+
+
+# ------------------------------------------------------------------------------------- sim
+
+
+def run_sim(poll_every_s: float, clock: MockClock, total_s: float) -> list[Any]:
+    drv = SimRobotDriver(home_mm=HOME, clock=clock.now_ns, time_scale=1.0)
+    drv.connect()
+    drv.move_path(raster(6))
+    samples = []
+    t = 0.0
+    while t < total_s:
+        clock.advance(poll_every_s)
+        t += poll_every_s
+        drv.progress()
+    samples.append((drv.state().pose, drv.progress()))
+    return samples
+
+
+def test_sim_is_deterministic_whatever_the_polling() -> None:
+    a = run_sim(0.001, MockClock(), 0.9)
+    b = run_sim(0.3, MockClock(), 0.9)
+    assert a == b
+
+
+def test_sim_runs_a_raster_plan_to_its_end_and_time_scale_speeds_it_up() -> None:
+    plan = sweep_raster(5, 5, 25, 25, spacing_mm=5.0, speed_mm_s=20.0, contact_z_mm=5.0, accel_mm_s2=500.0)
+    ends = {}
+    for scale in (1.0, 10.0):
+        clock = MockClock()
+        drv = SimRobotDriver(home_mm=HOME, clock=clock.now_ns, time_scale=scale)
+        drv.connect()
+        drv.move_path(plan.waypoints)
+        wall = 0.0
+        while drv.progress().status is MotionStatus.MOVING:
+            clock.advance(0.05)
+            wall += 0.05
+            assert wall < 10 * plan.duration_s
+        assert drv.progress().index == len(plan.waypoints) - 1
+        ends[scale] = (drv.state().pose, wall)
+    assert ends[1.0][0] == ends[10.0][0]
+    assert ends[10.0][0][:3] == pytest.approx((plan.waypoints[-1].x_mm, plan.waypoints[-1].y_mm, plan.waypoints[-1].z_mm))
+    assert ends[10.0][1] == pytest.approx(ends[1.0][1] / 10, abs=0.1)
+
+
+def test_sim_stop_and_latched_faults() -> None:
+    clock = MockClock()
+    drv = SimRobotDriver(home_mm=HOME, clock=clock.now_ns)
+    drv.connect()
+    drv.move_path([PathPoint(0.0, 100.0, 40.0, 50.0, 500.0)])
+    clock.advance(1.0)
+    drv.stop(1000.0)
+    assert drv.progress().status is MotionStatus.STOPPED
+    clock.advance(1.0)
+    y = drv.state().pose[1]
+    assert 40.0 < y < 60.0 and drv.state().speed_mm_s == (0.0,) * 6
+    drv.move_path([PathPoint(0.0, 0.0, 40.0, 50.0, 500.0)])
+    drv.inject_fault(MotionStatus.PROTECTIVE_STOP, "injected")
+    with pytest.raises(RobotDriverError, match="protective_stop"):
+        drv.move_path([PathPoint(0.0, 0.0, 40.0, 50.0, 500.0)])
+    clock.advance(1.0)
+    assert drv.progress().status is MotionStatus.PROTECTIVE_STOP  # latched
+    drv.connect()
+    assert drv.progress().status is MotionStatus.IDLE
+
+
+def test_paths_over_the_caps_are_refused_naming_the_waypoint() -> None:
+    drv = SimRobotDriver(home_mm=HOME, clock=MockClock().now_ns, max_speed_mm_s=50.0)
+    drv.connect()
+    with pytest.raises(ValueError, match="waypoint 1: speed_mm_s must be in"):
+        drv.move_path([PathPoint(0, 0, 30, 10, 100), PathPoint(0, 10, 30, 80, 100)])
+    with pytest.raises(RobotDriverError, match="not connected"):
+        SimRobotDriver(clock=MockClock().now_ns).move_path([PathPoint(0, 0, 30, 10, 100)])
+
+
+# -------------------------------------------------------------------------------- ur_rtde
+
+
+@pytest.fixture
+def emu(request: pytest.FixtureRequest) -> Iterator[UrEmulatorProcess]:
+    args = ["--unlock-delay", "0", "--home", HOME_ARG, *getattr(request, "param", ())]
+    proc = UrEmulatorProcess.on_random_loopback(args)
+    proc.start()
+    try:
+        yield proc
+    finally:
+        code = proc.stop()
+        print(proc.log())  # shown by pytest when the test failed
+        assert code == 0, f"emulator exited with {code}"
+
+
+@pytest.fixture
+def ur(emu: UrEmulatorProcess) -> Iterator[URRtdeDriver]:
+    drv = URRtdeDriver(emu.host, frame_offset_mm=OFFSET, watchdog_hz=5.0)
+    try:
+        yield drv
+    finally:
+        drv.close()
+
+
+def emu_args(*args: str) -> pytest.MarkDecorator:
+    return pytest.mark.parametrize("emu", [args], indirect=True, ids=["-".join(a.strip("-") for a in args)])
+
+
+@pytest.mark.timeout(15)
+def test_ur_driver_runs_a_raster_and_ends_where_the_sim_does(emu: UrEmulatorProcess, ur: URRtdeDriver) -> None:
+    ur.connect()
+    assert ur.state().pose[:3] == pytest.approx(HOME, abs=1e-6)  # phantom frame, offset removed
+    path = raster(20)
+    ur.move_path(path)
+    seen = wait_status(ur, 10.0)
+    assert seen[-1] == (MotionStatus.DONE, 19)
+    indices = [i for s, i in seen if s is MotionStatus.MOVING]
+    assert indices == sorted(indices) and len(set(indices)) >= 15
+    base = emu.state()["pose_mm"]
+    assert base[:3] == pytest.approx([path[-1].x_mm + OFFSET[0], path[-1].y_mm + OFFSET[1], path[-1].z_mm + OFFSET[2]],
+                                     abs=1e-3)
+    clock = MockClock()
+    sim = SimRobotDriver(home_mm=HOME, clock=clock.now_ns)
+    sim.connect()
+    sim.move_path(path)
+    while sim.progress().status is MotionStatus.MOVING:
+        clock.advance(0.1)
+    assert sim.progress() == ur.progress()
+    deadline = time.monotonic() + 2.0  # the receive stream may trail the control one slightly
+    while max(abs(a - b) for a, b in zip(ur.state().pose[:3], sim.state().pose[:3], strict=True)) > 0.1:
+        assert time.monotonic() < deadline, (ur.state().pose, sim.state().pose)
+        time.sleep(0.01)
+    # a second path after DONE must not report the previous DONE
+    ur.move_path([PathPoint(5.0, 5.0, 25.0, 50.0, 1000.0)])
+    assert ur.progress().status is MotionStatus.MOVING
+    assert wait_status(ur, 5.0)[-1] == (MotionStatus.DONE, 0)
+
+
+@pytest.mark.timeout(15)
+@emu_args("--pstop-after-waypoints", "5")
+def test_ur_driver_reports_a_protective_stop_and_only_reconnects_when_asked(
+        emu: UrEmulatorProcess, ur: URRtdeDriver) -> None:
+    ur.connect()
+    ur.move_path(raster(20))
+    seen = wait_status(ur, 10.0)
+    status, index = seen[-1]
+    assert status is MotionStatus.PROTECTIVE_STOP and 4 <= index <= 6
+    assert "protective stop" in ur.progress().message and "unlock" in ur.progress().message
+    with pytest.raises(RobotDriverError, match="cannot move: protective_stop"):
+        ur.move_path(raster(2))
+    ur.stop(1000.0)  # harmless on a stopped robot
+    with pytest.raises(RobotConnectionError, match="protective stop"):
+        ur.connect()  # still locked
+    assert emu.command("unlock")["reply"] == "Protective stop releasing"
+    ur.connect()
+    assert ur.progress().status is MotionStatus.IDLE
+    ur.move_path([PathPoint(5.0, 0.0, 30.0, 50.0, 1000.0)])
+    assert wait_status(ur, 5.0)[-1] == (MotionStatus.DONE, 0)
+
+
+@pytest.mark.timeout(15)
+def test_ur_driver_reports_a_lost_connection_without_retrying(emu: UrEmulatorProcess, ur: URRtdeDriver) -> None:
+    ur.connect()
+    ur.move_path(raster(20, speed=50.0))
+    emu.command("drop 1.0")  # every connection closed; new ones refused for 1 s
+    seen = wait_status(ur, 5.0)
+    assert seen[-1][0] is MotionStatus.DISCONNECTED
+    assert "lost the connection" in ur.progress().message and "connect()" in ur.progress().message
+    # the controller's watchdog (5 Hz) stops the program and the arm without the client
+    st = emu.wait_state(lambda st: st["runtime_state"] == 1 and not st["moving"], 3.0)
+    end = raster(20)[-1]
+    assert math.dist(st["pose_mm"][:3], (end.x_mm + OFFSET[0], end.y_mm + OFFSET[1], end.z_mm + OFFSET[2])) > 5.0
+    emu.wait_state(lambda st: st["clients"] == 0, 2.0)
+    assert ur.progress().status is MotionStatus.DISCONNECTED  # latched: no silent retry
+    deadline = time.monotonic() + 3.0
+    while True:  # once the robot is reachable again, connect() is what brings it back
+        try:
+            ur.connect()
+            break
+        except RobotConnectionError:
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+    ur.move_path([PathPoint(5.0, 0.0, 30.0, 50.0, 1000.0)])
+    assert wait_status(ur, 5.0)[-1] == (MotionStatus.DONE, 0)
+
+
+@pytest.mark.timeout(15)
+def test_ur_driver_stop_mid_path(emu: UrEmulatorProcess, ur: URRtdeDriver) -> None:
+    ur.connect()
+    ur.move_path([PathPoint(5.0, 60.0, 40.0, 50.0, 1000.0)])
+    deadline = time.monotonic() + 3.0
+    while ur.state().speed_mm_s[1] < 45.0:
+        assert time.monotonic() < deadline
+        time.sleep(0.005)
+    ur.stop(500.0)
+    assert ur.progress().status is MotionStatus.STOPPED
+    st = emu.wait_state(lambda st: not st["moving"], 2.0)
+    assert st["pose_mm"][1] - OFFSET[1] < 55.0
+    assert wait_status(ur, 2.0)[-1][0] is MotionStatus.STOPPED
+
+
+@pytest.mark.timeout(15)
+@emu_args("--local-control")
+def test_ur_driver_explains_a_refused_remote_control(emu: UrEmulatorProcess, ur: URRtdeDriver) -> None:
+    with pytest.raises(RobotConnectionError, match="refuses remote control.*Remote Control"):
+        ur.connect()
+
+
+@pytest.mark.timeout(15)
+def test_ur_driver_unreachable_robot() -> None:
+    drv = URRtdeDriver(UrEmulatorProcess.on_random_loopback().host)
+    with pytest.raises(RobotConnectionError, match="cannot reach the UR controller"):
+        drv.connect()
+    drv.close()
