@@ -26,6 +26,8 @@ from models.arm import TICK_S
 
 _LOG = logging.getLogger("palpa.urfake")
 _MAX_CATCHUP_TICKS = 50
+_TICKS_PER_LOCK = 5
+_MIN_PAUSE_S = 0.0002
 _JOIN_TIMEOUT_S = 3.0
 
 
@@ -341,9 +343,14 @@ class UrEmulator:
                 ctl.log(f"controller lagging: skipping {n - _MAX_CATCHUP_TICKS} ticks")
                 n = _MAX_CATCHUP_TICKS
             done = max(done, target)
+            for start in range(0, n, _TICKS_PER_LOCK):
+                # release the lock between small batches so that client input (commands,
+                # watchdog kicks) is applied while the controller catches up after a stall
+                with ctl.lock:
+                    for _ in range(min(_TICKS_PER_LOCK, n - start)):
+                        ctl.tick()
+                time.sleep(0)
             with ctl.lock:
-                for _ in range(n):
-                    ctl.tick()
                 paused = ctl.ticks < ctl.stream_paused_until
                 with self._guard:
                     sessions = list(self._sessions)
@@ -351,4 +358,5 @@ class UrEmulator:
             for conn, packages in due:
                 for p in packages:
                     conn.send_stream(p)
-            self._stop.wait(max(0.0, t0 + (done + 1) * TICK_S - time.monotonic()))
+            # never spin: even when late, give the reader threads a moment to take the lock
+            self._stop.wait(max(_MIN_PAUSE_S, t0 + (done + 1) * TICK_S - time.monotonic()))

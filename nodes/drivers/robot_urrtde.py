@@ -143,6 +143,8 @@ class URRtdeDriver:
                 return self._last
             try:
                 pose, speed, force = rr.getActualTCPPose(), rr.getActualTCPSpeed(), rr.getActualTCPForce()
+                if self._rc is not None and self._status not in _LATCHED:
+                    self._kick(self._rc)  # also from here: whichever thread is busiest keeps it fed
             except RuntimeError:
                 return self._last
             o = self.offset
