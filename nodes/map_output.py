@@ -2,7 +2,8 @@
 
 * ``map.npz``: ``stiffness`` (ny, nx) grid (NaN = no data), ``x_mm`` (nx) and ``y_mm`` (ny) cell centres,
   ``count`` (ny, nx) samples per cell; plus ``spread`` (robust σ per cell) and ``unit`` (a 0-d string).
-* ``map.png``: heat map with axes in mm, detected inclusions circled, a title naming the run.
+* ``map.png``: heat map with axes in mm, detected inclusions circled, a title naming the run (cells between
+  raster lines are shown as their neighbours' median; ``map.npz`` keeps them NaN).
 * ``inclusions.json``: a list of ``{x_mm, y_mm, radius_mm, contrast}``.
 """
 
@@ -15,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.stiffness_map import Inclusion, MapSnapshot, to_inclusions_json
+from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, to_inclusions_json
 
 __all__ = ["write_outputs"]
 
@@ -55,7 +56,8 @@ def _render_png(snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str
     extent = (float(snap.x_mm[0] - r / 2), float(snap.x_mm[-1] + r / 2),
               float(snap.y_mm[0] - r / 2), float(snap.y_mm[-1] + r / 2))
     fig, ax = plt.subplots(figsize=(6.4, 5.4), dpi=100)
-    data = np.ma.masked_invalid(snap.stiffness)
+    # cells between raster lines have no samples; show them as their neighbours' median (map.npz keeps NaN)
+    data = np.ma.masked_invalid(fill_gaps(np.asarray(snap.stiffness, dtype=float)))
     im = ax.imshow(data, origin="lower", extent=extent, cmap="viridis", interpolation="nearest")
     fig.colorbar(im, ax=ax, label=f"stiffness ({unit})")
     for i, inc in enumerate(inclusions, 1):

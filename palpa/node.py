@@ -40,9 +40,11 @@ from palpa.message import Message
 from palpa.params import Params as ParamsBase
 from palpa.params import convert_params
 from palpa.runtime_msgs import (
+    CLOCK_ACK_TOPIC,
     CLOCK_TOPIC,
     HEARTBEAT_TOPIC,
     LOG_TOPIC,
+    ClockAck,
     ClockTick,
     Heartbeat,
     LogRecord,
@@ -62,6 +64,7 @@ __all__ = ["Node", "Publisher", "RawMessage", "Subscription", "Timer"]
 
 M = TypeVar("M", bound=Message)
 _ERROR_LOG_INTERVAL_NS = 5_000_000_000
+_ACK_PERIOD_NS = 5_000_000
 DEFAULT_BATCH = 64
 """Messages a publisher coalesces at most into one ZeroMQ message while inside a callback."""
 _encoder = msgspec.msgpack.Encoder()
@@ -293,6 +296,8 @@ class Node:
         self._log_pub = self.publisher(LOG_TOPIC, LogRecord)
         self._hb_pub = self.publisher(HEARTBEAT_TOPIC, Heartbeat)
         if self._topic_clock is not None:
+            self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1)
+            self._last_ack_ns = 0
             self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
             self._await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0:
@@ -416,6 +421,10 @@ class Node:
         for delivery in self._transport.poll(int(timeout_s * 1000)):
             self._dispatch(delivery)
         self._run_timers()
+        clock = self._topic_clock
+        if clock is not None and clock.started and clock.now_ns() - self._last_ack_ns >= _ACK_PERIOD_NS:
+            self._last_ack_ns = clock.now_ns()
+            self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns))
 
     def spin(self) -> None:
         """Run until :meth:`request_shutdown` (or a signal, under :func:`palpa.run_node`)."""

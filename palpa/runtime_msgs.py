@@ -6,11 +6,12 @@ import msgspec
 
 from palpa.message import Message
 
-__all__ = ["CLOCK_TOPIC", "HEARTBEAT_TOPIC", "LOG_TOPIC", "ClockTick", "Heartbeat", "LogRecord", "TopicCounters"]
+__all__ = ["CLOCK_ACK_TOPIC", "CLOCK_TOPIC", "HEARTBEAT_TOPIC", "LOG_TOPIC", "ClockAck", "ClockTick", "Heartbeat", "LogRecord", "TopicCounters"]
 
 HEARTBEAT_TOPIC = "_palpa/heartbeat"
 LOG_TOPIC = "_palpa/log"
 CLOCK_TOPIC = "_palpa/clock"
+CLOCK_ACK_TOPIC = "_palpa/clock_ack"
 
 
 class TopicCounters(msgspec.Struct, frozen=True, kw_only=True):
@@ -52,4 +53,14 @@ class LogRecord(Message, frozen=True, kw_only=True):
 class ClockTick(Message, frozen=True, kw_only=True):
     """Simulation / replay time (topic ``_palpa/clock``), published by ``palpa play --clock``."""
 
+    sim_ns: int
+
+
+class ClockAck(Message, frozen=True, kw_only=True):
+    """A sim-clock node's report that it has handled everything up to ``sim_ns`` (topic ``_palpa/clock_ack``).
+
+    The clock source never runs more than a small lead ahead of the slowest node, so an overloaded machine slows
+    simulated time down instead of starving nodes of data (lockstep, as in Gazebo)."""
+
+    node: str
     sim_ns: int

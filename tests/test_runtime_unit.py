@@ -195,3 +195,29 @@ def test_malformed_batch_is_counted() -> None:
     h.publish_raw([b"chatter", hdrs, msgspec.msgpack.encode({"text": "only one payload"})])
     assert h.node.counters()["chatter"].decode_errors == 1
     assert "batch header lists 2 messages but 1 payloads follow" in h.node.counters()["chatter"].last_error
+
+
+def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.MonkeyPatch) -> None:
+    from palpa import simclock
+    from palpa.runtime_msgs import ClockAck
+
+    wall = [0]
+    monkeypatch.setattr(simclock.time, "monotonic_ns", lambda: wall[0])
+    monkeypatch.setattr(simclock.time, "time_ns", lambda: 1_000_000_000)
+    bus = MemoryBus()
+    src = simclock.ClockSource(params={"time_scale": 2.0, "max_lead_s": 0.02}, transport=bus.transport(),
+                               heartbeat_s=0)
+    wall[0] = 100_000_000  # 0.1 s wall at 2x: free running, 0.2 s simulated
+    assert src.sim_now_ns() == 1_200_000_000
+    laggard = palpa.Node(name="slow", transport=bus.transport(), heartbeat_s=0)
+    ack = laggard.publisher("_palpa/clock_ack", ClockAck)
+    ack.publish(ClockAck(node="slow", sim_ns=1_150_000_000))
+    src.spin_once(0)
+    wall[0] = 200_000_000
+    assert src.sim_now_ns() == 1_200_000_000  # held: the slow node is 50 ms behind, more than the 20 ms lead
+    ack.publish(ClockAck(node="slow", sim_ns=1_300_000_000))
+    src.spin_once(0)
+    wall[0] = 300_000_000
+    assert src.sim_now_ns() == 1_320_000_000  # may lead the slowest node by 20 ms, no more
+    wall[0] = 300_000_000 + 3_000_000_000  # the slow node went silent: it no longer holds the clock
+    assert src.sim_now_ns() == 1_320_000_000 + 6_000_000_000
