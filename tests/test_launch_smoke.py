@@ -41,6 +41,9 @@ SMOKE: dict[str, Smoke] = {
     "talker_listener.yaml": Smoke(args=["rate:=20.0"], topics=["chatter", "chatter_len"], timeout=30),
     "airfloat_sim.yaml": Smoke(topics=["robot/pose", "pressure/state", "probe/heights", "probe/status",
                                        "stiffness/sample"], timeout=40),
+    "scan_sim.yaml": Smoke(args=["region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "time_scale:=1.0"],
+                           topics=["robot/pose", "robot/plan", "robot/scan_status", "probe/heights", "pressure/state",
+                                   "stiffness/sample", "map/stiffness", "map/inclusions"], timeout=60),
 }
 
 FILES = sorted(p.name for p in LAUNCH_DIR.glob("*.yaml"))
