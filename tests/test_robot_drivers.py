@@ -205,7 +205,7 @@ def test_ur_driver_reports_a_protective_stop_and_only_reconnects_when_asked(
     ur.stop(1000.0)  # harmless on a stopped robot
     with pytest.raises(RobotConnectionError, match="protective stop"):
         ur.connect()  # still locked
-    assert emu.command("unlock")["reply"] == "Protective stop releasing"
+    assert ur.unlock_protective_stop() == "Protective stop releasing"  # through the dashboard
     ur.connect()
     assert ur.progress().status is MotionStatus.IDLE
     ur.move_path([PathPoint(5.0, 0.0, 30.0, 50.0, 1000.0)])
