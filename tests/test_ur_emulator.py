@@ -200,6 +200,15 @@ def test_stopL_decelerates_an_async_move(emu: UrEmulatorProcess, clients: Client
 
 
 @pytest.mark.timeout(15)
+def test_speedL_then_speedStop(emu: UrEmulatorProcess, clients: Clients) -> None:
+    assert clients.c.speedL([0.0, 0.05, 0.0, 0.0, 0.0, 0.0], 0.5)  # realtime command: returns at once
+    emu.wait_state(lambda st: st["speed"][1] == pytest.approx(50.0), 2.0)
+    assert clients.c.speedStop(1.0)  # synchronous: returns at rest
+    st = emu.state()
+    assert not st["moving"] and st["speed"] == [0.0] * 6 and st["pose_mm"][1] > 2.5  # >= 0.1 s ramp + 0.05 s stop
+
+
+@pytest.mark.timeout(15)
 def test_upper_range_registers(emu: UrEmulatorProcess) -> None:
     flags = rtde_control.RTDEControlInterface.FLAG_UPLOAD_SCRIPT | rtde_control.RTDEControlInterface.FLAG_UPPER_RANGE_REGISTERS
     c = rtde_control.RTDEControlInterface(emu.host, -1.0, flags)
