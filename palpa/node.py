@@ -411,16 +411,21 @@ class Node:
         return min(live) if live else None
 
     def spin_once(self, timeout_s: float = 0.0) -> None:
-        """Run due timers, wait up to ``timeout_s`` (less if a timer is due sooner) and dispatch what arrived."""
+        """Dispatch what has arrived, run due timers, wait up to ``timeout_s`` (less if a timer is due sooner),
+        dispatch and run timers again. Messages are handled before timers so that a timer which checks data
+        freshness (a watchdog) never judges by a queue the node had no chance to read."""
+        for delivery in self._transport.poll(0):
+            self._dispatch(delivery)
         self._run_timers()
         due = self.next_timer_due_ns()
         if due is not None and self.clock.is_real():
             timeout_s = max(0.0, min(timeout_s, (due - self.clock.now_ns()) / 1e9))
         elif not self.clock.is_real():
             timeout_s = 0.0 if self._timers else timeout_s
-        for delivery in self._transport.poll(int(timeout_s * 1000)):
-            self._dispatch(delivery)
-        self._run_timers()
+        if timeout_s > 0:
+            for delivery in self._transport.poll(int(timeout_s * 1000)):
+                self._dispatch(delivery)
+            self._run_timers()
         clock = self._topic_clock
         if clock is not None and clock.started and clock.now_ns() - self._last_ack_ns >= _ACK_PERIOD_NS:
             self._last_ack_ns = clock.now_ns()

@@ -44,6 +44,11 @@ SMOKE: dict[str, Smoke] = {
     "scan_sim.yaml": Smoke(args=["region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "time_scale:=1.0"],
                            topics=["robot/pose", "robot/plan", "robot/scan_status", "probe/heights", "pressure/state",
                                    "stiffness/sample", "map/stiffness", "map/inclusions"], timeout=60),
+    # the rig's file: --check as is; the run with every driver simulated (never the default robot address)
+    "scan_ur.yaml": Smoke(args=["scanner_driver:=sim", "fibre_driver:=sim", "pressure_driver:=sim",
+                                "region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "speed_mm_s:=20.0"],
+                          topics=["robot/pose", "probe/heights", "pressure/state", "stiffness/sample",
+                                  "robot/scan_status"], timeout=60),
 }
 
 FILES = sorted(p.name for p in LAUNCH_DIR.glob("*.yaml"))

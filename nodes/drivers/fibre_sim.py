@@ -18,6 +18,9 @@ from nodes.drivers.fibre import FibreCounters, FibreSample, FibreStatus
 
 __all__ = ["SimFibreDriver"]
 
+_POSE_WAIT_NS = 50_000_000
+_POSE_HOLD_NS = 1_000_000_000
+
 
 class SimFibreDriver:
     """Heights h1..h4 (mm) at ``rate_hz`` of simulated time, generated lazily up to the clock's now."""
@@ -92,15 +95,17 @@ class SimFibreDriver:
         now = self._clock()
         if self._next_ns is None:
             self._next_ns = now
-        # no further ahead than the pose we know (plus a short hold), so motion is interpolated, not guessed
-        end = min(now, latest_pose + 50_000_000)
+        # wait up to 50 ms for poses so that motion is interpolated, not guessed; past that the sensor streams
+        # on at the last known pose (a real DAQ does not wait for the robot; a stalled pose stream must not
+        # look like a dead sensor)
+        end = now if now - latest_pose > _POSE_WAIT_NS else min(now, latest_pose + _POSE_WAIT_NS)
         if end < self._next_ns:
             return []
         stamps = np.arange(self._next_ns, end + 1, self._period_ns, dtype=np.int64)
         self._next_ns = int(stamps[-1]) + self._period_ns
         poses, keep = [], []
         for t in stamps:
-            p = self._pose.at(int(t), max_extrapolate_ns=50_000_000)
+            p = self._pose.at(int(t), max_extrapolate_ns=_POSE_HOLD_NS)
             if p is not None:
                 poses.append(p)
                 keep.append(int(t))
