@@ -173,22 +173,25 @@ record: {topics: [chatter_len]}
 nodes:
   - name: listener
     node: nodes.demo:Listener
+    env: {PALPA_SIM_CLOCK: "1"}        # follows the replay clock (and waits for its first tick)
   - name: replay
     node: palpa.record.player:Player
-    params: {file: $(arg bag), topics: [chatter], wait_for: [listener]}
+    params: {file: $(arg bag), topics: [chatter], wait_for: [listener], clock: true}
     required: true
 """
 
 
 def test_launch_file_replaces_a_live_source(talker_bag: Path, tmp_path: Path) -> None:
-    """The documented recipe: a Player node in a launch file instead of the talker; the live listener's output
-    (recorded by the launch's record section) is the one of the original run."""
+    """The documented recipe: a Player node in a launch file instead of the talker, driving the clock of a
+    sim-clock listener; the live listener's output (recorded by the launch's record section) is the one of the
+    original run."""
     launch = tmp_path / "replay.yaml"
     launch.write_text(REPLAY_LAUNCH)
     procs = ProcessGroup()
     try:
         run = procs.start(palpa_cmd("launch", str(launch), f"bag:={talker_bag}", "--run-dir", str(tmp_path / "run")))
         assert run.wait(60) == 0, run.output()
+        assert "not ready" not in run.output()  # the player heard the sim-clock listener start
     finally:
         procs.cleanup()
     recording = tmp_path / "run" / "recording.mcap"

@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.add_argument("--exclude", action="append", default=[], metavar="REGEX", help="skip matching topics")
     p.add_argument("--remap", action="append", default=[], metavar="FROM:=TO", help="publish FROM as TO")
     p.add_argument("--clock", action="store_true", help="publish the recording's time on _palpa/clock")
-    p.add_argument("--clock-hz", type=float, default=100.0, help="clock ticks per second (default 100)")
+    p.add_argument("--clock-hz", type=float, default=1000.0, help="clock ticks per second (default 1000)")
     p.add_argument("--wait-for", nargs="+", default=[], metavar="NODE",
                    help="play only once these nodes' heartbeats are heard (bounded by 10 s)")
     p.add_argument("--realtime", action="store_true",

@@ -9,7 +9,9 @@ away, then sleeps with microsecond resolution and spins only the last 0.3 ms, so
 under 2 ms at 1 kHz even on a loaded machine (see ``_wait_until`` for why it does not spin longer). Each envelope keeps the
 recorded type, sequence number and publisher name; its ``stamp`` is the new publish time. Latched messages are
 re-published latched. With ``clock: true`` the node publishes ``ClockTick(sim_ns=<recorded time>)`` on
-``_palpa/clock`` at ``clock_hz`` so nodes that follow the sim clock see the recording's time.
+``_palpa/clock`` at ``clock_hz`` so nodes that follow the sim clock see the recording's time; while it waits to
+start, the clock already runs (at wall speed, ending before the recording's start), so sim-clock nodes, which
+wait for a first tick, can start and be heard.
 """
 
 from __future__ import annotations
@@ -53,7 +55,9 @@ class PlayerParams(palpa.Params):
     """Skip this many seconds from the start (latched messages before it are still published first)."""
     clock: bool = False
     """Publish the recording's time on _palpa/clock (ClockTick)."""
-    clock_hz: float = 100.0
+    clock_hz: float = 1000.0
+    """Clock ticks per second of playback (the time resolution sim-clock nodes' timers get, as with
+    palpa.simclock.ClockSource)."""
     exit_when_done: bool = True
     """Stop the node (exit 0) after the last message; otherwise keep running until stopped."""
     exit_delay_s: float = 0.5
@@ -106,6 +110,8 @@ class Player(Node):
         self.late_max_s = 0.0
         self._next_tick = 0.0
         self._serviced = 0.0
+        self._hold_ns: int | None = None
+        self._hold_wall = 0.0
 
     # -- helpers -----------------------------------------------------------------------------------------
     def _on_ready(self, raw: RawMessage) -> None:
@@ -130,6 +136,14 @@ class Player(Node):
             seq += 1
             self.publish_raw(_READY_TOPIC + self.name, Header(type="", seq=seq, stamp=time.time_ns(),
                                                                node=self.name), b"\xc0")
+            if self._clock_pub is not None:
+                # sim-clock nodes wait for a first tick before they start, and their heartbeat timers run on
+                # sim time: let the clock run at wall speed towards the recording's start (it cannot get there
+                # before ready_timeout_s), so they start and are heard; playback then jumps it forward
+                if self._hold_ns is None:
+                    self._hold_ns = self._first_log_time() - int(self.params.ready_timeout_s * 1e9) - 1
+                    self._hold_wall = time.monotonic()
+                self._tick_clock(self._hold_ns + int((time.monotonic() - self._hold_wall) * 1e9))
             self.spin_once(0.02)
 
     def _topic(self, topic: str) -> str:
@@ -140,6 +154,12 @@ class Player(Node):
         header = Header(type=m.type, seq=m.seq, stamp=time.time_ns(), node=m.node, latched=m.latched)
         self.publish_raw(self._topic(m.topic), header, m.payload, m.blobs, latched=m.latched)
         self.played += 1
+
+    def _first_log_time(self) -> int:
+        """Where playback starts in recorded time (the first message's log time plus the start offset)."""
+        for m in iter_bag(self.paths, on_damage=lambda text: None):
+            return m.log_time + int(self.params.start_offset_s * 1e9)
+        return time.time_ns()
 
     def _tick_clock(self, sim_ns: int) -> None:
         if self._clock_pub is not None:
