@@ -58,3 +58,64 @@ def test_ur_rtde_scan_through_emulator_matches_sim(procs: ProcessGroup, tmp_path
     assert len(ia) == len(ib) == 1
     assert math.dist((ia[0]["x_mm"], ia[0]["y_mm"]), (ib[0]["x_mm"], ib[0]["y_mm"])) < 0.5
     assert math.dist((ia[0]["x_mm"], ia[0]["y_mm"]), (45.0, 42.0)) < 1.5
+
+
+def test_airfloat_scan_finds_the_tumours_and_its_recording_replays(procs: ProcessGroup, tmp_path: Path) -> None:
+    """`make demo`'s scan (launch/scan_sim.yaml, defaults): every inclusion of radius >= 4 mm and ratio >= 2 found
+    within 1.5 mm, at most one false positive; the recording replayed into a live estimator and map aggregator
+    (launch/replay_scan.yaml) gives the same map."""
+    run = tmp_path / "scan"
+    run_launch(procs, run, "launch/scan_sim.yaml", timeout=400)
+    for name in ("map.npz", "map.png", "inclusions.json"):
+        assert (run / "map" / name).stat().st_size > 0
+    assert (run / "recording.mcap").stat().st_size > 100_000
+    truth = load_phantom(REPO / "phantoms" / "airfloat_tumours.yaml").inclusions
+    found = inclusions(run)
+    base = 26.4
+    must = [inc for inc in truth if inc.radius_mm >= 4 and inc.youngs_modulus_kpa / base >= 2]
+    for inc in must:
+        err = min(math.dist((f["x_mm"], f["y_mm"]), inc.center_mm) for f in found)
+        assert err <= 1.5, (inc, found)
+    matched = [f for f in found if min(math.dist((f["x_mm"], f["y_mm"]), i.center_mm) for i in truth) <= 3.0]
+    assert len(found) - len(matched) <= 1
+
+    replay = tmp_path / "replay"
+    run_launch(procs, replay, "launch/replay_scan.yaml", f"bag:={run / 'recording.mcap'}", "rate:=4.0", timeout=300)
+    a, b = np.load(run / "map" / "map.npz"), np.load(replay / "map" / "map.npz")
+    assert (np.isfinite(a["stiffness"]) == np.isfinite(b["stiffness"])).all()
+    both = np.isfinite(a["stiffness"])
+    assert np.abs(a["stiffness"][both] / b["stiffness"][both] - 1).max() < 0.02
+    assert abs(int(a["count"].sum()) - int(b["count"].sum())) < 0.02 * a["count"].sum()
+    fa, fb = inclusions(run), inclusions(replay)
+    assert len(fa) == len(fb)
+    for x, y in zip(fa, fb, strict=True):
+        assert math.dist((x["x_mm"], x["y_mm"]), (y["x_mm"], y["y_mm"])) < 0.2
+
+
+@pytest.mark.parametrize("phantom", ["flat_26k.yaml", "flat_10k.yaml"])
+def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path) -> None:
+    """The same nodes in-process (mock clock): a phantom without inclusions gives no detection at all."""
+    from nodes.fibre_reader import FibreReader
+    from nodes.map_aggregator import MapAggregator
+    from nodes.pressure_controller import PressureController
+    from nodes.robot_scanner import RobotScanner
+    from nodes.stiffness_estimator import StiffnessEstimator
+    from palpa.testing import GraphHarness
+
+    path = str(REPO / "phantoms" / phantom)
+    g = GraphHarness()
+    g.add(PressureController, {"startup": "hold", "setpoint_kpa": 34.0})
+    g.add(FibreReader, {"phantom": path})
+    g.add(StiffnessEstimator, {"phantom": path})
+    g.add(MapAggregator, {"output_dir": str(tmp_path)})
+    scanner = g.add(RobotScanner, {"region_mm": [10, 10, 50, 50], "spacing_mm": 5.0, "speed_mm_s": 40.0,
+                                   "contact_z_mm": 21.0, "home_mm": [10, 10, 30]})
+    while not scanner.is_shutdown:
+        g.advance(1.0)
+        g.clear()
+    g.close()
+    assert scanner.exit_code == 0
+    assert json.loads((tmp_path / "inclusions.json").read_text()) == []
+    grid = np.load(tmp_path / "map.npz")["stiffness"]
+    truth = load_phantom(path).youngs_modulus_kpa
+    assert abs(np.nanmedian(grid) / truth - 1) < 0.05
