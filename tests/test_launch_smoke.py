@@ -7,10 +7,12 @@ timeout. The test fails for a file without an entry.
 
 from __future__ import annotations
 
+import dataclasses
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,6 +37,40 @@ class Smoke:
     """Seconds to see every topic (and, after Ctrl-C, to stop)."""
     exit_code: int = 0
     """Expected exit code (a file whose required node ends it may end by itself)."""
+    prepare: Callable[[Path], list[str]] | None = None
+    """Makes what the file needs in a temporary folder (e.g. a recording) and returns more arg overrides."""
+
+
+def synthetic_scan_bag(tmp: Path) -> list[str]:
+    """A 3 s recording of a probe held over the flat 26.4 kPa phantom, made with the real sim nodes."""
+    from palpa.record.testing import Rec, write_bag
+    from palpa.testing import GraphHarness
+    from nodes.fibre_reader import FibreReader
+    from nodes.pressure_controller import PressureController
+    from nodes.static_pose import StaticPose
+
+    phantom = str(REPO / "phantoms" / "flat_26k.yaml")
+    g = GraphHarness()
+    g.add(StaticPose, {"z_mm": 21.0})
+    g.add(PressureController, {"startup": "hold", "setpoint_kpa": 36.0})
+    g.add(FibreReader, {"phantom": phantom})
+    g.advance(3.0)
+    import msgspec
+
+    from messages import ScanPlan
+
+    plan = ScanPlan(stamp_ns=g.clock.now_ns(), mode="sweep", region_mm=(20.0, 20.0, 40.0, 40.0), spacing_mm=2.0,
+                    speed_mm_s=10.0, lines=1, estimated_duration_s=3.0, waypoints=[])
+    first = g.raw[0].header.stamp
+    recs = [Rec("robot/plan", first, msgspec.msgpack.encode(plan), 1, "ScanPlan", "scanner", latched=True)]
+    seq: dict[str, int] = {}
+    for raw in g.raw:
+        if raw.topic in ("robot/pose", "probe/heights", "pressure/state"):
+            seq[raw.topic] = seq.get(raw.topic, 0) + 1
+            recs.append(Rec(raw.topic, raw.header.stamp, raw.payload, seq[raw.topic], raw.header.type, raw.header.node))
+    g.close()
+    bag = write_bag(tmp / "synthetic.mcap", recs)
+    return [f"bag:={bag}", f"phantom:={phantom}", "rate:=1.0"]
 
 
 SMOKE: dict[str, Smoke] = {
@@ -49,6 +85,8 @@ SMOKE: dict[str, Smoke] = {
                                 "region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "speed_mm_s:=20.0"],
                           topics=["robot/pose", "probe/heights", "pressure/state", "stiffness/sample",
                                   "robot/scan_status"], timeout=60),
+    "replay_scan.yaml": Smoke(prepare=synthetic_scan_bag, topics=["probe/heights", "stiffness/sample", "map/stiffness"],
+                              timeout=60),
 }
 
 FILES = sorted(p.name for p in LAUNCH_DIR.glob("*.yaml"))
@@ -66,6 +104,8 @@ def test_launch_file_runs_and_produces_its_topics(name: str, procs: ProcessGroup
     entry = SMOKE.get(name)
     if entry is None:
         pytest.fail(f"launch/{name} has no entry in SMOKE ({__file__})")
+    if entry.prepare is not None:
+        entry = dataclasses.replace(entry, args=[*entry.args, *entry.prepare(tmp_path)])
     smoke(LAUNCH_DIR / name, entry, procs, tmp_path)
 
 
