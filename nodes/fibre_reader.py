@@ -14,7 +14,11 @@ import numpy as np
 
 import palpa
 from messages import DeviceStatus, PressureState, ProbeHeights, RobotPose
-from models.airfloat import DEFAULT_INDENTER_RADIUS_MM, DEFAULT_SPS_RADIUS_MM, indentation_from_heights
+from models.airfloat import (
+    DEFAULT_INDENTER_RADIUS_MM,
+    DEFAULT_SPS_RADIUS_MM,
+    indentation_from_heights,
+)
 from nodes.common import phantom_from_param
 from nodes.drivers.fibre import FibreDriver, FibreSample, SerialFibreDriver
 from nodes.drivers.fibre_sim import SimFibreDriver

@@ -13,8 +13,21 @@ from pathlib import Path
 import numpy as np
 
 import palpa
-from messages import DetectedInclusion, Inclusions, ScanPlan, ScanStatus, StiffnessMap, StiffnessSample
-from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, background, detect_inclusions
+from messages import (
+    DetectedInclusion,
+    Inclusions,
+    ScanPlan,
+    ScanStatus,
+    StiffnessMap,
+    StiffnessSample,
+)
+from models.stiffness_map import (
+    Inclusion,
+    MapSnapshot,
+    StiffnessGrid,
+    background,
+    detect_inclusions,
+)
 from nodes.map_output import write_outputs
 
 __all__ = ["MapAggregator"]

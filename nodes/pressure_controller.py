@@ -15,7 +15,12 @@ from typing import Literal
 import palpa
 from messages import DeviceStatus, PressureCommand, PressureState
 from models.airfloat import ForceCalibration
-from nodes.drivers.pressure import AlicatPressureDriver, PressureDriver, PressureError, PressureReading
+from nodes.drivers.pressure import (
+    AlicatPressureDriver,
+    PressureDriver,
+    PressureError,
+    PressureReading,
+)
 from nodes.drivers.pressure_sim import SimPressureDriver
 
 __all__ = ["PressureController"]

@@ -23,7 +23,15 @@ from messages import (
     ScanPlan,
     ScanStatus,
 )
-from models.raster import RasterPlan, Waypoint, WorkspaceBox, WorkspaceViolation, check_workspace, indent_raster, sweep_raster
+from models.raster import (
+    RasterPlan,
+    Waypoint,
+    WorkspaceBox,
+    WorkspaceViolation,
+    check_workspace,
+    indent_raster,
+    sweep_raster,
+)
 from nodes.drivers.robot import MotionStatus, RobotDriver
 from nodes.scan_progress import PathProgressMeter
 
@@ -170,7 +178,7 @@ class RobotScanner(palpa.Node):
     def _publish_plan(self) -> None:
         p, plan = self.params, self.plan
         self.plan_pub.publish(ScanPlan(
-            stamp_ns=self.clock.now_ns(), mode=plan.mode, region_mm=tuple(p.region_mm),  # type: ignore[arg-type]
+            stamp_ns=self.clock.now_ns(), mode=plan.mode, region_mm=tuple(p.region_mm),
             spacing_mm=plan.line_spacing_mm, speed_mm_s=p.speed_mm_s, lines=plan.line_count,
             estimated_duration_s=plan.duration_s,
             waypoints=[PlanWaypoint(x_mm=w.x_mm, y_mm=w.y_mm, z_mm=w.z_mm, speed_mm_s=w.speed_mm_s, kind=w.kind,

@@ -28,7 +28,7 @@ class PathProgressMeter:
         i = min(max(target_index, 0), len(self._w) - 1)
         done = self._cum[i - 1] if i > 0 else 0.0
         if i > 0:
-            a, b = self._w[i - 1], self._w[i]
+            a, _b = self._w[i - 1], self._w[i]
             seg = self._cum[i] - self._cum[i - 1]
             along = math.dist((a.x_mm, a.y_mm, a.z_mm), tuple(tcp_mm[:3]))
             done += min(along, seg)

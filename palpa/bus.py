@@ -17,6 +17,7 @@ Latch protocol (DEALER -> ROUTER), every frame bytes:
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 from collections.abc import Iterable
@@ -232,10 +233,8 @@ class Bus:
         """Stop the proxy and the cache, close every socket and remove ipc socket files."""
         self._stop.set()
         if self.address is not None:
-            try:
+            with contextlib.suppress(zmq.ZMQError):
                 self._control.send(b"TERMINATE")
-            except zmq.ZMQError:
-                pass
         for thread in self._threads:
             thread.join(timeout_s)
         if self.address is not None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -70,10 +71,8 @@ class ProcessGroup:
     def cleanup(self) -> None:
         for p in self.procs:
             if p.popen.poll() is None:
-                try:
+                with contextlib.suppress(ProcessLookupError):
                     os.killpg(p.popen.pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
                 p.popen.wait(5)
             p._log.close()
             p.log_path.unlink(missing_ok=True)

@@ -43,11 +43,11 @@ class Smoke:
 
 def synthetic_scan_bag(tmp: Path) -> list[str]:
     """A 3 s recording of a probe held over the flat 26.4 kPa phantom, made with the real sim nodes."""
-    from palpa.record.testing import Rec, write_bag
-    from palpa.testing import GraphHarness
     from nodes.fibre_reader import FibreReader
     from nodes.pressure_controller import PressureController
     from nodes.static_pose import StaticPose
+    from palpa.record.testing import Rec, write_bag
+    from palpa.testing import GraphHarness
 
     phantom = str(REPO / "phantoms" / "flat_26k.yaml")
     g = GraphHarness()
@@ -87,6 +87,7 @@ SMOKE: dict[str, Smoke] = {
                                   "robot/scan_status"], timeout=60),
     "replay_scan.yaml": Smoke(prepare=synthetic_scan_bag, topics=["probe/heights", "stiffness/sample", "map/stiffness"],
                               timeout=60),
+    "camera_sim.yaml": Smoke(args=["cycles:=0", "speed_mm_s:=4.0"], topics=["robot/pose", "robot/scan_status", "camera/status", "camera/indenters", "camera/debug", "stiffness/sample"], timeout=40),
 }
 
 FILES = sorted(p.name for p in LAUNCH_DIR.glob("*.yaml"))

@@ -10,7 +10,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from models.airfloat import DEFAULT_INDENTER_RADIUS_MM, DEFAULT_SPS_RADIUS_MM, ForceCalibration, heights_over_phantom
+from models.airfloat import (
+    DEFAULT_INDENTER_RADIUS_MM,
+    DEFAULT_SPS_RADIUS_MM,
+    ForceCalibration,
+    heights_over_phantom,
+)
 from models.contact import corrected_depth
 from models.phantom import Phantom
 from models.timeseries import StampedBuffer
@@ -103,23 +108,24 @@ class SimFibreDriver:
             return []
         stamps = np.arange(self._next_ns, end + 1, self._period_ns, dtype=np.int64)
         self._next_ns = int(stamps[-1]) + self._period_ns
-        poses, keep = [], []
-        for t in stamps:
-            p = self._pose.at(int(t), max_extrapolate_ns=_POSE_HOLD_NS)
+        poses: list[tuple[float, ...]] = []
+        keep: list[int] = []
+        for t in stamps.tolist():
+            p = self._pose.at(t, max_extrapolate_ns=_POSE_HOLD_NS)
             if p is not None:
                 poses.append(p)
-                keep.append(int(t))
+                keep.append(t)
         if not keep:
             return []
         xyz = np.asarray(poses)
         pressure = np.array([(self._pressure.at(t, 500_000_000) or (0.0,))[0] for t in keep])
         heights = self._heights(xyz[:, 0], xyz[:, 1], xyz[:, 2], pressure)
         out = []
-        for t, h in zip(keep, heights.tolist(), strict=True):
+        for t, (h1, h2, h3, h4) in zip(keep, heights.tolist(), strict=True):
             self._seq += 1
-            h = tuple(h)
-            out.append(FibreSample(host_stamp_ns=t, device_stamp_ns=t, seq=self._seq,
-                                   raw=h, heights_mm=h, stamp_ns=t))  # type: ignore[arg-type]
+            hs = (h1, h2, h3, h4)
+            out.append(FibreSample(host_stamp_ns=t, device_stamp_ns=t, seq=self._seq, raw=hs, heights_mm=hs,
+                                   stamp_ns=t))
         self._samples += len(out)
         return out
 
@@ -134,7 +140,7 @@ class SimFibreDriver:
         if np.any(touch):
             # the felt modulus depends on how deep the indenter goes: a fixed point, warm-started from the
             # previous batch (the probe moves little between batches), so two rounds converge
-            e = np.full(int(touch.sum()), self._e_guess or float(ph.youngs_modulus_kpa))
+            e = np.full(int(touch.sum()), self._e_guess or float(ph.youngs_modulus_kpa or 0.0))
             for _ in range(2):
                 d = np.asarray(corrected_depth(force[touch], e, self._r, thickness[touch], ph.poisson_ratio))
                 e = np.asarray(ph.effective_modulus(x[touch], y[touch], self._r, d), dtype=float)
@@ -146,4 +152,5 @@ class SimFibreDriver:
         h = np.where(np.isfinite(h), h, self._stroke)
         if self._noise > 0:
             h = h + self._rng.normal(0.0, self._noise, h.shape)
-        return np.clip(h, 0.0, self._stroke)
+        out: np.ndarray = np.clip(h, 0.0, self._stroke)
+        return out

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 
@@ -24,7 +25,5 @@ def import_message_modules() -> None:
     comma-separated module names)."""
     names = ["messages", *filter(None, os.environ.get("PALPA_MESSAGES", "").split(","))]
     for name in names:
-        try:
+        with contextlib.suppress(ImportError):
             importlib.import_module(name.strip())
-        except ImportError:
-            pass
