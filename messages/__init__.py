@@ -10,6 +10,7 @@ type name. See docs/wire.md.
 
 from messages.probe import (
     DeviceStatus,
+    ImageInfo,
     IndenterDisplacements,
     PressureCommand,
     PressureState,
@@ -32,6 +33,7 @@ __all__ = [
     "DeviceStatus",
     "EStop",
     "Heartbeat",
+    "ImageInfo",
     "IndenterDisplacements",
     "Inclusions",
     "LogRecord",

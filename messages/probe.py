@@ -78,3 +78,16 @@ class DeviceStatus(Message, frozen=True, kw_only=True):
     message: str = ""
     counters: dict[str, int] = {}
     clock_offset_ns: int = 0
+
+
+class ImageInfo(Message, frozen=True, kw_only=True):
+    """Describes an image carried as the envelope's first binary blob (topic ``camera/debug``).
+
+    ``encoding``: ``png`` or ``jpg`` (the blob is the encoded file; decode with ``cv2.imdecode``) or ``bgr8`` (raw
+    rows of B, G, R bytes, ``height * width * 3`` of them). ``stamp_ns`` is the frame's capture stamp.
+    """
+
+    stamp_ns: int
+    width: int
+    height: int
+    encoding: str
