@@ -192,6 +192,16 @@ class _RawSubscription(NamedTuple):
     callback: Callable[[RawMessage], object]
 
 
+class _Route(NamedTuple):
+    topic: str
+    sub: Subscription[Any] | None
+    raws: tuple[Callable[[RawMessage], object], ...]
+    rstats: TopicStats | None
+
+
+_NO_ROUTE = object()
+
+
 class Timer:
     """A periodic (or one-shot) callback on the node's clock."""
 
@@ -276,6 +286,7 @@ class Node:
         self._transport = transport
         self._subs: dict[bytes, Subscription[Any]] = {}
         self._raw: list[_RawSubscription] = []
+        self._routes: dict[bytes, _Route | None] = {}
         self._raw_stats: dict[str, TopicStats] = {}
         self._pubs: dict[str, Publisher[Any]] = {}
         self._dirty: list[Publisher[Any]] = []
@@ -370,6 +381,7 @@ class Node:
             raise ValueError(f"node {self.name!r} already subscribes to {resolved!r}")
         sub: Subscription[M] = Subscription(self, resolved, cast("type[M]", msg_type), callback, queue_size)
         self._subs[key] = sub
+        self._routes.clear()
         self._transport.subscribe(key, request_latched=True)
         return sub
 
@@ -377,6 +389,7 @@ class Node:
         """Every envelope whose topic starts with ``prefix`` (``""`` for all), undecoded."""
         key = prefix.encode()
         self._raw.append(_RawSubscription(key, callback))
+        self._routes.clear()
         self._transport.subscribe(key, request_latched=True)
 
     def timer(
@@ -519,31 +532,43 @@ class Node:
             self._last_error_log[topic] = now
             self.log.warning("dropped a bad message on %r (%d so far): %s", topic, stats.decode_errors, text)
 
+    def _route(self, topic_b: bytes) -> _Route | None:
+        """Who gets messages on this exact topic (cached per topic; None: a prefix match that is not ours)."""
+        route = self._routes.get(topic_b, _NO_ROUTE)
+        if route is _NO_ROUTE:
+            sub = self._subs.get(topic_b)
+            raws = tuple(r.callback for r in self._raw if topic_b.startswith(r.prefix))
+            if sub is None and not raws:
+                route = None
+            else:
+                topic = topic_b.decode(errors="replace")
+                rstats = self._raw_stats.setdefault(topic, TopicStats()) if raws else None
+                route = _Route(topic, sub, raws, rstats)
+            self._routes[topic_b] = route
+        return route  # type: ignore[return-value]
+
     def _dispatch(self, delivery: Delivery) -> None:
         frames = delivery.frames
-        topic_b = frames[0]
-        sub = self._subs.get(topic_b)
-        raws = [r for r in self._raw if topic_b.startswith(r.prefix)] if self._raw else []
-        if sub is None and not raws:
-            return  # a prefix match that is not our topic
-        topic = topic_b.decode(errors="replace")
+        route = self._route(frames[0])
+        if route is None:
+            return
+        topic, sub, raws, rstats = route
         try:
             items = split_envelope(frames)
         except DecodeError as exc:
-            stats = sub.stats if sub is not None else self._raw_stats.setdefault(topic, TopicStats())
-            self._count_error(topic, stats, str(exc))
+            stats = sub.stats if sub is not None else rstats
+            if stats is not None:
+                self._count_error(topic, stats, str(exc))
             return
         cached = delivery.from_cache
         for header, payload, blobs in items:
-            if raws:
-                rstats = self._raw_stats.get(topic)
-                if rstats is None:  # not setdefault: that builds a TopicStats per message (~15% of the recorder)
-                    rstats = self._raw_stats[topic] = TopicStats()
-                if not (cached and self._raw_tracker.seen_at_least(topic, header.node, header.seq)) and \
-                        self._raw_tracker.observe(topic, header.node, header.seq, rstats):
+            if rstats is not None:
+                tracker = self._raw_tracker
+                if not (cached and tracker.seen_at_least(topic, header.node, header.seq)) and \
+                        tracker.observe(topic, header.node, header.seq, rstats):
                     raw = RawMessage(topic, header, payload, blobs, cached, time.time_ns())
-                    for r in raws:
-                        self._call(r.callback, raw)
+                    for callback in raws:
+                        self._call(callback, raw)
             if sub is not None:
                 self._deliver(sub, topic, header, payload, blobs, cached)
 
