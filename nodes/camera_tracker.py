@@ -147,7 +147,6 @@ class CameraTracker(palpa.Node):
         if self._state() != self._last_state:
             self.publish_status()
         if info.ended and self.params.exit_at_end:
-            self.log.info("%s ended after %d frames", info.name, info.frames)
             self.request_shutdown(0)
 
     def handle(self, frame: Frame) -> None:
@@ -198,6 +197,8 @@ class CameraTracker(palpa.Node):
         if (connected, state) != self._last_state:
             if connected:
                 self.log.info("camera %s up (%s)", info.name, info.kind)
+            elif info.ended:
+                self.log.info("camera %s: end of video after %d frames", info.name, info.frames)
             elif self._last_state is not None:
                 self.log.warning("camera %s %s: %s", info.name, state, info.last_error)
         self._last_state = (connected, state)

@@ -78,7 +78,7 @@ def test_jitter_is_the_centroid_noise_and_reproducible() -> None:
     m = CameraModel(noise_dn=0.0)  # default jitter: 0.3 px, the paper-level raw centroid noise
     a, b = Renderer(m, np.random.default_rng(5)), Renderer(m, np.random.default_rng(5))
     offsets = []
-    for i in range(300):
+    for i in range(200):
         fa, fb = a.render(np.zeros(4), i / 30), b.render(np.zeros(4), i / 30)
         np.testing.assert_array_equal(fa, fb)
         offsets.append(a.last_centres_px - true_centroids_px(m, np.zeros(4)))
