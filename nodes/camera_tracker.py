@@ -106,7 +106,9 @@ class CameraTracker(palpa.Node):
             if (p.soft_spring_n_per_mm, p.hard_spring_n_per_mm) != (0.05, 0.25):
                 geometry = ProbeGeometry.paper(k_soft_n_per_mm=p.soft_spring_n_per_mm,
                                                k_hard_n_per_mm=p.hard_spring_n_per_mm)
-            camera = CameraModel(noise_dn=p.image_noise_dn, blur_sigma_px=p.blur_sigma_px,
+            # With direction -1 the spheres travel towards smaller x: start them at the right of their strips.
+            rest = CameraModel().rest_x_px if p.direction > 0 else tuple(160.0 * j + 142.0 for j in range(4))
+            camera = CameraModel(noise_dn=p.image_noise_dn, blur_sigma_px=p.blur_sigma_px, rest_x_px=rest,
                                  drift_amplitude=p.drift_amplitude, px_per_mm=p.px_per_mm, direction=p.direction)
             self.sim = SimCameraSource(
                 phantom_from_param(p.phantom, self.name), self.clock.now_ns, rate_hz=p.rate_hz,

@@ -159,6 +159,21 @@ def test_close_stops_a_capture_thread_waiting_for_its_consumer(tmp_path: Path) -
     src.close()  # idempotent
 
 
+def test_absent_camera_is_retried_not_fatal() -> None:
+    """A camera that is not there (unplugged) is not an error at open: the source keeps retrying, says why,
+    and closes promptly."""
+    src = OpenCVSource("/dev/video-palpa-test-absent", reconnect_s=(0.05, 0.1))
+    try:
+        src.open()
+        info = src.info()
+        assert info.kind == "device" and not info.connected and "could not open" in info.last_error
+        assert src.read(0.05) is None
+    finally:
+        start = time.monotonic()
+        src.close()
+    assert time.monotonic() - start < 2.0
+
+
 def test_errors_name_the_source(tmp_path: Path) -> None:
     with pytest.raises(CameraError, match="does not exist"):
         OpenCVSource(str(tmp_path / "missing.avi"))

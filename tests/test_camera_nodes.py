@@ -71,6 +71,21 @@ def test_displacements_follow_the_rendered_truth() -> None:
     h.close()
 
 
+def test_reversed_image_direction() -> None:
+    """direction -1 (spheres move to smaller x as the indenters go in): rendered and tracked consistently."""
+    h = NodeHarness(CameraTracker, {"phantom": SPRINGS[0.29], "direction": -1.0})
+    h.publish("robot/pose", pose(40.0, h.clock.now_ns()))
+    h.advance(1.2)
+    h.publish("robot/pose", pose(30.0 - 8.0, h.clock.now_ns()))
+    h.advance(2.0)
+    sim = h.node.sim
+    assert sim is not None and sim.truth is not None and sim.truth.displacement_mm.min() > 4.0
+    last = h.published("camera/indenters")[-1]
+    assert all(last.valid)
+    np.testing.assert_allclose(last.displacement_mm, sim.truth.displacement_mm, atol=0.03)
+    h.close()
+
+
 def test_lost_marker_reaches_the_estimator_as_invalid() -> None:
     g = GraphHarness()
     g.add(StaticPose, {"x_mm": 20.0, "y_mm": 20.0, "z_mm": 40.0})
