@@ -50,6 +50,7 @@ class RobotScanner(palpa.Node):
         """x0, y0, x1, y1 of the raster in the phantom frame."""
         spacing_mm: float = 2.0
         speed_mm_s: float = 10.0
+        """Sweep: speed along a line. Indent: press and lift speed."""
         axis: Literal["x", "y"] = "y"
         """Lines run parallel to this axis (the paper's Fig. 12 scan: y)."""
         contact_z_mm: float = 5.0
@@ -132,14 +133,17 @@ class RobotScanner(palpa.Node):
         p = self.params
         x0, y0, x1, y1 = p.region_mm
         common: dict[str, Any] = dict(
-            spacing_mm=p.spacing_mm, speed_mm_s=p.speed_mm_s, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
+            spacing_mm=p.spacing_mm, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
             approach_clearance_mm=p.approach_clearance_mm, retract_clearance_mm=p.retract_clearance_mm,
-            transit_speed_mm_s=p.transit_speed_mm_s, approach_speed_mm_s=p.approach_speed_mm_s,
+            transit_speed_mm_s=p.transit_speed_mm_s,
         )
         if p.mode == "sweep":
-            return sweep_raster(x0, y0, x1, y1, contact_z_mm=p.contact_z_mm, **common)
+            return sweep_raster(x0, y0, x1, y1, contact_z_mm=p.contact_z_mm, speed_mm_s=p.speed_mm_s,
+                                approach_speed_mm_s=p.approach_speed_mm_s, **common)
+        # indent: press and lift at speed_mm_s
         return indent_raster(x0, y0, x1, y1, contact_z_mm=p.contact_z_mm, depth_mm=p.indent_depth_mm,
-                             hold_s=p.hold_s, point_spacing_mm=p.point_spacing_mm or None, **common)
+                             hold_s=p.hold_s, point_spacing_mm=p.point_spacing_mm or None,
+                             press_speed_mm_s=p.speed_mm_s, **common)
 
     def check_plan(self) -> None:
         """Refuse a plan (and the path from the current pose to it) that leaves the box or exceeds a cap."""

@@ -114,3 +114,21 @@ def test_no_probe_data_at_start_is_a_fault_without_motion() -> None:
     st = h.published("robot/scan_status")[-1]
     assert st.state == "fault" and "no probe data" in st.message
     assert all(p.speed_mm_s == 0.0 for p in h.published("robot/pose"))
+
+
+def test_indent_mode_holds_at_each_point() -> None:
+    h = NodeHarness(RobotScanner, {**SMALL, "mode": "indent", "spacing_mm": 10, "contact_z_mm": 10.0,
+                                   "indent_depth_mm": 3.0, "hold_s": 0.3, "watch_topic": "", "speed_mm_s": 10.0})
+    plan = h.published("robot/plan")[0]
+    presses = [w for w in plan.waypoints if w.kind == "hold"]
+    assert len(presses) == 4 and all(w.z_mm == 7.0 and w.hold_s == 0.3 for w in presses)
+    low = []
+    for _ in range(400):
+        h.advance(0.05)
+        p = h.published("robot/pose")[-1]
+        if p.z_mm < 7.01:
+            low.append(p.stamp_ns)
+        if h.node.is_shutdown:
+            break
+    assert h.node.exit_code == 0
+    assert (max(low) - min(low)) / 1e9 > 4 * 0.3  # it dwelt at the press depth at every point

@@ -210,7 +210,7 @@ class OpenCVSource:
     def _run(self) -> None:
         backoff = self._backoff[0]
         seq = 0
-        start_mono = time.monotonic()
+        start_mono: float | None = None  # the file's clock starts when its first frame is out, not at open
         while not self._stop.is_set():
             cap = self._cap
             if cap is None:  # a camera that is absent or was lost
@@ -224,6 +224,8 @@ class OpenCVSource:
                 continue
             ok = cap.grab()
             stamp = self._clock()
+            if start_mono is None:
+                start_mono = time.monotonic()
             image = cap.retrieve()[1] if ok else None
             if image is None:
                 if self._info.kind != "device":
@@ -245,7 +247,7 @@ class OpenCVSource:
             seq += 1
             if self._pacing == "realtime" and self._info.kind != "device" and self._info.fps > 0:
                 # Hold each file frame until its time on the file's clock, as the camera would.
-                due = start_mono + seq / self._info.fps
+                due = (start_mono or time.monotonic()) + seq / self._info.fps
                 delay = due - time.monotonic()
                 if delay > 0 and self._stop.wait(delay):
                     break
