@@ -82,8 +82,11 @@ class MapAggregator(palpa.Node):
 
     def on_plan(self, plan: ScanPlan) -> None:
         if self.grid is None:
-            self._make_grid(*plan.region_mm)
-            self.log.info("map region from the scan plan: %s mm", plan.region_mm)
+            # half a cell of margin: raster lines and grid points on the region's edges fall on cell centres
+            h = self.params.resolution_mm / 2
+            x0, y0, x1, y1 = plan.region_mm
+            self._make_grid(x0 - h, y0 - h, x1 + h, y1 + h)
+            self.log.info("map region from the scan plan: %s mm (cells centred on the raster)", plan.region_mm)
 
     def on_sample(self, s: StiffnessSample) -> None:
         if not s.valid:

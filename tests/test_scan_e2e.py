@@ -119,3 +119,18 @@ def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path) -> None:
     grid = np.load(tmp_path / "map.npz")["stiffness"]
     truth = load_phantom(path).youngs_modulus_kpa
     assert abs(np.nanmedian(grid) / truth - 1) < 0.05
+
+
+def test_camera_probe_indent_scan_finds_the_tumours(procs: ProcessGroup, tmp_path: Path) -> None:
+    """launch/scan_camera_sim.yaml (defaults): the camera probe's indentation scan of flat_26k_tumours finds every
+    inclusion of radius >= 4 mm and ratio >= 2 within 1.5 mm, with at most one false positive."""
+    run = tmp_path / "cam"
+    run_launch(procs, run, "launch/scan_camera_sim.yaml", timeout=500)
+    phantom = load_phantom(REPO / "phantoms" / "flat_26k_tumours.yaml")
+    found = inclusions(run)
+    must = [i for i in phantom.inclusions if i.radius_mm >= 4 and i.youngs_modulus_kpa / 26.4 >= 2]
+    assert len(must) == 3
+    for inc in must:
+        assert min(math.dist((f["x_mm"], f["y_mm"]), inc.center_mm) for f in found) <= 1.5, (inc, found)
+    assert len(match(found, [i.center_mm for i in phantom.inclusions])) - sum(
+        e <= 3.0 for e in match(found, [i.center_mm for i in phantom.inclusions])) <= 1

@@ -7,7 +7,8 @@ models.multi_indenter (a positive angle: the surface recedes from the probe towa
 ``depth = surface_z − z`` past the surface at its centre advances it ``depth − min_i gap_i`` past its first
 contact (gap_i = x_i tan pan + y_i tan tilt for indenter tip i); ``multi_indenter.forward`` then gives each
 indenter's displacement against the local stiffness K_t = ``phantom.spring_constant(x, y)`` (uniform under the
-probe, as eq. 5 assumes), and ``models.camera_render`` draws the frame.
+probe, as eq. 5 assumes; on tissue taken at the depth the centre indenter pushes the surface to, so a buried
+inclusion shows more the deeper the press), and ``models.camera_render`` draws the frame.
 
 Implements :class:`nodes.drivers.camera.FrameSource`; the node feeds it poses from the bus.
 """
@@ -101,8 +102,13 @@ class SimCameraSource:
     def displacements(self, x_mm: float, y_mm: float, z_mm: float) -> tuple[float, float, FloatArray, npt.NDArray[np.bool_]]:
         """(advance mm, K_t N/mm, displacement of each indenter mm, contact) for the probe at (x, y, z)."""
         surface = float(self.phantom.surface_z(x_mm, y_mm))
-        k_t = float(self.phantom.spring_constant(x_mm, y_mm))
         advance = surface - z_mm - self._min_gap
+        k_t = float(self.phantom.spring_constant(x_mm, y_mm))
+        if not self.phantom.is_spring_sample and math.isfinite(k_t) and k_t > 0 and advance > 0:
+            # tissue: the deeper the centre (hard) indenter pushes the surface, the deeper the material it feels
+            # (a buried inclusion shows more); its tissue displacement is advance * K_h / (K_h + K_t)
+            k_h = max(self.geometry.k_n_per_mm)
+            k_t = float(self.phantom.spring_constant(x_mm, y_mm, depth_mm=advance * k_h / (k_h + k_t)))
         if not (math.isfinite(k_t) and k_t > 0 and math.isfinite(advance)):
             return advance, k_t, np.zeros(self.geometry.n), np.zeros(self.geometry.n, dtype=bool)
         c = forward(self.geometry, k_t, advance, self.pan_rad, self.tilt_rad)
