@@ -22,27 +22,20 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal, NamedTuple
 
 import numpy as np
-import numpy.typing as npt
+
+from models._arrays import ArrayLike, FloatArray
+from models._arrays import as_f64 as _f64
+from models._arrays import scalar_or_array as _out
 
 if TYPE_CHECKING:
     from models.phantom import Phantom
 
-FloatArray = npt.NDArray[np.float64]
-ArrayLike = float | FloatArray
 
 DEFAULT_INDENTER_RADIUS_MM = 4.0
 DEFAULT_SPS_RADIUS_MM = 6.0
 _SQRT3 = float(np.sqrt(3.0))
 
 
-def _out(value: FloatArray, *args: object) -> ArrayLike:
-    if all(np.ndim(a) == 0 for a in args):  # type: ignore[arg-type]
-        return float(value)
-    return value
-
-
-def _f64(x: ArrayLike) -> FloatArray:
-    return np.asarray(x, dtype=np.float64)
 
 
 def _check_positive(name: str, value: float) -> None:

@@ -21,8 +21,9 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import minimize_scalar
 
-FloatArray = npt.NDArray[np.float64]
-ArrayLike = float | FloatArray
+from models._arrays import ArrayLike, FloatArray
+from models._arrays import as_f64 as _f64
+from models._arrays import scalar_or_array as _out
 
 _KPA_PER_N_MM2 = 1000.0  # 1 N/mm^2 = 1 MPa = 1000 kPa
 
@@ -35,15 +36,6 @@ DIMITRIADIS_COEFFS: tuple[float, ...] = (1.0, 1.133, 1.283, 0.769, 0.0975)
 FUNG_B_BOUNDS: tuple[float, float] = (-30.0, 30.0)
 
 
-def _out(value: FloatArray, *args: object) -> ArrayLike:
-    """Return a Python float when every input was a scalar, else the array."""
-    if all(np.ndim(a) == 0 for a in args):  # type: ignore[arg-type]
-        return float(value)
-    return value
-
-
-def _f64(x: ArrayLike) -> FloatArray:
-    return np.asarray(x, dtype=np.float64)
 
 
 def _check_positive(name: str, value: ArrayLike, unit: str = "mm") -> None:

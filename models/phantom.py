@@ -29,8 +29,9 @@ import numpy.typing as npt
 import yaml
 from scipy.special import chndtr
 
-FloatArray = npt.NDArray[np.float64]
-ArrayLike = float | FloatArray
+from models._arrays import ArrayLike, FloatArray
+from models._arrays import as_f64 as _f64
+from models._arrays import scalar_or_array as _out
 
 _Pos = Annotated[float, msgspec.Meta(gt=0)]
 _NonNeg = Annotated[float, msgspec.Meta(ge=0)]
@@ -272,14 +273,6 @@ class Phantom(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=T
         return _out(k, x, y, depth_mm)
 
 
-def _f64(x: ArrayLike) -> FloatArray:
-    return np.asarray(x, dtype=np.float64)
-
-
-def _out(value: FloatArray, *args: object) -> ArrayLike:
-    if all(np.ndim(a) == 0 for a in args):  # type: ignore[arg-type]
-        return float(value)
-    return value
 
 
 def _inclusion_table(incs: tuple[Inclusion, ...]) -> tuple[FloatArray, ...]:
