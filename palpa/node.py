@@ -60,7 +60,7 @@ from palpa.wire import (
     split_envelope,
 )
 
-__all__ = ["Node", "Publisher", "RawMessage", "Subscription", "Timer"]
+__all__ = ["Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
 
 M = TypeVar("M", bound=Message)
 _ERROR_LOG_INTERVAL_NS = 5_000_000_000
@@ -324,13 +324,7 @@ class Node:
 
     def resolve(self, topic: str) -> str:
         """The topic name on the bus after remapping and namespacing (``/x`` is absolute; ``_palpa/`` is global)."""
-        topic = self.remap.get(topic, topic)
-        if topic.startswith("/"):
-            return topic[1:]
-        if topic.startswith("_palpa/") or not self.namespace:
-            return topic
-        resolved = f"{self.namespace}/{topic}"
-        return self.remap.get(resolved, resolved)
+        return resolve_topic(topic, self.namespace, self.remap)
 
     def publisher(
         self, topic: str, msg_type: type[M], *, latched: bool = False, batch: int | None = None
@@ -614,6 +608,19 @@ class Node:
                 uptime_s=(time.monotonic_ns() - self._started_ns) / 1e9,
             )
         )
+
+
+def resolve_topic(topic: str, namespace: str, remap: Mapping[str, str]) -> str:
+    """A topic as written in a node -> its name on the bus: remapped, then prefixed by the namespace unless absolute
+    (``/x``) or a runtime topic (``_palpa/...``); a remap of the namespaced name applies last."""
+    topic = remap.get(topic, topic)
+    if topic.startswith("/"):
+        return topic[1:]
+    namespace = namespace.strip("/")
+    if topic.startswith("_palpa/") or not namespace:
+        return topic
+    resolved = f"{namespace}/{topic}"
+    return remap.get(resolved, resolved)
 
 
 def _snake(name: str) -> str:

@@ -108,6 +108,16 @@ def _make_run_dir(chosen: Path | None) -> tuple[Path, bool]:
     raise PalpaError(f"cannot make a fresh run directory next to {base}")
 
 
+def _topics_of(spec: Any) -> dict[str, list[str]] | str:
+    from palpa.cli.run import load_node_class
+    from palpa.launch.topics import declared_topics
+
+    try:
+        return declared_topics(load_node_class(spec.target), spec.namespace, spec.remap)
+    except PalpaError as exc:  # the loader already checked the import; be safe anyway
+        return f"unknown ({exc})"
+
+
 def describe(plan: LaunchPlan) -> str:
     """The resolved graph in readable YAML (what ``--check`` prints)."""
     doc: dict[str, Any] = {}
@@ -142,6 +152,8 @@ def describe(plan: LaunchPlan) -> str:
         for key in ("remap", "env"):
             if getattr(spec, key):
                 entry[key] = getattr(spec, key)
+        if spec.target:
+            entry["topics"] = _topics_of(spec)
         flags = [f for f in ("required", "respawn") if getattr(spec, f)]
         if spec.respawn:
             flags.append(f"respawn_delay {spec.respawn_delay:g} s, max retries {spec.respawn_max_retries}")

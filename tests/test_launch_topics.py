@@ -1,0 +1,31 @@
+"""``palpa launch --check`` lists each node's topics, read from the class source (no node is started)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from test_launch_smoke import REPO
+
+from nodes.demo import Listener, Talker
+from nodes.fibre_reader import FibreReader
+from palpa.launch.topics import declared_topics
+from palpa.simclock import ClockSource
+
+
+def test_declared_topics_with_namespace_and_remap() -> None:
+    assert declared_topics(Talker) == {"publishes": ["chatter"], "subscribes": []}
+    assert declared_topics(Listener, "left", {"chatter": "/talk"}) == {
+        "publishes": ["left/chatter_len"], "subscribes": ["talk"]}
+    fibre = declared_topics(FibreReader)
+    assert fibre["publishes"] == ["probe/heights", "probe/status"]
+    assert fibre["subscribes"] == ["pressure/state", "robot/pose"]  # the sim driver's inputs
+    assert declared_topics(ClockSource) == {"publishes": [], "subscribes": []}  # runtime topics are not listed
+
+
+def test_check_prints_topics() -> None:
+    out = subprocess.run([sys.executable, "-m", "palpa.cli.main", "launch", "--check",
+                          str(REPO / "launch" / "talker_listener.yaml")], capture_output=True, text=True,
+                         timeout=60, cwd=REPO)
+    assert out.returncode == 0, out.stderr
+    assert "publishes: [chatter_len]" in out.stdout and "subscribes: [chatter]" in out.stdout
