@@ -1,0 +1,172 @@
+"""The endpoints a node hands out: publishers, subscriptions, timers, and the raw envelope type.
+
+They hold a reference to their :class:`palpa.node.Node` and use its transport, clock and batching state; create
+them through ``Node.publisher``, ``Node.subscribe`` and ``Node.timer``, not directly.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from typing import TYPE_CHECKING, Generic, NamedTuple, TypeVar, get_type_hints
+
+import msgspec
+
+from palpa.message import Message
+from palpa.wire import Header, HeaderTemplate, TopicStats
+
+if TYPE_CHECKING:
+    from palpa.node import Node
+
+__all__ = ["DEFAULT_BATCH", "Publisher", "RawMessage", "Subscription", "Timer", "handler_type"]
+
+M = TypeVar("M", bound=Message)
+DEFAULT_BATCH = 64
+"""Messages a publisher coalesces at most into one ZeroMQ message while inside a callback."""
+
+_encoder = msgspec.msgpack.Encoder()
+
+
+class RawMessage(NamedTuple):
+    """An envelope delivered undecoded (recorder, ``topic echo``): the payload bytes exactly as received."""
+
+    topic: str
+    header: Header
+    payload: bytes
+    blobs: list[bytes]
+    from_cache: bool
+    recv_ns: int
+
+
+class Publisher(Generic[M]):
+    """Publishes one message type on one topic; ``publish`` returns the sequence number it used.
+
+    Batching: messages published from inside a callback or timer are coalesced (up to ``batch`` per ZeroMQ
+    message) and leave when the callback returns, so a burst costs one send and a single message no extra
+    latency. Outside callbacks each publish is sent at once, unless the publisher was made with an explicit
+    ``batch`` (then call :meth:`flush`, or let the node's loop do it).
+    """
+
+    def __init__(self, node: Node, topic: str, msg_type: type[M], latched: bool, batch: int | None) -> None:
+        self.node = node
+        self.topic = topic
+        self.type = msg_type
+        self.latched = latched
+        self.seq = 0
+        self.batch = 1 if latched else max(1, DEFAULT_BATCH if batch is None else batch)
+        self._always_batch = batch is not None and self.batch > 1
+        self._topic_b = topic.encode()
+        self._type_name = msg_type.type_name
+        self._header = HeaderTemplate(self._type_name, node.name, latched)
+        self._pending_headers: list[bytes] = []
+        self._pending_payloads: list[bytes] = []
+
+    def publish(self, msg: M, *, blobs: Sequence[bytes] = (), stamp_ns: int | None = None) -> int:
+        """Serialise and send ``msg`` (plus optional binary blobs). ``stamp_ns`` defaults to the node clock."""
+        if type(msg) is not self.type:
+            raise TypeError(
+                f"publisher {self.topic!r} carries {self._type_name}, not {type(msg).__name__}"
+            )
+        self.seq += 1
+        node = self.node
+        header = self._header.pack(self.seq, node.clock.now_ns() if stamp_ns is None else stamp_ns)
+        if self.batch > 1 and not blobs and (node._depth or self._always_batch):
+            if not self._pending_headers:
+                node._dirty.append(self)
+            self._pending_headers.append(header)
+            self._pending_payloads.append(_encoder.encode(msg))
+            if len(self._pending_headers) >= self.batch:
+                self.flush()
+            return self.seq
+        if self._pending_headers:
+            self.flush()
+        node._transport.send([self._topic_b, header, _encoder.encode(msg), *blobs], self.latched)
+        return self.seq
+
+    def flush(self) -> None:
+        """Send batched messages now (the node also flushes after every callback and timer)."""
+        headers = self._pending_headers
+        if not headers:
+            return
+        if len(headers) == 1:
+            frames = [self._topic_b, headers[0], self._pending_payloads[0]]
+        else:
+            frames = [self._topic_b, HeaderTemplate.pack_batch(headers), *self._pending_payloads]
+        self._pending_headers = []
+        self._pending_payloads = []
+        self.node._transport.send(frames, False)
+
+
+class Subscription(Generic[M]):
+    """A typed subscription. With a callback, messages are handed to it; without, iterate it (or ``next()``)."""
+
+    def __init__(
+        self,
+        node: Node,
+        topic: str,
+        msg_type: type[M],
+        callback: Callable[[M], object] | None,
+        queue_size: int,
+    ) -> None:
+        self.node = node
+        self.topic = topic
+        self.type = msg_type
+        self.callback = callback
+        self.stats = TopicStats()
+        self.queue: deque[M] = deque(maxlen=queue_size)
+        self.last_header: Header | None = None
+        self.last_blobs: list[bytes] = []
+        self.decoder = msgspec.msgpack.Decoder(msg_type)
+
+    def next(self, timeout_s: float | None = None) -> M | None:
+        """The next message, spinning the node while waiting; None on timeout or shutdown."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while not self.queue:
+            if self.node.is_shutdown:
+                return None
+            remaining = 0.1 if deadline is None else min(0.1, deadline - time.monotonic())
+            if remaining <= 0:
+                return None
+            self.node.spin_once(remaining)
+        return self.queue.popleft()
+
+    def __iter__(self) -> Iterator[M]:
+        return self
+
+    def __next__(self) -> M:
+        msg = self.next()
+        if msg is None:
+            raise StopIteration
+        return msg
+
+
+class Timer:
+    """A periodic (or one-shot) callback on the node's clock."""
+
+    def __init__(self, period_ns: int, callback: Callable[[], object], due_ns: int, oneshot: bool) -> None:
+        self.period_ns = period_ns
+        self.callback = callback
+        self.due_ns = due_ns
+        self.oneshot = oneshot
+        self.cancelled = False
+
+    def cancel(self) -> None:
+        self.cancelled = True
+
+
+def handler_type(callback: Callable[..., object]) -> type[Message]:
+    try:
+        hints = get_type_hints(callback)
+    except Exception as exc:  # unresolvable annotations
+        raise TypeError(f"cannot read the message type of {callback!r}: {exc}") from None
+    hints.pop("return", None)
+    for hint in hints.values():
+        if isinstance(hint, type) and issubclass(hint, Message):
+            return hint
+    raise TypeError(
+        f"{getattr(callback, '__qualname__', callback)!r} has no Message-typed parameter: annotate it "
+        "or pass the type explicitly: subscribe(topic, Type, callback)"
+    )
+
+
