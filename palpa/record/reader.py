@@ -41,6 +41,7 @@ __all__ = [
     "channel_info",
     "iter_bag",
     "iter_file",
+    "ReadableRecords",
     "iter_records",
     "resolve_bag_paths",
 ]
@@ -201,6 +202,32 @@ def iter_records(fh: BinaryIO) -> Iterator[McapRecord | RawRecord]:
         # Message Index, Chunk Index and other index/summary records: not needed to read forward
 
 
+class ReadableRecords:
+    """The records of an open MCAP file up to the first one that cannot be read (a file whose writer died).
+
+    Iterate it; afterwards ``damage`` says what stopped the reading ("" when the file was read to its end). A file
+    that is not MCAP at all raises :class:`BagError` at once.
+    """
+
+    def __init__(self, fh: BinaryIO, source: str | os.PathLike[str]) -> None:
+        self._records = iter_records(fh)
+        self._source = source
+        self.damage = ""
+
+    def __iter__(self) -> Iterator[McapRecord | RawRecord]:
+        while True:
+            try:
+                rec = next(self._records)
+            except StopIteration:
+                return
+            except InvalidMagic:
+                raise BagError(f"{self._source}: not an MCAP file (bad magic bytes)") from None
+            except Exception as exc:  # noqa: BLE001 - any parse failure means the rest is unreadable
+                self.damage = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+                return
+            yield rec
+
+
 def iter_file(
     path: Path,
     *,
@@ -221,17 +248,8 @@ def iter_file(
     damage = ""
     try:
         with open(path, "rb") as fh:
-            records = iter_records(fh)
-            while True:
-                try:
-                    rec = next(records)
-                except StopIteration:
-                    break
-                except InvalidMagic:
-                    raise BagError(f"{path}: not an MCAP file (bad magic bytes)") from None
-                except Exception as exc:  # noqa: BLE001 - any parse failure means the rest is unreadable
-                    damage = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-                    break
+            records = ReadableRecords(fh, path)
+            for rec in records:
                 if isinstance(rec, RawRecord):
                     info = channels.get(rec.channel_id)
                     if info is None:
@@ -253,6 +271,7 @@ def iter_file(
                     channels[rec.id] = channel_info(rec)
                 if on_record is not None:
                     on_record(rec)
+            damage = records.damage
     except OSError as exc:
         raise BagError(f"cannot read {path}: {exc}") from None
     if damage:

@@ -12,11 +12,10 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from mcap.exceptions import InvalidMagic
 from mcap.records import Attachment, Channel, DataEnd, Metadata, Schema
 
 from palpa.record.format import MD_DROPS, MD_RECOVERY, META_BLOBS_OF, BagError, dumps
-from palpa.record.reader import ChannelInfo, RawRecord, channel_info, iter_records
+from palpa.record.reader import ChannelInfo, RawRecord, ReadableRecords, channel_info
 from palpa.record.writer import BagWriter
 from palpa.wire import SequenceTracker, TopicStats
 
@@ -66,17 +65,8 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str] | None = No
         infos: dict[int, ChannelInfo] = {}
         tracker = SequenceTracker()
         stats: dict[str, TopicStats] = {}
-        records = iter_records(fh)
-        while True:
-            try:
-                rec = next(records)
-            except StopIteration:
-                break
-            except InvalidMagic:
-                raise BagError(f"{source}: not an MCAP file (bad magic bytes)") from None
-            except Exception as exc:  # noqa: BLE001 - the first unreadable record ends the usable prefix
-                report.damage = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-                break
+        records = ReadableRecords(fh, source)  # the first unreadable record ends the usable prefix
+        for rec in records:
             if isinstance(rec, RawRecord):
                 new = channel_map.get(rec.channel_id)
                 if new is None:
@@ -108,6 +98,7 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str] | None = No
             elif isinstance(rec, DataEnd):
                 report.finalized = True
                 break
+        report.damage = report.damage or records.damage
         report.drops = {t: s.as_dict() for t, s in stats.items()}
         writer.add_metadata(MD_DROPS, {t: dumps(d) for t, d in report.drops.items()})
         writer.add_metadata(MD_RECOVERY, {
