@@ -26,7 +26,7 @@ import yaml
 from palpa.errors import PalpaError
 from palpa.node import Node
 
-__all__ = ["node_arg_parser", "params_from_args", "run_node"]
+__all__ = ["node_arg_parser", "params_from_args", "parse_remaps", "run_node", "run_node_code"]
 
 
 def node_arg_parser(prog: str) -> argparse.ArgumentParser:
@@ -76,7 +76,8 @@ def params_from_args(args: argparse.Namespace) -> dict[str, Any]:
     return params
 
 
-def _remaps(items: Sequence[str]) -> dict[str, str]:
+def parse_remaps(items: Sequence[str]) -> dict[str, str]:
+    """``FROM:=TO`` items -> a remap table; a malformed item is a one-line error."""
     out = {}
     for item in items:
         src, sep, dst = item.partition(":=")
@@ -104,7 +105,7 @@ def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: s
             name=args.name,
             params=params_from_args(args),
             namespace=args.namespace,
-            remap=_remaps(args.remap),
+            remap=parse_remaps(args.remap),
             bus=args.bus,
             sim_clock=args.sim_clock,
         )

@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 
-from palpa.cli.common import add_bus_arg
-from palpa.errors import PalpaError
+from palpa.cli.common import add_bus_arg, run_with_params
 from palpa.record.player import Player
-from palpa.runner import run_node_code
+from palpa.runner import parse_remaps
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -34,12 +32,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    remap = {}
-    for item in args.remap:
-        src, sep, dst = item.partition(":=")
-        if not sep or not src or not dst:
-            raise PalpaError(f"--remap {item!r}: expected FROM:=TO")
-        remap[src] = dst
+    remap = parse_remaps(args.remap)
     params = {
         "file": args.files if len(args.files) > 1 else args.files[0],
         "rate": args.rate,
@@ -53,9 +46,4 @@ def run(args: argparse.Namespace) -> int:
         "realtime": args.realtime,
         "wait_for": args.wait_for,
     }
-    argv = ["--name", args.name, "--params-json", json.dumps(params)]
-    if args.bus:
-        argv += ["--bus", args.bus]
-    if getattr(args, "debug", False):
-        argv.append("--debug")
-    return run_node_code(Player, argv, prog="palpa play")
+    return run_with_params(Player, params, args, "palpa play")

@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import time
 
-from palpa.cli.common import add_bus_arg
+from palpa.cli.common import add_bus_arg, run_with_params
 from palpa.record.recorder import Recorder
 from palpa.record.writer import COMPRESSIONS
-from palpa.runner import run_node_code
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -41,9 +39,4 @@ def run(args: argparse.Namespace) -> int:
         "compression": args.compression,
         "fsync": args.fsync,
     }
-    argv = ["--name", args.name, "--params-json", json.dumps(params)]
-    if args.bus:
-        argv += ["--bus", args.bus]
-    if getattr(args, "debug", False):
-        argv.append("--debug")
-    return run_node_code(Recorder, argv, prog="palpa record")
+    return run_with_params(Recorder, params, args, "palpa record")
