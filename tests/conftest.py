@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import secrets
 import subprocess
@@ -55,6 +56,13 @@ def ipc_bus() -> Iterator[BusAddress]:
         yield address
     finally:
         b.stop()
+
+
+@pytest.fixture
+def stack() -> Iterator[contextlib.ExitStack]:
+    """Context managers entered through this (emulators, drivers) are all exited at the end of the test."""
+    with contextlib.ExitStack() as s:
+        yield s
 
 
 @pytest.fixture

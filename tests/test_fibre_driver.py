@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import random
@@ -11,7 +12,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -73,37 +74,17 @@ def cal() -> FibreCalibration:
 
 
 @pytest.fixture
-def make_emu() -> Iterator[Callable[..., FibreDaqEmulator]]:
-    made: list[FibreDaqEmulator] = []
-
-    def make(**kw: object) -> FibreDaqEmulator:
-        emu = FibreDaqEmulator(**kw)  # type: ignore[arg-type]
-        made.append(emu)
-        return emu.start()
-
-    try:
-        yield make
-    finally:
-        for emu in made:
-            emu.stop()
+def make_emu(stack: contextlib.ExitStack) -> Callable[..., FibreDaqEmulator]:
+    return lambda **kw: stack.enter_context(FibreDaqEmulator(**kw))  # type: ignore[arg-type]
 
 
 @pytest.fixture
-def make_driver(cal: FibreCalibration) -> Iterator[Callable[..., SerialFibreDriver]]:
-    made: list[SerialFibreDriver] = []
-
+def make_driver(cal: FibreCalibration, stack: contextlib.ExitStack) -> Callable[..., SerialFibreDriver]:
     def make(port: str, **kw: object) -> SerialFibreDriver:
         kw.setdefault("backoff_s", (0.01, 0.1))
-        drv = SerialFibreDriver(port, 115200, cal, **kw)  # type: ignore[arg-type]
-        made.append(drv)
-        drv.open()
-        return drv
+        return stack.enter_context(SerialFibreDriver(port, 115200, cal, **kw))  # type: ignore[arg-type]
 
-    try:
-        yield make
-    finally:
-        for drv in made:
-            drv.close()
+    return make
 
 
 def settled(drv: SerialFibreDriver) -> FibreCounters:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import selectors
@@ -10,7 +11,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -63,41 +64,24 @@ def clock() -> FakeClock:
 
 
 @pytest.fixture
-def make_emu(clock: FakeClock) -> Iterator[Callable[..., AlicatEmulator]]:
-    made: list[AlicatEmulator] = []
-
+def make_emu(clock: FakeClock, stack: contextlib.ExitStack) -> Callable[..., AlicatEmulator]:
     def make(**kw: object) -> AlicatEmulator:
         kw.setdefault("clock", clock)
         kw.setdefault("tau_s", 0.02)
         kw.setdefault("rate_limit_kpa_s", 1000.0)
-        emu = AlicatEmulator(**kw)  # type: ignore[arg-type]
-        made.append(emu)
-        return emu.start()
+        return stack.enter_context(AlicatEmulator(**kw))  # type: ignore[arg-type]
 
-    try:
-        yield make
-    finally:
-        for emu in made:
-            emu.stop()
+    return make
 
 
 @pytest.fixture
-def make_driver() -> Iterator[Callable[..., AlicatPressureDriver]]:
-    made: list[AlicatPressureDriver] = []
-
+def make_driver(stack: contextlib.ExitStack) -> Callable[..., AlicatPressureDriver]:
     def make(port: str, unit_id: str = "A", **kw: object) -> AlicatPressureDriver:
         kw.setdefault("backoff_s", (0.01, 0.05))
         kw.setdefault("timeout_s", 1.0)  # generous: the machine is shared; muted-reply tests pass their own
-        drv = AlicatPressureDriver(port, unit_id, MAX_KPA, **kw)  # type: ignore[arg-type]
-        made.append(drv)
-        drv.open()
-        return drv
+        return stack.enter_context(AlicatPressureDriver(port, unit_id, MAX_KPA, **kw))  # type: ignore[arg-type]
 
-    try:
-        yield make
-    finally:
-        for drv in made:
-            drv.close()
+    return make
 
 
 def poll(drv: AlicatPressureDriver) -> PressureReading:
