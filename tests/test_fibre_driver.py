@@ -10,12 +10,12 @@ import selectors
 import signal
 import subprocess
 import sys
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from procs import wait_until
 
 from emulators.fibre_daq import FibreDaqEmulator, fixed_pose, source_from_heights
 from nodes.drivers.fibre import (
@@ -42,15 +42,6 @@ DATA = Path(__file__).parent / "data"
 CAL_FILE = DATA / "fibre_calibration.yaml"
 REPO = Path(__file__).resolve().parents[1]
 
-
-def wait_until(pred: Callable[[], object], timeout_s: float = 5.0, what: str = "condition") -> None:
-    """Poll ``pred`` until true; fail after ``timeout_s``."""
-    done = threading.Event()
-    deadline = time.monotonic() + timeout_s
-    while not pred():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
-        done.wait(0.005)
 
 
 def collect(drv: SerialFibreDriver, n: int, timeout_s: float = 5.0) -> list[FibreSample]:

@@ -9,12 +9,11 @@ import selectors
 import signal
 import subprocess
 import sys
-import threading
-import time
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from procs import wait_until
 
 from emulators.alicat import AlicatEmulator
 from nodes.drivers.pressure import (
@@ -47,15 +46,6 @@ class FakeClock:
     def advance(self, dt_s: float) -> None:
         self.t += dt_s
 
-
-def wait_until(pred: Callable[[], object], timeout_s: float = 5.0, what: str = "condition") -> None:
-    """Poll ``pred`` until true; fail after ``timeout_s``."""
-    tick = threading.Event()
-    deadline = time.monotonic() + timeout_s
-    while not pred():
-        if time.monotonic() > deadline:
-            pytest.fail(f"timed out after {timeout_s} s waiting for {what}")
-        tick.wait(0.005)
 
 
 @pytest.fixture
