@@ -39,7 +39,7 @@ from palpa.address import BusAddress  # noqa: E402
 from palpa.bus import Bus  # noqa: E402
 from palpa.node import Node  # noqa: E402
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat  # noqa: E402
-from palpa.wire import HeaderTemplate, decode_header  # noqa: E402
+from palpa.wire import HeaderTemplate, decode_header, msgpack_array  # noqa: E402
 
 MAX_LAG_S = 0.1
 SMALL_RATES = [25_000, 50_000, 75_000, 100_000, 125_000, 150_000, 200_000]
@@ -76,7 +76,7 @@ def role_pub(args: argparse.Namespace) -> None:
                 k = min(batch, n - sent)
                 stamp = time.time_ns()
                 heads = [data_t.pack(sent + i + 1, stamp) for i in range(k)]
-                sock.send_multipart([topic, HeaderTemplate.pack_batch(heads), *([payload] * k)], copy=False)
+                sock.send_multipart([topic, msgpack_array(heads), msgpack_array([payload] * k)])
                 sent += k
             else:
                 sent += 1

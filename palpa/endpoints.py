@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Generic, NamedTuple, TypeVar, get_type_hints
 import msgspec
 
 from palpa.message import Message
-from palpa.wire import Header, HeaderTemplate, TopicStats
+from palpa.wire import Header, HeaderTemplate, TopicStats, msgpack_array
 
 if TYPE_CHECKING:
     from palpa.node import Node
@@ -92,7 +92,7 @@ class Publisher(Generic[M]):
         if len(headers) == 1:
             frames = [self._topic_b, headers[0], self._pending_payloads[0]]
         else:
-            frames = [self._topic_b, HeaderTemplate.pack_batch(headers), *self._pending_payloads]
+            frames = [self._topic_b, msgpack_array(headers), msgpack_array(self._pending_payloads)]
         self._pending_headers = []
         self._pending_payloads = []
         self.node._transport.send(frames, False)
@@ -117,7 +117,9 @@ class Subscription(Generic[M]):
         self.queue: deque[M] = deque(maxlen=queue_size)
         self.last_header: Header | None = None
         self.last_blobs: list[bytes] = []
+        self.type_name = msg_type.type_name
         self.decoder = msgspec.msgpack.Decoder(msg_type)
+        self.batch_decoder = msgspec.msgpack.Decoder(list[msg_type])  # type: ignore[valid-type]
 
     def next(self, timeout_s: float | None = None) -> M | None:
         """The next message, spinning the node while waiting; None on timeout or shutdown."""

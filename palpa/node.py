@@ -50,13 +50,15 @@ from palpa.runtime_msgs import (
     LogRecord,
     TopicCounters,
 )
-from palpa.transport import Delivery, Transport, ZmqTransport
+from palpa.transport import Delivery, Transport, TransportOptions, ZmqTransport
 from palpa.wire import (
+    Envelope,
     Header,
     SequenceTracker,
     TopicStats,
     encode_header,
-    split_envelope,
+    parse_envelope,
+    split_batch,
 )
 
 __all__ = ["DEFAULT_BATCH", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
@@ -125,6 +127,7 @@ class Node:
         heartbeat_s: float = 1.0,
         sim_clock: bool | None = None,
         wait_for_clock_s: float = 30.0,
+        transport_options: TransportOptions | None = None,
     ) -> None:
         self.name = name or _snake(type(self).__name__)
         if sim_clock is None:
@@ -136,7 +139,7 @@ class Node:
         self.remap = dict(remap or {})
         if transport is None:
             address = bus if isinstance(bus, BusAddress) else (BusAddress.parse(bus) if bus else from_env())
-            transport = ZmqTransport(address)
+            transport = ZmqTransport(address, transport_options or TransportOptions.from_env())
         self._transport = transport
         self._subs: dict[bytes, Subscription[Any]] = {}
         self._raw: list[_RawSubscription] = []
@@ -359,12 +362,16 @@ class Node:
         try:
             fn(*args)
         except Exception:
-            self.handler_errors += 1
-            self.log.error("error in %s:\n%s", getattr(fn, "__qualname__", fn), traceback.format_exc())
+            self._handler_failed(fn)
         finally:
             self._depth -= 1
         if self._dirty and not self._depth:
             self.flush()
+
+    def _handler_failed(self, fn: Callable[..., object]) -> None:
+        """Count and log the exception being handled; a failing callback never stops the node."""
+        self.handler_errors += 1
+        self.log.error("error in %s:\n%s", getattr(fn, "__qualname__", fn), traceback.format_exc())
 
     def flush(self) -> None:
         """Send every batched message still pending."""
@@ -402,23 +409,78 @@ class Node:
             return
         topic, sub, raws, rstats = route
         try:
-            items = split_envelope(frames)
+            env = parse_envelope(frames)
+            payloads = split_batch(env) if env.batch and (rstats is not None or sub is None) else None
         except DecodeError as exc:
             stats = sub.stats if sub is not None else rstats
             if stats is not None:
                 self._count_error(topic, stats, str(exc))
             return
         cached = delivery.from_cache
-        for header, payload, blobs in items:
-            if rstats is not None:
-                tracker = self._raw_tracker
+        if rstats is not None:
+            items = zip(env.headers, payloads, strict=True) if payloads is not None else [(env.headers[0], env.payload)]
+            tracker = self._raw_tracker
+            for header, payload in items:
                 if not (cached and tracker.seen_at_least(topic, header.node, header.seq)) and \
                         tracker.observe(topic, header.node, header.seq, rstats):
-                    raw = RawMessage(topic, header, payload, blobs, cached, time.time_ns())
+                    raw = RawMessage(topic, header, payload, env.blobs, cached, time.time_ns())
                     for callback in raws:
                         self._call(callback, raw)
-            if sub is not None:
-                self._deliver(sub, topic, header, payload, blobs, cached)
+        if sub is None:
+            return
+        if not env.batch:
+            self._deliver(sub, topic, env.headers[0], env.payload, env.blobs, cached)
+        elif not (not cached and self._deliver_batch(sub, topic, env)):
+            try:
+                payloads = payloads if payloads is not None else split_batch(env)
+            except DecodeError as exc:
+                self._count_error(topic, sub.stats, str(exc))
+                return
+            for header, payload in zip(env.headers, payloads, strict=True):
+                self._deliver(sub, topic, header, payload, [], cached)
+
+    def _deliver_batch(self, sub: Subscription[Any], topic: str, env: Envelope) -> bool:
+        """The common batch (one publisher, consecutive sequence numbers after the last seen, the subscribed
+        type, every payload valid) decoded in one call and handed over in one loop. False when it is not that
+        batch: nothing was recorded and the caller goes message by message."""
+        headers = env.headers
+        first = headers[0]
+        n = len(headers)
+        if headers[-1].seq - first.seq != n - 1 or \
+                any(h.node != first.node or h.type != sub.type_name for h in headers) or \
+                [h.seq for h in headers] != list(range(first.seq, first.seq + n)):
+            return False
+        try:
+            msgs = sub.batch_decoder.decode(env.payload)
+        except (msgspec.ValidationError, msgspec.DecodeError):
+            return False
+        if len(msgs) != n or not self._tracker.observe_run(topic, first.node, first.seq, n, sub.stats):
+            return False
+        sub.last_blobs = []
+        callback = sub.callback
+        if callback is None:
+            sub.last_header = headers[-1]
+            sub.queue.extend(msgs)
+            return True
+        self._depth += 1
+        start = 0
+        try:
+            while start < n:
+                # one try per run of good messages, not per message; a failing one is skipped, the rest go on
+                i = start
+                try:
+                    for i in range(start, n):
+                        sub.last_header = headers[i]
+                        callback(msgs[i])
+                    start = n
+                except Exception:
+                    self._handler_failed(callback)
+                    start = i + 1
+        finally:
+            self._depth -= 1
+        if self._dirty and not self._depth:
+            self.flush()
+        return True
 
     def _deliver(self, sub: Subscription[Any], topic: str, header: Header, payload: bytes,
                  blobs: list[bytes], cached: bool) -> None:
@@ -426,8 +488,8 @@ class Node:
             return
         if not self._tracker.observe(topic, header.node, header.seq, sub.stats):
             return
-        if header.type != sub.type.type_name:
-            self._count_error(topic, sub.stats, f"expected type {sub.type.type_name}, got {header.type}")
+        if header.type != sub.type_name:
+            self._count_error(topic, sub.stats, f"expected type {sub.type_name}, got {header.type}")
             return
         try:
             msg = sub.decoder.decode(payload)
@@ -442,9 +504,9 @@ class Node:
             sub.queue.append(msg)
 
     def counters(self) -> dict[str, TopicStats]:
-        """Receive counters per subscribed topic (typed and raw)."""
-        out = {s.topic: s.stats for s in self._subs.values()}
-        out.update(self._raw_stats)
+        """Receive counters per subscribed topic (typed and raw; the typed ones where a topic has both)."""
+        out = dict(self._raw_stats)
+        out.update({s.topic: s.stats for s in self._subs.values()})  # typed ones also count decode errors
         return out
 
     def _heartbeat(self) -> None:

@@ -4,6 +4,7 @@
 
     --name NAME  --namespace NS  --bus ADDRESS  -p/--param KEY=VALUE (VALUE is YAML: 3, 2.5, true, [1, 2])
     --params-json JSON  --params-file FILE.yaml  --remap FROM:=TO  --sim-clock  --debug
+    --sndhwm N  --rcvhwm N  --busy-poll-us US   (transport options, see palpa.transport.TransportOptions)
 
 SIGINT and SIGTERM ask the node to stop; it finishes its current callback, runs ``on_shutdown`` and closes its
 sockets with a bounded linger. The process exits with ``node.exit_code`` (0 unless the node set it).
@@ -25,6 +26,7 @@ import yaml
 
 from palpa.errors import PalpaError
 from palpa.node import Node
+from palpa.transport import TransportOptions
 
 __all__ = ["node_arg_parser", "params_from_args", "parse_remaps", "run_node", "run_node_code"]
 
@@ -42,6 +44,12 @@ def node_arg_parser(prog: str) -> argparse.ArgumentParser:
     ap.add_argument("--remap", action="append", default=[], metavar="FROM:=TO", help="rename a topic")
     ap.add_argument("--sim-clock", action="store_true", default=None,
                     help="follow simulation time on _palpa/clock (also PALPA_SIM_CLOCK=1)")
+    ap.add_argument("--sndhwm", type=int, help="messages queued towards the bus before drops (default 10000; "
+                                              "also PALPA_SNDHWM)")
+    ap.add_argument("--rcvhwm", type=int, help="messages queued from the bus before drops (default 10000; "
+                                              "also PALPA_RCVHWM)")
+    ap.add_argument("--busy-poll-us", type=int, help="spin this long for input before blocking: lower latency "
+                                                     "for a busy core (default 0; also PALPA_BUSY_POLL_US)")
     ap.add_argument("--debug", action="store_true", help="debug logging and tracebacks")
     return ap
 
@@ -108,6 +116,8 @@ def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: s
             remap=parse_remaps(args.remap),
             bus=args.bus,
             sim_clock=args.sim_clock,
+            transport_options=TransportOptions.from_env(
+                sndhwm=args.sndhwm, rcvhwm=args.rcvhwm, busy_poll_us=args.busy_poll_us),
         )
     except PalpaError as exc:
         if args.debug:

@@ -8,9 +8,11 @@ logic is tested without sockets. Both deliver ``Delivery`` items: the frames of 
 from __future__ import annotations
 
 import os
-from collections.abc import Sequence
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple, Protocol
+from typing import ClassVar, NamedTuple, Protocol, cast
 
 import zmq
 import zmq.auth
@@ -18,7 +20,7 @@ import zmq.auth
 from palpa.address import BusAddress
 from palpa.errors import BusError
 
-__all__ = ["Delivery", "Transport", "ZmqTransport", "curve_client_options"]
+__all__ = ["Delivery", "Transport", "TransportOptions", "ZmqTransport", "curve_client_options"]
 
 _SUBSCRIPTIONS_GRACE_MS = 100
 
@@ -46,6 +48,60 @@ class Transport(Protocol):
         ...
 
     def close(self, linger_ms: int) -> None: ...
+
+
+_ZERO_COPY_BYTES = 65_536
+
+
+@dataclass(frozen=True)
+class TransportOptions:
+    """How a node's sockets queue and wait. Set per node in a launch file (``transport:``), on a node's command
+    line (``--sndhwm``, ``--rcvhwm``, ``--busy-poll-us``), or in the environment (``PALPA_SNDHWM``,
+    ``PALPA_RCVHWM``, ``PALPA_BUSY_POLL_US``, which the launcher sets from the launch file)."""
+
+    sndhwm: int = 10_000
+    """Messages queued towards the bus before ZeroMQ drops new ones (subscribers see the drop as a seq gap);
+    0: no limit."""
+    rcvhwm: int = 10_000
+    """Messages queued from the bus before ZeroMQ drops new ones; 0: no limit."""
+    busy_poll_us: int = 0
+    """Before blocking for input, check for it in a loop for up to this long (a CPU core kept busy in exchange
+    for not paying the operating system's wake-up latency; 0: always block)."""
+
+    ENV_VARS: ClassVar[dict[str, str]] = {"sndhwm": "PALPA_SNDHWM", "rcvhwm": "PALPA_RCVHWM", "busy_poll_us": "PALPA_BUSY_POLL_US"}
+
+    def __post_init__(self) -> None:
+        for name in self.ENV_VARS:
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+                raise BusError(f"transport option {name}: expected an integer >= 0, got {value!r}")
+
+    @classmethod
+    def from_env(cls, env: Mapping[str, str] | None = None, **overrides: int | None) -> TransportOptions:
+        """Defaults, then the environment, then the non-None ``overrides`` (command-line flags)."""
+        env = os.environ if env is None else env
+        values: dict[str, int] = {}
+        for name, var in cls.ENV_VARS.items():
+            text = env.get(var, "").strip()
+            if text:
+                try:
+                    values[name] = int(text)
+                except ValueError:
+                    raise BusError(f"{var}={text!r}: expected an integer") from None
+        values.update({k: v for k, v in overrides.items() if v is not None})
+        return cls(**values)
+
+    def to_env(self) -> dict[str, str]:
+        """The environment variables that give a child process these options."""
+        return {var: str(getattr(self, name)) for name, var in self.ENV_VARS.items()}
+
+
+def _send_frames(sock: zmq.Socket[bytes], frames: Sequence[bytes]) -> None:
+    """``send_multipart`` without its per-call checks (a third of a small message's cost): large frames go
+    without a copy, small ones are copied (cheaper than a zero-copy frame's bookkeeping)."""
+    last = len(frames) - 1
+    for i, frame in enumerate(frames):
+        sock.send(frame, zmq.SNDMORE if i < last else 0, copy=len(frame) < _ZERO_COPY_BYTES)
 
 
 def curve_client_options() -> dict[str, bytes] | None:
@@ -77,12 +133,14 @@ class ZmqTransport:
     def __init__(
         self,
         address: BusAddress,
+        options: TransportOptions | None = None,
         *,
-        sndhwm: int = 10_000,
-        rcvhwm: int = 10_000,
         context: zmq.Context[zmq.Socket[bytes]] | None = None,
         connect_timeout_s: float = 2.0,
     ) -> None:
+        options = options or TransportOptions()
+        self.options = options
+        self._busy_poll_ns = options.busy_poll_us * 1000
         self._ctx = context or zmq.Context.instance()
         curve = curve_client_options()
         # an XPUB, not a PUB: it hears the proxy's subscriptions, so the constructor can wait until they have
@@ -90,8 +148,8 @@ class ZmqTransport:
         self._pub = self._ctx.socket(zmq.XPUB)
         self._sub = self._ctx.socket(zmq.SUB)
         self._latch = self._ctx.socket(zmq.DEALER)
-        self._pub.sndhwm = sndhwm
-        self._sub.rcvhwm = rcvhwm
+        self._pub.sndhwm = options.sndhwm
+        self._sub.rcvhwm = options.rcvhwm
         for sock in (self._pub, self._sub, self._latch):
             if curve is not None:
                 sock.curve_serverkey = curve["server"]
@@ -137,9 +195,10 @@ class ZmqTransport:
                 return
 
     def send(self, frames: Sequence[bytes], latched: bool) -> None:
-        self._pub.send_multipart(frames, copy=False)
+        _send_frames(self._pub, frames)
         if latched:
-            self._latch.send_multipart([b"SET", *frames], copy=False)
+            self._latch.send(b"SET", zmq.SNDMORE)
+            _send_frames(self._latch, frames)
 
     def subscribe(self, prefix: bytes, request_latched: bool) -> None:
         self._sub.setsockopt(zmq.SUBSCRIBE, prefix)
@@ -151,16 +210,25 @@ class ZmqTransport:
 
     def poll(self, timeout_ms: int, max_batch: int = 1000) -> list[Delivery]:
         out: list[Delivery] = []
+        if self._busy_poll_ns and timeout_ms > 0:
+            timeout_ms = self._busy_wait(timeout_ms)
         events = dict(self._poller.poll(timeout_ms))
         if self._pub in events:
             self._drain_subscriptions()
         if self._sub in events:
-            recv = self._sub.recv_multipart
+            recv = self._sub.recv
             for _ in range(max_batch):
                 try:
-                    out.append(Delivery(recv(zmq.NOBLOCK), False))
+                    frame = recv(zmq.NOBLOCK, copy=False)
                 except zmq.Again:
                     break
+                # Frame.more, not recv_multipart: pyzmq's RCVMORE getsockopt costs ~2 us a frame, more than the
+                # receive itself; the rest of a multipart message is already here (ZeroMQ delivers it whole)
+                frames = [frame.bytes]
+                while frame.more:
+                    frame = recv(0, copy=False)
+                    frames.append(frame.bytes)
+                out.append(Delivery(frames, False))
         if self._latch in events:
             while True:
                 try:
@@ -170,6 +238,17 @@ class ZmqTransport:
                 if frames and frames[0] == b"VAL" and len(frames) >= 4:
                     out.append(Delivery(frames[1:], True))
         return out
+
+    def _busy_wait(self, timeout_ms: int) -> int:
+        """Spin until the SUB socket has input or the busy-poll time is over; returns the timeout left for the
+        blocking poll (0 when input arrived)."""
+        start = time.monotonic_ns()
+        end = start + min(self._busy_poll_ns, timeout_ms * 1_000_000)
+        sub = self._sub
+        while time.monotonic_ns() < end:
+            if cast(int, sub.get(zmq.EVENTS)) & zmq.POLLIN:
+                return 0
+        return max(0, timeout_ms - (time.monotonic_ns() - start) // 1_000_000)
 
     def close(self, linger_ms: int) -> None:
         if getattr(self, "_closed", False):

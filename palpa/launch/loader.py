@@ -229,7 +229,8 @@ def _node_spec(src: Source, i: int, nd: NodeDecl, namespace: str, col: _Collecte
         name=nd.name, target=nd.node, cmd=list(nd.cmd) if nd.cmd is not None else None, params=dict(nd.params),
         remap=dict(nd.remap), namespace=ns, env=dict(nd.env), respawn=nd.respawn, respawn_delay=nd.respawn_delay,
         respawn_max_retries=nd.respawn_max_retries, required=nd.required, sigterm_timeout=nd.sigterm_timeout,
-        sigkill_timeout=nd.sigkill_timeout, output=nd.output, where=str(src.mark(where)),
+        sigkill_timeout=nd.sigkill_timeout, output=nd.output,
+        transport=nd.transport.given() if nd.transport is not None else {}, where=str(src.mark(where)),
     )
 
 

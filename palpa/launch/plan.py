@@ -15,6 +15,7 @@ import yaml
 from palpa.address import BusAddress
 from palpa.errors import BusError
 from palpa.launch.schema import BusDecl, RecordDecl
+from palpa.transport import TransportOptions
 
 __all__ = ["RECORDER_NAME", "RECORDER_TARGET", "LaunchPlan", "NodeSpec"]
 
@@ -40,6 +41,8 @@ class NodeSpec:
     sigterm_timeout: float = 5.0
     sigkill_timeout: float = 5.0
     output: str = "screen"
+    transport: dict[str, int] = field(default_factory=dict)
+    """Transport options set by the launch file (palpa.transport.TransportOptions field -> value)."""
     where: str = ""
 
     def argv(self) -> list[str]:
@@ -58,7 +61,7 @@ class NodeSpec:
                   python_path: list[str]) -> dict[str, str]:
         """The child's environment: ``base`` + PALPA_BUS, PALPA_RUN_DIR, PALPA_NODE_NAME, PYTHONUNBUFFERED=1,
         PYTHONPATH (the launch files' python_path first), PALPA_PARAMS/PALPA_REMAP/PALPA_NAMESPACE as JSON for
-        ``cmd`` entries, then the entry's own ``env``."""
+        ``cmd`` entries, the transport options (PALPA_SNDHWM, ...), then the entry's own ``env``."""
         env = dict(base)
         if bus is not None:
             env["PALPA_BUS"] = str(bus)
@@ -71,6 +74,7 @@ class NodeSpec:
             env["PALPA_PARAMS"] = json.dumps(self.params)
             env["PALPA_REMAP"] = json.dumps(self.remap)
             env["PALPA_NAMESPACE"] = self.namespace
+        env.update({TransportOptions.ENV_VARS[k]: str(v) for k, v in self.transport.items()})
         env.update(self.env)
         return env
 
@@ -85,6 +89,8 @@ class NodeSpec:
                    respawn=self.respawn, respawn_delay=self.respawn_delay,
                    respawn_max_retries=self.respawn_max_retries, required=self.required,
                    sigterm_timeout=self.sigterm_timeout, sigkill_timeout=self.sigkill_timeout, output=self.output)
+        if self.transport:
+            out["transport"] = dict(self.transport)
         return out
 
 

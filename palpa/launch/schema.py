@@ -38,6 +38,7 @@ __all__ = [
     "NodeDecl",
     "ProgressDecl",
     "RecordDecl",
+    "TransportDecl",
     "json_schema",
 ]
 
@@ -86,6 +87,22 @@ class NodeDecl(_Decl):
     sigkill_timeout: Annotated[Seconds, Meta(description="seconds after SIGTERM before SIGKILL")] = 5.0
     output: Annotated[Literal["screen", "log"], Meta(description="screen: lines shown as `[name] line`; "
                                                                   "always kept in <run_dir>/<name>.log")] = "screen"
+    transport: TransportDecl | None = None
+
+
+class TransportDecl(_Decl):
+    """Socket options of one node (palpa.transport.TransportOptions); unset ones keep the node's defaults."""
+
+    sndhwm: Annotated[int, Meta(ge=0, description="messages queued towards the bus before ZeroMQ drops new ones "
+                                                  "(seen by subscribers as sequence gaps); 0: no limit")] | None = None
+    rcvhwm: Annotated[int, Meta(ge=0, description="messages queued from the bus before ZeroMQ drops new ones; "
+                                                  "0: no limit")] | None = None
+    busy_poll_us: Annotated[int, Meta(ge=0, le=1_000_000, description="spin this long for input before blocking: "
+                                      "lower latency in exchange for a busy core")] | None = None
+
+    def given(self) -> dict[str, int]:
+        """The options this entry sets."""
+        return {k: v for k in self.__struct_fields__ if (v := getattr(self, k)) is not None}
 
 
 class IncludeDecl(_Decl):

@@ -1,0 +1,120 @@
+"""Per-node transport options (high-water marks, busy polling): from the environment, the command line and launch
+files, applied to the node's sockets, and what a full receive queue does (drops seen as sequence gaps)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from conftest import palpa_cmd
+from procs import ProcessGroup, wait_until
+
+import palpa
+from messages import Text
+from palpa.address import BusAddress
+from palpa.errors import BusError, LaunchError
+from palpa.launch import load_launch
+from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
+from palpa.transport import TransportOptions, ZmqTransport
+
+
+def test_options_from_defaults_environment_and_flags() -> None:
+    assert TransportOptions.from_env({}) == TransportOptions(10_000, 10_000, 0)
+    env = {"PALPA_SNDHWM": "50", "PALPA_RCVHWM": " 7 ", "PALPA_BUSY_POLL_US": "200"}
+    assert TransportOptions.from_env(env) == TransportOptions(50, 7, 200)
+    assert TransportOptions.from_env(env, rcvhwm=0, sndhwm=None) == TransportOptions(50, 0, 200)
+    assert TransportOptions(1, 2, 3).to_env() == {"PALPA_SNDHWM": "1", "PALPA_RCVHWM": "2", "PALPA_BUSY_POLL_US": "3"}
+    with pytest.raises(BusError, match=r"PALPA_RCVHWM='lots': expected an integer"):
+        TransportOptions.from_env({"PALPA_RCVHWM": "lots"})
+    with pytest.raises(BusError, match="transport option busy_poll_us: expected an integer >= 0, got -1"):
+        TransportOptions(busy_poll_us=-1)
+
+
+def test_node_sockets_get_the_options(ipc_bus: BusAddress, monkeypatch: pytest.MonkeyPatch) -> None:
+    with palpa.Node(name="explicit", bus=ipc_bus, heartbeat_s=0,
+                    transport_options=TransportOptions(sndhwm=123, rcvhwm=45)) as node:
+        transport = node._transport
+        assert isinstance(transport, ZmqTransport)
+        assert (transport._pub.sndhwm, transport._sub.rcvhwm) == (123, 45)
+    monkeypatch.setenv("PALPA_RCVHWM", "77")
+    with palpa.Node(name="from_env", bus=ipc_bus, heartbeat_s=0) as node:
+        assert isinstance(node._transport, ZmqTransport) and node._transport._sub.rcvhwm == 77
+
+
+def test_launch_file_sets_them_through_the_environment(tmp_path: Path) -> None:
+    f = tmp_path / "g.yaml"
+    f.write_text("nodes:\n"
+                 "  - {name: fast, node: nodes.demo:Listener, transport: {rcvhwm: 100000, busy_poll_us: 500}}\n"
+                 "  - {name: plain, node: nodes.demo:Talker}\n")
+    plan = load_launch(f)
+    fast, plain = plan.nodes
+    assert fast.transport == {"rcvhwm": 100000, "busy_poll_us": 500} and plain.transport == {}
+    env = fast.child_env({"PALPA_SNDHWM": "9"}, bus=None, run_dir=tmp_path, python_path=[])
+    assert (env["PALPA_RCVHWM"], env["PALPA_BUSY_POLL_US"], env["PALPA_SNDHWM"]) == ("100000", "500", "9")
+    assert "PALPA_RCVHWM" not in plain.child_env({}, bus=None, run_dir=tmp_path, python_path=[])
+    assert fast.as_dict()["transport"] == {"rcvhwm": 100000, "busy_poll_us": 500}
+
+    f.write_text("nodes:\n  - {name: bad, node: nodes.demo:Listener, transport: {rcvhwm: -1}}\n")
+    with pytest.raises(LaunchError, match=r"g.yaml:2:.*rcvhwm.*>= 0"):
+        load_launch(f)
+
+
+def _burst_then_drain(bus: BusAddress, rcvhwm: int, n: int) -> tuple[int, int, int]:
+    """Publish n messages while the subscriber is not reading, then drain; returns (received, gaps, sent), all
+    counted from the first message the subscriber got.
+
+    Before the burst the publisher sends a marker until one arrives (the subscription is then in place); after it,
+    another until one arrives, so every drop of the burst sits before a received message and counts as a gap."""
+    sub_node = palpa.Node(name="slow", bus=bus, heartbeat_s=0, transport_options=TransportOptions(rcvhwm=rcvhwm))
+    pub_node = palpa.Node(name="fast", bus=bus, heartbeat_s=0, transport_options=TransportOptions(sndhwm=0))
+    try:
+        got: list[str] = []
+        sub_node.subscribe("burst", Text, lambda m: got.append(m.text))
+        pub = pub_node.publisher("burst", Text)
+
+        def marker_arrived(text: str) -> bool:
+            if not got or got[-1] != text:
+                pub.publish(Text(text=text))
+            return bool(got) and got[-1] == text
+
+        wait_until(lambda: marker_arrived("start"), 10, "the first message", step=lambda: sub_node.spin_once(0.01))
+        before = sub_node.counters()["burst"].received + sub_node.counters()["burst"].gaps
+        first_counted = pub.seq - before
+        for i in range(n):
+            pub.publish(Text(text=str(i)))
+        wait_until(lambda: marker_arrived("end"), 30, "the marker after the burst",
+                   step=lambda: sub_node.spin_once(0.01))
+        stats = sub_node.counters()["burst"]
+        return stats.received, stats.gaps, pub.seq - first_counted
+    finally:
+        pub_node.close(0)
+        sub_node.close(0)
+
+
+def test_a_full_receive_queue_drops_and_the_subscriber_counts_every_drop(ipc_bus: BusAddress) -> None:
+    received, gaps, sent = _burst_then_drain(ipc_bus, rcvhwm=10, n=40_000)
+    assert gaps > 0, "a 10-message queue should have overflowed during a 40 000-message burst"
+    assert received + gaps == sent  # every message is either delivered or counted as missing
+
+
+def test_an_unbounded_receive_queue_loses_nothing(ipc_bus: BusAddress) -> None:
+    received, gaps, sent = _burst_then_drain(ipc_bus, rcvhwm=0, n=40_000)
+    assert gaps == 0 and received == sent
+
+
+def test_node_process_takes_flags_and_refuses_bad_values(ipc_bus: BusAddress, procs: ProcessGroup,
+                                                          env_for) -> None:  # type: ignore[no-untyped-def]
+    """`palpa run ... --rcvhwm N --busy-poll-us US` runs; a bad value is a one-line error and exit 2."""
+    watch = palpa.Node(name="watch", bus=ipc_bus, heartbeat_s=0)
+    try:
+        beats: dict[str, Heartbeat] = {}
+        watch.subscribe(HEARTBEAT_TOPIC, Heartbeat, lambda hb: beats.__setitem__(hb.node, hb))
+        ok = procs.start(palpa_cmd("run", "nodes.demo:Listener", "--rcvhwm", "5", "--busy-poll-us", "100"),
+                         env=env_for(ipc_bus))
+        wait_until(lambda: "listener" in beats, 20, "the listener's heartbeat", step=lambda: watch.spin_once(0.05))
+        assert ok.stop(10) == 0
+        bad = procs.start(palpa_cmd("run", "nodes.demo:Listener"), env={**env_for(ipc_bus), "PALPA_RCVHWM": "x"})
+        assert bad.wait(20) == 2
+        assert "PALPA_RCVHWM='x': expected an integer" in bad.output()
+    finally:
+        watch.close(0)
