@@ -1,12 +1,15 @@
 """Bus benchmark: palpa vs raw pyzmq vs zenoh-python, throughput (lossless?) and latency at 1 kHz.
 
-    .venv/bin/python bench/bus.py [--n 200000] [--latency-n 2000]
+    .venv/bin/python bench/bus.py [--n 200000] [--latency-n 5000] [--busy-poll-us 2000] [--skip-zenoh]
 
 Each contender: a publisher process sends N 100-byte typed messages as fast as it can; this process receives,
 decodes and counts them (losses = N - received). Then 1 kHz latency (publish stamp -> receive, p50/p99).
 palpa runs publisher -> proxy (`palpa bus`, its own process) -> subscriber, once unbatched and once with
 publisher-side batching; raw pyzmq runs PUB -> SUB direct with [topic, msgpack] frames; zenoh runs peer to peer
-over loopback tcp with blocking congestion control. The last line is one JSON object with every figure.
+over loopback tcp with blocking congestion control. Latency also runs with busy-polling subscribers (raw pyzmq
+spinning on a non-blocking receive; palpa with ``busy_poll_us``) and a sleep loop alone (how late this machine
+wakes a thread, the floor under every blocking contender), and reports the CPU time the hypervisor took during
+the latency runs. The last line is one JSON object with every figure.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import palpa  # noqa: E402
 from palpa.address import BusAddress  # noqa: E402
+from palpa.transport import TransportOptions  # noqa: E402
 
 
 class Blob(palpa.Message, frozen=True, kw_only=True):
@@ -145,6 +149,27 @@ class Counter:
         }
 
 
+def steal_ticks() -> int:
+    """CPU time the hypervisor took from this VM so far (USER_HZ ticks, all CPUs); 0 where unknown."""
+    fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
+    return int(fields[8]) if fields[0] == "cpu" and len(fields) > 8 else 0
+
+
+def sleep_loop(n: int) -> dict[str, Any]:
+    """The machine's own floor: how late a thread that sleeps until each 1 kHz tick wakes up (no messaging)."""
+    counter = Counter(n)
+    start = time.perf_counter_ns()
+    for i in range(n):
+        due = start + i * 1_000_000
+        while (left := due - time.perf_counter_ns()) > 0:
+            if left > 200_000:
+                time.sleep((left - 100_000) / 1e9)
+        counter.latencies.append(time.perf_counter_ns() - due)
+        counter.count += 1
+    counter.first, counter.last = 0.0, n / 1000
+    return counter.result()
+
+
 def spawn(role: str, n: int, rate: float, extra: list[str]) -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, __file__, "--role", role, "--n", str(n), "--rate", str(rate), *extra])
 
@@ -163,9 +188,10 @@ def wait_done(proc: subprocess.Popen[bytes], counter: Counter, poll: Any, timeou
     proc.wait(10)
 
 
-def run_palpa(n: int, rate: float, batch: int, bus: str, settle: float) -> dict[str, Any]:
+def run_palpa(n: int, rate: float, batch: int, bus: str, settle: float, busy_poll_us: int = 0) -> dict[str, Any]:
     counter = Counter(n)
-    node = palpa.Node(name="bench_sub", bus=bus, heartbeat_s=0)
+    node = palpa.Node(name="bench_sub", bus=bus, heartbeat_s=0,
+                      transport_options=TransportOptions(busy_poll_us=busy_poll_us))
     node.subscribe("bench", Blob, counter.hit, queue_size=1)
     proc = spawn("palpa", n, rate, ["--bus", bus, "--batch", str(batch), "--settle", str(settle)])
     wait_done(proc, counter, lambda: node.spin_once(0.05), 120)
@@ -174,7 +200,7 @@ def run_palpa(n: int, rate: float, batch: int, bus: str, settle: float) -> dict[
     return {**counter.result(), "gaps": gaps}
 
 
-def run_zmq(n: int, rate: float, hwm: int, settle: float) -> dict[str, Any]:
+def run_zmq(n: int, rate: float, hwm: int, settle: float, busy: bool = False) -> dict[str, Any]:
     counter = Counter(n)
     ctx = zmq.Context()
     sub = ctx.socket(zmq.SUB)
@@ -186,7 +212,7 @@ def run_zmq(n: int, rate: float, hwm: int, settle: float) -> dict[str, Any]:
     proc = spawn("zmq", n, rate, ["--endpoint", endpoint, "--hwm", str(hwm), "--settle", str(settle)])
 
     def poll() -> None:
-        if sub.poll(50):
+        if busy or sub.poll(50):
             for _ in range(1000):
                 try:
                     frames = sub.recv_multipart(zmq.NOBLOCK)
@@ -240,7 +266,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--role")
     ap.add_argument("--n", type=int, default=200_000)
-    ap.add_argument("--latency-n", type=int, default=2000)
+    ap.add_argument("--latency-n", type=int, default=5000)
     ap.add_argument("--rate", type=float, default=0.0)
     ap.add_argument("--bus")
     ap.add_argument("--endpoint")
@@ -248,6 +274,7 @@ def main() -> None:
     ap.add_argument("--hwm", type=int, default=1_000_000)
     ap.add_argument("--settle", type=float, default=0.5)
     ap.add_argument("--skip-zenoh", action="store_true")
+    ap.add_argument("--busy-poll-us", type=int, default=2000, help="the busy-polling subscribers' spin time")
     args = ap.parse_args()
     if args.role:
         {"palpa": pub_palpa, "zmq": pub_zmq, "zenoh": pub_zenoh}[args.role](args)
@@ -272,13 +299,18 @@ def main() -> None:
         if not args.skip_zenoh:
             results["zenoh"] = run_zenoh(args.n, 0, args.settle)
         lat_n = args.latency_n
+        steal = steal_ticks()
         results["latency_1khz"] = {
+            "sleep_loop": sleep_loop(lat_n),
             "raw_pyzmq": run_zmq(lat_n, 1000, args.hwm, args.settle),
             "palpa": run_palpa(lat_n, 1000, 1, bus, args.settle),
             "palpa_batched": run_palpa(lat_n, 1000, 64, bus, args.settle),
+            "raw_pyzmq_busy_poll": run_zmq(lat_n, 1000, args.hwm, args.settle, busy=True),
+            "palpa_busy_poll": run_palpa(lat_n, 1000, 64, bus, args.settle, busy_poll_us=args.busy_poll_us),
         }
         if not args.skip_zenoh:
             results["latency_1khz"]["zenoh"] = run_zenoh(lat_n, 1000, args.settle)
+        results["latency_cpu_stolen_ms"] = (steal_ticks() - steal) * 10
     finally:
         bus_proc.terminate()
         bus_proc.wait(10)
@@ -290,12 +322,12 @@ def main() -> None:
     if isinstance(z, dict) and z["msg_per_s"]:
         results["ratio_palpa_batched_vs_zenoh"] = round(results["palpa_batched"]["msg_per_s"] / z["msg_per_s"], 2)
 
-    print(f"{'contender':<16}{'msg/s':>10}{'lost':>8}{'p50 us @1k':>12}{'p99 us @1k':>12}")
-    for name in ("raw_pyzmq", "palpa", "palpa_batched", "zenoh"):
-        r = results.get(name)
-        lat = results["latency_1khz"].get(name)
-        if isinstance(r, dict) and isinstance(lat, dict):
-            print(f"{name:<16}{r['msg_per_s']:>10}{r['lost']:>8}{lat['p50_us']:>12}{lat['p99_us']:>12}")
+    print(f"{'contender':<22}{'msg/s':>10}{'lost':>8}{'p50 us @1k':>12}{'p99 us @1k':>12}")
+    for name, lat in results["latency_1khz"].items():
+        r = results.get(name, {})
+        if isinstance(lat, dict):
+            print(f"{name:<22}{r.get('msg_per_s', ''):>10}{r.get('lost', ''):>8}{lat['p50_us']:>12}{lat['p99_us']:>12}")
+    print(f"CPU time the hypervisor took during the latency runs: {results['latency_cpu_stolen_ms']} ms")
     print(json.dumps(results))
 
 

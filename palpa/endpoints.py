@@ -9,7 +9,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from typing import TYPE_CHECKING, Generic, NamedTuple, TypeVar, get_type_hints
+from typing import TYPE_CHECKING, Generic, TypeVar, get_type_hints
 
 import msgspec
 
@@ -28,7 +28,7 @@ DEFAULT_BATCH = 64
 _encoder = msgspec.msgpack.Encoder()
 
 
-class RawMessage(NamedTuple):
+class RawMessage(msgspec.Struct, frozen=True, gc=False):
     """An envelope delivered undecoded (recorder, ``topic echo``): the payload bytes exactly as received."""
 
     topic: str
@@ -61,6 +61,7 @@ class Publisher(Generic[M]):
         self._header = HeaderTemplate(self._type_name, node.name, latched)
         self._pending_headers: list[bytes] = []
         self._pending_payloads: list[bytes] = []
+        self._send = node._transport.send
 
     def publish(self, msg: M, *, blobs: Sequence[bytes] = (), stamp_ns: int | None = None) -> int:
         """Serialise and send ``msg`` (plus optional binary blobs). ``stamp_ns`` defaults to the node clock."""
@@ -68,21 +69,24 @@ class Publisher(Generic[M]):
             raise TypeError(
                 f"publisher {self.topic!r} carries {self._type_name}, not {type(msg).__name__}"
             )
-        self.seq += 1
+        self.seq = seq = self.seq + 1
         node = self.node
-        header = self._header.pack(self.seq, node.clock.now_ns() if stamp_ns is None else stamp_ns)
-        if self.batch > 1 and not blobs and (node._depth or self._always_batch):
+        header = self._header.pack(seq, node.clock.now_ns() if stamp_ns is None else stamp_ns)
+        if self.batch > 1 and (node._depth or self._always_batch) and not blobs:
             if not self._pending_headers:
                 node._dirty.append(self)
             self._pending_headers.append(header)
             self._pending_payloads.append(_encoder.encode(msg))
             if len(self._pending_headers) >= self.batch:
                 self.flush()
-            return self.seq
+            return seq
         if self._pending_headers:
             self.flush()
-        node._transport.send([self._topic_b, header, _encoder.encode(msg), *blobs], self.latched)
-        return self.seq
+        frames = [self._topic_b, header, _encoder.encode(msg)]
+        if blobs:
+            frames.extend(blobs)
+        self._send(frames, self.latched)
+        return seq
 
     def flush(self) -> None:
         """Send batched messages now (the node also flushes after every callback and timer)."""
@@ -95,7 +99,7 @@ class Publisher(Generic[M]):
             frames = [self._topic_b, msgpack_array(headers), msgpack_array(self._pending_payloads)]
         self._pending_headers = []
         self._pending_payloads = []
-        self.node._transport.send(frames, False)
+        self._send(frames, False)
 
 
 class Subscription(Generic[M]):

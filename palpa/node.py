@@ -287,7 +287,7 @@ class Node:
         elif not self.clock.is_real():
             timeout_s = 0.0 if self._timers else timeout_s
         if timeout_s > 0:
-            for delivery in self._transport.poll(int(timeout_s * 1000)):
+            for delivery in self._transport.poll(timeout_s):
                 self._dispatch(delivery)
             self._run_timers()
         clock = self._topic_clock

@@ -74,7 +74,7 @@ class MemoryTransport:
         if prefix in self.prefixes:
             self.prefixes.remove(prefix)
 
-    def poll(self, timeout_ms: int) -> list[Delivery]:
+    def poll(self, timeout_s: float) -> list[Delivery]:
         out = list(self.inbox)
         self.inbox.clear()
         return out

@@ -8,12 +8,14 @@ logic is tested without sockets. Both deliver ``Delivery`` items: the frames of 
 from __future__ import annotations
 
 import os
+import select
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar, NamedTuple, Protocol, cast
+from typing import ClassVar, Protocol, cast
 
+import msgspec
 import zmq
 import zmq.auth
 
@@ -25,7 +27,9 @@ __all__ = ["Delivery", "Transport", "TransportOptions", "ZmqTransport", "curve_c
 _SUBSCRIPTIONS_GRACE_MS = 100
 
 
-class Delivery(NamedTuple):
+class Delivery(msgspec.Struct, frozen=True, gc=False):
+    """One envelope as received (a Struct, not a NamedTuple: made once per message, ~4x cheaper)."""
+
     frames: list[bytes]
     from_cache: bool
 
@@ -43,8 +47,8 @@ class Transport(Protocol):
 
     def unsubscribe(self, prefix: bytes) -> None: ...
 
-    def poll(self, timeout_ms: int) -> list[Delivery]:
-        """Wait up to ``timeout_ms`` for envelopes and return every one that is ready (maybe none)."""
+    def poll(self, timeout_s: float) -> list[Delivery]:
+        """Wait up to ``timeout_s`` for envelopes and return every one that is ready (maybe none)."""
         ...
 
     def close(self, linger_ms: int) -> None: ...
@@ -96,12 +100,21 @@ class TransportOptions:
         return {var: str(getattr(self, name)) for name, var in self.ENV_VARS.items()}
 
 
+# the backend's C methods, called without the pyzmq sugar layer's Python wrapper around every send and receive
+_send = zmq.backend.Socket.send
+_recv = zmq.backend.Socket.recv
+
+
 def _send_frames(sock: zmq.Socket[bytes], frames: Sequence[bytes]) -> None:
     """``send_multipart`` without its per-call checks (a third of a small message's cost): large frames go
     without a copy, small ones are copied (cheaper than a zero-copy frame's bookkeeping)."""
     last = len(frames) - 1
     for i, frame in enumerate(frames):
-        sock.send(frame, zmq.SNDMORE if i < last else 0, copy=len(frame) < _ZERO_COPY_BYTES)
+        flags = zmq.SNDMORE if i < last else 0
+        if len(frame) < _ZERO_COPY_BYTES:
+            _send(sock, frame, flags)
+        else:
+            _send(sock, frame, flags, copy=False)
 
 
 def curve_client_options() -> dict[str, bytes] | None:
@@ -165,6 +178,8 @@ class ZmqTransport:
             monitor.close(0)
             self.close(0)
             raise BusError(f"cannot connect to bus {address}: {exc}") from None
+        self._socks = (self._sub, self._latch, self._pub)
+        self._fds = [cast(int, sock.get(zmq.FD)) for sock in self._socks]
         self._poller = zmq.Poller()
         self._poller.register(self._sub, zmq.POLLIN)
         self._poller.register(self._latch, zmq.POLLIN)
@@ -195,7 +210,13 @@ class ZmqTransport:
                 return
 
     def send(self, frames: Sequence[bytes], latched: bool) -> None:
-        _send_frames(self._pub, frames)
+        if len(frames) == 3 and len(frames[2]) < _ZERO_COPY_BYTES:  # the common case, unrolled
+            pub = self._pub
+            _send(pub, frames[0], zmq.SNDMORE)
+            _send(pub, frames[1], zmq.SNDMORE)
+            _send(pub, frames[2], 0)
+        else:
+            _send_frames(self._pub, frames)
         if latched:
             self._latch.send(b"SET", zmq.SNDMORE)
             _send_frames(self._latch, frames)
@@ -208,25 +229,31 @@ class ZmqTransport:
     def unsubscribe(self, prefix: bytes) -> None:
         self._sub.setsockopt(zmq.UNSUBSCRIBE, prefix)
 
-    def poll(self, timeout_ms: int, max_batch: int = 1000) -> list[Delivery]:
+    def poll(self, timeout_s: float, max_batch: int = 1000) -> list[Delivery]:
         out: list[Delivery] = []
-        if self._busy_poll_ns and timeout_ms > 0:
-            timeout_ms = self._busy_wait(timeout_ms)
-        events = dict(self._poller.poll(timeout_ms))
+        if timeout_s > 0:
+            if self._busy_poll_ns:
+                timeout_s = self._busy_wait(timeout_s)
+            if 0 < timeout_s < 0.001:
+                self._wait_fine(timeout_s)
+                timeout_s = 0
+        # whole ms, rounded down: the caller comes back for the rest (rounding up would make timers late and,
+        # since each period starts from the last firing, drift; sub-ms waits go through _wait_fine)
+        events = dict(self._poller.poll(int(timeout_s * 1000)))
         if self._pub in events:
             self._drain_subscriptions()
         if self._sub in events:
-            recv = self._sub.recv
+            sub = self._sub
             for _ in range(max_batch):
                 try:
-                    frame = recv(zmq.NOBLOCK, copy=False)
+                    frame = _recv(sub, zmq.NOBLOCK, False)
                 except zmq.Again:
                     break
                 # Frame.more, not recv_multipart: pyzmq's RCVMORE getsockopt costs ~2 us a frame, more than the
                 # receive itself; the rest of a multipart message is already here (ZeroMQ delivers it whole)
                 frames = [frame.bytes]
                 while frame.more:
-                    frame = recv(0, copy=False)
+                    frame = _recv(sub, 0, False)
                     frames.append(frame.bytes)
                 out.append(Delivery(frames, False))
         if self._latch in events:
@@ -239,16 +266,25 @@ class ZmqTransport:
                     out.append(Delivery(frames[1:], True))
         return out
 
-    def _busy_wait(self, timeout_ms: int) -> int:
-        """Spin until the SUB socket has input or the busy-poll time is over; returns the timeout left for the
-        blocking poll (0 when input arrived)."""
+    def _busy_wait(self, timeout_s: float) -> float:
+        """Spin until the SUB socket has input or the busy-poll time is over; returns the time left to wait
+        (0 when input arrived)."""
         start = time.monotonic_ns()
-        end = start + min(self._busy_poll_ns, timeout_ms * 1_000_000)
+        end = start + min(self._busy_poll_ns, int(timeout_s * 1e9))
         sub = self._sub
         while time.monotonic_ns() < end:
             if cast(int, sub.get(zmq.EVENTS)) & zmq.POLLIN:
-                return 0
-        return max(0, timeout_ms - (time.monotonic_ns() - start) // 1_000_000)
+                return 0.0
+        return max(0.0, timeout_s - (time.monotonic_ns() - start) / 1e9)
+
+    def _wait_fine(self, timeout_s: float) -> None:
+        """Wait less than a millisecond (ZeroMQ's poll counts whole ms) for input, sleeping in the kernel:
+        select() on the sockets' notification descriptors. They are edge-like (they signal *changes*), so
+        pending input is checked first; a wake-up without input is harmless (the caller polls again)."""
+        for sock in self._socks:
+            if cast(int, sock.get(zmq.EVENTS)) & zmq.POLLIN:
+                return
+        select.select(self._fds, [], [], timeout_s)
 
     def close(self, linger_ms: int) -> None:
         if getattr(self, "_closed", False):

@@ -22,9 +22,10 @@ ZeroMQ subscriptions match by prefix, so a receiver compares frame 0 to its topi
 
 from __future__ import annotations
 
+import functools
 import struct
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import Any
 
 import msgspec
 
@@ -46,7 +47,7 @@ __all__ = [
 ]
 
 
-class Header(msgspec.Struct, frozen=True, omit_defaults=True):
+class Header(msgspec.Struct, frozen=True, omit_defaults=True, gc=False):
     """Frame 1 of the envelope. ``stamp`` is the publish time in ns since the Unix epoch."""
 
     type: str
@@ -84,20 +85,21 @@ class HeaderTemplate:
     """Fast header encoding for one publisher: the constant fields are packed once, ``seq`` and ``stamp`` per
     message (as msgpack uint64, valid for every msgpack reader)."""
 
-    _tail = struct.Struct(">Q7sQ")
-
     def __init__(self, type_name: str, node: str, latched: bool) -> None:
         enc = msgspec.msgpack.encode
         entries = 5 if latched else 4
-        self._prefix = (
+        prefix = (
             bytes([0x80 | entries]) + enc("type") + enc(type_name) + enc("node") + enc(node)
             + (enc("latched") + enc(True) if latched else b"") + enc("seq") + b"\xcf"
         )
-        self._mid = enc("stamp") + b"\xcf"
+        mid = enc("stamp") + b"\xcf"
+        # the whole map in one struct: the constant parts as fixed-length byte strings, the two numbers as uint64
+        self._pack = functools.partial(struct.Struct(f">{len(prefix)}sQ{len(mid)}sQ").pack, prefix)
+        self._mid = mid
 
     def pack(self, seq: int, stamp_ns: int) -> bytes:
         """The header map of one message."""
-        return self._prefix + self._tail.pack(seq, self._mid, stamp_ns)
+        return self._pack(seq, self._mid, stamp_ns)
 
 
 def msgpack_array(items: list[bytes]) -> bytes:
@@ -112,7 +114,7 @@ def msgpack_array(items: list[bytes]) -> bytes:
     return prefix + b"".join(items)
 
 
-class Envelope(NamedTuple):
+class Envelope(msgspec.Struct, frozen=True, gc=False):
     """A parsed envelope: one header per message; ``payload`` is the message's payload, or for a batch the
     msgpack array of every payload (see :func:`split_batch`)."""
 
@@ -126,16 +128,21 @@ def parse_envelope(frames: list[bytes]) -> Envelope:
     """Validate the frame count and the header(s); raises :class:`DecodeError` saying what is wrong."""
     if len(frames) < 3:
         raise DecodeError(f"envelope has {len(frames)} frames, expected at least 3")
-    first = frames[1][:1]
-    if first and (0x90 <= first[0] <= 0x9F or first[0] in (0xDC, 0xDD)):
+    head = frames[1]
+    kind = head[0] if head else 0
+    if kind & 0xF0 == 0x90 or kind == 0xDC or kind == 0xDD:  # a msgpack array: a batch
         try:
-            headers = _batch_decoder.decode(frames[1])
+            headers = _batch_decoder.decode(head)
         except (msgspec.ValidationError, msgspec.DecodeError) as exc:
             raise DecodeError(f"bad batch header: {exc}") from None
         if len(frames) != 3:
             raise DecodeError(f"batch envelope has {len(frames)} frames, expected 3")
         return Envelope(headers, frames[2], [], True)
-    return Envelope([decode_header(frames[1])], frames[2], frames[3:], False)
+    try:
+        header = _header_decoder.decode(head)
+    except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        raise DecodeError(f"bad envelope header: {exc}") from None
+    return Envelope([header], frames[2], frames[3:], False)
 
 
 def split_batch(envelope: Envelope) -> list[bytes]:

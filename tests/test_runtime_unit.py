@@ -175,7 +175,7 @@ def test_batched_publisher_delivers_in_order_after_each_callback() -> None:
     bus = MemoryBus()
     h = NodeHarness(Burst, bus=bus)
     sent: list[int] = []
-    orig = h.node._transport.send
+    orig = bus._route
 
     def spy(frames, latched):  # type: ignore[no-untyped-def]
         if frames[0] == b"burst":
@@ -183,7 +183,7 @@ def test_batched_publisher_delivers_in_order_after_each_callback() -> None:
             sent.append(len(header) if isinstance(header, list) else 1)
         orig(frames, latched)
 
-    h.node._transport.send = spy  # type: ignore[method-assign]
+    bus._route = spy  # type: ignore[method-assign]
     h.publish("go", Text(text="now"))
     assert [m.text for m in h.published("burst")] == [str(i) for i in range(20)]
     assert sent == [8, 8, 4]  # two full batches, the rest flushed when the callback returned

@@ -21,6 +21,9 @@ SMALL_UR = ["fibre_driver:=sim", "pressure_driver:=sim", "region_mm:=[36.0, 33.0
             "watchdog_s:=0.5"]
 
 
+# whole simulated scans: each launch is bounded by its own wait (run_launch's timeout), not the suite's 120 s
+pytestmark = pytest.mark.timeout(900)
+
 def run_launch(procs: ProcessGroup, run_dir: Path, file: str, *args: str, timeout: float = 240) -> str:
     from conftest import palpa_cmd
 

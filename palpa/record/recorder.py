@@ -265,7 +265,8 @@ class Recorder(Node):
 
     # -- the hot path ------------------------------------------------------------------------------------
     def _on_raw(self, raw: RawMessage) -> None:
-        topic, h, payload, blobs, cached, recv_ns = raw  # one unpack: cheaper than six NamedTuple lookups
+        topic, h, payload, blobs, cached, recv_ns = raw.topic, raw.header, raw.payload, raw.blobs, raw.from_cache, \
+            raw.recv_ns
         seq = h.seq
         key = (topic, h.node, h.type, h.latched, seq >> 32)
         cid = self._ids.get(key)
