@@ -49,6 +49,7 @@ def make_msg(i: int) -> Blob:
 
 PAYLOAD_SIZE = len(msgspec.msgpack.encode(make_msg(0)))
 DONE_GRACE_S = 1.0
+HWM = 1_000_000  # every contender's queues: large enough that a slow receiver shows as slow, not as lossy
 
 
 # ---------------------------------------------------------------- publishers (child processes)
@@ -63,7 +64,7 @@ def pace(i: int, t0: float, rate: float) -> None:
 def pub_palpa(args: argparse.Namespace) -> None:
     """A node that publishes from a timer, as a driver would: at the fixed rate, or in bursts of 1000 per tick
     (so the default in-callback batching applies unless --batch 1)."""
-    node = palpa.Node(name="bench_pub", bus=args.bus, heartbeat_s=0)
+    node = palpa.Node(name="bench_pub", bus=args.bus, heartbeat_s=0, transport_options=TransportOptions(sndhwm=HWM))
     pub = node.publisher("bench", Blob, batch=None if args.batch > 1 else 1)
     time.sleep(args.settle)  # let the subscription propagate (benchmark only: no readiness API for a raw test)
     sent = 0
@@ -191,7 +192,7 @@ def wait_done(proc: subprocess.Popen[bytes], counter: Counter, poll: Any, timeou
 def run_palpa(n: int, rate: float, batch: int, bus: str, settle: float, busy_poll_us: int = 0) -> dict[str, Any]:
     counter = Counter(n)
     node = palpa.Node(name="bench_sub", bus=bus, heartbeat_s=0,
-                      transport_options=TransportOptions(busy_poll_us=busy_poll_us))
+                      transport_options=TransportOptions(rcvhwm=HWM, busy_poll_us=busy_poll_us))
     node.subscribe("bench", Blob, counter.hit, queue_size=1)
     proc = spawn("palpa", n, rate, ["--bus", bus, "--batch", str(batch), "--settle", str(settle)])
     wait_done(proc, counter, lambda: node.spin_once(0.05), 120)
@@ -271,7 +272,7 @@ def main() -> None:
     ap.add_argument("--bus")
     ap.add_argument("--endpoint")
     ap.add_argument("--batch", type=int, default=1)
-    ap.add_argument("--hwm", type=int, default=1_000_000)
+    ap.add_argument("--hwm", type=int, default=HWM)
     ap.add_argument("--settle", type=float, default=0.5)
     ap.add_argument("--skip-zenoh", action="store_true")
     ap.add_argument("--busy-poll-us", type=int, default=2000, help="the busy-polling subscribers' spin time")

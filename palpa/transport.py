@@ -55,6 +55,7 @@ class Transport(Protocol):
 
 
 _ZERO_COPY_BYTES = 65_536
+_FD_SETSIZE = 1024
 
 
 @dataclass(frozen=True)
@@ -180,6 +181,7 @@ class ZmqTransport:
             raise BusError(f"cannot connect to bus {address}: {exc}") from None
         self._socks = (self._sub, self._latch, self._pub)
         self._fds = [cast(int, sock.get(zmq.FD)) for sock in self._socks]
+        self._fds_selectable = max(self._fds) < _FD_SETSIZE
         self._poller = zmq.Poller()
         self._poller.register(self._sub, zmq.POLLIN)
         self._poller.register(self._latch, zmq.POLLIN)
@@ -284,7 +286,10 @@ class ZmqTransport:
         for sock in self._socks:
             if cast(int, sock.get(zmq.EVENTS)) & zmq.POLLIN:
                 return
-        select.select(self._fds, [], [], timeout_s)
+        if self._fds_selectable:
+            select.select(self._fds, [], [], timeout_s)
+        else:  # select() cannot take descriptors past FD_SETSIZE; input then waits this (< 1 ms) sleep out
+            time.sleep(timeout_s)
 
     def close(self, linger_ms: int) -> None:
         if getattr(self, "_closed", False):

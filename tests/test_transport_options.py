@@ -124,3 +124,23 @@ def test_node_process_takes_flags_and_refuses_bad_values(ipc_bus: BusAddress, pr
         assert "PALPA_RCVHWM='x': expected an integer" in bad.output()
     finally:
         watch.close(0)
+
+
+def test_a_fast_timer_sleeps_between_ticks_instead_of_spinning(ipc_bus: BusAddress) -> None:
+    """A 1 kHz timer: the node waits in the kernel (ms polls, then a sub-ms select) rather than polling in a
+    loop through the last fraction of every period (which cost a whole core)."""
+    with palpa.Node(name="ticker", bus=ipc_bus, heartbeat_s=0) as node:
+        ticks = [0]
+        node.timer(0.001, lambda: ticks.__setitem__(0, ticks[0] + 1))
+        transport = node._transport
+        polls = [0]
+        real_poll = transport.poll
+
+        def counting_poll(timeout_s: float) -> list:  # type: ignore[type-arg]
+            polls[0] += 1
+            return real_poll(timeout_s)
+
+        transport.poll = counting_poll  # type: ignore[method-assign]
+        wait_until(lambda: ticks[0] >= 100, 20, "100 ticks", step=lambda: node.spin_once(0.1))
+        # spin_once polls twice per call; a call wakes for a tick, for the ms-rounded part of a wait, or for input
+        assert polls[0] <= 8 * ticks[0], f"{polls[0]} polls for {ticks[0]} ticks"
