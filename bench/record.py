@@ -123,8 +123,10 @@ def role_sink(args: argparse.Namespace) -> None:
                 warm.add(frames[2])
                 print(f"ready {msgspec.msgpack.decode(frames[2])}", flush=True)
         else:
-            counts[topic] = counts.get(topic, 0) + len(frames) - 2
-            nbytes[topic] = nbytes.get(topic, 0) + len(frames[2]) * (len(frames) - 2)
+            head = frames[1]
+            n = 1 if head[0] & 0xF0 == 0x80 else len(msgspec.msgpack.decode(head))  # a map, or a batch's array
+            counts[topic] = counts.get(topic, 0) + n
+            nbytes[topic] = nbytes.get(topic, 0) + len(frames[2])
             last[topic] = (frames[1], time.time_ns())
 
 
