@@ -144,3 +144,28 @@ def test_a_fast_timer_sleeps_between_ticks_instead_of_spinning(ipc_bus: BusAddre
         wait_until(lambda: ticks[0] >= 100, 20, "100 ticks", step=lambda: node.spin_once(0.1))
         # spin_once polls twice per call; a call wakes for a tick, for the ms-rounded part of a wait, or for input
         assert polls[0] <= 8 * ticks[0], f"{polls[0]} polls for {ticks[0]} ticks"
+
+
+def test_a_busy_polling_node_receives_everything_and_still_runs_its_timers(ipc_bus: BusAddress) -> None:
+    with palpa.Node(name="spinner", bus=ipc_bus, heartbeat_s=0,
+                    transport_options=TransportOptions(busy_poll_us=20_000)) as node, \
+            palpa.Node(name="talker", bus=ipc_bus, heartbeat_s=0) as talker:
+        got: list[str] = []
+        ticks = [0]
+        node.subscribe("chatter", Text, lambda m: got.append(m.text))
+        node.timer(0.005, lambda: ticks.__setitem__(0, ticks[0] + 1))
+        pub = talker.publisher("chatter", Text)
+
+        def hello_heard() -> bool:
+            if not got:
+                pub.publish(Text(text="hello"))
+            return bool(got)
+
+        wait_until(hello_heard, 10, "the subscription", step=lambda: node.spin_once(0.05))
+        first = len(got)
+        for i in range(200):
+            pub.publish(Text(text=str(i)))
+        wait_until(lambda: len(got) >= first + 200 and ticks[0] >= 5, 10, "every message and five ticks",
+                   step=lambda: node.spin_once(0.05))
+        assert got[first:] == [str(i) for i in range(200)]
+        assert node.counters()["chatter"].gaps == 0
