@@ -57,11 +57,11 @@ HWM = 1_000_000  # every contender's queues: large enough that a slow receiver s
 
 # ---------------------------------------------------------------- publishers (child processes)
 def pace(i: int, t0: float, rate: float) -> None:
+    """Sleep until message i is due (no spinning: a spinning publisher would take a core from the others)."""
     if rate > 0:
-        target = t0 + i / rate
-        while (d := target - time.perf_counter()) > 0:
-            if d > 0.002:
-                time.sleep(d - 0.001)
+        delay = t0 + i / rate - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
 
 
 def pub_palpa(args: argparse.Namespace) -> None:
@@ -85,7 +85,7 @@ def pub_palpa(args: argparse.Namespace) -> None:
         if sent >= args.n:
             node.request_shutdown()
 
-    node.timer(0.0002 if args.rate > 0 else 1e-6, tick, first_in_s=0.0)
+    node.timer(1.0 / args.rate if args.rate > 0 else 1e-6, tick, first_in_s=0.0)
     node.spin()
     node.close(linger_s=10)
 
