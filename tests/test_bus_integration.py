@@ -222,6 +222,25 @@ def test_foreign_client_plain_pyzmq(bus: BusAddress) -> None:
         header = msgpack.unpackb(frames[1])
         assert header["type"] == "Text" and header["node"] == "native" and header["seq"] >= 1
         assert msgpack.unpackb(frames[2])["text"] == "hi from palpa"
+
+        # a burst published from a callback arrives as a batch: three frames, two msgpack arrays (docs/wire.md)
+        def burst() -> None:
+            for i in range(5):
+                talk.publish(Text(text=f"burst {i}"))
+
+        native.timer(1.0, burst, oneshot=True, first_in_s=0.0)
+        native.spin_once(0)
+        texts: list[str] = []
+        deadline = time.monotonic() + 10
+        while len(texts) < 5 and time.monotonic() < deadline:
+            if sub.poll(50):
+                topic, head, payload, *rest = sub.recv_multipart()
+                h, p = msgpack.unpackb(head), msgpack.unpackb(payload)
+                if isinstance(h, list):
+                    assert len(h) == len(p) == 5 and not rest
+                    assert [x["seq"] for x in h] == list(range(h[0]["seq"], h[0]["seq"] + 5))
+                    texts += [x["text"] for x in p]
+        assert texts == [f"burst {i}" for i in range(5)]
     sub.close(0)
     pub.close(0)
 
