@@ -58,7 +58,6 @@ from palpa.wire import (
     TopicStats,
     encode_header,
     parse_envelope,
-    split_batch,
 )
 
 __all__ = ["DEFAULT_BATCH", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
@@ -410,34 +409,33 @@ class Node:
         topic, sub, raws, rstats = route
         try:
             env = parse_envelope(frames)
-            payloads = split_batch(env) if env.batch and (rstats is not None or sub is None) else None
+            items = env.messages() if rstats is not None else None
         except DecodeError as exc:
             stats = sub.stats if sub is not None else rstats
             if stats is not None:
                 self._count_error(topic, stats, str(exc))
             return
         cached = delivery.from_cache
-        if rstats is not None:
-            items = zip(env.headers, payloads, strict=True) if payloads is not None else [(env.headers[0], env.payload)]
+        if items is not None and rstats is not None:
             tracker = self._raw_tracker
-            for header, payload in items:
+            for header, payload, blobs in items:
                 if not (cached and tracker.seen_at_least(topic, header.node, header.seq)) and \
                         tracker.observe(topic, header.node, header.seq, rstats):
-                    raw = RawMessage(topic, header, payload, env.blobs, cached, time.time_ns())
+                    raw = RawMessage(topic, header, payload, blobs, cached, time.time_ns())
                     for callback in raws:
                         self._call(callback, raw)
         if sub is None:
             return
         if not env.batch:
             self._deliver(sub, topic, env.headers[0], env.payload, env.blobs, cached)
-        elif not (not cached and self._deliver_batch(sub, topic, env)):
+        elif cached or not self._deliver_batch(sub, topic, env):
             try:
-                payloads = payloads if payloads is not None else split_batch(env)
+                items = items if items is not None else env.messages()
             except DecodeError as exc:
                 self._count_error(topic, sub.stats, str(exc))
                 return
-            for header, payload in zip(env.headers, payloads, strict=True):
-                self._deliver(sub, topic, header, payload, [], cached)
+            for header, payload, blobs in items:
+                self._deliver(sub, topic, header, payload, blobs, cached)
 
     def _deliver_batch(self, sub: Subscription[Any], topic: str, env: Envelope) -> bool:
         """The common batch (one publisher, consecutive sequence numbers after the last seen, the subscribed
@@ -446,9 +444,8 @@ class Node:
         headers = env.headers
         first = headers[0]
         n = len(headers)
-        if headers[-1].seq - first.seq != n - 1 or \
-                any(h.node != first.node or h.type != sub.type_name for h in headers) or \
-                [h.seq for h in headers] != list(range(first.seq, first.seq + n)):
+        if [h.seq for h in headers] != list(range(first.seq, first.seq + n)) or \
+                any(h.node != first.node or h.type != sub.type_name for h in headers):
             return False
         try:
             msgs = sub.batch_decoder.decode(env.payload)

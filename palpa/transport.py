@@ -96,10 +96,6 @@ class TransportOptions:
         values.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**values)
 
-    def to_env(self) -> dict[str, str]:
-        """The environment variables that give a child process these options."""
-        return {var: str(getattr(self, name)) for name, var in self.ENV_VARS.items()}
-
 
 # the backend's C methods, called without the pyzmq sugar layer's Python wrapper around every send and receive
 _send = zmq.backend.Socket.send

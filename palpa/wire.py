@@ -38,7 +38,6 @@ __all__ = [
     "SequenceTracker",
     "TopicStats",
     "decode_header",
-    "encode_batch_header",
     "encode_header",
     "msgpack_array",
     "parse_envelope",
@@ -74,11 +73,6 @@ def decode_header(frame: bytes) -> Header:
         return _header_decoder.decode(frame)
     except (msgspec.ValidationError, msgspec.DecodeError) as exc:
         raise DecodeError(f"bad envelope header: {exc}") from None
-
-
-def encode_batch_header(headers: list[Header]) -> bytes:
-    """Serialise the headers of a batch (frame 1 of a batch envelope)."""
-    return _header_encoder.encode(headers)
 
 
 class HeaderTemplate:
@@ -123,6 +117,12 @@ class Envelope(msgspec.Struct, frozen=True, gc=False):
     blobs: list[bytes]
     batch: bool
 
+    def messages(self) -> list[tuple[Header, bytes, list[bytes]]]:
+        """(header, payload, blobs) of each message; raises :class:`DecodeError` for a malformed batch."""
+        if not self.batch:
+            return [(self.headers[0], self.payload, self.blobs)]
+        return [(h, p, []) for h, p in zip(self.headers, split_batch(self), strict=True)]
+
 
 def parse_envelope(frames: list[bytes]) -> Envelope:
     """Validate the frame count and the header(s); raises :class:`DecodeError` saying what is wrong."""
@@ -161,10 +161,7 @@ def split_envelope(frames: list[bytes]) -> list[tuple[Header, bytes, list[bytes]
 
     Raises :class:`DecodeError` saying what is wrong with a malformed envelope.
     """
-    env = parse_envelope(frames)
-    if not env.batch:
-        return [(env.headers[0], env.payload, env.blobs)]
-    return [(h, p, []) for h, p in zip(env.headers, split_batch(env), strict=True)]
+    return parse_envelope(frames).messages()
 
 
 @dataclass
