@@ -40,22 +40,16 @@ def transport(request: pytest.FixtureRequest) -> str:
 @pytest.fixture
 def bus(transport: str) -> Iterator[BusAddress]:
     """An in-process bus over ipc and over tcp (the test runs once for each)."""
-    b = Bus(bus_spec(transport), latched_topics=["graph/latched"])
-    address = b.start()
-    try:
-        yield address
-    finally:
-        b.stop()
+    with Bus(bus_spec(transport), latched_topics=["graph/latched"]) as b:
+        assert b.address is not None
+        yield b.address
 
 
 @pytest.fixture
 def ipc_bus() -> Iterator[BusAddress]:
-    b = Bus(bus_spec("ipc"))
-    address = b.start()
-    try:
-        yield address
-    finally:
-        b.stop()
+    with Bus(bus_spec("ipc")) as b:
+        assert b.address is not None
+        yield b.address
 
 
 @pytest.fixture

@@ -8,20 +8,28 @@ import signal
 import subprocess
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+
+from emulators.ur.process import UrEmulatorProcess
+
+
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 class Proc:
     """One child process whose stdout+stderr go to a file that tests can poll."""
 
-    def __init__(self, cmd: Sequence[str], env: dict[str, str] | None, cwd: str | None) -> None:
+    def __init__(self, cmd: Sequence[str], env: dict[str, str] | None, cwd: str | None,
+                 ignore_sigint: bool = False) -> None:
         fd, name = tempfile.mkstemp(prefix="palpa-test-", suffix=".log")
         self.log_path = Path(name)
         self._log = os.fdopen(fd, "wb")
         self.cmd = list(cmd)
         self.popen = subprocess.Popen(
-            self.cmd, stdout=self._log, stderr=subprocess.STDOUT, env=env, cwd=cwd, start_new_session=True
+            self.cmd, stdout=self._log, stderr=subprocess.STDOUT, env=env, cwd=cwd, start_new_session=True,
+            preexec_fn=_ignore_sigint if ignore_sigint else None,
         )
 
     @property
@@ -43,6 +51,18 @@ class Proc:
             time.sleep(0.02)
         raise AssertionError(f"timed out waiting for {needle!r} from {self.cmd}:\n{self.output()}")
 
+    def first_line(self, timeout: float = 10.0) -> str:
+        """The first complete line of output (waits for it, bounded)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            out = self.output()
+            if "\n" in out:
+                return out.split("\n", 1)[0].strip()
+            if self.popen.poll() is not None:
+                raise AssertionError(f"{self.cmd} exited {self.popen.returncode} before printing a line:\n{out}")
+            time.sleep(0.02)
+        raise AssertionError(f"timed out waiting for a line from {self.cmd}:\n{self.output()}")
+
     def signal(self, sig: int) -> None:
         if self.popen.poll() is None:
             os.kill(self.popen.pid, sig)
@@ -63,8 +83,11 @@ class ProcessGroup:
     def __init__(self) -> None:
         self.procs: list[Proc] = []
 
-    def start(self, cmd: Sequence[str], env: dict[str, str] | None = None, cwd: str | None = None) -> Proc:
-        p = Proc(cmd, env, cwd)
+    def start(self, cmd: Sequence[str], env: dict[str, str] | None = None, cwd: str | None = None,
+              ignore_sigint: bool = False) -> Proc:
+        """Start ``cmd`` in its own session; ``ignore_sigint`` starts it with SIGINT ignored, as a shell does
+        for a background job."""
+        p = Proc(cmd, env, cwd, ignore_sigint)
         self.procs.append(p)
         return p
 
@@ -90,3 +113,17 @@ def wait_until(cond: Callable[[], object], timeout: float = 10.0, what: str = "c
         else:
             time.sleep(0.01)
     raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+@contextlib.contextmanager
+def ur_emulator(args: Sequence[str]) -> Iterator[UrEmulatorProcess]:
+    """A UR emulator process on a random loopback address, stopped at the end; it must exit 0 (its log is printed,
+    so pytest shows it when the test failed)."""
+    proc = UrEmulatorProcess.on_random_loopback(list(args))
+    proc.start()
+    try:
+        yield proc
+    finally:
+        code = proc.stop()
+        print(proc.log())
+        assert code == 0, f"emulator exited with {code}"

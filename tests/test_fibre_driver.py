@@ -4,18 +4,15 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
 import random
-import selectors
 import signal
-import subprocess
 import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from procs import wait_until
+from procs import ProcessGroup, wait_until
 
 from emulators.fibre_daq import FibreDaqEmulator, fixed_pose, source_from_heights
 from nodes.drivers.fibre import (
@@ -336,28 +333,14 @@ def test_overrun_when_caller_does_not_read(make_emu: Callable[..., FibreDaqEmula
 # --- command-line emulator ----------------------------------------------------------
 
 
-def _ignore_sigint() -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as for a background job of a script
-
-
-def test_cli_prints_port_and_stops_on_ctrl_c(make_driver: Callable[..., SerialFibreDriver]) -> None:
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "emulators.fibre_daq", "--rate", "200"],
-        cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=_ignore_sigint,
-    )
-    try:
-        sel = selectors.DefaultSelector()
-        assert proc.stdout is not None
-        sel.register(proc.stdout, selectors.EVENT_READ)
-        assert sel.select(timeout=15.0), "emulator printed no port path"
-        port = proc.stdout.readline().decode().strip()
-        drv = make_driver(port)
-        assert all(math.isfinite(h) for h in collect(drv, 5)[0].heights_mm)
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=10.0) == 0
-        assert not Path(port).exists()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+def test_cli_prints_port_and_stops_on_ctrl_c(make_driver: Callable[..., SerialFibreDriver],
+                                             procs: ProcessGroup) -> None:
+    # started with SIGINT ignored, as a shell starts a background job: the emulator must still stop on Ctrl-C
+    proc = procs.start([sys.executable, "-m", "emulators.fibre_daq", "--rate", "200"], cwd=str(REPO),
+                       ignore_sigint=True)
+    port = proc.first_line(15.0)
+    drv = make_driver(port)
+    assert all(math.isfinite(h) for h in collect(drv, 5)[0].heights_mm)
+    proc.signal(signal.SIGINT)
+    assert proc.wait(10.0) == 0
+    assert not Path(port).exists()

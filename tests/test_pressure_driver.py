@@ -4,16 +4,13 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
-import selectors
 import signal
-import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from procs import wait_until
+from procs import ProcessGroup, wait_until
 
 from emulators.alicat import AlicatEmulator
 from nodes.drivers.pressure import (
@@ -239,21 +236,12 @@ def test_device_units_are_converted(make_emu: Callable[..., AlicatEmulator], mak
     assert poll(drv).measured_kpa == pytest.approx(30.0, abs=0.01)
 
 
-def test_cli_prints_port_and_stops_on_sigterm(make_driver: Callable[..., AlicatPressureDriver]) -> None:
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "emulators.alicat"], cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    try:
-        sel = selectors.DefaultSelector()
-        assert proc.stdout is not None
-        sel.register(proc.stdout, selectors.EVENT_READ)
-        assert sel.select(timeout=15.0), "emulator printed no port path"
-        port = proc.stdout.readline().decode().strip()
-        drv = make_driver(port)
-        assert drv.set_setpoint(12.5).setpoint_kpa == 12.5
-        proc.send_signal(signal.SIGTERM)
-        assert proc.wait(timeout=10.0) == 0
-        assert not Path(port).exists()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+def test_cli_prints_port_and_stops_on_sigterm(make_driver: Callable[..., AlicatPressureDriver],
+                                               procs: ProcessGroup) -> None:
+    proc = procs.start([sys.executable, "-m", "emulators.alicat"], cwd=str(REPO))
+    port = proc.first_line(15.0)
+    drv = make_driver(port)
+    assert drv.set_setpoint(12.5).setpoint_kpa == 12.5
+    proc.signal(signal.SIGTERM)
+    assert proc.wait(10.0) == 0
+    assert not Path(port).exists()

@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from procs import ur_emulator
 
 from emulators.ur.process import UrEmulatorProcess
 from models.raster import sweep_raster
@@ -137,14 +138,8 @@ def test_paths_over_the_caps_are_refused_naming_the_waypoint() -> None:
 @pytest.fixture
 def emu(request: pytest.FixtureRequest) -> Iterator[UrEmulatorProcess]:
     args = ["--unlock-delay", "0", "--home", HOME_ARG, *getattr(request, "param", ())]
-    proc = UrEmulatorProcess.on_random_loopback(args)
-    proc.start()
-    try:
+    with ur_emulator(args) as proc:
         yield proc
-    finally:
-        code = proc.stop()
-        print(proc.log())  # shown by pytest when the test failed
-        assert code == 0, f"emulator exited with {code}"
 
 
 @pytest.fixture

@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from procs import ur_emulator
 
 from emulators.ur import ControllerConfig, FaultPlan, UrController, UrEmulator
 from emulators.ur.process import UrEmulatorProcess
@@ -38,14 +39,8 @@ def random_host() -> str:
 def emu(request: pytest.FixtureRequest) -> Iterator[UrEmulatorProcess]:
     """A fresh emulator process; extra CLI flags by indirect parametrisation."""
     args = ["--unlock-delay", "0", *getattr(request, "param", ())]
-    proc = UrEmulatorProcess.on_random_loopback(args)
-    proc.start()
-    try:
+    with ur_emulator(args) as proc:
         yield proc
-    finally:
-        code = proc.stop()
-        print(proc.log())  # shown by pytest when the test failed
-        assert code == 0, f"emulator exited with {code}"
 
 
 def emu_args(*args: str) -> pytest.MarkDecorator:
