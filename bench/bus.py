@@ -6,7 +6,8 @@
 Each contender: a publisher process sends N 100-byte typed messages as fast as it can; this process receives,
 decodes and counts them (losses = N - received). Then 1 kHz latency (publish stamp -> receive, p50/p99).
 palpa runs publisher -> proxy (`palpa bus`, its own process) -> subscriber, once unbatched and once with
-publisher-side batching; raw pyzmq runs PUB -> SUB direct with [topic, msgpack] frames; zenoh runs peer to peer
+publisher-side batching, and publisher -> subscriber for a topic published direct (the bus only as the
+directory, palpa.direct); raw pyzmq runs PUB -> SUB direct with [topic, msgpack] frames; zenoh runs peer to peer
 over loopback tcp with blocking congestion control. Latency also runs with busy-polling subscribers (raw pyzmq
 spinning on a non-blocking receive; palpa with ``busy_poll_us``) and a sleep loop alone (how late this machine
 wakes a thread, the floor under every blocking contender), and reports the CPU time the hypervisor took during
@@ -68,8 +69,9 @@ def pub_palpa(args: argparse.Namespace) -> None:
     """A node that publishes from a timer, as a driver would: at the fixed rate, or in bursts of 1000 per tick
     (so the default in-callback batching applies unless --batch 1)."""
     node = palpa.Node(name="bench_pub", bus=args.bus, heartbeat_s=0, transport_options=TransportOptions(sndhwm=HWM))
-    pub = node.publisher("bench", Blob, batch=None if args.batch > 1 else 1)
-    time.sleep(args.settle)  # let the subscription propagate (benchmark only: no readiness API for a raw test)
+    pub = node.publisher("bench", Blob, batch=None if args.batch > 1 else 1, direct=args.direct)
+    if not pub.wait_for_subscribers(30):
+        raise SystemExit("bench publisher: no subscriber after 30 s")
     sent = 0
     t0 = time.perf_counter()
 
@@ -207,12 +209,13 @@ def wait_done(proc: subprocess.Popen[bytes], counter: Counter, poll: Any, timeou
     proc.wait(10)
 
 
-def run_palpa(n: int, rate: float, batch: int, bus: str, settle: float, busy_poll_us: int = 0) -> dict[str, Any]:
+def run_palpa(n: int, rate: float, batch: int, bus: str, settle: float, busy_poll_us: int = 0,
+              direct: bool = False) -> dict[str, Any]:
     counter = Counter(n)
     node = palpa.Node(name="bench_sub", bus=bus, heartbeat_s=0,
                       transport_options=TransportOptions(rcvhwm=HWM, busy_poll_us=busy_poll_us))
     node.subscribe("bench", Blob, counter.hit, queue_size=1)
-    proc = spawn("palpa", n, rate, ["--bus", bus, "--batch", str(batch), "--settle", str(settle)])
+    proc = spawn("palpa", n, rate, ["--bus", bus, "--batch", str(batch), *(["--direct"] if direct else [])])
     wait_done(proc, counter, lambda: node.spin_once(0.05), 120)
     gaps = node.counters()["bench"].gaps
     node.close(0)
@@ -294,6 +297,7 @@ def main() -> None:
     ap.add_argument("--hwm", type=int, default=HWM)
     ap.add_argument("--settle", type=float, default=0.5)
     ap.add_argument("--skip-zenoh", action="store_true")
+    ap.add_argument("--direct", action="store_true", help="(publisher role) publish direct, past the proxy")
     ap.add_argument("--busy-poll-us", type=int, default=2000, help="the busy-polling subscribers' spin time")
     args = ap.parse_args()
     if args.role:
@@ -316,9 +320,10 @@ def main() -> None:
         results["raw_pyzmq"] = run_zmq(args.n, 0, args.hwm, args.settle)
         results["palpa"] = run_palpa(args.n, 0, 1, bus, args.settle)
         results["palpa_batched"] = run_palpa(args.n, 0, 64, bus, args.settle)
+        results["palpa_direct"] = run_palpa(args.n, 0, 1, bus, args.settle, direct=True)
         if not args.skip_zenoh:
             results["zenoh"] = run_zenoh(args.n, 0, args.settle)
-        for name in ("raw_pyzmq", "palpa", "palpa_batched", "zenoh"):
+        for name in ("raw_pyzmq", "palpa", "palpa_batched", "palpa_direct", "zenoh"):
             if isinstance(results.get(name), dict):
                 results[name].pop("_lat")
         # latency: the contenders take turns in short rounds, so a noisy spell of the host hits them alike
@@ -329,6 +334,9 @@ def main() -> None:
             "palpa_batched": lambda k: run_palpa(k, 1000, 64, bus, args.settle),
             "raw_pyzmq_busy_poll": lambda k: run_zmq(k, 1000, args.hwm, args.settle, busy=True),
             "palpa_busy_poll": lambda k: run_palpa(k, 1000, 64, bus, args.settle, busy_poll_us=args.busy_poll_us),
+            "palpa_direct": lambda k: run_palpa(k, 1000, 1, bus, args.settle, direct=True),
+            "palpa_direct_busy_poll": lambda k: run_palpa(k, 1000, 1, bus, args.settle,
+                                                          busy_poll_us=args.busy_poll_us, direct=True),
         }
         if isinstance(results.get("zenoh"), dict):  # installed and ran
             contenders["zenoh"] = lambda k: run_zenoh(k, 1000, args.settle)
@@ -347,15 +355,16 @@ def main() -> None:
     raw = results["raw_pyzmq"]["msg_per_s"] or 1
     results["ratio_palpa_vs_raw"] = round(results["palpa"]["msg_per_s"] / raw, 2)
     results["ratio_palpa_batched_vs_raw"] = round(results["palpa_batched"]["msg_per_s"] / raw, 2)
+    results["ratio_palpa_direct_vs_raw"] = round(results["palpa_direct"]["msg_per_s"] / raw, 2)
     z = results.get("zenoh")
     if isinstance(z, dict) and z["msg_per_s"]:
         results["ratio_palpa_batched_vs_zenoh"] = round(results["palpa_batched"]["msg_per_s"] / z["msg_per_s"], 2)
 
-    print(f"{'contender':<22}{'msg/s':>10}{'lost':>8}{'p50 us @1k':>12}{'p99 us @1k':>12}")
+    print(f"{'contender':<24}{'msg/s':>10}{'lost':>8}{'p50 us @1k':>12}{'p99 us @1k':>12}")
     for name, lat in results["latency_1khz"].items():
         r = results.get(name, {})
         if isinstance(lat, dict):
-            print(f"{name:<22}{r.get('msg_per_s', ''):>10}{r.get('lost', ''):>8}{lat['p50_us']:>12}{lat['p99_us']:>12}")
+            print(f"{name:<24}{r.get('msg_per_s', ''):>10}{r.get('lost', ''):>8}{lat['p50_us']:>12}{lat['p99_us']:>12}")
     print(f"CPU time the hypervisor took during the latency runs: {results['latency_cpu_stolen_ms']} ms")
     print(json.dumps(results))
 

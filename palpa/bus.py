@@ -29,6 +29,7 @@ import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 
 from palpa.address import BusAddress
+from palpa.direct import DIRECTORY_PREFIX
 from palpa.errors import BusError
 
 __all__ = ["Bus", "CurveServer", "is_loopback_endpoint"]
@@ -227,7 +228,7 @@ class Bus:
     def cached_topics(self) -> list[str]:
         """Topics with a cached last value."""
         with self._cache_lock:
-            return sorted(t.decode(errors="replace") for t in self._cache)
+            return sorted(t.decode(errors="replace") for t in self._cache if not t.startswith(DIRECTORY_PREFIX))
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Stop the proxy and the cache, close every socket and remove ipc socket files."""

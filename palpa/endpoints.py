@@ -48,7 +48,9 @@ class Publisher(Generic[M]):
     ``batch`` (then call :meth:`flush`, or let the node's loop do it).
     """
 
-    def __init__(self, node: Node, topic: str, msg_type: type[M], latched: bool, batch: int | None) -> None:
+    def __init__(
+        self, node: Node, topic: str, msg_type: type[M], latched: bool, batch: int | None, direct: bool | None
+    ) -> None:
         self.node = node
         self.topic = topic
         self.type = msg_type
@@ -61,7 +63,23 @@ class Publisher(Generic[M]):
         self._header = HeaderTemplate(self._type_name, node.name, latched)
         self._pending_headers: list[bytes] = []
         self._pending_payloads: list[bytes] = []
-        self._send = node._transport.send
+        self._send = node._transport.sender(self._topic_b, direct)
+
+    @property
+    def has_subscribers(self) -> bool:
+        """True once some subscriber's subscription for this topic has reached this node (ZeroMQ drops what is
+        published before that)."""
+        return self.node._transport.has_subscribers(self._topic_b)
+
+    def wait_for_subscribers(self, timeout_s: float) -> bool:
+        """Spin the node until :attr:`has_subscribers` or ``timeout_s`` passes; returns whether someone listens."""
+        deadline = time.monotonic() + timeout_s
+        while not self.has_subscribers:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or self.node.is_shutdown:
+                return False
+            self.node.spin_once(min(0.01, remaining))
+        return True
 
     def publish(self, msg: M, *, blobs: Sequence[bytes] = (), stamp_ns: int | None = None) -> int:
         """Serialise and send ``msg`` (plus optional binary blobs). ``stamp_ns`` defaults to the node clock."""

@@ -183,13 +183,17 @@ class Node:
         return resolve_topic(topic, self.namespace, self.remap)
 
     def publisher(
-        self, topic: str, msg_type: type[M], *, latched: bool = False, batch: int | None = None
+        self, topic: str, msg_type: type[M], *, latched: bool = False, batch: int | None = None,
+        direct: bool | None = None,
     ) -> Publisher[M]:
         """A publisher of ``msg_type`` on ``topic``. Latched topics are replayed to subscribers that join late.
 
         Inside callbacks, messages are coalesced up to ``batch`` (default :data:`DEFAULT_BATCH`) per ZeroMQ message
         and sent when the callback returns. An explicit ``batch > 1`` also batches outside callbacks (flush with
         ``Publisher.flush()`` or the node's loop); ``batch=1`` never batches.
+
+        ``direct=True`` sends straight to the subscribers instead of through the bus's proxy (lower latency, see
+        :mod:`palpa.direct`); None leaves it to the transport options (launch ``transport: {direct: [...]}``).
         """
         resolved = self.resolve(topic)
         existing = self._pubs.get(resolved)
@@ -197,7 +201,7 @@ class Node:
             if existing.type is not msg_type:
                 raise TypeError(f"topic {resolved!r} already published as {existing.type.type_name}")
             return existing
-        pub = Publisher(self, resolved, msg_type, latched, batch)
+        pub = Publisher(self, resolved, msg_type, latched, batch, direct)
         self._pubs[resolved] = pub
         return pub
 

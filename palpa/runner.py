@@ -4,7 +4,7 @@
 
     --name NAME  --namespace NS  --bus ADDRESS  -p/--param KEY=VALUE (VALUE is YAML: 3, 2.5, true, [1, 2])
     --params-json JSON  --params-file FILE.yaml  --remap FROM:=TO  --sim-clock  --debug
-    --sndhwm N  --rcvhwm N  --busy-poll-us US   (transport options, see palpa.transport.TransportOptions)
+    --sndhwm N  --rcvhwm N  --busy-poll-us US  --direct TOPIC   (transport options: palpa.transport)
 
 SIGINT and SIGTERM ask the node to stop; it finishes its current callback, runs ``on_shutdown`` and closes its
 sockets with a bounded linger. The process exits with ``node.exit_code`` (0 unless the node set it).
@@ -50,6 +50,9 @@ def node_arg_parser(prog: str) -> argparse.ArgumentParser:
                                               "also PALPA_RCVHWM)")
     ap.add_argument("--busy-poll-us", type=int, help="spin this long for input before blocking: lower latency "
                                                      "for a busy core (default 0; also PALPA_BUSY_POLL_US)")
+    ap.add_argument("--direct", action="append", metavar="TOPIC",
+                    help="publish TOPIC (as on the bus) straight to its subscribers, not through the proxy "
+                         "(repeatable; also PALPA_DIRECT=a,b)")
     ap.add_argument("--debug", action="store_true", help="debug logging and tracebacks")
     return ap
 
@@ -117,7 +120,8 @@ def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: s
             bus=args.bus,
             sim_clock=args.sim_clock,
             transport_options=TransportOptions.from_env(
-                sndhwm=args.sndhwm, rcvhwm=args.rcvhwm, busy_poll_us=args.busy_poll_us),
+                sndhwm=args.sndhwm, rcvhwm=args.rcvhwm, busy_poll_us=args.busy_poll_us,
+                direct=tuple(args.direct) if args.direct else None),
         )
     except PalpaError as exc:
         if args.debug:

@@ -20,7 +20,7 @@ from palpa.clock import MockClock
 from palpa.message import Message, lookup
 from palpa.node import Node, Publisher, RawMessage
 from palpa.params import Params
-from palpa.transport import Delivery
+from palpa.transport import Delivery, SendFn
 
 __all__ = ["GraphHarness", "MemoryBus", "MemoryTransport", "NodeHarness"]
 
@@ -62,6 +62,14 @@ class MemoryTransport:
 
     def send(self, frames: Sequence[bytes], latched: bool) -> None:
         self.bus._route([bytes(f) for f in frames], latched)
+
+    def sender(self, topic: bytes, direct: bool | None) -> SendFn:
+        return self.send  # in memory every topic is direct
+
+    def has_subscribers(self, topic: bytes) -> bool:
+        return any(
+            not t.closed and any(topic.startswith(p) for p in t.prefixes) for t in self.bus._transports
+        )
 
     def subscribe(self, prefix: bytes, request_latched: bool) -> None:
         self.prefixes.append(prefix)

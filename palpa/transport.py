@@ -7,10 +7,11 @@ logic is tested without sockets. Both deliver ``Delivery`` items: the frames of 
 
 from __future__ import annotations
 
+import logging
 import os
 import select
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar, Protocol, cast
@@ -20,9 +21,21 @@ import zmq
 import zmq.auth
 
 from palpa.address import BusAddress
+from palpa.direct import (
+    DIRECTORY_PREFIX,
+    SubscriberSet,
+    bind_candidates,
+    directory_entry,
+    directory_key,
+)
 from palpa.errors import BusError
 
-__all__ = ["Delivery", "Transport", "TransportOptions", "ZmqTransport", "curve_client_options"]
+__all__ = ["Delivery", "SendFn", "Transport", "TransportOptions", "ZmqTransport", "curve_client_options"]
+
+log = logging.getLogger("palpa.transport")
+
+SendFn = Callable[[Sequence[bytes], bool], None]
+"""Sends one envelope's frames; the bool says whether the topic is latched."""
 
 _SUBSCRIPTIONS_GRACE_MS = 100
 
@@ -38,7 +51,16 @@ class Transport(Protocol):
     """What a node needs from the bus."""
 
     def send(self, frames: Sequence[bytes], latched: bool) -> None:
-        """Publish one envelope; ``latched`` also stores it as the topic's last value."""
+        """Publish one envelope through the bus; ``latched`` also stores it as the topic's last value."""
+        ...
+
+    def sender(self, topic: bytes, direct: bool | None) -> SendFn:
+        """How a publisher of ``topic`` sends: through the bus, or straight to subscribers when ``direct``
+        (None: as the transport's options say). Falls back to the bus where direct is not possible."""
+        ...
+
+    def has_subscribers(self, topic: bytes) -> bool:
+        """True when some subscriber's subscription matches ``topic`` (as far as this transport has heard)."""
         ...
 
     def subscribe(self, prefix: bytes, request_latched: bool) -> None:
@@ -56,6 +78,7 @@ class Transport(Protocol):
 
 _ZERO_COPY_BYTES = 65_536
 _FD_SETSIZE = 1024
+_RECONNECT_MAX_MS = 2000
 
 
 @dataclass(frozen=True)
@@ -72,29 +95,44 @@ class TransportOptions:
     busy_poll_us: int = 0
     """Before blocking for input, check for it in a loop for up to this long (a CPU core kept busy in exchange
     for not paying the operating system's wake-up latency; 0: always block)."""
+    direct: tuple[str, ...] = ()
+    """Topics (names on the bus, after remapping) this node publishes straight to their subscribers instead of
+    through the proxy: one hop instead of two (palpa.direct). ``PALPA_DIRECT`` takes them comma-separated."""
 
-    ENV_VARS: ClassVar[dict[str, str]] = {"sndhwm": "PALPA_SNDHWM", "rcvhwm": "PALPA_RCVHWM", "busy_poll_us": "PALPA_BUSY_POLL_US"}
+    ENV_VARS: ClassVar[dict[str, str]] = {
+        "sndhwm": "PALPA_SNDHWM", "rcvhwm": "PALPA_RCVHWM", "busy_poll_us": "PALPA_BUSY_POLL_US",
+        "direct": "PALPA_DIRECT",
+    }
 
     def __post_init__(self) -> None:
-        for name in self.ENV_VARS:
+        for name in ("sndhwm", "rcvhwm", "busy_poll_us"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise BusError(f"transport option {name}: expected an integer >= 0, got {value!r}")
+        if isinstance(self.direct, str) or not all(isinstance(t, str) and t for t in self.direct):
+            raise BusError(f"transport option direct: expected a list of topic names, got {self.direct!r}")
+        object.__setattr__(self, "direct", tuple(self.direct))
 
     @classmethod
-    def from_env(cls, env: Mapping[str, str] | None = None, **overrides: int | None) -> TransportOptions:
+    def from_env(
+        cls, env: Mapping[str, str] | None = None, **overrides: int | Sequence[str] | None
+    ) -> TransportOptions:
         """Defaults, then the environment, then the non-None ``overrides`` (command-line flags)."""
         env = os.environ if env is None else env
-        values: dict[str, int] = {}
+        values: dict[str, object] = {}
         for name, var in cls.ENV_VARS.items():
             text = env.get(var, "").strip()
-            if text:
-                try:
-                    values[name] = int(text)
-                except ValueError:
-                    raise BusError(f"{var}={text!r}: expected an integer") from None
+            if not text:
+                continue
+            if name == "direct":
+                values[name] = tuple(t.strip() for t in text.split(",") if t.strip())
+                continue
+            try:
+                values[name] = int(text)
+            except ValueError:
+                raise BusError(f"{var}={text!r}: expected an integer") from None
         values.update({k: v for k, v in overrides.items() if v is not None})
-        return cls(**values)
+        return cls(**values)  # type: ignore[arg-type]
 
 
 # the backend's C methods, called without the pyzmq sugar layer's Python wrapper around every send and receive
@@ -138,7 +176,8 @@ def curve_client_options() -> dict[str, bytes] | None:
 
 
 class ZmqTransport:
-    """A PUB socket to the proxy, a SUB socket from it, and a DEALER to the latched-value cache."""
+    """A PUB socket to the proxy, a SUB socket from it (and from direct publishers), a DEALER to the latched-value
+    cache, and, once a topic is published direct, an XPUB its subscribers connect to (palpa.direct)."""
 
     def __init__(
         self,
@@ -152,7 +191,15 @@ class ZmqTransport:
         self.options = options
         self._busy_poll_ns = options.busy_poll_us * 1000
         self._ctx = context or zmq.Context.instance()
+        self._address = address
         curve = curve_client_options()
+        self._curve = curve is not None
+        self._direct: zmq.Socket[bytes] | None = None
+        self._direct_endpoint = ""
+        self._direct_topics: list[bytes] = []
+        self._peers: set[str] = set()
+        self._bus_listeners = SubscriberSet()
+        self._direct_listeners = SubscriberSet()
         # an XPUB, not a PUB: it hears the proxy's subscriptions, so the constructor can wait until they have
         # arrived; a PUB would silently drop the first messages published while they are still on their way
         self._pub = self._ctx.socket(zmq.XPUB)
@@ -160,6 +207,7 @@ class ZmqTransport:
         self._latch = self._ctx.socket(zmq.DEALER)
         self._pub.sndhwm = options.sndhwm
         self._sub.rcvhwm = options.rcvhwm
+        self._sub.reconnect_ivl_max = _RECONNECT_MAX_MS  # withdrawn direct publishers stay connected (cheaply)
         for sock in (self._pub, self._sub, self._latch):
             if curve is not None:
                 sock.curve_serverkey = curve["server"]
@@ -175,13 +223,10 @@ class ZmqTransport:
             monitor.close(0)
             self.close(0)
             raise BusError(f"cannot connect to bus {address}: {exc}") from None
-        self._socks = (self._sub, self._latch, self._pub)
-        self._fds = [cast(int, sock.get(zmq.FD)) for sock in self._socks]
-        self._fds_selectable = max(self._fds) < _FD_SETSIZE
         self._poller = zmq.Poller()
-        self._poller.register(self._sub, zmq.POLLIN)
-        self._poller.register(self._latch, zmq.POLLIN)
-        self._poller.register(self._pub, zmq.POLLIN)
+        self._socks: tuple[zmq.Socket[bytes], ...] = ()
+        for sock in (self._sub, self._latch, self._pub):
+            self._watch(sock)
         self._closed = False
         self.connected = self._await_proxy(monitor, connect_timeout_s)
 
@@ -200,12 +245,83 @@ class ZmqTransport:
             self._pub.disable_monitor()
             monitor.close(0)
 
-    def _drain_subscriptions(self) -> None:
+    def _watch(self, sock: zmq.Socket[bytes]) -> None:
+        """Wait for input on ``sock`` too (in poll and in sub-ms waits)."""
+        self._socks = (*self._socks, sock)
+        self._fds = [cast(int, s.get(zmq.FD)) for s in self._socks]
+        self._fds_selectable = max(self._fds) < _FD_SETSIZE
+        self._poller.register(sock, zmq.POLLIN)
+
+    def _drain_subscriptions(self, sock: zmq.Socket[bytes] | None = None, listeners: SubscriberSet | None = None) -> None:
+        sock = sock or self._pub
+        listeners = listeners or self._bus_listeners
         while True:
             try:
-                self._pub.recv(zmq.NOBLOCK)
+                listeners.note(sock.recv(zmq.NOBLOCK))
             except zmq.Again:
                 return
+
+    def has_subscribers(self, topic: bytes) -> bool:
+        listeners = self._direct_listeners if topic in self._direct_topics else self._bus_listeners
+        return listeners.covers(topic)
+
+    def sender(self, topic: bytes, direct: bool | None) -> SendFn:
+        if direct is None:
+            direct = topic.decode(errors="replace") in self.options.direct
+        if not direct or not self._open_direct():
+            return self.send
+        if topic not in self._direct_topics:
+            self._direct_topics.append(topic)
+            self._latch.send_multipart([b"SET", directory_key(topic, self._direct_endpoint), b"", self._direct_endpoint.encode()])
+        return self._send_direct
+
+    def _open_direct(self) -> bool:
+        """Bind the direct socket on first use; False (topics stay on the bus, with a warning) where that is not
+        possible: a CURVE bus (the node holds no server keys), a remote tcp bus, or no endpoint would bind."""
+        if self._direct is not None:
+            return True
+        why = "the bus is CURVE-encrypted" if self._curve else ""
+        candidates = [] if why else bind_candidates(self._address)
+        if not why and not candidates:
+            why = f"the bus {self._address.pub} is neither ipc nor loopback tcp"
+        sock = self._ctx.socket(zmq.XPUB)
+        sock.sndhwm = self.options.sndhwm
+        for endpoint in candidates:
+            try:
+                sock.bind(endpoint)
+            except zmq.ZMQError as exc:
+                why = f"cannot bind {endpoint}: {exc}"
+                continue
+            self._direct = sock
+            self._direct_endpoint = str(sock.getsockopt_string(zmq.LAST_ENDPOINT))
+            self._watch(sock)
+            return True
+        sock.close(0)
+        log.warning("direct topics go through the bus instead: %s", why)
+        return False
+
+    def _send_direct(self, frames: Sequence[bytes], latched: bool) -> None:
+        assert self._direct is not None
+        _send_frames(self._direct, frames)
+        if latched:
+            self._latch.send(b"SET", zmq.SNDMORE)
+            _send_frames(self._latch, frames)
+
+    def _on_directory(self, key: bytes, payload: bytes) -> None:
+        """Connect to a direct publisher the cache told about. A withdrawn one is not disconnected: its last
+        messages may still be on their way (a disconnect would drop them); ZeroMQ keeps retrying a dead endpoint
+        at most every few seconds, and a publisher that comes back there is received once, not twice."""
+        entry = directory_entry(key, payload)
+        if entry is None:
+            return
+        endpoint, alive = entry
+        if alive and endpoint not in self._peers:
+            try:
+                self._sub.connect(endpoint)
+            except zmq.ZMQError as exc:
+                log.warning("cannot connect to direct publisher %s: %s", endpoint, exc)
+                return
+            self._peers.add(endpoint)
 
     def send(self, frames: Sequence[bytes], latched: bool) -> None:
         if len(frames) == 3 and len(frames[2]) < _ZERO_COPY_BYTES:  # the common case, unrolled
@@ -223,6 +339,8 @@ class ZmqTransport:
         self._sub.setsockopt(zmq.SUBSCRIBE, prefix)
         if request_latched:
             self._latch.send_multipart([b"GET", prefix])
+        if not self._curve:  # direct publishers of matching topics, now and later (palpa.direct)
+            self._latch.send_multipart([b"GET", DIRECTORY_PREFIX + prefix])
 
     def unsubscribe(self, prefix: bytes) -> None:
         self._sub.setsockopt(zmq.UNSUBSCRIBE, prefix)
@@ -240,6 +358,8 @@ class ZmqTransport:
         events = dict(self._poller.poll(int(timeout_s * 1000)))
         if self._pub in events:
             self._drain_subscriptions()
+        if self._direct is not None and self._direct in events:
+            self._drain_subscriptions(self._direct, self._direct_listeners)
         if self._sub in events:
             sub = self._sub
             for _ in range(max_batch):
@@ -261,7 +381,10 @@ class ZmqTransport:
                 except zmq.Again:
                     break
                 if frames and frames[0] == b"VAL" and len(frames) >= 4:
-                    out.append(Delivery(frames[1:], True))
+                    if frames[1].startswith(DIRECTORY_PREFIX):
+                        self._on_directory(frames[1], frames[3])
+                    else:
+                        out.append(Delivery(frames[1:], True))
         return out
 
     def _busy_wait(self, timeout_s: float) -> float:
@@ -291,5 +414,11 @@ class ZmqTransport:
         if getattr(self, "_closed", False):
             return
         self._closed = True
+        for topic in self._direct_topics:  # withdraw the announcements, so subscribers stop reconnecting
+            self._latch.send_multipart([b"SET", directory_key(topic, self._direct_endpoint), b"", b""])
         for sock in (self._pub, self._sub, self._latch):
             sock.close(linger_ms)
+        if self._direct is not None:
+            self._direct.close(linger_ms)
+            if self._direct_endpoint.startswith("ipc://"):
+                Path(self._direct_endpoint[len("ipc://") :]).unlink(missing_ok=True)

@@ -41,7 +41,7 @@ class NodeSpec:
     sigterm_timeout: float = 5.0
     sigkill_timeout: float = 5.0
     output: str = "screen"
-    transport: dict[str, int] = field(default_factory=dict)
+    transport: dict[str, int | list[str]] = field(default_factory=dict)
     """Transport options set by the launch file (palpa.transport.TransportOptions field -> value)."""
     where: str = ""
 
@@ -74,7 +74,8 @@ class NodeSpec:
             env["PALPA_PARAMS"] = json.dumps(self.params)
             env["PALPA_REMAP"] = json.dumps(self.remap)
             env["PALPA_NAMESPACE"] = self.namespace
-        env.update({TransportOptions.ENV_VARS[k]: str(v) for k, v in self.transport.items()})
+        env.update({TransportOptions.ENV_VARS[k]: ",".join(v) if isinstance(v, list) else str(v)
+                    for k, v in self.transport.items()})
         env.update(self.env)
         return env
 
@@ -90,7 +91,7 @@ class NodeSpec:
                    respawn_max_retries=self.respawn_max_retries, required=self.required,
                    sigterm_timeout=self.sigterm_timeout, sigkill_timeout=self.sigkill_timeout, output=self.output)
         if self.transport:
-            out["transport"] = dict(self.transport)
+            out["transport"] = {k: list(v) if isinstance(v, list) else v for k, v in self.transport.items()}
         return out
 
 

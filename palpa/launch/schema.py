@@ -99,8 +99,11 @@ class TransportDecl(_Decl):
                                                   "0: no limit")] | None = None
     busy_poll_us: Annotated[int, Meta(ge=0, le=1_000_000, description="spin this long for input before blocking: "
                                       "lower latency in exchange for a busy core")] | None = None
+    direct: Annotated[list[Annotated[str, Meta(min_length=1)]], Meta(
+        description="topics (as on the bus, after namespace and remap) this node publishes straight to their "
+                    "subscribers instead of through the proxy: lower latency (see palpa.direct)")] | None = None
 
-    def given(self) -> dict[str, int]:
+    def given(self) -> dict[str, int | list[str]]:
         """The options this entry sets."""
         return {k: v for k in self.__struct_fields__ if (v := getattr(self, k)) is not None}
 
