@@ -64,6 +64,8 @@ class Publisher(Generic[M]):
         self._pending_headers: list[bytes] = []
         self._pending_payloads: list[bytes] = []
         self._send = node._transport.sender(self._topic_b, direct)
+        self.direct = self._send != node._transport.send
+        """Whether this topic goes straight to its subscribers (the transport may have refused ``direct``)."""
 
     @property
     def has_subscribers(self) -> bool:

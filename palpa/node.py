@@ -523,6 +523,7 @@ class Node:
                 counters={t: TopicCounters(**s.as_dict()) for t, s in self.counters().items()},
                 sent={p.topic: p.seq for p in self._pubs.values()},
                 uptime_s=(time.monotonic_ns() - self._started_ns) / 1e9,
+                direct=[p.topic for p in self._pubs.values() if p.direct],
             )
         )
 

@@ -39,6 +39,8 @@ class Heartbeat(Message, frozen=True, kw_only=True):
     """Topic -> messages published so far."""
     uptime_s: float
     state: str = "running"
+    direct: list[str] = []
+    """Published topics sent straight to their subscribers, past the proxy (palpa.direct)."""
 
 
 class LogRecord(Message, frozen=True, kw_only=True):

@@ -233,3 +233,19 @@ def test_has_subscribers_on_the_bus_and_in_memory(ipc_bus: BusAddress) -> None:
     assert not out.has_subscribers
     b.subscribe("x", Text)
     assert out.has_subscribers
+
+
+def test_topic_tools_follow_a_direct_topic(ipc_bus: BusAddress, procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]
+    """`palpa topic echo/hz/list` and `node list` on a topic published past the proxy: they find it through the
+    bus like any subscriber, and the listings say it is direct."""
+    env = env_for(ipc_bus)
+    procs.start(palpa_cmd("run", "nodes.demo:Talker", "-p", "rate_hz=200", "--direct", "chatter"), env=env)
+    echo = procs.start(palpa_cmd("topic", "echo", "chatter", "-n", "2", "--timeout", "10"), env=env)
+    assert echo.wait(15) == 0 and "text: hello" in echo.output()
+    hz = procs.start(palpa_cmd("topic", "hz", "chatter", "--duration", "1.5"), env=env)
+    assert hz.wait(15) == 0
+    assert " gaps 0" in hz.output().strip().splitlines()[-1]
+    nl = procs.start(palpa_cmd("node", "list", "-v"), env=env)
+    assert nl.wait(15) == 0 and "pub chatter [Text] sent" in nl.output() and "(direct)" in nl.output()
+    tl = procs.start(palpa_cmd("topic", "list"), env=env)
+    assert tl.wait(15) == 0 and "chatter  [Text]  pub: talker (direct)" in tl.output()

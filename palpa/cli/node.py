@@ -33,7 +33,8 @@ def run_list(args: argparse.Namespace) -> int:
               f"pub {len(hb.publishes)}  sub {len(hb.subscribes)}  gaps {gaps}  bad {errors}")
         if args.verbose:
             for topic, tname in sorted(hb.publishes.items()):
-                print(f"    pub {topic} [{tname}] sent {hb.sent.get(topic, 0)}")
+                direct = " (direct)" if topic in hb.direct else ""
+                print(f"    pub {topic} [{tname}] sent {hb.sent.get(topic, 0)}{direct}")
             for topic, tname in sorted(hb.subscribes.items()):
                 c = hb.counters.get(topic)
                 extra = f" received {c.received} gaps {c.gaps} bad {c.decode_errors}" if c else ""

@@ -81,7 +81,7 @@ def run_list(args: argparse.Namespace) -> int:
             if topic.startswith("_palpa/"):
                 continue
             entry = topics.setdefault(topic, {"type": tname, "pub": [], "sub": []})
-            entry["pub"].append(hb.node)
+            entry["pub"].append(hb.node + (" (direct)" if topic in hb.direct else ""))
         for topic, tname in hb.subscribes.items():
             entry = topics.setdefault(topic, {"type": tname, "pub": [], "sub": []})
             entry["sub"].append(hb.node)
