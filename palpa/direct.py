@@ -21,10 +21,15 @@ from __future__ import annotations
 import itertools
 import os
 import tempfile
+from pathlib import Path
+
+import zmq
 
 from palpa.address import BusAddress
 
-__all__ = ["DIRECTORY_PREFIX", "SubscriberSet", "bind_candidates", "directory_entry", "directory_key"]
+__all__ = [
+    "DIRECTORY_PREFIX", "DirectSocket", "SubscriberSet", "bind_candidates", "directory_entry", "directory_key",
+]
 
 DIRECTORY_PREFIX = b"_palpa/direct/"
 _IPC_MAX = 100  # sun_path holds 107 bytes
@@ -79,3 +84,46 @@ class SubscriberSet:
     def covers(self, topic: bytes) -> bool:
         """True when some subscription's prefix matches ``topic``."""
         return any(topic.startswith(p) for p in self.prefixes)
+
+
+class DirectSocket:
+    """The XPUB a node's direct topics leave from, what it has heard subscribed, and its directory entries."""
+
+    def __init__(self, sock: zmq.Socket[bytes], endpoint: str) -> None:
+        self.sock = sock
+        self.endpoint = endpoint
+        self.topics: list[bytes] = []
+        self.listeners = SubscriberSet()
+
+    @classmethod
+    def bind(
+        cls, ctx: zmq.Context[zmq.Socket[bytes]], address: BusAddress, sndhwm: int
+    ) -> DirectSocket | str:
+        """Bind next to the bus (see :func:`bind_candidates`); the reason as a string when nothing would bind."""
+        candidates = bind_candidates(address)
+        why = f"the bus {address.pub} is neither ipc nor loopback tcp"
+        sock = ctx.socket(zmq.XPUB)
+        sock.sndhwm = sndhwm
+        for endpoint in candidates:
+            try:
+                sock.bind(endpoint)
+            except zmq.ZMQError as exc:
+                why = f"cannot bind {endpoint}: {exc}"
+                continue
+            return cls(sock, str(sock.getsockopt_string(zmq.LAST_ENDPOINT)))
+        sock.close(0)
+        return why
+
+    def announce(self, latch: zmq.Socket[bytes], topic: bytes) -> None:
+        """Tell the bus's directory (through the latch socket) that ``topic`` is published here."""
+        if topic not in self.topics:
+            self.topics.append(topic)
+            latch.send_multipart([b"SET", directory_key(topic, self.endpoint), b"", self.endpoint.encode()])
+
+    def close(self, latch: zmq.Socket[bytes], linger_ms: int) -> None:
+        """Withdraw every announcement, close the socket and remove its ipc file."""
+        for topic in self.topics:
+            latch.send_multipart([b"SET", directory_key(topic, self.endpoint), b"", b""])
+        self.sock.close(linger_ms)
+        if self.endpoint.startswith("ipc://"):
+            Path(self.endpoint[len("ipc://") :]).unlink(missing_ok=True)

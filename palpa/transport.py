@@ -21,13 +21,7 @@ import zmq
 import zmq.auth
 
 from palpa.address import BusAddress
-from palpa.direct import (
-    DIRECTORY_PREFIX,
-    SubscriberSet,
-    bind_candidates,
-    directory_entry,
-    directory_key,
-)
+from palpa.direct import DIRECTORY_PREFIX, DirectSocket, SubscriberSet, directory_entry
 from palpa.errors import BusError
 
 __all__ = ["Delivery", "SendFn", "Transport", "TransportOptions", "ZmqTransport", "curve_client_options"]
@@ -195,12 +189,9 @@ class ZmqTransport:
         self._address = address
         curve = curve_client_options()
         self._curve = curve is not None
-        self._direct: zmq.Socket[bytes] | None = None
-        self._direct_endpoint = ""
-        self._direct_topics: list[bytes] = []
+        self._direct: DirectSocket | None = None
         self._peers: set[str] = set()
         self._bus_listeners = SubscriberSet()
-        self._direct_listeners = SubscriberSet()
         # an XPUB, not a PUB: it hears the proxy's subscriptions, so the constructor can wait until they have
         # arrived; a PUB would silently drop the first messages published while they are still on their way
         self._pub = self._ctx.socket(zmq.XPUB)
@@ -240,7 +231,7 @@ class ZmqTransport:
             monitor.recv_multipart()
             # the proxy forwards every current subscription on attach; none at all means nobody listens yet
             if self._pub.poll(_SUBSCRIPTIONS_GRACE_MS):
-                self._drain_subscriptions()
+                self._drain_subscriptions(self._pub, self._bus_listeners)
             return True
         finally:
             self._pub.disable_monitor()
@@ -253,9 +244,7 @@ class ZmqTransport:
         self._fds_selectable = max(self._fds) < _FD_SETSIZE
         self._poller.register(sock, zmq.POLLIN)
 
-    def _drain_subscriptions(self, sock: zmq.Socket[bytes] | None = None, listeners: SubscriberSet | None = None) -> None:
-        sock = sock or self._pub
-        listeners = listeners or self._bus_listeners
+    def _drain_subscriptions(self, sock: zmq.Socket[bytes], listeners: SubscriberSet) -> None:
         while True:
             try:
                 listeners.note(sock.recv(zmq.NOBLOCK))
@@ -263,47 +252,30 @@ class ZmqTransport:
                 return
 
     def has_subscribers(self, topic: bytes) -> bool:
-        listeners = self._direct_listeners if topic in self._direct_topics else self._bus_listeners
+        direct = self._direct
+        listeners = direct.listeners if direct is not None and topic in direct.topics else self._bus_listeners
         return listeners.covers(topic)
 
     def sender(self, topic: bytes, direct: bool | None) -> SendFn:
         if direct is None:
             direct = topic.decode(errors="replace") in self.options.direct
-        if not direct or not self._open_direct():
+        if not direct:
             return self.send
-        if topic not in self._direct_topics:
-            self._direct_topics.append(topic)
-            self._latch.send_multipart([b"SET", directory_key(topic, self._direct_endpoint), b"", self._direct_endpoint.encode()])
+        if self._direct is None:
+            # a CURVE bus: this node holds client keys only, it cannot serve its own encrypted socket
+            opened = "the bus is CURVE-encrypted" if self._curve else \
+                DirectSocket.bind(self._ctx, self._address, self.options.sndhwm)
+            if isinstance(opened, str):
+                log.warning("%s goes through the bus, not direct: %s", topic.decode(errors="replace"), opened)
+                return self.send
+            self._direct = opened
+            self._watch(opened.sock)
+        self._direct.announce(self._latch, topic)
         return self._send_direct
-
-    def _open_direct(self) -> bool:
-        """Bind the direct socket on first use; False (topics stay on the bus, with a warning) where that is not
-        possible: a CURVE bus (the node holds no server keys), a remote tcp bus, or no endpoint would bind."""
-        if self._direct is not None:
-            return True
-        why = "the bus is CURVE-encrypted" if self._curve else ""
-        candidates = [] if why else bind_candidates(self._address)
-        if not why and not candidates:
-            why = f"the bus {self._address.pub} is neither ipc nor loopback tcp"
-        sock = self._ctx.socket(zmq.XPUB)
-        sock.sndhwm = self.options.sndhwm
-        for endpoint in candidates:
-            try:
-                sock.bind(endpoint)
-            except zmq.ZMQError as exc:
-                why = f"cannot bind {endpoint}: {exc}"
-                continue
-            self._direct = sock
-            self._direct_endpoint = str(sock.getsockopt_string(zmq.LAST_ENDPOINT))
-            self._watch(sock)
-            return True
-        sock.close(0)
-        log.warning("direct topics go through the bus instead: %s", why)
-        return False
 
     def _send_direct(self, frames: Sequence[bytes], latched: bool) -> None:
         assert self._direct is not None
-        self._publish(self._direct, frames, latched)
+        self._publish(self._direct.sock, frames, latched)
 
     def _on_directory(self, key: bytes, payload: bytes) -> None:
         """Connect to a direct publisher the cache told about. A withdrawn one is not disconnected: its last
@@ -360,9 +332,9 @@ class ZmqTransport:
         # since each period starts from the last firing, drift; sub-ms waits go through _wait_fine)
         events = dict(self._poller.poll(int(timeout_s * 1000)))
         if self._pub in events:
-            self._drain_subscriptions()
-        if self._direct is not None and self._direct in events:
-            self._drain_subscriptions(self._direct, self._direct_listeners)
+            self._drain_subscriptions(self._pub, self._bus_listeners)
+        if self._direct is not None and self._direct.sock in events:
+            self._drain_subscriptions(self._direct.sock, self._direct.listeners)
         if self._sub in events:
             self._read_sub(out, max_batch)
         if self._latch in events:
@@ -426,11 +398,7 @@ class ZmqTransport:
         if getattr(self, "_closed", False):
             return
         self._closed = True
-        for topic in self._direct_topics:  # withdraw the announcements, so subscribers stop reconnecting
-            self._latch.send_multipart([b"SET", directory_key(topic, self._direct_endpoint), b"", b""])
+        if self._direct is not None:  # withdraws its announcements first (through the latch socket)
+            self._direct.close(self._latch, linger_ms)
         for sock in (self._pub, self._sub, self._latch):
             sock.close(linger_ms)
-        if self._direct is not None:
-            self._direct.close(linger_ms)
-            if self._direct_endpoint.startswith("ipc://"):
-                Path(self._direct_endpoint[len("ipc://") :]).unlink(missing_ok=True)

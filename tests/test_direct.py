@@ -48,6 +48,12 @@ def _direct(node: palpa.Node) -> ZmqTransport:
     return transport
 
 
+def _endpoint(node: palpa.Node) -> str:
+    direct = _direct(node)._direct
+    assert direct is not None, "no direct socket"
+    return direct.endpoint
+
+
 def test_a_direct_topic_skips_the_proxy_and_arrives_complete_in_order(bus: BusAddress) -> None:
     """Over ipc and over loopback tcp: every message, in order, no gap; the proxy carries none of them while the
     same node's ordinary topic still goes through it."""
@@ -60,7 +66,7 @@ def test_a_direct_topic_skips_the_proxy_and_arrives_complete_in_order(bus: BusAd
         sub_node.subscribe("slow", Text, lambda m: slow.append(m.text))
         fast = pub_node.publisher("fast", Text, direct=True)
         plain = pub_node.publisher("slow", Text)
-        endpoint = _direct(pub_node)._direct_endpoint
+        endpoint = _endpoint(pub_node)
         assert endpoint.startswith("ipc://" if bus.pub.startswith("ipc://") else "tcp://127.0.0.1:")
         wait_until(lambda: fast.has_subscribers and plain.has_subscribers, 10, "both subscriptions",
                    step=lambda: (sub_node.spin_once(0.005), pub_node.spin_once(0.005)) and None)
@@ -105,7 +111,7 @@ def test_subscribers_find_publishers_that_start_before_or_after_them(ipc_bus: Bu
             listeners = [early, late]
 
             def both_connected() -> bool:
-                return all(_direct(n)._peers == {_direct(pub_node)._direct_endpoint} for n in listeners)
+                return all(_direct(n)._peers == {_endpoint(pub_node)} for n in listeners)
 
             wait_until(both_connected, 10, "both subscribers to connect",
                        step=lambda: [n.spin_once(0.005) for n in nodes] and None)
@@ -123,7 +129,7 @@ def test_a_closed_publisher_withdraws_and_removes_its_socket_file(ipc_bus: BusAd
         sub_node.subscribe("fast", Text)
         pub_node = palpa.Node(name="pub", bus=ipc_bus, heartbeat_s=0)
         pub_node.publisher("fast", Text, direct=True)
-        endpoint = _direct(pub_node)._direct_endpoint
+        endpoint = _endpoint(pub_node)
         wait_until(lambda: _direct(sub_node)._peers == {endpoint}, 10, "the connection",
                    step=lambda: sub_node.spin_once(0.01))
         assert Path(endpoint[len("ipc://"):]).exists()
@@ -203,7 +209,13 @@ def test_direct_falls_back_to_the_bus_where_it_cannot_bind(ipc_bus: BusAddress,
         with caplog.at_level(logging.WARNING, logger="palpa.transport"):
             pub = node.publisher("fast", Text, direct=True)
         assert pub._send == transport.send
-        assert "direct topics go through the bus instead" in caplog.text and "10.1.2.3" in caplog.text
+        assert "fast goes through the bus, not direct" in caplog.text and "10.1.2.3" in caplog.text
+    with palpa.Node(name="curve", bus=ipc_bus, heartbeat_s=0) as node:
+        transport = _direct(node)
+        transport._curve = True  # as if the bus were encrypted: a node holds client keys only
+        with caplog.at_level(logging.WARNING, logger="palpa.transport"):
+            pub = node.publisher("secret", Text, direct=True)
+        assert not pub.direct and "secret goes through the bus, not direct: the bus is CURVE-encrypted" in caplog.text
 
 
 def test_directory_entries_and_subscriber_sets() -> None:
