@@ -28,17 +28,15 @@ import socket
 import time
 import traceback
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, ClassVar, NamedTuple, TypeVar, cast
-
-import msgspec
+from typing import Any, ClassVar, TypeVar, cast
 
 from palpa.address import BusAddress, from_env
 from palpa.clock import Clock, SystemClock, TopicClock
 from palpa.endpoints import DEFAULT_BATCH, Publisher, RawMessage, Subscription, Timer, handler_type
-from palpa.errors import DecodeError
 from palpa.message import Message
 from palpa.params import Params as ParamsBase
 from palpa.params import convert_params
+from palpa.receive import Receiver
 from palpa.runtime_msgs import (
     CLOCK_ACK_TOPIC,
     CLOCK_TOPIC,
@@ -50,40 +48,21 @@ from palpa.runtime_msgs import (
     LogRecord,
     TopicCounters,
 )
-from palpa.transport import Delivery, Transport, TransportOptions, ZmqTransport
+from palpa.transport import Transport, TransportOptions, ZmqTransport
 from palpa.wire import (
-    Envelope,
     Header,
-    SequenceTracker,
     TopicStats,
     encode_header,
-    parse_envelope,
 )
 
 __all__ = ["DEFAULT_BATCH", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
 
 M = TypeVar("M", bound=Message)
-_ERROR_LOG_INTERVAL_NS = 5_000_000_000
 _ACK_PERIOD_NS = 5_000_000
 
 
 class _NoParams(ParamsBase):
     pass
-
-
-class _RawSubscription(NamedTuple):
-    prefix: bytes
-    callback: Callable[[RawMessage], object]
-
-
-class _Route(NamedTuple):
-    topic: str
-    sub: Subscription[Any] | None
-    raws: tuple[Callable[[RawMessage], object], ...]
-    rstats: TopicStats | None
-
-
-_NO_ROUTE = object()
 
 
 class _BusLogHandler(logging.Handler):
@@ -140,17 +119,11 @@ class Node:
             address = bus if isinstance(bus, BusAddress) else (BusAddress.parse(bus) if bus else from_env())
             transport = ZmqTransport(address, transport_options or TransportOptions.from_env())
         self._transport = transport
-        self._subs: dict[bytes, Subscription[Any]] = {}
-        self._raw: list[_RawSubscription] = []
-        self._routes: dict[bytes, _Route | None] = {}
-        self._raw_stats: dict[str, TopicStats] = {}
+        self._rx = Receiver(self)
         self._pubs: dict[str, Publisher[Any]] = {}
         self._dirty: list[Publisher[Any]] = []
         self._depth = 0
         self._timers: list[Timer] = []
-        self._tracker = SequenceTracker()
-        self._raw_tracker = SequenceTracker()
-        self._last_error_log: dict[str, int] = {}
         self._shutdown = False
         self._closed = False
         self._started_ns = time.monotonic_ns()
@@ -231,19 +204,17 @@ class Node:
             raise TypeError(f"subscribe({topic!r}): {msg_type!r} is not a palpa Message type")
         resolved = self.resolve(topic)
         key = resolved.encode()
-        if key in self._subs:
+        if key in self._rx.subs:
             raise ValueError(f"node {self.name!r} already subscribes to {resolved!r}")
         sub: Subscription[M] = Subscription(self, resolved, cast("type[M]", msg_type), callback, queue_size)
-        self._subs[key] = sub
-        self._routes.clear()
+        self._rx.add(key, sub)
         self._transport.subscribe(key, request_latched=True)
         return sub
 
     def subscribe_raw(self, prefix: str, callback: Callable[[RawMessage], object]) -> None:
         """Every envelope whose topic starts with ``prefix`` (``""`` for all), undecoded."""
         key = prefix.encode()
-        self._raw.append(_RawSubscription(key, callback))
-        self._routes.clear()
+        self._rx.add_raw(key, callback)
         self._transport.subscribe(key, request_latched=True)
 
     def timer(
@@ -282,7 +253,7 @@ class Node:
         dispatch and run timers again. Messages are handled before timers so that a timer which checks data
         freshness (a watchdog) never judges by a queue the node had no chance to read."""
         for delivery in self._transport.poll(0):
-            self._dispatch(delivery)
+            self._rx.dispatch(delivery)
         self._run_timers()
         due = self.next_timer_due_ns()
         if due is not None and self.clock.is_real():
@@ -291,7 +262,7 @@ class Node:
             timeout_s = 0.0 if self._timers else timeout_s
         if timeout_s > 0:
             for delivery in self._transport.poll(timeout_s):
-                self._dispatch(delivery)
+                self._rx.dispatch(delivery)
             self._run_timers()
         clock = self._topic_clock
         if clock is not None and clock.started and clock.now_ns() - self._last_ack_ns >= _ACK_PERIOD_NS:
@@ -382,137 +353,13 @@ class Node:
         for pub in dirty:
             pub.flush()
 
-    def _count_error(self, topic: str, stats: TopicStats, text: str) -> None:
-        stats.decode_errors += 1
-        stats.last_error = text
-        now = time.monotonic_ns()
-        if now - self._last_error_log.get(topic, -_ERROR_LOG_INTERVAL_NS) >= _ERROR_LOG_INTERVAL_NS:
-            self._last_error_log[topic] = now
-            self.log.warning("dropped a bad message on %r (%d so far): %s", topic, stats.decode_errors, text)
-
-    def _route(self, topic_b: bytes) -> _Route | None:
-        """Who gets messages on this exact topic (cached per topic; None: a prefix match that is not ours)."""
-        route = self._routes.get(topic_b, _NO_ROUTE)
-        if route is _NO_ROUTE:
-            sub = self._subs.get(topic_b)
-            raws = tuple(r.callback for r in self._raw if topic_b.startswith(r.prefix))
-            if sub is None and not raws:
-                route = None
-            else:
-                topic = topic_b.decode(errors="replace")
-                rstats = self._raw_stats.setdefault(topic, TopicStats()) if raws else None
-                route = _Route(topic, sub, raws, rstats)
-            self._routes[topic_b] = route
-        return route  # type: ignore[return-value]
-
-    def _dispatch(self, delivery: Delivery) -> None:
-        frames = delivery.frames
-        route = self._route(frames[0])
-        if route is None:
-            return
-        topic, sub, raws, rstats = route
-        try:
-            env = parse_envelope(frames)
-            items = env.messages() if rstats is not None else None
-        except DecodeError as exc:
-            stats = sub.stats if sub is not None else rstats
-            if stats is not None:
-                self._count_error(topic, stats, str(exc))
-            return
-        cached = delivery.from_cache
-        if items is not None and rstats is not None:
-            tracker = self._raw_tracker
-            for header, payload, blobs in items:
-                if not (cached and tracker.seen_at_least(topic, header.node, header.seq)) and \
-                        tracker.observe(topic, header.node, header.seq, rstats):
-                    raw = RawMessage(topic, header, payload, blobs, cached, time.time_ns())
-                    for callback in raws:
-                        self._call(callback, raw)
-        if sub is None:
-            return
-        if not env.batch:
-            self._deliver(sub, topic, env.headers[0], env.payload, env.blobs, cached)
-        elif cached or not self._deliver_batch(sub, topic, env):
-            try:
-                items = items if items is not None else env.messages()
-            except DecodeError as exc:
-                self._count_error(topic, sub.stats, str(exc))
-                return
-            for header, payload, blobs in items:
-                self._deliver(sub, topic, header, payload, blobs, cached)
-
-    def _deliver_batch(self, sub: Subscription[Any], topic: str, env: Envelope) -> bool:
-        """The common batch (one publisher, consecutive sequence numbers after the last seen, the subscribed
-        type, every payload valid) decoded in one call and handed over in one loop. False when it is not that
-        batch: nothing was recorded and the caller goes message by message."""
-        headers = env.headers
-        first = headers[0]
-        n = len(headers)
-        if [h.seq for h in headers] != list(range(first.seq, first.seq + n)) or \
-                any(h.node != first.node or h.type != sub.type_name for h in headers):
-            return False
-        try:
-            msgs = sub.batch_decoder.decode(env.payload)
-        except (msgspec.ValidationError, msgspec.DecodeError):
-            return False
-        if len(msgs) != n or not self._tracker.observe_run(topic, first.node, first.seq, n, sub.stats):
-            return False
-        sub.last_blobs = []
-        callback = sub.callback
-        if callback is None:
-            sub.last_header = headers[-1]
-            sub.queue.extend(msgs)
-            return True
-        self._depth += 1
-        start = 0
-        try:
-            while start < n:
-                # one try per run of good messages, not per message; a failing one is skipped, the rest go on
-                i = start
-                try:
-                    for i in range(start, n):
-                        sub.last_header = headers[i]
-                        callback(msgs[i])
-                    start = n
-                except Exception:
-                    self._handler_failed(callback)
-                    start = i + 1
-        finally:
-            self._depth -= 1
-        if self._dirty and not self._depth:
-            self.flush()
-        return True
-
-    def _deliver(self, sub: Subscription[Any], topic: str, header: Header, payload: bytes,
-                 blobs: list[bytes], cached: bool) -> None:
-        if cached and self._tracker.seen_at_least(topic, header.node, header.seq):
-            return
-        if not self._tracker.observe(topic, header.node, header.seq, sub.stats):
-            return
-        if header.type != sub.type_name:
-            self._count_error(topic, sub.stats, f"expected type {sub.type_name}, got {header.type}")
-            return
-        try:
-            msg = sub.decoder.decode(payload)
-        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
-            self._count_error(topic, sub.stats, f"{header.type}: {exc}")
-            return
-        sub.last_header = header
-        sub.last_blobs = blobs
-        if sub.callback is not None:
-            self._call(sub.callback, msg)
-        else:
-            sub.queue.append(msg)
-
     def counters(self) -> dict[str, TopicStats]:
         """Receive counters per subscribed topic (typed and raw; the typed ones where a topic has both)."""
-        out = dict(self._raw_stats)
-        out.update({s.topic: s.stats for s in self._subs.values()})  # typed ones also count decode errors
-        return out
+        return self._rx.counters()
 
     def _heartbeat(self) -> None:
-        subs = {s.topic: s.type.type_name for s in self._subs.values()}
-        subs.update({r.prefix.decode() + "*": "*" for r in self._raw})
+        subs = {s.topic: s.type.type_name for s in self._rx.subs.values()}
+        subs.update({r.prefix.decode() + "*": "*" for r in self._rx.raw})
         self._hb_pub.publish(
             Heartbeat(
                 node=self.name,

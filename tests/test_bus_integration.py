@@ -22,7 +22,7 @@ from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 
 
 def heartbeats(node: palpa.Node) -> palpa.Subscription[Heartbeat]:
-    existing = node._subs.get(HEARTBEAT_TOPIC.encode())
+    existing = node._rx.subs.get(HEARTBEAT_TOPIC.encode())
     return existing if existing is not None else node.subscribe(HEARTBEAT_TOPIC, Heartbeat)
 
 

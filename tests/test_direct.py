@@ -6,7 +6,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -48,6 +48,14 @@ def _direct(node: palpa.Node) -> ZmqTransport:
     return transport
 
 
+def spinning(*nodes: palpa.Node) -> Callable[[], None]:
+    """A wait_until step that gives each node a short spin."""
+    def step() -> None:
+        for node in nodes:
+            node.spin_once(0.005)
+    return step
+
+
 def _endpoint(node: palpa.Node) -> str:
     direct = _direct(node)._direct
     assert direct is not None, "no direct socket"
@@ -69,7 +77,7 @@ def test_a_direct_topic_skips_the_proxy_and_arrives_complete_in_order(bus: BusAd
         endpoint = _endpoint(pub_node)
         assert endpoint.startswith("ipc://" if bus.pub.startswith("ipc://") else "tcp://127.0.0.1:")
         wait_until(lambda: fast.has_subscribers and plain.has_subscribers, 10, "both subscriptions",
-                   step=lambda: (sub_node.spin_once(0.005), pub_node.spin_once(0.005)) and None)
+                   step=spinning(sub_node, pub_node))
 
         def spy_hears_the_bus() -> bool:  # both of the spy's subscriptions are then in place (one connection)
             plain.publish(Text(text="probe"))
@@ -114,12 +122,12 @@ def test_subscribers_find_publishers_that_start_before_or_after_them(ipc_bus: Bu
                 return all(_direct(n)._peers == {_endpoint(pub_node)} for n in listeners)
 
             wait_until(both_connected, 10, "both subscribers to connect",
-                       step=lambda: [n.spin_once(0.005) for n in nodes] and None)
+                       step=spinning(*nodes))
             wait_until(lambda: fast.has_subscribers, 10, "the subscriptions", step=lambda: pub_node.spin_once(0.005))
             for text in _texts(50):
                 fast.publish(Text(text=text))
             wait_until(lambda: len(got_early) >= 50 and len(got_late) >= 50, 10, "every message",
-                       step=lambda: [n.spin_once(0.005) for n in listeners] and None)
+                       step=spinning(*listeners))
             assert got_early == got_late == _texts(50)
             assert [r.topic for r in raw if r.topic == "fast"] == ["fast"] * 50
 
@@ -153,7 +161,7 @@ def test_what_a_closing_publisher_still_had_queued_is_delivered(ipc_bus: BusAddr
         pub_node = palpa.Node(name="pub", bus=ipc_bus, heartbeat_s=0, transport_options=TransportOptions(sndhwm=0))
         fast = pub_node.publisher("fast", Text, direct=True)
         wait_until(lambda: fast.has_subscribers, 10, "the subscription",
-                   step=lambda: (sub_node.spin_once(0.005), pub_node.spin_once(0.005)) and None)
+                   step=spinning(sub_node, pub_node))
         for text in _texts(n):
             fast.publish(Text(text=text))
         pub_node.close(10.0)

@@ -1,0 +1,199 @@
+"""The receive path of a node: exact topic matching, sequence tracking, decoding, and counting what is bad.
+
+ZeroMQ matches subscriptions by prefix; here each envelope goes to the subscription of exactly its topic (and to
+raw subscriptions whose prefix matches), duplicates and gaps are counted per publisher, and a malformed frame, an
+unknown type or an invalid payload is counted and logged with what was wrong: it never reaches a callback and
+never stops the node. Callbacks run through the node's ``_call`` (exception isolation, batching depth).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, NamedTuple
+
+import msgspec
+
+from palpa.endpoints import RawMessage, Subscription
+from palpa.errors import DecodeError
+from palpa.transport import Delivery
+from palpa.wire import Envelope, Header, SequenceTracker, TopicStats, parse_envelope
+
+if TYPE_CHECKING:
+    from palpa.node import Node
+
+__all__ = ["Receiver"]
+
+_ERROR_LOG_INTERVAL_NS = 5_000_000_000
+
+
+class _RawSubscription(NamedTuple):
+    prefix: bytes
+    callback: Callable[[RawMessage], object]
+
+
+class _Route(NamedTuple):
+    topic: str
+    sub: Subscription[Any] | None
+    raws: tuple[Callable[[RawMessage], object], ...]
+    rstats: TopicStats | None
+
+
+_NO_ROUTE = object()
+
+
+class Receiver:
+    """Routes a node's received envelopes to its subscriptions; one per node (``node._rx``)."""
+
+    def __init__(self, node: Node) -> None:
+        self._node = node
+        self.subs: dict[bytes, Subscription[Any]] = {}
+        self.raw: list[_RawSubscription] = []
+        self.routes: dict[bytes, _Route | None] = {}
+        self.raw_stats: dict[str, TopicStats] = {}
+        self._tracker = SequenceTracker()
+        self._raw_tracker = SequenceTracker()
+        self._last_error_log: dict[str, int] = {}
+
+    def add(self, key: bytes, sub: Subscription[Any]) -> None:
+        """Deliver envelopes on exactly topic ``key`` to ``sub``."""
+        self.subs[key] = sub
+        self.routes.clear()
+
+    def add_raw(self, prefix: bytes, callback: Callable[[RawMessage], object]) -> None:
+        """Hand every envelope whose topic starts with ``prefix`` to ``callback``, undecoded."""
+        self.raw.append(_RawSubscription(prefix, callback))
+        self.routes.clear()
+
+    def count_error(self, topic: str, stats: TopicStats, text: str) -> None:
+        """Count a bad message on ``topic``; log it, at most once per topic every five seconds."""
+        stats.decode_errors += 1
+        stats.last_error = text
+        now = time.monotonic_ns()
+        if now - self._last_error_log.get(topic, -_ERROR_LOG_INTERVAL_NS) >= _ERROR_LOG_INTERVAL_NS:
+            self._last_error_log[topic] = now
+            self._node.log.warning("dropped a bad message on %r (%d so far): %s", topic, stats.decode_errors, text)
+
+    def _route(self, topic_b: bytes) -> _Route | None:
+        """Who gets messages on this exact topic (cached per topic; None: a prefix match that is not ours)."""
+        route = self.routes.get(topic_b, _NO_ROUTE)
+        if route is _NO_ROUTE:
+            sub = self.subs.get(topic_b)
+            raws = tuple(r.callback for r in self.raw if topic_b.startswith(r.prefix))
+            if sub is None and not raws:
+                route = None
+            else:
+                topic = topic_b.decode(errors="replace")
+                rstats = self.raw_stats.setdefault(topic, TopicStats()) if raws else None
+                route = _Route(topic, sub, raws, rstats)
+            self.routes[topic_b] = route
+        return route  # type: ignore[return-value]
+
+    def dispatch(self, delivery: Delivery) -> None:
+        """Hand one received envelope to the subscriptions of its exact topic (typed and raw)."""
+        node = self._node
+        frames = delivery.frames
+        route = self._route(frames[0])
+        if route is None:
+            return
+        topic, sub, raws, rstats = route
+        try:
+            env = parse_envelope(frames)
+            items = env.messages() if rstats is not None else None
+        except DecodeError as exc:
+            stats = sub.stats if sub is not None else rstats
+            if stats is not None:
+                self.count_error(topic, stats, str(exc))
+            return
+        cached = delivery.from_cache
+        if items is not None and rstats is not None:
+            tracker = self._raw_tracker
+            for header, payload, blobs in items:
+                if not (cached and tracker.seen_at_least(topic, header.node, header.seq)) and \
+                        tracker.observe(topic, header.node, header.seq, rstats):
+                    raw = RawMessage(topic, header, payload, blobs, cached, time.time_ns())
+                    for callback in raws:
+                        node._call(callback, raw)
+        if sub is None:
+            return
+        if not env.batch:
+            self._deliver(sub, topic, env.headers[0], env.payload, env.blobs, cached)
+        elif cached or not self._deliver_batch(sub, topic, env):
+            try:
+                items = items if items is not None else env.messages()
+            except DecodeError as exc:
+                self.count_error(topic, sub.stats, str(exc))
+                return
+            for header, payload, blobs in items:
+                self._deliver(sub, topic, header, payload, blobs, cached)
+
+    def _deliver_batch(self, sub: Subscription[Any], topic: str, env: Envelope) -> bool:
+        """The common batch (one publisher, consecutive sequence numbers after the last seen, the subscribed
+        type, every payload valid) decoded in one call and handed over in one loop. False when it is not that
+        batch: nothing was recorded and the caller goes message by message."""
+        node = self._node
+        headers = env.headers
+        first = headers[0]
+        n = len(headers)
+        if [h.seq for h in headers] != list(range(first.seq, first.seq + n)) or \
+                any(h.node != first.node or h.type != sub.type_name for h in headers):
+            return False
+        try:
+            msgs = sub.batch_decoder.decode(env.payload)
+        except (msgspec.ValidationError, msgspec.DecodeError):
+            return False
+        if len(msgs) != n or not self._tracker.observe_run(topic, first.node, first.seq, n, sub.stats):
+            return False
+        sub.last_blobs = []
+        callback = sub.callback
+        if callback is None:
+            sub.last_header = headers[-1]
+            sub.queue.extend(msgs)
+            return True
+        node._depth += 1
+        start = 0
+        try:
+            while start < n:
+                # one try per run of good messages, not per message; a failing one is skipped, the rest go on
+                i = start
+                try:
+                    for i in range(start, n):
+                        sub.last_header = headers[i]
+                        callback(msgs[i])
+                    start = n
+                except Exception:
+                    node._handler_failed(callback)
+                    start = i + 1
+        finally:
+            node._depth -= 1
+        if node._dirty and not node._depth:
+            node.flush()
+        return True
+
+    def _deliver(self, sub: Subscription[Any], topic: str, header: Header, payload: bytes,
+                 blobs: list[bytes], cached: bool) -> None:
+        node = self._node
+        if cached and self._tracker.seen_at_least(topic, header.node, header.seq):
+            return
+        if not self._tracker.observe(topic, header.node, header.seq, sub.stats):
+            return
+        if header.type != sub.type_name:
+            self.count_error(topic, sub.stats, f"expected type {sub.type_name}, got {header.type}")
+            return
+        try:
+            msg = sub.decoder.decode(payload)
+        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+            self.count_error(topic, sub.stats, f"{header.type}: {exc}")
+            return
+        sub.last_header = header
+        sub.last_blobs = blobs
+        if sub.callback is not None:
+            node._call(sub.callback, msg)
+        else:
+            sub.queue.append(msg)
+
+    def counters(self) -> dict[str, TopicStats]:
+        """Receive counters per subscribed topic (typed and raw; the typed ones where a topic has both)."""
+        out = dict(self.raw_stats)
+        out.update({s.topic: s.stats for s in self.subs.values()})  # typed ones also count decode errors
+        return out
