@@ -36,6 +36,8 @@ import zmq
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from machine import sleep_loop_lateness_ns, steal_ticks  # noqa: E402
+
 import palpa  # noqa: E402
 from palpa.address import BusAddress  # noqa: E402
 from palpa.transport import TransportOptions  # noqa: E402
@@ -178,24 +180,12 @@ def pooled(rounds: list[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def steal_ticks() -> int:
-    """CPU time the hypervisor took from this VM so far (USER_HZ ticks, all CPUs); 0 where unknown."""
-    fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
-    return int(fields[8]) if fields[0] == "cpu" and len(fields) > 8 else 0
-
-
 def sleep_loop(n: int) -> dict[str, Any]:
     """The machine's own floor: how late a thread that sleeps until each 1 kHz tick wakes up (no messaging)."""
     counter = Counter(n)
     counter.steal0 = steal_ticks()
-    start = time.perf_counter_ns()
-    for i in range(n):
-        due = start + i * 1_000_000
-        while (left := due - time.perf_counter_ns()) > 0:
-            if left > 200_000:
-                time.sleep((left - 100_000) / 1e9)
-        counter.latencies.append(time.perf_counter_ns() - due)
-        counter.count += 1
+    counter.latencies = sleep_loop_lateness_ns(n)
+    counter.count = n
     counter.first, counter.last = 0.0, n / 1000
     return counter.result()
 
@@ -220,7 +210,7 @@ def wait_done(proc: subprocess.Popen[bytes], counter: Counter, poll: Any, timeou
     proc.wait(10)
 
 
-def run_palpa(n: int, rate: float, batch: int, bus: str, settle: float, busy_poll_us: int = 0,
+def run_palpa(n: int, rate: float, batch: int, bus: str, busy_poll_us: int = 0,
               direct: bool = False) -> dict[str, Any]:
     counter = Counter(n)
     node = palpa.Node(name="bench_sub", bus=bus, heartbeat_s=0,
@@ -329,9 +319,9 @@ def main() -> None:
         os.environ["PALPA_BUS"] = bus
         results: dict[str, Any] = {"payload_bytes": PAYLOAD_SIZE, "n": args.n}
         results["raw_pyzmq"] = run_zmq(args.n, 0, args.hwm, args.settle)
-        results["palpa"] = run_palpa(args.n, 0, 1, bus, args.settle)
-        results["palpa_batched"] = run_palpa(args.n, 0, 64, bus, args.settle)
-        results["palpa_direct"] = run_palpa(args.n, 0, 1, bus, args.settle, direct=True)
+        results["palpa"] = run_palpa(args.n, 0, 1, bus)
+        results["palpa_batched"] = run_palpa(args.n, 0, 64, bus)
+        results["palpa_direct"] = run_palpa(args.n, 0, 1, bus, direct=True)
         if not args.skip_zenoh:
             results["zenoh"] = run_zenoh(args.n, 0, args.settle)
         for name in ("raw_pyzmq", "palpa", "palpa_batched", "palpa_direct", "zenoh"):
@@ -341,12 +331,12 @@ def main() -> None:
         contenders: dict[str, Callable[[int], Any]] = {
             "sleep_loop": sleep_loop,
             "raw_pyzmq": lambda k: run_zmq(k, 1000, args.hwm, args.settle),
-            "palpa": lambda k: run_palpa(k, 1000, 1, bus, args.settle),
-            "palpa_batched": lambda k: run_palpa(k, 1000, 64, bus, args.settle),
+            "palpa": lambda k: run_palpa(k, 1000, 1, bus),
+            "palpa_batched": lambda k: run_palpa(k, 1000, 64, bus),
             "raw_pyzmq_busy_poll": lambda k: run_zmq(k, 1000, args.hwm, args.settle, busy=True),
-            "palpa_busy_poll": lambda k: run_palpa(k, 1000, 64, bus, args.settle, busy_poll_us=args.busy_poll_us),
-            "palpa_direct": lambda k: run_palpa(k, 1000, 1, bus, args.settle, direct=True),
-            "palpa_direct_busy_poll": lambda k: run_palpa(k, 1000, 1, bus, args.settle,
+            "palpa_busy_poll": lambda k: run_palpa(k, 1000, 64, bus, busy_poll_us=args.busy_poll_us),
+            "palpa_direct": lambda k: run_palpa(k, 1000, 1, bus, direct=True),
+            "palpa_direct_busy_poll": lambda k: run_palpa(k, 1000, 1, bus,
                                                           busy_poll_us=args.busy_poll_us, direct=True),
         }
         if isinstance(results.get("zenoh"), dict):  # installed and ran

@@ -28,6 +28,8 @@ import msgspec
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from machine import sleep_loop_lateness_ns, steal_ticks  # noqa: E402
+
 from messages import Text  # noqa: E402
 from palpa.address import BusAddress  # noqa: E402
 from palpa.bus import Bus  # noqa: E402
@@ -36,11 +38,6 @@ from palpa.record.testing import Rec, write_bag  # noqa: E402
 
 MS = 1_000_000
 T0 = 1_700_000_000_000_000_000
-
-
-def steal_ticks() -> int:
-    fields = Path("/proc/stat").read_text().split("\n", 1)[0].split()
-    return int(fields[8]) if fields[0] == "cpu" and len(fields) > 8 else 0
 
 
 def percentiles(offsets_ns: list[int]) -> dict[str, float]:
@@ -52,15 +49,7 @@ def percentiles(offsets_ns: list[int]) -> dict[str, float]:
 
 def baseline(n: int) -> dict[str, float]:
     """A sleeping loop on the same schedule: the machine's own timer/wake-up error."""
-    start = time.perf_counter_ns()
-    offsets = []
-    for i in range(n):
-        due = start + i * MS
-        while (left := due - time.perf_counter_ns()) > 0:
-            if left > 200_000:
-                time.sleep((left - 100_000) / 1e9)
-        offsets.append(time.perf_counter_ns() - due)
-    return percentiles(offsets)
+    return percentiles(sleep_loop_lateness_ns(n, MS))
 
 
 def replay(n: int, realtime: bool) -> dict[str, Any]:
@@ -80,8 +69,9 @@ def replay(n: int, realtime: bool) -> dict[str, Any]:
             while not got and time.monotonic() < deadline and proc.poll() is None:
                 watch.spin_once(0.05)
             steal = steal_ticks()
-            while len(got) < n and time.monotonic() < deadline and (proc.poll() is None or watch.spin_once(0.2)):
+            while len(got) < n and time.monotonic() < deadline and proc.poll() is None:
                 watch.spin_once(0.05)
+            watch.spin_once(0.2)  # what the player sent just before it exited
             stolen_ms = (steal_ticks() - steal) * 10
             proc.wait(10)
         finally:

@@ -43,9 +43,12 @@ class MemoryBus:
     def _route(self, frames: list[bytes], latched: bool) -> None:
         if latched:
             self._cache[frames[0]] = frames[1:]
-        for t in self._transports:
-            if not t.closed and any(frames[0].startswith(p) for p in t.prefixes):
-                t.inbox.append(Delivery(list(frames), False))
+        for t in self.listeners(frames[0]):
+            t.inbox.append(Delivery(list(frames), False))
+
+    def listeners(self, topic: bytes) -> list[MemoryTransport]:
+        """The open transports with a subscription matching ``topic`` (ZeroMQ's prefix rule)."""
+        return [t for t in self._transports if not t.closed and any(topic.startswith(p) for p in t.prefixes)]
 
     def pending(self) -> bool:
         return any(t.inbox for t in self._transports if not t.closed)
@@ -67,9 +70,7 @@ class MemoryTransport:
         return self.send  # in memory every topic is direct
 
     def has_subscribers(self, topic: bytes) -> bool:
-        return any(
-            not t.closed and any(topic.startswith(p) for p in t.prefixes) for t in self.bus._transports
-        )
+        return bool(self.bus.listeners(topic))
 
     def subscribe(self, prefix: bytes, request_latched: bool) -> None:
         self.prefixes.append(prefix)

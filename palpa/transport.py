@@ -128,6 +128,11 @@ class TransportOptions:
         values.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**values)  # type: ignore[arg-type]
 
+    @classmethod
+    def to_env(cls, given: Mapping[str, int | Sequence[str]]) -> dict[str, str]:
+        """Options (field -> value, e.g. a launch file's ``transport:``) as the variables :meth:`from_env` reads."""
+        return {cls.ENV_VARS[k]: str(v) if isinstance(v, int) else ",".join(v) for k, v in given.items()}
+
 
 # the backend's C methods, called without the pyzmq sugar layer's Python wrapper around every send and receive
 _send = zmq.backend.Socket.send
@@ -387,7 +392,7 @@ class ZmqTransport:
         select() on the sockets' notification descriptors. They are edge-like (they signal *changes*), so
         pending input is checked first; a wake-up without input is harmless (the caller polls again)."""
         for sock in self._socks:
-            if cast(int, sock.get(zmq.EVENTS)) & zmq.POLLIN:
+            if cast(int, _get(sock, zmq.EVENTS)) & zmq.POLLIN:
                 return
         if self._fds_selectable:
             select.select(self._fds, [], [], timeout_s)

@@ -138,11 +138,7 @@ def parse_envelope(frames: list[bytes]) -> Envelope:
         if len(frames) != 3:
             raise DecodeError(f"batch envelope has {len(frames)} frames, expected 3")
         return Envelope(headers, frames[2], [], True)
-    try:
-        header = _header_decoder.decode(head)
-    except (msgspec.ValidationError, msgspec.DecodeError) as exc:
-        raise DecodeError(f"bad envelope header: {exc}") from None
-    return Envelope([header], frames[2], frames[3:], False)
+    return Envelope([decode_header(head)], frames[2], frames[3:], False)
 
 
 def split_batch(envelope: Envelope) -> list[bytes]:

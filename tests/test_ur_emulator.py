@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from procs import ur_emulator
+from procs import ur_emulator, wait_until
 
 from emulators.ur import ControllerConfig, FaultPlan, UrController, UrEmulator
 from emulators.ur.process import UrEmulatorProcess
@@ -68,14 +68,6 @@ def clients(emu: UrEmulatorProcess) -> Iterator[Clients]:
         cl.close()
 
 
-def wait_for(cond: Any, timeout_s: float, what: str, poll_s: float = 0.005) -> None:
-    deadline = time.monotonic() + timeout_s
-    while not cond():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-        time.sleep(poll_s)
-
-
 def reached(pose: list[float], target: list[float], tol_m: float = 1e-4) -> bool:
     """Position within tol_m (0.1 mm) of the target."""
     return max(abs(a - b) for a, b in zip(pose[:3], target[:3], strict=True)) < tol_m
@@ -103,7 +95,7 @@ def test_connect_and_moveL_reaches_the_pose(emu: UrEmulatorProcess, clients: Cli
     assert clients.c.moveL(target, 0.1, 0.5)  # synchronous: returns once the move is done
     assert emu.state()["pose_mm"][:3] == pytest.approx([320.0, 15.0, 260.0], abs=1e-6)
     # the receive interface has its own stream, which may trail the control one by a few packages
-    wait_for(lambda: reached(clients.r.getActualTCPPose(), target), 2.0, "the streamed pose to arrive")
+    wait_until(lambda: reached(clients.r.getActualTCPPose(), target), 2.0, "the streamed pose to arrive")
 
 
 @pytest.mark.timeout(15)
@@ -111,7 +103,7 @@ def test_raster_path_of_20_waypoints_reports_progress(emu: UrEmulatorProcess, cl
     path = raster(20)
     assert clients.c.moveL(path, True)  # asynchronous
     seen: list[int] = []
-    wait_for(lambda: clients.c.getAsyncOperationProgress() >= 0, 2.0, "the path to start")
+    wait_until(lambda: clients.c.getAsyncOperationProgress() >= 0, 2.0, "the path to start")
     while (p := clients.c.getAsyncOperationProgress()) >= 0:
         if not seen or seen[-1] != p:
             seen.append(p)
@@ -119,7 +111,7 @@ def test_raster_path_of_20_waypoints_reports_progress(emu: UrEmulatorProcess, cl
     assert seen == sorted(seen) and seen[0] == 0 and seen[-1] == 19
     assert len(seen) >= 15  # 10 mm lines at 100 mm/s: each waypoint is current for tens of ms
     assert emu.state()["pose_mm"][:3] == pytest.approx([v * 1000 for v in path[-1][:3]], abs=1e-6)
-    wait_for(lambda: reached(clients.r.getActualTCPPose(), path[-1]), 2.0, "the streamed pose to arrive")
+    wait_until(lambda: reached(clients.r.getActualTCPPose(), path[-1]), 2.0, "the streamed pose to arrive")
     assert clients.c.getAsyncOperationProgressEx().isAsyncOperationRunning() is False
 
 
@@ -128,11 +120,11 @@ def test_raster_path_of_20_waypoints_reports_progress(emu: UrEmulatorProcess, cl
 def test_protective_stop_mid_path_is_seen_by_the_client(emu: UrEmulatorProcess, clients: Clients) -> None:
     path = raster(20)
     assert clients.c.moveL(path, True)
-    wait_for(clients.r.isProtectiveStopped, 5.0, "the protective stop")
+    wait_until(clients.r.isProtectiveStopped, 5.0, "the protective stop")
     assert clients.r.getSafetyStatusBits() & (1 << 2)
     # the control client reads its own RTDE stream, which may carry the stopped program a cycle (2 ms) later
-    wait_for(lambda: not clients.c.isProgramRunning(), 2.0, "the control client to see the program stop")
-    wait_for(lambda: emu.state()["moving"] is False, 2.0, "the arm to stop")
+    wait_until(lambda: not clients.c.isProgramRunning(), 2.0, "the control client to see the program stop")
+    wait_until(lambda: emu.state()["moving"] is False, 2.0, "the arm to stop")
     stopped_at = clients.r.getActualTCPPose()
     assert stopped_at[:3] != pytest.approx(path[-1][:3], abs=1e-3)
     assert 4 <= emu.state()["path_index"] <= 6
@@ -140,7 +132,7 @@ def test_protective_stop_mid_path_is_seen_by_the_client(emu: UrEmulatorProcess, 
     assert clients.c.moveL([0.3, 0.0, 0.3, 0.0, DOWN, 0.0], 0.1, 1.0) is False
     assert emu.command("unlock")["reply"] == "Protective stop releasing"
     assert clients.c.reuploadScript()
-    wait_for(clients.c.isProgramRunning, 2.0, "the control script to run again")
+    wait_until(clients.c.isProgramRunning, 2.0, "the control script to run again")
     assert clients.c.moveL([0.3, 0.0, 0.3, 0.0, DOWN, 0.0], 0.1, 1.0)
 
 
@@ -155,8 +147,8 @@ def test_dashboard_refusing_remote_control_is_a_clear_error(emu: UrEmulatorProce
 @pytest.mark.timeout(15)
 def test_reconnect_after_a_dropped_connection(emu: UrEmulatorProcess, clients: Clients) -> None:
     emu.command("drop 0.5")  # close every connection and refuse new ones for 0.5 s
-    wait_for(lambda: not clients.r.isConnected(), 3.0, "the receive interface to notice")
-    wait_for(lambda: not clients.c.isConnected(), 3.0, "the control interface to give up")
+    wait_until(lambda: not clients.r.isConnected(), 3.0, "the receive interface to notice")
+    wait_until(lambda: not clients.c.isConnected(), 3.0, "the control interface to give up")
     emu.wait_state(lambda st: st["clients"] == 0, 2.0)
     deadline = time.monotonic() + 3.0
     while True:  # the refusal window is short; retry until it has passed
@@ -169,7 +161,7 @@ def test_reconnect_after_a_dropped_connection(emu: UrEmulatorProcess, clients: C
             time.sleep(0.05)
     assert clients.c.reconnect()
     assert clients.c.moveL([0.31, 0.0, 0.3, 0.0, DOWN, 0.0], 0.1, 1.0)
-    wait_for(lambda: reached(clients.r.getActualTCPPose(), [0.31, 0.0, 0.3]), 2.0, "the new pose")
+    wait_until(lambda: reached(clients.r.getActualTCPPose(), [0.31, 0.0, 0.3]), 2.0, "the new pose")
 
 
 @pytest.mark.timeout(15)
@@ -177,17 +169,17 @@ def test_short_streaming_pause_is_tolerated_and_the_watchdog_stops_the_program(
         emu: UrEmulatorProcess, clients: Clients) -> None:
     t0 = clients.r.getTimestamp()
     emu.command("pause 0.5")
-    wait_for(lambda: clients.r.getTimestamp() > t0 + 0.6, 3.0, "the stream to resume")
+    wait_until(lambda: clients.r.getTimestamp() > t0 + 0.6, 3.0, "the stream to resume")
     assert clients.r.isConnected() and clients.c.isConnected()
     assert clients.c.setWatchdog(10.0)  # then never kicked: the program must stop within 0.1 s
-    wait_for(lambda: not clients.c.isProgramRunning(), 2.0, "the watchdog to stop the program")
+    wait_until(lambda: not clients.c.isProgramRunning(), 2.0, "the watchdog to stop the program")
     assert any("watchdog" in m for m in emu.command("messages")["messages"])
 
 
 @pytest.mark.timeout(15)
 def test_stopL_decelerates_an_async_move(emu: UrEmulatorProcess, clients: Clients) -> None:
     assert clients.c.moveL([0.3, 0.1, 0.3, 0.0, DOWN, 0.0], 0.1, 1.0, True)
-    wait_for(lambda: clients.r.getActualTCPSpeed()[1] > 0.09, 2.0, "cruising speed")
+    wait_until(lambda: clients.r.getActualTCPSpeed()[1] > 0.09, 2.0, "cruising speed")
     y0 = emu.state()["pose_mm"][1]
     clients.c.stopL(2.0)  # 0.1 m/s at 2 m/s^2: 2.5 mm to rest (returns at rest)
     st = emu.wait_state(lambda st: not st["moving"], 2.0)

@@ -74,8 +74,7 @@ class NodeSpec:
             env["PALPA_PARAMS"] = json.dumps(self.params)
             env["PALPA_REMAP"] = json.dumps(self.remap)
             env["PALPA_NAMESPACE"] = self.namespace
-        env.update({TransportOptions.ENV_VARS[k]: ",".join(v) if isinstance(v, list) else str(v)
-                    for k, v in self.transport.items()})
+        env.update(TransportOptions.to_env(self.transport))
         env.update(self.env)
         return env
 
@@ -91,7 +90,7 @@ class NodeSpec:
                    respawn_max_retries=self.respawn_max_retries, required=self.required,
                    sigterm_timeout=self.sigterm_timeout, sigkill_timeout=self.sigkill_timeout, output=self.output)
         if self.transport:
-            out["transport"] = {k: list(v) if isinstance(v, list) else v for k, v in self.transport.items()}
+            out["transport"] = dict(self.transport)
         return out
 
 
