@@ -215,3 +215,29 @@ def test_check_output_shows_params_with_defaults_and_origin(tmp_path: Path) -> N
     assert text.splitlines()[0].endswith("talker_listener.yaml: ok (2 nodes)")
     assert "params: {rate_hz: 10.0, text: hello, count: 5}" in text
     assert "talker_listener.yaml:" in text and "flags: [required]" in text
+
+
+def test_a_shipped_scan_can_be_included_with_one_more_node(tmp_path: Path) -> None:
+    """docs/custom-node.md's worked example: the included scan brings its recording and progress bar; a setting
+    of the including file wins over the included one."""
+    scan = REPO / "launch" / "scan_sim.yaml"
+    top = write(tmp_path / "my_scan.yaml", f"""\
+        include:
+          - file: {scan}
+            args: {{spacing_mm: 6.0}}
+        nodes:
+          - {{name: listener, node: nodes.demo:Listener}}
+        """)
+    plan = load_launch(top, run_dir=tmp_path / "run")
+    assert plan.progress_topic == "robot/scan_status"
+    assert plan.record is not None and plan.record.exclude == ["_palpa/clock.*"]
+    assert [n.name for n in plan.nodes][-2:] == ["scanner", "listener"]
+    assert plan.node_params["scanner"]["spacing_mm"] == 6.0
+    own = write(tmp_path / "quiet.yaml", f"""\
+        record: false
+        progress: {{topic: my/progress}}
+        include: [{{file: {scan}}}]
+        nodes: []
+        """)
+    plan = load_launch(own, run_dir=tmp_path / "run")
+    assert plan.record is None and plan.progress_topic == "my/progress"

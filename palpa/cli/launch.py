@@ -87,7 +87,7 @@ def _run(args: argparse.Namespace) -> int:
             with contextlib.suppress(OSError):
                 run_dir.rmdir()
         raise
-    return Supervisor(plan, bus_address=args.bus_address, progress=args.progress).run()
+    return Supervisor(plan, bus_address=args.bus_address, progress=args.progress, announce=True).run()
 
 
 def _make_run_dir(chosen: Path | None) -> tuple[Path, bool]:

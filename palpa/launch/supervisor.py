@@ -33,6 +33,7 @@ from typing import Any, TextIO
 
 from palpa.address import BusAddress
 from palpa.bus import Bus
+from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
 from palpa.launch.output import Screen
 from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
@@ -88,10 +89,11 @@ class Supervisor:
     ``bus_address`` overrides the plan's bus (any form ``palpa --bus`` accepts, or ``tcp://HOST`` for
     OS-chosen ports); ``progress`` True/False forces the progress bar on/off (None: only on a terminal);
     ``reaper`` False leaves only PR_SET_PDEATHSIG to clean up after a killed launcher (tests use it to prove
-    that mechanism alone)."""
+    that mechanism alone); ``announce`` makes this the current launch the CLI tools find (palpa.current)."""
 
     def __init__(self, plan: LaunchPlan, *, bus_address: str | None = None, out: TextIO | None = None,
-                 err: TextIO | None = None, progress: bool | None = None, reaper: bool = True) -> None:
+                 err: TextIO | None = None, progress: bool | None = None, reaper: bool = True,
+                 announce: bool = False) -> None:
         self.plan = plan
         self.out = out or sys.stdout
         self.err = err or sys.stderr
@@ -110,6 +112,7 @@ class Supervisor:
         self._node: Node | None = None
         self.address: BusAddress | None = None
         self._use_reaper = reaper
+        self._announce = announce
         self._reaper: Reaper | None = None
         self._wake_r, self._wake_w = socket.socketpair()
         for s in (self._wake_r, self._wake_w):
@@ -144,6 +147,8 @@ class Supervisor:
             tmp = plan.run_dir / ".bus.address.tmp"  # readers never see a half-written address
             tmp.write_text(f"{self.address}\n", encoding="utf-8")
             os.replace(tmp, plan.run_dir / "bus.address")
+            if self._announce:
+                announce(self.address, plan.run_dir)
             self._screen.say(f"bus at {self.address}; run directory {plan.run_dir}")
             self._start_observer()
             for i, spec in enumerate(plan.nodes):
@@ -451,6 +456,8 @@ class Supervisor:
                 p.child.exited()
                 p.state, p.outcome, p.failed = "done", "killed (launcher error)", True
         self._screen.close_view()  # the summary goes to stderr like every launcher message
+        if self._announce:
+            withdraw()
         if self._node is not None:
             self._node.close(0)
         if bus is not None:
