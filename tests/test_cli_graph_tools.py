@@ -171,3 +171,11 @@ def test_palpa_run_misspelt_parameter_gets_did_you_mean(capsys: pytest.CaptureFi
     code = main(["run", "nodes.demo:Talker", "-p", "rate_h=5", "--bus", f"ipc://{short_ipc_base()}"])
     assert code == 2
     assert "unknown field `rate_h` (did you mean 'rate_hz'?)" in capsys.readouterr().err
+
+
+def test_schema_lists_type_names_and_suggests_a_close_one(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["schema", "--list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.split()[:2] == ["EStop", "messages.robot"] for line in lines)
+    assert main(["schema", "Estop"]) == 1
+    assert "did you mean 'EStop'?" in capsys.readouterr().err

@@ -127,8 +127,11 @@ class LaunchPlan:
             params["split_size_mb"] = self.record.split_size_mb
         if self.record.split_duration_s is not None:
             params["split_duration_s"] = self.record.split_duration_s
+        # the recorder imports these only for a type it cannot find otherwise (palpa.record.format)
+        modules = dict.fromkeys(n.target.partition(":")[0] for n in self.nodes if n.target)
         return NodeSpec(name=RECORDER_NAME, target=RECORDER_TARGET, params=params, sigterm_timeout=10.0,
-                        sigkill_timeout=5.0, where=f"{self.files[0] if self.files else self.file}: record")
+                        sigkill_timeout=5.0, where=f"{self.files[0] if self.files else self.file}: record",
+                        env={"PALPA_NODE_MODULES": ",".join(modules)})
 
     def bus_request(self, override: str | None = None) -> BusAddress:
         """The endpoints the launcher binds: ``override`` (``--bus-address``), else the ``bus`` section, else a
