@@ -179,3 +179,11 @@ def test_schema_lists_type_names_and_suggests_a_close_one(capsys: pytest.Capture
     assert any(line.split()[:2] == ["EStop", "messages.robot"] for line in lines)
     assert main(["schema", "Estop"]) == 1
     assert "did you mean 'EStop'?" in capsys.readouterr().err
+
+
+def test_a_node_that_cannot_start_says_why_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["run", "nodes.fibre_reader:FibreReader", "-p", "driver=sim", "-p", "phantom=no_such.yaml",
+                 "--bus", f"ipc://{short_ipc_base()}"])
+    err = capsys.readouterr().err
+    assert code == 2 and "phantom file 'no_such.yaml' does not exist" in err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err

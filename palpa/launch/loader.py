@@ -97,6 +97,11 @@ def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
     given = _Given(dict(overrides or {}), {k: None for k in overrides or {}}, "the command line")
     col = _Collected(plan)
     _load_file(path.resolve(), given, "", col, top=True)
+    names = [n.name for n in plan.nodes]
+    for name in plan.progress_report:
+        if name not in names:
+            raise LaunchError(f"{col.set_by.get('progress', plan.file)}: progress report names node {name!r}, which "
+                              f"is not in the graph{did_you_mean(name, names)}")
     _validate_nodes(col)
     return plan
 
@@ -135,6 +140,7 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
             raise src.error(("bus",), str(exc)) from None
     if "progress" in own and decl.progress is not None:
         col.plan.progress_topic = decl.progress.topic
+        col.plan.progress_report = list(decl.progress.report)
         if not decl.progress.topic:
             raise src.error(("progress", "topic"), "progress topic must not be empty")
     if "record" in own:

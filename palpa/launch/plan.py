@@ -107,6 +107,7 @@ class LaunchPlan:
     bus: BusDecl = field(default_factory=BusDecl)
     record: RecordDecl | None = None
     progress_topic: str | None = None
+    progress_report: list[str] = field(default_factory=list)
     recorder_available: bool = False
     node_params: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Node name -> every parameter of a ``node:`` entry, defaults included (filled by the loader)."""
@@ -167,7 +168,7 @@ class LaunchPlan:
             doc["record"] = {"topics": list(r.topics), "exclude": list(r.exclude), "split_size_mb": r.split_size_mb,
                              "split_duration_s": r.split_duration_s, "ready_timeout_s": r.ready_timeout_s}
         if self.progress_topic is not None:
-            doc["progress"] = {"topic": self.progress_topic}
+            doc["progress"] = {"topic": self.progress_topic, "report": list(self.progress_report)}
         header = "".join(f"# {line}\n" for line in [
             f"resolved from {self.files[0] if self.files else self.file}",
             *(f"includes {f}" for f in self.files[1:]),
