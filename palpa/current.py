@@ -1,8 +1,8 @@
 """Finding the running launch: every ``palpa launch`` binds a fresh bus, so it says where.
 
 While a launch runs, ``palpa launch`` keeps a per-user "current bus" file (``/tmp/palpa-<uid>.current``, or
-``$PALPA_CURRENT``) naming its bus, its pid and its run directory, and points a ``latest`` link beside the run
-directory at it (``runs/latest``). The CLI tools pick the bus in this order: ``--bus``, ``--run DIR`` (that
+``$PALPA_CURRENT``) naming its bus, its pid and its run directory, and points ``runs/latest`` at the run
+directory when that is in a ``runs`` folder. The CLI tools pick the bus in this order: ``--bus``, ``--run DIR`` (that
 run's ``bus.address``), ``$PALPA_BUS``, the current launch (if its launcher is still alive), the default bus.
 """
 
@@ -35,8 +35,8 @@ def announce(address: BusAddress, run_dir: Path) -> None:
         tmp.write_text(json.dumps(record) + "\n", encoding="utf-8")
         os.replace(tmp, path)
     latest = run_dir.parent / "latest"
-    if run_dir.name == "latest" or (latest.exists() and not latest.is_symlink()):
-        return  # never replace a real file or folder of that name
+    if run_dir.parent.name != "runs" or run_dir.name == "latest" or (latest.exists() and not latest.is_symlink()):
+        return  # only runs/latest (not /tmp/latest for --run-dir /tmp/x), and never over a real file
     link = run_dir.parent / f".latest.{os.getpid()}.tmp"
     with contextlib.suppress(OSError):
         link.unlink(missing_ok=True)

@@ -118,6 +118,11 @@ def test_tools_find_the_current_launch_then_a_run_dir(live_bus: BusAddress, tmp_
     withdraw()
     assert find_bus()[1].startswith("the default bus")
     assert find_bus(run=tmp_path / "runs" / "latest") == (live_bus, f"the launch in {tmp_path / 'runs' / 'latest'}")
+    elsewhere = tmp_path / "scratch" / "x"
+    elsewhere.mkdir(parents=True)
+    announce(live_bus, elsewhere)  # --run-dir scratch/x: no scratch/latest beside it
+    assert not (tmp_path / "scratch" / "latest").exists()
+    withdraw()
     # a launcher that died leaves a stale file: it is not believed
     (tmp_path / "current").write_text(json.dumps({"bus": str(live_bus), "pid": 2**22 + 7, "run_dir": "x"}))
     assert find_bus()[1].startswith("the default bus")
