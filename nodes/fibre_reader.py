@@ -37,9 +37,9 @@ class FibreReader(palpa.Node):
         """How often the node drains the driver's queue."""
         port: str = "/dev/ttyACM0"
         baudrate: int = 115200
-        calibration: str = ""
+        calibration: palpa.InputPath = ""
         """Calibration YAML of the four channels (serial driver)."""
-        phantom: str = ""
+        phantom: palpa.InputPath = ""
         """Phantom YAML (sim driver)."""
         noise_mm: float = -1.0
         """Sim sensor noise σ (mm); negative: the phantom file's value."""

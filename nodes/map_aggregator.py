@@ -1,8 +1,10 @@
 """Map aggregator node: valid ``stiffness/sample`` messages -> a gridded map, detected inclusions, files.
 
 Publishes the map (``map/stiffness``) and inclusions (``map/inclusions``), both latched, at ``publish_hz`` while
-scanning; when the scan reports ``done`` on ``robot/scan_status`` (and again on shutdown, with everything received
-by then) it writes ``map.npz``, ``map.png`` and ``inclusions.json`` into ``output_dir``.
+scanning; when the scan reports ``done`` on ``robot/scan_status`` it writes ``map.npz``, ``map.png`` and
+``inclusions.json`` into ``output_dir`` (each file atomically). It writes once per scan: a repeated ``done`` (a
+scanner lingering, a replay) writes nothing new, and shutdown writes only samples no file holds yet (a scan
+stopped half-way), so a node asked to stop after its scan exits at once.
 """
 
 from __future__ import annotations
@@ -64,6 +66,8 @@ class MapAggregator(palpa.Node):
         self.pending: list[tuple[float, float, float]] = []
         self.written = 0
         self.changed = False
+        self.unsaved = 0
+        """Samples taken since the files were last written."""
         if p.region_mm:
             if len(p.region_mm) != 4:
                 raise palpa.ParamError(f"{self.name}: region_mm needs x0, y0, x1, y1, got {p.region_mm}")
@@ -93,6 +97,7 @@ class MapAggregator(palpa.Node):
             return
         self.unit = s.unit
         self.samples += 1
+        self.unsaved += 1
         self.changed = True
         if self.grid is None:
             self.pending.append((s.x_mm, s.y_mm, s.value))
@@ -100,7 +105,7 @@ class MapAggregator(palpa.Node):
             self.grid.add(s.x_mm, s.y_mm, s.value)
 
     def on_status(self, st: ScanStatus) -> None:
-        if st.state == "done":
+        if st.state == "done" and (self.unsaved or not self.written):
             self.log.info("scan done: writing the map")
             self.publish_map(final=True)
 
@@ -142,13 +147,15 @@ class MapAggregator(palpa.Node):
         title += f"\n{self.samples} samples, {len(found)} inclusion(s), {time.strftime('%Y-%m-%d %H:%M')}"
         paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title)
         self.written += 1
+        self.unsaved = 0
         for inc in found:
             self.log.info("inclusion at (%.1f, %.1f) mm, radius %.1f mm, contrast %.2f",
                           inc.x_mm, inc.y_mm, inc.radius_mm, inc.contrast)
         self.log.info("map written: %s", ", ".join(str(p) for p in paths))
 
     def on_shutdown(self) -> None:
-        if self.grid is not None and self.samples:
+        if self.grid is not None and self.unsaved:
+            self.log.info("stopping with %d samples not yet written: writing the map", self.unsaved)
             self.publish_map(final=True)
 
 

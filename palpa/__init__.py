@@ -18,7 +18,7 @@ from palpa.clock import Clock, MockClock, SystemClock
 from palpa.errors import BusError, DecodeError, LaunchError, PalpaError, ParamError, RegistryError
 from palpa.message import Message, json_schema, lookup, registered
 from palpa.node import Node, Publisher, RawMessage, Subscription, Timer
-from palpa.params import Params
+from palpa.params import InputPath, Params
 from palpa.runner import run_node
 
 __version__ = "0.1.0"
@@ -28,6 +28,7 @@ __all__ = [
     "BusError",
     "Clock",
     "DecodeError",
+    "InputPath",
     "LaunchError",
     "Message",
     "MockClock",

@@ -135,13 +135,15 @@ class Node:
         self.log.addHandler(self._bus_handler)
         self._log_pub = self.publisher(LOG_TOPIC, LogRecord)
         self._hb_pub = self.publisher(HEARTBEAT_TOPIC, Heartbeat)
+        # heartbeats go on the wall clock whatever the node's clock: a listener waits a wall-clock window, and a
+        # node waiting for simulated time (or a paused replay) is still alive
+        self._hb_period_ns = int(heartbeat_s * 1e9) if heartbeat_s > 0 else 0
+        self._hb_due_ns = time.monotonic_ns()
         if self._topic_clock is not None:
             self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1)
             self._last_ack_ns = 0
             self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
             self._await_first_tick(wait_for_clock_s)
-        if heartbeat_s > 0:
-            self.timer(heartbeat_s, self._heartbeat, first_in_s=0.0)
         self.setup()
 
     # -- declaration -------------------------------------------------------------------------------
@@ -255,11 +257,14 @@ class Node:
         for delivery in self._transport.poll(0):
             self._rx.dispatch(delivery)
         self._run_timers()
+        self._beat()
         due = self.next_timer_due_ns()
         if due is not None and self.clock.is_real():
             timeout_s = max(0.0, min(timeout_s, (due - self.clock.now_ns()) / 1e9))
         elif not self.clock.is_real():
             timeout_s = 0.0 if self._timers else timeout_s
+        if self._hb_period_ns:
+            timeout_s = max(0.0, min(timeout_s, (self._hb_due_ns - time.monotonic_ns()) / 1e9))
         if timeout_s > 0:
             for delivery in self._transport.poll(timeout_s):
                 self._rx.dispatch(delivery)
@@ -356,6 +361,15 @@ class Node:
     def counters(self) -> dict[str, TopicStats]:
         """Receive counters per subscribed topic (typed and raw; the typed ones where a topic has both)."""
         return self._rx.counters()
+
+    def _beat(self) -> None:
+        """Send the heartbeat when it is due on the wall clock (before simulated time starts, too)."""
+        if not self._hb_period_ns or self._shutdown:
+            return
+        now = time.monotonic_ns()
+        if now >= self._hb_due_ns:
+            self._hb_due_ns = now + self._hb_period_ns
+            self._call(self._heartbeat)
 
     def _heartbeat(self) -> None:
         subs = {s.topic: s.type.type_name for s in self._rx.subs.values()}

@@ -26,6 +26,7 @@ import yaml
 
 from palpa.errors import PalpaError
 from palpa.node import Node
+from palpa.params import describe_params
 from palpa.transport import TransportOptions
 
 __all__ = ["node_arg_parser", "params_from_args", "parse_remaps", "run_node", "run_node_code"]
@@ -105,7 +106,11 @@ def run_node(cls: type[Node], argv: Sequence[str] | None = None, *, prog: str | 
 
 def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: str | None = None) -> int:
     """:func:`run_node` without the ``sys.exit``: returns the exit code."""
-    args = node_arg_parser(prog or cls.__name__).parse_args(argv)
+    ap = node_arg_parser(prog or cls.__name__)
+    ap.formatter_class = argparse.RawDescriptionHelpFormatter
+    declared = describe_params(cls.Params)
+    ap.epilog = "parameters (-p NAME=VALUE):\n" + ("\n".join(f"  {k}: {v}" for k, v in declared.items()) or "  none")
+    args = ap.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.debug else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",

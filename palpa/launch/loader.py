@@ -32,7 +32,7 @@ from palpa.launch.source import Mark, Path_, Source, display_path
 from palpa.launch.subst import substitute
 from palpa.launch.validate import convert, did_you_mean, kind, lower_first
 from palpa.node import Node
-from palpa.params import convert_params
+from palpa.params import convert_params, input_paths
 
 __all__ = ["load_launch", "parse_overrides"]
 
@@ -76,6 +76,10 @@ class _Collected:
     node_sources: list[tuple[Source, Path_, NodeSpec]] = field(default_factory=list)
     names: dict[str, str] = field(default_factory=dict)
     stack: list[Path] = field(default_factory=list)
+    set_by: dict[str, str] = field(default_factory=dict)
+    """bus/record/progress -> the file whose setting is used (the top file's, else the first include's)."""
+    args_of: dict[str, tuple[dict[str, Any], _Given]] = field(default_factory=dict)
+    """File name -> its resolved args and what gave them (to name the arg behind a bad param)."""
 
 
 def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
@@ -93,6 +97,11 @@ def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
     given = _Given(dict(overrides or {}), {k: None for k in overrides or {}}, "the command line")
     col = _Collected(plan)
     _load_file(path.resolve(), given, "", col, top=True)
+    names = [n.name for n in plan.nodes]
+    for name in plan.progress_report:
+        if name not in names:
+            raise LaunchError(f"{col.set_by.get('progress', plan.file)}: progress report names node {name!r}, which "
+                              f"is not in the graph{did_you_mean(name, names)}")
     _validate_nodes(col)
     return plan
 
@@ -111,26 +120,30 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
         raise src.error((), f"a launch file is a mapping (nodes:, args:, ...), not a {kind(src.data)}")
     data: dict[str, Any] = dict(src.data)
     args = _resolve_args(src, data.pop("args", []), given, col.plan.run_dir)
+    col.args_of[src.name] = (args, given)
     if top:
         col.plan.args = dict(args)
     subst = {k: substitute(src, v, (k,), args, col.plan.run_dir) for k, v in data.items()}
     decl = convert(src, subst, LaunchFile)
 
-    for key in ("bus", "record", "progress"):
-        if not top and getattr(decl, key) is not None:
-            raise src.error((key,), f"only the top-level launch file may set '{key}' (this file is included)",
-                            key=True)
+    # an included file's bus/record/progress apply unless the including file set its own (the top file wins),
+    # so a shipped scan can be included, with its recording and progress bar, next to one more node
+    own = {k for k in ("bus", "record", "progress") if getattr(decl, k) is not None and k not in col.set_by}
+    col.set_by.update(dict.fromkeys(own, src.name))
     if top:
-        if decl.bus is not None:
-            col.plan.bus = decl.bus
-            try:
-                col.plan.bus_request()
-            except BusError as exc:
-                raise src.error(("bus",), str(exc)) from None
         col.plan.description = decl.description
-        col.plan.progress_topic = decl.progress.topic if decl.progress is not None else None
-        if decl.progress is not None and not decl.progress.topic:
+    if "bus" in own and decl.bus is not None:
+        col.plan.bus = decl.bus
+        try:
+            col.plan.bus_request()
+        except BusError as exc:
+            raise src.error(("bus",), str(exc)) from None
+    if "progress" in own and decl.progress is not None:
+        col.plan.progress_topic = decl.progress.topic
+        col.plan.progress_report = list(decl.progress.report)
+        if not decl.progress.topic:
             raise src.error(("progress", "topic"), "progress topic must not be empty")
+    if "record" in own:
         _record(src, decl, col.plan)
     for i, entry in enumerate(decl.python_path):
         p = Path(entry)
@@ -246,7 +259,12 @@ def _validate_nodes(col: _Collected) -> None:
             try:
                 params = convert_params(cls.Params, spec.params, where=f"node {spec.name!r}")
             except ParamError as exc:
-                raise _param_error(src, (*where, "params"), spec, str(exc)) from None
+                raise _param_error(src, (*where, "params"), spec, str(exc), col) from None
+            for name, value in input_paths(params).items():
+                if not Path(value).exists():
+                    raise src.error((*where, "params", name), f"param {name!r} of node {spec.name!r}: "
+                                                              f"{value!r} does not exist (from {Path.cwd()})"
+                                                              f"{_arg_note(col, src, (*where, 'params', name))}")
             col.plan.node_params[spec.name] = msgspec.to_builtins(params)
         rec = col.plan.recorder()
         if rec is not None:
@@ -291,7 +309,23 @@ def _import_node_class(src: Source, where: Path_, target: str) -> type[Node]:
     return cls
 
 
-def _param_error(src: Source, where: Path_, spec: NodeSpec, text: str) -> LaunchError:
+def _arg_note(col: _Collected, src: Source, path: Path_) -> str:
+    """'; it comes from arg X = V, given by the command line' for a value written as ``$(arg X)``."""
+    raw = src.get(path)
+    names = re.findall(r"\$\(\s*arg\s+([^()\s]+)\s*\)", raw) if isinstance(raw, str) else []
+    args, given = col.args_of.get(src.name, ({}, None))
+    notes = []
+    for name in dict.fromkeys(names):
+        if given is not None and name in given.values:
+            mark = given.marks.get(name)
+            notes.append(f"arg {name!r} = {json.dumps(args.get(name))}, given by {given.origin}"
+                         + (f" at {mark}" if mark is not None else f" ({name}:=...)"))
+        elif name in args:
+            notes.append(f"arg {name!r} = {json.dumps(args.get(name))} (its default)")
+    return f"; from {'; '.join(notes)}" if notes else ""
+
+
+def _param_error(src: Source, where: Path_, spec: NodeSpec, text: str, col: _Collected) -> LaunchError:
     text = text.removeprefix(f"node {spec.name!r}: ")
     unknown = re.search(r"unknown field `([^`]+)`", text)
     if unknown:
@@ -304,5 +338,6 @@ def _param_error(src: Source, where: Path_, spec: NodeSpec, text: str) -> Launch
     bad = re.match(r"parameter '([^'.\[]+)[^']*': (.*)$", text, re.S)
     if bad:
         return src.error((*where, bad.group(1)), f"param {bad.group(1)!r} of node {spec.name!r}: "
-                                                 f"{lower_first(bad.group(2))}")
+                                                 f"{lower_first(bad.group(2))}"
+                                                 f"{_arg_note(col, src, (*where, bad.group(1)))}")
     return src.error(where, f"params of node {spec.name!r}: {text}")

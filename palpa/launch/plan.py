@@ -107,6 +107,7 @@ class LaunchPlan:
     bus: BusDecl = field(default_factory=BusDecl)
     record: RecordDecl | None = None
     progress_topic: str | None = None
+    progress_report: list[str] = field(default_factory=list)
     recorder_available: bool = False
     node_params: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Node name -> every parameter of a ``node:`` entry, defaults included (filled by the loader)."""
@@ -127,8 +128,11 @@ class LaunchPlan:
             params["split_size_mb"] = self.record.split_size_mb
         if self.record.split_duration_s is not None:
             params["split_duration_s"] = self.record.split_duration_s
+        # the recorder imports these only for a type it cannot find otherwise (palpa.record.format)
+        modules = dict.fromkeys(n.target.partition(":")[0] for n in self.nodes if n.target)
         return NodeSpec(name=RECORDER_NAME, target=RECORDER_TARGET, params=params, sigterm_timeout=10.0,
-                        sigkill_timeout=5.0, where=f"{self.files[0] if self.files else self.file}: record")
+                        sigkill_timeout=5.0, where=f"{self.files[0] if self.files else self.file}: record",
+                        env={"PALPA_NODE_MODULES": ",".join(modules)})
 
     def bus_request(self, override: str | None = None) -> BusAddress:
         """The endpoints the launcher binds: ``override`` (``--bus-address``), else the ``bus`` section, else a
@@ -164,7 +168,7 @@ class LaunchPlan:
             doc["record"] = {"topics": list(r.topics), "exclude": list(r.exclude), "split_size_mb": r.split_size_mb,
                              "split_duration_s": r.split_duration_s, "ready_timeout_s": r.ready_timeout_s}
         if self.progress_topic is not None:
-            doc["progress"] = {"topic": self.progress_topic}
+            doc["progress"] = {"topic": self.progress_topic, "report": list(self.progress_report)}
         header = "".join(f"# {line}\n" for line in [
             f"resolved from {self.files[0] if self.files else self.file}",
             *(f"includes {f}" for f in self.files[1:]),

@@ -143,6 +143,8 @@ class ProgressDecl(_Decl):
     eta_s, line, lines."""
 
     topic: str
+    report: Annotated[list[str], Meta(description="nodes whose last lines hidden by the bar (their results) are "
+                                                  "printed after it")] = []
 
 
 class LaunchFile(_Decl):

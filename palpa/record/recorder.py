@@ -119,7 +119,7 @@ class Recorder(Node):
 
     def setup(self) -> None:
         p = self.params
-        self._started_ns = time.time_ns()
+        self._record_started_ns = time.time_ns()  # not Node's uptime origin
         self._host = socket.gethostname()
         self._ids: dict[_ChannelKey, int] = {}
         self._blob_ids: dict[int, int] = {}
@@ -175,7 +175,7 @@ class Recorder(Node):
             "mcap_library": mcap.__version__,
             "host": self._host,
             "recorder": self.name,
-            "started_ns": str(self._started_ns),
+            "started_ns": str(self._record_started_ns),
             "file_opened_ns": str(self._opened_ns),
             "file_index": str(self._file_index),
             "output": str(out),
