@@ -48,6 +48,7 @@ from palpa.runtime_msgs import (
     LogRecord,
     TopicCounters,
 )
+from palpa.service import DEFAULT_TIMEOUT_S, Client, Responder, Service
 from palpa.transport import Transport, TransportOptions, ZmqTransport
 from palpa.wire import (
     Header,
@@ -58,6 +59,8 @@ from palpa.wire import (
 __all__ = ["DEFAULT_BATCH", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
 
 M = TypeVar("M", bound=Message)
+Q = TypeVar("Q", bound=Message)
+R = TypeVar("R", bound=Message)
 _ACK_PERIOD_NS = 5_000_000
 
 
@@ -106,6 +109,7 @@ class Node:
         sim_clock: bool | None = None,
         wait_for_clock_s: float = 30.0,
         transport_options: TransportOptions | None = None,
+        serve_params: bool | None = None,
     ) -> None:
         self.name = name or _snake(type(self).__name__)
         if sim_clock is None:
@@ -124,6 +128,7 @@ class Node:
         self._dirty: list[Publisher[Any]] = []
         self._depth = 0
         self._timers: list[Timer] = []
+        self._services: dict[str, Service[Any, Any]] = {}
         self._shutdown = False
         self._closed = False
         self._started_ns = time.monotonic_ns()
@@ -142,6 +147,10 @@ class Node:
             self._await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0:
             self.timer(heartbeat_s, self._heartbeat, first_in_s=0.0)
+        if heartbeat_s > 0 if serve_params is None else serve_params:
+            from palpa.params_runtime import ParamServer
+
+            ParamServer(self)
         self.setup()
 
     # -- declaration -------------------------------------------------------------------------------
@@ -150,6 +159,30 @@ class Node:
 
     def on_shutdown(self) -> None:
         """Called once before the node's sockets close: stop hardware, flush files."""
+
+    def on_params_changed(self, old: Any, new: Any) -> bool | None:
+        """Called when ``palpa param set`` (or a ParamSet request) would change ``self.params`` from ``old`` to
+        ``new`` (both validated): apply what needs applying (re-time a timer) and return None, or refuse the
+        whole change by returning False or raising :class:`palpa.ParamError` with the reason."""
+        return None
+
+    def service(
+        self, name: str, request_type: type[Q], response_type: type[R], handler: Callable[[Q], R | Responder[R]]
+    ) -> Service[Q, R]:
+        """Serve ``name``: ``handler(request)`` returns the response (or ``srv.defer()``'s responder, to answer
+        later); raising :class:`palpa.service.RequestRefused` or :class:`palpa.ParamError` refuses the request.
+        See :mod:`palpa.service`."""
+        srv = Service(self, name, request_type, response_type, handler)
+        if srv.name in self._services:
+            raise ValueError(f"node {self.name!r} already serves {srv.name!r}")
+        self._services[srv.name] = srv
+        return srv
+
+    def client(
+        self, name: str, request_type: type[Q], response_type: type[R], *, timeout_s: float = DEFAULT_TIMEOUT_S
+    ) -> Client[Q, R]:
+        """A caller of service ``name``: ``call(req)`` (blocking, safe in callbacks) or ``call_async(req)``."""
+        return Client(self, name, request_type, response_type, timeout_s=timeout_s)
 
     def resolve(self, topic: str) -> str:
         """The topic name on the bus after remapping and namespacing (``/x`` is absolute; ``_palpa/`` is global)."""
@@ -281,6 +314,8 @@ class Node:
         self._shutdown = True
         try:
             self.on_shutdown()
+            for srv in self._services.values():
+                srv.withdraw()
             self.flush()
         finally:
             self._closed = True
@@ -321,15 +356,20 @@ class Node:
         now = self.clock.now_ns()
         for t in list(self._timers):
             if t.cancelled:
-                self._timers.remove(t)
+                if t in self._timers:  # a nested run (inside a service call's wait) may have removed it
+                    self._timers.remove(t)
                 continue
-            if t.due_ns <= now:
+            if t.due_ns <= now and not t.running:  # never re-entered while it waits on a service call
                 if t.oneshot:
                     t.cancelled = True
                 else:
                     # skip missed periods rather than firing a burst after a stall
                     t.due_ns += t.period_ns * max(1, (now - t.due_ns) // t.period_ns + 1)
-                self._call(t.callback)
+                t.running = True
+                try:
+                    self._call(t.callback)
+                finally:
+                    t.running = False
 
     def _call(self, fn: Callable[..., object], *args: object) -> None:
         self._depth += 1
@@ -371,6 +411,7 @@ class Node:
                 sent={p.topic: p.seq for p in self._pubs.values()},
                 uptime_s=(time.monotonic_ns() - self._started_ns) / 1e9,
                 direct=[p.topic for p in self._pubs.values() if p.direct],
+                services={name: srv.types for name, srv in self._services.items()},
             )
         )
 
