@@ -27,6 +27,7 @@ matters. A handler that cannot answer at once (a probe that moves the arm) retur
 
 from __future__ import annotations
 
+import contextlib
 import secrets
 import time
 import weakref
@@ -38,7 +39,7 @@ import msgspec
 from palpa.endpoints import RawMessage
 from palpa.errors import PalpaError, ParamError
 from palpa.message import Message
-from palpa.wire import Header, encode_header
+from palpa.wire import Header
 
 if TYPE_CHECKING:
     from palpa.node import Node
@@ -58,6 +59,7 @@ __all__ = [
     "ServiceFault",
     "ServiceInfo",
     "ServiceTimeout",
+    "discover",
     "reply_topic",
     "request_topic",
 ]
@@ -448,3 +450,25 @@ class Client(Generic[Q, R]):
         if not self._pending and self._timer is not None:
             self._timer.cancel()
             self._timer = None
+
+
+def discover(node: Node, name: str, wait_s: float) -> ServiceInfo:
+    """The live server of ``name`` as the bus's last-value cache announces it (a tool that does not know the
+    response type yet asks this first); :class:`NoServerError` when none is announced within ``wait_s``."""
+    topic = SERVICE_INFO_PREFIX + name
+    known = _directory.setdefault(node, {})
+
+    def on_info(raw: RawMessage) -> None:
+        if raw.topic == topic and raw.header.type == ServiceInfo.type_name:
+            with contextlib.suppress(msgspec.ValidationError, msgspec.DecodeError):
+                known[name] = _info_decoder.decode(raw.payload)
+
+    node.subscribe_raw(topic, on_info)
+    deadline = time.monotonic() + wait_s
+    while not (name in known and known[name].alive) and time.monotonic() < deadline:
+        node.spin_once(0.02)
+    info = known.get(name)
+    if info is None or not info.alive:
+        why = "its server has closed" if info is not None else "no server announced it"
+        raise NoServerError(f"service {name!r}: {why} within {wait_s:g} s (`palpa service list` shows what runs)")
+    return info

@@ -9,6 +9,7 @@ import msgspec
 import pytest
 
 import palpa
+from palpa.node import RawMessage
 from palpa.service import (
     BadRequestError,
     Future,
@@ -21,7 +22,6 @@ from palpa.service import (
     reply_topic,
     request_topic,
 )
-from palpa.node import RawMessage
 from palpa.testing import GraphHarness
 from palpa.wire import Header
 
@@ -36,7 +36,11 @@ class AddReply(palpa.Message, frozen=True, kw_only=True):
 
 
 class Adder(palpa.Node):
-    """Adds; refuses negative totals; raises on NaN-free a == 13; answers a == 99 later (deferred)."""
+    """Adds; refuses negative totals; raises on a == 13; answers a == 99 later (deferred)."""
+
+    class Params(palpa.Params):
+        offset: float = 0.0
+        """Not used by the handler: a parameter to change at run time."""
 
     def setup(self) -> None:
         self.held: list[Responder[AddReply]] = []

@@ -11,7 +11,7 @@ import msgpack
 import pytest
 import zmq
 from procs import wait_until
-from test_service import AddReply, AddRequest, Adder
+from test_service import Adder, AddReply, AddRequest
 
 import palpa
 from palpa.address import BusAddress

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from typing import Any
 
 import msgspec
@@ -12,14 +11,13 @@ import yaml
 
 from palpa.cli.common import add_bus_arg, import_message_modules
 from palpa.cli.topic import _tool_node, collect_heartbeats
-from palpa.endpoints import RawMessage
 from palpa.errors import PalpaError
 from palpa.message import Message, lookup
 from palpa.node import Node
 from palpa.params_runtime import ParamGet  # noqa: F401  (registers the parameter messages for `call`)
-from palpa.service import SERVICE_INFO_PREFIX, NoServerError, ServiceInfo
+from palpa.service import discover
 
-__all__ = ["call_service", "discover", "register"]
+__all__ = ["call_service", "register"]
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -53,26 +51,6 @@ def run_list(args: argparse.Namespace) -> int:
     for name, types, server in rows:
         print(f"{name}  [{types}]  server: {server}")
     return 0
-
-
-def discover(node: Node, name: str, wait_s: float) -> ServiceInfo:
-    """The live server of ``name`` as the bus's last-value cache announces it; :class:`NoServerError` when none
-    is announced within ``wait_s``."""
-    topic = SERVICE_INFO_PREFIX + name
-    found: list[ServiceInfo] = []
-
-    def on_info(raw: RawMessage) -> None:
-        if raw.topic == topic and raw.header.type == ServiceInfo.type_name:
-            found.append(msgspec.msgpack.decode(raw.payload, type=ServiceInfo))
-
-    node.subscribe_raw(topic, on_info)
-    deadline = time.monotonic() + wait_s
-    while not (found and found[-1].alive) and time.monotonic() < deadline:
-        node.spin_once(0.02)
-    if not found or not found[-1].alive:
-        why = "its server has closed" if found else "no server announced it"
-        raise NoServerError(f"service {name!r}: {why} within {wait_s:g} s (`palpa service list` shows what runs)")
-    return found[-1]
 
 
 def call_service(node: Node, name: str, request: Message, *, wait_s: float, timeout_s: float) -> Any:
