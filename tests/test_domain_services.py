@@ -81,6 +81,24 @@ def test_probe_over_an_inclusion_reads_stiffer_than_healthy_tissue() -> None:
     g.close()
 
 
+def test_probe_takes_the_estimates_near_the_point_only() -> None:
+    """The estimator is played by the test: estimates 0.5 mm from the point say 30, those 4 mm away say 100."""
+    g = GraphHarness()
+    g.add(RobotScanner, {"autostart": False, "home_mm": [28.0, 28.0, 40.0], "watch_topic": ""})
+    op = g.add(palpa.Node, name="operator")
+    fut = op.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=60).call_async(ProbeAt(x_mm=30, y_mm=30))
+    t = 0.0
+    while not fut.done() and t < 20:
+        for y, value in ((30.5, 30.0), (34.0, 100.0), (26.0, 100.0)):
+            g.publish("stiffness/sample", StiffnessSample(stamp_ns=g.clock.now_ns(), model="airfloat", x_mm=30.0,
+                                                          y_mm=y, z_mm=5.0, value=value, unit="kPa", valid=True))
+        g.advance(0.05)
+        t += 0.05
+    r = fut.result()
+    assert r.value == 30.0 and r.mad == 0.0 and r.samples > 10
+    g.close()
+
+
 def test_probe_refusals_outside_the_box_and_while_busy() -> None:
     g, op = probe_graph()
     probe = op.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=60)
