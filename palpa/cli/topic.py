@@ -83,6 +83,8 @@ def run_list(args: argparse.Namespace) -> int:
             entry = topics.setdefault(topic, {"type": tname, "pub": [], "sub": []})
             entry["pub"].append(hb.node + (" (direct)" if topic in hb.direct else ""))
         for topic, tname in hb.subscribes.items():
+            if topic.startswith("_palpa/"):  # runtime traffic (heartbeats, parameter services): palpa node list -v
+                continue
             entry = topics.setdefault(topic, {"type": tname, "pub": [], "sub": []})
             entry["sub"].append(hb.node)
     if not topics:
