@@ -54,6 +54,10 @@ class ScanControl:
         node = self.node
         if node.state not in ("idle", "done"):
             raise RequestRefused(f"the scanner is {node.state}, not idle (abort first, or wait)")
+        p = node.params
+        last = node.last_probe_ns
+        if p.watch_topic and (last is None or (node.clock.now_ns() - last) / 1e9 > p.watchdog_s):
+            raise RequestRefused(f"no fresh probe data on {p.watch_topic}: is the probe's reader running?")
         if not (req.length_mm > 0 and req.radius_mm > 0):
             raise palpa.ParamError(f"length_mm and radius_mm must be > 0, got {req.length_mm}, {req.radius_mm}")
         try:

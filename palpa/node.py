@@ -48,7 +48,8 @@ from palpa.runtime_msgs import (
     LogRecord,
     TopicCounters,
 )
-from palpa.service import DEFAULT_TIMEOUT_S, Client, Responder, Service
+from palpa.service import DEFAULT_TIMEOUT_S, Responder, Service
+from palpa.service_client import Client
 from palpa.transport import Transport, TransportOptions, ZmqTransport
 from palpa.wire import (
     Header,
@@ -169,13 +170,10 @@ class Node:
     def service(
         self, name: str, request_type: type[Q], response_type: type[R], handler: Callable[[Q], R | Responder[R]]
     ) -> Service[Q, R]:
-        """Serve ``name``: ``handler(request)`` returns the response (or ``srv.defer()``'s responder, to answer
-        later); raising :class:`palpa.service.RequestRefused` or :class:`palpa.ParamError` refuses the request.
-        See :mod:`palpa.service`."""
-        srv = Service(self, name, request_type, response_type, handler)
-        if srv.name in self._services:
-            raise ValueError(f"node {self.name!r} already serves {srv.name!r}")
-        self._services[srv.name] = srv
+        """Serve ``name`` with ``handler(request) -> response`` (deferred answers, refusals: :mod:`palpa.service`)."""
+        if self.resolve(name) in self._services:
+            raise ValueError(f"node {self.name!r} already serves {self.resolve(name)!r}")
+        srv = self._services[self.resolve(name)] = Service(self, name, request_type, response_type, handler)
         return srv
 
     def client(
@@ -366,10 +364,8 @@ class Node:
                     # skip missed periods rather than firing a burst after a stall
                     t.due_ns += t.period_ns * max(1, (now - t.due_ns) // t.period_ns + 1)
                 t.running = True
-                try:
-                    self._call(t.callback)
-                finally:
-                    t.running = False
+                self._call(t.callback)  # never raises
+                t.running = False
 
     def _call(self, fn: Callable[..., object], *args: object) -> None:
         self._depth += 1

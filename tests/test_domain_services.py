@@ -26,7 +26,8 @@ from nodes.map_aggregator import MapAggregator
 from nodes.pressure_controller import PressureController
 from nodes.robot_scanner import RobotScanner
 from nodes.stiffness_estimator import StiffnessEstimator
-from palpa.service import BadRequestError, Future, RequestRefused
+from palpa.service import BadRequestError, RequestRefused
+from palpa.service_client import Future
 from palpa.testing import GraphHarness, NodeHarness
 
 PHANTOM = "phantoms/airfloat_tumours.yaml"
@@ -47,7 +48,9 @@ def probe_graph(phantom: str = PHANTOM, kpa: float = 36.0, z: float = 5.0) -> tu
     g.add(StiffnessEstimator, {"phantom": phantom})
     g.add(RobotScanner, {"autostart": False, "home_mm": [28.0, 28.0, 40.0], "watchdog_s": 0.5,
                          "speed_mm_s": 20.0, "contact_z_mm": z})
-    return g, g.add(palpa.Node, name="operator")
+    op = g.add(palpa.Node, name="operator")
+    g.advance(0.1)  # the probe's reader has heard a pose and sends heights
+    return g, op
 
 
 @pytest.mark.parametrize(("phantom", "kpa", "z", "x", "y"), [
@@ -100,6 +103,14 @@ def test_probe_takes_the_estimates_near_the_point_only() -> None:
 
 
 def test_probe_refusals_outside_the_box_and_while_busy() -> None:
+    g = GraphHarness()
+    g.add(RobotScanner, {"autostart": False, "home_mm": [28.0, 28.0, 40.0]})
+    probe = g.add(palpa.Node, name="early").client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=60)
+    early = probe.call_async(ProbeAt(x_mm=30.0, y_mm=30.0))
+    g.spin()
+    with pytest.raises(RequestRefused, match="no fresh probe data on probe/heights"):
+        early.result()
+    g.close()
     g, op = probe_graph()
     probe = op.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=60)
     bad = probe.call_async(ProbeAt(x_mm=200.0, y_mm=30.0))

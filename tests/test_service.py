@@ -3,8 +3,6 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import msgspec
 import pytest
 
@@ -12,7 +10,6 @@ import palpa
 from palpa.node import RawMessage
 from palpa.service import (
     BadRequestError,
-    Future,
     HandlerError,
     NoServerError,
     RequestRefused,
@@ -22,6 +19,7 @@ from palpa.service import (
     reply_topic,
     request_topic,
 )
+from palpa.service_client import Future
 from palpa.testing import GraphHarness, MemoryBus
 from palpa.wire import Header
 

@@ -125,6 +125,14 @@ def test_service_call_probe_at_on_a_simulated_graph(procs: ProcessGroup, tmp_pat
     bus = f"ipc://{short_ipc_base()}"
     procs.start(palpa_cmd("launch", "launch/probe_sim.yaml", "--bus-address", bus, "--run-dir",
                           str(tmp_path / "run"), "--no-progress"), cwd=str(REPO))
+    names = ("clock", "pressure", "fibre", "estimator", "map", "scanner")
+
+    def all_up() -> bool:  # as an operator would check before probing: every node of the graph is running
+        main(["node", "list", "--bus", bus, "--wait", "1.2"])
+        listed = capsys.readouterr().out
+        return all(f"{n}  pid" in listed for n in names)
+
+    wait_until(all_up, 90, "the six nodes of launch/probe_sim.yaml")
     code = main(["service", "call", "scanner/probe_at", "ProbeAt", "{x_mm: 30, y_mm: 36}", "--bus", bus,
                  "--wait", "60", "--timeout", "60"])
     out = capsys.readouterr()

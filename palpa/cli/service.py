@@ -9,13 +9,13 @@ from typing import Any
 import msgspec
 import yaml
 
-from palpa.cli.common import add_bus_arg, import_message_modules
+from palpa.cli.common import add_bus_arg, message_from_yaml
 from palpa.cli.topic import _tool_node, collect_heartbeats
 from palpa.errors import PalpaError
 from palpa.message import Message, lookup
 from palpa.node import Node
 from palpa.params_runtime import ParamGet  # noqa: F401  (registers the parameter messages for `call`)
-from palpa.service import discover
+from palpa.service_client import discover
 
 __all__ = ["call_service", "register"]
 
@@ -64,16 +64,7 @@ def call_service(node: Node, name: str, request: Message, *, wait_s: float, time
 
 
 def run_call(args: argparse.Namespace) -> int:
-    import_message_modules()
-    cls = lookup(args.type)
-    try:
-        fields = yaml.safe_load(args.data)
-    except yaml.YAMLError as exc:
-        raise PalpaError(f"request is not valid YAML: {exc}") from None
-    try:
-        request = msgspec.convert(fields or {}, cls)
-    except msgspec.ValidationError as exc:
-        raise PalpaError(f"{args.type}: {exc}") from None
+    request = message_from_yaml(args.type, args.data, "request")
     with _tool_node(args, "service_call") as node:
         response = call_service(node, args.name, request, wait_s=args.wait, timeout_s=args.timeout)
     print(f"--- {args.name} -> {response.type_name}")

@@ -12,7 +12,7 @@ from typing import Any
 import msgspec
 import yaml
 
-from palpa.cli.common import add_bus_arg, bus_address, import_message_modules
+from palpa.cli.common import add_bus_arg, bus_address, import_message_modules, message_from_yaml
 from palpa.errors import PalpaError, RegistryError
 from palpa.message import lookup
 from palpa.node import Node, RawMessage
@@ -171,22 +171,9 @@ def hz_line(stamps: list[int], stats: TopicStats) -> str:
 
 
 def run_pub(args: argparse.Namespace) -> int:
-    import_message_modules()
-    cls = lookup(args.type)
-    try:
-        fields = yaml.safe_load(args.data)
-    except yaml.YAMLError as exc:
-        raise PalpaError(f"data is not valid YAML: {exc}") from None
-    if fields is None:
-        fields = {}
-    if "stamp_ns" in {f.name for f in msgspec.structs.fields(cls)} and "stamp_ns" not in fields:
-        fields["stamp_ns"] = time.time_ns()
-    try:
-        msg = msgspec.convert(fields, cls)
-    except msgspec.ValidationError as exc:
-        raise PalpaError(f"{args.type}: {exc}") from None
+    msg = message_from_yaml(args.type, args.data, "data", stamp=True)
     with _tool_node(args, "pub") as node:
-        pub = node.publisher(args.topic, cls, latched=args.latched)
+        pub = node.publisher(args.topic, type(msg), latched=args.latched)
         # let the PUB socket connect before the first message (the bus drops sends to no one)
         deadline = time.monotonic() + 0.3
         while time.monotonic() < deadline:
