@@ -205,3 +205,28 @@ def test_tare_and_save_map_now(tmp_path: Path) -> None:
                                                                               "map.png"]
     assert all(Path(p).stat().st_size > 0 for p in out.paths)
     g.close()
+
+
+def test_tare_over_the_serial_driver_zeroes_the_heights() -> None:
+    """probe/tare on the real serial driver against the DAQ emulator ($ZERO): the current pose then reads the
+    calibration's zero heights (0 mm), where it read 1.5/1.5/1.5/3.5 mm before."""
+    from test_probe_nodes_serial import CAL, run_until
+
+    from emulators.fibre_daq import FibreDaqEmulator, source_from_heights
+    from nodes.drivers.fibre import load_calibration
+
+    cal = load_calibration(CAL)
+    with FibreDaqEmulator(source_from_heights(cal, lambda t: (1.5, 1.5, 1.5, 3.5)), rate_hz=200) as emu:
+        h = NodeHarness(FibreReader, {"driver": "serial", "port": emu.port, "calibration": CAL, "rate_hz": 200})
+        try:
+            run_until(h, lambda: len(h.published("probe/heights")) >= 20, 10, "first samples")
+            assert h.published("probe/heights")[-1].h_mm[3] == pytest.approx(3.5, abs=0.05)
+            tare = h.add(palpa.Node, name="operator").client("probe/tare", Trigger, TriggerResult).call_async(
+                Trigger())
+            h.spin()
+            assert tare.result().message == "tared"
+            n = len(h.published("probe/heights"))
+            run_until(h, lambda: len(h.published("probe/heights")) > n + 10, 10, "samples after the tare")
+            assert h.published("probe/heights")[-1].h_mm == pytest.approx((0.0, 0.0, 0.0, 0.0), abs=0.05)
+        finally:
+            h.close()
