@@ -131,8 +131,9 @@ class ScanControl:
     # -- pause, resume, abort --------------------------------------------------------------------
     def on_pause(self, req: Trigger) -> TriggerResult:
         node = self.node
-        if node.state not in MOVING:
-            raise RequestRefused(f"nothing to pause: the scanner is {node.state}")
+        if node.state not in MOVING or self.settle_until_ns is not None:
+            raise RequestRefused(f"nothing to pause: the scanner is {node.state}"
+                                 + (" (the arm is back up, the result is coming)" if self.settle_until_ns else ""))
         self.paused_from = node.state
         node.pause()
         return TriggerResult(message=f"paused ({self.paused_from})", state=node.state)
