@@ -39,7 +39,7 @@ from palpa.wire import Header
 if TYPE_CHECKING:
     from palpa.node import Node
 
-__all__ = ["Client", "Future", "discover"]
+__all__ = ["Client", "Future", "discover", "set_wait_pump"]
 
 Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
@@ -52,6 +52,19 @@ _wait_depth: weakref.WeakKeyDictionary[Node, int] = weakref.WeakKeyDictionary()
 # what each node has heard of servers: a second client of a service in one node is not replayed the cached
 # announcement (the node's receiver drops what it has already delivered), so it starts from here
 _directory: weakref.WeakKeyDictionary[Node, dict[str, ServiceInfo]] = weakref.WeakKeyDictionary()
+_pumps: weakref.WeakKeyDictionary[Node, Callable[[], None]] = weakref.WeakKeyDictionary()
+
+
+def set_wait_pump(node: Node, pump: Callable[[], None]) -> None:
+    """For an executor that runs several nodes in one thread (in-process composition): while ``node`` waits in a
+    blocking call, also call ``pump()``, which must spin the executor's other nodes once; otherwise the node would
+    wait for a server it keeps from running. (:class:`palpa.testing.GraphHarness` does this through its bus.)"""
+    _pumps[node] = pump
+
+
+def _pump_of(node: Node) -> Callable[[], None] | None:
+    pump = _pumps.get(node)
+    return pump if pump is not None else getattr(node._transport, "pump", None)
 
 
 class Future(Generic[R]):
@@ -91,7 +104,7 @@ class Future(Generic[R]):
             raise ServiceError(f"{depth} blocking service calls are already waiting in node {node.name!r}; "
                                "use call_async from callbacks")
         _wait_depth[node] = depth + 1
-        pump = getattr(node._transport, "pump", None)
+        pump = _pump_of(node)
         try:
             while not self._done:
                 now = time.monotonic()
@@ -162,7 +175,7 @@ class Client(Generic[Q, R]):
     def wait_for_service(self, timeout_s: float = DEFAULT_TIMEOUT_S) -> bool:
         """Spin the node until :meth:`ready` or ``timeout_s`` passes; returns :meth:`ready`."""
         deadline = time.monotonic() + timeout_s
-        pump = getattr(self.node._transport, "pump", None)
+        pump = _pump_of(self.node)
         while not self.ready() and time.monotonic() < deadline and not self.node.is_shutdown:
             self.node.spin_once(min(0.01, max(0.0, deadline - time.monotonic())))
             if pump is not None:

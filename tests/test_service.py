@@ -19,7 +19,7 @@ from palpa.service import (
     reply_topic,
     request_topic,
 )
-from palpa.service_client import Future
+from palpa.service_client import Future, set_wait_pump
 from palpa.testing import GraphHarness, MemoryBus
 from palpa.wire import Header
 
@@ -207,3 +207,20 @@ def test_a_timer_is_not_reentered_while_it_waits() -> None:
     with Slow(name="slow", transport=MemoryBus().transport(), heartbeat_s=0) as node:
         node.spin_once(0)
         assert calls == [1] and len(others) >= 5
+
+
+def test_an_executor_of_several_nodes_in_one_thread_lends_its_loop_to_a_waiting_call() -> None:
+    """Two nodes spun by one loop (in-process composition): the caller's wait spins the server through the pump
+    the executor registered; without one the call could only time out."""
+    bus = MemoryBus()  # no harness: nothing else would spin the server
+    server = Adder(name="adder", transport=bus.transport(), heartbeat_s=0)
+    caller = palpa.Node(name="caller", transport=bus.transport(), heartbeat_s=0)
+    add = caller.client("math/add", AddRequest, AddReply, timeout_s=0.2)
+    server.spin_once(0)
+    caller.spin_once(0)
+    with pytest.raises(ServiceTimeout):
+        add.call(AddRequest(a=1, b=1))
+    set_wait_pump(caller, lambda: server.spin_once(0))
+    assert add.call(AddRequest(a=1, b=1)).total == 2.0
+    server.close(0)
+    caller.close(0)
