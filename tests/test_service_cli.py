@@ -83,6 +83,9 @@ def test_param_list_dump_and_service_list(talker_graph: str, capsys: pytest.Capt
     dumped = yaml.safe_load(out.read_text())
     assert dumped == {"rate_hz": 10.0, "text": "hello", "count": 0}
     convert_params(Talker.Params, dumped, where="dump")  # what a launch file's params: gets validated with
+    out.write_text(out.read_text().replace("text: hello", "text: bonjour"))
+    assert main(["param", "load", "talker", str(out), "--bus", bus]) == 0
+    assert "text = 'bonjour'" in capsys.readouterr().out
     assert main(["service", "list", "-a", "--bus", bus, "--wait", "1.5"]) == 0
     listed = capsys.readouterr().out
     assert "_palpa/param/talker/set  [ParamSet -> ParamValues]  server: talker" in listed
@@ -134,10 +137,12 @@ def test_service_call_probe_at_on_a_simulated_graph(procs: ProcessGroup, tmp_pat
 
     wait_until(all_up, 90, "the six nodes of launch/probe_sim.yaml")
     code = main(["service", "call", "scanner/probe_at", "ProbeAt", "{x_mm: 30, y_mm: 36}", "--bus", bus,
-                 "--wait", "60", "--timeout", "60"])
+                 "--wait", "60", "--timeout", "60", "--feedback", "robot/scan_status"])
     out = capsys.readouterr()
     assert code == 0, out.err
-    header, _, body = out.out.partition("\n")
+    progress, _, reply = out.out.partition("--- ")
+    assert "[robot/scan_status] {" in progress and "state: probing" in progress  # the probe's progress, live
+    header, _, body = ("--- " + reply).partition("\n")
     assert header == "--- scanner/probe_at -> ProbeResult"
     result = yaml.safe_load(body)
     truth = float(load_phantom(REPO / "phantoms" / "airfloat_tumours.yaml").youngs_modulus(30.0, 36.0))

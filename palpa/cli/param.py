@@ -1,4 +1,4 @@
-"""``palpa param list|get|set|dump NODE``: a running node's parameters, through its parameter services."""
+"""``palpa param list|get|set|dump|load NODE``: a running node's parameters, through its parameter services."""
 
 from __future__ import annotations
 
@@ -34,7 +34,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     dump = verbs.add_parser("dump", help="all parameters as YAML a launch file's params: accepts")
     dump.add_argument("node")
     dump.add_argument("-o", "--output", type=Path, help="write to this file instead of stdout")
-    for verb, fn in ((ls, run_list), (get, run_get), (set_, run_set), (dump, run_dump)):
+    load = verbs.add_parser("load", help="set every parameter a YAML mapping gives (what dump writes), at once")
+    load.add_argument("node")
+    load.add_argument("file", type=Path)
+    for verb, fn in ((ls, run_list), (get, run_get), (set_, run_set), (dump, run_dump), (load, run_load)):
         verb.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the node")
         add_bus_arg(verb)
         verb.set_defaults(func=fn)
@@ -85,4 +88,16 @@ def run_dump(args: argparse.Namespace) -> int:
         args.output.write_text(text)
     else:
         sys.stdout.write(text)
+    return 0
+
+
+def run_load(args: argparse.Namespace) -> int:
+    try:
+        values = yaml.safe_load(args.file.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise PalpaError(f"{args.file}: {exc}") from None
+    if not isinstance(values, dict):
+        raise PalpaError(f"{args.file}: expected a mapping of parameter names to values")
+    got = _ask(args, "set", ParamSet(values=values))
+    print(f"{args.node}: " + ", ".join(f"{k} = {got.values[k]!r}" for k in values))
     return 0

@@ -13,7 +13,7 @@ from palpa.cli.common import add_bus_arg, message_from_yaml
 from palpa.cli.topic import _tool_node, collect_heartbeats
 from palpa.errors import PalpaError
 from palpa.message import Message, lookup
-from palpa.node import Node
+from palpa.node import Node, RawMessage
 from palpa.params_runtime import ParamGet  # noqa: F401  (registers the parameter messages for `call`)
 from palpa.service_client import discover
 
@@ -36,6 +36,9 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     call.add_argument("data", nargs="?", default="{}", help="request fields as YAML, e.g. '{x_mm: 30, y_mm: 30}'")
     call.add_argument("--timeout", type=float, default=10.0, help="seconds to wait for the reply")
     call.add_argument("--wait", type=float, default=5.0, help="seconds to wait for the server to be found")
+    call.add_argument("--feedback", metavar="TOPIC",
+                      help="while waiting, print each message on TOPIC (a long call's progress, e.g. "
+                           "robot/scan_status for scanner/probe_at)")
     add_bus_arg(call)
     call.set_defaults(func=run_call)
 
@@ -66,7 +69,15 @@ def call_service(node: Node, name: str, request: Message, *, wait_s: float, time
 def run_call(args: argparse.Namespace) -> int:
     request = message_from_yaml(args.type, args.data, "request")
     with _tool_node(args, "service_call") as node:
+        if args.feedback:
+            node.subscribe_raw(args.feedback, lambda raw: _print_feedback(args.feedback, raw))
         response = call_service(node, args.name, request, wait_s=args.wait, timeout_s=args.timeout)
     print(f"--- {args.name} -> {response.type_name}")
     print(yaml.safe_dump(msgspec.to_builtins(response), sort_keys=False, default_flow_style=None, width=120).rstrip())
     return 0
+
+
+def _print_feedback(topic: str, raw: RawMessage) -> None:
+    if raw.topic == topic and not raw.from_cache:
+        body = msgspec.to_builtins(msgspec.msgpack.decode(raw.payload))
+        print(f"[{topic}] " + yaml.safe_dump(body, default_flow_style=True, width=1_000_000).strip(), flush=True)
