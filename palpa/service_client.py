@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import msgspec
 
-from palpa.endpoints import RawMessage
+from palpa.endpoints import RawMessage, Timer
 from palpa.message import Message
 from palpa.service import (
     _FAULTS,
@@ -118,7 +118,7 @@ class Future(Generic[R]):
         finally:
             _wait_depth[node] = depth
         if not self._done:
-            raise ServiceTimeout(f"service {self._client.name!r}: no reply within {timeout_s:g} s of waiting")
+            raise ServiceTimeout(f"service {self._client.name!r}: no reply within {timeout_s} s of waiting")
         if self._error is not None:
             raise self._error
         assert self._value is not None
@@ -149,7 +149,7 @@ class Client(Generic[Q, R]):
         self._seq = 0
         self._pending: dict[int, Future[R]] = {}
         self._unsent: dict[int, bytes] = {}
-        self._timer: Any = None
+        self._timer: Timer | None = None
         self._req_topic = request_topic(self.name)
         self._req_topic_b = self._req_topic.encode()
         self._reply_topic = reply_topic(self.name, self.id)
