@@ -36,6 +36,7 @@ from palpa.endpoints import DEFAULT_BATCH, Publisher, RawMessage, Subscription, 
 from palpa.message import Message
 from palpa.params import Params as ParamsBase
 from palpa.params import convert_params
+from palpa.params_runtime import ParamServer
 from palpa.receive import Receiver
 from palpa.runtime_msgs import (
     CLOCK_ACK_TOPIC,
@@ -149,8 +150,6 @@ class Node:
         if heartbeat_s > 0:
             self.timer(heartbeat_s, self._heartbeat, first_in_s=0.0)
         if heartbeat_s > 0 if serve_params is None else serve_params:
-            from palpa.params_runtime import ParamServer
-
             ParamServer(self)
         self.setup()
 
