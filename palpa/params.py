@@ -4,13 +4,15 @@ command line or a launch file and are validated (types, unknown names) before th
 from __future__ import annotations
 
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any, TypeVar
 
 import msgspec
+import yaml
 
 from palpa.errors import ParamError
 
-__all__ = ["Params", "convert_params", "describe_params"]
+__all__ = ["Params", "convert_params", "describe_params", "read_params_file"]
 
 P = TypeVar("P", bound="Params")
 
@@ -36,6 +38,18 @@ def convert_params(cls: type[P], values: Mapping[str, Any] | P | None, *, where:
             names = ", ".join(describe_params(cls)) or "none"
             text = f"{text} (declared parameters: {names})"
         raise ParamError(f"{where}: {text}") from None
+
+
+def read_params_file(path: Path, what: str) -> dict[str, Any]:
+    """A YAML mapping of parameter names to values (``--params-file``, ``palpa param load``); raises
+    :class:`ParamError` starting with ``what`` when the file cannot be read or is not a mapping."""
+    try:
+        loaded = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ParamError(f"{what}: {exc}") from None
+    if not isinstance(loaded, dict):
+        raise ParamError(f"{what}: expected a mapping of parameters")
+    return loaded
 
 
 def describe_params(cls: type[Params]) -> dict[str, str]:

@@ -14,6 +14,7 @@ from palpa.cli.service import call_service
 from palpa.cli.topic import _tool_node
 from palpa.errors import PalpaError
 from palpa.message import Message
+from palpa.params import read_params_file
 from palpa.params_runtime import ParamGet, ParamSet, ParamValues, param_service
 
 __all__ = ["register"]
@@ -92,12 +93,7 @@ def run_dump(args: argparse.Namespace) -> int:
 
 
 def run_load(args: argparse.Namespace) -> int:
-    try:
-        values = yaml.safe_load(args.file.read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise PalpaError(f"{args.file}: {exc}") from None
-    if not isinstance(values, dict):
-        raise PalpaError(f"{args.file}: expected a mapping of parameter names to values")
+    values = read_params_file(args.file, str(args.file))
     got = _ask(args, "set", ParamSet(values=values))
     print(f"{args.node}: " + ", ".join(f"{k} = {got.values[k]!r}" for k in values))
     return 0
