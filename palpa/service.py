@@ -147,7 +147,7 @@ class Responder(Generic[R]):
 
     def fail(self, kind: str, message: str) -> None:
         """Answer with a fault of ``kind`` (``bad_request``, ``refused`` or ``handler_error``)."""
-        self._service.faults += 1
+        self._service.faults += not self.done
         self._send(ServiceFault.type_name, _encoder.encode(ServiceFault(kind=kind, message=message)))
 
     def _send(self, type_name: str, payload: bytes) -> None:
@@ -217,6 +217,8 @@ class Service(Generic[Q, R]):
         except (msgspec.ValidationError, msgspec.DecodeError) as exc:
             responder.fail("bad_request", f"{self.request_type.type_name}: {exc}")
             return
+        # a handler waiting on a blocking call may see this service handle another request meanwhile
+        outer = self._current, self._deferred
         self._current, self._deferred = responder, False
         try:
             result = self.handler(request)
@@ -236,4 +238,4 @@ class Service(Generic[Q, R]):
                 responder.fail("handler_error", f"the handler returned {type(result).__name__}, "
                                                 f"not {self.response_type.type_name}")
         finally:
-            self._current = None
+            self._current, self._deferred = outer

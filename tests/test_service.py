@@ -224,3 +224,35 @@ def test_an_executor_of_several_nodes_in_one_thread_lends_its_loop_to_a_waiting_
     assert add.call(AddRequest(a=1, b=1)).total == 2.0
     server.close(0)
     caller.close(0)
+
+
+def test_a_handler_waiting_on_a_call_can_defer_after_a_nested_request_of_its_own_service() -> None:
+    """Request 1's handler calls another service, which calls this service again (request 2, answered at once);
+    back in request 1's handler, defer() still answers request 1."""
+
+    class Relay(palpa.Node):
+        def setup(self) -> None:
+            self.held: list[Responder[AddReply]] = []
+            self.srv = self.service("relay/add", AddRequest, AddReply, self.on_add)
+            self.peer = self.client("peer/add", AddRequest, AddReply, timeout_s=2.0)
+
+        def on_add(self, r: AddRequest) -> AddReply | Responder[AddReply]:
+            if r.a == 0:
+                return AddReply(total=r.b)
+            inner = self.peer.call(AddRequest(a=0, b=r.b))  # the peer calls relay/add(a=0) meanwhile
+            responder = self.srv.defer()
+            self.held.append(responder)
+            responder.reply(AddReply(total=r.a + inner.total))
+            return responder
+
+    class Peer(palpa.Node):
+        def setup(self) -> None:
+            self.relay = self.client("relay/add", AddRequest, AddReply, timeout_s=2.0)
+            self.service("peer/add", AddRequest, AddReply, lambda r: self.relay.call(r))
+
+    with GraphHarness([(Relay, None), (Peer, None)]) as g:
+        c = g.add(palpa.Node, name="client").client("relay/add", AddRequest, AddReply, timeout_s=2.0)
+        fut = c.call_async(AddRequest(a=5, b=2))
+        g.spin()
+        assert fut.result().total == 7.0
+        assert g.nodes[0].handler_errors == 0
