@@ -17,6 +17,15 @@ from messages.probe import (
     ProbeHeights,
 )
 from messages.robot import EStop, PlanWaypoint, RobotPose, ScanPlan, ScanStatus
+from messages.services import (
+    MapSaved,
+    PressureAck,
+    ProbeAt,
+    ProbeResult,
+    SetPressure,
+    Trigger,
+    TriggerResult,
+)
 from messages.std import Text
 from messages.stiffness import (
     DetectedInclusion,
@@ -34,18 +43,25 @@ __all__ = [
     "EStop",
     "Heartbeat",
     "ImageInfo",
-    "IndenterDisplacements",
     "Inclusions",
+    "IndenterDisplacements",
     "LogRecord",
+    "MapSaved",
     "PlanWaypoint",
+    "PressureAck",
     "PressureCommand",
     "PressureState",
+    "ProbeAt",
     "ProbeHeights",
+    "ProbeResult",
     "RobotPose",
     "ScanPlan",
     "ScanStatus",
+    "SetPressure",
     "StiffnessFit",
     "StiffnessMap",
     "StiffnessSample",
     "Text",
+    "Trigger",
+    "TriggerResult",
 ]
