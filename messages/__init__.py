@@ -4,10 +4,13 @@ Every type is a frozen, keyword-only ``palpa.Message`` encoded as a msgpack map;
 by the name carried in the envelope header. Stamps (``stamp_ns``) are host wall-clock ns since the Unix epoch,
 taken when the measurement was made (not when it was published).
 
+``messages.foxglove`` mirrors Foxglove's own schemas (metres, not mm) for the live views (nodes/foxglove_views.py).
+
 Evolution policy: add fields only with defaults; never reuse, rename or retype a field; a new meaning gets a new
 type name. See docs/wire.md.
 """
 
+from messages.foxglove import FrameTransform, Grid, ImageAnnotations, RawImage, SceneUpdate
 from messages.probe import (
     DeviceStatus,
     ImageInfo,
@@ -32,7 +35,10 @@ __all__ = [
     "DetectedInclusion",
     "DeviceStatus",
     "EStop",
+    "FrameTransform",
+    "Grid",
     "Heartbeat",
+    "ImageAnnotations",
     "ImageInfo",
     "IndenterDisplacements",
     "Inclusions",
@@ -41,8 +47,10 @@ __all__ = [
     "PressureCommand",
     "PressureState",
     "ProbeHeights",
+    "RawImage",
     "RobotPose",
     "ScanPlan",
+    "SceneUpdate",
     "ScanStatus",
     "StiffnessFit",
     "StiffnessMap",

@@ -25,9 +25,10 @@ from typing import Any
 
 import msgspec
 
+from palpa.address import is_loopback_host
 from palpa.errors import BusError, LaunchError, ParamError
-from palpa.launch.plan import RECORDER_NAME, RECORDER_TARGET, LaunchPlan, NodeSpec
-from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, RecordDecl
+from palpa.launch.plan import RECORDER_NAME, RECORDER_TARGET, VIZ_NAME, LaunchPlan, NodeSpec
+from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, RecordDecl, VizDecl
 from palpa.launch.source import Mark, Path_, Source, display_path
 from palpa.launch.subst import substitute
 from palpa.launch.validate import convert, did_you_mean, kind, lower_first
@@ -93,6 +94,9 @@ def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
     given = _Given(dict(overrides or {}), {k: None for k in overrides or {}}, "the command line")
     col = _Collected(plan)
     _load_file(path.resolve(), given, "", col, top=True)
+    viz = plan.viz_node()
+    if viz is not None:
+        plan.nodes.insert(0, viz)  # first, so that it hears every node's first messages
     _validate_nodes(col)
     return plan
 
@@ -116,7 +120,7 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
     subst = {k: substitute(src, v, (k,), args, col.plan.run_dir) for k, v in data.items()}
     decl = convert(src, subst, LaunchFile)
 
-    for key in ("bus", "record", "progress"):
+    for key in ("bus", "record", "progress", "viz"):
         if not top and getattr(decl, key) is not None:
             raise src.error((key,), f"only the top-level launch file may set '{key}' (this file is included)",
                             key=True)
@@ -132,6 +136,7 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
         if decl.progress is not None and not decl.progress.topic:
             raise src.error(("progress", "topic"), "progress topic must not be empty")
         _record(src, decl, col.plan)
+        _viz(src, decl, col.plan)
     for i, entry in enumerate(decl.python_path):
         p = Path(entry)
         p = (p if p.is_absolute() else path.parent / p).resolve()
@@ -142,6 +147,8 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
     for i, inc in enumerate(decl.include):
         _include(src, i, inc, namespace, col)
     for i, nd in enumerate(decl.nodes):
+        if not nd.if_:
+            continue
         spec = _node_spec(src, i, nd, namespace, col)
         col.plan.nodes.append(spec)
         col.node_sources.append((src, ("nodes", i), spec))
@@ -159,6 +166,22 @@ def _record(src: Source, decl: LaunchFile, plan: LaunchPlan) -> None:
                 re.compile(rx)
             except re.error as exc:
                 raise src.error(("record", key, i), f"not a regular expression: {exc}") from None
+
+
+def _viz(src: Source, decl: LaunchFile, plan: LaunchPlan) -> None:
+    viz = VizDecl() if decl.viz is True else decl.viz
+    if viz is None or viz is False or not viz.enabled:
+        return
+    if not viz.allow_remote and not is_loopback_host(viz.host):
+        raise src.error(("viz", "host"), f"viz host {viz.host!r} is beyond loopback: the Foxglove protocol has "
+                                         "no authentication; set allow_remote: true to mean it")
+    for key in ("topics", "exclude"):
+        for i, rx in enumerate(getattr(viz, key)):
+            try:
+                re.compile(rx)
+            except re.error as exc:
+                raise src.error(("viz", key, i), f"not a regular expression: {exc}") from None
+    plan.viz = viz
 
 
 def _resolve_args(src: Source, raw: Any, given: _Given, run_dir: Path) -> dict[str, Any]:
@@ -216,6 +239,8 @@ def _node_spec(src: Source, i: int, nd: NodeDecl, namespace: str, col: _Collecte
                                           "launcher's own)")
     if nd.name == RECORDER_NAME and col.plan.record is not None:
         raise src.error((*where, "name"), "node name 'recorder' is taken by the record section's recorder")
+    if nd.name == VIZ_NAME and col.plan.viz is not None:
+        raise src.error((*where, "name"), "node name 'viz' is taken by the viz section's Foxglove bridge")
     col.names[nd.name] = str(src.mark(where))
     for key, value in nd.remap.items():
         if not key or not value:
