@@ -199,7 +199,7 @@ def rotation_vector_quaternion(rx: float, ry: float, rz: float) -> Quaternion:
     angle = float(np.sqrt(rx * rx + ry * ry + rz * rz))
     if angle < 1e-12:
         return Quaternion()
-    s = np.sin(angle / 2) / angle
+    s = float(np.sin(angle / 2)) / angle
     return Quaternion(x=rx * s, y=ry * s, z=rz * s, w=float(np.cos(angle / 2)))
 
 

@@ -41,6 +41,7 @@ class FoxgloveClient:
 
     def open(self, timeout: float = 5.0) -> FoxgloveClient:
         self.ws = connect(self.url, subprotocols=[SUBPROTOCOL], open_timeout=timeout)  # type: ignore[list-item]
+        self.ws.__enter__()  # websockets wants the connection used as a context manager; close() ends it
         return self
 
     def close_abruptly(self) -> None:
