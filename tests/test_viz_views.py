@@ -107,6 +107,6 @@ def test_launch_viz_section_and_node_conditions(tmp_path: Path) -> None:
     viz = load_launch(f, {}, run_dir=tmp_path / "run").nodes[0]
     assert (viz.target, viz.params["port"], viz.params["client_publish"]) == (
         "palpa.viz.bridge:Bridge", 0, ["robot/estop"])
-    with pytest.raises(LaunchError, match=r"g\.yaml:3:\d+: viz host '0\.0\.0\.0' is beyond loopback"):
+    with pytest.raises(LaunchError, match=r"g\.yaml:4:\d+: viz host '0\.0\.0\.0' is beyond loopback"):
         plan_of(tmp_path, "{host: 0.0.0.0}")
     assert plan_of(tmp_path, "{host: 0.0.0.0, allow_remote: true}")[0] == "viz"
