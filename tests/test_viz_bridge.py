@@ -6,17 +6,19 @@ from __future__ import annotations
 import json
 import math
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import msgspec
 import pytest
+from conftest import palpa_cmd
 from foxglove_client import FoxgloveClient
-from procs import wait_until
+from procs import ProcessGroup, wait_until
 
 import messages  # noqa: F401
 from messages import EStop, Inclusions, ProbeHeights, RobotPose, ScanPlan, StiffnessMap
 from messages.robot import PlanWaypoint
 from nodes.foxglove_views import ScanViews
+from palpa.address import BusAddress
 from palpa.errors import ParamError
 from palpa.testing import GraphHarness
 from palpa.viz import SUBPROTOCOL, Bridge
@@ -180,3 +182,26 @@ def test_a_client_may_publish_the_estop_and_nothing_else(graph: tuple[GraphHarne
 def test_loopback_only_unless_asked() -> None:
     with pytest.raises(ParamError, match="allow_remote"):
         Bridge(params={"host": "0.0.0.0", "port": 0}, transport=GraphHarness().bus.transport())
+
+
+def test_palpa_viz_serves_a_running_graph_and_survives_a_vanished_client(
+        ipc_bus: BusAddress, procs: ProcessGroup, env_for: Callable[..., dict[str, str]]) -> None:
+    """The CLI as a user runs it, on a real bus beside a talker process."""
+    env = env_for(ipc_bus)
+    procs.start(palpa_cmd("run", "nodes.demo:Talker", "-p", "rate_hz=50"), env=env)
+    viz = procs.start(palpa_cmd("viz", "--port", "0", "chatter"), env=env)
+    line = viz.wait_for_output("palpa viz ready", timeout=30)
+    url = line.split("ready ", 1)[1].split()[0]
+    first = FoxgloveClient(url).open()
+    first.pump_until(lambda: first.channel("chatter") is not None, 10, "chatter advertised")
+    assert {c["topic"] for c in first.channels.values()} <= {"chatter", "_palpa/log", "_palpa/viz/stats"}
+    first.subscribe("chatter")
+    first.pump_until(lambda: len(first.of("chatter")) >= 3, 10, "chatter messages")
+    assert first.of("chatter")[-1].data["text"].startswith("hello")
+    first.close_abruptly()
+    second = FoxgloveClient(url).open()
+    second.pump_until(lambda: second.channel("chatter") is not None, 10, "chatter advertised again")
+    second.subscribe("chatter")
+    second.pump_until(lambda: len(second.of("chatter")) >= 3, 10, "chatter after the first client vanished")
+    second.close()
+    assert viz.stop(10) == 0, viz.output()
