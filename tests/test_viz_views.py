@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -110,3 +111,24 @@ def test_launch_viz_section_and_node_conditions(tmp_path: Path) -> None:
     with pytest.raises(LaunchError, match=r"g\.yaml:4:\d+: viz host '0\.0\.0\.0' is beyond loopback"):
         plan_of(tmp_path, "{host: 0.0.0.0}")
     assert plan_of(tmp_path, "{host: 0.0.0.0, allow_remote: true}")[0] == "viz"
+
+
+def test_the_shipped_layout_opens_panels_on_topics_that_exist() -> None:
+    layout = json.loads((Path(__file__).parent.parent / "docs" / "foxglove-layout.json").read_text())
+    ids: list[str] = []
+
+    def walk(node: object) -> None:
+        if isinstance(node, str):
+            ids.append(node)
+        elif isinstance(node, dict):
+            walk(node["first"])
+            walk(node["second"])
+
+    walk(layout["layout"])
+    assert sorted(ids) == sorted(layout["configById"])
+    with NodeHarness(ScanViews) as h:
+        views = {p.topic for p in h.node._pubs.values()}
+    three_d = layout["configById"]["3D!palpa-scan"]
+    assert set(three_d["topics"]) <= views and three_d["followTf"] == "phantom"
+    assert layout["configById"]["Image!palpa-map"]["imageMode"]["imageTopic"] in views
+    assert layout["configById"]["Publish!palpa-estop"]["topicName"] == "robot/estop"
