@@ -14,7 +14,8 @@ Runs ``palpa launch launch/scan_sim.yaml viz:=true viz_port:=0`` and, beside it:
 * the bridge's CPU time (utime + stime from /proc) over its wall time: the share of one core it used.
 
 Then the same scan without the bridge (unless --no-baseline): the map and the inclusions must be the same
-(the simulated sensors are noisy, so "the same" is within the run-to-run spread, printed). The last line is one
+(the simulated sensors are noisy, so "the same" is within the run-to-run spread: --spread measures it with a
+second scan without the bridge). The last line is one
 JSON object with every figure; the machine's load average is in it (this machine is shared).
 """
 
@@ -166,6 +167,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="a smaller raster (6 mm lines over 36 mm)")
     ap.add_argument("--no-baseline", action="store_true", help="skip the scan without the bridge")
+    ap.add_argument("--spread", action="store_true",
+                    help="also a second scan without the bridge: the run-to-run spread of the noisy simulation")
     ap.add_argument("--timeout", type=float, default=600)
     args = ap.parse_args()
     extra = QUICK if args.quick else []
@@ -180,6 +183,10 @@ def main() -> None:
             proc = launch(Path(tmp) / "base", extra)
             result["baseline_exit_code"] = proc.wait(args.timeout)
             result["unchanged"] = compare(Path(tmp) / "viz", Path(tmp) / "base")
+            if args.spread:
+                proc = launch(Path(tmp) / "base2", extra)
+                result["spread_exit_code"] = proc.wait(args.timeout)
+                result["spread_without_bridge"] = compare(Path(tmp) / "base2", Path(tmp) / "base")
     result["loadavg_before"] = load_before
     result["loadavg_after"] = os.getloadavg()
     result["cores"] = os.cpu_count()

@@ -51,18 +51,19 @@ def test_inclusions_are_labelled_discs_and_circles_on_the_image() -> None:
     with NodeHarness(ScanViews, {"image_width_px": 30}) as h:
         h.publish("map/stiffness", MAP)
         h.publish("map/inclusions", Inclusions(stamp_ns=1, unit="kPa", baseline=20.0, inclusions=[
-            DetectedInclusion(x_mm=12.0, y_mm=21.0, radius_mm=1.0, contrast=2.5)]))
+            DetectedInclusion(x_mm=12.0, y_mm=20.5, radius_mm=1.0, contrast=2.5)]))
         (scene,) = h.published("viz/inclusions", SceneUpdate)
         assert scene.deletions[0].type == 1  # the previous set goes
         (e,) = scene.entities
         (disc,) = e.cylinders
-        assert (disc.pose.position.x, disc.pose.position.y) == pytest.approx((0.012, 0.021))
+        assert (disc.pose.position.x, disc.pose.position.y) == pytest.approx((0.012, 0.0205))
         assert disc.size.x == pytest.approx(0.002)
         assert "x2.5" in e.texts[0].text
         notes = h.published("viz/map_annotations", ImageAnnotations)[-1]
         (circle,) = notes.circles
-        # x: 3 mm from the left edge (9 mm) = 1.5 cells; y: 2 mm below the top edge (23 mm) = 1 cell; 10 px a cell
-        assert (circle.position.x, circle.position.y, circle.diameter) == pytest.approx((15.0, 10.0, 10.0))
+        # x: 3 mm from the left edge (9 mm) = 1.5 cells; y: 2.5 mm below the top edge (23 mm) = 1.25 cells (the
+        # image's rows run down from max y); 10 px a cell
+        assert (circle.position.x, circle.position.y, circle.diameter) == pytest.approx((15.0, 12.5, 10.0))
 
 
 def test_the_plan_is_a_line_strip_and_the_probe_a_frame() -> None:
