@@ -39,8 +39,9 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 
-import messages  # noqa: E402, F401
 from foxglove_client import FoxgloveClient  # noqa: E402
+
+import messages  # noqa: E402, F401
 from messages import RobotPose, ScanStatus  # noqa: E402
 from palpa.node import Node  # noqa: E402
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat  # noqa: E402
@@ -124,7 +125,12 @@ def with_viz(run_dir: Path, args: list[str], timeout: float) -> dict[str, Any]:
     cpu = None
     if cpu_first and cpu_last and cpu_last[0] > cpu_first[0]:
         cpu = (cpu_last[1] - cpu_first[1]) / (cpu_last[0] - cpu_first[0])
+    stats = a.of("_palpa/viz/stats")
+    last = stats[-1].data if stats else {}
+    dropped = {t: v["dropped"] for t, v in last.get("topics", {}).items() if v["dropped"]}
     return {"exit_code": code, "pose_published": len(expected), "pose_received": received,
+            "bridge_dropped": dropped if stats else None, "bridge_sent": sum(
+                v["sent"] for v in last.get("topics", {}).values()) if stats else None,
             "pose_share": received / len(expected) if expected else None, "join": join,
             "bridge_cpu_share_of_one_core": cpu, "bridge_cpu_window_s": cpu_last[0] - cpu_first[0] if cpu_first
             and cpu_last else None, "client_a_messages": len(a.messages)}

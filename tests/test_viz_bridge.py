@@ -114,10 +114,10 @@ def test_a_full_queue_drops_and_counts_instead_of_blocking_the_bus(graph: tuple[
     release, busy = threading.Event(), threading.Event()
     send = server._send
 
-    def stuck(*args: object) -> None:  # the sender thread held up (a slow transcode, a GIL-starved thread)
-        busy.set()
+    def stuck(key: tuple[str, str], payload: bytes, stamp_ns: int) -> None:  # the sender thread held up
+        busy.set()  # (a slow transcode, a GIL-starved thread)
         release.wait(10)
-        send(*args)  # type: ignore[arg-type]
+        send(key, payload, stamp_ns)
 
     server._send = stuck  # type: ignore[method-assign]
     g.publish("robot/pose", RobotPose(stamp_ns=2, x_mm=0.0, y_mm=0.0, z_mm=0.0))
@@ -140,7 +140,7 @@ def test_a_stalled_client_and_an_abrupt_disconnect_leave_the_bridge_serving(
     g.publish("map/stiffness", MAP)
     stalled, gone, reader = client(bridge), client(bridge), client(bridge)
     for c in (stalled, gone, reader):
-        c.pump_until(lambda c=c: c.channel("map/stiffness") is not None, 5, "adverts")  # type: ignore[misc]
+        c.pump_until(lambda c=c: c.channel("map/stiffness") is not None, 5, "adverts")
         c.subscribe()
     wait_until(lambda: len(bridge.server.stats()["clients"]) == 3, 5)
     gone.close_abruptly()

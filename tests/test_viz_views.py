@@ -127,8 +127,9 @@ def test_the_shipped_layout_opens_panels_on_topics_that_exist() -> None:
 
     walk(layout["layout"])
     assert sorted(ids) == sorted(layout["configById"])
-    with NodeHarness(ScanViews) as h:
-        views = {p.topic for p in h.node._pubs.values()}
+    h = NodeHarness(ScanViews)
+    views = {p.topic for p in h.node._pubs.values()}
+    h.close()
     three_d = layout["configById"]["3D!palpa-scan"]
     assert set(three_d["topics"]) <= views and three_d["followTf"] == "phantom"
     assert layout["configById"]["Image!palpa-map"]["imageMode"]["imageTopic"] in views

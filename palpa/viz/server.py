@@ -48,7 +48,8 @@ class TopicStats:
     received: int = 0
     """Messages heard on the bus."""
     sent: int = 0
-    """Messages transcoded and handed to the SDK while at least one client was subscribed."""
+    """Messages transcoded and handed to the SDK while at least one client was subscribed (latched values re-sent
+    to late subscribers included)."""
     dropped: int = 0
     """Messages dropped because the hand-off queue was full (the sender thread fell behind)."""
     decode_errors: int = 0
@@ -179,18 +180,23 @@ class SdkServer:
             chan.stats.dropped += pending.dropped
         return chan
 
-    def _send(self, key: Key, payload: bytes, stamp_ns: int) -> None:
-        chan = self._channel(key)
-        chan.stats.received += 1
-        if not chan.clients:
-            return
+    @staticmethod
+    def _log(chan: _Channel, payload: bytes, stamp_ns: int) -> bool:
+        """Transcode msgpack -> JSON and hand it to the SDK; False (counted) for a payload that is not msgpack."""
         try:
             data = _json.encode(_msgpack.decode(payload))
         except (msgspec.DecodeError, msgspec.EncodeError, TypeError, ValueError):
             chan.stats.decode_errors += 1
-            return
+            return False
         chan.fox.log(data, log_time=stamp_ns)
         chan.stats.sent += 1
+        return True
+
+    def _send(self, key: Key, payload: bytes, stamp_ns: int) -> None:
+        chan = self._channel(key)
+        chan.stats.received += 1
+        if not chan.clients or not self._log(chan, payload, stamp_ns):
+            return
         topic = chan.topic
         with self._lock:
             for cid in chan.clients:
@@ -203,15 +209,10 @@ class SdkServer:
         value = self._latched((chan.topic, chan.type_name)) if chan is not None else None
         if chan is None or value is None:
             return
-        payload, stamp = value
-        try:
-            data = _json.encode(_msgpack.decode(payload))
-        except (msgspec.DecodeError, msgspec.EncodeError, TypeError, ValueError):
-            chan.stats.decode_errors += 1
-            return
         # The SDK's Python API cannot address one client, so every subscriber of this channel gets the latched
         # value again; for a latched topic that is the value it already shows.
-        chan.fox.log(data, log_time=stamp)
+        if not self._log(chan, *value):
+            return
         with self._lock:
             c = self._clients.get(client_id)
             if c is not None:
