@@ -160,12 +160,16 @@ def _record(src: Source, decl: LaunchFile, plan: LaunchPlan) -> None:
     if rec is None or rec is False:
         return
     plan.record = RecordDecl() if rec is True else rec
+    _check_regexes(src, "record", plan.record)
+
+
+def _check_regexes(src: Source, section: str, decl: RecordDecl | VizDecl) -> None:
     for key in ("topics", "exclude"):
-        for i, rx in enumerate(getattr(plan.record, key)):
+        for i, rx in enumerate(getattr(decl, key)):
             try:
                 re.compile(rx)
             except re.error as exc:
-                raise src.error(("record", key, i), f"not a regular expression: {exc}") from None
+                raise src.error((section, key, i), f"not a regular expression: {exc}") from None
 
 
 def _viz(src: Source, decl: LaunchFile, plan: LaunchPlan) -> None:
@@ -175,12 +179,7 @@ def _viz(src: Source, decl: LaunchFile, plan: LaunchPlan) -> None:
     if not viz.allow_remote and not is_loopback_host(viz.host):
         raise src.error(("viz", "host"), f"viz host {viz.host!r} is beyond loopback: the Foxglove protocol has "
                                          "no authentication; set allow_remote: true to mean it")
-    for key in ("topics", "exclude"):
-        for i, rx in enumerate(getattr(viz, key)):
-            try:
-                re.compile(rx)
-            except re.error as exc:
-                raise src.error(("viz", key, i), f"not a regular expression: {exc}") from None
+    _check_regexes(src, "viz", viz)
     plan.viz = viz
 
 

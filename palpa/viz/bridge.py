@@ -85,7 +85,6 @@ class Bridge(Node):
         import_message_modules()
         self._latched: dict[Key, tuple[bytes, int]] = {}
         self._bus_latched: set[str] = set()
-        self._take: dict[str, bool] = {}
         self._inbox: deque[tuple[int, str, str, bytes]] = deque()
         self._client_pubs: dict[str, Publisher[Any]] = {}
         self.client_errors = 0
@@ -120,10 +119,7 @@ class Bridge(Node):
     # -- the bus side: constant work per message, never waits on the WebSocket side ----------------------
     def _on_raw(self, raw: RawMessage) -> None:
         topic = raw.topic
-        take = self._take.get(topic)
-        if take is None:
-            take = self._take[topic] = self._filter(topic)
-        if not take:
+        if not self._filter(topic):  # cached per topic
             return
         h = raw.header
         key = (topic, h.type)
