@@ -7,12 +7,14 @@ import json
 import math
 import threading
 from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import msgspec
 import pytest
 from conftest import palpa_cmd
 from foxglove_client import FoxgloveClient
 from procs import ProcessGroup, wait_until
+from test_launch_smoke import REPO
 
 import messages  # noqa: F401
 from messages import EStop, Inclusions, ProbeHeights, RobotPose, ScanPlan, StiffnessMap
@@ -205,3 +207,40 @@ def test_palpa_viz_serves_a_running_graph_and_survives_a_vanished_client(
     second.pump_until(lambda: len(second.of("chatter")) >= 3, 10, "chatter after the first client vanished")
     second.close()
     assert viz.stop(10) == 0, viz.output()
+
+
+@pytest.mark.slow
+def test_a_viewer_joins_a_simulated_scan_midway(procs: ProcessGroup, tmp_path: Path) -> None:
+    """launch/scan_sim.yaml viz:=true on a tiny raster: a client watching from the start, another joining once
+    the map exists, getting the latched plan and map, then vanishing; the scan ends normally."""
+    run_dir = tmp_path / "run"
+    launch = procs.start(palpa_cmd("launch", str(REPO / "launch/scan_sim.yaml"), "viz:=true", "viz_port:=0",
+                                   "spacing_mm:=4.0", "region_mm:=[10.0, 14.0, 22.0, 22.0]", "time_scale:=3.0",
+                                   "--run-dir", str(run_dir), "--no-progress"), cwd=str(REPO))
+    address = run_dir / "viz.address"
+    wait_until(lambda: address.exists() and address.read_text().strip(), 60, "viz.address")
+    watcher = FoxgloveClient(address.read_text().strip()).open()
+
+    def watch() -> bool:
+        watcher.subscribe()
+        watcher.pump(0.05)
+        return bool(watcher.of("map/stiffness"))
+
+    wait_until(watch, 60, "a first map at the watching client")
+    late = FoxgloveClient(address.read_text().strip()).open()
+
+    def join() -> bool:
+        late.subscribe()
+        late.pump(0.05)
+        return bool(late.of("map/stiffness") and late.of("robot/plan") and late.of("viz/plan"))
+
+    wait_until(join, 5, "the latched map and plan at the late client")
+    plan = late.of("robot/plan")[0].data
+    assert plan["region_mm"] == [10.0, 14.0, 22.0, 22.0] and plan["waypoints"]
+    late.close_abruptly()
+    poses_then = len(watcher.of("robot/pose"))
+    assert launch.wait(120) == 0, launch.output()[-4000:]
+    watcher.pump(0.2)
+    assert len(watcher.of("robot/pose")) > poses_then  # served on after the late client vanished
+    assert watcher.of("viz/tf") and watcher.of("viz/map")
+    watcher.close()
