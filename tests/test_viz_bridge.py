@@ -9,6 +9,7 @@ import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
+import foxglove
 import msgspec
 import pytest
 from conftest import palpa_cmd
@@ -244,3 +245,21 @@ def test_a_viewer_joins_a_simulated_scan_midway(procs: ProcessGroup, tmp_path: P
     assert len(watcher.of("robot/pose")) > poses_then  # served on after the late client vanished
     assert watcher.of("viz/tf") and watcher.of("viz/map")
     watcher.close()
+
+
+class _WithService(Bridge):
+    def services(self) -> list[foxglove.Service]:
+        return [foxglove.Service("ping", schema=foxglove.ServiceSchema("Ping"), handler=lambda req: b"{}")]
+
+
+def test_the_services_hook_advertises_what_a_subclass_offers() -> None:
+    g = GraphHarness()
+    bridge = g.add(_WithService, {"port": 0}, name="viz")
+    c = client(bridge)
+    try:
+        c.pump_until(lambda: bool(c.server_info), 5, "serverInfo")
+        assert "services" in c.server_info["capabilities"]
+        assert "clientPublish" not in c.server_info["capabilities"]  # client_publish is empty
+    finally:
+        c.close()
+        g.close()

@@ -23,6 +23,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any
 
+import foxglove
 import msgspec
 
 import palpa
@@ -91,7 +92,7 @@ class Bridge(Node):
         self.server = SdkServer(
             host=p.host, port=p.port, queue_size=p.queue_size, backlog=p.backlog, name=f"palpa {self.name}",
             latched=self._latched.get, on_client_message=self._client_message,
-            client_topics=frozenset(p.client_publish))
+            client_topics=frozenset(p.client_publish), services=self.services())
         self.port = self.server.port
         self.url = f"ws://{p.host}:{self.port}"
         if not is_loopback_host(p.host):
@@ -112,8 +113,10 @@ class Bridge(Node):
             except OSError as exc:
                 self.log.warning("cannot write %s: %s", Path(run_dir) / _ADDRESS_FILE, exc)
 
-    def services(self) -> list[Any]:
-        """Foxglove services to advertise (``foxglove.Service``); none yet. The hook for bus services."""
+    def services(self) -> list[foxglove.Service]:
+        """Foxglove services to advertise at start (JSON requests; ``Capability.Services`` is offered when there
+        are any). None yet: the hook where bus services go once the bus has them. A handler runs on an SDK
+        thread, so it must hand its request to the node's thread as :meth:`_client_message` does."""
         return []
 
     # -- the bus side: constant work per message, never waits on the WebSocket side ----------------------

@@ -89,7 +89,8 @@ class SdkServer:
     def __init__(self, *, host: str, port: int, queue_size: int, backlog: int, name: str,
                  latched: Callable[[Key], tuple[bytes, int] | None],
                  on_client_message: Callable[[int, str, str, bytes], None] | None = None,
-                 client_topics: frozenset[str] = frozenset(), stats_period_s: float = 1.0) -> None:
+                 client_topics: frozenset[str] = frozenset(), services: list[foxglove.Service] | None = None,
+                 stats_period_s: float = 1.0) -> None:
         self._queue: deque[tuple[Key, bytes, int]] = deque()
         self._resend: deque[tuple[int, int]] = deque()
         self._queue_size = queue_size
@@ -107,10 +108,12 @@ class SdkServer:
         self._stats_period_s = stats_period_s
         self._context = foxglove.Context()
         caps = [Capability.ClientPublish] if client_topics and on_client_message else []
+        if services:
+            caps.append(Capability.Services)
         self._server = foxglove.start_server(
             name=name, host=host, port=port, context=self._context, capabilities=caps,
             supported_encodings=["json"] if caps else None, server_listener=_Listener(self),
-            message_backlog_size=backlog)
+            services=services or None, message_backlog_size=backlog)
         self.port = self._server.port
         self._stats_channel = foxglove.Channel(STATS_TOPIC, message_encoding="json", context=self._context)
         self._thread = threading.Thread(target=self._run, name="palpa-viz-sender", daemon=True)
