@@ -4,10 +4,13 @@ Every type is a frozen, keyword-only ``palpa.Message`` encoded as a msgpack map;
 by the name carried in the envelope header. Stamps (``stamp_ns``) are host wall-clock ns since the Unix epoch,
 taken when the measurement was made (not when it was published).
 
+``messages.foxglove`` mirrors Foxglove's own schemas (metres, not mm) for the live views (nodes/foxglove_views.py).
+
 Evolution policy: add fields only with defaults; never reuse, rename or retype a field; a new meaning gets a new
 type name. See docs/wire.md.
 """
 
+from messages.foxglove import FrameTransform, Grid, ImageAnnotations, RawImage, SceneUpdate
 from messages.probe import (
     DeviceStatus,
     ImageInfo,
@@ -41,7 +44,10 @@ __all__ = [
     "DetectedInclusion",
     "DeviceStatus",
     "EStop",
+    "FrameTransform",
+    "Grid",
     "Heartbeat",
+    "ImageAnnotations",
     "ImageInfo",
     "Inclusions",
     "IndenterDisplacements",
@@ -54,8 +60,10 @@ __all__ = [
     "ProbeAt",
     "ProbeHeights",
     "ProbeResult",
+    "RawImage",
     "RobotPose",
     "ScanPlan",
+    "SceneUpdate",
     "ScanStatus",
     "SetPressure",
     "StiffnessFit",
