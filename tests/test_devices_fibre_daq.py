@@ -96,6 +96,7 @@ def test_wire_ranges_of_a_data_sentence() -> None:
         ["F", "-1", "0", "0", "0", "0", "0"],
         ["F", "0", "0", "nan", "0", "0", "0"],
         ["F", "0", "0", "0", "0", "0"],  # three readings
+        ["F", "0", "0", "0", "0", "0", "0", "0"],  # five
         ["F", "0", "0", "x", "0", "0", "0"],
     ):
         with pytest.raises(ValueError):
