@@ -24,8 +24,8 @@ from nodes.drivers.fibre import (
     FibreDriver,
     FibreNotConnectedError,
     FibreSample,
-    SerialFibreDriver,
 )
+from nodes.drivers.fibre_serial import SerialFibreDriver
 
 pytestmark = pytest.mark.timeout(30)
 
