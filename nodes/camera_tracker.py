@@ -127,7 +127,6 @@ class CameraTracker(palpa.Node):
             self.driver.open()
         self.processed = 0
         self.frames_with_lost_marker = 0
-        self.last_result: TrackResult | None = None
         self._last_state: tuple[bool, str] | None = None
         self._debug_due_ns = 0
         self._read_timeout = 0.02 if p.pacing == "every" and p.driver == "opencv" else 0.0
@@ -154,7 +153,6 @@ class CameraTracker(palpa.Node):
     def handle(self, frame: Frame) -> None:
         """Track one frame and publish its displacements (once zeroed) and, when due, the debug image."""
         r = self.tracker.process(frame.image)
-        self.last_result = r
         self.processed += 1
         if not r.valid.all():
             self.frames_with_lost_marker += 1

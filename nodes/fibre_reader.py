@@ -21,7 +21,8 @@ from models.airfloat import (
     indentation_from_heights,
 )
 from nodes.common import phantom_from_param
-from nodes.drivers.fibre import FibreDriver, FibreError, FibreSample, SerialFibreDriver
+from nodes.drivers.fibre import FibreDriver, FibreError, FibreSample
+from nodes.drivers.fibre_serial import SerialFibreDriver
 from nodes.drivers.fibre_sim import SimFibreDriver
 from palpa.service import RequestRefused
 

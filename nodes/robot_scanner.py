@@ -107,7 +107,7 @@ class RobotScanner(palpa.Node):
         self.segment = 0
         self.hold_until_ns: int | None = None
         self.started_ns = self.clock.now_ns()
-        self.driver: RobotDriver = self._make_driver()
+        self.driver: RobotDriver = self.closing(self._make_driver())  # closed even if the plan is refused below
         self.driver.connect()
         self.plan = self._plan()
         self.path: tuple[Waypoint, ...] = self.plan.waypoints
@@ -344,11 +344,8 @@ class RobotScanner(palpa.Node):
         ))
 
     def on_shutdown(self) -> None:
-        try:
-            if self.state not in ("done",):
-                self.driver.stop(self.params.max_accel_mm_s2)
-        finally:
-            self.driver.close()
+        if self.state not in ("done",):
+            self.driver.stop(self.params.max_accel_mm_s2)  # the driver is closed after this (closing() in setup)
 
 
 if __name__ == "__main__":

@@ -66,7 +66,6 @@ class StiffnessEstimator(palpa.Node):
         self.samples = self.publisher("stiffness/sample", StiffnessSample)
         self.fits = self.publisher("stiffness/fit", StiffnessFit)
         self.published = 0
-        self.invalid = 0
         self.subscribe("robot/pose", self.on_pose)
         if p.model == "airfloat":
             phantom = phantom_from_param(p.phantom, self.name) if p.phantom else None
@@ -112,7 +111,6 @@ class StiffnessEstimator(palpa.Node):
         for s in out:
             self.samples.publish(s)
             self.published += 1
-            self.invalid += not s.valid
         for f in fits:
             self.log.info("ramp fit at (%.1f, %.1f): E eq.6 %.1f kPa, eq.7 %.1f kPa, eq.8 %.1f kPa (b %.2f, %d points)",
                           f.x_mm, f.y_mm, f.e_hertz_kpa, f.e_corrected_kpa, f.e_fung_kpa, f.b_fung, f.points)

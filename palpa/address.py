@@ -80,10 +80,6 @@ class BusAddress:
     def __str__(self) -> str:
         return f"pub={self.pub};sub={self.sub};latch={self.latch}"
 
-    @property
-    def is_tcp(self) -> bool:
-        return self.pub.startswith("tcp://")
-
 
 def default_address() -> str:
     """The bus used when nothing says otherwise: one per user, on ipc."""

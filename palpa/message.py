@@ -16,7 +16,7 @@ import msgspec
 
 from palpa.errors import RegistryError
 
-__all__ = ["Message", "json_schema", "lookup", "registered", "type_name_of"]
+__all__ = ["Message", "json_schema", "lookup", "registered"]
 
 _REGISTRY: dict[str, type[Message]] = {}
 
@@ -42,11 +42,6 @@ class Message(msgspec.Struct, frozen=True, kw_only=True):
                 f"{existing.__module__}.{existing.__qualname__}; set type_name to a unique name"
             )
         _REGISTRY[name] = cls
-
-
-def type_name_of(cls: type[Message]) -> str:
-    """The registered wire name of a message class."""
-    return cls.type_name
 
 
 def lookup(name: str) -> type[Message]:

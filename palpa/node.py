@@ -22,13 +22,14 @@ counted on its topic and logged at most every few seconds with what was wrong (t
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import socket
 import time
 import traceback
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, ClassVar, TypeVar, cast
+from typing import Any, ClassVar, Protocol, TypeVar, cast
 
 from palpa.address import BusAddress, from_env
 from palpa.clock import Clock, SystemClock, TopicClock
@@ -64,6 +65,13 @@ M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
 _ACK_PERIOD_NS = 5_000_000
+
+
+class _Closable(Protocol):
+    def close(self) -> object: ...
+
+
+C = TypeVar("C", bound=_Closable)
 
 
 class _NoParams(ParamsBase):
@@ -125,6 +133,7 @@ class Node:
             address = bus if isinstance(bus, BusAddress) else (BusAddress.parse(bus) if bus else from_env())
             transport = ZmqTransport(address, transport_options or TransportOptions.from_env())
         self._transport = transport
+        self._resources = contextlib.ExitStack()
         self._rx = Receiver(self)
         self._pubs: dict[str, Publisher[Any]] = {}
         self._dirty: list[Publisher[Any]] = []
@@ -153,14 +162,36 @@ class Node:
             self._await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0 if serve_params is None else serve_params:
             ParamServer(self)
-        self.setup()
+        try:
+            self.setup()
+        except BaseException:
+            # a refused plan must not leave a robot connection or a serial port open behind it
+            self._release(linger_ms=0)
+            raise
 
     # -- declaration -------------------------------------------------------------------------------
     def setup(self) -> None:
         """Declare publishers, subscriptions and timers here (``self.params`` is ready)."""
 
     def on_shutdown(self) -> None:
-        """Called once before the node's sockets close: stop hardware, flush files."""
+        """Called once before the node's sockets close: stop hardware, flush files. Not called when
+        :meth:`setup` raised (only what :meth:`closing` registered is released then)."""
+
+    def closing(self, resource: C) -> C:
+        """Register ``resource`` (anything with ``close()``) to be closed when the node closes, after
+        :meth:`on_shutdown`, or at once if :meth:`setup` raises; returns it. Resources close in reverse order of
+        registration; a failing ``close()`` is logged and does not keep the others (or the sockets) open.
+
+        Register a driver before connecting it: ``self.driver = self.closing(make_driver()); self.driver.connect()``.
+        """
+        self._resources.callback(self._close_quietly, resource)
+        return resource
+
+    def _close_quietly(self, resource: _Closable) -> None:
+        try:
+            resource.close()
+        except Exception:
+            self.log.error("error closing %r:\n%s", resource, traceback.format_exc())
 
     def on_params_changed(self, old: Any, new: Any) -> bool | None:
         """Called when ``palpa param set`` (or a ParamSet request) would change ``self.params`` from ``old`` to
@@ -320,9 +351,17 @@ class Node:
                 srv.withdraw()
             self.flush()
         finally:
+            self._release(int(linger_s * 1000))
+
+    def _release(self, linger_ms: int) -> None:
+        """Close the registered resources, then the sockets."""
+        self._shutdown = True
+        try:
+            self._resources.close()
+        finally:
             self._closed = True
             self.log.removeHandler(self._bus_handler)
-            self._transport.close(int(linger_s * 1000))
+            self._transport.close(linger_ms)
 
     def __enter__(self) -> Node:
         return self

@@ -52,8 +52,6 @@ class ClockSource(Node):
         self._sim = time.time_ns()
         self._acks: dict[str, tuple[int, int]] = {}
         """node -> (acknowledged sim ns, wall monotonic ns when heard)"""
-        self.held_ns = 0
-        """Simulated time withheld so far because a node lagged."""
         if self.params.max_lead_s > 0:
             self.subscribe(CLOCK_ACK_TOPIC, self._on_ack)
         self.timer(1.0 / self.params.rate_hz, self._tick, first_in_s=0.0)
@@ -71,7 +69,6 @@ class ClockSource(Node):
         if live and self.params.max_lead_s > 0:
             limit = min(live) + int(self.params.max_lead_s * 1e9)
             if proposed > limit:
-                self.held_ns += proposed - max(limit, self._sim)
                 proposed = max(limit, self._sim)
         self._sim = proposed
         return proposed
