@@ -16,7 +16,7 @@ This package knows nothing about palpation: the domain lives in ``messages``, ``
 from palpa.address import BusAddress
 from palpa.clock import Clock, MockClock, SystemClock
 from palpa.errors import BusError, DecodeError, LaunchError, PalpaError, ParamError, RegistryError
-from palpa.message import Message, json_schema, lookup, registered
+from palpa.message import Finite, Message, json_schema, lookup, registered
 from palpa.node import Node, Publisher, RawMessage, Subscription, Timer
 from palpa.params import Params
 from palpa.runner import run_node
@@ -28,6 +28,7 @@ __all__ = [
     "BusError",
     "Clock",
     "DecodeError",
+    "Finite",
     "LaunchError",
     "Message",
     "MockClock",

@@ -25,13 +25,14 @@ from __future__ import annotations
 import functools
 import struct
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Annotated, Any
 
 import msgspec
 
 from palpa.errors import DecodeError
 
 __all__ = [
+    "COUNTER_MAX",
     "Envelope",
     "Header",
     "HeaderTemplate",
@@ -46,11 +47,18 @@ __all__ = [
 ]
 
 
+_UINT64 = Annotated[int, msgspec.Meta(ge=0)]  # msgpack holds nothing above uint64
+
+COUNTER_MAX = 2**63 - 1
+"""Receive counters saturate here: any msgpack reader (int64 or uint64) reads them, and no bytes a peer sends
+can push a counter past what a heartbeat encodes."""
+
+
 class Header(msgspec.Struct, frozen=True, omit_defaults=True, gc=False):
     """Frame 1 of the envelope. ``stamp`` is the publish time in ns since the Unix epoch."""
 
     type: str
-    seq: int
+    seq: _UINT64
     stamp: int
     node: str
     latched: bool = False
@@ -135,6 +143,8 @@ def parse_envelope(frames: list[bytes]) -> Envelope:
             headers = _batch_decoder.decode(head)
         except (msgspec.ValidationError, msgspec.DecodeError) as exc:
             raise DecodeError(f"bad batch header: {exc}") from None
+        if not headers:
+            raise DecodeError("empty batch (no headers)")
         if len(frames) != 3:
             raise DecodeError(f"batch envelope has {len(frames)} frames, expected 3")
         return Envelope(headers, frames[2], [], True)
@@ -199,12 +209,12 @@ class SequenceTracker:
         last = self._last.get(key)
         if last is not None:
             if seq == last:
-                stats.duplicates += 1
+                stats.duplicates = min(COUNTER_MAX, stats.duplicates + 1)
                 return False
             if seq < last:
-                stats.restarts += 1
+                stats.restarts = min(COUNTER_MAX, stats.restarts + 1)
             elif seq > last + 1:
-                stats.gaps += seq - last - 1
+                stats.gaps = min(COUNTER_MAX, stats.gaps + seq - last - 1)
         self._last[key] = seq
         stats.received += 1
         return True
@@ -218,7 +228,7 @@ class SequenceTracker:
         if last is not None:
             if first <= last:
                 return False
-            stats.gaps += first - last - 1
+            stats.gaps = min(COUNTER_MAX, stats.gaps + first - last - 1)
         self._last[key] = first + n - 1
         stats.received += n
         return True
