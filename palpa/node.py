@@ -77,13 +77,21 @@ class _BusLogHandler(logging.Handler):
         self._busy = True
         try:
             self._node._log_pub.publish(
-                LogRecord(node=self._node.name, level=record.levelname, text=record.getMessage(),
+                LogRecord(node=self._node.name, level=record.levelname, text=_truncate(record.getMessage()),
                           stamp_ns=self._node.clock.now_ns())
             )
         except Exception:  # a log line must never take the node down
             pass
         finally:
             self._busy = False
+
+
+LOG_TEXT_MAX = 4000
+"""Characters of a log line published on ``_palpa/log``; the rest is cut (a peer's bytes can end up in a line)."""
+
+
+def _truncate(text: str) -> str:
+    return text if len(text) <= LOG_TEXT_MAX else f"{text[:LOG_TEXT_MAX]}... ({len(text) - LOG_TEXT_MAX} more chars)"
 
 
 class Node:

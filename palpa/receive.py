@@ -17,7 +17,16 @@ import msgspec
 from palpa.endpoints import RawMessage, Subscription
 from palpa.errors import DecodeError
 from palpa.transport import Delivery
-from palpa.wire import Envelope, Header, SequenceTracker, TopicStats, parse_envelope
+from palpa.wire import (
+    COUNTER_MAX,
+    MAX_MSG_BYTES,
+    MAX_TOPIC_BYTES,
+    Envelope,
+    Header,
+    SequenceTracker,
+    TopicStats,
+    parse_envelope,
+)
 
 if TYPE_CHECKING:
     from palpa.node import Node
@@ -25,6 +34,8 @@ if TYPE_CHECKING:
 __all__ = ["Receiver"]
 
 _ERROR_LOG_INTERVAL_NS = 5_000_000_000
+_ERROR_TEXT_MAX = 300
+_ROUTES_MAX = 4096  # topics remembered (ours or not); an attacker inventing topic names only costs a re-scan
 
 
 class _RawSubscription(NamedTuple):
@@ -54,6 +65,8 @@ class Receiver:
         self._tracker = SequenceTracker()
         self._raw_tracker = SequenceTracker()
         self._last_error_log: dict[str, int] = {}
+        options = getattr(node._transport, "options", None)
+        self.max_bytes: int = getattr(options, "max_msg_bytes", 0) or MAX_MSG_BYTES
         self.internal_errors = 0
         """Envelopes whose handling raised where nothing should (a receive-path bug): counted, logged, survived."""
 
@@ -69,8 +82,8 @@ class Receiver:
 
     def count_error(self, topic: str, stats: TopicStats, text: str) -> None:
         """Count a bad message on ``topic``; log it, at most once per topic every five seconds."""
-        stats.decode_errors += 1
-        stats.last_error = text
+        stats.decode_errors = min(COUNTER_MAX, stats.decode_errors + 1)
+        stats.last_error = text = text if len(text) <= _ERROR_TEXT_MAX else text[:_ERROR_TEXT_MAX] + "..."
         now = time.monotonic_ns()
         if now - self._last_error_log.get(topic, -_ERROR_LOG_INTERVAL_NS) >= _ERROR_LOG_INTERVAL_NS:
             self._last_error_log[topic] = now
@@ -80,6 +93,8 @@ class Receiver:
         """Who gets messages on this exact topic (cached per topic; None: a prefix match that is not ours)."""
         route = self.routes.get(topic_b, _NO_ROUTE)
         if route is _NO_ROUTE:
+            if len(topic_b) > MAX_TOPIC_BYTES:  # no subscription has such a name; parse_envelope refuses it
+                return None
             sub = self.subs.get(topic_b)
             raws = tuple(r.callback for r in self.raw if topic_b.startswith(r.prefix))
             if sub is None and not raws:
@@ -88,6 +103,8 @@ class Receiver:
                 topic = topic_b.decode(errors="replace")
                 rstats = self.raw_stats.setdefault(topic, TopicStats()) if raws else None
                 route = _Route(topic, sub, raws, rstats)
+            if len(self.routes) >= _ROUTES_MAX:
+                self.routes.clear()
             self.routes[topic_b] = route
         return route  # type: ignore[return-value]
 
@@ -107,6 +124,12 @@ class Receiver:
         if route is None:
             return
         topic, sub, raws, rstats = route
+        size = sum(map(len, frames))
+        if size > self.max_bytes:
+            stats = sub.stats if sub is not None else rstats
+            if stats is not None:
+                self.count_error(topic, stats, f"message of {size} bytes refused (max_msg_bytes {self.max_bytes})")
+            return
         try:
             env = parse_envelope(frames)
             items = env.messages() if rstats is not None else None

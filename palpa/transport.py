@@ -23,6 +23,7 @@ import zmq.auth
 from palpa.address import BusAddress
 from palpa.direct import DIRECTORY_PREFIX, DirectSocket, SubscriberSet, directory_entry
 from palpa.errors import BusError
+from palpa.wire import MAX_MSG_BYTES
 
 __all__ = ["Delivery", "SendFn", "Transport", "TransportOptions", "ZmqTransport", "curve_client_options"]
 
@@ -89,17 +90,20 @@ class TransportOptions:
     busy_poll_us: int = 0
     """Before blocking for input, check for it in a loop for up to this long (a CPU core kept busy in exchange
     for not paying the operating system's wake-up latency; 0: always block)."""
+    max_msg_bytes: int = MAX_MSG_BYTES
+    """The largest message this node accepts (all frames together; ZeroMQ disconnects a peer that sends a
+    single frame above it). Larger ones are refused and counted as bad messages on their topic."""
     direct: tuple[str, ...] = ()
     """Topics (names on the bus, after remapping) this node publishes straight to their subscribers instead of
     through the proxy: one hop instead of two (palpa.direct). ``PALPA_DIRECT`` takes them comma-separated."""
 
     ENV_VARS: ClassVar[dict[str, str]] = {
         "sndhwm": "PALPA_SNDHWM", "rcvhwm": "PALPA_RCVHWM", "busy_poll_us": "PALPA_BUSY_POLL_US",
-        "direct": "PALPA_DIRECT",
+        "direct": "PALPA_DIRECT", "max_msg_bytes": "PALPA_MAX_MSG_BYTES",
     }
 
     def __post_init__(self) -> None:
-        for name in ("sndhwm", "rcvhwm", "busy_poll_us"):
+        for name in ("sndhwm", "rcvhwm", "busy_poll_us", "max_msg_bytes"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise BusError(f"transport option {name}: expected an integer >= 0, got {value!r}")
@@ -204,6 +208,8 @@ class ZmqTransport:
         self._latch = self._ctx.socket(zmq.DEALER)
         self._pub.sndhwm = options.sndhwm
         self._sub.rcvhwm = options.rcvhwm
+        if options.max_msg_bytes:
+            self._sub.maxmsgsize = self._latch.maxmsgsize = options.max_msg_bytes
         self._sub.reconnect_ivl_max = _RECONNECT_MAX_MS  # withdrawn direct publishers stay connected (cheaply)
         for sock in (self._pub, self._sub, self._latch):
             if curve is not None:
@@ -353,6 +359,9 @@ class ZmqTransport:
                         self._on_directory(frames[1], frames[3])
                     else:
                         out.append(Delivery(frames[1:], True))
+                elif frames and frames[0] == b"ERR" and len(frames) >= 3:
+                    log.warning("the bus's latch cache refused %r: %s", frames[1][:80],
+                                frames[2][:300].decode(errors="replace"))
         return out
 
     def _read_sub(self, out: list[Delivery], max_batch: int) -> None:

@@ -34,6 +34,9 @@ from palpa.errors import DecodeError
 __all__ = [
     "COUNTER_MAX",
     "Envelope",
+    "MAX_BATCH",
+    "MAX_MSG_BYTES",
+    "MAX_TOPIC_BYTES",
     "Header",
     "HeaderTemplate",
     "SequenceTracker",
@@ -48,6 +51,12 @@ __all__ = [
 
 
 _UINT64 = Annotated[int, msgspec.Meta(ge=0)]  # msgpack holds nothing above uint64
+
+MAX_MSG_BYTES = 16 * 2**20
+"""Default limit on one message (per bus: ZeroMQ's MAXMSGSIZE on its inputs; per node: ``max_msg_bytes``)."""
+MAX_TOPIC_BYTES = 1024
+MAX_BATCH = 10_000
+"""Messages one batch may carry; palpa's publishers send at most DEFAULT_BATCH (64)."""
 
 COUNTER_MAX = 2**63 - 1
 """Receive counters saturate here: any msgpack reader (int64 or uint64) reads them, and no bytes a peer sends
@@ -136,6 +145,8 @@ def parse_envelope(frames: list[bytes]) -> Envelope:
     """Validate the frame count and the header(s); raises :class:`DecodeError` saying what is wrong."""
     if len(frames) < 3:
         raise DecodeError(f"envelope has {len(frames)} frames, expected at least 3")
+    if len(frames[0]) > MAX_TOPIC_BYTES:
+        raise DecodeError(f"topic of {len(frames[0])} bytes (at most {MAX_TOPIC_BYTES})")
     head = frames[1]
     kind = head[0] if head else 0
     if kind & 0xF0 == 0x90 or kind == 0xDC or kind == 0xDD:  # a msgpack array: a batch
@@ -143,8 +154,8 @@ def parse_envelope(frames: list[bytes]) -> Envelope:
             headers = _batch_decoder.decode(head)
         except (msgspec.ValidationError, msgspec.DecodeError) as exc:
             raise DecodeError(f"bad batch header: {exc}") from None
-        if not headers:
-            raise DecodeError("empty batch (no headers)")
+        if not headers or len(headers) > MAX_BATCH:
+            raise DecodeError(f"batch of {len(headers)} messages (1..{MAX_BATCH})")
         if len(frames) != 3:
             raise DecodeError(f"batch envelope has {len(frames)} frames, expected 3")
         return Envelope(headers, frames[2], [], True)

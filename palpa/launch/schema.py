@@ -99,6 +99,8 @@ class TransportDecl(_Decl):
                                                   "0: no limit")] | None = None
     busy_poll_us: Annotated[int, Meta(ge=0, le=1_000_000, description="spin this long for input before blocking: "
                                       "lower latency in exchange for a busy core")] | None = None
+    max_msg_bytes: Annotated[int, Meta(ge=1024, description="the largest message this node accepts (bytes, all "
+                                                           "frames); larger ones are refused and counted")] | None = None
     direct: Annotated[list[Annotated[str, Meta(min_length=1)]], Meta(
         description="topics (as on the bus, after namespace and remap) this node publishes straight to their "
                     "subscribers instead of through the proxy: lower latency (see palpa.direct)")] | None = None
@@ -125,6 +127,8 @@ class BusDecl(_Decl):
     latched: Annotated[list[str], Meta(description="topics whose last message is replayed to late "
                                                    "subscribers")] = []
     hwm: Annotated[int, Meta(gt=0, description="high-water mark of the proxy sockets (messages)")] = 10_000
+    max_msg_bytes: Annotated[int, Meta(ge=1024, description="the largest frame the bus accepts; a publisher "
+                                                            "sending a larger one is disconnected")] = 16 * 2**20
 
 
 class RecordDecl(_Decl):

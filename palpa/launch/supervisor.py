@@ -139,7 +139,8 @@ class Supervisor:
                 self._reaper = Reaper()
                 self._screen.say(f"reaper pid {self._reaper.pid} will kill the nodes' process groups if this "
                                  "launcher is killed")
-            bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched, hwm=plan.bus.hwm)
+            bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched, hwm=plan.bus.hwm,
+                      max_msg_bytes=plan.bus.max_msg_bytes)
             self.address = bus.start()
             tmp = plan.run_dir / ".bus.address.tmp"  # readers never see a half-written address
             tmp.write_text(f"{self.address}\n", encoding="utf-8")
