@@ -10,11 +10,10 @@ from pathlib import Path
 
 import pytest
 from conftest import palpa_cmd
-from procs import ProcessGroup, wait_until
-
 from mcap.reader import make_reader
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
+from procs import ProcessGroup, wait_until
 
 from messages import Text
 from palpa.address import BusAddress

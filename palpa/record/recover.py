@@ -11,8 +11,8 @@ from __future__ import annotations
 import os
 import struct
 from dataclasses import dataclass, field
-from typing import BinaryIO
 from pathlib import Path
+from typing import BinaryIO
 
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, DataEnd, Metadata, Schema
@@ -52,7 +52,7 @@ def _has_summary(fh: BinaryIO) -> bool:
     except OSError:
         return False
     opcode, _length, summary_start = _FOOTER.unpack(fh.read(_FOOTER.size))
-    return opcode == Opcode.FOOTER and summary_start != 0
+    return bool(opcode == Opcode.FOOTER and summary_start != 0)
 
 
 def default_recovered_path(src: Path) -> Path:
