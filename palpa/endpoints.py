@@ -60,7 +60,7 @@ class Publisher(Generic[M]):
         self._always_batch = batch is not None and self.batch > 1
         self._topic_b = topic.encode()
         self._type_name = msg_type.type_name
-        self._header = HeaderTemplate(self._type_name, node.name, latched)
+        self._header = HeaderTemplate(self._type_name, node.name, latched, node.incarnation)
         self._pending_headers: list[bytes] = []
         self._pending_payloads: list[bytes] = []
         self._send = node._transport.sender(self._topic_b, direct)

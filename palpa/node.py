@@ -116,6 +116,8 @@ class Node:
         transport_options: TransportOptions | None = None,
     ) -> None:
         self.name = name or _snake(type(self).__name__)
+        self.incarnation = int.from_bytes(os.urandom(4), "big") | 1
+        """Drawn anew at every start and sent in every header (``inc``): receivers tell a restart from a repeat."""
         if sim_clock is None:
             sim_clock = os.environ.get("PALPA_SIM_CLOCK", "") not in ("", "0")
         self.params = convert_params(type(self).Params, params, where=f"node {self.name!r}")

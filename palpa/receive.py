@@ -142,8 +142,8 @@ class Receiver:
         if items is not None and rstats is not None:
             tracker = self._raw_tracker
             for header, payload, blobs in items:
-                if not (cached and tracker.seen_at_least(topic, header.node, header.seq)) and \
-                        tracker.observe(topic, header.node, header.seq, rstats):
+                if not (cached and tracker.seen_at_least(topic, header.node, header.seq, header.inc)) and \
+                        tracker.observe(topic, header.node, header.seq, rstats, header.inc):
                     raw = RawMessage(topic, header, payload, blobs, cached, time.time_ns())
                     for callback in raws:
                         node._call(callback, raw)
@@ -169,13 +169,13 @@ class Receiver:
         first = headers[0]
         n = len(headers)
         if [h.seq for h in headers] != list(range(first.seq, first.seq + n)) or \
-                any(h.node != first.node or h.type != sub.type_name for h in headers):
+                any(h.node != first.node or h.type != sub.type_name or h.inc != first.inc for h in headers):
             return False
         try:
             msgs = sub.batch_decoder.decode(env.payload)
         except (msgspec.ValidationError, msgspec.DecodeError):
             return False
-        if len(msgs) != n or not self._tracker.observe_run(topic, first.node, first.seq, n, sub.stats):
+        if len(msgs) != n or not self._tracker.observe_run(topic, first.node, first.seq, n, sub.stats, first.inc):
             return False
         sub.last_blobs = []
         callback = sub.callback
@@ -206,9 +206,9 @@ class Receiver:
     def _deliver(self, sub: Subscription[Any], topic: str, header: Header, payload: bytes,
                  blobs: list[bytes], cached: bool) -> None:
         node = self._node
-        if cached and self._tracker.seen_at_least(topic, header.node, header.seq):
+        if cached and self._tracker.seen_at_least(topic, header.node, header.seq, header.inc):
             return
-        if not self._tracker.observe(topic, header.node, header.seq, sub.stats):
+        if not self._tracker.observe(topic, header.node, header.seq, sub.stats, header.inc):
             return
         if header.type != sub.type_name:
             self.count_error(topic, sub.stats, f"expected type {sub.type_name}, got {header.type}")

@@ -71,6 +71,10 @@ class Header(msgspec.Struct, frozen=True, omit_defaults=True, gc=False):
     stamp: int
     node: str
     latched: bool = False
+    inc: _UINT64 = 0
+    """The publisher's incarnation: a number drawn anew each time a node starts (0: not given, as from older
+    publishers). A change means the publisher restarted, so its ``seq`` starting again at 1 is news, not a
+    duplicate."""
 
 
 _header_encoder = msgspec.msgpack.Encoder()
@@ -96,12 +100,13 @@ class HeaderTemplate:
     """Fast header encoding for one publisher: the constant fields are packed once, ``seq`` and ``stamp`` per
     message (as msgpack uint64, valid for every msgpack reader)."""
 
-    def __init__(self, type_name: str, node: str, latched: bool) -> None:
+    def __init__(self, type_name: str, node: str, latched: bool, inc: int = 0) -> None:
         enc = msgspec.msgpack.encode
-        entries = 5 if latched else 4
+        entries = 4 + bool(latched) + bool(inc)
         prefix = (
             bytes([0x80 | entries]) + enc("type") + enc(type_name) + enc("node") + enc(node)
-            + (enc("latched") + enc(True) if latched else b"") + enc("seq") + b"\xcf"
+            + (enc("latched") + enc(True) if latched else b"") + (enc("inc") + enc(inc) if inc else b"")
+            + enc("seq") + b"\xcf"
         )
         mid = enc("stamp") + b"\xcf"
         # the whole map in one struct: the constant parts as fixed-length byte strings, the two numbers as uint64
@@ -209,15 +214,23 @@ class SequenceTracker:
     """Tracks the last sequence number per (topic, publisher) and classifies each arrival."""
 
     _last: dict[tuple[str, str], int] = field(default_factory=dict)
+    _inc: dict[tuple[str, str], int] = field(default_factory=dict)
+    """The incarnation last seen per (topic, publisher), where one was given."""
 
-    def observe(self, topic: str, node: str, seq: int, stats: TopicStats) -> bool:
+    def observe(self, topic: str, node: str, seq: int, stats: TopicStats, inc: int = 0) -> bool:
         """Record one arrival; returns False when it is a duplicate that should be dropped.
 
         A latched message can reach a late joiner twice (live and from the bus cache); an exact repeat of the
-        last sequence number from the same publisher is that case.
+        last sequence number from the same incarnation of the same publisher is that case. A new incarnation is
+        a restart whatever its sequence number.
         """
         key = (topic, node)
         last = self._last.get(key)
+        if self._inc.get(key, 0) != inc:
+            self._inc[key] = inc
+            if last is not None:
+                stats.restarts = min(COUNTER_MAX, stats.restarts + 1)
+                last = None
         if last is not None:
             if seq == last:
                 stats.duplicates = min(COUNTER_MAX, stats.duplicates + 1)
@@ -230,12 +243,16 @@ class SequenceTracker:
         stats.received += 1
         return True
 
-    def observe_run(self, topic: str, node: str, first: int, n: int, stats: TopicStats) -> bool:
+    def observe_run(self, topic: str, node: str, first: int, n: int, stats: TopicStats, inc: int = 0) -> bool:
         """Record ``n`` arrivals with consecutive sequence numbers from ``first`` (a batch) in one step; returns
-        False, recording nothing, when the run does not start after the last one seen (the caller then goes
-        message by message)."""
+        False, recording nothing, when the run does not start after the last one seen or comes from another
+        incarnation (the caller then goes message by message)."""
         key = (topic, node)
         last = self._last.get(key)
+        if self._inc.get(key, 0) != inc:
+            if last is not None:
+                return False
+            self._inc[key] = inc
         if last is not None:
             if first <= last:
                 return False
@@ -244,8 +261,10 @@ class SequenceTracker:
         stats.received += n
         return True
 
-    def seen_at_least(self, topic: str, node: str, seq: int) -> bool:
-        """True when a message with this or a later sequence number from ``node`` was already delivered."""
-        last = self._last.get((topic, node))
-        return last is not None and last >= seq
+    def seen_at_least(self, topic: str, node: str, seq: int, inc: int = 0) -> bool:
+        """True when a message with this or a later sequence number from this incarnation of ``node`` was
+        already delivered."""
+        key = (topic, node)
+        last = self._last.get(key)
+        return last is not None and last >= seq and self._inc.get(key, 0) == inc
 

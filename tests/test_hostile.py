@@ -176,3 +176,35 @@ def test_fuzzed_frames_never_stop_a_node_and_counters_stay_encodable(graph: Grap
             assert 0 <= counters.gaps <= COUNTER_MAX and 0 <= counters.duplicates <= COUNTER_MAX
     states = graph.published("pressure/state", PressureState)
     assert states and all(math.isfinite(s.setpoint_kpa) and s.setpoint_kpa <= s.max_kpa for s in states)
+
+
+# -- restarts ------------------------------------------------------------------------------------------------------
+def test_a_restarted_publishers_first_message_is_delivered_not_dropped_as_a_duplicate() -> None:
+    with GraphHarness() as g:
+        listener = g.add(Listener)
+        for incarnation in range(2):
+            talker = g.add(palpa.Node, name="scanner")
+            pub = talker.publisher("chatter", Text, latched=True)
+            pub.publish(Text(text=f"plan from incarnation {incarnation}"))
+            g.spin()
+            talker.close(0)
+            g.nodes.remove(talker)
+        assert listener.texts == ["plan from incarnation 0", "plan from incarnation 1"]
+        stats = listener.counters()["chatter"]
+        assert stats.restarts == 1 and stats.duplicates == 0
+
+
+def test_incarnation_is_optional_on_the_wire_and_ignored_by_plain_readers() -> None:
+    with NodeHarness(Listener) as h:
+        # an older publisher (no "inc"): seq 1, 1 is a duplicate as before
+        for _ in range(2):
+            h.publish_raw([b"chatter", header(1, node="old"), msgpack.packb({"text": "old"})])
+        assert h.node.texts == ["old"] and h.node.counters()["chatter"].duplicates == 1
+        for inc in (7, 7, 8):
+            h.publish_raw([b"chatter", msgpack.packb({"type": "Text", "seq": 1, "stamp": 1, "node": "new",
+                                                       "inc": inc}), msgpack.packb({"text": f"inc {inc}"})])
+        assert h.node.texts == ["old", "inc 7", "inc 8"]
+        assert h.node.counters()["chatter"].restarts == 1
+    tpl = palpa.wire.HeaderTemplate("Text", "n", True, 42)
+    assert msgpack.unpackb(tpl.pack(3, 4)) == {"type": "Text", "node": "n", "latched": True, "inc": 42, "seq": 3,
+                                              "stamp": 4}
