@@ -59,6 +59,9 @@ __all__ = ["DEFAULT_BATCH", "Node", "Publisher", "RawMessage", "Subscription", "
 
 M = TypeVar("M", bound=Message)
 _ACK_PERIOD_NS = 5_000_000
+_SIM_CLOCK_TIMEOUT_S = 30.0
+"""Wall seconds without a clock tick after which a sim-clock node stops (PALPA_SIM_CLOCK_TIMEOUT_S; 0: never)."""
+_EXIT_CLOCK_LOST = 3
 
 
 class _NoParams(ParamsBase):
@@ -114,6 +117,7 @@ class Node:
         sim_clock: bool | None = None,
         wait_for_clock_s: float = 30.0,
         transport_options: TransportOptions | None = None,
+        sim_clock_timeout_s: float | None = None,
     ) -> None:
         self.name = name or _snake(type(self).__name__)
         self.incarnation = int.from_bytes(os.urandom(4), "big") | 1
@@ -122,6 +126,10 @@ class Node:
             sim_clock = os.environ.get("PALPA_SIM_CLOCK", "") not in ("", "0")
         self.params = convert_params(type(self).Params, params, where=f"node {self.name!r}")
         self._topic_clock = TopicClock() if sim_clock and clock is None else None
+        if sim_clock_timeout_s is None:
+            sim_clock_timeout_s = float(os.environ.get("PALPA_SIM_CLOCK_TIMEOUT_S", "") or _SIM_CLOCK_TIMEOUT_S)
+        self._clock_timeout_ns = int(sim_clock_timeout_s * 1e9)
+        self._last_tick_wall_ns = 0
         self.clock: Clock = clock or self._topic_clock or SystemClock()
         self.namespace = namespace.strip("/")
         self.remap = dict(remap or {})
@@ -275,6 +283,12 @@ class Node:
                 self._rx.dispatch(delivery)
             self._run_timers()
         clock = self._topic_clock
+        if clock is not None and clock.started and self._clock_timeout_ns and \
+                time.monotonic_ns() - self._last_tick_wall_ns > self._clock_timeout_ns and not self._shutdown:
+            # sim-time timers (watchdogs included) stop with the clock: only the wall clock can tell
+            self.log.error("simulated time stopped: no tick on %s for %.1f s of wall time (did the clock node "
+                           "die?); stopping", CLOCK_TOPIC, self._clock_timeout_ns / 1e9)
+            self.request_shutdown(_EXIT_CLOCK_LOST)
         if clock is not None and clock.started and clock.now_ns() - self._last_ack_ns >= _ACK_PERIOD_NS:
             self._last_ack_ns = clock.now_ns()
             self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns))
@@ -323,6 +337,7 @@ class Node:
             for t in self._timers:
                 t.due_ns += tick.sim_ns
         clock.update(tick.sim_ns)
+        self._last_tick_wall_ns = time.monotonic_ns()
 
     # -- internals ---------------------------------------------------------------------------------
     def _run_timers(self) -> None:

@@ -1,0 +1,57 @@
+"""Nodes dying mid-scan (issue 22): a dead clock, a silent pressure controller, a respawned map, a dead recorder.
+Nothing may freeze, and nothing may end clean after losing data."""
+
+from __future__ import annotations
+
+import time
+
+from procs import wait_until
+
+import palpa
+from palpa.runtime_msgs import ClockTick
+from palpa.testing import MemoryBus
+
+
+class Ticker(palpa.Node):
+    def setup(self) -> None:
+        self.ticks = 0
+        self.timer(0.01, self.tick)
+
+    def tick(self) -> None:
+        self.ticks += 1
+
+
+def test_a_sim_clock_node_stops_with_a_clear_error_when_simulated_time_stops() -> None:
+    bus = MemoryBus()
+    node = Ticker(transport=bus.transport(), heartbeat_s=0, sim_clock=True, wait_for_clock_s=0,
+                  sim_clock_timeout_s=0.3)
+    clock = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
+    pub = clock.publisher("_palpa/clock", ClockTick)
+    logs: list[str] = []
+    node.log.error = lambda msg, *a: logs.append(msg % a)  # type: ignore[method-assign]
+    for i in range(20):
+        pub.publish(ClockTick(sim_ns=1_000_000_000 + i * 10_000_000))
+        node.spin_once(0)
+    assert node.ticks >= 10 and not node.is_shutdown
+    started = time.monotonic()
+    wait_until(lambda: (node.spin_once(0.02), node.is_shutdown)[1], 10, "the node to notice the dead clock")
+    assert time.monotonic() - started >= 0.3
+    assert node.exit_code == 3 and "simulated time stopped" in logs[0] and "_palpa/clock" in logs[0]
+    node.close(0)
+    clock.close(0)
+
+
+def test_a_held_clock_is_not_a_dead_clock() -> None:
+    """Lockstep holds simulated time back but keeps ticking: the guard counts ticks, not time's progress."""
+    bus = MemoryBus()
+    node = Ticker(transport=bus.transport(), heartbeat_s=0, sim_clock=True, wait_for_clock_s=0,
+                  sim_clock_timeout_s=0.2)
+    clock = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
+    pub = clock.publisher("_palpa/clock", ClockTick)
+    deadline = time.monotonic() + 0.6
+    while time.monotonic() < deadline:
+        pub.publish(ClockTick(sim_ns=1_000_000_000))
+        node.spin_once(0.02)
+    assert not node.is_shutdown
+    node.close(0)
+    clock.close(0)
