@@ -3,7 +3,7 @@ along it and reports progress; exits 0 when the scan is complete (so a launch ca
 
 Safety is enforced here whatever the driver: a plan that leaves the workspace box or exceeds the speed or
 acceleration cap is refused before any motion (naming the waypoint); while moving, a watchdog stops the arm when
-the probe's data goes stale (``watch_topic``) or ``pressure/state`` reports a fault, and ``robot/estop`` stops it
+the probe's data goes stale (``watch_topic``), ``pressure/state`` reports a fault or goes quiet, and ``robot/estop`` stops it
 at once. The arm's pose is published on ``robot/pose``; the plan, latched, on ``robot/plan`` before motion.
 """
 
@@ -73,6 +73,9 @@ class RobotScanner(palpa.Node):
         watch_topic: Literal["probe/heights", "camera/indenters", ""] = "probe/heights"
         """Probe data that must stay fresh while moving ('' disables the watchdog: bench tests only)."""
         watchdog_s: float = 0.05
+        pressure_watchdog_s: float = 0.5
+        """Once ``pressure/state`` has been heard, it going quiet this long while moving stops the arm like stale
+        probe data (a dead pressure controller means unknown contact force); 0 disables."""
         startup_timeout_s: float = 10.0
         """How long to wait for the probe's first data before giving up."""
         pose_rate_hz: float = 250.0
@@ -96,6 +99,7 @@ class RobotScanner(palpa.Node):
         self.message = ""
         self.line = 0
         self.last_probe_ns: int | None = None
+        self.last_pressure_ns: int | None = None
         self.segments: list[tuple[int, int]] = []
         self.segment = 0
         self.hold_until_ns: int | None = None
@@ -196,6 +200,7 @@ class RobotScanner(palpa.Node):
         self.last_probe_ns = self.clock.now_ns()
 
     def on_pressure(self, msg: PressureState) -> None:
+        self.last_pressure_ns = self.clock.now_ns()
         bad = _STOPPING_FAULTS.intersection(msg.faults)
         if bad and self.state in ("waiting", "scanning"):
             self.halt("fault", f"pressure fault {', '.join(sorted(bad))}")
@@ -235,6 +240,11 @@ class RobotScanner(palpa.Node):
             return
         if p.watch_topic and self.last_probe_ns is not None and (now - self.last_probe_ns) / 1e9 > p.watchdog_s:
             self.halt("fault", f"probe data on {p.watch_topic} stale for more than {p.watchdog_s * 1000:.0f} ms")
+            return
+        if p.pressure_watchdog_s > 0 and self.last_pressure_ns is not None and \
+                (now - self.last_pressure_ns) / 1e9 > p.pressure_watchdog_s:
+            self.halt("fault", f"pressure/state silent for more than {p.pressure_watchdog_s * 1000:.0f} ms "
+                               "(the pressure controller died?)")
             return
         box = p.workspace_mm
         x, y, z = self.driver.state().pose[:3]
