@@ -64,6 +64,8 @@ class MapAggregator(palpa.Node):
         self.pending: list[tuple[float, float, float]] = []
         self.written = 0
         self.changed = False
+        self.incomplete = ""
+        """Why this map lacks data the scan produced ('' when it has everything): it is then declared failed."""
         if p.region_mm:
             if len(p.region_mm) != 4:
                 raise palpa.ParamError(f"{self.name}: region_mm needs x0, y0, x1, y1, got {p.region_mm}")
@@ -100,6 +102,10 @@ class MapAggregator(palpa.Node):
             self.grid.add(s.x_mm, s.y_mm, s.value)
 
     def on_status(self, st: ScanStatus) -> None:
+        if not self.incomplete and st.progress > 0 and self.map_pub.seq == 0 and not self.samples:
+            # a scan already under way when this node starts: a respawn (or a late start) lost what came before
+            self.incomplete = f"started at {st.progress:.0%} of the scan (restarted?): earlier samples are lost"
+            self.log.error("map INCOMPLETE: %s", self.incomplete)
         if st.state == "done":
             self.log.info("scan done: writing the map")
             self.publish_map(final=True)
@@ -117,6 +123,8 @@ class MapAggregator(palpa.Node):
     def publish_map(self, final: bool = False) -> None:
         if self.grid is None or (not self.changed and not final):
             return
+        if final:
+            self._check_complete()
         self.changed = False
         snap = self.grid.snapshot()
         found, base = self._detect(snap)
@@ -146,6 +154,17 @@ class MapAggregator(palpa.Node):
             self.log.info("inclusion at (%.1f, %.1f) mm, radius %.1f mm, contrast %.2f",
                           inc.x_mm, inc.y_mm, inc.radius_mm, inc.contrast)
         self.log.info("map written: %s", ", ".join(str(p) for p in paths))
+
+    def _check_complete(self) -> None:
+        """A map missing samples (its estimator restarted, samples lost on the way) is declared failed: the
+        node's exit code says so, so the launch cannot end clean."""
+        stats = self.counters().get(self.resolve("stiffness/sample"))
+        if not self.incomplete and stats is not None and (stats.restarts or stats.gaps):
+            self.incomplete = (f"stiffness/sample lost {stats.gaps} sample(s) and its publisher restarted "
+                               f"{stats.restarts} time(s)")
+        if self.incomplete:
+            self.log.error("the map is INCOMPLETE and may be wrong: %s", self.incomplete)
+            self.exit_code = 1
 
     def on_shutdown(self) -> None:
         if self.grid is not None and self.samples:

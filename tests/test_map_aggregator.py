@@ -57,3 +57,44 @@ def test_flat_map_has_no_inclusions(tmp_path: Path) -> None:
             h.publish("stiffness/sample", sample(float(x), float(y), 26.4 + rng.normal(0, 1.0)))
     h.close()  # shutdown writes the final map too
     assert json.loads((tmp_path / "inclusions.json").read_text()) == []
+
+
+def _raw_sample(seq: int, inc: int, x: float) -> list[bytes]:
+    import msgspec
+
+    header = msgspec.msgpack.encode({"type": "StiffnessSample", "seq": seq, "stamp": 1, "node": "estimator",
+                                     "inc": inc})
+    return [b"stiffness/sample", header, msgspec.msgpack.encode(sample(x, 5.0, 26.0))]
+
+
+def test_a_map_that_missed_samples_is_declared_failed(tmp_path: Path) -> None:
+    plan = ScanPlan(stamp_ns=0, mode="sweep", region_mm=(0.0, 0.0, 20.0, 20.0), spacing_mm=2.0, speed_mm_s=10.0,
+                    lines=10, estimated_duration_s=1.0, waypoints=[])
+    done = ScanStatus(stamp_ns=0, state="done", line=10, lines=10, progress=1.0, eta_s=0)
+    # complete: exit code 0
+    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / "ok")})
+    h.publish("robot/plan", plan)
+    for seq in range(1, 11):
+        h.publish_raw(_raw_sample(seq, 7, float(seq)))
+    h.publish("robot/scan_status", done)
+    assert h.node.exit_code == 0 and not h.node.incomplete
+    h.close()
+    # the estimator restarted mid-scan (a new incarnation): what it held is lost
+    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / "est")})
+    h.publish("robot/plan", plan)
+    for inc, n in ((7, 10), (8, 5)):
+        for seq in range(1, n + 1):
+            h.publish_raw(_raw_sample(seq, inc, float(seq)))
+    h.publish("robot/scan_status", done)
+    assert h.node.exit_code == 1 and "restarted 1 time" in h.node.incomplete
+    h.close()
+    # the map itself restarted (it first hears of a scan already 40 % through)
+    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / "map")})
+    h.publish("robot/plan", plan)
+    h.publish("robot/scan_status", ScanStatus(stamp_ns=0, state="scanning", line=4, lines=10, progress=0.4,
+                                              eta_s=1.0))
+    for seq in range(40, 50):
+        h.publish_raw(_raw_sample(seq, 7, float(seq - 39)))
+    h.publish("robot/scan_status", done)
+    assert h.node.exit_code == 1 and "started at 40% of the scan" in h.node.incomplete
+    h.close()

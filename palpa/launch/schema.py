@@ -140,6 +140,8 @@ class RecordDecl(_Decl):
     split_duration_s: Annotated[float, Meta(gt=0)] | None = None
     ready_timeout_s: Annotated[float, Meta(gt=0, description="how long to wait for the recorder's "
                                                              "heartbeat")] = 15.0
+    required: Annotated[bool, Meta(description="a recorder that dies stops the launch (exit 1) instead of "
+                                               "letting the rest of the run go unrecorded")] = True
 
 
 class ProgressDecl(_Decl):

@@ -200,10 +200,11 @@ def format_info(info: dict[str, Any]) -> str:
                      f"(node {rec.get('recorder', '?')}, mcap {rec.get('mcap_library', '?')})")
     lines.append(f"topics ({len(info['topics'])}):")
     width = max((len(_shown(t)) for t in info["topics"]), default=5)
-    total_gaps = 0
+    total_gaps = restarts = 0
     for topic, t in info["topics"].items():
         d = t["drops"]
         total_gaps += d["gaps"]
+        restarts += d["restarts"]
         extra = [f"{d['gaps']} dropped"] if d["gaps"] else []
         if d["restarts"]:
             extra.append(f"{d['restarts']} publisher restarts")
@@ -216,8 +217,10 @@ def format_info(info: dict[str, Any]) -> str:
         lines.append(f"  {_shown(topic):<{width}}  {_shown('/'.join(t['types'])) or '?':<22} {t['messages']:>9} msgs "
                      f"{t['rate_hz']:>9.2f} Hz  from {_shown(', '.join(t['publishers'])) or '?'}"
                      + (f"  [{'; '.join(extra)}]" if extra else ""))
-    lines.append(f"drops:       {total_gaps} messages missing by sequence number" if total_gaps
-                 else "drops:       none (no sequence gaps)")
+    drops = [f"{total_gaps} messages missing by sequence number"] if total_gaps else []
+    if restarts:  # a restarted publisher lost what it held, and what it was sent while down
+        drops.append(f"{restarts} publisher restart(s): data may be lost")
+    lines.append(f"drops:       {'; '.join(drops)}" if drops else "drops:       none (no sequence gaps, no restarts)")
     if info["nodes"]:
         lines.append(f"nodes ({len(info['nodes'])}):")
         for name, n in info["nodes"].items():
