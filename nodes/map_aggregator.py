@@ -40,14 +40,14 @@ class MapAggregator(palpa.Node):
         output_dir: str = "out"
         region_mm: list[float] = []
         """x0, y0, x1, y1 of the grid; empty: taken from the scan plan (``robot/plan``)."""
-        resolution_mm: float = 2.0
-        min_count: int = 3
+        resolution_mm: palpa.Positive = 2.0
+        min_count: palpa.PositiveInt = 3
         """Samples a cell needs to count."""
-        publish_hz: float = 1.0
-        k_mad: float = 4.0
-        rel_threshold: float = 0.2
+        publish_hz: palpa.Positive = 1.0
+        k_mad: palpa.NonNegative = 4.0
+        rel_threshold: palpa.NonNegative = 0.2
         """A cell is stiff above baseline + max(k_mad * robust σ, rel_threshold * baseline)."""
-        min_area_mm2: float = 0.0
+        min_area_mm2: palpa.NonNegative = 0.0
         """Smallest inclusion reported (0: two cells)."""
         title: str = ""
         """Shown on map.png; default: the output directory."""

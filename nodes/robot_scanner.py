@@ -48,41 +48,41 @@ class RobotScanner(palpa.Node):
         mode: Literal["sweep", "indent"] = "sweep"
         region_mm: tuple[float, float, float, float] = (5.0, 5.0, 55.0, 55.0)
         """x0, y0, x1, y1 of the raster in the phantom frame."""
-        spacing_mm: float = 2.0
-        speed_mm_s: float = 10.0
+        spacing_mm: palpa.Positive = 2.0
+        speed_mm_s: palpa.Positive = 10.0
         """Sweep: speed along a line. Indent: press and lift speed."""
         axis: Literal["x", "y"] = "y"
         """Lines run parallel to this axis (the paper's Fig. 12 scan: y)."""
         contact_z_mm: float = 5.0
         """Probe face height while sweeping (sweep), or the surface height pressed from (indent)."""
-        indent_depth_mm: float = 3.0
-        hold_s: float = 0.5
-        point_spacing_mm: float = 0.0
+        indent_depth_mm: palpa.Positive = 3.0
+        hold_s: palpa.NonNegative = 0.5
+        point_spacing_mm: palpa.NonNegative = 0.0
         """Indent mode: spacing of points along a line (0: same as spacing_mm)."""
-        approach_clearance_mm: float = 5.0
-        retract_clearance_mm: float = 15.0
-        transit_speed_mm_s: float = 40.0
-        approach_speed_mm_s: float = 10.0
-        accel_mm_s2: float = 500.0
+        approach_clearance_mm: palpa.NonNegative = 5.0
+        retract_clearance_mm: palpa.NonNegative = 15.0
+        transit_speed_mm_s: palpa.Positive = 40.0
+        approach_speed_mm_s: palpa.Positive = 10.0
+        accel_mm_s2: palpa.Positive = 500.0
         home_mm: tuple[float, float, float] = (0.0, 0.0, 40.0)
         """Start pose of the simulated arm (phantom frame)."""
         workspace_mm: tuple[float, float, float, float, float, float] = (-10.0, -10.0, 0.5, 70.0, 70.0, 60.0)
         """xmin, ymin, zmin, xmax, ymax, zmax: the arm never leaves this box."""
-        max_speed_mm_s: float = 50.0
-        max_accel_mm_s2: float = 1000.0
+        max_speed_mm_s: palpa.Positive = 50.0
+        max_accel_mm_s2: palpa.Positive = 1000.0
         watch_topic: Literal["probe/heights", "camera/indenters", ""] = "probe/heights"
         """Probe data that must stay fresh while moving ('' disables the watchdog: bench tests only)."""
-        watchdog_s: float = 0.05
-        pressure_watchdog_s: float = 0.5
+        watchdog_s: palpa.Positive = 0.05
+        pressure_watchdog_s: palpa.NonNegative = 0.5
         """Once ``pressure/state`` has been heard, it going quiet this long while moving stops the arm like stale
         probe data (a dead pressure controller means unknown contact force); 0 disables."""
-        startup_timeout_s: float = 10.0
+        startup_timeout_s: palpa.Positive = 10.0
         """How long to wait for the probe's first data before giving up."""
-        pose_rate_hz: float = 250.0
-        linger_s: float = 0.5
+        pose_rate_hz: palpa.Positive = 250.0
+        linger_s: palpa.NonNegative = 0.5
         """After the scan: keep publishing this long so the last samples reach the map, then exit."""
         # drivers
-        time_scale: float = 1.0
+        time_scale: palpa.Positive = 1.0
         """Sim driver: simulated seconds per clock second (use the graph's sim clock instead when you can)."""
         robot_host: str = "127.0.0.1"
         frame_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)

@@ -18,7 +18,7 @@ from palpa.clock import Clock, MockClock, SystemClock
 from palpa.errors import BusError, DecodeError, LaunchError, PalpaError, ParamError, RegistryError
 from palpa.message import Finite, Message, json_schema, lookup, registered
 from palpa.node import Node, Publisher, RawMessage, Subscription, Timer
-from palpa.params import Params
+from palpa.params import NonNegative, Params, Positive, PositiveInt
 from palpa.runner import run_node
 
 __version__ = "0.1.0"
@@ -35,7 +35,10 @@ __all__ = [
     "Node",
     "PalpaError",
     "ParamError",
+    "NonNegative",
     "Params",
+    "Positive",
+    "PositiveInt",
     "Publisher",
     "RawMessage",
     "RegistryError",

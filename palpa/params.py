@@ -3,16 +3,25 @@ command line or a launch file and are validated (types, unknown names) before th
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping
-from typing import Any, TypeVar
+from typing import Annotated, Any, TypeVar
 
 import msgspec
 
 from palpa.errors import ParamError
 
-__all__ = ["Params", "convert_params", "describe_params"]
+__all__ = ["NonNegative", "Params", "Positive", "PositiveInt", "convert_params", "describe_params"]
 
 P = TypeVar("P", bound="Params")
+
+# Physical bounds declared in the type: a launch file's --check and a node's start refuse a value outside them
+# (naming file:line and the parameter) before anything runs. NaN and infinity fail them too.
+Positive = Annotated[float, msgspec.Meta(gt=0.0, le=sys.float_info.max)]
+"""A finite float > 0 (a rate, a speed, a period, a size)."""
+NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=sys.float_info.max)]
+"""A finite float >= 0 (a set-point, a clearance, a delay that may be zero)."""
+PositiveInt = Annotated[int, msgspec.Meta(gt=0)]
 
 
 class Params(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):

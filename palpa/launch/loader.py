@@ -26,6 +26,7 @@ from typing import Any
 import msgspec
 
 from palpa.errors import BusError, LaunchError, ParamError
+from palpa.launch.hazards import check_hazards
 from palpa.launch.plan import RECORDER_NAME, RECORDER_TARGET, LaunchPlan, NodeSpec
 from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, RecordDecl
 from palpa.launch.source import Mark, Path_, Source, display_path
@@ -94,6 +95,7 @@ def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
     col = _Collected(plan)
     _load_file(path.resolve(), given, "", col, top=True)
     _validate_nodes(col)
+    check_hazards(plan, col.top, col.node_sources)
     return plan
 
 
