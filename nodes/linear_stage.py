@@ -92,7 +92,7 @@ class LinearStage(palpa.Node):
         """Time at the top before the first press (the camera's zero reference is taken then)."""
         dwell_s: palpa.NonNegative = 0.5
         """Time at the top between cycles."""
-        cycles: palpa.PositiveInt = 1
+        cycles: int = 1
         """Press cycles; 0: forever."""
         exit_when_done: bool = False
         rate_hz: palpa.Positive = 100.0

@@ -73,6 +73,7 @@ class MapAggregator(palpa.Node):
         self.subscribe("stiffness/sample", self.on_sample)
         self.subscribe("robot/plan", self.on_plan)
         self.subscribe("robot/scan_status", self.on_status)
+        self._own = self.subscribe("map/stiffness", StiffnessMap, self._on_own_map)
         self.timer(1.0 / p.publish_hz, self.publish_map)
 
     def _make_grid(self, x0: float, y0: float, x1: float, y1: float) -> None:
@@ -101,11 +102,18 @@ class MapAggregator(palpa.Node):
         else:
             self.grid.add(s.x_mm, s.y_mm, s.value)
 
-    def on_status(self, st: ScanStatus) -> None:
-        if not self.incomplete and st.progress > 0 and self.map_pub.seq == 0 and not self.samples:
-            # a scan already under way when this node starts: a respawn (or a late start) lost what came before
-            self.incomplete = f"started at {st.progress:.0%} of the scan (restarted?): earlier samples are lost"
+    def _on_own_map(self, m: StiffnessMap) -> None:
+        """The latched map of an earlier incarnation of this node (it was killed and respawned mid-scan): what it
+        had accumulated is gone, so this map cannot be complete."""
+        h = self._own.last_header
+        if h is None or h.node != self.name or h.inc == self.incarnation or m.final or not m.samples:
+            return
+        if not self.incomplete:
+            self.incomplete = (f"this node restarted mid-scan: its previous run had mapped {m.samples} samples, "
+                               "which are lost")
             self.log.error("map INCOMPLETE: %s", self.incomplete)
+
+    def on_status(self, st: ScanStatus) -> None:
         if st.state == "done":
             self.log.info("scan done: writing the map")
             self.publish_map(final=True)

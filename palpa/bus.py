@@ -18,7 +18,9 @@ Latch protocol (DEALER -> ROUTER), every frame bytes:
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import logging
+import os
 import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -31,6 +33,7 @@ from zmq.auth.thread import ThreadAuthenticator
 from palpa.address import BusAddress
 from palpa.direct import DIRECTORY_PREFIX
 from palpa.errors import BusError
+from palpa.keys import ClientKeys, load_secret_key
 from palpa.latch import DEFAULT_LATCH_MAX_BYTES, DEFAULT_LATCH_MAX_ENTRIES, LatchCache
 from palpa.wire import MAX_MSG_BYTES
 
@@ -38,15 +41,21 @@ __all__ = ["Bus", "CurveServer", "is_loopback_endpoint"]
 
 log = logging.getLogger("palpa.bus")
 
-_LOOPBACK_HOSTS = ("127.", "localhost", "[::1]", "::1")
-
-
 def is_loopback_endpoint(endpoint: str) -> bool:
-    """True for ipc/inproc endpoints and tcp endpoints on a loopback address."""
+    """True for ipc/inproc endpoints and tcp endpoints on a loopback address: ``localhost`` itself or a
+    literal loopback IP (127.0.0.0/8, ::1). Any other name (``localhost.example.com``, ``127.0.0.1.nip.io``)
+    resolves through DNS and may be anything: not loopback."""
     if not endpoint.startswith("tcp://"):
         return True
     host = endpoint[len("tcp://") :].rpartition(":")[0]
-    return host.startswith(_LOOPBACK_HOSTS)
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
 
 
 @dataclass(frozen=True)
@@ -85,13 +94,13 @@ class Bus:
         self._cache_lock = threading.Lock()
         self._watchers: dict[bytes, set[bytes]] = {}
         self.address: BusAddress | None = None
+        self.clients: ClientKeys | None = None
+        """The authorised CURVE client keys (None without CURVE); ``clients.reload()`` rereads the folder."""
 
     def _secure(self, sock: zmq.Socket[bytes]) -> None:
         if self._curve is None:
             return
-        public, secret = zmq.auth.load_certificate(str(self._curve.secret_key_file))
-        if secret is None:
-            raise BusError(f"{self._curve.secret_key_file}: not a CURVE secret key file")
+        public, secret = load_secret_key(self._curve.secret_key_file)
         sock.curve_secretkey = secret
         sock.curve_publickey = public
         sock.curve_server = True
@@ -107,14 +116,18 @@ class Bus:
             sock.bind(endpoint)
         except zmq.ZMQError as exc:
             raise BusError(f"cannot bind {endpoint}: {exc}") from None
+        if endpoint.startswith("ipc://"):  # only this user may connect (connecting needs write permission)
+            with contextlib.suppress(OSError):
+                os.chmod(endpoint[len("ipc://") :], 0o600)
         return str(sock.getsockopt_string(zmq.LAST_ENDPOINT))
 
     def start(self) -> BusAddress:
         """Bind all three endpoints and start the proxy and cache threads."""
         if self._curve is not None:
-            self._auth = ThreadAuthenticator(self._ctx)
+            self.clients = ClientKeys(self._curve.authorized_clients_dir)
+            self._auth = ThreadAuthenticator(self._ctx, log=logging.getLogger("palpa.bus.zap"))
             self._auth.start()
-            self._auth.configure_curve(domain="*", location=str(self._curve.authorized_clients_dir))
+            self._auth.configure_curve_callback(domain="*", credentials_provider=self.clients)
         xsub = self._ctx.socket(zmq.XSUB)
         xpub = self._ctx.socket(zmq.XPUB)
         router = self._ctx.socket(zmq.ROUTER)

@@ -10,7 +10,7 @@ import numpy as np
 
 from messages import ScanPlan, ScanStatus, StiffnessSample
 from nodes.map_aggregator import MapAggregator
-from palpa.testing import NodeHarness
+from palpa.testing import MemoryBus, NodeHarness
 
 
 def sample(x: float, y: float, v: float, valid: bool = True) -> StiffnessSample:
@@ -88,13 +88,19 @@ def test_a_map_that_missed_samples_is_declared_failed(tmp_path: Path) -> None:
     h.publish("robot/scan_status", done)
     assert h.node.exit_code == 1 and "restarted 1 time" in h.node.incomplete
     h.close()
-    # the map itself restarted (it first hears of a scan already 40 % through)
-    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / "map")})
+    # the map itself restarted: the bus still holds its previous incarnation's latched, unfinished map
+    bus = MemoryBus()
+    first = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / "map1")}, name="map", bus=bus)
+    first.publish("robot/plan", plan)
+    for seq in range(1, 11):
+        first.publish_raw(_raw_sample(seq, 7, float(seq)))
+    first.advance(1.0)  # publishes the (latched) map
+    for node in (first.node, first._probe):  # killed: no final map, its transport just goes away
+        node._transport.close(0)
+    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / "map2")}, name="map", bus=bus)
     h.publish("robot/plan", plan)
-    h.publish("robot/scan_status", ScanStatus(stamp_ns=0, state="scanning", line=4, lines=10, progress=0.4,
-                                              eta_s=1.0))
-    for seq in range(40, 50):
-        h.publish_raw(_raw_sample(seq, 7, float(seq - 39)))
+    for seq in range(11, 15):
+        h.publish_raw(_raw_sample(seq, 7, float(seq)))
     h.publish("robot/scan_status", done)
-    assert h.node.exit_code == 1 and "started at 40% of the scan" in h.node.incomplete
+    assert h.node.exit_code == 1 and "restarted mid-scan" in h.node.incomplete and "10 samples" in h.node.incomplete
     h.close()

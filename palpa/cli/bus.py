@@ -19,7 +19,7 @@ from palpa.wire import MAX_MSG_BYTES
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("bus", help="run the bus (XSUB/XPUB proxy + latched cache)")
     where = p.add_mutually_exclusive_group()
-    where.add_argument("--ipc", metavar="PATH", help="ipc base path (default /tmp/palpa-<uid>)")
+    where.add_argument("--ipc", metavar="PATH", help="ipc base path (default: the private directory $XDG_RUNTIME_DIR/palpa or /tmp/palpa-<uid>, then /bus)")
     where.add_argument("--tcp", metavar="HOST[:PORT]",
                        help="tcp on HOST; PORT, PORT+1, PORT+2, or OS-chosen ports when PORT is omitted/0")
     where.add_argument("--address", help="an explicit address (any form palpa accepts)")
@@ -67,13 +67,23 @@ def run(args: argparse.Namespace) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    reload = threading.Event()
+    if bus.clients is not None:  # SIGHUP: reread --curve-clients (a key added while the bus runs)
+        signal.signal(signal.SIGHUP, lambda signum, frame: reload.set())
     if args.address_file:
         args.address_file.write_text(str(address) + "\n")
     # the ready line: launchers and tests wait for it
     print(f"palpa bus ready {address}", flush=True)
     try:
-        while not stop.wait(0.5):
-            pass
+        while not stop.wait(0.2):
+            if reload.is_set() and bus.clients is not None:
+                reload.clear()
+                try:
+                    count = bus.clients.reload()
+                except BusError as exc:
+                    print(f"palpa bus: reload failed: {exc}", file=sys.stderr, flush=True)
+                else:
+                    print(f"palpa bus: reloaded {count} client key(s)", file=sys.stderr, flush=True)
     finally:
         bus.stop()
     print("palpa bus stopped", file=sys.stderr, flush=True)

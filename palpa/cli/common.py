@@ -17,7 +17,7 @@ __all__ = ["add_bus_arg", "bus_address", "import_message_modules", "run_with_par
 
 
 def add_bus_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--bus", help="bus address (default: $PALPA_BUS or ipc:///tmp/palpa-<uid>)")
+    p.add_argument("--bus", help="bus address (default: $PALPA_BUS or ipc://$XDG_RUNTIME_DIR/palpa/bus, else ipc:///tmp/palpa-<uid>/bus)")
 
 
 def bus_address(args: argparse.Namespace) -> BusAddress:
