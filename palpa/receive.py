@@ -208,8 +208,6 @@ class Receiver:
         node = self._node
         if cached and self._tracker.seen_at_least(topic, header.node, header.seq, header.inc):
             return
-        if not self._tracker.observe(topic, header.node, header.seq, sub.stats, header.inc):
-            return
         if header.type != sub.type_name:
             self.count_error(topic, sub.stats, f"expected type {sub.type_name}, got {header.type}")
             return
@@ -217,6 +215,9 @@ class Receiver:
             msg = sub.decoder.decode(payload)
         except (msgspec.ValidationError, msgspec.DecodeError) as exc:
             self.count_error(topic, sub.stats, f"{header.type}: {exc}")
+            return
+        # sequence numbers count only once the message is valid: garbage cannot fake gaps or restarts
+        if not self._tracker.observe(topic, header.node, header.seq, sub.stats, header.inc):
             return
         sub.last_header = header
         sub.last_blobs = blobs
