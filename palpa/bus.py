@@ -18,7 +18,6 @@ Latch protocol (DEALER -> ROUTER), every frame bytes:
 from __future__ import annotations
 
 import contextlib
-import ipaddress
 import logging
 import os
 import threading
@@ -30,7 +29,7 @@ import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 
-from palpa.address import BusAddress
+from palpa.address import BusAddress, is_loopback_host
 from palpa.direct import DIRECTORY_PREFIX
 from palpa.errors import BusError
 from palpa.keys import ClientKeys, load_secret_key
@@ -47,15 +46,7 @@ def is_loopback_endpoint(endpoint: str) -> bool:
     resolves through DNS and may be anything: not loopback."""
     if not endpoint.startswith("tcp://"):
         return True
-    host = endpoint[len("tcp://") :].rpartition(":")[0]
-    if host.startswith("[") and host.endswith("]"):
-        host = host[1:-1]
-    if host == "localhost":
-        return True
-    try:
-        return ipaddress.ip_address(host).is_loopback
-    except ValueError:
-        return False
+    return is_loopback_host(endpoint[len("tcp://") :].rpartition(":")[0])
 
 
 @dataclass(frozen=True)

@@ -25,12 +25,17 @@ class Ticker(palpa.Node):
         self.ticks += 1
 
 
-def test_a_sim_clock_node_stops_with_a_clear_error_when_simulated_time_stops() -> None:
+def sim_ticker(timeout_s: float) -> tuple[Ticker, palpa.Node, palpa.Publisher[ClockTick]]:
+    """A sim-clock node with the wall-clock guard at ``timeout_s``, and a clock node to tick it."""
     bus = MemoryBus()
     node = Ticker(transport=bus.transport(), heartbeat_s=0, sim_clock=True, wait_for_clock_s=0,
-                  sim_clock_timeout_s=0.3)
+                  sim_clock_timeout_s=timeout_s)
     clock = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
-    pub = clock.publisher("_palpa/clock", ClockTick)
+    return node, clock, clock.publisher("_palpa/clock", ClockTick)
+
+
+def test_a_sim_clock_node_stops_with_a_clear_error_when_simulated_time_stops() -> None:
+    node, clock, pub = sim_ticker(0.3)
     logs: list[str] = []
     node.log.error = lambda msg, *a: logs.append(msg % a)  # type: ignore[method-assign]
     for i in range(20):
@@ -47,11 +52,7 @@ def test_a_sim_clock_node_stops_with_a_clear_error_when_simulated_time_stops() -
 
 def test_a_held_clock_is_not_a_dead_clock() -> None:
     """Lockstep holds simulated time back but keeps ticking: the guard counts ticks, not time's progress."""
-    bus = MemoryBus()
-    node = Ticker(transport=bus.transport(), heartbeat_s=0, sim_clock=True, wait_for_clock_s=0,
-                  sim_clock_timeout_s=0.2)
-    clock = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
-    pub = clock.publisher("_palpa/clock", ClockTick)
+    node, clock, pub = sim_ticker(0.2)
     deadline = time.monotonic() + 0.6
     while time.monotonic() < deadline:
         pub.publish(ClockTick(sim_ns=1_000_000_000))
