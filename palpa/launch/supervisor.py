@@ -369,7 +369,8 @@ class Supervisor:
         if p.state == "stopping":
             p.state = "done"
             p.outcome = {1: "stopped on SIGINT", 2: "needed SIGTERM", 3: "needed SIGKILL"}[p.stage]
-            if code > 0:  # it stopped when asked, but reports that its work failed (e.g. an incomplete map)
+            if 0 < code < 128:  # it stopped when asked, but reports that its work failed (an incomplete map);
+                # 128+N is the signal's own exit status (stopped before its handler was in place), not a report
                 p.failed = True
                 p.outcome += f", reporting failure ({exit_text(code)})"
             self._screen.say(f"{p.spec.name} {p.outcome} ({exit_text(code)})", "WARNING" if p.escalated else "INFO")
