@@ -116,8 +116,8 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
     subst = {k: substitute(src, v, (k,), args, col.plan.run_dir) for k, v in data.items()}
     decl = convert(src, subst, LaunchFile)
 
-    for key in ("bus", "record", "progress"):
-        if not top and getattr(decl, key) is not None:
+    for key in ("bus", "record", "progress", "in_process"):
+        if not top and getattr(decl, key) not in (None, False):
             raise src.error((key,), f"only the top-level launch file may set '{key}' (this file is included)",
                             key=True)
     if top:
@@ -128,6 +128,7 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
             except BusError as exc:
                 raise src.error(("bus",), str(exc)) from None
         col.plan.description = decl.description
+        col.plan.in_process = decl.in_process
         col.plan.progress_topic = decl.progress.topic if decl.progress is not None else None
         if decl.progress is not None and not decl.progress.topic:
             raise src.error(("progress", "topic"), "progress topic must not be empty")

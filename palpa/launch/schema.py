@@ -157,6 +157,9 @@ class LaunchFile(_Decl):
     bus: BusDecl | None = None
     record: Annotated[bool | RecordDecl, Meta(description="true: record every topic")] | None = None
     progress: ProgressDecl | None = None
+    in_process: Annotated[bool, Meta(description="run the simulated-clock nodes (env PALPA_SIM_CLOCK=1), the clock "
+                                                 "and the recorder in one process whose clock jumps from event to "
+                                                 "event (palpa.compose); also palpa launch --in-process")] = False
 
 
 def json_schema() -> dict[str, Any]:
