@@ -64,6 +64,7 @@ class MapAggregator(palpa.Node):
         self.pending: list[tuple[float, float, float]] = []
         self.written = 0
         self.changed = False
+        self.done = False
         if p.region_mm:
             if len(p.region_mm) != 4:
                 raise palpa.ParamError(f"{self.name}: region_mm needs x0, y0, x1, y1, got {p.region_mm}")
@@ -100,7 +101,8 @@ class MapAggregator(palpa.Node):
             self.grid.add(s.x_mm, s.y_mm, s.value)
 
     def on_status(self, st: ScanStatus) -> None:
-        if st.state == "done":
+        if st.state == "done" and not self.done:  # the status is repeated while the scanner lingers: write once
+            self.done = True
             self.log.info("scan done: writing the map")
             self.publish_map(final=True)
 

@@ -9,8 +9,7 @@ as fast as the CPU computes the nodes' work, and a run is deterministic (the sam
 The composed graph still lives on the real bus, through one bridge connection: everything its nodes publish
 (heartbeats and log lines included) goes out, so ``palpa topic echo/hz``, ``palpa node list``, a recorder or the
 launcher's progress bar outside see it as they would see separate processes; what outside publishers send on a
-topic the composed nodes subscribe to comes in. Their own messages, echoed back by the proxy, are dropped by the
-publisher's node name.
+topic the composed nodes subscribe to (and do not publish themselves) comes in.
 
 ``palpa launch FILE --in-process`` (or ``in_process: true`` in the file) runs a launch file's simulated-clock
 nodes, its clock and its recorder this way, as one child process: ``python -m palpa.compose GRAPH.json``.
@@ -34,7 +33,7 @@ from palpa.clock import MockClock
 from palpa.errors import PalpaError
 from palpa.node import Node
 from palpa.testing import MemoryBus, MemoryTransport
-from palpa.transport import Delivery, Transport, TransportOptions, ZmqTransport
+from palpa.transport import Delivery, SendFn, Transport, TransportOptions, ZmqTransport
 
 __all__ = ["Composition", "ComposedNode", "GraphSpec", "main"]
 
@@ -45,11 +44,20 @@ _MAX_ROUNDS = 100_000
 
 
 class _HubBus(MemoryBus):
-    """The composed nodes' in-memory bus; what they publish also leaves through the bridge to the real bus."""
+    """The composed nodes' in-memory bus; what they publish also leaves through the bridge to the real bus.
+
+    The bridge subscribes on the real bus to the exact topics the composed nodes subscribe to and do not publish
+    themselves: a topic published inside is the composition's own (taking it from outside as well would bring every
+    message back through the proxy, doubling the traffic), and a catch-all prefix inside (the recorder's) hears the
+    composition only."""
 
     def __init__(self, bridge: Transport | None) -> None:
         super().__init__()
         self.bridge = bridge
+        self.published: set[bytes] = set()
+        self.wanted: dict[bytes, bool] = {}
+        self.outward: set[bytes] = set()
+        self._synced = True
 
     def send_out(self, frames: Sequence[bytes], latched: bool) -> None:
         self._route(list(frames), latched)
@@ -61,6 +69,25 @@ class _HubBus(MemoryBus):
         self._add(t)
         return t
 
+    def note(self, topic: bytes, *, published: bool = False, latched: bool = False) -> None:
+        if published:
+            self.published.add(topic)
+        else:
+            self.wanted[topic] = self.wanted.get(topic, False) or latched
+        self._synced = False
+
+    def sync_bridge(self) -> None:
+        """Subscribe the bridge to what the composed nodes want from outside (and no longer to what they publish)."""
+        if self._synced or self.bridge is None:
+            return
+        self._synced = True
+        want = {t for t in self.wanted if t and t not in self.published}
+        for topic in want - self.outward:
+            self.bridge.subscribe(topic, self.wanted[topic])
+        for topic in self.outward - want:
+            self.bridge.unsubscribe(topic)
+        self.outward = want
+
 
 class _HubTransport(MemoryTransport):
     bus: _HubBus
@@ -68,15 +95,17 @@ class _HubTransport(MemoryTransport):
     def send(self, frames: Sequence[bytes], latched: bool) -> None:
         self.bus.send_out(frames, latched)
 
+    def sender(self, topic: bytes, direct: bool | None) -> SendFn:
+        self.bus.note(topic, published=True)
+        return self.send
+
     def has_subscribers(self, topic: bytes) -> bool:
         bridge = self.bus.bridge
         return super().has_subscribers(topic) or (bridge is not None and bridge.has_subscribers(topic))
 
     def subscribe(self, prefix: bytes, request_latched: bool) -> None:
         super().subscribe(prefix, request_latched)
-        bridge = self.bus.bridge
-        if bridge is not None:  # outside publishers (and the bus's latched cache) reach the composed nodes too
-            bridge.subscribe(prefix, request_latched)
+        self.bus.note(prefix, latched=request_latched)
 
 
 @dataclass
@@ -240,6 +269,7 @@ class Composition:
                 log.info("%s ended (exit code %d); the others keep running", node.name, node.exit_code)
 
     def _take_outside(self) -> None:
+        self.bus.sync_bridge()
         if self.bridge is not None:
             self._route_outside(self.bridge.poll(0))
 

@@ -58,7 +58,7 @@ from palpa.wire import (
 __all__ = ["DEFAULT_BATCH", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
 
 M = TypeVar("M", bound=Message)
-_ACK_PERIOD_NS = 5_000_000
+_ACK_PERIOD_NS = 10_000_000  # half the clock source's default max_lead_s: fewer acks, same lockstep bound
 
 
 class _NoParams(ParamsBase):
