@@ -6,7 +6,7 @@ process per node, in the same run; and whether both find the same inclusions.
     python bench/sim.py --time-scale 20      # the multi-process clock's ceiling (default 20: not the limit)
 
 Wall time is the whole ``palpa launch`` (start-up, imports and shutdown included), as a user waits for it.
-Simulated time is the scan's own ("scan complete in N s"). The machine is shared: each run reports its load
+Simulated time is the recording's span (first to last message stamp). The machine is shared: each run reports its load
 average and the CPU time the hypervisor took (steal). The last line is JSON with ``sim_speedup_in_process`` and
 ``sim_speedup_multi_process``.
 """
@@ -17,7 +17,6 @@ import argparse
 import json
 import math
 import os
-import re
 import subprocess
 import sys
 import tempfile
@@ -27,8 +26,9 @@ from typing import Any
 
 from machine import steal_ticks
 
+from nodes.evaluate import scan_facts
+
 REPO = Path(__file__).resolve().parent.parent
-_DONE = re.compile(r"scan complete in ([0-9.]+) s")
 
 
 def run(mode: str, run_dir: Path, args: list[str]) -> dict[str, Any]:
@@ -45,13 +45,7 @@ def run(mode: str, run_dir: Path, args: list[str]) -> dict[str, Any]:
     cpu1 = os.times()
     if proc.returncode != 0:
         raise SystemExit(f"{mode}: launch failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
-    sim = None
-    for log in run_dir.glob("*.log"):
-        m = _DONE.search(log.read_text(errors="replace"))
-        if m:
-            sim = float(m.group(1))
-    if sim is None:
-        raise SystemExit(f"{mode}: no 'scan complete' line in {run_dir}/*.log")
+    sim = scan_facts(run_dir / "recording.mcap")["sim_s"]
     cpu = (cpu1.children_user - cpu0.children_user) + (cpu1.children_system - cpu0.children_system)
     return {"mode": mode, "sim_s": sim, "wall_s": wall, "speedup": sim / wall, "cpu_s": cpu,
             "load_before": load0, "load_after": os.getloadavg()[0],
