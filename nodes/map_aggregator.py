@@ -74,7 +74,12 @@ class MapAggregator(palpa.Node):
 
     def _make_grid(self, x0: float, y0: float, x1: float, y1: float) -> None:
         self.grid = StiffnessGrid(x0, y0, x1, y1, self.params.resolution_mm, min_count=self.params.min_count)
-        if self.pending:
+        self._bin_pending()
+
+    def _bin_pending(self) -> None:
+        """Bin the samples received since the last snapshot in one call (one numpy call per sample cost more than
+        the rest of the node)."""
+        if self.grid is not None and self.pending:
             xs, ys, vs = zip(*self.pending, strict=True)
             self.grid.add(np.array(xs), np.array(ys), np.array(vs))
             self.pending.clear()
@@ -93,10 +98,7 @@ class MapAggregator(palpa.Node):
         self.unit = s.unit
         self.samples += 1
         self.changed = True
-        if self.grid is None:
-            self.pending.append((s.x_mm, s.y_mm, s.value))
-        else:
-            self.grid.add(s.x_mm, s.y_mm, s.value)
+        self.pending.append((s.x_mm, s.y_mm, s.value))
 
     def on_status(self, st: ScanStatus) -> None:
         if st.state == "done" and not self.done:  # the status is repeated while the scanner lingers: write once
@@ -118,6 +120,7 @@ class MapAggregator(palpa.Node):
         if self.grid is None or (not self.changed and not final):
             return
         self.changed = False
+        self._bin_pending()
         snap = self.grid.snapshot()
         found, base = self._detect(snap)
         now = self.clock.now_ns()
