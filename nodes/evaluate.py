@@ -278,7 +278,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _run_all(opts: argparse.Namespace, specs: list[RunSpec]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeRemainingColumn,
+    )
 
     rows: list[dict[str, Any]] = []
     incs: list[dict[str, Any]] = []

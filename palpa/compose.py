@@ -206,8 +206,9 @@ class Composition:
         return True
 
     def run(self, until: Callable[[], bool] | None = None, *, max_sim_s: float | None = None) -> int:
-        """Advance until :meth:`request_stop`, a required node ends, every node has ended, ``until()`` is true, or
-        ``max_sim_s`` of simulated time passed; then close every node. Returns the exit code (the required node's,
+        """Advance until :meth:`request_stop`, a required node ends, every node has ended, ``until()`` is true,
+        ``max_sim_s`` of simulated time passed, or (without a bridge) no node has a timer left; then close every
+        node. Returns the exit code (the required node's,
         or 0)."""
         end = None if max_sim_s is None else self.clock.now_ns() + int(max_sim_s * 1e9)
         try:
@@ -217,6 +218,8 @@ class Composition:
                 if end is not None and self.clock.now_ns() >= end:
                     break
                 if not self.step():  # nothing scheduled: only outside input can change anything
+                    if self.bridge is None:
+                        break  # and there is no outside
                     self._wait_outside(_IDLE_WAIT_S)
                     self.settle()
                     self._reap()
@@ -276,8 +279,6 @@ class Composition:
     def _wait_outside(self, timeout_s: float) -> None:
         if self.bridge is not None:
             self._route_outside(self.bridge.poll(timeout_s))
-        else:
-            time.sleep(timeout_s)
 
     def _route_outside(self, deliveries: list[Delivery]) -> None:
         names = self._names

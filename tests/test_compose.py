@@ -41,14 +41,22 @@ def test_time_jumps_from_deadline_to_deadline_and_messages_arrive_at_once() -> N
     assert clock.now_ns() == 1_000_000_000
 
 
-def test_a_required_node_ending_ends_the_composition_with_its_code() -> None:
+class _Quitter(Node):
+    """Ends itself with exit code 3 after 0.25 s."""
+
+    def setup(self) -> None:
+        self.timer(0.25, lambda: self.request_shutdown(3), oneshot=True)
+
+
+def test_nodes_that_end_are_closed_and_a_required_one_ends_the_composition_with_its_code() -> None:
     comp = Composition(clock=MockClock(0), heartbeat_s=0)
-    comp.add(Talker, "talker", {"rate_hz": 100.0, "count": 5}, required=True)
-    comp.add(Listener, "listener")
-    assert comp.run(max_sim_s=60.0) == 0
-    assert comp.ended == [("talker", 0)]
-    assert comp.clock.now_ns() == 40_000_000  # the fifth tick, not the minute asked for
-    assert comp.nodes == []
+    comp.add(Talker, "talker", {"rate_hz": 100.0, "count": 5})
+    comp.add(_Quitter, "quitter", required=True)
+    listener = comp.add(Listener, "listener")
+    assert comp.run(max_sim_s=60.0) == 3
+    assert comp.ended == [("talker", 0), ("quitter", 3)]
+    assert comp.clock.now_ns() == 250_000_000  # not the minute asked for
+    assert listener.heard == 5 and comp.nodes == []
 
 
 def test_compose_plan_folds_sim_nodes_clock_and_recorder_into_one_entry(tmp_path: Path) -> None:
