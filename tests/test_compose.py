@@ -17,7 +17,7 @@ from nodes.demo import Listener, Talker
 from palpa.clock import MockClock
 from palpa.compose import Composition
 from palpa.errors import LaunchError
-from palpa.launch import load_launch
+from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
 from palpa.node import Node
 
@@ -78,8 +78,7 @@ def _scan(tmp: Path) -> tuple[list[dict[str, float]], np.ndarray]:
     """The air-float scan of a small region, composed in memory (no bus)."""
     from palpa.cli.run import load_node_class
 
-    plan = compose_plan(load_launch(REPO / "launch" / "scan_sim.yaml", dict(a.split(":=") for a in SMALL),
-                                    run_dir=tmp))
+    plan = compose_plan(load_launch(REPO / "launch" / "scan_sim.yaml", parse_overrides(SMALL), run_dir=tmp))
     comp = Composition(clock=MockClock(1_700_000_000_000_000_000), heartbeat_s=0)
     for n in json.loads(plan.nodes[0].cmd[-1])["nodes"]:  # type: ignore[index]
         if n["name"] != "recorder":
