@@ -110,7 +110,7 @@ class _HubTransport(MemoryTransport):
 
 @dataclass
 class ComposedNode:
-    """One node of a composition: how to build it, and (once built) the node."""
+    """One node of a composition as a launch file describes it (``python -m palpa.compose`` builds it)."""
 
     name: str
     target: str
@@ -190,10 +190,11 @@ class Composition:
                 node.spin_once(0)
         raise PalpaError("composition: the nodes kept publishing to each other without end")
 
-    def step(self) -> bool:
-        """Advance to the next timer deadline and run what is due there; False when no node has a timer left."""
+    def step(self, limit_ns: int | None = None) -> bool:
+        """Advance to the next timer deadline and run what is due there; False (time unmoved) when no node has a
+        timer left or the next deadline is past ``limit_ns``."""
         due = self._next_due()
-        if due is None:
+        if due is None or (limit_ns is not None and due > limit_ns):
             return False
         self.clock.set(max(due, self.clock.now_ns()))
         now = self.clock.now_ns()
@@ -208,18 +209,18 @@ class Composition:
     def run(self, until: Callable[[], bool] | None = None, *, max_sim_s: float | None = None) -> int:
         """Advance until :meth:`request_stop`, a required node ends, every node has ended, ``until()`` is true,
         ``max_sim_s`` of simulated time passed, or (without a bridge) no node has a timer left; then close every
-        node. Returns the exit code (the required node's,
-        or 0)."""
+        node. Returns the exit code (the required node's, or 0)."""
         end = None if max_sim_s is None else self.clock.now_ns() + int(max_sim_s * 1e9)
         try:
             self.settle()
             self._reap()
             while not self._stop and self.nodes and not (until is not None and until()):
-                if end is not None and self.clock.now_ns() >= end:
-                    break
-                if not self.step():  # nothing scheduled: only outside input can change anything
+                if not self.step(end):
+                    if end is not None and (due := self._next_due()) is not None and due > end:
+                        self.clock.set(max(end, self.clock.now_ns()))
+                        break
                     if self.bridge is None:
-                        break  # and there is no outside
+                        break  # nothing scheduled and no outside that could change that
                     self._wait_outside(_IDLE_WAIT_S)
                     self.settle()
                     self._reap()

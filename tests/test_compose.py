@@ -25,8 +25,8 @@ SMALL = ["region_mm:=[36.0, 33.0, 54.0, 51.0]", "spacing_mm:=3.0"]
 
 
 def test_time_jumps_from_deadline_to_deadline_and_messages_arrive_at_once() -> None:
-    """A 10 Hz talker for 1 s of simulated time: 11 ticks (at 0 and every 0.1 s), each heard by the listener at the
-    tick's own time; the clock ends exactly where it was asked to stop."""
+    """A 10 Hz talker for 1.05 s of simulated time: 11 ticks (at 0 and every 0.1 s), each heard by the listener at
+    the tick's own time; the clock ends exactly where it was asked to stop, not at the next deadline."""
     clock = MockClock(0)
     comp = Composition(clock=clock, heartbeat_s=0)
     comp.add(Talker, "talker", {"rate_hz": 10.0})
@@ -34,11 +34,11 @@ def test_time_jumps_from_deadline_to_deadline_and_messages_arrive_at_once() -> N
     heard: list[tuple[int, int]] = []
     probe = comp.adopt(Node(name="probe", transport=comp.transport(), clock=clock, heartbeat_s=0))
     probe.subscribe("chatter", Text, lambda m: heard.append((m.stamp_ns, clock.now_ns())))
-    comp.run(max_sim_s=1.0)
+    comp.run(max_sim_s=1.05)
     assert listener.heard == 11
     assert [stamp for stamp, _ in heard] == [i * 100_000_000 for i in range(11)]
     assert all(stamp == at for stamp, at in heard)  # delivered before time moved on
-    assert clock.now_ns() == 1_000_000_000
+    assert clock.now_ns() == 1_050_000_000
 
 
 class _Quitter(Node):
