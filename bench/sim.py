@@ -5,7 +5,8 @@ process per node, in the same run; and whether both find the same inclusions.
     python bench/sim.py --region 2,2,58,20   # a third of it
     python bench/sim.py --time-scale 20      # the multi-process clock's ceiling (default 20: not the limit)
 
-Wall time is the whole ``palpa launch`` (start-up, imports and shutdown included), as a user waits for it.
+Wall time is the whole ``palpa launch`` (start-up, imports and shutdown included), as a user waits for it; CPU
+time is every process of the launch (user + system), which a busy shared machine moves much less.
 Simulated time is the recording's span (first to last message stamp). The machine is shared: each run reports its load
 average and the CPU time the hypervisor took (steal). The last line is JSON with ``sim_speedup_in_process`` and
 ``sim_speedup_multi_process``.
@@ -85,6 +86,11 @@ def main() -> None:
         "sim_speedup_multi_process": round(results["multi_process"]["speedup"], 2),
         "cpu_s_in_process": round(results["in_process"]["cpu_s"], 1),
         "cpu_s_multi_process": round(results["multi_process"]["cpu_s"], 1),
+        "sim_s_per_cpu_s_in_process": round(results["in_process"]["sim_s"] / results["in_process"]["cpu_s"], 2),
+        "sim_s_per_cpu_s_multi_process": round(results["multi_process"]["sim_s"] / results["multi_process"]["cpu_s"],
+                                               2),
+        "load_max": round(max(max(r["load_before"], r["load_after"]) for r in results.values()), 2),
+        "steal_s": round(sum(r["steal_s"] for r in results.values()), 1),
         "inclusion_gap_mm": None if math.isinf(gap) else round(gap, 3),
         "cores": os.cpu_count(),
     }))

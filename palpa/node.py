@@ -256,7 +256,8 @@ class Node:
             self._rx.dispatch(delivery)
         self._run_timers()
         due = self.next_timer_due_ns()
-        if due is not None and self.clock.is_real():
+        if due is not None and self.clock.is_real() and self._topic_clock is None:
+            # (simulated time moves only when a tick arrives: a sim-clock node just waits for input)
             timeout_s = max(0.0, min(timeout_s, (due - self.clock.now_ns()) / 1e9))
         elif not self.clock.is_real():
             timeout_s = 0.0 if self._timers else timeout_s

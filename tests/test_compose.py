@@ -114,6 +114,10 @@ def test_in_process_and_multi_process_find_the_same_inclusions(procs: ProcessGro
     run_launch(procs, tmp_path / "in", "launch/scan_sim.yaml", "--in-process", *SMALL, timeout=120)
     run_launch(procs, tmp_path / "multi", "launch/scan_sim.yaml", *SMALL, "time_scale:=5.0", timeout=300)
     a, b = inclusions(tmp_path / "in"), inclusions(tmp_path / "multi")
-    assert len(a) == len(b) >= 1
+    # a node starved of CPU for the clock's participant timeout stops holding simulated time back: say so
+    warnings = [line for log in (tmp_path / "multi").glob("*.log") for line in log.read_text().splitlines()
+                if "WARNING" in line]
+    assert len(a) == len(b) >= 1, (a, b, warnings)
     for x in a:
-        assert min(math.dist((x["x_mm"], x["y_mm"]), (y["x_mm"], y["y_mm"])) for y in b) <= 0.05, (a, b)
+        gap = min(math.dist((x["x_mm"], x["y_mm"]), (y["x_mm"], y["y_mm"])) for y in b)
+        assert gap <= 0.05, (gap, a, b, warnings)
