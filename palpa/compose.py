@@ -193,14 +193,14 @@ class Composition:
     def step(self, limit_ns: int | None = None) -> bool:
         """Advance to the next timer deadline and run what is due there; False (time unmoved) when no node has a
         timer left or the next deadline is past ``limit_ns``."""
-        due = self._next_due()
+        dues = [(d, n) for n in self.nodes if (d := n.next_timer_due_ns()) is not None]
+        due = min(d for d, _ in dues) if dues else None
         if due is None or (limit_ns is not None and due > limit_ns):
             return False
         self.clock.set(max(due, self.clock.now_ns()))
         now = self.clock.now_ns()
-        for node in list(self.nodes):
-            nd = node.next_timer_due_ns()
-            if nd is not None and nd <= now:
+        for d, node in dues:
+            if d <= now:
                 node.spin_once(0)
         self.settle()
         self._reap()
