@@ -67,7 +67,7 @@ class CameraTracker(palpa.Node):
         debug_hz: float = 0.0
         debug_encoding: Literal["png", "jpg", "bgr8"] = "png"
         # sim driver
-        phantom: str = ""
+        phantom: palpa.InputPath = ""
         rate_hz: float = 30.0
         """Sim camera frame rate (the paper's camera: 30 fps)."""
         pan_deg: float = 0.0

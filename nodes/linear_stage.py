@@ -76,7 +76,7 @@ class LinearStage(palpa.Node):
     class Params(palpa.Params):
         x_mm: float = 20.0
         y_mm: float = 20.0
-        phantom: str = ""
+        phantom: palpa.InputPath = ""
         """Phantom file to take the surface height at (x, y) from; empty: ``surface_z_mm``."""
         surface_z_mm: float = 30.0
         start_gap_mm: float = 4.0

@@ -1,8 +1,11 @@
 """Map aggregator node: valid ``stiffness/sample`` messages -> a gridded map, detected inclusions, files.
 
 Publishes the map (``map/stiffness``) and inclusions (``map/inclusions``), both latched, at ``publish_hz`` while
-scanning; when the scan reports ``done`` on ``robot/scan_status`` (and again on shutdown, with everything received
-by then) it writes ``map.npz``, ``map.png`` and ``inclusions.json`` into ``output_dir``.
+scanning; when the scan reports ``done`` on ``robot/scan_status`` it writes ``map.npz``, ``map.png`` and
+``inclusions.json`` into ``output_dir`` (each file atomically). It writes once per scan: a repeated ``done`` (a
+scanner lingering, a replay) writes nothing new, and shutdown writes only samples no file holds yet (a scan
+stopped half-way), so a node asked to stop after its scan exits at once. The service ``map/save``
+(:class:`Trigger` -> :class:`MapSaved`) writes them now, mid-scan.
 """
 
 from __future__ import annotations
@@ -16,10 +19,12 @@ import palpa
 from messages import (
     DetectedInclusion,
     Inclusions,
+    MapSaved,
     ScanPlan,
     ScanStatus,
     StiffnessMap,
     StiffnessSample,
+    Trigger,
 )
 from models.stiffness_map import (
     Inclusion,
@@ -29,6 +34,7 @@ from models.stiffness_map import (
     detect_inclusions,
 )
 from nodes.map_output import write_outputs
+from palpa.service import RequestRefused
 
 __all__ = ["MapAggregator"]
 
@@ -62,7 +68,8 @@ class MapAggregator(palpa.Node):
         self.pending: list[tuple[float, float, float]] = []
         self.written = 0
         self.changed = False
-        self.done = False
+        self.unsaved = 0
+        """Samples taken since the files were last written."""
         if p.region_mm:
             if len(p.region_mm) != 4:
                 raise palpa.ParamError(f"{self.name}: region_mm needs x0, y0, x1, y1, got {p.region_mm}")
@@ -71,6 +78,16 @@ class MapAggregator(palpa.Node):
         self.subscribe("robot/plan", self.on_plan)
         self.subscribe("robot/scan_status", self.on_status)
         self.timer(1.0 / p.publish_hz, self.publish_map)
+        self.service("map/save", Trigger, MapSaved, self.on_save)
+
+    def on_save(self, req: Trigger) -> MapSaved:
+        """Service ``map/save``: write the map files from what has been received so far."""
+        if self.grid is None or not self.samples:
+            raise RequestRefused("no map to save yet (no valid stiffness sample received)")
+        self._bin_pending()
+        snap = self.grid.snapshot()
+        paths = self.write(snap, self._detect(snap)[0])
+        return MapSaved(paths=[str(p) for p in paths], samples=self.samples)
 
     def _make_grid(self, x0: float, y0: float, x1: float, y1: float) -> None:
         self.grid = StiffnessGrid(x0, y0, x1, y1, self.params.resolution_mm, min_count=self.params.min_count)
@@ -97,12 +114,12 @@ class MapAggregator(palpa.Node):
             return
         self.unit = s.unit
         self.samples += 1
+        self.unsaved += 1
         self.changed = True
         self.pending.append((s.x_mm, s.y_mm, s.value))
 
     def on_status(self, st: ScanStatus) -> None:
-        if st.state == "done" and not self.done:  # the status is repeated while the scanner lingers: write once
-            self.done = True
+        if st.state == "done" and (self.unsaved or not self.written):
             self.log.info("scan done: writing the map")
             self.publish_map(final=True)
 
@@ -137,19 +154,22 @@ class MapAggregator(palpa.Node):
         if final:
             self.write(snap, found)
 
-    def write(self, snap: MapSnapshot, found: list[Inclusion]) -> None:
+    def write(self, snap: MapSnapshot, found: list[Inclusion]) -> list[Path]:
         out = Path(self.params.output_dir)
         title = self.params.title or f"stiffness map — {out}"
         title += f"\n{self.samples} samples, {len(found)} inclusion(s), {time.strftime('%Y-%m-%d %H:%M')}"
         paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title)
         self.written += 1
+        self.unsaved = 0
         for inc in found:
             self.log.info("inclusion at (%.1f, %.1f) mm, radius %.1f mm, contrast %.2f",
                           inc.x_mm, inc.y_mm, inc.radius_mm, inc.contrast)
         self.log.info("map written: %s", ", ".join(str(p) for p in paths))
+        return list(paths)
 
     def on_shutdown(self) -> None:
-        if self.grid is not None and self.samples:
+        if self.grid is not None and self.unsaved:
+            self.log.info("stopping with %d samples not yet written: writing the map", self.unsaved)
             self.publish_map(final=True)
 
 

@@ -151,6 +151,7 @@ class Composition:
         """(node name, exit code) of every node that ended by itself, in order."""
         self._names: list[bytes] = []
         self._stop = False
+        self.bus.pump = self._pump
 
     # -- building --------------------------------------------------------------------------------------
     def transport(self) -> MemoryTransport:
@@ -247,6 +248,13 @@ class Composition:
             self.bridge = self.bus.bridge = None
 
     # -- internals -------------------------------------------------------------------------------------
+    def _pump(self) -> None:
+        """Let the nodes handle their input once: a node blocked in a service call waits for the others so."""
+        self._take_outside()
+        for node, t in self._inboxes():
+            if t.inbox:
+                node.spin_once(0)
+
     def _inboxes(self) -> list[tuple[Node, MemoryTransport]]:
         return [(n, n._transport) for n in self.nodes if isinstance(n._transport, MemoryTransport)]
 

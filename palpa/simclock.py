@@ -18,7 +18,7 @@ from typing import Any
 
 from palpa.clock import SystemClock
 from palpa.node import Node
-from palpa.params import Params
+from palpa.params import Params as ParamsBase
 from palpa.runner import run_node
 from palpa.runtime_msgs import CLOCK_ACK_TOPIC, CLOCK_TOPIC, ClockAck, ClockTick
 
@@ -28,7 +28,7 @@ __all__ = ["ClockSource"]
 class ClockSource(Node):
     """Publishes simulation time: ``start + time_scale * (wall time since start)`` at ``rate_hz`` wall ticks."""
 
-    class Params(Params):
+    class Params(ParamsBase):
         time_scale: float = 1.0
         """Simulated seconds per wall-clock second (> 0)."""
         rate_hz: float = 1000.0

@@ -57,3 +57,29 @@ def test_flat_map_has_no_inclusions(tmp_path: Path) -> None:
             h.publish("stiffness/sample", sample(float(x), float(y), 26.4 + rng.normal(0, 1.0)))
     h.close()  # shutdown writes the final map too
     assert json.loads((tmp_path / "inclusions.json").read_text()) == []
+
+
+def test_map_written_once_per_scan_and_not_again_on_shutdown(tmp_path: Path) -> None:
+    """A replay repeats ``done`` 4-5 times and the launcher stops the node right after: one write, and a
+    shutdown that has nothing new to save does not render the map again (that took the node past SIGINT)."""
+    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path), "region_mm": [0, 0, 10, 10]})
+    done = ScanStatus(stamp_ns=0, state="done", line=5, lines=5, progress=1.0, eta_s=0)
+    for x in range(10):
+        h.publish("stiffness/sample", sample(x + 0.5, 5.0, 26.0))
+    for _ in range(4):
+        h.publish("robot/scan_status", done)
+    assert h.node.written == 1
+    assert [m.final for m in h.published("map/inclusions")].count(True) == 1
+    h.close()
+    assert h.node.written == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["inclusions.json", "map.npz", "map.png"]  # no temp files
+
+
+def test_shutdown_writes_samples_taken_after_the_last_write(tmp_path: Path) -> None:
+    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path), "region_mm": [0, 0, 10, 10]})
+    h.publish("stiffness/sample", sample(1.0, 1.0, 26.0))
+    h.publish("robot/scan_status", ScanStatus(stamp_ns=0, state="done", line=1, lines=1, progress=1.0, eta_s=0))
+    h.publish("stiffness/sample", sample(3.0, 3.0, 26.0))  # a second scan stopped half-way
+    h.close()
+    assert h.node.written == 2
+    assert int(np.load(tmp_path / "map.npz")["count"].sum()) == 2
