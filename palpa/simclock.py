@@ -53,8 +53,8 @@ class ClockSource(Node):
         self._acks: dict[str, tuple[int, int]] = {}
         """node -> (acknowledged sim ns, wall monotonic ns when heard)"""
         self.held_ns = 0
-        self._dropped: set[str] = set()
         """Simulated time withheld so far because a node lagged."""
+        self._dropped: set[str] = set()
         if self.params.max_lead_s > 0:
             self.subscribe(CLOCK_ACK_TOPIC, self._on_ack)
         self.timer(1.0 / self.params.rate_hz, self._tick, first_in_s=0.0)
