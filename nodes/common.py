@@ -5,9 +5,12 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
+import yaml
+
+from models.camera_calibration import CalibrationError, ProbeCalibration
 from models.phantom import Phantom, load_phantom
 
-__all__ = ["phantom_from_param"]
+__all__ = ["load_probe_calibration", "phantom_from_param"]
 
 
 @lru_cache(maxsize=8)
@@ -22,3 +25,15 @@ def phantom_from_param(path: str, node: str) -> Phantom:
     if not Path(path).is_file():
         raise ValueError(f"{node}: phantom file {path!r} does not exist")
     return _load(path)
+
+
+def load_probe_calibration(path: str, node: str) -> ProbeCalibration:
+    """Read a camera-probe calibration file (YAML, nodes/camera_calibrate.py writes it); errors name the file."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"{node}: calibration file {path!r} does not exist")
+    try:
+        doc = yaml.safe_load(p.read_text())
+        return ProbeCalibration.from_dict(doc, source=path)
+    except (yaml.YAMLError, CalibrationError) as exc:
+        raise ValueError(f"{node}: {exc}") from None
