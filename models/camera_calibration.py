@@ -124,13 +124,17 @@ def fit_scale(travel_mm: npt.ArrayLike, u_px: npt.ArrayLike, direction: npt.Arra
 
 
 def fit_springs(travel_mm: npt.ArrayLike, dx_mm: npt.ArrayLike, direction: npt.ArrayLike, k_ref_n_per_mm: float,
-                *, min_dx_mm: float = 1.0, max_dx_mm: float = 9.0) -> tuple[FloatArray, FloatArray]:
+                *, min_dx_mm: float = 1.0, max_dx_mm: float = 9.0,
+                scale_slope_error: float = 0.002) -> tuple[FloatArray, FloatArray]:
     """Spring constants (N/mm, per indenter) and their standard errors from a press of a reference of known K.
 
     Regresses dx_i = s_i t + b_i + c_i sign(motion) over samples in full contact, stage moving,
     and returns K (1 / s_i - 1). Full contact is chosen on the stage travel (where a first fit
     puts dx between ``min_dx`` and ``max_dx`` mm), never on the noisy dx itself, which would bias
-    the slope.
+    the slope. The standard error adds the pixel -> mm map's own slope error (relative,
+    ``scale_slope_error``: about 0.2 % for the rigid-flat cubic) to the regression's: k = K (1/s - 1)
+    magnifies a slope error by K / s^2, so a reference much stiffer than a spring says little
+    about it, and the weighted mean leans on the reference that suits each spring.
     """
     if not (k_ref_n_per_mm > 0 and math.isfinite(k_ref_n_per_mm)):
         raise CalibrationError(f"reference spring: K must be finite and > 0, got {k_ref_n_per_mm}")
@@ -154,5 +158,5 @@ def fit_springs(travel_mm: npt.ArrayLike, dx_mm: npt.ArrayLike, direction: npt.A
         resid = dx[fitted, j] - a @ coef
         cov = np.linalg.inv(a.T @ a) * float(resid @ resid) / max(len(resid) - 3, 1)
         k_out[j] = k_ref_n_per_mm * (1.0 / s - 1.0)
-        se_out[j] = k_ref_n_per_mm / (s * s) * math.sqrt(max(float(cov[0, 0]), 0.0))
+        se_out[j] = k_ref_n_per_mm / (s * s) * math.sqrt(max(float(cov[0, 0]), 0.0) + (scale_slope_error * s) ** 2)
     return k_out, se_out

@@ -61,6 +61,7 @@ __all__ = [
     "TipForce",
     "TissueTips",
     "layer_deflection_factor",
+    "layer_kernel",
 ]
 
 
@@ -146,17 +147,22 @@ class TipForce(Protocol):
     def force_n(self, x: Any, y: Any, depth_mm: Any, indenter_radius_mm: float = ...) -> Any: ...
 
 
+def layer_kernel(t: float, nu: float) -> float:
+    """K(t) of a layer bonded to a rigid table (t = wavenumber x thickness); 1 is the half-space."""
+    if t > 30.0:
+        return 1.0
+    kappa = 3.0 - 4.0 * nu
+    c, s = math.cosh(2 * t), math.sinh(2 * t)
+    return (2 * kappa * s - 4 * t) / (2 * kappa * c + 4 * t * t + 1 + kappa * kappa)
+
+
 @lru_cache(maxsize=16)
 def _layer_table(nu: float) -> tuple[FloatArray, FloatArray]:
     """rho/h grid and Phi(rho/h) = layer deflection / half-space deflection at that distance."""
-    kappa = 3.0 - 4.0 * nu
     r = np.geomspace(1e-3, 40.0, 140)
 
     def excess(t: float) -> float:  # K(t) - 1, which decays like exp(-2t)
-        if t > 30.0:
-            return 0.0
-        c, s = math.cosh(2 * t), math.sinh(2 * t)
-        return (2 * kappa * s - 4 * t) / (2 * kappa * c + 4 * t * t + 1 + kappa * kappa) - 1.0
+        return layer_kernel(t, nu) - 1.0
 
     phi = np.empty_like(r)
     for i, x in enumerate(r):
