@@ -44,7 +44,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from functools import lru_cache
-from typing import Any, NamedTuple, Protocol
+from typing import Any, Literal, NamedTuple, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -53,6 +53,7 @@ from scipy import integrate, special
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = [
+    "DEFAULT_ERRORS",
     "CameraWorld",
     "ContactState",
     "ProbeBuild",
@@ -67,13 +68,15 @@ __all__ = [
 
 @dataclass(frozen=True)
 class ProbeErrorSpec:
-    """Manufacturing and camera errors of one probe, as ranges a draw picks from (uniform).
+    """Manufacturing and camera errors of one probe, as the ranges a draw picks from.
 
-    spring_tolerance: relative half-width of each spring's constant (commercial compression
-    springs: +-5 to +-10 %); scale_tolerance: relative half-width of each marker's px/mm (the
-    spheres sit at slightly different distances from the 7 mm camera); friction_n: range of each
-    indenter's Coulomb friction in its 3-D printed guide (N); distortion_k1: range of the radial
-    distortion coefficient (barrel < 0) with radii normalised by ``focal_px``.
+    spring_tolerance: relative tolerance band of each spring's constant (commercial compression
+    springs: +-5 to +-10 %); scale_tolerance: relative band of each marker's px/mm (the spheres sit
+    at slightly different distances from the 7 mm camera). ``spread`` says how a part falls in its
+    band: ``normal``, a process just capable of it (Cp = 1: sigma = band / 3, clipped at the band),
+    or ``uniform`` anywhere in it (the pessimistic reading). friction_n: range of each indenter's
+    Coulomb friction in its 3-D printed guide (N, uniform); distortion_k1: range of the radial
+    distortion coefficient (barrel < 0, uniform) with radii normalised by ``focal_px``.
     """
 
     spring_tolerance: float = 0.08
@@ -81,6 +84,17 @@ class ProbeErrorSpec:
     friction_n: tuple[float, float] = (0.002, 0.008)
     distortion_k1: tuple[float, float] = (-0.08, -0.02)
     focal_px: float = 600.0
+    spread: Literal["normal", "uniform"] = "normal"
+
+    def relative_errors(self, band: float, n: int, rng: np.random.Generator) -> FloatArray:
+        """n relative errors within +-band, drawn as ``spread`` says."""
+        if self.spread == "uniform":
+            return rng.uniform(-band, band, n)
+        out: FloatArray = np.clip(rng.normal(0.0, band / 3.0, n), -band, band)
+        return out
+
+
+DEFAULT_ERRORS = ProbeErrorSpec()
 
 
 @dataclass(frozen=True)
@@ -126,8 +140,8 @@ class ProbeBuild:
              stroke_mm: float = 10.0) -> ProbeBuild:
         """One manufactured probe: every error drawn uniformly from ``spec``'s ranges."""
         n = len(x_mm)
-        k = np.asarray(k_n_per_mm) * (1.0 + rng.uniform(-spec.spring_tolerance, spec.spring_tolerance, n))
-        s = px_per_mm * (1.0 + rng.uniform(-spec.scale_tolerance, spec.scale_tolerance, n))
+        k = np.asarray(k_n_per_mm) * (1.0 + spec.relative_errors(spec.spring_tolerance, n, rng))
+        s = px_per_mm * (1.0 + spec.relative_errors(spec.scale_tolerance, n, rng))
         f = rng.uniform(*spec.friction_n, n)
         k1 = float(rng.uniform(*spec.distortion_k1))
         return cls(tuple(x_mm), tuple(y_mm), tuple(k.tolist()), tuple(s.tolist()), tuple(f.tolist()), k1,

@@ -1,17 +1,17 @@
 """Calibrate a camera probe: press a rigid flat and reference springs, write the calibration file.
 
-    python -m nodes.camera_calibrate -o probe7.yaml --probe-seed 7            # in simulation
+    python -m nodes.camera_calibrate -o probe7.yaml --device-seed 7            # in simulation
     palpa launch launch/camera_sim.yaml calibration_file:=probe7.yaml ...      # then use it
 
 The procedure is the rig's (docs/camera.md, "Calibration"): the linear stage presses the probe
-flat and slowly into each reference and back out, twice, while the camera tracker runs at its
+flat and slowly into each reference and back out, four times, while the camera tracker runs at its
 nominal scale; what is used is only what the rig observes: the stage's pose and speed on
 ``robot/pose``, each marker's offset on ``camera/indenters`` (displacement at the nominal scale
 times that scale = pixels from the zero reference), and the label K of each reference.
 ``models.camera_calibration`` fits the pixel -> mm maps on the rigid flat and the springs on the
 references. In simulation the references are phantom files (``phantoms/ref_*.yaml``; the labelled
 springs are off their labels by a measurement error, as real ones) and the probe is the one the sim
-camera draws from ``--probe-seed``: calibrate and measure with the same seed. On the rig, record
+camera draws from ``--device-seed``: calibrate and measure with the same seed. On the rig, record
 the same two topics during the same presses and give them to :func:`calibrate`.
 """
 
@@ -34,11 +34,13 @@ from models.multi_indenter import PX_PER_MM
 __all__ = ["REFERENCES", "Press", "calibrate", "main", "press_reference"]
 
 HERE = Path(__file__).resolve().parent.parent / "phantoms"
-#: (phantom file, label K in N/mm; inf: the rigid flat) the simulated calibration presses.
-REFERENCES: tuple[tuple[str, float], ...] = (
-    (str(HERE / "ref_rigid.yaml"), math.inf),
-    (str(HERE / "ref_spring_010.yaml"), 0.10),
-    (str(HERE / "ref_spring_050.yaml"), 0.50),
+#: (phantom file, label K in N/mm (inf: the rigid flat), press depth mm) of the simulated calibration. The rigid
+#: flat goes to 9 mm (inside the 10 mm stroke); 0.10 N/mm suits the soft springs (a slope near 2/3) and, pressed
+#: 11 mm, gives the hard one 3 mm of travel; 0.25 N/mm suits the hard spring (slope 1/2).
+REFERENCES: tuple[tuple[str, float, float], ...] = (
+    (str(HERE / "ref_rigid.yaml"), math.inf, 9.0),
+    (str(HERE / "ref_spring_010.yaml"), 0.10, 11.0),
+    (str(HERE / "ref_spring_025.yaml"), 0.25, 9.0),
 )
 
 #: Time (s) after a change of the stage's speed before frames are used (the filter's settling, ~7 frames, and more).
@@ -92,8 +94,8 @@ def calibrate(presses: Sequence[tuple[Press, float]], info: dict[str, object] | 
     return ProbeCalibration(polys, tuple(float(v) for v in k), 1.0, notes)
 
 
-def press_reference(phantom: str, *, probe_seed: int, seed: int = 0, depth_mm: float = 9.0,
-                    speed_mm_s: float = 1.5, cycles: int = 2, ideal: bool = False) -> Press:
+def press_reference(phantom: str, *, device_seed: int, seed: int = 0, depth_mm: float = 9.0,
+                    speed_mm_s: float = 1.5, cycles: int = 4, ideal: bool = False) -> Press:
     """One simulated reference press of the linear stage (in-process graph): the poses and indenter frames."""
     from nodes.camera_tracker import CameraTracker
     from nodes.linear_stage import LinearStage
@@ -102,7 +104,8 @@ def press_reference(phantom: str, *, probe_seed: int, seed: int = 0, depth_mm: f
     g = GraphHarness()
     stage = g.add(LinearStage, {"phantom": phantom, "depth_mm": depth_mm, "speed_mm_s": speed_mm_s, "hold_s": 0.5,
                                 "settle_s": 1.2, "dwell_s": 0.3, "cycles": cycles})
-    g.add(CameraTracker, {"phantom": phantom, "seed": seed, "probe_seed": probe_seed, "ideal": ideal})
+    g.add(CameraTracker, {"phantom": phantom, "seed": seed, "device_seed": device_seed,
+                          "sim_errors": "ideal" if ideal else "realistic"})
     g.advance(1.3 + cycles * stage.profile.cycle_s)
     out = (g.published("robot/pose", RobotPose), g.published("camera/indenters", IndenterDisplacements))
     g.close()
@@ -113,14 +116,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     """CLI: calibrate a simulated probe and write the file."""
     ap = argparse.ArgumentParser(prog="python -m nodes.camera_calibrate", description=__doc__.split("\n")[0])
     ap.add_argument("-o", "--output", required=True, help="calibration file to write (YAML)")
-    ap.add_argument("--probe-seed", type=int, default=0, help="which simulated probe (the sim camera's probe_seed)")
+    ap.add_argument("--device-seed", type=int, default=0, help="which simulated probe (the sim camera's device_seed)")
     ap.add_argument("--seed", type=int, default=100, help="image-noise seed of the calibration presses")
     args = ap.parse_args(argv)
-    presses = [(press_reference(path, probe_seed=args.probe_seed, seed=args.seed + i), k)
-               for i, (path, k) in enumerate(REFERENCES)]
+    presses = [(press_reference(path, device_seed=args.device_seed, seed=args.seed + i, depth_mm=depth), k)
+               for i, (path, k, depth) in enumerate(REFERENCES)]
     try:
-        cal = calibrate(presses, {"probe_seed": args.probe_seed, "references": [
-            {"phantom": Path(p).name, "label_n_per_mm": None if math.isinf(k) else k} for p, k in REFERENCES]})
+        cal = calibrate(presses, {"device_seed": args.device_seed, "references": [
+            {"phantom": Path(p).name, "label_n_per_mm": None if math.isinf(k) else k, "depth_mm": d}
+            for p, k, d in REFERENCES]})
     except CalibrationError as exc:
         print(f"camera_calibrate: {exc}", file=sys.stderr)
         return 1

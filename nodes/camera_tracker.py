@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 import palpa
-from messages import DeviceStatus, ImageInfo, IndenterDisplacements, RobotPose
+from messages import DeviceStatus, ImageInfo, IndenterDisplacements, RobotPose, Text
 from models.camera_render import CameraModel
 from models.camera_world import ProbeErrorSpec
 from models.kalman import KalmanParams
@@ -88,12 +88,15 @@ class CameraTracker(palpa.Node):
         hard_spring_n_per_mm: float = 0.25
         seed: int = 0
         """Sim: the seed of the image noise."""
-        probe_seed: int = 0
+        device_seed: int = 0
         """Sim: which probe (its springs, marker scales, friction and lens are drawn from this seed)."""
-        ideal: bool = False
-        """Sim: a perfect probe (nominal springs and scale, no friction or distortion); for unit tests only."""
+        sim_errors: Literal["realistic", "ideal"] = "realistic"
+        """Sim: the probe as built (drawn from ``device_seed``), or a perfect one (nominal springs and scale, no
+        friction or distortion; unit tests of the estimator's algebra only)."""
         tip_radius_mm: float = 2.0
         """Sim: radius of the indenters' hemispherical tips (tissue phantoms)."""
+        tolerance_spread: Literal["normal", "uniform"] = "normal"
+        """Sim: how the probe's springs and scales fall in their tolerance bands (models.camera_world)."""
 
     def setup(self) -> None:
         p = self.params
@@ -130,11 +133,14 @@ class CameraTracker(palpa.Node):
                 phantom_from_param(p.phantom, self.name), self.clock.now_ns, rate_hz=p.rate_hz,
                 pan_deg=p.pan_deg, tilt_deg=p.tilt_deg, camera=camera,
                 pixel_noise_px=None if p.pixel_noise_px < 0 else p.pixel_noise_px, geometry=geometry, seed=p.seed,
-                errors=None if p.ideal else ProbeErrorSpec(), probe_seed=p.probe_seed, tip_radius_mm=p.tip_radius_mm,
+                errors=None if p.sim_errors == "ideal" else ProbeErrorSpec(spread=p.tolerance_spread), device_seed=p.device_seed, tip_radius_mm=p.tip_radius_mm,
             )
-            # The probe as built is the run's truth: logged (and so recorded on _palpa/log) once at start.
-            self.log.info("sim probe %s: %s", "ideal" if p.ideal else f"#{p.probe_seed}",
-                          json.dumps(self.sim.build.to_dict()))
+            # The probe as built is the run's truth: published once, latched, so that a recording keeps it.
+            truth = json.dumps({"driver": "sim", "sim_errors": p.sim_errors, "device_seed": p.device_seed,
+                                "tolerance_spread": p.tolerance_spread, "build": self.sim.build.to_dict()})
+            self.publisher("sim/truth/camera", Text, latched=True).publish(Text(stamp_ns=self.clock.now_ns(),
+                                                                                text=truth))
+            self.log.info("sim probe: %s", truth)
             self.subscribe("robot/pose", self.on_pose)
             self.driver = self.sim
         else:

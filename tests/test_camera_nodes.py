@@ -55,7 +55,7 @@ def test_indenters_published_once_zeroed_at_the_camera_rate() -> None:
 
 
 def test_displacements_follow_the_rendered_truth() -> None:
-    h = NodeHarness(CameraTracker, {"phantom": SPRINGS[0.37], "tilt_deg": 12.0, "ideal": True})
+    h = NodeHarness(CameraTracker, {"phantom": SPRINGS[0.37], "tilt_deg": 12.0, "sim_errors": "ideal"})
     h.publish("robot/pose", pose(40.0, h.clock.now_ns()))
     h.advance(1.2)
     h.publish("robot/pose", pose(30.0 - 6.0, h.clock.now_ns()))  # 6 mm into the sample
@@ -71,7 +71,7 @@ def test_displacements_follow_the_rendered_truth() -> None:
 
 def test_reversed_image_direction() -> None:
     """direction -1 (spheres move to smaller x as the indenters go in): rendered and tracked consistently."""
-    h = NodeHarness(CameraTracker, {"phantom": SPRINGS[0.29], "direction": -1.0, "ideal": True})
+    h = NodeHarness(CameraTracker, {"phantom": SPRINGS[0.29], "direction": -1.0, "sim_errors": "ideal"})
     h.publish("robot/pose", pose(40.0, h.clock.now_ns()))
     h.advance(1.2)
     h.publish("robot/pose", pose(30.0 - 8.0, h.clock.now_ns()))
@@ -201,7 +201,7 @@ def test_stage_node_waits_for_its_topic_then_presses_and_exits() -> None:
 
 # ------------------------------------------------------------------------------- acceptance: Table I, in-process
 
-CALIBRATION = str(Path(__file__).parent / "data" / "camera_probe0.yaml")  # python -m nodes.camera_calibrate
+CALIBRATION = str(Path(__file__).parent / "data" / "camera_probe6.yaml")  # python -m nodes.camera_calibrate
 
 
 def table_row(k: float, values: np.ndarray) -> tuple[float, float, float, float]:
@@ -214,11 +214,11 @@ def test_table_i_rows_before_and_after_calibration(k: float) -> None:
     """Issue 14 in the suite (the whole table is bench/table_i.py): simulated probe 0 as built (springs, marker
     scales, lens, friction off nominal) pressed once at 15° tilt through rendered frames -> tracker -> estimator.
     With the nominal constants the errors show (the paper's trend: worse on the stiffer spring); with the probe's
-    calibration file (tests/data/camera_probe0.yaml) the row is >= 99 % and the tilt within 1°."""
+    calibration file (tests/data/camera_probe6.yaml) the row is >= 99 % and the tilt within 1°."""
     from bench.table_i import press_once
 
     def run(cal: str) -> tuple[float, float]:
-        valid = [s for s in press_once(k, 0.0, 15.0, probe_seed=0, seed=3, calibration_file=cal, hold_s=0.5,
+        valid = [s for s in press_once(k, 0.0, 15.0, device_seed=6, seed=3, calibration_file=cal, hold_s=0.5,
                                        speed_mm_s=4.0) if s.valid]
         assert len(valid) > 60, (k, cal)
         values = np.array([s.value for s in valid])
@@ -226,7 +226,7 @@ def test_table_i_rows_before_and_after_calibration(k: float) -> None:
 
     before, _ = run("")
     after, tilt = run(CALIBRATION)
-    assert before < (96.0 if k > 0.5 else 99.0), before
+    assert 90.0 < before < 97.0, before
     assert after >= 99.0, after
     assert abs(tilt - 15.0) <= 1.0, tilt
 
@@ -241,7 +241,7 @@ def test_camera_sim_launch_measures_a_tilted_spring(procs: Any, tmp_path: Path) 
 
     got: list[StiffnessSample] = []
     with launched(procs, "launch/camera_sim.yaml", tmp_path / "run", "phantom:=phantoms/springs_062.yaml",
-                  "tilt_deg:=15.0", f"calibration_file:={CALIBRATION}", "cycles:=1", "speed_mm_s:=3.0", "hold_s:=1.5") as (proc, node):
+                  "tilt_deg:=15.0", f"calibration_file:={CALIBRATION}", "device_seed:=6", "cycles:=1", "speed_mm_s:=3.0", "hold_s:=1.5") as (proc, node):
         samples = node.subscribe("stiffness/sample", StiffnessSample)
 
         def ended() -> bool:

@@ -24,7 +24,15 @@ import numpy as np
 import numpy.typing as npt
 
 from models.camera_render import CameraModel, Renderer
-from models.camera_world import CameraWorld, ProbeBuild, ProbeErrorSpec, SpringRods, TipForce, TissueTips
+from models.camera_world import (
+    DEFAULT_ERRORS,
+    CameraWorld,
+    ProbeBuild,
+    ProbeErrorSpec,
+    SpringRods,
+    TipForce,
+    TissueTips,
+)
 from models.multi_indenter import PAPER_GEOMETRY, ProbeGeometry
 from models.phantom import Phantom
 from models.timeseries import StampedBuffer
@@ -103,7 +111,7 @@ class SimCameraSource:
     ``pan_deg``/``tilt_deg``: the sample surface's inclination relative to the probe (degrees, < 90);
     ``camera``: the image model (its ``jitter_px`` is replaced by ``pixel_noise_px`` when given, else by the
     phantom's ``noise.pixel``; its scale and distortion by the probe's as built). ``geometry``: the nominal
-    probe; ``errors``: the manufacturing/camera error ranges the probe is drawn from with ``probe_seed`` (None:
+    probe; ``errors``: the manufacturing/camera error ranges the probe is drawn from with ``device_seed`` (None:
     the ideal probe); ``seed``: the image noise. ``occluded`` (settable, bool per marker) hides spheres, for lost-marker tests. Before any pose
     arrives the probe is off the sample (spheres at rest); afterwards the pose at each frame's stamp is
     interpolated, or the newest held.
@@ -120,9 +128,9 @@ class SimCameraSource:
         camera: CameraModel | None = None,
         pixel_noise_px: float | None = None,
         geometry: ProbeGeometry = PAPER_GEOMETRY,
-        errors: ProbeErrorSpec | None = ProbeErrorSpec(),
+        errors: ProbeErrorSpec | None = DEFAULT_ERRORS,
         seed: int = 0,
-        probe_seed: int = 0,
+        device_seed: int = 0,
         realtime: bool = False,
         tip_radius_mm: float = 2.0,
     ) -> None:
@@ -134,7 +142,7 @@ class SimCameraSource:
         rng = np.random.default_rng(seed)
         args = (geometry.x_mm, geometry.y_mm, geometry.k_n_per_mm, base.px_per_mm)
         self.build = (ProbeBuild.ideal(*args, stroke_mm=geometry.stroke_mm) if errors is None else
-                      ProbeBuild.draw(*args, errors, np.random.default_rng(probe_seed), stroke_mm=geometry.stroke_mm))
+                      ProbeBuild.draw(*args, errors, np.random.default_rng(device_seed), stroke_mm=geometry.stroke_mm))
         self.build = replace(self.build, tip_radius_mm=tip_radius_mm)
         jitter = phantom.noise.pixel if pixel_noise_px is None else pixel_noise_px
         self.camera = replace(base, jitter_px=float(jitter), marker_px_per_mm=self.build.px_per_mm,
