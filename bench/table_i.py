@@ -65,8 +65,8 @@ def accuracy(k: float, values: np.ndarray) -> dict[str, float]:
 
 def calibrate_probe(device_seed: int, path: Path) -> dict[str, object]:
     """Run the calibration procedure on the simulated probe and write its file."""
-    presses = [(press_reference(p, device_seed=device_seed, seed=1000 + 10 * device_seed + i, depth_mm=d), kr)
-               for i, (p, kr, d) in enumerate(REFERENCES)]
+    presses = [(press_reference(p, device_seed=device_seed, seed=1000 + 10 * device_seed + i, depth_mm=d,
+                                speed_mm_s=v), kr) for i, (p, kr, d, v) in enumerate(REFERENCES)]
     cal = calibrate(presses, {"device_seed": device_seed})
     path.write_text(yaml.safe_dump(cal.to_dict(), sort_keys=False))
     return cal.to_dict()

@@ -193,43 +193,82 @@ def layer_deflection_factor(rho_mm: Any, thickness_mm: float, nu: float) -> Any:
     return np.interp(np.log(np.clip(x, r[0], r[-1])), np.log(r), phi)
 
 
-class SpringRods:
-    """A spring sample: one rod of ``k_n_per_mm[i]`` under tip i, no coupling between rods."""
+#: Indentations (mm) at which a tip's force is tabulated once per probe position; dense near 0.
+DEPTH_GRID_MM = 15.0 * np.linspace(0.0, 1.0, 97) ** 2
 
-    def __init__(self, k_n_per_mm: Sequence[float]) -> None:
-        self.k = np.asarray(k_n_per_mm, dtype=np.float64)
-        self.coupling = np.zeros((len(self.k), len(self.k)))
+
+class _Tabulated:
+    """A sample as the tips meet it: per tip, force (N) against indentation on ``DEPTH_GRID_MM``
+    (linear between nodes, at the last slope beyond), and the coupling matrix g (mm/N)."""
+
+    table: FloatArray
+    coupling: FloatArray
+
+    def _finish(self, table: FloatArray, coupling: FloatArray) -> None:
+        self.table = table
+        self._slope = np.diff(table, axis=1) / np.diff(DEPTH_GRID_MM)
+        self.coupling = coupling
 
     def force(self, delta_mm: FloatArray, rows: npt.NDArray[np.intp]) -> FloatArray:
-        """Rod forces (N) for indentations delta (mm) of the tips ``rows``."""
-        out: FloatArray = self.k[rows] * np.clip(delta_mm, 0.0, None)
+        """Forces (N) on the tips ``rows`` for indentations delta (mm; <= 0: no contact)."""
+        grid = DEPTH_GRID_MM
+        d = np.clip(delta_mm, 0.0, None)
+        seg = np.clip(np.searchsorted(grid, d, side="right") - 1, 0, grid.size - 2)
+        out: FloatArray = self.table[rows, seg] + self._slope[rows, seg] * (d - grid[seg])
+        return out
+
+    def compression(self, reach: FloatArray, k: FloatArray, target: FloatArray,
+                    rows: npt.NDArray[np.intp]) -> FloatArray:
+        """The spring compression dx where F(reach - dx) - k dx = target, per entry (exact on the table).
+
+        h rises with the indentation delta = reach - dx; it is linear between the table's nodes, so
+        the root is found by locating the sign change and interpolating. With no contact (delta <= 0)
+        F = 0 and dx = -target / k.
+        """
+        grid = DEPTH_GRID_MM
+        h = self.table[rows] - k[:, None] * (reach[:, None] - grid[None, :]) - target[:, None]
+        above = h >= 0
+        first = np.argmax(above, axis=1)
+        any_above = above.any(axis=1)
+        g1 = np.clip(first, 1, grid.size - 1)
+        i = np.arange(len(rows))
+        h0, h1 = h[i, g1 - 1], h[i, g1]
+        inside = grid[g1 - 1] + (-h0) * (grid[g1] - grid[g1 - 1]) / np.where(h1 > h0, h1 - h0, 1.0)
+        beyond = grid[-1] + (-h[:, -1]) / (self._slope[rows, -1] + k)
+        delta = np.where(any_above, inside, beyond)
+        out: FloatArray = np.where(any_above & (first == 0), -target / k, reach - delta)
         return out
 
 
-class TissueTips:
-    """Tissue under the four tips: ``world.force_n`` at each tip, coupled through the layer."""
+class SpringRods(_Tabulated):
+    """A spring sample: one rod of ``k_n_per_mm[i]`` under tip i, no coupling between rods."""
+
+    def __init__(self, k_n_per_mm: Sequence[float]) -> None:
+        k = np.asarray(k_n_per_mm, dtype=np.float64)
+        self._finish(k[:, None] * DEPTH_GRID_MM[None, :], np.zeros((k.size, k.size)))
+
+
+class TissueTips(_Tabulated):
+    """Tissue under the four tips: ``world.force_n`` at each tip, coupled through the layer.
+
+    The world is asked once, for every tip over ``DEPTH_GRID_MM`` (one vectorised call); the
+    equilibrium then works on that table.
+    """
 
     def __init__(self, world: TipForce, x_mm: Sequence[float], y_mm: Sequence[float], tip_radius_mm: float,
                  youngs_modulus_kpa: float, poisson_ratio: float, thickness_mm: float) -> None:
-        self.world = world
-        self.x = np.asarray(x_mm, dtype=np.float64)
-        self.y = np.asarray(y_mm, dtype=np.float64)
-        self.radius = tip_radius_mm
-        rho = np.hypot(self.x[:, None] - self.x[None, :], self.y[:, None] - self.y[None, :])
+        x = np.asarray(x_mm, dtype=np.float64)
+        y = np.asarray(y_mm, dtype=np.float64)
+        grid = DEPTH_GRID_MM
+        f = np.asarray(world.force_n(np.repeat(x, grid.size), np.repeat(y, grid.size), np.tile(grid, x.size),
+                                     indenter_radius_mm=tip_radius_mm), dtype=np.float64)
+        rho = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
         e_star = youngs_modulus_kpa * 1e-3 / (1.0 - poisson_ratio**2)  # N/mm^2
         with np.errstate(divide="ignore"):
             g = layer_deflection_factor(rho, thickness_mm, poisson_ratio) / (math.pi * e_star * rho)
         np.fill_diagonal(g, 0.0)
-        self.coupling: FloatArray = g
-        """g[i, j]: surface deflection (mm) at tip i per newton on tip j (zero diagonal)."""
-
-    def force(self, delta_mm: FloatArray, rows: npt.NDArray[np.intp]) -> FloatArray:
-        """Tissue forces (N) on the tips ``rows`` for indentations delta (mm; <= 0: no contact)."""
-        d = np.clip(delta_mm, 0.0, None)
-        f = np.asarray(self.world.force_n(self.x[rows], self.y[rows], d, indenter_radius_mm=self.radius),
-                       dtype=np.float64)
-        out: FloatArray = np.where(d > 0, np.nan_to_num(f, nan=0.0), 0.0)
-        return out
+        # g[i, j]: surface deflection (mm) at tip i per newton on tip j (zero diagonal)
+        self._finish(np.nan_to_num(f.reshape(x.size, grid.size), nan=0.0), g)
 
 
 class ContactState(NamedTuple):
@@ -261,28 +300,13 @@ class CameraWorld:
         self.load[:] = 0.0
 
     def _band(self, sample: SpringRods | TissueTips, reach: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Per tip, the compressions dx in [0, stroke] where |F(reach - dx) - k dx| <= f: (lo, hi).
-
-        h(dx) = F(reach - dx) - k dx falls with dx, so each edge is one bisection (vectorised
-        over the tips and both edges); reach = overlap minus the neighbours' surface deflection.
-        """
+        """Per tip, the compressions dx in [0, stroke] where |F(reach - dx) - k dx| <= f: (lo, hi);
+        reach = overlap minus the neighbours' surface deflection."""
         n = self.build.n
         rows = np.concatenate([np.arange(n), np.arange(n)])
-        target = np.concatenate([self.f, -self.f])
-        r2 = np.concatenate([reach, reach])
-        k2 = np.concatenate([self.k, self.k])
-        lo = np.zeros(2 * n)
-        hi = np.full(2 * n, self.build.stroke_mm)
-        h_lo = sample.force(r2 - lo, rows) - k2 * lo - target
-        h_hi = sample.force(r2 - hi, rows) - k2 * hi - target
-        for _ in range(48):
-            mid = 0.5 * (lo + hi)
-            h = sample.force(r2 - mid, rows) - k2 * mid - target
-            up = h > 0
-            lo = np.where(up, mid, lo)
-            hi = np.where(up, hi, mid)
-        root = 0.5 * (lo + hi)
-        root = np.where(h_lo <= 0, 0.0, np.where(h_hi >= 0, self.build.stroke_mm, root))
+        root = sample.compression(np.concatenate([reach, reach]), np.concatenate([self.k, self.k]),
+                                  np.concatenate([self.f, -self.f]), rows)
+        root = np.clip(root, 0.0, self.build.stroke_mm)
         return root[:n], root[n:]
 
     def press(self, overlap_mm: npt.ArrayLike, sample: SpringRods | TissueTips) -> ContactState:
@@ -296,8 +320,8 @@ class CameraWorld:
             lo, hi = self._band(sample, reach)
             new_dx = np.clip(self.dx, lo, hi)
             new_load = sample.force(reach - new_dx, rows)
-            done = np.max(np.abs(new_dx - dx)) < 1e-9 and np.max(np.abs(new_load - load)) < 1e-9
-            dx, load = new_dx, 0.5 * (load + new_load) if sample.coupling.any() else new_load
+            done = np.max(np.abs(new_dx - dx)) < 1e-8 and np.max(np.abs(new_load - load)) < 1e-8
+            dx, load = new_dx, new_load  # the coupling is weak (g dF/d(delta) << 1): plain iteration converges
             if done:
                 break
         self.dx, self.load = dx, load

@@ -4,7 +4,8 @@
     palpa launch launch/camera_sim.yaml calibration_file:=probe7.yaml ...      # then use it
 
 The procedure is the rig's (docs/camera.md, "Calibration"): the linear stage presses the probe
-flat and slowly into each reference and back out, four times, while the camera tracker runs at its
+flat and slowly (the rigid flat at 0.5 mm/s, springs at 1.5 mm/s) into each reference and back out, four
+times, while the camera tracker runs at its
 nominal scale; what is used is only what the rig observes: the stage's pose and speed on
 ``robot/pose``, each marker's offset on ``camera/indenters`` (displacement at the nominal scale
 times that scale = pixels from the zero reference), and the label K of each reference.
@@ -34,13 +35,15 @@ from models.multi_indenter import PX_PER_MM
 __all__ = ["REFERENCES", "Press", "calibrate", "main", "press_reference"]
 
 HERE = Path(__file__).resolve().parent.parent / "phantoms"
-#: (phantom file, label K in N/mm (inf: the rigid flat), press depth mm) of the simulated calibration. The rigid
-#: flat goes to 9 mm (inside the 10 mm stroke); 0.10 N/mm suits the soft springs (a slope near 2/3) and, pressed
-#: 11 mm, gives the hard one 3 mm of travel; 0.25 N/mm suits the hard spring (slope 1/2).
-REFERENCES: tuple[tuple[str, float, float], ...] = (
-    (str(HERE / "ref_rigid.yaml"), math.inf, 9.0),
-    (str(HERE / "ref_spring_010.yaml"), 0.10, 11.0),
-    (str(HERE / "ref_spring_025.yaml"), 0.25, 9.0),
+#: (phantom file, label K in N/mm (inf: the rigid flat), press depth mm, speed mm/s) of the simulated calibration.
+#: The rigid flat goes to 9 mm (inside the 10 mm stroke) slowly, so that the tracker's filter has settled a few
+#: pixels past the knee and the pixel maps hold down to 8 px (the hard marker travels only 1-4 mm on the springs);
+#: 0.10 N/mm suits the soft springs (a slope near 2/3) and, pressed 11 mm, gives the hard one 3 mm of travel;
+#: 0.25 N/mm suits the hard spring (slope 1/2).
+REFERENCES: tuple[tuple[str, float, float, float], ...] = (
+    (str(HERE / "ref_rigid.yaml"), math.inf, 9.0, 0.5),
+    (str(HERE / "ref_spring_010.yaml"), 0.10, 11.0, 1.5),
+    (str(HERE / "ref_spring_025.yaml"), 0.25, 9.0, 1.5),
 )
 
 #: Time (s) after a change of the stage's speed before frames are used (the filter's settling, ~7 frames, and more).
@@ -77,7 +80,7 @@ def calibrate(presses: Sequence[tuple[Press, float]], info: dict[str, object] | 
     if not math.isinf(k_rigid) or not springs:
         raise CalibrationError("calibrate: need the rigid flat first, then at least one reference spring")
     travel, direction, u = _series(rigid)
-    polys, contact = fit_scale(travel, u, direction)
+    polys, contact = fit_scale(travel, u, direction, min_u_px=8.0)
     cal = ProbeCalibration(polys, (1.0,) * len(polys))
     ks, ses = [], []
     for press, k_ref in springs:
@@ -119,12 +122,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--device-seed", type=int, default=0, help="which simulated probe (the sim camera's device_seed)")
     ap.add_argument("--seed", type=int, default=100, help="image-noise seed of the calibration presses")
     args = ap.parse_args(argv)
-    presses = [(press_reference(path, device_seed=args.device_seed, seed=args.seed + i, depth_mm=depth), k)
-               for i, (path, k, depth) in enumerate(REFERENCES)]
+    presses = [(press_reference(path, device_seed=args.device_seed, seed=args.seed + i, depth_mm=depth,
+                                speed_mm_s=speed), k) for i, (path, k, depth, speed) in enumerate(REFERENCES)]
     try:
         cal = calibrate(presses, {"device_seed": args.device_seed, "references": [
             {"phantom": Path(p).name, "label_n_per_mm": None if math.isinf(k) else k, "depth_mm": d}
-            for p, k, d in REFERENCES]})
+            for p, k, d, _ in REFERENCES]})
     except CalibrationError as exc:
         print(f"camera_calibrate: {exc}", file=sys.stderr)
         return 1
