@@ -29,6 +29,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from models.tracker import poly_to_mm
+
 FloatArray = npt.NDArray[np.float64]
 
 __all__ = ["CalibrationError", "ProbeCalibration", "fit_scale", "fit_springs"]
@@ -86,16 +88,7 @@ class ProbeCalibration:
 
     def to_mm(self, u_px: npt.ArrayLike) -> FloatArray:
         """Displacements (mm) for pixel offsets u (..., n) from the zero reference."""
-        u = np.asarray(u_px, dtype=np.float64)
-        out = np.zeros_like(u)
-        for j, p in enumerate(self.scale_poly):
-            out[..., j] = sum(c * u[..., j] ** (m + 1) for m, c in enumerate(p))
-        return out
-
-
-def _moving(direction: FloatArray) -> FloatArray:
-    d = np.sign(np.asarray(direction, dtype=np.float64))
-    return d
+        return poly_to_mm(u_px, self.scale_poly)
 
 
 def fit_scale(travel_mm: npt.ArrayLike, u_px: npt.ArrayLike, direction: npt.ArrayLike,
@@ -108,7 +101,7 @@ def fit_scale(travel_mm: npt.ArrayLike, u_px: npt.ArrayLike, direction: npt.Arra
     """
     t = np.asarray(travel_mm, dtype=np.float64)
     u = np.asarray(u_px, dtype=np.float64)
-    d = _moving(np.asarray(direction))
+    d = np.sign(np.asarray(direction, dtype=np.float64))
     polys, contact = [], []
     for j in range(u.shape[1]):
         use = (u[:, j] > min_u_px) & (d != 0) & np.isfinite(u[:, j])
@@ -140,7 +133,7 @@ def fit_springs(travel_mm: npt.ArrayLike, dx_mm: npt.ArrayLike, direction: npt.A
         raise CalibrationError(f"reference spring: K must be finite and > 0, got {k_ref_n_per_mm}")
     t = np.asarray(travel_mm, dtype=np.float64)
     dx = np.asarray(dx_mm, dtype=np.float64)
-    d = _moving(np.asarray(direction))
+    d = np.sign(np.asarray(direction, dtype=np.float64))
     k_out, se_out = np.empty(dx.shape[1]), np.empty(dx.shape[1])
     for j in range(dx.shape[1]):
         use = (dx[:, j] > min_dx_mm) & (dx[:, j] < max_dx_mm) & (d != 0)

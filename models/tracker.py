@@ -38,7 +38,7 @@ import numpy.typing as npt
 from models.kalman import KalmanParams, ScalarKalmanBank
 from models.multi_indenter import PX_PER_MM
 
-__all__ = ["Calibration", "TrackResult", "Tracker", "TrackerConfig", "annotate", "default_regions"]
+__all__ = ["Calibration", "TrackResult", "Tracker", "TrackerConfig", "annotate", "default_regions", "poly_to_mm"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -51,6 +51,15 @@ def default_regions(width: int, height: int, n: int = 4) -> tuple[Box, ...]:
         raise ValueError(f"default_regions: cannot split a {width}x{height} image into {n} strips")
     edges = [round(i * width / n) for i in range(n + 1)]
     return tuple((edges[i], 0, edges[i + 1], height) for i in range(n))
+
+
+def poly_to_mm(u_px: npt.ArrayLike, scale_poly: tuple[tuple[float, ...], ...]) -> FloatArray:
+    """Displacements (mm) of pixel offsets u (..., n): per marker j, sum over m of c_jm u^(m+1)."""
+    u = np.asarray(u_px, dtype=np.float64)
+    out = np.zeros_like(u)
+    for j, coeffs in enumerate(scale_poly):
+        out[..., j] = sum(c * u[..., j] ** (m + 1) for m, c in enumerate(coeffs))
+    return out
 
 
 @dataclass(frozen=True)
@@ -92,10 +101,7 @@ class Calibration:
         if self.scale_poly is None:
             out: FloatArray = u / self.px_per_mm
             return out
-        out = np.zeros_like(u)
-        for j, coeffs in enumerate(self.scale_poly):
-            out[..., j] = sum(c * u[..., j] ** (m + 1) for m, c in enumerate(coeffs))
-        return out
+        return poly_to_mm(u, self.scale_poly)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain types, for a YAML/JSON calibration file."""
