@@ -8,7 +8,8 @@ from pathlib import Path
 import yaml
 
 from models.camera_calibration import CalibrationError, ProbeCalibration
-from models.phantom import Phantom, load_phantom
+from models.phantom import Phantom, PhantomError, load_phantom
+from palpa.errors import ParamError
 
 __all__ = ["load_probe_calibration", "phantom_from_param"]
 
@@ -19,21 +20,26 @@ def _load(path: str) -> Phantom:
 
 
 def phantom_from_param(path: str, node: str) -> Phantom:
-    """Load the phantom named by a node's ``phantom`` parameter; a missing one is a clear error."""
+    """Load the phantom named by a node's ``phantom`` parameter; a missing or invalid one is a
+    :class:`ParamError` (one line from ``palpa run``, no traceback)."""
     if not path:
-        raise ValueError(f"{node}: the sim driver needs the 'phantom' parameter (a phantom YAML file)")
+        raise ParamError(f"{node}: the sim driver needs the 'phantom' parameter (a phantom YAML file)")
     if not Path(path).is_file():
-        raise ValueError(f"{node}: phantom file {path!r} does not exist")
-    return _load(path)
+        raise ParamError(f"{node}: phantom file {path!r} does not exist")
+    try:
+        return _load(path)
+    except PhantomError as exc:
+        raise ParamError(f"{node}: {exc}") from None
 
 
 def load_probe_calibration(path: str, node: str) -> ProbeCalibration:
-    """Read a camera-probe calibration file (YAML, nodes/camera_calibrate.py writes it); errors name the file."""
+    """Read a camera-probe calibration file (YAML, nodes/camera_calibrate.py writes it); a missing or invalid one
+    is a :class:`ParamError` naming the file."""
     p = Path(path)
     if not p.is_file():
-        raise ValueError(f"{node}: calibration file {path!r} does not exist")
+        raise ParamError(f"{node}: calibration file {path!r} does not exist")
     try:
         doc = yaml.safe_load(p.read_text())
         return ProbeCalibration.from_dict(doc, source=path)
     except (yaml.YAMLError, CalibrationError) as exc:
-        raise ValueError(f"{node}: {exc}") from None
+        raise ParamError(f"{node}: {exc}") from None
