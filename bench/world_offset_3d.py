@@ -60,7 +60,7 @@ def contrast_3d(
 ) -> list[float]:
     """F(inclusion at each offset) / F(none), all lengths over the sphere radius."""
     t = T_MM / R_MM
-    half = graded_nodes([], fine, 1.1, 5.0)
+    half = graded_nodes([], fine, 1.1, 4.5)
     xs = np.concatenate([-half[::-1], half[1:]])
     z = np.sort(t - graded_nodes([TOP_MM / R_MM], fine, min(1.1, t), t))  # fine at the top
     mesh = MeshTet.init_tensor(xs, half, z)

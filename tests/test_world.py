@@ -103,6 +103,27 @@ def test_force_scales_with_modulus_and_radius_squared_at_fixed_groups() -> None:
     # Shallow contact is Hertzian: F ~ d^1.5 (the layer is 50 contact radii thick).
     lo, hi = (float(base.force_n(30, 30, d)) for d in (0.05, 0.1))
     assert hi / lo == pytest.approx(2**1.5, rel=0.03)
+    # Below the tables' first depth (0.01 r) the force follows Hertz's exponent exactly.
+    lo, hi = (float(base.force_n(30, 30, d)) for d in (0.01, 0.02))
+    assert hi / lo == pytest.approx(2**1.5, rel=1e-9)
+
+
+@pytest.mark.parametrize("nu", [0.3, 0.45, 0.5])
+def test_shallow_indentation_of_a_thick_layer_is_hertzian(nu: float) -> None:
+    """48 mm under a 4 mm sphere at 0.02-0.4 mm is a half-space to 2 %: Hertz, with its 1 - nu^2."""
+    world = TissueWorld(
+        parse_phantom(
+            {
+                "size_mm": [200, 200],
+                "thickness_mm": 48,
+                "youngs_modulus_kpa": 10,
+                "poisson_ratio": nu,
+            }
+        )
+    )
+    d = np.array([0.02, 0.08, 0.4])
+    hertz = 4.0 / 3.0 * 10e-3 / (1.0 - nu**2) * np.sqrt(4.0) * d**1.5
+    np.testing.assert_allclose(np.asarray(world.force_n(100, 100, d)), hertz, rtol=0.025)
 
 
 def test_the_cli_runs_as_a_module(tmp_path: Path) -> None:

@@ -55,3 +55,27 @@ def test_inclusion_contrast_table_matches_a_fresh_solve(tables: dict[str, np.nda
     fresh = [stiff.force(float(d)) / plain.force(float(d)) for d in depths]
     np.testing.assert_allclose(fresh, shipped[[1, 3]], rtol=0.02)
     assert min(fresh) > 1.1  # a real inclusion, not a trivially matching 1.0
+
+
+def test_the_world_reproduces_a_fresh_solve_through_its_public_query() -> None:
+    """A case on table nodes (nu 0.49, t = r, top 0.35 t, R = r, x4, d = 0.2 r) with r = 4 mm:
+    the interpolated world's excess force (contrast - 1) against fresh coarse FE, to 4 %."""
+    from models.phantom import parse_phantom
+    from models.world import TissueWorld
+
+    base = {
+        "size_mm": [60, 60],
+        "thickness_mm": 4.0,
+        "youngs_modulus_kpa": 20.0,
+        "poisson_ratio": 0.49,
+    }
+    inc = {"center_mm": [30, 30], "radius_mm": 4.0, "depth_mm": 1.4, "youngs_modulus_kpa": 80.0}
+    world = TissueWorld(parse_phantom(base | {"inclusions": [inc]}))
+    plain = TissueWorld(parse_phantom(base))
+    excess = float(world.force_n(30, 30, 0.8)) / float(plain.force_n(30, 30, 0.8)) - 1.0
+    fresh = (
+        AxisymmetricContact(Layer(1.0, 0.49, 1.0, 0.35, None, 4.0), fine=COARSE).force(0.2)
+        / AxisymmetricContact(Layer(1.0, 0.49), fine=COARSE).force(0.2)
+        - 1.0
+    )
+    assert excess == pytest.approx(fresh, rel=0.04)

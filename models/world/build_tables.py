@@ -62,7 +62,7 @@ def energy_bins(
     f = bu.interpolate(full[: bu.N])
     x = bu.mapping.F(bu.X)  # (2, nelem, nqp) quadrature point coordinates
     r = x[0]
-    g, v = f.grad, f.value
+    g, v = f.grad, np.asarray(f)
     err, ezz, ett, grz = g[0, 0], g[1, 1], v[0] / r, g[0, 1] + g[1, 0]
     e = model.modulus[:, None]
     mu = e / (2.0 * (1.0 + layer.nu))

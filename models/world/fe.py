@@ -98,8 +98,8 @@ def make_mesh(layer: Layer, fine: float = 0.02, reach: float = 1.05) -> MeshTri:
 @BilinearForm
 def _shear(u, v, w):  # type: ignore[no-untyped-def]
     r = w.x[0]
-    eu = (u.grad[0, 0], u.grad[1, 1], u.value[0] / r, u.grad[0, 1] + u.grad[1, 0])
-    ev = (v.grad[0, 0], v.grad[1, 1], v.value[0] / r, v.grad[0, 1] + v.grad[1, 0])
+    eu = (u.grad[0, 0], u.grad[1, 1], u[0] / r, u.grad[0, 1] + u.grad[1, 0])
+    ev = (v.grad[0, 0], v.grad[1, 1], v[0] / r, v.grad[0, 1] + v.grad[1, 0])
     dev = eu[0] * ev[0] + eu[1] * ev[1] + eu[2] * ev[2] + 0.5 * eu[3] * ev[3]
     return 2.0 * w.mu * dev * r
 
@@ -107,7 +107,7 @@ def _shear(u, v, w):  # type: ignore[no-untyped-def]
 @BilinearForm
 def _div(p, v, w):  # type: ignore[no-untyped-def]
     r = w.x[0]
-    return -p * (v.grad[0, 0] + v.grad[1, 1] + v.value[0] / r) * r
+    return -p * (v.grad[0, 0] + v.grad[1, 1] + v[0] / r) * r
 
 
 @BilinearForm

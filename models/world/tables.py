@@ -35,13 +35,27 @@ class Grid:
         self._offsets = bits @ strides
         self._strides = strides
 
+    @property
+    def values(self) -> FloatArray:
+        """The node values, shaped like the axes."""
+        out: FloatArray = self._flat.reshape([a.size for a in self.axes])
+        return out
+
+    @classmethod
+    def stack(cls, grids: list[Grid]) -> Grid:
+        """Grids on the same axes stacked along a new leading axis indexed 0, 1, ... (integers)."""
+        vals = [g.values for g in grids]
+        if len(vals) == 1:  # an axis needs two nodes; the copy is never weighted
+            vals.append(vals[0])
+        return cls((np.arange(len(vals), dtype=np.float64), *grids[0].axes), np.stack(vals))
+
     def fix(self, axis: int, value: float) -> Grid:
         """The grid with one axis interpolated at a constant value (clamped) and removed."""
         ax = self.axes[axis]
         v = float(np.clip(value, ax[0], ax[-1]))
         i = int(np.clip(np.searchsorted(ax, v, side="right") - 1, 0, ax.size - 2))
         f = (v - ax[i]) / (ax[i + 1] - ax[i])
-        vals = self._flat.reshape([a.size for a in self.axes])
+        vals = self.values
         lo, hi = np.take(vals, i, axis=axis), np.take(vals, i + 1, axis=axis)
         return Grid(self.axes[:axis] + self.axes[axis + 1 :], (1.0 - f) * lo + f * hi)
 

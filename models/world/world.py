@@ -85,7 +85,7 @@ class TissueWorld:
             )
         self._ratio = np.minimum(ratio, tb.c_k[-1])  # stiffer than the last node: clamped
         self._hom = tb.hom.fix(0, self.nu)
-        self._grid_cache: dict[float, list[tuple[Grid, Grid]]] = {}
+        self._grid_cache: dict[float, tuple[Grid, Grid]] = {}
 
     # ------------------------------------------------------------------ the forward model
 
@@ -116,44 +116,47 @@ class TissueWorld:
     ) -> FloatArray:
         """Each inclusion's excess contrast (n points, m inclusions) at the query points."""
         tb = self.tables
-        out = np.zeros((x.size, self._cx.size))
-        ltr = np.log(tr)
-        ldr = np.log(np.clip(dr, tb.c_d[0], tb.c_d[-1]))
-        for j, (contrast, energy) in enumerate(self._grids(r)):
-            rad = self._rad[j] / r
-            off = np.hypot(x - self._cx[j], y - self._cy[j]) / r
-            near = off - rad < tb.e_off[-1]  # beyond: no strain energy of the indentation there
-            if not near.any():
-                continue
-            tn, dn, en = ltr[near], ldr[near], off[near] - rad
-            top = np.clip(self._top[j] / t[near], 0.0, 1.0)
-            bottom = np.clip((self._top[j] + self._height[j]) / t[near], 0.0, 1.0)
-            c0 = np.exp(contrast(tn, dn, top))
-            axis = np.full_like(en, tb.e_off[0])
-            q = energy(
-                np.tile(tn, 4), np.tile(dn, 4),
-                np.concatenate([en, en, axis, axis]),
-                np.concatenate([bottom, top, np.ones_like(top), top]),
-            ).reshape(4, -1)  # fmt: skip
-            held, full = q[0] - q[1], q[2] - q[3]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                share = np.where(full > 1e-12, np.clip(held / full, 0.0, 1.0), 0.0)
-            # Narrower than the first node: the excess scales with the cross-section it occupies.
-            area = min(rad / tb.c_r[0], 1.0) ** 2
-            out[near, j] = (c0 - 1.0) * share * area
+        contrast, energy = self._grids(r)
+        shape = (x.size, self._cx.size)
+        which = np.broadcast_to(np.arange(shape[1], dtype=np.float64), shape)
+        ltr = np.broadcast_to(np.log(tr)[:, None], shape)
+        ldr = np.broadcast_to(
+            np.log(np.minimum(np.maximum(dr, tb.c_d[0]), tb.c_d[-1]))[:, None], shape
+        )
+        rad = self._rad / r
+        edge = np.hypot(x[:, None] - self._cx, y[:, None] - self._cy) / r - rad
+        top = np.minimum(self._top / t[:, None], 1.0)
+        bottom = np.minimum((self._top + self._height) / t[:, None], 1.0)
+        c0 = np.exp(contrast(which, ltr, ldr, top))
+        axis = np.full(shape, tb.e_off[0])
+        four = [np.stack([v] * 4) for v in (which, ltr, ldr)]
+        q = energy(
+            *four, np.stack([edge, edge, axis, axis]), np.stack([bottom, top, np.ones(shape), top])
+        )
+        held, full = q[0] - q[1], q[2] - q[3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # A small cylinder by the contact's edge can hold more energy than on the axis (the
+            # energy density peaks there): shares above 1 are kept, capped against noise at 2.
+            share = np.where(full > 1e-12, np.clip(held / full, 0.0, 2.0), 0.0)
+        share[edge > tb.e_off[-1]] = 0.0  # beyond the table: no strain energy of the indentation
+        # Narrower than the first node: the excess scales with the cross-section it occupies.
+        area = np.minimum(rad / tb.c_r[0], 1.0) ** 2
+        out: FloatArray = (c0 - 1.0) * share * area
         return out
 
-    def _grids(self, r: float) -> list[tuple[Grid, Grid]]:
-        """Per inclusion, the contrast (log t, log d, s) and energy (log t, log d, e, z) grids with
-        this world's nu, the inclusion's radius over r and its stiffness ratio fixed (cached per r)."""
+    def _grids(self, r: float) -> tuple[Grid, Grid]:
+        """The contrast (inclusion, log t, log d, s) and energy (inclusion, log t, log d, e, z) grids
+        with this world's nu and each inclusion's radius over r and stiffness ratio fixed."""
         cached = self._grid_cache.get(r)
         if cached is None:
             tb = self.tables
             contrast, energy = tb.contrast.fix(0, self.nu), tb.energy.fix(0, self.nu)
-            cached = []
+            cs, es = [], []
             for rad, k in zip(self._rad, self._ratio, strict=True):
                 lrad = float(np.log(np.clip(rad / r, tb.c_r[0], tb.c_r[-1])))
-                cached.append((contrast.fix(4, float(np.log(k))).fix(3, lrad), energy.fix(2, lrad)))
+                cs.append(contrast.fix(4, float(np.log(k))).fix(3, lrad))
+                es.append(energy.fix(2, lrad))
+            cached = (Grid.stack(cs), Grid.stack(es))
             if len(self._grid_cache) > 8:
                 self._grid_cache.clear()
             self._grid_cache[r] = cached
@@ -238,38 +241,57 @@ class TissueWorld:
     def _invert(
         self, x: FloatArray, y: FloatArray, f: FloatArray, t: FloatArray, r: float
     ) -> FloatArray:
-        n = x.size
+        """Depths carrying forces f (all > 0) at on-footprint points.
+
+        The homogeneous force at the local thickness is piecewise linear in log d between the
+        table's nodes (that is its interpolation), so inverting it is exact; the contrast varies
+        slowly with depth, so d = hom^-1(f / C(d)) converges in a few vectorised steps.
+        """
+        tb = self.tables
         dmax = np.minimum(MAX_DEPTH_OVER_RADIUS * r, MAX_DEPTH_OVER_THICKNESS * t)
-        ladder = dmax[:, None] * np.geomspace(1e-3, 1.0, 16)[None, :]
-        xs, ys = (np.repeat(v, ladder.shape[1]) for v in (x, y))
-        fl, cl, _ = self._parts(xs, ys, ladder.ravel(), r)
-        fl = (fl * cl).reshape(ladder.shape)
-        over = f > fl[:, -1] * (1 + 1e-9)
+        fm, cm, _ = self._parts(x, y, dmax, r)
+        over = f > fm * cm * (1 + 1e-9)
         if over.any():
             i = int(np.argmax(over))
             raise WorldRangeError(
                 f"world: force {f[i]:.4g} N at ({x[i]:.2f}, {y[i]:.2f}) mm needs a depth beyond the "
-                f"tables' {dmax[i]:.3g} mm (which carries {fl[i, -1]:.4g} N)"
+                f"tables' {dmax[i]:.3g} mm (which carries {fm[i] * cm[i]:.4g} N)"
             )
-        k = np.clip((fl < f[:, None]).sum(axis=1) - 1, 0, ladder.shape[1] - 2)
-        rows = np.arange(n)
-        lo_d, hi_d = np.log(ladder[rows, k]), np.log(ladder[rows, k + 1])
-        lo_f, hi_f = np.log(fl[rows, k]), np.log(fl[rows, k + 1])
-        lf = np.log(f)
-        tiny = f < fl[:, 0]  # below the ladder's first rung: Hertz's d^1.5
-        for _ in range(4):  # regula falsi in log-log, bracket kept
-            ld = lo_d + (lf - lo_f) * (hi_d - lo_d) / np.maximum(hi_f - lo_f, 1e-12)
-            ld = np.clip(ld, lo_d, hi_d)
-            fm, cm, _ = self._parts(x, y, np.exp(ld), r)
-            lm = np.log(fm * cm)
-            below = lm < lf
-            lo_d, lo_f = np.where(below, ld, lo_d), np.where(below, lm, lo_f)
-            hi_d, hi_f = np.where(below, hi_d, ld), np.where(below, hi_f, lm)
-        ld = lo_d + (lf - lo_f) * (hi_d - lo_d) / np.maximum(hi_f - lo_f, 1e-12)
-        d = np.exp(np.clip(ld, lo_d, hi_d))
-        d0 = ladder[:, 0] * (f / fl[:, 0]) ** (2.0 / 3.0)
-        res: FloatArray = np.where(tiny, d0, d)
-        return res
+        lnodes = np.log(tb.hom_d)
+        ltr = np.log(np.minimum(np.maximum(t / r, 1e-9), tb.hom_t[-1]))
+        rung = self._hom(np.repeat(ltr, lnodes.size), np.tile(lnodes, x.size))
+        rung = rung.reshape(x.size, lnodes.size)  # log F/(E r^2) at each node, per point
+        rows = np.arange(x.size)
+        scale = self.e_kpa * 1e-3 * r * r
+        lmax = np.log(dmax)
+
+        def hom_inverse(force: FloatArray) -> FloatArray:  # log depth (mm)
+            target = np.log(force / scale)
+            k = np.clip((rung < target[:, None]).sum(axis=1) - 1, 0, lnodes.size - 2)
+            lo, hi = rung[rows, k], rung[rows, k + 1]
+            ld = lnodes[k] + (target - lo) * (lnodes[k + 1] - lnodes[k]) / (hi - lo)
+            hertz = lnodes[0] + (target - rung[:, 0]) / 1.5  # below the first node: F ~ d^1.5
+            out: FloatArray = np.minimum(np.where(target < rung[:, 0], hertz, ld) + np.log(r), lmax)
+            return out
+
+        ld = hom_inverse(f)
+        prev: tuple[FloatArray, FloatArray] | None = None
+        for _ in range(0 if self._cx.size == 0 else 20):
+            _, contrast, _ = self._parts(x, y, np.exp(ld), r)
+            step = hom_inverse(f / contrast)
+            res = step - ld
+            if np.max(np.abs(res)) < 1e-11:
+                ld = step
+                break
+            new = step
+            if prev is not None:  # secant on the fixed point ld = step(ld)
+                den = res - prev[1]
+                ok = np.abs(den) > 1e-14
+                new = np.where(ok, ld - res * (ld - prev[0]) / np.where(ok, den, 1.0), step)
+            prev = (ld, res)
+            ld = np.minimum(new, lmax)
+        d: FloatArray = np.exp(ld)
+        return d
 
     # ------------------------------------------------------------------ for people
 
