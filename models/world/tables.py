@@ -91,6 +91,7 @@ class Tables:
     hom_t: FloatArray
     hom_d: FloatArray
     c_nu: FloatArray
+    c_t: FloatArray
     c_d: FloatArray
     c_r: FloatArray
     c_k: FloatArray
@@ -114,6 +115,7 @@ def tables_from_arrays(z: dict[str, FloatArray]) -> Tables:
         hom_t=z["hom_t"],
         hom_d=z["hom_d"],
         c_nu=z["c_nu"],
+        c_t=z["c_t"],
         c_d=z["c_d"],
         c_r=z["c_r"],
         c_k=z["c_k"],

@@ -125,8 +125,10 @@ class TissueWorld:
         )
         rad = self._rad / r
         edge = np.hypot(x[:, None] - self._cx, y[:, None] - self._cy) / r - rad
-        top = np.minimum(self._top / t[:, None], 1.0)
-        bottom = np.minimum((self._top + self._height) / t[:, None], 1.0)
+        # Thicker than the last node: solved as that thick, the inclusion at its true depth.
+        t_inc = np.minimum(t, tb.c_t[-1] * r)[:, None]
+        top = np.minimum(self._top / t_inc, 1.0)
+        bottom = np.minimum((self._top + self._height) / t_inc, 1.0)
         c0 = np.exp(contrast(which, ltr, ldr, top))
         axis = np.full(shape, tb.e_off[0])
         four = [np.stack([v] * 4) for v in (which, ltr, ldr)]
