@@ -108,6 +108,21 @@ def test_force_scales_with_modulus_and_radius_squared_at_fixed_groups() -> None:
     assert hi / lo == pytest.approx(2**1.5, rel=1e-9)
 
 
+def test_the_query_answers_the_inverse_and_names_what_contributes(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    path = str(Path(__file__).parents[1] / "phantoms" / "airfloat_tumours.yaml")
+    out = _query(capsys, path, "--at", "17,18", "--depth", "1.0")
+    assert out["thickness_mm"] == pytest.approx(3.68)
+    assert out["inclusion_under_point"] == 0
+    assert out["contrast"] > 1.2 and out["force_n"] == pytest.approx(
+        out["homogeneous_force_n"] * out["contrast"]
+    )
+    assert [c["index"] for c in out["inclusions"]][0] == 0
+    back = _query(capsys, path, "--at", "17,18", "--force", str(out["force_n"]))
+    assert back["depth_mm"] == pytest.approx(1.0, rel=1e-6)
+
+
 @pytest.mark.parametrize("nu", [0.3, 0.45, 0.5])
 def test_shallow_indentation_of_a_thick_layer_is_hertzian(nu: float) -> None:
     """48 mm under a 4 mm sphere at 0.02-0.4 mm is a half-space to 2 %: Hertz, with its 1 - nu^2."""
