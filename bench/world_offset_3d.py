@@ -7,7 +7,7 @@ rigid frictionless sphere by the same condensed active set as the axisymmetric s
 reference layer of issue 14 with the 6 mm x6 inclusion at several lateral offsets; each contrast is
 F(inclusion) / F(no inclusion) on the same mesh, so most discretisation error cancels.
 
-    nice python -m bench.world_offset_3d [--fine 0.12]
+    nice python -m bench.world_offset_3d [--fine 0.2] [--inclusion 6 6]
 
 prints, per offset, the 3-D FE contrast and the world's (TissueWorld through the shipped tables).
 A few CPU-minutes; a finer mesh is slower and needs more memory.
@@ -111,11 +111,14 @@ def contrast_3d(
 def main() -> None:
     """Solve the offsets and print 3-D FE against the world."""
     p = argparse.ArgumentParser(description=__doc__)
-    p.add_argument("--fine", type=float, default=0.12, help="mesh spacing at the axis, over r")
+    p.add_argument("--fine", type=float, default=0.2, help="mesh spacing at the axis, over r")
+    p.add_argument(
+        "--inclusion", type=float, nargs=2, default=(6.0, 6.0), metavar=("R_MM", "RATIO")
+    )
     args = p.parse_args()
     t0 = time.process_time()
-    rad_mm, ratio, depth_mm = 6.0, 6.0, 1.0
-    offsets_mm = [0.0, 4.0, 6.0, 8.0, 10.0]
+    (rad_mm, ratio), depth_mm = args.inclusion, 1.0
+    offsets_mm = [0.0, rad_mm - 2.0, rad_mm, rad_mm + 2.0, rad_mm + 4.0]
     fe = contrast_3d(
         [o / R_MM for o in offsets_mm], rad_mm / R_MM, ratio, depth_mm / R_MM, args.fine
     )
@@ -135,7 +138,10 @@ def main() -> None:
         TissueWorld(parse_phantom(base | {"inclusions": [inc]})),
         TissueWorld(parse_phantom(base)),
     )
-    print(f"6 mm x6 inclusion, 3.68 mm layer, r = 4 mm, d = 1 mm, 3-D mesh spacing {args.fine} r")
+    print(
+        f"{rad_mm} mm x{ratio} inclusion, 3.68 mm layer, r = 4 mm, d = 1 mm, "
+        f"3-D mesh spacing {args.fine} r"
+    )
     print("offset mm   3-D FE   world   excess error")
     for o, c in zip(offsets_mm, fe, strict=True):
         w = float(world.force_n(30 + o, 30, depth_mm)) / float(plain.force_n(30 + o, 30, depth_mm))
