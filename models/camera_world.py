@@ -158,7 +158,7 @@ class TipForce(Protocol):
     x, y (mm, phantom frame) and depth (mm below the free surface, >= 0) broadcast; returns N.
     """
 
-    def force_n(self, x: Any, y: Any, depth_mm: Any, indenter_radius_mm: float = ...) -> Any: ...
+    def force_n(self, x_mm: Any, y_mm: Any, depth_mm: Any, *, indenter_radius_mm: float = ...) -> Any: ...
 
 
 def layer_kernel(t: float, nu: float) -> float:

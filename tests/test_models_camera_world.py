@@ -79,7 +79,7 @@ def test_layer_deflection_tends_to_boussinesq_and_heaves_on_a_thin_incompressibl
 
 
 class LinearTissue:
-    def force_n(self, x: object, y: object, depth_mm: object, indenter_radius_mm: float = 2.0) -> object:
+    def force_n(self, x_mm: object, y_mm: object, depth_mm: object, *, indenter_radius_mm: float = 2.0) -> object:
         return 0.1 * np.asarray(depth_mm)
 
 

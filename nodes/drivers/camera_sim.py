@@ -36,23 +36,12 @@ from models.camera_world import (
 from models.multi_indenter import PAPER_GEOMETRY, ProbeGeometry
 from models.phantom import Phantom
 from models.timeseries import StampedBuffer
+from models.world import MAX_DEPTH_OVER_RADIUS, MAX_DEPTH_OVER_THICKNESS, TissueWorld
 from nodes.drivers.camera import Frame, SimSource, SourceInfo
 
 __all__ = ["SimCameraSource", "SimTruth"]
 
 FloatArray = npt.NDArray[np.float64]
-
-
-class _PhantomTissue:
-    """Stand-in tissue force until the FE world (``models.world``) is merged: the phantom's local stiffness
-    (flat punch on its stress-bulb modulus) times the indentation. Only used when models.world is absent."""
-
-    def __init__(self, phantom: Phantom) -> None:
-        self.phantom = phantom
-
-    def force_n(self, x: Any, y: Any, depth_mm: Any, indenter_radius_mm: float = 2.0) -> Any:
-        k = self.phantom.spring_constant(x, y, contact_radius_mm=indenter_radius_mm, depth_mm=depth_mm)
-        return np.asarray(k) * np.asarray(depth_mm)
 
 
 class _Beyond:
@@ -63,7 +52,8 @@ class _Beyond:
     def __init__(self, world: TipForce, phantom: Phantom, depth_limit: Any) -> None:
         self.world, self.phantom, self.limit = world, phantom, depth_limit
 
-    def force_n(self, x: Any, y: Any, depth_mm: Any, indenter_radius_mm: float = 2.0) -> Any:
+    def force_n(self, x_mm: Any, y_mm: Any, depth_mm: Any, *, indenter_radius_mm: float = 2.0) -> Any:
+        x, y = x_mm, y_mm
         d = np.asarray(depth_mm, dtype=np.float64)
         lim = np.asarray(self.limit(indenter_radius_mm, self.phantom.thickness(x, y)), dtype=np.float64)
         lim = lim * (1.0 - 1e-6)
@@ -78,13 +68,9 @@ class _Beyond:
 
 
 def tissue_force(phantom: Phantom) -> TipForce:
-    """The tissue world for the camera probe's tips (the FE world when present)."""
-    try:
-        from models.world import world as fe
-    except ImportError:  # the FE world arrives with issue 14's branch i14-fe
-        return _PhantomTissue(phantom)
-    return _Beyond(fe.TissueWorld(phantom), phantom, lambda r, t: np.minimum(
-        fe.MAX_DEPTH_OVER_RADIUS * r, fe.MAX_DEPTH_OVER_THICKNESS * np.asarray(t)))
+    """The FE tissue world for the camera probe's tips, continued past its tables' depth."""
+    return _Beyond(TissueWorld(phantom), phantom, lambda r, t: np.minimum(
+        MAX_DEPTH_OVER_RADIUS * r, MAX_DEPTH_OVER_THICKNESS * np.asarray(t)))
 
 
 @dataclass(frozen=True)
