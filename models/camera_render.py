@@ -90,6 +90,10 @@ class CameraModel:
     - blur_sigma_px: Gaussian blur σ (px), 0 = none.
     - noise_dn: additive Gaussian sensor noise σ (DN), 0 = none.
     - drift_amplitude, drift_period_s: lighting gain 1 + a·sin(2π t / T).
+    - marker_px_per_mm: the scale of each marker (px/mm) when they differ (a probe as built);
+      None: ``px_per_mm`` for all.
+    - distortion_k1, focal_px: radial lens distortion about the image centre applied to the
+      sphere centres, x_d = c + (x − c)(1 + k1 r²) with r = |x − c| / focal_px (barrel: k1 < 0).
     """
 
     width: int = 640
@@ -107,6 +111,9 @@ class CameraModel:
     noise_dn: float = 2.0
     drift_amplitude: float = 0.08
     drift_period_s: float = 20.0
+    marker_px_per_mm: tuple[float, ...] | None = None
+    distortion_k1: float = 0.0
+    focal_px: float = 600.0
 
     def __post_init__(self) -> None:
         if not (isinstance(self.width, int) and isinstance(self.height, int)) or min(self.width, self.height) < 16:
@@ -132,6 +139,14 @@ class CameraModel:
             raise ValueError(f"CameraModel.ambient: expected 0..1, got {self.ambient}")
         if not self.drift_amplitude < 1.0:
             raise ValueError(f"CameraModel.drift_amplitude: expected < 1, got {self.drift_amplitude}")
+        if self.marker_px_per_mm is not None:
+            scales = _floats(self.marker_px_per_mm, "marker_px_per_mm", n)
+            if not all(v > 0 for v in scales):
+                raise ValueError(f"CameraModel.marker_px_per_mm: expected values > 0, got {scales}")
+            object.__setattr__(self, "marker_px_per_mm", scales)
+        if not (math.isfinite(self.distortion_k1) and abs(self.distortion_k1) < 1.0 and self.focal_px > 0):
+            raise ValueError(f"CameraModel: distortion_k1 must be in (-1, 1) and focal_px > 0, got "
+                             f"{self.distortion_k1}, {self.focal_px}")
         if not self.drift_period_s > 0:
             raise ValueError(f"CameraModel.drift_period_s: expected > 0 s, got {self.drift_period_s}")
 
@@ -152,11 +167,12 @@ def marker_x_px(model: CameraModel, displacements_mm: npt.ArrayLike) -> FloatArr
     d = np.asarray(displacements_mm, dtype=np.float64)
     if d.shape != (model.n_markers,):
         raise ValueError(f"displacements_mm: expected shape ({model.n_markers},), got {d.shape}")
-    return np.asarray(model.rest_x_px) + model.direction * model.px_per_mm * d
+    scale = model.px_per_mm if model.marker_px_per_mm is None else np.asarray(model.marker_px_per_mm)
+    return np.asarray(model.rest_x_px) + model.direction * scale * d
 
 
 def true_centroids_px(model: CameraModel, displacements_mm: npt.ArrayLike) -> FloatArray:
-    """Nominal sphere centres (x, y) in px, shape (n, 2), without jitter.
+    """Nominal sphere centres (x, y) in px, shape (n, 2), without jitter, lens distortion applied.
 
     Pixel (row i, column j) is centred on (x, y) = (j, i), as in cv2.moments, so these
     compare directly with centroids measured from image moments.
@@ -164,6 +180,10 @@ def true_centroids_px(model: CameraModel, displacements_mm: npt.ArrayLike) -> Fl
     xy = np.empty((model.n_markers, 2))
     xy[:, 0] = marker_x_px(model, displacements_mm)
     xy[:, 1] = model.y_px
+    if model.distortion_k1:
+        c = np.array([(model.width - 1) / 2.0, (model.height - 1) / 2.0])
+        r2 = np.sum((xy - c) ** 2, axis=1, keepdims=True) / model.focal_px**2
+        xy = c + (xy - c) * (1.0 + model.distortion_k1 * r2)
     return xy
 
 

@@ -38,7 +38,7 @@ import numpy.typing as npt
 from models.kalman import KalmanParams, ScalarKalmanBank
 from models.multi_indenter import PX_PER_MM
 
-__all__ = ["Calibration", "TrackResult", "Tracker", "TrackerConfig", "annotate", "default_regions"]
+__all__ = ["Calibration", "TrackResult", "Tracker", "TrackerConfig", "annotate", "default_regions", "poly_to_mm"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -53,21 +53,40 @@ def default_regions(width: int, height: int, n: int = 4) -> tuple[Box, ...]:
     return tuple((edges[i], 0, edges[i + 1], height) for i in range(n))
 
 
+def poly_to_mm(u_px: npt.ArrayLike, scale_poly: tuple[tuple[float, ...], ...]) -> FloatArray:
+    """Displacements (mm) of pixel offsets u (..., n): per marker j, sum over m of c_jm u^(m+1)."""
+    u = np.asarray(u_px, dtype=np.float64)
+    out = np.zeros_like(u)
+    for j, coeffs in enumerate(scale_poly):
+        out[..., j] = sum(c * u[..., j] ** (m + 1) for m, c in enumerate(coeffs))
+    return out
+
+
 @dataclass(frozen=True)
 class Calibration:
     """Pixel -> mm mapping of the markers' image x.
 
     rest_x_px: image x (px) of each marker at zero indenter displacement; px_per_mm: image
     motion per mm of indenter travel (12.7 for the paper's probe, see models.camera_render);
-    direction: +1 if compressing an indenter moves its sphere to larger x, else −1.
+    direction: +1 if compressing an indenter moves its sphere to larger x, else −1;
+    scale_poly: per marker, coefficients (c1, c2, ...) of d_mm = c1 u + c2 u² + ... with
+    u = direction · (x − rest) in px, a measured calibration (models.camera_calibration) that
+    replaces 1 / px_per_mm and absorbs each marker's own scale and the lens's distortion.
     """
 
     rest_x_px: tuple[float, ...]
     px_per_mm: float = PX_PER_MM
     direction: float = 1.0
+    scale_poly: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rest_x_px", tuple(float(v) for v in self.rest_x_px))
+        if self.scale_poly is not None:
+            poly = tuple(tuple(float(c) for c in p) for p in self.scale_poly)
+            if len(poly) != len(self.rest_x_px) or not all(p and all(math.isfinite(c) for c in p) for p in poly):
+                raise ValueError(f"Calibration.scale_poly: expected one list of finite coefficients per marker "
+                                 f"({len(self.rest_x_px)}), got {self.scale_poly}")
+            object.__setattr__(self, "scale_poly", poly)
         if not self.rest_x_px or not all(math.isfinite(v) for v in self.rest_x_px):
             raise ValueError(f"Calibration.rest_x_px: expected finite pixel positions, got {self.rest_x_px}")
         if not (self.px_per_mm > 0 and math.isfinite(self.px_per_mm)):
@@ -78,24 +97,32 @@ class Calibration:
     def to_mm(self, x_px: npt.ArrayLike) -> FloatArray:
         """Indenter displacements (mm) for marker image x positions (px), shape (n,)."""
         x = np.asarray(x_px, dtype=np.float64)
-        out: FloatArray = self.direction * (x - np.asarray(self.rest_x_px)) / self.px_per_mm
-        return out
+        u = self.direction * (x - np.asarray(self.rest_x_px))
+        if self.scale_poly is None:
+            out: FloatArray = u / self.px_per_mm
+            return out
+        return poly_to_mm(u, self.scale_poly)
 
     def to_dict(self) -> dict[str, Any]:
         """Plain types, for a YAML/JSON calibration file."""
-        return {"rest_x_px": list(self.rest_x_px), "px_per_mm": self.px_per_mm, "direction": self.direction}
+        out: dict[str, Any] = {"rest_x_px": list(self.rest_x_px), "px_per_mm": self.px_per_mm,
+                               "direction": self.direction}
+        if self.scale_poly is not None:
+            out["scale_poly"] = [list(p) for p in self.scale_poly]
+        return out
 
     @classmethod
     def from_dict(cls, doc: Any, source: str = "<dict>") -> Calibration:
         """Inverse of :meth:`to_dict`; errors name ``source`` and the key."""
         if not isinstance(doc, dict) or "rest_x_px" not in doc:
             raise ValueError(f"{source}: expected a mapping with rest_x_px (and px_per_mm, direction)")
-        unknown = set(doc) - {"rest_x_px", "px_per_mm", "direction"}
+        unknown = set(doc) - {"rest_x_px", "px_per_mm", "direction", "scale_poly"}
         if unknown:
             raise ValueError(f"{source}: unknown calibration keys {sorted(unknown)}")
         try:
+            poly = doc.get("scale_poly")
             return cls(tuple(doc["rest_x_px"]), float(doc.get("px_per_mm", PX_PER_MM)),
-                       float(doc.get("direction", 1.0)))
+                       float(doc.get("direction", 1.0)), None if poly is None else tuple(tuple(p) for p in poly))
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{source}: {exc}") from None
 
@@ -114,6 +141,8 @@ class TrackerConfig:
     - px_per_mm, direction: used with measured rest positions (a stored calibration has its own).
     - zero_frames: frames averaged for the zero reference (1 = the paper's first image).
     - reacquire_gate_px: a re-found marker this far from its prediction restarts its filter.
+    - scale_poly: a measured per-marker pixel -> mm polynomial (see :class:`Calibration`) used
+      with measured rest positions instead of ``px_per_mm``.
     """
 
     hsv_lower: tuple[int, int, int] = (40, 100, 50)
@@ -127,6 +156,7 @@ class TrackerConfig:
     direction: float = 1.0
     zero_frames: int = 30
     reacquire_gate_px: float = 8.0
+    scale_poly: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
         for name in ("hsv_lower", "hsv_upper"):
@@ -299,7 +329,7 @@ class Tracker:
             self._zero_count += 1
             if self._zero_count >= self.config.zero_frames:
                 self.calibration = Calibration(tuple((self._zero_sum / self._zero_count).tolist()),
-                                               self.config.px_per_mm, self.config.direction)
+                                               self.config.px_per_mm, self.config.direction, self.config.scale_poly)
         filtered = self.kalman.x.copy()
         filtered[~self.kalman.initialized] = np.nan
         cal = self.calibration

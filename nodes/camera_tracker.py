@@ -15,18 +15,20 @@ node clock's time of the frame; OpenCV frames the host wall clock at grab.
 
 from __future__ import annotations
 
+import json
 from typing import Literal
 
 import cv2
 import numpy as np
 
 import palpa
-from messages import DeviceStatus, ImageInfo, IndenterDisplacements, RobotPose
+from messages import DeviceStatus, ImageInfo, IndenterDisplacements, RobotPose, Text
 from models.camera_render import CameraModel
+from models.camera_world import ProbeErrorSpec
 from models.kalman import KalmanParams
 from models.multi_indenter import PAPER_GEOMETRY, PX_PER_MM, ProbeGeometry
 from models.tracker import Calibration, Tracker, TrackerConfig, TrackResult, annotate
-from nodes.common import phantom_from_param
+from nodes.common import load_probe_calibration, phantom_from_param
 from nodes.drivers.camera import CameraError, Frame, FrameSource, OpenCVSource
 from nodes.drivers.camera_sim import SimCameraSource
 
@@ -62,6 +64,9 @@ class CameraTracker(palpa.Node):
         """Frames averaged for the zero reference (1 = the paper's first frame)."""
         rest_x_px: list[float] = []
         """Stored calibration: marker x (px) at zero displacement; empty: measure it on the first frames."""
+        calibration_file: palpa.InputPath = ""
+        """A probe calibration (``python -m nodes.camera_calibrate``): its per-marker pixel -> mm maps replace
+        ``px_per_mm`` and its direction ``direction``. Empty: the nominal scale."""
         px_per_mm: palpa.Positive = PX_PER_MM
         direction: float = 1.0
         debug_hz: palpa.NonNegative = 0.0
@@ -82,20 +87,34 @@ class CameraTracker(palpa.Node):
         soft_spring_n_per_mm: palpa.Positive = 0.05
         hard_spring_n_per_mm: palpa.Positive = 0.25
         seed: int = 0
+        """Sim: the seed of the image noise."""
+        device_seed: int = 0
+        """Sim: which probe (its springs, marker scales, friction and lens are drawn from this seed)."""
+        sim_errors: Literal["realistic", "ideal"] = "realistic"
+        """Sim: the probe as built (drawn from ``device_seed``), or a perfect one (nominal springs and scale, no
+        friction or distortion; unit tests of the estimator's algebra only)."""
+        tip_radius_mm: palpa.Positive = 2.0
+        """Sim: radius of the indenters' hemispherical tips (tissue phantoms)."""
+        tolerance_spread: Literal["normal", "uniform"] = "normal"
+        """Sim: how the probe's springs and scales fall in their tolerance bands (models.camera_world)."""
 
     def setup(self) -> None:
         p = self.params
         self.indenters = self.publisher("camera/indenters", IndenterDisplacements)
         self.status_pub = self.publisher("camera/status", DeviceStatus, latched=True)
         self.debug_pub = self.publisher("camera/debug", ImageInfo) if p.debug_hz > 0 else None
+        cal_file = load_probe_calibration(p.calibration_file, self.name) if p.calibration_file else None
+        direction = cal_file.direction if cal_file is not None else p.direction
         try:
             config = TrackerConfig(
                 hsv_lower=p.hsv_lower, hsv_upper=p.hsv_upper, regions=tuple(p.regions) or None,
                 window_half_px=p.window_half_px, min_area_px=p.min_area_px, centroid=p.centroid,
                 kalman=KalmanParams(p.kalman_q, p.kalman_r, p.kalman_p0), px_per_mm=p.px_per_mm,
-                direction=p.direction, zero_frames=p.zero_frames,
+                direction=direction, zero_frames=p.zero_frames,
+                scale_poly=cal_file.scale_poly if cal_file is not None else None,
             )
-            cal = Calibration(tuple(p.rest_x_px), p.px_per_mm, p.direction) if p.rest_x_px else None
+            cal = (Calibration(tuple(p.rest_x_px), p.px_per_mm, direction, config.scale_poly) if p.rest_x_px
+                   else None)
             self.tracker = Tracker(config, cal)
         except ValueError as exc:
             raise palpa.ParamError(f"node {self.name!r}: {exc}") from None
@@ -114,7 +133,14 @@ class CameraTracker(palpa.Node):
                 phantom_from_param(p.phantom, self.name), self.clock.now_ns, rate_hz=p.rate_hz,
                 pan_deg=p.pan_deg, tilt_deg=p.tilt_deg, camera=camera,
                 pixel_noise_px=None if p.pixel_noise_px < 0 else p.pixel_noise_px, geometry=geometry, seed=p.seed,
+                errors=None if p.sim_errors == "ideal" else ProbeErrorSpec(spread=p.tolerance_spread), device_seed=p.device_seed, tip_radius_mm=p.tip_radius_mm,
             )
+            # The probe as built is the run's truth: published once, latched, so that a recording keeps it.
+            truth = json.dumps({"driver": "sim", "sim_errors": p.sim_errors, "device_seed": p.device_seed,
+                                "tolerance_spread": p.tolerance_spread, "build": self.sim.build.to_dict()})
+            self.publisher("sim/truth/camera", Text, latched=True).publish(Text(stamp_ns=self.clock.now_ns(),
+                                                                                text=truth))
+            self.log.info("sim probe: %s", truth)
             self.subscribe("robot/pose", self.on_pose)
             self.driver = self.sim
         else:

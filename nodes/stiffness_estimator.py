@@ -60,6 +60,8 @@ class StiffnessEstimator(palpa.Node):
         """0: the model's default geometry."""
         min_displacement_mm: palpa.NonNegative = 0.05
         max_condition: palpa.Positive = 1e6
+        calibration_file: palpa.InputPath = ""
+        """multi_indenter: a probe calibration file whose spring constants replace the nominal ones."""
 
     def setup(self) -> None:
         p = self.params

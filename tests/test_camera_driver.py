@@ -227,7 +227,9 @@ def spring_phantom() -> object:
 
 def test_sim_camera_renders_the_forward_model(spring_phantom: object) -> None:
     clock = MockClock()
-    cam = SimCameraSource(spring_phantom, clock.now_ns, tilt_deg=10.0, pixel_noise_px=0.0)  # type: ignore[arg-type]
+    # the ideal probe on rods, frictionless: the world's series springs must agree with eq. 5's forward model
+    cam = SimCameraSource(spring_phantom, clock.now_ns, tilt_deg=10.0, pixel_noise_px=0.0,  # type: ignore[arg-type]
+                          errors=None)
     cam.open()
     f = cam.read()
     assert f is not None and cam.truth is not None
