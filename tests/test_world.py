@@ -195,12 +195,12 @@ def test_an_inclusion_is_felt_on_its_axis_and_fades_to_background_far_away() -> 
     inc = {"center_mm": [20, 30], "radius_mm": 4, "depth_mm": 1.5, "youngs_modulus_kpa": 6 * E_BG}
     world = TissueWorld(parse_phantom(flat | {"inclusions": [inc]}))
     plain = TissueWorld(parse_phantom(flat))
-    x = 20.0 + np.array([0.0, 2.0, 4.0, 6.0, 10.0, 20.0, 40.0])
+    x = 20.0 + np.array([0.0, 2.0, 4.0, 6.0, 10.0, 20.0, 40.0, 55.0])  # 55: beyond the tables
     ratio = np.asarray(world.force_n(x, 30, 1.0)) / np.asarray(plain.force_n(x, 30, 1.0))
     assert ratio[0] > 1.3
     assert np.all(np.diff(ratio) <= 1e-12)  # never rises moving away
     assert ratio[3] < ratio[0] - 0.2  # 2 mm beyond the edge much is lost
-    np.testing.assert_allclose(ratio[-2:], 1.0, atol=2e-3)
+    np.testing.assert_allclose(ratio[-3:], 1.0, atol=2e-3)
     # Radially symmetric about the inclusion's axis.
     assert float(world.force_n(20, 34, 1.0)) == pytest.approx(
         float(world.force_n(24, 30, 1.0)), rel=1e-9

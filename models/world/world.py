@@ -222,9 +222,9 @@ class TissueWorld:
     ) -> ArrayLike:
         """Depth (mm) at which the sphere at (x, y) carries force_n (N): the inverse of force_n.
 
-        0 for force <= 0, nan off the footprint; a force beyond the deepest tabulated depth raises
-        WorldRangeError. Monotonic: bracketed on a geometric depth ladder, then refined by
-        interpolation in log force - log depth against the forward model itself.
+        0 for force <= 0, nan off the footprint; a force beyond the deepest allowed depth,
+        min(r, 0.75 t), raises WorldRangeError (a driver decides what bottoming out means).
+        Agrees with force_n to ~1e-9 relative (5-6 vectorised forward evaluations).
         """
         r = _check_radius(indenter_radius_mm)
         xa, ya, fa = (a.ravel() for a in np.broadcast_arrays(_f64(x_mm), _f64(y_mm), _f64(force_n)))
