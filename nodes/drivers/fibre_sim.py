@@ -16,6 +16,8 @@ Implements :class:`nodes.drivers.fibre.FibreDriver`; the node feeds it the lates
 
 from __future__ import annotations
 
+import contextlib
+import logging
 from collections.abc import Callable
 from typing import Protocol
 
@@ -28,6 +30,8 @@ from models.timeseries import StampedBuffer
 from nodes.drivers.fibre import FibreCounters, FibreSample, FibreStatus
 
 __all__ = ["IndentationWorld", "SimFibreDriver", "tissue_world"]
+
+log = logging.getLogger(__name__)
 
 _POSE_WAIT_NS = 50_000_000
 _POSE_HOLD_NS = 1_000_000_000
@@ -82,6 +86,7 @@ class SimFibreDriver:
         self._seq = 0
         self._samples = 0
         self._open = False
+        self._range_warned = False
         self._depth = 0.0  # the indenter's last depth: bore friction makes it stick (hysteresis)
 
     # inputs from the bus
@@ -158,12 +163,11 @@ class SimFibreDriver:
         if not np.any(touch):
             self._depth = 0.0
             return depth
-        shallow = np.asarray(self.world.depth_mm(x[touch], y[touch], np.asarray(
-            self.probe.tissue_force_n(probe_kpa[touch], True)), indenter_radius_mm=self._r), dtype=float)
-        deep = np.asarray(self.world.depth_mm(x[touch], y[touch], np.asarray(
-            self.probe.tissue_force_n(probe_kpa[touch], False)), indenter_radius_mm=self._r), dtype=float)
         # the indenter cannot reach past its stroke: beyond it, the face is too high to touch
         reach = np.clip(self._stroke - gap[touch], 0.0, None)
+        xt, yt = x[touch], y[touch]
+        shallow = self._world_depth(xt, yt, np.asarray(self.probe.tissue_force_n(probe_kpa[touch], True)), reach)
+        deep = self._world_depth(xt, yt, np.asarray(self.probe.tissue_force_n(probe_kpa[touch], False)), reach)
         shallow, deep = np.minimum(np.nan_to_num(shallow), reach), np.minimum(np.nan_to_num(deep), reach)
         d = np.empty_like(shallow)
         last = self._depth
@@ -173,6 +177,22 @@ class SimFibreDriver:
         self._depth = last
         depth[touch] = d
         return depth
+
+    def _world_depth(self, x: np.ndarray, y: np.ndarray, force: np.ndarray, reach: np.ndarray) -> np.ndarray:
+        """The world's depth; where the force is beyond what the world tabulates (a thin layer pressed hard) the
+        indenter is taken to its stroke end, and the world's own range check reports it once."""
+        try:
+            return np.asarray(self.world.depth_mm(x, y, force, indenter_radius_mm=self._r), dtype=float)
+        except ValueError as exc:  # models.world.WorldRangeError: point by point, failing ones at full reach
+            if not self._range_warned:
+                self._range_warned = True
+                log.warning("sim probe pressed beyond the world's tables (indenter at its stroke end): %s", exc)
+            out = np.array(reach, dtype=float)
+            for i in range(x.size):
+                with contextlib.suppress(ValueError):
+                    out[i] = float(self.world.depth_mm(x[i:i + 1], y[i:i + 1], force[i:i + 1],
+                                                       indenter_radius_mm=self._r)[0])
+            return out
 
     def heights(self, x: np.ndarray, y: np.ndarray, z_face: np.ndarray, readback_kpa: np.ndarray) -> np.ndarray:
         """(n, 4) fibre readings h1..h4 (mm) for face-centre poses (x, y, z_face) and regulator read-backs."""
