@@ -69,7 +69,7 @@ def sim_force_plate(seed: int, cycles: int = 3, noise_n: float = 0.003) -> tuple
     probe = TrueProbe(ProbeErrors.draw(seed))
     rng = np.random.default_rng([seed, 2])
     with GraphHarness() as g:
-        g.add(PressureController, {"startup": "hold", "setpoint_kpa": 30.0, "seed": seed})
+        g.add(PressureController, {"startup": "hold", "setpoint_kpa": 30.0, "seed": seed + 1000})
         g.advance(1.0)
         for _ in range(cycles):
             for target in (46.0, 30.0):
@@ -92,8 +92,8 @@ def sim_reference_ramp(ref: Reference, seed: int, target_kpa: float) -> Referenc
     thickness = float(load_geometry(ref.geometry).thickness(*_CENTRE))
     with GraphHarness() as g:
         g.add(StaticPose, {"x_mm": _CENTRE[0], "y_mm": _CENTRE[1], "z_mm": thickness + 1.0})
-        g.add(PressureController, {"startup": "hold", "setpoint_kpa": 30.0, "seed": seed})
-        g.add(FibreReader, {"phantom": ref.phantom, "seed": seed})
+        g.add(PressureController, {"startup": "hold", "setpoint_kpa": 30.0, "seed": seed + 1000})
+        g.add(FibreReader, {"phantom": ref.phantom, "device_seed": seed})
         g.advance(1.0)
         g.publish("pressure/command", PressureCommand(mode="ramp", setpoint_kpa=target_kpa, rate_kpa_s=2.0))
         g.advance((target_kpa - 30.0) / 2.0 + 0.5)
@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m nodes.calibrate_airfloat", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("-o", "--output", type=Path, required=True)
-    ap.add_argument("--seed", type=int, default=0, help="the simulated probe's seed (as the fibre/pressure nodes)")
+    ap.add_argument("--seed", type=int, default=0, help="the simulated probe (the fibre reader's device_seed)")
     ap.add_argument("--reference", action="append", help="PHANTOM:MODULUS_KPA:GEOMETRY (repeat)")
     ap.add_argument("--plate-csv", type=Path, help="rig: logged (kPa, N) pairs from the force sensor")
     args = ap.parse_args(argv)

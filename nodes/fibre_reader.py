@@ -48,7 +48,10 @@ class FibreReader(palpa.Node):
         noise_mm: float = -1.0
         """Sim sensor noise σ (mm); negative: the phantom file's value."""
         sim_errors: Literal["realistic", "ideal"] = "realistic"
-        """Sim device errors drawn from ``seed`` (docs/physics.md); ``ideal``: a perfect device, unit tests only."""
+        """Sim device errors drawn from ``device_seed`` (docs/physics.md); ``ideal``: a perfect device, unit tests
+        only."""
+        device_seed: int = 0
+        """Which simulated probe (its error draw); calibrate with the same one (``nodes.calibrate_airfloat``)."""
         sps_radius_mm: float = DEFAULT_SPS_RADIUS_MM
         indenter_radius_mm: float = DEFAULT_INDENTER_RADIUS_MM
         stroke_mm: float = 10.0
@@ -62,7 +65,7 @@ class FibreReader(palpa.Node):
         if p.driver == "sim":
             phantom = phantom_from_param(p.phantom, self.name)
             noise = phantom.noise.displacement_mm if p.noise_mm < 0 else p.noise_mm
-            errors = (ProbeErrors.draw(p.seed, noise_mm=noise) if p.sim_errors == "realistic"
+            errors = (ProbeErrors.draw(p.device_seed, noise_mm=noise) if p.sim_errors == "realistic"
                       else dataclasses.replace(ProbeErrors.ideal(), noise_mm=noise))
             sim = SimFibreDriver(
                 phantom, self.clock.now_ns, errors=errors, rate_hz=p.rate_hz, sps_radius_mm=p.sps_radius_mm,
@@ -70,7 +73,7 @@ class FibreReader(palpa.Node):
             )
             self.publisher("sim/truth/fibre", Text, latched=True).publish(Text(
                 stamp_ns=self.clock.now_ns(), text=json.dumps({"driver": "sim", "errors": errors.as_dict()})))
-            self.log.info("sim probe errors (seed %d): %s", p.seed, errors.as_dict())
+            self.log.info("sim probe errors (device_seed %d): %s", p.device_seed, errors.as_dict())
             self.subscribe("robot/pose", self.on_pose)
             self.subscribe("pressure/state", self.on_pressure)
             self.driver = sim
