@@ -40,8 +40,8 @@ E_BG = 26.4
 def world(radius: float, ratio: float, depth: float, thickness: float) -> TissueWorld:
     return TissueWorld(parse_phantom({
         "size_mm": [60, 60], "thickness_mm": thickness, "youngs_modulus_kpa": E_BG,
-        "inclusions": [{"center_mm": [30, 30], "radius_mm": radius, "depth_mm": depth,
-                        "youngs_modulus_kpa": E_BG * ratio}]}))
+        "inclusions": [{"center_mm": [30, 30], "radius_mm": float(radius), "depth_mm": float(depth),
+                        "youngs_modulus_kpa": float(E_BG * ratio)}]}))
 
 
 def contrast(force: float, radius: float, ratio: float, depth: float, thickness: float) -> tuple[float, float]:

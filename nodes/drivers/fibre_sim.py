@@ -16,17 +16,18 @@ Implements :class:`nodes.drivers.fibre.FibreDriver`; the node feeds it the lates
 
 from __future__ import annotations
 
-import contextlib
 import logging
 from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
 
+from models._arrays import ArrayLike
 from models.airfloat import DEFAULT_INDENTER_RADIUS_MM, DEFAULT_SPS_RADIUS_MM, heights_over_phantom
 from models.airfloat_device import ProbeErrors, TrueProbe
 from models.phantom import Phantom
 from models.timeseries import StampedBuffer
+from models.world import MAX_DEPTH_OVER_RADIUS, MAX_DEPTH_OVER_THICKNESS
 from nodes.drivers.fibre import FibreCounters, FibreSample, FibreStatus
 
 __all__ = ["IndentationWorld", "SimFibreDriver", "tissue_world"]
@@ -38,10 +39,14 @@ _POSE_HOLD_NS = 1_000_000_000
 
 
 class IndentationWorld(Protocol):
-    """What the driver needs of the world: depth (mm) of a sphere pressed with force_n (N) at (x, y) (mm)."""
+    """What the driver needs of the world: depth (mm) of a sphere pressed with force_n (N) at (x, y) (mm), and the
+    force at a depth (for presses beyond its tables)."""
 
-    def depth_mm(self, x: np.ndarray, y: np.ndarray, force_n: np.ndarray, *,
-                 indenter_radius_mm: float) -> np.ndarray: ...
+    def depth_mm(self, x: ArrayLike, y: ArrayLike, force: ArrayLike, /, *,
+                 indenter_radius_mm: float = ...) -> ArrayLike: ...
+
+    def force_n(self, x: ArrayLike, y: ArrayLike, depth: ArrayLike, /, *,
+                indenter_radius_mm: float = ...) -> ArrayLike: ...
 
 
 def tissue_world(phantom: Phantom) -> IndentationWorld:
@@ -168,7 +173,6 @@ class SimFibreDriver:
         xt, yt = x[touch], y[touch]
         shallow = self._world_depth(xt, yt, np.asarray(self.probe.tissue_force_n(probe_kpa[touch], True)), reach)
         deep = self._world_depth(xt, yt, np.asarray(self.probe.tissue_force_n(probe_kpa[touch], False)), reach)
-        shallow, deep = np.minimum(np.nan_to_num(shallow), reach), np.minimum(np.nan_to_num(deep), reach)
         d = np.empty_like(shallow)
         last = self._depth
         for i in range(d.size):
@@ -179,20 +183,25 @@ class SimFibreDriver:
         return depth
 
     def _world_depth(self, x: np.ndarray, y: np.ndarray, force: np.ndarray, reach: np.ndarray) -> np.ndarray:
-        """The world's depth; where the force is beyond what the world tabulates (a thin layer pressed hard) the
-        indenter is taken to its stroke end, and the world's own range check reports it once."""
+        """The world's depth, never past the stroke. Where the force needs a depth beyond the world's tables
+        (min(r, 0.75 t): a hard press on a thin layer) the depth is extrapolated from the deepest tabulated point
+        as d_max (F / F(d_max))^(2/3), and the first such press is logged: the world is not trusted there."""
         try:
-            return np.asarray(self.world.depth_mm(x, y, force, indenter_radius_mm=self._r), dtype=float)
-        except ValueError as exc:  # models.world.WorldRangeError: point by point, failing ones at full reach
+            d = np.asarray(self.world.depth_mm(x, y, force, indenter_radius_mm=self._r), dtype=float)
+        except ValueError as exc:  # models.world.WorldRangeError
             if not self._range_warned:
                 self._range_warned = True
-                log.warning("sim probe pressed beyond the world's tables (indenter at its stroke end): %s", exc)
-            out = np.array(reach, dtype=float)
-            for i in range(x.size):
-                with contextlib.suppress(ValueError):
-                    out[i] = float(self.world.depth_mm(x[i:i + 1], y[i:i + 1], force[i:i + 1],
-                                                       indenter_radius_mm=self._r)[0])
-            return out
+                log.warning("sim probe pressed beyond the world's tables (depth extrapolated): %s", exc)
+            t = np.asarray(self.phantom.thickness(x, y), dtype=float)
+            dmax = np.minimum(MAX_DEPTH_OVER_RADIUS * self._r, MAX_DEPTH_OVER_THICKNESS * t) * (1 - 1e-6)
+            fmax = np.asarray(self.world.force_n(x, y, dmax, indenter_radius_mm=self._r), dtype=float)
+            beyond = force > fmax
+            d = dmax * (np.clip(force, 0.0, None) / fmax) ** (2.0 / 3.0)
+            if np.any(~beyond):
+                d[~beyond] = np.asarray(self.world.depth_mm(x[~beyond], y[~beyond], force[~beyond],
+                                                            indenter_radius_mm=self._r), dtype=float)
+        out: np.ndarray = np.minimum(np.nan_to_num(d), reach)
+        return out
 
     def heights(self, x: np.ndarray, y: np.ndarray, z_face: np.ndarray, readback_kpa: np.ndarray) -> np.ndarray:
         """(n, 4) fibre readings h1..h4 (mm) for face-centre poses (x, y, z_face) and regulator read-backs."""
