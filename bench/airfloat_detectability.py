@@ -25,10 +25,9 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from models.world import TissueWorld  # noqa: E402
-
 from models.contact import corrected_modulus  # noqa: E402
 from models.phantom import parse_phantom  # noqa: E402
+from models.world import TissueWorld  # noqa: E402
 
 RADII = np.array([2.0, 3.0, 4.0, 5.0, 6.0, 7.0])
 RATIOS = np.array([1.5, 2.0, 3.0, 4.0, 6.0, 8.0])
