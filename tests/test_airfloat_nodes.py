@@ -190,3 +190,29 @@ def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path) -> None:  # 
     e = float(np.median([m.value for m in got[-200:]]))
     d = float(np.median([m.d_in_mm for m in got[-200:]]))
     assert 1.0 <= d <= 3.0 and abs(e / 10.8 - 1) < 0.10, (d, e)
+
+
+def test_calibration_file_sets_force_line_and_depth_offset(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The pressure controller publishes the file's force line; the estimator adds its depth offset to d_in."""
+    from messages import PressureState
+
+    cal = tmp_path / "cal.yaml"
+    cal.write_text("force: {gain: 8.0, offset: -2.5, pressure_unit_kpa: 100.0}\ndepth_offset_mm: 0.1\n")
+    h = NodeHarness(PressureController, {"startup": "hold", "setpoint_kpa": 36.0, "calibration": str(cal),
+                                         "sim_tracking_kpa": 0.0, "sim_noise_kpa": 0.0})
+    h.advance(1.0)
+    st = h.published("pressure/state", PressureState)[-1]
+    assert st.force_n == pytest.approx(8.0 * st.measured_kpa / 100 - 2.5)
+    e = NodeHarness(StiffnessEstimator, {"thickness_mm": 20.0, "calibration": str(cal)})
+    t0 = e.clock.now_ns()
+    for k in (0, 10_000_000):
+        e.publish("robot/pose", RobotPose(stamp_ns=t0 + k, x_mm=10.0, y_mm=0.0, z_mm=21.0))
+        e.publish("pressure/state", PressureState(stamp_ns=t0 + k, setpoint_kpa=36, measured_kpa=36, force_n=0.4,
+                                                  mode="hold", max_kpa=60))
+    e.publish("probe/heights", ProbeHeights(stamp_ns=t0 + 5_000_000, seq=1, h_mm=(1.0, 1.0, 1.0, 3.0),
+                                            raw=(0, 0, 0, 0), d_in_mm=2.0, tilt_rad=0.0))
+    e.advance(0.05)
+    assert e.published("stiffness/sample")[0].d_in_mm == pytest.approx(2.1)  # eqs. 1-3 give 2.0, + 0.1
+    with pytest.raises(Exception, match="cal.yaml: force: gain"):
+        cal.write_text("force: {gain: x, offset: 1}\n")
+        NodeHarness(StiffnessEstimator, {"calibration": str(cal)})
