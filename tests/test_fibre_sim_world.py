@@ -31,11 +31,11 @@ class HalfSpace:
         self.calls = 0
 
     def depth_mm(self, x: ArrayLike, y: ArrayLike, force_n: ArrayLike, *, indenter_radius_mm: float = 4.0) -> ArrayLike:
-        self.calls += 1
         f = np.clip(np.asarray(force_n, dtype=float), 0.0, None)
         return np.asarray((3 * f * 0.75 / (4 * self.e * np.sqrt(indenter_radius_mm))) ** (2 / 3))
 
     def force_n(self, x: ArrayLike, y: ArrayLike, depth_mm: ArrayLike, *, indenter_radius_mm: float = 4.0) -> ArrayLike:
+        self.calls += 1
         return np.asarray(4 * self.e * np.sqrt(indenter_radius_mm) * np.asarray(depth_mm) ** 1.5 / (3 * 0.75))
 
 

@@ -4,8 +4,8 @@ For each sample time it takes the robot pose and the regulator's read-back press
 1. the probe's internal pressure and the force the tissue feels come from the *device's true force law*
    (``models.airfloat_device.TrueProbe``: drawn gain/offset, bend, bore-friction hysteresis), never from the
    estimator's eq. 4 calibration;
-2. the indentation depth comes from the world's inverse (``models.world.TissueWorld.depth_mm``: FE-grounded
-   mechanics, never eq. 7), with the friction's play: the indenter sticks while the depth lies between the
+2. the indentation depth comes from the world (``models.world.TissueWorld``: FE-grounded mechanics, never
+   eq. 7; its force-depth curve per 0.5 mm cell, inverted), with the friction's play: the indenter sticks while the depth lies between the
    equilibria of F_air - f and F_air + f;
 3. the four extensions come from the true surface geometry (each SPS tip over the real dome under it, floating
    on its air gap; the indenter ``depth`` below the true surface point under it, ``depth_reference="surface"``);
@@ -17,6 +17,7 @@ Implements :class:`nodes.drivers.fibre.FibreDriver`; the node feeds it the lates
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable
 from typing import Protocol
 
@@ -35,15 +36,14 @@ __all__ = ["IndentationWorld", "SimFibreDriver", "tissue_world"]
 log = logging.getLogger(__name__)
 
 _POSE_WAIT_NS = 50_000_000
+_CELL_MM = 0.5  # lateral resolution of the cached force-depth curves
+_LADDER = np.geomspace(0.01, 1.0, 24)  # depths, as fractions of the world's limit, of each cached curve
 _POSE_HOLD_NS = 1_000_000_000
 
 
 class IndentationWorld(Protocol):
-    """What the driver needs of the world: depth (mm) of a sphere pressed with force_n (N) at (x, y) (mm), and the
-    force at a depth (for presses beyond its tables)."""
-
-    def depth_mm(self, x: ArrayLike, y: ArrayLike, force: ArrayLike, /, *,
-                 indenter_radius_mm: float = ...) -> ArrayLike: ...
+    """What the driver needs of the world: the force (N) on the probe's sphere pressed depth (mm) below the surface
+    at (x, y) (mm)."""
 
     def force_n(self, x: ArrayLike, y: ArrayLike, depth: ArrayLike, /, *,
                 indenter_radius_mm: float = ...) -> ArrayLike: ...
@@ -92,6 +92,7 @@ class SimFibreDriver:
         self._samples = 0
         self._open = False
         self._range_warned = False
+        self._curves: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
         self._depth = 0.0  # the indenter's last depth: bore friction makes it stick (hysteresis)
 
     # inputs from the bus
@@ -183,24 +184,48 @@ class SimFibreDriver:
         return depth
 
     def _world_depth(self, x: np.ndarray, y: np.ndarray, force: np.ndarray, reach: np.ndarray) -> np.ndarray:
-        """The world's depth, never past the stroke. Where the force needs a depth beyond the world's tables
-        (min(r, 0.75 t): a hard press on a thin layer) the depth is extrapolated from the deepest tabulated point
-        as d_max (F / F(d_max))^(2/3), and the first such press is logged: the world is not trusted there."""
-        try:
-            d = np.asarray(self.world.depth_mm(x, y, force, indenter_radius_mm=self._r), dtype=float)
-        except ValueError as exc:  # models.world.WorldRangeError
-            if not self._range_warned:
-                self._range_warned = True
-                log.warning("sim probe pressed beyond the world's tables (depth extrapolated): %s", exc)
-            t = np.asarray(self.phantom.thickness(x, y), dtype=float)
+        """The world's depth for each force, never past the stroke.
+
+        The world's inverse costs ~0.1 s a call, too slow for 500 samples a second, so the driver asks the world's
+        forward model for the whole force-depth curve of each 0.5 mm cell the probe visits (one call for all new
+        cells of a batch, ``_LADDER`` depths up to the world's limit min(r, 0.75 t)) and inverts it by log-log
+        interpolation. Below the first rung and beyond the last the curve is extended as F ~ d^1.5; a press beyond
+        the world's limit is logged once (the world is not trusted there).
+        """
+        keys = np.stack([np.round(x / _CELL_MM), np.round(y / _CELL_MM)], -1).astype(np.int64)
+        cells = [tuple(k) for k in keys.tolist()]
+        new = sorted({c for c in cells if c not in self._curves})
+        if new:
+            cx = np.array([c[0] for c in new], dtype=float) * _CELL_MM
+            cy = np.array([c[1] for c in new], dtype=float) * _CELL_MM
+            t = np.asarray(self.phantom.thickness(cx, cy), dtype=float)
             dmax = np.minimum(MAX_DEPTH_OVER_RADIUS * self._r, MAX_DEPTH_OVER_THICKNESS * t) * (1 - 1e-6)
-            fmax = np.asarray(self.world.force_n(x, y, dmax, indenter_radius_mm=self._r), dtype=float)
-            beyond = force > fmax
-            d = dmax * (np.clip(force, 0.0, None) / fmax) ** (2.0 / 3.0)
-            if np.any(~beyond):
-                d[~beyond] = np.asarray(self.world.depth_mm(x[~beyond], y[~beyond], force[~beyond],
-                                                            indenter_radius_mm=self._r), dtype=float)
-        out: np.ndarray = np.minimum(np.nan_to_num(d), reach)
+            ladder = dmax[:, None] * _LADDER[None, :]
+            f = np.asarray(self.world.force_n(np.repeat(cx, _LADDER.size), np.repeat(cy, _LADDER.size),
+                                              ladder.ravel(), indenter_radius_mm=self._r), dtype=float)
+            f = f.reshape(ladder.shape)
+            if len(self._curves) > 200_000:  # a very long run: forget the oldest cells
+                self._curves.clear()
+            for i, c in enumerate(new):
+                self._curves[c] = (np.log(ladder[i]), np.log(np.maximum(f[i], 1e-300)))
+        d = np.zeros(x.size)
+        for i, c in enumerate(cells):
+            if force[i] <= 0:
+                continue
+            ld, lf = self._curves[c]
+            lfi = math.log(force[i])
+            if lfi > lf[-1] and not self._range_warned:
+                self._range_warned = True
+                log.warning("sim probe pressed beyond the world's tables at (%.1f, %.1f) mm: %.3f N > %.3f N at "
+                            "%.2f mm (depth extrapolated as F ~ d^1.5)", x[i], y[i], force[i], math.exp(lf[-1]),
+                            math.exp(ld[-1]))
+            if lfi <= lf[0]:
+                d[i] = math.exp(ld[0] + (lfi - lf[0]) / 1.5)
+            elif lfi >= lf[-1]:
+                d[i] = math.exp(ld[-1] + (lfi - lf[-1]) / 1.5)
+            else:
+                d[i] = math.exp(float(np.interp(lfi, lf, ld)))
+        out: np.ndarray = np.minimum(d, reach)
         return out
 
     def heights(self, x: np.ndarray, y: np.ndarray, z_face: np.ndarray, readback_kpa: np.ndarray) -> np.ndarray:
