@@ -15,8 +15,8 @@ from test_launch_smoke import REPO
 from emulators.ur.process import UrEmulatorProcess
 from models.phantom import load_phantom
 
-SMALL_UR = ["fibre_driver:=sim", "pressure_driver:=sim", "phantom:=phantoms/airfloat_tumours.yaml", "region_mm:=[36.0, 9.0, 54.0, 27.0]", "spacing_mm:=3.0",
-            "speed_mm_s:=20.0", "home_mm:=[36.0, 9.0, 20.0]",
+SMALL_UR = ["fibre_driver:=sim", "pressure_driver:=sim", "phantom:=phantoms/airfloat_tumours.yaml", "region_mm:=[30.0, 6.0, 54.0, 30.0]", "spacing_mm:=3.0",
+            "speed_mm_s:=20.0", "home_mm:=[30.0, 6.0, 20.0]",
             # wall-clock graphs on a loaded 2-core CI machine: the rig default (0.1 s) is tested in test_robot_scanner
             "watchdog_s:=0.5"]
 
@@ -44,7 +44,7 @@ def match(found: list[dict[str, float]], truth: list[tuple[float, float]]) -> li
 
 def test_ur_rtde_scan_through_emulator_matches_sim(procs: ProcessGroup, tmp_path: Path) -> None:
     """launch/scan_ur.yaml with the ur_rtde driver against the emulator, then with the sim arm: same map."""
-    emu = UrEmulatorProcess.on_random_loopback(["--home", "36,9,20,0,3.141592653589793,0"])
+    emu = UrEmulatorProcess.on_random_loopback(["--home", "30,6,20,0,3.141592653589793,0"])
     emu.start()
     try:
         run_launch(procs, tmp_path / "ur", "launch/scan_ur.yaml", f"robot_host:={emu.host}", *SMALL_UR)
