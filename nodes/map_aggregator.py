@@ -1,8 +1,11 @@
 """Map aggregator node: valid ``stiffness/sample`` messages -> a gridded map, detected inclusions, files.
 
 Publishes the map (``map/stiffness``) and inclusions (``map/inclusions``), both latched, at ``publish_hz`` while
-scanning; when the scan reports ``done`` on ``robot/scan_status`` (and again on shutdown, with everything received
-by then) it writes ``map.npz``, ``map.png`` and ``inclusions.json`` into ``output_dir``.
+scanning; when the scan reports ``done`` on ``robot/scan_status`` it writes ``map.npz``, ``map.png`` and
+``inclusions.json`` into ``output_dir`` (each file atomically). It writes once per scan: a repeated ``done`` (a
+scanner lingering, a replay) writes nothing new, and shutdown writes only samples no file holds yet (a scan
+stopped half-way), so a node asked to stop after its scan exits at once. The service ``map/save``
+(:class:`Trigger` -> :class:`MapSaved`) writes them now, mid-scan.
 """
 
 from __future__ import annotations
@@ -16,10 +19,12 @@ import palpa
 from messages import (
     DetectedInclusion,
     Inclusions,
+    MapSaved,
     ScanPlan,
     ScanStatus,
     StiffnessMap,
     StiffnessSample,
+    Trigger,
 )
 from models.stiffness_map import (
     Inclusion,
@@ -29,6 +34,7 @@ from models.stiffness_map import (
     detect_inclusions,
 )
 from nodes.map_output import write_outputs
+from palpa.service import RequestRefused
 
 __all__ = ["MapAggregator"]
 
@@ -40,14 +46,14 @@ class MapAggregator(palpa.Node):
         output_dir: str = "out"
         region_mm: list[float] = []
         """x0, y0, x1, y1 of the grid; empty: taken from the scan plan (``robot/plan``)."""
-        resolution_mm: float = 2.0
-        min_count: int = 3
+        resolution_mm: palpa.Positive = 2.0
+        min_count: palpa.PositiveInt = 3
         """Samples a cell needs to count."""
-        publish_hz: float = 1.0
-        k_mad: float = 4.0
-        rel_threshold: float = 0.2
+        publish_hz: palpa.Positive = 1.0
+        k_mad: palpa.NonNegative = 4.0
+        rel_threshold: palpa.NonNegative = 0.2
         """A cell is stiff above baseline + max(k_mad * robust σ, rel_threshold * baseline)."""
-        min_area_mm2: float = 0.0
+        min_area_mm2: palpa.NonNegative = 0.0
         """Smallest inclusion reported (0: two cells)."""
         title: str = ""
         """Shown on map.png (e.g. what was scanned); default: the output directory."""
@@ -62,6 +68,10 @@ class MapAggregator(palpa.Node):
         self.pending: list[tuple[float, float, float]] = []
         self.written = 0
         self.changed = False
+        self.incomplete = ""
+        """Why this map lacks data the scan produced ('' when it has everything): it is then declared failed."""
+        self.unsaved = 0
+        """Samples taken since the files were last written."""
         if p.region_mm:
             if len(p.region_mm) != 4:
                 raise palpa.ParamError(f"{self.name}: region_mm needs x0, y0, x1, y1, got {p.region_mm}")
@@ -69,7 +79,17 @@ class MapAggregator(palpa.Node):
         self.subscribe("stiffness/sample", self.on_sample)
         self.subscribe("robot/plan", self.on_plan)
         self.subscribe("robot/scan_status", self.on_status)
+        self._own = self.subscribe("map/stiffness", StiffnessMap, self._on_own_map)
         self.timer(1.0 / p.publish_hz, self.publish_map)
+        self.service("map/save", Trigger, MapSaved, self.on_save)
+
+    def on_save(self, req: Trigger) -> MapSaved:
+        """Service ``map/save``: write the map files from what has been received so far."""
+        if self.grid is None or not self.samples:
+            raise RequestRefused("no map to save yet (no valid stiffness sample received)")
+        snap = self.grid.snapshot()
+        paths = self.write(snap, self._detect(snap)[0])
+        return MapSaved(paths=[str(p) for p in paths], samples=self.samples)
 
     def _make_grid(self, x0: float, y0: float, x1: float, y1: float) -> None:
         self.grid = StiffnessGrid(x0, y0, x1, y1, self.params.resolution_mm, min_count=self.params.min_count)
@@ -91,14 +111,26 @@ class MapAggregator(palpa.Node):
             return
         self.unit = s.unit
         self.samples += 1
+        self.unsaved += 1
         self.changed = True
         if self.grid is None:
             self.pending.append((s.x_mm, s.y_mm, s.value))
         else:
             self.grid.add(s.x_mm, s.y_mm, s.value)
 
+    def _on_own_map(self, m: StiffnessMap) -> None:
+        """The latched map of an earlier incarnation of this node (it was killed and respawned mid-scan): what it
+        had accumulated is gone, so this map cannot be complete."""
+        h = self._own.last_header
+        if h is None or h.node != self.name or h.inc == self.incarnation or m.final or not m.samples:
+            return
+        if not self.incomplete:
+            self.incomplete = (f"this node restarted mid-scan: its previous run had mapped {m.samples} samples, "
+                               "which are lost")
+            self.log.error("map INCOMPLETE: %s", self.incomplete)
+
     def on_status(self, st: ScanStatus) -> None:
-        if st.state == "done":
+        if st.state == "done" and (self.unsaved or not self.written):
             self.log.info("scan done: writing the map")
             self.publish_map(final=True)
 
@@ -115,6 +147,8 @@ class MapAggregator(palpa.Node):
     def publish_map(self, final: bool = False) -> None:
         if self.grid is None or (not self.changed and not final):
             return
+        if final:
+            self._check_complete()
         self.changed = False
         snap = self.grid.snapshot()
         found, base = self._detect(snap)
@@ -132,19 +166,33 @@ class MapAggregator(palpa.Node):
         if final:
             self.write(snap, found)
 
-    def write(self, snap: MapSnapshot, found: list[Inclusion]) -> None:
+    def write(self, snap: MapSnapshot, found: list[Inclusion]) -> list[Path]:
         out = Path(self.params.output_dir)
         title = self.params.title or f"stiffness map — {out}"
         title += f"\n{self.samples} samples, {len(found)} inclusion(s), {time.strftime('%Y-%m-%d %H:%M')}"
         paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title)
         self.written += 1
+        self.unsaved = 0
         for inc in found:
             self.log.info("inclusion at (%.1f, %.1f) mm, radius %.1f mm, contrast %.2f",
                           inc.x_mm, inc.y_mm, inc.radius_mm, inc.contrast)
         self.log.info("map written: %s", ", ".join(str(p) for p in paths))
+        return list(paths)
+
+    def _check_complete(self) -> None:
+        """A map missing samples (its estimator restarted, samples lost on the way) is declared failed: the
+        node's exit code says so, so the launch cannot end clean."""
+        stats = self.counters().get(self.resolve("stiffness/sample"))
+        if not self.incomplete and stats is not None and (stats.restarts or stats.gaps):
+            self.incomplete = (f"stiffness/sample lost {stats.gaps} sample(s) and its publisher restarted "
+                               f"{stats.restarts} time(s)")
+        if self.incomplete:
+            self.log.error("the map is INCOMPLETE and may be wrong: %s", self.incomplete)
+            self.exit_code = 1
 
     def on_shutdown(self) -> None:
-        if self.grid is not None and self.samples:
+        if self.grid is not None and self.unsaved:
+            self.log.info("stopping with %d samples not yet written: writing the map", self.unsaved)
             self.publish_map(final=True)
 
 

@@ -4,16 +4,19 @@ Commands arrive on ``pressure/command`` (hold a set-point, ramp at a rate to a t
 ramp itself (a set-point per control tick), clamps every set-point to ``max_kpa``, and watches the read-back: a
 lost device, an over-pressure or a read-back far from the set-point for too long raises a fault on
 ``pressure/state`` and vents. ``driver: alicat`` talks to an Alicat controller over serial; ``driver: sim`` uses
-the regulator plant model. ``pressure/state`` carries eq. 4's indentation force.
+the regulator plant model. ``pressure/state`` carries eq. 4's indentation force. The service ``pressure/set``
+(:class:`SetPressure`) changes the set-point and answers with what the controller now follows; a set-point above
+the cap is refused there (a caller must know), where a topic command is clamped.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Literal
 
 import palpa
-from messages import DeviceStatus, PressureCommand, PressureState
+from messages import DeviceStatus, PressureAck, PressureCommand, PressureState, SetPressure
 from models.airfloat import ForceCalibration
 from models.calibration_airfloat import CalibrationError, load_calibration
 from nodes.drivers.pressure import (
@@ -23,6 +26,7 @@ from nodes.drivers.pressure import (
     PressureReading,
 )
 from nodes.drivers.pressure_sim import SimPressureDriver
+from palpa.service import RequestRefused
 
 __all__ = ["PressureController"]
 
@@ -32,32 +36,32 @@ class PressureController(palpa.Node):
 
     class Params(palpa.Params):
         driver: Literal["sim", "alicat"] = "sim"
-        max_kpa: float = 60.0
+        max_kpa: palpa.Positive = 60.0
         """Hard cap: no set-point above it is ever sent, whatever is commanded."""
-        rate_hz: float = 50.0
+        rate_hz: palpa.Positive = 50.0
         """Control/poll rate."""
         startup: Literal["vent", "hold", "ramp"] = "vent"
-        setpoint_kpa: float = 0.0
+        setpoint_kpa: palpa.NonNegative = 0.0
         """Start-up set-point (hold) or ramp target."""
-        ramp_rate_kpa_s: float = 5.0
-        tracking_tolerance_kpa: float = 3.0
-        tracking_timeout_s: float = 1.0
+        ramp_rate_kpa_s: palpa.Positive = 5.0
+        tracking_tolerance_kpa: palpa.Positive = 3.0
+        tracking_timeout_s: palpa.Positive = 1.0
         """A read-back further than the tolerance from the set-point for this long is a fault."""
-        lost_timeout_s: float = 0.5
+        lost_timeout_s: palpa.Positive = 0.5
         force_gain: float = 7.59
         force_offset: float = -2.34
-        force_pressure_unit_kpa: float = 100.0
+        force_pressure_unit_kpa: palpa.Positive = 100.0
         """Eq. 4's pressure unit in kPa (100: the paper's P read as bar; see docs/physics.md)."""
-        calibration: str = ""
+        calibration: palpa.InputPath = ""
         """Calibration YAML (``python -m nodes.calibrate_airfloat``): its force line replaces force_gain/offset."""
         port: str = "/dev/ttyUSB0"
         unit_id: str = "A"
-        baudrate: int = 19200
-        sim_tau_s: float = 0.05
-        sim_rate_limit_kpa_s: float = 50.0
-        sim_noise_kpa: float = 0.05
+        baudrate: palpa.PositiveInt = 19200
+        sim_tau_s: palpa.Positive = 0.05
+        sim_rate_limit_kpa_s: palpa.Positive = 50.0
+        sim_noise_kpa: palpa.NonNegative = 0.05
         """Sim read-back white noise σ (kPa)."""
-        sim_tracking_kpa: float = 0.25
+        sim_tracking_kpa: palpa.NonNegative = 0.25
         """Sim outlet wander about the set-point response, σ (kPa; 0: exact tracking, unit tests only)."""
         seed: int = 0
         """Seed of the sim regulator's noise and wander."""
@@ -94,6 +98,7 @@ class PressureController(palpa.Node):
         self.off_since_ns: int | None = None
         self.last_reading: PressureReading | None = None
         self.subscribe("pressure/command", self.on_command)
+        self.service("pressure/set", SetPressure, PressureAck, self.on_set)
         self.apply(PressureCommand(mode=p.startup, setpoint_kpa=p.setpoint_kpa, rate_kpa_s=p.ramp_rate_kpa_s))
         self.timer(1.0 / p.rate_hz, self.tick)
         self.timer(1.0, self.publish_status, first_in_s=0.0)
@@ -101,6 +106,18 @@ class PressureController(palpa.Node):
     # -- commands ----------------------------------------------------------------------------
     def on_command(self, cmd: PressureCommand) -> None:
         self.apply(cmd)
+
+    def on_set(self, req: SetPressure) -> PressureAck:
+        """Service ``pressure/set``: a set-point within [0, max_kpa], or a refusal that says why."""
+        cap = self.params.max_kpa
+        if not math.isfinite(req.setpoint_kpa) or req.setpoint_kpa < 0:
+            raise palpa.ParamError(f"setpoint_kpa must be a number >= 0, got {req.setpoint_kpa}")
+        if req.setpoint_kpa > cap:
+            raise RequestRefused(f"set-point {req.setpoint_kpa:g} kPa is above the cap {cap:g} kPa: refused")
+        if req.mode == "ramp" and not req.rate_kpa_s > 0:
+            raise palpa.ParamError(f"rate_kpa_s must be > 0 for a ramp, got {req.rate_kpa_s}")
+        self.apply(PressureCommand(mode=req.mode, setpoint_kpa=req.setpoint_kpa, rate_kpa_s=req.rate_kpa_s))
+        return PressureAck(setpoint_kpa=self.setpoint, target_kpa=self.target, max_kpa=cap, mode=self.mode)
 
     def apply(self, cmd: PressureCommand) -> None:
         """Take a command; a set-point above the cap is clamped and reported as a fault flag."""

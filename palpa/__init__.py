@@ -2,10 +2,12 @@
 
 Layering (imports point downwards only)::
 
-    palpa.cli        command-line verbs (bus, topic, node, launch, record, play, bag)
+    palpa.cli        command-line verbs (bus, topic, node, service, param, launch, record, play, bag)
     palpa.launch     launch files and the process supervisor
     palpa.record     MCAP recording and replay
     palpa.node       the Node API: publishers, subscriptions, timers, parameters
+    palpa.service    services (request/reply over the bus; callers in palpa.service_client), run-time
+                     parameters on top of them (palpa.params_runtime)
     palpa.transport  ZeroMQ (and, in palpa.testing, in-memory) transports
     palpa.bus        the XSUB/XPUB proxy and latched-value cache
     palpa.wire       the envelope; palpa.message the typed-message base and registry
@@ -16,9 +18,9 @@ This package knows nothing about palpation: the domain lives in ``messages``, ``
 from palpa.address import BusAddress
 from palpa.clock import Clock, MockClock, SystemClock
 from palpa.errors import BusError, DecodeError, LaunchError, PalpaError, ParamError, RegistryError
-from palpa.message import Message, json_schema, lookup, registered
+from palpa.message import Finite, Message, json_schema, lookup, registered
 from palpa.node import Node, Publisher, RawMessage, Subscription, Timer
-from palpa.params import Params
+from palpa.params import InputPath, NonNegative, Params, Positive, PositiveInt
 from palpa.runner import run_node
 
 __version__ = "0.1.0"
@@ -28,13 +30,18 @@ __all__ = [
     "BusError",
     "Clock",
     "DecodeError",
+    "Finite",
+    "InputPath",
     "LaunchError",
     "Message",
     "MockClock",
     "Node",
     "PalpaError",
     "ParamError",
+    "NonNegative",
     "Params",
+    "Positive",
+    "PositiveInt",
     "Publisher",
     "RawMessage",
     "RegistryError",

@@ -22,13 +22,14 @@ counted on its topic and logged at most every few seconds with what was wrong (t
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import socket
 import time
 import traceback
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, ClassVar, TypeVar, cast
+from typing import Any, ClassVar, Protocol, TypeVar, cast
 
 from palpa.address import BusAddress, from_env
 from palpa.clock import Clock, SystemClock, TopicClock
@@ -36,6 +37,7 @@ from palpa.endpoints import DEFAULT_BATCH, Publisher, RawMessage, Subscription, 
 from palpa.message import Message
 from palpa.params import Params as ParamsBase
 from palpa.params import convert_params
+from palpa.params_runtime import ParamServer
 from palpa.receive import Receiver
 from palpa.runtime_msgs import (
     CLOCK_ACK_TOPIC,
@@ -48,6 +50,8 @@ from palpa.runtime_msgs import (
     LogRecord,
     TopicCounters,
 )
+from palpa.service import DEFAULT_TIMEOUT_S, Responder, Service
+from palpa.service_client import Client
 from palpa.transport import Transport, TransportOptions, ZmqTransport
 from palpa.wire import (
     Header,
@@ -58,7 +62,19 @@ from palpa.wire import (
 __all__ = ["DEFAULT_BATCH", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
 
 M = TypeVar("M", bound=Message)
+Q = TypeVar("Q", bound=Message)
+R = TypeVar("R", bound=Message)
 _ACK_PERIOD_NS = 5_000_000
+_SIM_CLOCK_TIMEOUT_S = 30.0
+"""Wall seconds without a clock tick after which a sim-clock node stops (PALPA_SIM_CLOCK_TIMEOUT_S; 0: never)."""
+_EXIT_CLOCK_LOST = 3
+
+
+class _Closable(Protocol):
+    def close(self) -> object: ...
+
+
+C = TypeVar("C", bound=_Closable)
 
 
 class _NoParams(ParamsBase):
@@ -77,13 +93,21 @@ class _BusLogHandler(logging.Handler):
         self._busy = True
         try:
             self._node._log_pub.publish(
-                LogRecord(node=self._node.name, level=record.levelname, text=record.getMessage(),
+                LogRecord(node=self._node.name, level=record.levelname, text=_truncate(record.getMessage()),
                           stamp_ns=self._node.clock.now_ns())
             )
         except Exception:  # a log line must never take the node down
             pass
         finally:
             self._busy = False
+
+
+LOG_TEXT_MAX = 4000
+"""Characters of a log line published on ``_palpa/log``; the rest is cut (a peer's bytes can end up in a line)."""
+
+
+def _truncate(text: str) -> str:
+    return text if len(text) <= LOG_TEXT_MAX else f"{text[:LOG_TEXT_MAX]}... ({len(text) - LOG_TEXT_MAX} more chars)"
 
 
 class Node:
@@ -106,12 +130,20 @@ class Node:
         sim_clock: bool | None = None,
         wait_for_clock_s: float = 30.0,
         transport_options: TransportOptions | None = None,
+        sim_clock_timeout_s: float | None = None,
+        serve_params: bool | None = None,
     ) -> None:
         self.name = name or _snake(type(self).__name__)
+        self.incarnation = int.from_bytes(os.urandom(4), "big") | 1
+        """Drawn anew at every start and sent in every header (``inc``): receivers tell a restart from a repeat."""
         if sim_clock is None:
             sim_clock = os.environ.get("PALPA_SIM_CLOCK", "") not in ("", "0")
         self.params = convert_params(type(self).Params, params, where=f"node {self.name!r}")
         self._topic_clock = TopicClock() if sim_clock and clock is None else None
+        if sim_clock_timeout_s is None:
+            sim_clock_timeout_s = float(os.environ.get("PALPA_SIM_CLOCK_TIMEOUT_S", "") or _SIM_CLOCK_TIMEOUT_S)
+        self._clock_timeout_ns = int(sim_clock_timeout_s * 1e9)
+        self._last_tick_wall_ns = 0
         self.clock: Clock = clock or self._topic_clock or SystemClock()
         self.namespace = namespace.strip("/")
         self.remap = dict(remap or {})
@@ -119,11 +151,13 @@ class Node:
             address = bus if isinstance(bus, BusAddress) else (BusAddress.parse(bus) if bus else from_env())
             transport = ZmqTransport(address, transport_options or TransportOptions.from_env())
         self._transport = transport
+        self._resources = contextlib.ExitStack()
         self._rx = Receiver(self)
         self._pubs: dict[str, Publisher[Any]] = {}
         self._dirty: list[Publisher[Any]] = []
         self._depth = 0
         self._timers: list[Timer] = []
+        self._services: dict[str, Service[Any, Any]] = {}
         self._shutdown = False
         self._closed = False
         self._started_ns = time.monotonic_ns()
@@ -135,21 +169,68 @@ class Node:
         self.log.addHandler(self._bus_handler)
         self._log_pub = self.publisher(LOG_TOPIC, LogRecord)
         self._hb_pub = self.publisher(HEARTBEAT_TOPIC, Heartbeat)
+        # heartbeats go on the wall clock whatever the node's clock: a listener waits a wall-clock window, and a
+        # node waiting for simulated time (or a paused replay) is still alive
+        self._hb_period_ns = int(heartbeat_s * 1e9) if heartbeat_s > 0 else 0
+        self._hb_due_ns = time.monotonic_ns()
         if self._topic_clock is not None:
             self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1)
             self._last_ack_ns = 0
             self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
             self._await_first_tick(wait_for_clock_s)
-        if heartbeat_s > 0:
-            self.timer(heartbeat_s, self._heartbeat, first_in_s=0.0)
-        self.setup()
+        if heartbeat_s > 0 if serve_params is None else serve_params:
+            ParamServer(self)
+        try:
+            self.setup()
+        except BaseException:
+            # a refused plan must not leave a robot connection or a serial port open behind it
+            self._release(linger_ms=0)
+            raise
 
     # -- declaration -------------------------------------------------------------------------------
     def setup(self) -> None:
         """Declare publishers, subscriptions and timers here (``self.params`` is ready)."""
 
     def on_shutdown(self) -> None:
-        """Called once before the node's sockets close: stop hardware, flush files."""
+        """Called once before the node's sockets close: stop hardware, flush files. Not called when
+        :meth:`setup` raised (only what :meth:`closing` registered is released then)."""
+
+    def closing(self, resource: C) -> C:
+        """Register ``resource`` (anything with ``close()``) to be closed when the node closes, after
+        :meth:`on_shutdown`, or at once if :meth:`setup` raises; returns it. Resources close in reverse order of
+        registration; a failing ``close()`` is logged and does not keep the others (or the sockets) open.
+
+        Register a driver before connecting it: ``self.driver = self.closing(make_driver()); self.driver.connect()``.
+        """
+        self._resources.callback(self._close_quietly, resource)
+        return resource
+
+    def _close_quietly(self, resource: _Closable) -> None:
+        try:
+            resource.close()
+        except Exception:
+            self.log.error("error closing %r:\n%s", resource, traceback.format_exc())
+
+    def on_params_changed(self, old: Any, new: Any) -> bool | None:
+        """Called when ``palpa param set`` (or a ParamSet request) would change ``self.params`` from ``old`` to
+        ``new`` (both validated): apply what needs applying (re-time a timer) and return None, or refuse the
+        whole change by returning False or raising :class:`palpa.ParamError` with the reason."""
+        return None
+
+    def service(
+        self, name: str, request_type: type[Q], response_type: type[R], handler: Callable[[Q], R | Responder[R]]
+    ) -> Service[Q, R]:
+        """Serve ``name`` with ``handler(request) -> response`` (deferred answers, refusals: :mod:`palpa.service`)."""
+        if self.resolve(name) in self._services:
+            raise ValueError(f"node {self.name!r} already serves {self.resolve(name)!r}")
+        srv = self._services[self.resolve(name)] = Service(self, name, request_type, response_type, handler)
+        return srv
+
+    def client(
+        self, name: str, request_type: type[Q], response_type: type[R], *, timeout_s: float = DEFAULT_TIMEOUT_S
+    ) -> Client[Q, R]:
+        """A caller of service ``name``: ``call(req)`` (blocking, safe in callbacks) or ``call_async(req)``."""
+        return Client(self, name, request_type, response_type, timeout_s=timeout_s)
 
     def resolve(self, topic: str) -> str:
         """The topic name on the bus after remapping and namespacing (``/x`` is absolute; ``_palpa/`` is global)."""
@@ -255,16 +336,25 @@ class Node:
         for delivery in self._transport.poll(0):
             self._rx.dispatch(delivery)
         self._run_timers()
+        self._beat()
         due = self.next_timer_due_ns()
         if due is not None and self.clock.is_real():
             timeout_s = max(0.0, min(timeout_s, (due - self.clock.now_ns()) / 1e9))
         elif not self.clock.is_real():
             timeout_s = 0.0 if self._timers else timeout_s
+        if self._hb_period_ns:
+            timeout_s = max(0.0, min(timeout_s, (self._hb_due_ns - time.monotonic_ns()) / 1e9))
         if timeout_s > 0:
             for delivery in self._transport.poll(timeout_s):
                 self._rx.dispatch(delivery)
             self._run_timers()
         clock = self._topic_clock
+        if clock is not None and clock.started and self._clock_timeout_ns and \
+                time.monotonic_ns() - self._last_tick_wall_ns > self._clock_timeout_ns and not self._shutdown:
+            # sim-time timers (watchdogs included) stop with the clock: only the wall clock can tell
+            self.log.error("simulated time stopped: no tick on %s for %.1f s of wall time (did the clock node "
+                           "die?); stopping", CLOCK_TOPIC, self._clock_timeout_ns / 1e9)
+            self.request_shutdown(_EXIT_CLOCK_LOST)
         if clock is not None and clock.started and clock.now_ns() - self._last_ack_ns >= _ACK_PERIOD_NS:
             self._last_ack_ns = clock.now_ns()
             self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns))
@@ -281,11 +371,21 @@ class Node:
         self._shutdown = True
         try:
             self.on_shutdown()
+            for srv in self._services.values():
+                srv.withdraw()
             self.flush()
+        finally:
+            self._release(int(linger_s * 1000))
+
+    def _release(self, linger_ms: int) -> None:
+        """Close the registered resources, then the sockets."""
+        self._shutdown = True
+        try:
+            self._resources.close()
         finally:
             self._closed = True
             self.log.removeHandler(self._bus_handler)
-            self._transport.close(int(linger_s * 1000))
+            self._transport.close(linger_ms)
 
     def __enter__(self) -> Node:
         return self
@@ -313,6 +413,7 @@ class Node:
             for t in self._timers:
                 t.due_ns += tick.sim_ns
         clock.update(tick.sim_ns)
+        self._last_tick_wall_ns = time.monotonic_ns()
 
     # -- internals ---------------------------------------------------------------------------------
     def _run_timers(self) -> None:
@@ -321,15 +422,18 @@ class Node:
         now = self.clock.now_ns()
         for t in list(self._timers):
             if t.cancelled:
-                self._timers.remove(t)
+                if t in self._timers:  # a nested run (inside a service call's wait) may have removed it
+                    self._timers.remove(t)
                 continue
-            if t.due_ns <= now:
+            if t.due_ns <= now and not t.running:  # never re-entered while it waits on a service call
                 if t.oneshot:
                     t.cancelled = True
                 else:
                     # skip missed periods rather than firing a burst after a stall
                     t.due_ns += t.period_ns * max(1, (now - t.due_ns) // t.period_ns + 1)
-                self._call(t.callback)
+                t.running = True
+                self._call(t.callback)  # never raises
+                t.running = False
 
     def _call(self, fn: Callable[..., object], *args: object) -> None:
         self._depth += 1
@@ -357,6 +461,15 @@ class Node:
         """Receive counters per subscribed topic (typed and raw; the typed ones where a topic has both)."""
         return self._rx.counters()
 
+    def _beat(self) -> None:
+        """Send the heartbeat when it is due on the wall clock (before simulated time starts, too)."""
+        if not self._hb_period_ns or self._shutdown:
+            return
+        now = time.monotonic_ns()
+        if now >= self._hb_due_ns:
+            self._hb_due_ns = now + self._hb_period_ns
+            self._call(self._heartbeat)
+
     def _heartbeat(self) -> None:
         subs = {s.topic: s.type.type_name for s in self._rx.subs.values()}
         subs.update({r.prefix.decode() + "*": "*" for r in self._rx.raw})
@@ -371,6 +484,7 @@ class Node:
                 sent={p.topic: p.seq for p in self._pubs.values()},
                 uptime_s=(time.monotonic_ns() - self._started_ns) / 1e9,
                 direct=[p.topic for p in self._pubs.values() if p.direct],
+                services={name: srv.types for name, srv in self._services.items()},
             )
         )
 

@@ -3,16 +3,46 @@ command line or a launch file and are validated (types, unknown names) before th
 
 from __future__ import annotations
 
+import difflib
+import sys
 from collections.abc import Mapping
-from typing import Any, TypeVar
+from pathlib import Path
+from typing import Annotated, Any, TypeVar, get_args, get_origin
 
 import msgspec
+import yaml
 
 from palpa.errors import ParamError
 
-__all__ = ["Params", "convert_params", "describe_params"]
+__all__ = [
+    "InputPath", "NonNegative", "Params", "Positive", "PositiveInt", "convert_params", "describe_params", "input_paths",
+    "read_params_file",
+]
 
 P = TypeVar("P", bound="Params")
+
+# Physical bounds declared in the type: a launch file's --check and a node's start refuse a value outside them
+# (naming file:line and the parameter) before anything runs. NaN and infinity fail them too.
+Positive = Annotated[float, msgspec.Meta(gt=0.0, le=sys.float_info.max)]
+"""A finite float > 0 (a rate, a speed, a period, a size)."""
+NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=sys.float_info.max)]
+"""A finite float >= 0 (a set-point, a clearance, a delay that may be zero)."""
+PositiveInt = Annotated[int, msgspec.Meta(gt=0)]
+
+InputPath = Annotated[str, msgspec.Meta(extra={"palpa": "input path"})]
+"""A ``str`` parameter naming a file or folder the node reads ('' = not given): ``palpa launch --check`` (and
+every launch) checks that it exists before any node starts."""
+
+
+def _is_input_path(tp: Any) -> bool:
+    return get_origin(tp) is Annotated and any(
+        isinstance(m, msgspec.Meta) and (m.extra or {}).get("palpa") == "input path" for m in get_args(tp)[1:])
+
+
+def input_paths(params: Params) -> dict[str, str]:
+    """Name -> value of every non-empty :data:`InputPath` parameter of ``params``."""
+    return {f.name: getattr(params, f.name) for f in msgspec.structs.fields(type(params))
+            if _is_input_path(f.type) and getattr(params, f.name)}
 
 
 class Params(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
@@ -33,9 +63,24 @@ def convert_params(cls: type[P], values: Mapping[str, Any] | P | None, *, where:
             what, _, path = text.rpartition(" - at `$.")
             text = f"parameter {path.rstrip('`')!r}: {what}"
         elif text.startswith("Object contains unknown field"):
-            names = ", ".join(describe_params(cls)) or "none"
-            text = f"{text} (declared parameters: {names})"
+            declared = list(describe_params(cls))
+            unknown = text.rpartition(" ")[2].strip("`")
+            close = difflib.get_close_matches(unknown, declared, n=1, cutoff=0.6)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            text = f"{text}{hint} (declared parameters: {', '.join(declared) or 'none'})"
         raise ParamError(f"{where}: {text}") from None
+
+
+def read_params_file(path: Path, what: str) -> dict[str, Any]:
+    """A YAML mapping of parameter names to values (``--params-file``, ``palpa param load``); raises
+    :class:`ParamError` starting with ``what`` when the file cannot be read or is not a mapping."""
+    try:
+        loaded = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ParamError(f"{what}: {exc}") from None
+    if not isinstance(loaded, dict):
+        raise ParamError(f"{what}: expected a mapping of parameters")
+    return loaded
 
 
 def describe_params(cls: type[Params]) -> dict[str, str]:
@@ -45,6 +90,7 @@ def describe_params(cls: type[Params]) -> dict[str, str]:
         default = "required" if field.required else repr(
             field.default if field.default is not msgspec.NODEFAULT else field.default_factory()
         )
-        tname = getattr(field.type, "__name__", None) or str(field.type)
+        tp = get_args(field.type)[0] if get_origin(field.type) is Annotated else field.type  # bounds: the base
+        tname = "path" if _is_input_path(field.type) else getattr(tp, "__name__", None) or str(tp)
         out[field.name] = f"{tname} = {default}"
     return out

@@ -26,6 +26,7 @@ import yaml
 
 from palpa.errors import PalpaError
 from palpa.node import Node
+from palpa.params import describe_params, read_params_file
 from palpa.transport import TransportOptions
 
 __all__ = ["node_arg_parser", "params_from_args", "parse_remaps", "run_node", "run_node_code"]
@@ -36,7 +37,7 @@ def node_arg_parser(prog: str) -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog=prog, description=f"run the palpa node {prog}")
     ap.add_argument("--name", help="node name (default: from the class)")
     ap.add_argument("--namespace", default="", help="prefix for relative topic names")
-    ap.add_argument("--bus", help="bus address (default: $PALPA_BUS or ipc:///tmp/palpa-<uid>)")
+    ap.add_argument("--bus", help="bus address (default: $PALPA_BUS or ipc://$XDG_RUNTIME_DIR/palpa/bus, else ipc:///tmp/palpa-<uid>/bus)")
     ap.add_argument("-p", "--param", action="append", default=[], metavar="KEY=VALUE",
                     help="set a parameter; VALUE is parsed as YAML (repeatable)")
     ap.add_argument("--params-json", help="all parameters as one JSON object (used by the launcher)")
@@ -61,13 +62,7 @@ def params_from_args(args: argparse.Namespace) -> dict[str, Any]:
     """Merge parameters: file, then JSON, then each -p in order (later wins)."""
     params: dict[str, Any] = {}
     if args.params_file is not None:
-        try:
-            loaded = yaml.safe_load(args.params_file.read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise PalpaError(f"--params-file {args.params_file}: {exc}") from None
-        if not isinstance(loaded, dict):
-            raise PalpaError(f"--params-file {args.params_file}: expected a mapping of parameters")
-        params.update(loaded)
+        params.update(read_params_file(args.params_file, f"--params-file {args.params_file}"))
     if args.params_json:
         try:
             loaded = json.loads(args.params_json)
@@ -105,7 +100,11 @@ def run_node(cls: type[Node], argv: Sequence[str] | None = None, *, prog: str | 
 
 def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: str | None = None) -> int:
     """:func:`run_node` without the ``sys.exit``: returns the exit code."""
-    args = node_arg_parser(prog or cls.__name__).parse_args(argv)
+    ap = node_arg_parser(prog or cls.__name__)
+    ap.formatter_class = argparse.RawDescriptionHelpFormatter
+    declared = describe_params(cls.Params)
+    ap.epilog = "parameters (-p NAME=VALUE):\n" + ("\n".join(f"  {k}: {v}" for k, v in declared.items()) or "  none")
+    args = ap.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.debug else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",

@@ -20,6 +20,9 @@ from procs import ProcessGroup  # noqa: E402
 from palpa.address import BusAddress  # noqa: E402
 from palpa.bus import Bus  # noqa: E402
 
+# launches started by tests note their bus here, not in the user's own current-bus file (palpa.current)
+os.environ["PALPA_CURRENT"] = f"/tmp/pt-current-{os.getpid()}"
+
 
 def short_ipc_base() -> str:
     """A fresh ipc base path well under the 107-character limit (pytest's tmp dirs are too long)."""

@@ -128,7 +128,7 @@ def test_bad_parameters_fail_at_construction() -> None:
         NodeHarness(CameraTracker, {"driver": "opencv", "device": "/nonexistent/missing.avi"})
     with pytest.raises(palpa.ParamError, match="hsv_lower"):
         NodeHarness(CameraTracker, {"phantom": SPRINGS[0.29], "hsv_lower": [200, 0, 0]})
-    with pytest.raises(ValueError, match="phantom"):
+    with pytest.raises(palpa.ParamError, match="phantom"):  # a user error: one line from palpa run
         NodeHarness(CameraTracker, {})
 
 

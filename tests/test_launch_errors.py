@@ -68,3 +68,18 @@ def test_cli_unknown_override_names_the_declared_args() -> None:
     res = _cli("--check", "included/talker_rate.yaml", "rat:=3")
     assert res.returncode == 1
     assert "unknown arg 'rat' given by the command line (did you mean 'rate'?)" in res.stderr
+
+
+def test_cli_wrong_typed_override_names_the_param_line_and_the_arg() -> None:
+    res = _cli("--check", "included/talker_rate.yaml", "rate:=fast")
+    assert res.returncode == 1
+    assert res.stderr.startswith("included/talker_rate.yaml:7:23: param 'rate_hz' of node 'talker': expected "
+                                 "`float`, got `str`"), res.stderr
+    assert "from arg 'rate' = \"fast\", given by the command line (rate:=...)" in res.stderr
+
+
+def test_cli_missing_phantom_given_on_the_command_line_fails_the_check() -> None:
+    res = _cli("--check", str(CORPUS.parents[1] / "launch" / "scan_sim.yaml"), "phantom:=nowhere.yaml")
+    assert res.returncode == 1
+    assert "param 'phantom' of node 'fibre': 'nowhere.yaml' does not exist" in res.stderr
+    assert "given by the command line (phantom:=...)" in res.stderr and "Traceback" not in res.stderr

@@ -31,7 +31,7 @@ def test_scalars_are_yaml_1_2_native_types(tmp_path: Path) -> None:
     f = write(tmp_path / "a.yaml", """
         nodes:
           - name: probe
-            cmd: [x]
+            cmd: ["true"]
             params:
               i: 3
               f: 2.5
@@ -73,6 +73,8 @@ def test_args_defaults_overrides_and_substitutions(tmp_path: Path, monkeypatch: 
                   "$(run_dir)/out", "echo $$(date)", "flags=$(arg flags)"]
             params: {flags: $(arg flags), on: $(arg count)}
     """)
+    (f.parent / "tool.sh").write_text("#!/bin/sh\n")
+    (f.parent / "tool.sh").chmod(0o755)  # --check refuses a cmd program that does not exist
     plan = load_launch(f, parse_overrides(["count:=7", "rate:=2.5"]), run_dir=tmp_path / "r")
     talker, tool = plan.nodes
     assert talker.params == {"rate_hz": 2.5, "count": 7, "text": "every 2.5 Hz"}
@@ -141,13 +143,13 @@ def test_a_whole_arg_keeps_its_type_so_a_list_in_a_string_field_is_an_error(tmp_
 def test_anchors_and_merge_keys(tmp_path: Path) -> None:
     f = write(tmp_path / "m.yaml", """
         nodes:
-          - &base {name: a, cmd: [x], sigterm_timeout: 1.0, output: log}
+          - &base {name: a, cmd: ["true"], sigterm_timeout: 1.0, output: log}
           - <<: *base
             name: b
             output: screen
     """)
     a, b = load_launch(f).nodes
-    assert (b.name, b.cmd, b.sigterm_timeout, b.output) == ("b", ["x"], 1.0, "screen")
+    assert (b.name, b.cmd, b.sigterm_timeout, b.output) == ("b", ["true"], 1.0, "screen")
     assert a.output == "log"
 
 
@@ -200,10 +202,10 @@ def test_json_schema_comes_from_the_same_definitions() -> None:
                                        "sigkill_timeout", "output"}
     # numbers and booleans also accept a whole-string $(arg name)
     timeout = node["properties"]["sigterm_timeout"]
-    assert timeout["anyOf"][0] == {"type": "number", "minimum": 0.0} and timeout["default"] == 5.0
+    assert timeout["anyOf"][0] == {"type": "number", "minimum": 0.0, "maximum": 1e9} and timeout["default"] == 5.0
     assert timeout["anyOf"][1] == {"type": "string", "pattern": r"^\$\(arg [A-Za-z][A-Za-z0-9_-]*\)$"}
     assert set(defs["LaunchFile"]["properties"]) == {"description", "args", "python_path", "include", "nodes",
-                                                     "bus", "record", "progress"}
+                                                     "bus", "record", "progress", "viz"}
     out = subprocess.run([sys.executable, "-m", "palpa.cli.main", "launch", "--schema"], capture_output=True,
                          text=True, timeout=60, check=True)
     assert json.loads(out.stdout) == json.loads(json.dumps(schema))
@@ -215,3 +217,52 @@ def test_check_output_shows_params_with_defaults_and_origin(tmp_path: Path) -> N
     assert text.splitlines()[0].endswith("talker_listener.yaml: ok (2 nodes)")
     assert "params: {rate_hz: 10.0, text: hello, count: 5}" in text
     assert "talker_listener.yaml:" in text and "flags: [required]" in text
+
+
+def test_a_shipped_scan_can_be_included_with_one_more_node(tmp_path: Path) -> None:
+    """docs/custom-node.md's worked example: the included scan brings its recording and progress bar; a setting
+    of the including file wins over the included one."""
+    scan = REPO / "launch" / "scan_sim.yaml"
+    top = write(tmp_path / "my_scan.yaml", f"""\
+        include:
+          - file: {scan}
+            args: {{spacing_mm: 6.0}}
+        nodes:
+          - {{name: listener, node: nodes.demo:Listener}}
+        """)
+    plan = load_launch(top, run_dir=tmp_path / "run")
+    assert plan.progress_topic == "robot/scan_status"
+    assert plan.record is not None and plan.record.exclude == ["_palpa/clock.*"]
+    assert [n.name for n in plan.nodes][-2:] == ["scanner", "listener"]
+    assert plan.node_params["scanner"]["spacing_mm"] == 6.0
+    own = write(tmp_path / "quiet.yaml", f"""\
+        record: false
+        progress: {{topic: my/progress}}
+        include: [{{file: {scan}}}]
+        nodes: []
+        """)
+    plan = load_launch(own, run_dir=tmp_path / "run")
+    assert plan.record is None and plan.progress_topic == "my/progress"
+
+
+def test_replay_takes_the_phantom_from_the_recording(tmp_path: Path) -> None:
+    """launch/replay_scan.yaml's default comes from the launch file the recording carries, not the demo's."""
+    from palpa.record.recorder import Recorder
+    from palpa.testing import NodeHarness
+
+    scanned = tmp_path / "scan.resolved.yaml"
+    scanned.write_text("nodes:\n  - name: estimator\n    node: nodes.stiffness_estimator:StiffnessEstimator\n"
+                       f"    params: {{model: airfloat, phantom: {REPO / 'phantoms' / 'flat_26k.yaml'}}}\n")
+    bag = tmp_path / "run" / "recording.mcap"
+    bag.parent.mkdir()
+    NodeHarness(Recorder, {"output": str(bag), "launch_file": str(scanned)}).close()
+    plan = load_launch(REPO / "launch" / "replay_scan.yaml", {"bag": str(bag.parent)}, run_dir=tmp_path / "r")
+    assert plan.node_params["estimator"]["phantom"] == str(REPO / "phantoms" / "flat_26k.yaml")
+
+    bare = tmp_path / "bare.mcap"
+    NodeHarness(Recorder, {"output": str(bare)}).close()  # `palpa record`: no launch file in it
+    with pytest.raises(LaunchError, match=r"carries no launch file .*give phantom:=VALUE instead"):
+        load_launch(REPO / "launch" / "replay_scan.yaml", {"bag": str(bare)}, run_dir=tmp_path / "r")
+    plan = load_launch(REPO / "launch" / "replay_scan.yaml", {"bag": str(bare), "phantom": "x.yaml"},
+                       run_dir=tmp_path / "r")
+    assert plan.node_params["estimator"]["phantom"] == "x.yaml"

@@ -266,3 +266,25 @@ def test_launch_ends_when_every_node_has_ended_and_exit_0_is_not_respawned(procs
     out = proc.output()
     assert "stopping: every node has ended" in out
     assert len(starts(run_dir, "first")) == 1 and "respawning" not in out
+
+
+def test_progress_lines_off_a_terminal_by_default_then_the_reported_nodes_results(procs: ProcessGroup,
+                                                                                 tmp_path: Path) -> None:
+    """Output to a pipe (as under `make demo | tee`): plain progress lines with no flag, and once the view ends,
+    what the ``report`` node said under it (a map node's "map written: ...")."""
+    file = write(tmp_path, f"""
+        python_path: [{json.dumps(str(TESTS))}]
+        progress: {{topic: test/status, report: [ticker]}}
+        nodes:
+          - name: ticker
+            node: launch_node_classes:ProgressTicker
+            params: {{steps: 20, period_s: 0.1}}
+            required: true
+    """)
+    proc = launch(procs, file, tmp_path / "run")
+    assert proc.wait(60) == 0, proc.output()
+    out = proc.output()
+    assert re.search(r"^progress +\d+% scanning  line \d+/20", out, re.M), out
+    last_progress = max(m.end() for m in re.finditer(r"^progress .*$", out, re.M))
+    assert out.index("[ticker] INFO palpa.node.ticker: step 20 of 20", last_progress) > last_progress
+    assert "step 3 of 20" not in out  # only the last lines: the results, not the whole run

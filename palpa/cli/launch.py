@@ -42,9 +42,10 @@ def _add_options(p: argparse.ArgumentParser) -> None:
                    help="bind the bus here instead (ipc:///path, tcp://HOST:PORT, or tcp://HOST for OS ports)")
     shown = p.add_mutually_exclusive_group()
     shown.add_argument("--progress", dest="progress", action="store_true", default=None,
-                       help="show the progress bar even when stdout is not a terminal")
+                       help="show progress (the default when the file has a progress topic: a bar on a terminal, "
+                            "plain lines every 5 %% otherwise)")
     shown.add_argument("--no-progress", dest="progress", action="store_false",
-                       help="never show the progress bar (node output stays on screen)")
+                       help="no progress view: every node line stays on screen")
     p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
 
 
@@ -87,7 +88,7 @@ def _run(args: argparse.Namespace) -> int:
             with contextlib.suppress(OSError):
                 run_dir.rmdir()
         raise
-    return Supervisor(plan, bus_address=args.bus_address, progress=args.progress).run()
+    return Supervisor(plan, bus_address=args.bus_address, progress=args.progress, announce=True).run()
 
 
 def _make_run_dir(chosen: Path | None) -> tuple[Path, bool]:

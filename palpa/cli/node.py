@@ -6,14 +6,14 @@ import argparse
 import sys
 
 from palpa.cli.common import add_bus_arg
-from palpa.cli.topic import _tool_node, collect_heartbeats
+from palpa.cli.topic import WAIT_HELP, WAIT_S, _tool_node, collect_heartbeats
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("node", help="list running nodes")
     verbs = p.add_subparsers(dest="node_verb", metavar="VERB", required=True)
     ls = verbs.add_parser("list", help="nodes heard on the bus, with pid and counters")
-    ls.add_argument("--wait", type=float, default=1.5, help="seconds to listen for heartbeats")
+    ls.add_argument("--wait", type=float, default=WAIT_S, help=WAIT_HELP)
     ls.add_argument("-v", "--verbose", action="store_true", help="topics and counters too")
     add_bus_arg(ls)
     ls.set_defaults(func=run_list)
@@ -23,7 +23,7 @@ def run_list(args: argparse.Namespace) -> int:
     with _tool_node(args, "node_list") as node:
         beats = collect_heartbeats(node, args.wait)
     if not beats:
-        print("no nodes heard (is the graph running on this bus?)", file=sys.stderr)
+        print(f"no nodes heard in {args.wait:g} s on {args.bus_where}", file=sys.stderr)
         return 1
     for name in sorted(beats):
         hb = beats[name]

@@ -4,17 +4,26 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import sys
 
+from palpa.current import read_current
 from palpa.errors import PalpaError
 from palpa.node import Node
-from palpa.runner import run_node_code
+from palpa.runner import node_arg_parser, run_node_code
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = sub.add_parser("run", help="run a node class: palpa run package.module:Class [--param k=v ...]",
-                       add_help=False)
-    p.add_argument("target", help="package.module:Class")
-    p.add_argument("rest", nargs=argparse.REMAINDER, help="node options (see palpa run X:Y --help)")
+    options = node_arg_parser("palpa run MODULE:CLASS").format_help().partition("options:")[2]
+    p = sub.add_parser(
+        "run", help="run a node class: palpa run package.module:Class [-p k=v ...]",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Run a palpa node class as a process. MODULE is imported as `python -m` would: from the "
+                    "working directory first, then PYTHONPATH. Without --bus or $PALPA_BUS the node joins the "
+                    "running launch's bus (else the default bus).",
+        epilog=f"node options (after MODULE:CLASS; `palpa run MODULE:CLASS --help` adds its parameters):{options}")
+    p.add_argument("target", metavar="MODULE:CLASS", help="e.g. nodes.demo:Talker, or shouter:Shouter in its folder")
+    p.add_argument("rest", nargs=argparse.REMAINDER, help="node options")
     p.set_defaults(func=run)
 
 
@@ -26,7 +35,9 @@ def load_node_class(target: str) -> type[Node]:
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
-        raise PalpaError(f"{target!r}: cannot import {module_name!r}: {exc}") from None
+        hint = (" (looked in the working directory and on PYTHONPATH)"
+                if isinstance(exc, ModuleNotFoundError) and exc.name == module_name.split(".")[0] else "")
+        raise PalpaError(f"{target!r}: cannot import {module_name!r}: {exc}{hint}") from None
     cls = getattr(module, class_name, None)
     if cls is None:
         raise PalpaError(f"{target!r}: module {module_name!r} has no {class_name!r}")
@@ -36,5 +47,13 @@ def load_node_class(target: str) -> type[Node]:
 
 
 def run(args: argparse.Namespace) -> int:
+    cwd = os.getcwd()
+    if cwd not in sys.path and "" not in sys.path:
+        sys.path.insert(0, cwd)  # as `python -m` does: a node's own folder is importable
     cls = load_node_class(args.target)
-    return run_node_code(cls, args.rest, prog=args.target)
+    rest = list(args.rest)
+    current = read_current()
+    if current is not None and "--bus" not in rest and not os.environ.get("PALPA_BUS"):
+        print(f"palpa run: joining the running launch's bus ({current[1]})", file=sys.stderr)
+        rest = ["--bus", current[0], *rest]
+    return run_node_code(cls, rest, prog=args.target)

@@ -25,14 +25,16 @@ from typing import Any
 
 import msgspec
 
+from palpa.address import is_loopback_host
 from palpa.errors import BusError, LaunchError, ParamError
-from palpa.launch.plan import RECORDER_NAME, RECORDER_TARGET, LaunchPlan, NodeSpec
-from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, RecordDecl
+from palpa.launch.hazards import check_hazards
+from palpa.launch.plan import RECORDER_NAME, RECORDER_TARGET, VIZ_NAME, LaunchPlan, NodeSpec
+from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, RecordDecl, VizDecl
 from palpa.launch.source import Mark, Path_, Source, display_path
 from palpa.launch.subst import substitute
 from palpa.launch.validate import convert, did_you_mean, kind, lower_first
 from palpa.node import Node
-from palpa.params import convert_params
+from palpa.params import convert_params, input_paths
 
 __all__ = ["load_launch", "parse_overrides"]
 
@@ -76,6 +78,10 @@ class _Collected:
     node_sources: list[tuple[Source, Path_, NodeSpec]] = field(default_factory=list)
     names: dict[str, str] = field(default_factory=dict)
     stack: list[Path] = field(default_factory=list)
+    set_by: dict[str, str] = field(default_factory=dict)
+    """bus/record/progress -> the file whose setting is used (the top file's, else the first include's)."""
+    args_of: dict[str, tuple[dict[str, Any], _Given]] = field(default_factory=dict)
+    """File name -> its resolved args and what gave them (to name the arg behind a bad param)."""
 
 
 def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
@@ -93,7 +99,16 @@ def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
     given = _Given(dict(overrides or {}), {k: None for k in overrides or {}}, "the command line")
     col = _Collected(plan)
     _load_file(path.resolve(), given, "", col, top=True)
+    names = [n.name for n in plan.nodes]
+    for name in plan.progress_report:
+        if name not in names:
+            raise LaunchError(f"{col.set_by.get('progress', plan.file)}: progress report names node {name!r}, which "
+                              f"is not in the graph{did_you_mean(name, names)}")
+    viz = plan.viz_node()
+    if viz is not None:
+        plan.nodes.insert(0, viz)  # first, so that it hears every node's first messages
     _validate_nodes(col)
+    check_hazards(plan, col.top, col.node_sources)
     return plan
 
 
@@ -111,27 +126,33 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
         raise src.error((), f"a launch file is a mapping (nodes:, args:, ...), not a {kind(src.data)}")
     data: dict[str, Any] = dict(src.data)
     args = _resolve_args(src, data.pop("args", []), given, col.plan.run_dir)
+    col.args_of[src.name] = (args, given)
     if top:
         col.plan.args = dict(args)
     subst = {k: substitute(src, v, (k,), args, col.plan.run_dir) for k, v in data.items()}
     decl = convert(src, subst, LaunchFile)
 
-    for key in ("bus", "record", "progress"):
-        if not top and getattr(decl, key) is not None:
-            raise src.error((key,), f"only the top-level launch file may set '{key}' (this file is included)",
-                            key=True)
+    # an included file's bus/record/progress/viz apply unless the including file set its own (the top file wins),
+    # so a shipped scan can be included, with its recording and progress bar, next to one more node
+    own = {k for k in ("bus", "record", "progress", "viz") if getattr(decl, k) is not None and k not in col.set_by}
+    col.set_by.update(dict.fromkeys(own, src.name))
     if top:
-        if decl.bus is not None:
-            col.plan.bus = decl.bus
-            try:
-                col.plan.bus_request()
-            except BusError as exc:
-                raise src.error(("bus",), str(exc)) from None
         col.plan.description = decl.description
-        col.plan.progress_topic = decl.progress.topic if decl.progress is not None else None
-        if decl.progress is not None and not decl.progress.topic:
+    if "bus" in own and decl.bus is not None:
+        col.plan.bus = decl.bus
+        try:
+            col.plan.bus_request()
+        except BusError as exc:
+            raise src.error(("bus",), str(exc)) from None
+    if "progress" in own and decl.progress is not None:
+        col.plan.progress_topic = decl.progress.topic
+        col.plan.progress_report = list(decl.progress.report)
+        if not decl.progress.topic:
             raise src.error(("progress", "topic"), "progress topic must not be empty")
+    if "record" in own:
         _record(src, decl, col.plan)
+    if "viz" in own:
+        _viz(src, decl, col.plan)
     for i, entry in enumerate(decl.python_path):
         p = Path(entry)
         p = (p if p.is_absolute() else path.parent / p).resolve()
@@ -142,6 +163,8 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
     for i, inc in enumerate(decl.include):
         _include(src, i, inc, namespace, col)
     for i, nd in enumerate(decl.nodes):
+        if not nd.if_:
+            continue
         spec = _node_spec(src, i, nd, namespace, col)
         col.plan.nodes.append(spec)
         col.node_sources.append((src, ("nodes", i), spec))
@@ -153,12 +176,27 @@ def _record(src: Source, decl: LaunchFile, plan: LaunchPlan) -> None:
     if rec is None or rec is False:
         return
     plan.record = RecordDecl() if rec is True else rec
+    _check_regexes(src, "record", plan.record)
+
+
+def _check_regexes(src: Source, section: str, decl: RecordDecl | VizDecl) -> None:
     for key in ("topics", "exclude"):
-        for i, rx in enumerate(getattr(plan.record, key)):
+        for i, rx in enumerate(getattr(decl, key)):
             try:
                 re.compile(rx)
             except re.error as exc:
-                raise src.error(("record", key, i), f"not a regular expression: {exc}") from None
+                raise src.error((section, key, i), f"not a regular expression: {exc}") from None
+
+
+def _viz(src: Source, decl: LaunchFile, plan: LaunchPlan) -> None:
+    viz = VizDecl() if decl.viz is True else decl.viz
+    if viz is None or viz is False or not viz.enabled:
+        return
+    if not viz.allow_remote and not is_loopback_host(viz.host):
+        raise src.error(("viz", "host"), f"viz host {viz.host!r} is beyond loopback: the Foxglove protocol has "
+                                         "no authentication; set allow_remote: true to mean it")
+    _check_regexes(src, "viz", viz)
+    plan.viz = viz
 
 
 def _resolve_args(src: Source, raw: Any, given: _Given, run_dir: Path) -> dict[str, Any]:
@@ -216,6 +254,8 @@ def _node_spec(src: Source, i: int, nd: NodeDecl, namespace: str, col: _Collecte
                                           "launcher's own)")
     if nd.name == RECORDER_NAME and col.plan.record is not None:
         raise src.error((*where, "name"), "node name 'recorder' is taken by the record section's recorder")
+    if nd.name == VIZ_NAME and col.plan.viz is not None:
+        raise src.error((*where, "name"), "node name 'viz' is taken by the viz section's Foxglove bridge")
     col.names[nd.name] = str(src.mark(where))
     for key, value in nd.remap.items():
         if not key or not value:
@@ -246,7 +286,12 @@ def _validate_nodes(col: _Collected) -> None:
             try:
                 params = convert_params(cls.Params, spec.params, where=f"node {spec.name!r}")
             except ParamError as exc:
-                raise _param_error(src, (*where, "params"), spec, str(exc)) from None
+                raise _param_error(src, (*where, "params"), spec, str(exc), col) from None
+            for name, value in input_paths(params).items():
+                if not Path(value).exists():
+                    raise src.error((*where, "params", name), f"param {name!r} of node {spec.name!r}: "
+                                                              f"{value!r} does not exist (from {Path.cwd()})"
+                                                              f"{_arg_note(col, src, (*where, 'params', name))}")
             col.plan.node_params[spec.name] = msgspec.to_builtins(params)
         rec = col.plan.recorder()
         if rec is not None:
@@ -291,7 +336,23 @@ def _import_node_class(src: Source, where: Path_, target: str) -> type[Node]:
     return cls
 
 
-def _param_error(src: Source, where: Path_, spec: NodeSpec, text: str) -> LaunchError:
+def _arg_note(col: _Collected, src: Source, path: Path_) -> str:
+    """'; it comes from arg X = V, given by the command line' for a value written as ``$(arg X)``."""
+    raw = src.get(path)
+    names = re.findall(r"\$\(\s*arg\s+([^()\s]+)\s*\)", raw) if isinstance(raw, str) else []
+    args, given = col.args_of.get(src.name, ({}, None))
+    notes = []
+    for name in dict.fromkeys(names):
+        if given is not None and name in given.values:
+            mark = given.marks.get(name)
+            notes.append(f"arg {name!r} = {json.dumps(args.get(name))}, given by {given.origin}"
+                         + (f" at {mark}" if mark is not None else f" ({name}:=...)"))
+        elif name in args:
+            notes.append(f"arg {name!r} = {json.dumps(args.get(name))} (its default)")
+    return f"; from {'; '.join(notes)}" if notes else ""
+
+
+def _param_error(src: Source, where: Path_, spec: NodeSpec, text: str, col: _Collected) -> LaunchError:
     text = text.removeprefix(f"node {spec.name!r}: ")
     unknown = re.search(r"unknown field `([^`]+)`", text)
     if unknown:
@@ -304,5 +365,6 @@ def _param_error(src: Source, where: Path_, spec: NodeSpec, text: str) -> Launch
     bad = re.match(r"parameter '([^'.\[]+)[^']*': (.*)$", text, re.S)
     if bad:
         return src.error((*where, bad.group(1)), f"param {bad.group(1)!r} of node {spec.name!r}: "
-                                                 f"{lower_first(bad.group(2))}")
+                                                 f"{lower_first(bad.group(2))}"
+                                                 f"{_arg_note(col, src, (*where, bad.group(1)))}")
     return src.error(where, f"params of node {spec.name!r}: {text}")

@@ -44,15 +44,17 @@ class Screen:
         """An ANSI color for the index-th node's prefix ('' when not on a terminal or NO_COLOR is set)."""
         return _COLORS[index % len(_COLORS)] if self._color else ""
 
-    def node_line(self, name: str, color: str, output: str, text: str) -> None:
-        """Show one line of a node (the caller has already written it to the node's log)."""
+    def node_line(self, name: str, color: str, output: str, text: str) -> bool:
+        """Show one line of a node (the caller has already written it to the node's log); False if it was not
+        shown (``output: log``, or a quiet line under the progress view)."""
         if output != "screen":
-            return
+            return False
         loud = is_loud(text)
         if self.view is not None and not loud:
-            return
+            return False
         prefix = f"\x1b[{color}m[{name}]\x1b[0m" if color else f"[{name}]"
         self.show(f"{prefix} {text}", loud=loud)
+        return True
 
     def show(self, text: str, *, loud: bool, stream: TextIO | None = None) -> None:
         """Print a line: above the progress bar if there is one (loud lines only), else on ``stream``."""

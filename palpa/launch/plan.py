@@ -12,15 +12,17 @@ from typing import Any
 
 import yaml
 
-from palpa.address import BusAddress
+from palpa.address import BusAddress, private_dir
 from palpa.errors import BusError
-from palpa.launch.schema import BusDecl, RecordDecl
+from palpa.launch.schema import BusDecl, RecordDecl, VizDecl
 from palpa.transport import TransportOptions
 
-__all__ = ["RECORDER_NAME", "RECORDER_TARGET", "LaunchPlan", "NodeSpec"]
+__all__ = ["RECORDER_NAME", "RECORDER_TARGET", "VIZ_NAME", "VIZ_TARGET", "LaunchPlan", "NodeSpec"]
 
 RECORDER_NAME = "recorder"
 RECORDER_TARGET = "palpa.record.recorder:Recorder"
+VIZ_NAME = "viz"
+VIZ_TARGET = "palpa.viz.bridge:Bridge"
 
 
 @dataclass
@@ -107,7 +109,10 @@ class LaunchPlan:
     bus: BusDecl = field(default_factory=BusDecl)
     record: RecordDecl | None = None
     progress_topic: str | None = None
+    progress_report: list[str] = field(default_factory=list)
     recorder_available: bool = False
+    viz: VizDecl | None = None
+    """The Foxglove bridge the ``viz`` section asks for (enabled), or None."""
     node_params: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Node name -> every parameter of a ``node:`` entry, defaults included (filled by the loader)."""
     files: list[str] = field(default_factory=list)
@@ -127,12 +132,26 @@ class LaunchPlan:
             params["split_size_mb"] = self.record.split_size_mb
         if self.record.split_duration_s is not None:
             params["split_duration_s"] = self.record.split_duration_s
+        # the recorder imports these only for a type it cannot find otherwise (palpa.record.format)
+        modules = dict.fromkeys(n.target.partition(":")[0] for n in self.nodes if n.target)
         return NodeSpec(name=RECORDER_NAME, target=RECORDER_TARGET, params=params, sigterm_timeout=10.0,
-                        sigkill_timeout=5.0, where=f"{self.files[0] if self.files else self.file}: record")
+                        sigkill_timeout=5.0, where=f"{self.files[0] if self.files else self.file}: record",
+                        env={"PALPA_NODE_MODULES": ",".join(modules)})
+
+    def viz_node(self) -> NodeSpec | None:
+        """The bridge node the ``viz`` section asks for (None without one): an ordinary node entry named ``viz``,
+        respawned if it fails (a viewer must not end a scan)."""
+        v = self.viz
+        if v is None:
+            return None
+        params = {"host": v.host, "port": v.port, "allow_remote": v.allow_remote, "topics": list(v.topics),
+                  "exclude": list(v.exclude), "client_publish": list(v.client_publish)}
+        return NodeSpec(name=VIZ_NAME, target=VIZ_TARGET, params=params, respawn=True,
+                        where=f"{self.files[0] if self.files else self.file}: viz")
 
     def bus_request(self, override: str | None = None) -> BusAddress:
         """The endpoints the launcher binds: ``override`` (``--bus-address``), else the ``bus`` section, else a
-        fresh ipc path ``/tmp/palpa-<pid>-<4 hex>``."""
+        fresh ipc path ``<private dir>/<pid>-<4 hex>`` (palpa.address.private_dir)."""
         if override:
             return _tcp_any(override) if _is_host_only(override) else BusAddress.parse(override)
         endpoint = self.bus.endpoint
@@ -143,7 +162,7 @@ class LaunchPlan:
                 endpoint = "tcp://" + endpoint
             return _tcp_any(endpoint) if _is_host_only(endpoint) else BusAddress.parse(endpoint)
         if endpoint is None:
-            return BusAddress.parse(f"ipc:///tmp/palpa-{os.getpid()}-{secrets.token_hex(2)}")
+            return BusAddress.parse(f"ipc://{private_dir()}/{os.getpid()}-{secrets.token_hex(2)}")
         if endpoint.startswith("tcp://"):
             raise BusError(f"bus endpoint {endpoint!r} is tcp but transport is ipc")
         return BusAddress.parse(endpoint if endpoint.startswith("ipc://") else f"ipc://{endpoint}")
@@ -164,7 +183,7 @@ class LaunchPlan:
             doc["record"] = {"topics": list(r.topics), "exclude": list(r.exclude), "split_size_mb": r.split_size_mb,
                              "split_duration_s": r.split_duration_s, "ready_timeout_s": r.ready_timeout_s}
         if self.progress_topic is not None:
-            doc["progress"] = {"topic": self.progress_topic}
+            doc["progress"] = {"topic": self.progress_topic, "report": list(self.progress_report)}
         header = "".join(f"# {line}\n" for line in [
             f"resolved from {self.files[0] if self.files else self.file}",
             *(f"includes {f}" for f in self.files[1:]),

@@ -16,6 +16,7 @@ A launch file (YAML)::
     bus: {transport: ipc, latched: [scan/plan]}
     record: {topics: ["probe/.*"], exclude: ["camera/.*"]}
     progress: {topic: robot/scan_status}
+    viz: {enabled: $(arg viz), client_publish: [robot/estop]}
 
 Values are native YAML types. A string that is exactly ``$(arg name)`` takes the argument's value with its type,
 so the schema below also accepts such a string wherever it expects a number or a boolean.
@@ -27,7 +28,7 @@ import copy
 from typing import Annotated, Any, Literal
 
 import msgspec
-from msgspec import UNSET, Meta, Struct, UnsetType
+from msgspec import UNSET, Meta, Struct, UnsetType, field
 
 __all__ = [
     "NAME_PATTERN",
@@ -39,6 +40,7 @@ __all__ = [
     "ProgressDecl",
     "RecordDecl",
     "TransportDecl",
+    "VizDecl",
     "json_schema",
 ]
 
@@ -48,7 +50,8 @@ SUBST_PATTERN = r"^\$\(arg [A-Za-z][A-Za-z0-9_-]*\)$"
 
 Name = Annotated[str, Meta(pattern=NAME_PATTERN, description="letters, digits, '_' and '-'; starts with a letter")]
 Namespace = Annotated[str, Meta(pattern=NAMESPACE_PATTERN, description="prefix for relative topic names")]
-Seconds = Annotated[float, Meta(ge=0.0)]
+_FOREVER_S = 1e9  # a timeout beyond ~30 years is a typo (or .inf): refused
+Seconds = Annotated[float, Meta(ge=0.0, le=_FOREVER_S)]
 
 
 class _Decl(Struct, kw_only=True, forbid_unknown_fields=True):
@@ -77,7 +80,7 @@ class NodeDecl(_Decl):
     env: Annotated[dict[str, str], Meta(description="extra environment variables (strings)")] = {}
     respawn: Annotated[bool, Meta(description="start again when it fails (exits non-zero or is killed); exit "
                                               "code 0 means it has finished")] = False
-    respawn_delay: Annotated[float, Meta(gt=0.0, description="seconds before the first respawn; doubles after "
+    respawn_delay: Annotated[float, Meta(gt=0.0, le=_FOREVER_S, description="seconds before the first respawn; doubles after "
                                                               "each consecutive one (capped at 60 s)")] = 1.0
     respawn_max_retries: Annotated[int, Meta(ge=-1, description="consecutive respawns before giving up; "
                                                                  "-1: never give up")] = 5
@@ -88,6 +91,8 @@ class NodeDecl(_Decl):
     output: Annotated[Literal["screen", "log"], Meta(description="screen: lines shown as `[name] line`; "
                                                                   "always kept in <run_dir>/<name>.log")] = "screen"
     transport: TransportDecl | None = None
+    if_: Annotated[bool, Meta(description="false: leave this node out (e.g. `if: $(arg viz)`)")] = field(
+        default=True, name="if")
 
 
 class TransportDecl(_Decl):
@@ -99,6 +104,8 @@ class TransportDecl(_Decl):
                                                   "0: no limit")] | None = None
     busy_poll_us: Annotated[int, Meta(ge=0, le=1_000_000, description="spin this long for input before blocking: "
                                       "lower latency in exchange for a busy core")] | None = None
+    max_msg_bytes: Annotated[int, Meta(ge=1024, description="the largest message this node accepts (bytes, all "
+                                                           "frames); larger ones are refused and counted")] | None = None
     direct: Annotated[list[Annotated[str, Meta(min_length=1)]], Meta(
         description="topics (as on the bus, after namespace and remap) this node publishes straight to their "
                     "subscribers instead of through the proxy: lower latency (see palpa.direct)")] | None = None
@@ -125,6 +132,8 @@ class BusDecl(_Decl):
     latched: Annotated[list[str], Meta(description="topics whose last message is replayed to late "
                                                    "subscribers")] = []
     hwm: Annotated[int, Meta(gt=0, description="high-water mark of the proxy sockets (messages)")] = 10_000
+    max_msg_bytes: Annotated[int, Meta(ge=1024, description="the largest frame the bus accepts; a publisher "
+                                                            "sending a larger one is disconnected")] = 16 * 2**20
 
 
 class RecordDecl(_Decl):
@@ -133,9 +142,24 @@ class RecordDecl(_Decl):
     topics: Annotated[list[str], Meta(description="regular expressions; empty: every topic")] = []
     exclude: Annotated[list[str], Meta(description="regular expressions of topics to leave out")] = []
     split_size_mb: Annotated[float, Meta(gt=0)] | None = None
-    split_duration_s: Annotated[float, Meta(gt=0)] | None = None
-    ready_timeout_s: Annotated[float, Meta(gt=0, description="how long to wait for the recorder's "
+    split_duration_s: Annotated[float, Meta(gt=0, le=_FOREVER_S)] | None = None
+    ready_timeout_s: Annotated[float, Meta(gt=0, le=_FOREVER_S, description="how long to wait for the recorder's "
                                                              "heartbeat")] = 15.0
+    required: Annotated[bool, Meta(description="a recorder that dies stops the launch (exit 1) instead of "
+                                               "letting the rest of the run go unrecorded")] = True
+
+
+class VizDecl(_Decl):
+    """Serve the graph to Foxglove with the bridge node ``viz`` (palpa.viz.bridge:Bridge), started first."""
+
+    enabled: Annotated[bool, Meta(description="false: no bridge (e.g. `enabled: $(arg viz)`)")] = True
+    host: Annotated[str, Meta(description="interface; beyond loopback needs allow_remote")] = "127.0.0.1"
+    port: Annotated[int, Meta(ge=0, le=65535, description="0: the OS chooses (see <run_dir>/viz.address)")] = 8765
+    allow_remote: bool = False
+    topics: Annotated[list[str], Meta(description="regular expressions; empty: every topic")] = []
+    exclude: Annotated[list[str], Meta(description="regular expressions of topics to leave out")] = []
+    client_publish: Annotated[list[str], Meta(description="topics a Foxglove client may publish, e.g. "
+                                                          "robot/estop")] = []
 
 
 class ProgressDecl(_Decl):
@@ -143,6 +167,8 @@ class ProgressDecl(_Decl):
     eta_s, line, lines."""
 
     topic: str
+    report: Annotated[list[str], Meta(description="nodes whose last lines hidden by the bar (their results) are "
+                                                  "printed after it")] = []
 
 
 class LaunchFile(_Decl):
@@ -157,6 +183,8 @@ class LaunchFile(_Decl):
     bus: BusDecl | None = None
     record: Annotated[bool | RecordDecl, Meta(description="true: record every topic")] | None = None
     progress: ProgressDecl | None = None
+    viz: Annotated[bool | VizDecl, Meta(description="true: serve every topic to Foxglove on "
+                                                    "ws://127.0.0.1:8765")] | None = None
 
 
 def json_schema() -> dict[str, Any]:

@@ -4,6 +4,8 @@
 * ``$(env NAME)``            an environment variable (an error if unset); ``$(env NAME default words)`` otherwise
 * ``$(dirname)``             the folder of the launch file being read (absolute)
 * ``$(run_dir)``             the run directory
+* ``$(recorded ARG NODE PARAM)``  param PARAM of node NODE in the launch that made the recording named by arg ARG
+  (a replay takes the recorded scan's settings instead of a default that fits only the demo)
 * ``$$(``                    a literal ``$(``
 """
 
@@ -76,8 +78,36 @@ def _evaluate(src: Source, path: Path_, expr: str, args: Mapping[str, Any], run_
         return str(src.path.parent)
     if kind == "run_dir" and len(words) == 1:
         return str(run_dir)
+    if kind == "recorded" and len(words) == 4:
+        return _recorded(src, path, words[1], words[2], words[3], args)
     raise src.error(path, f"unknown substitution $({expr}): expected $(arg NAME), $(env NAME [DEFAULT]), "
-                          "$(dirname) or $(run_dir)")
+                          "$(dirname), $(run_dir) or $(recorded ARG NODE PARAM)")
+
+
+def _recorded(src: Source, path: Path_, arg: str, node: str, param: str, args: Mapping[str, Any]) -> Any:
+    """The value ``param`` had for ``node`` in the launch file attached to the recording named by arg ``arg``."""
+    import yaml
+
+    from palpa.record.format import BagError
+    from palpa.record.reader import launch_text_of
+
+    bag = _arg(src, path, arg, args)
+    name = src.get((*path[:2], "name")) if path[:1] == ("args",) else None
+    how = f"give {name}:=VALUE instead" if isinstance(name, str) else "give the value in the launch file instead"
+    try:
+        text = launch_text_of(str(bag))
+    except BagError as exc:
+        raise src.error(path, f"$(recorded {arg} {node} {param}): {exc}") from None
+    if text is None:
+        raise src.error(path, f"$(recorded {arg} {node} {param}): {bag} carries no launch file (it was not "
+                              f"recorded by a launch); {how}")
+    try:
+        nodes = (yaml.safe_load(text) or {}).get("nodes") or []
+        entry = next(n for n in nodes if isinstance(n, dict) and n.get("name") == node)
+        return entry["params"][param]
+    except (yaml.YAMLError, AttributeError, StopIteration, KeyError, TypeError):
+        raise src.error(path, f"$(recorded {arg} {node} {param}): the launch that made {bag} gave node {node!r} "
+                              f"no param {param!r}; {how}") from None
 
 
 def _arg(src: Source, path: Path_, name: str, args: Mapping[str, Any]) -> Any:

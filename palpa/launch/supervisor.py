@@ -33,6 +33,7 @@ from typing import Any, TextIO
 
 from palpa.address import BusAddress
 from palpa.bus import Bus
+from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
 from palpa.launch.output import Screen
 from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
@@ -50,6 +51,7 @@ _REAP_GRACE_S = 3.0  # after SIGKILL, how long to wait for the kernel before giv
 _MAX_LINE = 65536
 _STEP_S = 0.05
 _SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+_REPORT_LINES = 12
 
 
 def exit_text(code: int) -> str:
@@ -77,6 +79,8 @@ class _Proc:
     deadline: float = 0.0
     buf: bytes = b""
     tail: deque[str] = field(default_factory=lambda: deque(maxlen=15))
+    hidden: deque[str] = field(default_factory=lambda: deque(maxlen=_REPORT_LINES))
+    """Lines the progress bar kept off the screen (for ``progress: {report: [...]}``)."""
     outcome: str = "not started"
     failed: bool = False
     escalated: str | None = None
@@ -86,12 +90,14 @@ class Supervisor:
     """Runs one launch plan to the end. ``run()`` returns the launch's exit code.
 
     ``bus_address`` overrides the plan's bus (any form ``palpa --bus`` accepts, or ``tcp://HOST`` for
-    OS-chosen ports); ``progress`` True/False forces the progress bar on/off (None: only on a terminal);
+    OS-chosen ports); ``progress`` False hides the progress view (default: a bar on a terminal, plain lines
+    every 5 % elsewhere);
     ``reaper`` False leaves only PR_SET_PDEATHSIG to clean up after a killed launcher (tests use it to prove
-    that mechanism alone)."""
+    that mechanism alone); ``announce`` makes this the current launch the CLI tools find (palpa.current)."""
 
     def __init__(self, plan: LaunchPlan, *, bus_address: str | None = None, out: TextIO | None = None,
-                 err: TextIO | None = None, progress: bool | None = None, reaper: bool = True) -> None:
+                 err: TextIO | None = None, progress: bool | None = None, reaper: bool = True,
+                 announce: bool = False) -> None:
         self.plan = plan
         self.out = out or sys.stdout
         self.err = err or sys.stderr
@@ -110,6 +116,7 @@ class Supervisor:
         self._node: Node | None = None
         self.address: BusAddress | None = None
         self._use_reaper = reaper
+        self._announce = announce
         self._reaper: Reaper | None = None
         self._wake_r, self._wake_w = socket.socketpair()
         for s in (self._wake_r, self._wake_w):
@@ -139,11 +146,14 @@ class Supervisor:
                 self._reaper = Reaper()
                 self._screen.say(f"reaper pid {self._reaper.pid} will kill the nodes' process groups if this "
                                  "launcher is killed")
-            bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched, hwm=plan.bus.hwm)
+            bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched, hwm=plan.bus.hwm,
+                      max_msg_bytes=plan.bus.max_msg_bytes)
             self.address = bus.start()
             tmp = plan.run_dir / ".bus.address.tmp"  # readers never see a half-written address
             tmp.write_text(f"{self.address}\n", encoding="utf-8")
             os.replace(tmp, plan.run_dir / "bus.address")
+            if self._announce:
+                announce(self.address, plan.run_dir)
             self._screen.say(f"bus at {self.address}; run directory {plan.run_dir}")
             self._start_observer()
             for i, spec in enumerate(plan.nodes):
@@ -171,7 +181,7 @@ class Supervisor:
     # -- phases ----------------------------------------------------------------------------------------
     def _start_observer(self) -> None:
         topic = self.plan.progress_topic
-        show = self._progress_opt if self._progress_opt is not None else self.out.isatty()
+        show = self._progress_opt is not False
         if self._recorder is None and self.plan.record is None and not (topic and show):
             return
         self._node = Node(name="_launch", bus=self.address, heartbeat_s=0)
@@ -318,7 +328,8 @@ class Supervisor:
         with contextlib.suppress(OSError, ValueError):
             p.log.write(text + "\n")
         p.tail.append(text)
-        self._screen.node_line(p.spec.name, p.color, p.spec.output, text)
+        if not self._screen.node_line(p.spec.name, p.color, p.spec.output, text) and p.spec.output == "screen":
+            p.hidden.append(text)
 
     def _take(self, p: _Proc, data: bytes) -> None:
         buf = p.buf + data
@@ -358,6 +369,10 @@ class Supervisor:
         if p.state == "stopping":
             p.state = "done"
             p.outcome = {1: "stopped on SIGINT", 2: "needed SIGTERM", 3: "needed SIGKILL"}[p.stage]
+            if 0 < code < 128:  # it stopped when asked, but reports that its work failed (an incomplete map);
+                # 128+N is the signal's own exit status (stopped before its handler was in place), not a report
+                p.failed = True
+                p.outcome += f", reporting failure ({exit_text(code)})"
             self._screen.say(f"{p.spec.name} {p.outcome} ({exit_text(code)})", "WARNING" if p.escalated else "INFO")
             return
         if self._stopping:
@@ -398,6 +413,9 @@ class Supervisor:
         elif p is self._recorder:
             self._screen.say(f"the recorder ended ({exit_text(code)}): the recording is incomplete", "ERROR")
             p.failed = True
+            if self.plan.record is not None and self.plan.record.required:
+                self._request_stop(f"the recorder ended ({exit_text(code)}); record.required: the rest of the "
+                                   "run would go unrecorded", 1)
         elif not gave_up:
             level = "INFO" if code == 0 else "WARNING"
             self._screen.say(f"{spec.name} ended ({exit_text(code)}); it is not required, the graph keeps "
@@ -450,7 +468,12 @@ class Supervisor:
                     p.child.popen.wait(_REAP_GRACE_S)
                 p.child.exited()
                 p.state, p.outcome, p.failed = "done", "killed (launcher error)", True
+        had_view = self._screen.view is not None
         self._screen.close_view()  # the summary goes to stderr like every launcher message
+        if had_view:
+            self._report()
+        if self._announce:
+            withdraw()
         if self._node is not None:
             self._node.close(0)
         if bus is not None:
@@ -467,13 +490,24 @@ class Supervisor:
         self._wake_r.close()
         self._wake_w.close()
 
+    def _report(self) -> None:
+        """After the progress view: what the ``report`` nodes said under it (where the results went)."""
+        for p in self._all():
+            if p.spec.name in self.plan.progress_report:
+                for line in p.hidden:
+                    self._screen.show(f"[{p.spec.name}] {line}", loud=False)
+
     def _finish(self) -> int:
         code = self._code if self._code is not None else 0
         failed = [p.spec.name for p in self._all() if p.failed]
+        restarted = [p.spec.name for p in self._all() if p.starts > 1 and not p.failed]
         reason = self._reason or "ended"
         if code == 0 and failed:
             code = 1
             reason += f"; failed: {', '.join(failed)}"
+        if restarted:  # a respawn recovers the graph, not what the node held or missed while down
+            code = code or 1
+            reason += f"; restarted mid-run (data lost while down): {', '.join(restarted)}"
         width = max((len(p.spec.name) for p in self._all()), default=4)
         lines = [f"summary (logs in {self.plan.run_dir}):"]
         for p in self._all():

@@ -107,13 +107,35 @@ def import_message_modules() -> None:
             importlib.import_module(name.strip())
 
 
+NODE_MODULES_ENV = "PALPA_NODE_MODULES"
+"""Set by ``palpa launch`` on its recorder: the modules of the launched node classes, comma-separated."""
+_nodes_imported = False
+
+
+def _import_node_modules() -> None:
+    """Import the launched nodes' modules (once): a custom node's message types are registered by importing
+    the module that defines (or imports) them, so a launch records them with no setting."""
+    global _nodes_imported
+    if _nodes_imported:
+        return
+    _nodes_imported = True
+    for name in filter(None, os.environ.get(NODE_MODULES_ENV, "").split(",")):
+        with contextlib.suppress(Exception):  # a node module that fails to import costs only its schemas
+            importlib.import_module(name.strip())
+
+
 def schema_bytes(type_name: str) -> bytes | None:
-    """The JSON Schema of a registered message type as UTF-8 JSON, or None when the type is not importable."""
+    """The JSON Schema of a registered message type as UTF-8 JSON, or None when the type is not importable.
+    A type not in ``messages`` or ``PALPA_MESSAGES`` is looked for in the launched nodes' modules."""
     import_message_modules()
     try:
         cls = lookup(type_name)
     except RegistryError:
-        return None
+        _import_node_modules()
+        try:
+            cls = lookup(type_name)
+        except RegistryError:
+            return None
     return json.dumps(json_schema(cls), sort_keys=True).encode()
 
 

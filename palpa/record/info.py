@@ -120,6 +120,7 @@ def bag_info(paths: Sequence[Path]) -> dict[str, Any]:
     """Everything ``bag info`` prints, as plain data (also ``--json``)."""
     files = [_file_info(p) for p in paths]
     topics: dict[str, dict[str, Any]] = {}
+    faults: dict[str, int] = {}
     for f in files:
         for cid, ch in f["channels"].items():
             info = channel_info(ch)
@@ -133,6 +134,8 @@ def bag_info(paths: Sequence[Path]) -> dict[str, Any]:
             if info.node and info.node not in t["publishers"]:
                 t["publishers"].append(info.node)
             t["messages"] += f["counts"].get(cid, 0)
+            if info.type == "ServiceFault":
+                faults[ch.topic] = faults.get(ch.topic, 0) + f["counts"].get(cid, 0)
             if cid in f["spans"]:
                 lo, hi = f["spans"][cid]
                 t["first_ns"] = min(t.get("first_ns", lo), lo)
@@ -165,17 +168,50 @@ def bag_info(paths: Sequence[Path]) -> dict[str, Any]:
         "messages": sum(t["messages"] for t in topics.values()),
         "topics": dict(sorted(topics.items())),
         "nodes": dict(sorted(nodes.items())),
+        "services": _services(topics, faults),
         "recording": recording,
         "attachments": [a for f in files for a in f["attachments"]],
     }
+
+
+def _services(topics: dict[str, dict[str, Any]], faults: dict[str, int]) -> dict[str, dict[str, Any]]:
+    """Service calls in the recording, from the request and reply topics (palpa.service): per service, the
+    request and response types, requests, replies, failed replies and callers."""
+    out: dict[str, dict[str, Any]] = {}
+    for topic, t in topics.items():
+        name, sep, client = topic.rpartition("/reply/")
+        if not sep:
+            name, sep, rest = topic.rpartition("/request")
+            if not sep or rest:
+                continue
+            client = ""
+        s = out.setdefault(name, {"request": "?", "response": "?", "requests": 0, "replies": 0, "faults": 0,
+                                  "callers": 0})
+        if client:
+            s["replies"] += t["messages"]
+            s["faults"] += faults.get(topic, 0)
+            s["callers"] += 1
+            s["response"] = "/".join(x for x in t["types"] if x != "ServiceFault") or s["response"]
+        else:
+            s["requests"] += t["messages"]
+            s["request"] = "/".join(t["types"]) or "?"
+    return {k: v for k, v in sorted(out.items()) if v["requests"] or v["callers"]}
 
 
 def _when(ns: int) -> str:
     return datetime.fromtimestamp(ns / 1e9, UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3] + " UTC" if ns else "-"
 
 
+def _shown(text: object) -> str:
+    """A name from the file as it may be printed: control and other non-printable characters escaped (a topic
+    or node name is whatever a peer sent; a raw escape sequence would rewrite the operator's terminal)."""
+    s = str(text)
+    return s if s.isprintable() else "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
+                                             for c in s)
+
+
 def format_info(info: dict[str, Any]) -> str:
-    """The human-readable report."""
+    """The human-readable report (every name from the file escaped, see :func:`_shown`)."""
     lines = []
     for f in info["files"]:
         state = "complete" if f["finalized"] else "NOT FINALIZED (run `palpa bag recover`)"
@@ -191,28 +227,39 @@ def format_info(info: dict[str, Any]) -> str:
         lines.append(f"recorded by: palpa {rec.get('palpa_version', '?')} on {rec.get('host', '?')} "
                      f"(node {rec.get('recorder', '?')}, mcap {rec.get('mcap_library', '?')})")
     lines.append(f"topics ({len(info['topics'])}):")
-    width = max((len(t) for t in info["topics"]), default=5)
-    total_gaps = 0
+    width = max((len(_shown(t)) for t in info["topics"]), default=5)
+    total_gaps = restarts = 0
     for topic, t in info["topics"].items():
         d = t["drops"]
         total_gaps += d["gaps"]
+        restarts += d["restarts"]
         extra = [f"{d['gaps']} dropped"] if d["gaps"] else []
         if d["restarts"]:
             extra.append(f"{d['restarts']} publisher restarts")
+        if d["decode_errors"]:
+            extra.append(f"{d['decode_errors']} malformed")
         if t["latched"]:
             extra.append("latched")
         if not t["schema"]:
             extra.append(t.get("schema_note", "no schema"))
-        lines.append(f"  {topic:<{width}}  {'/'.join(t['types']) or '?':<22} {t['messages']:>9} msgs "
-                     f"{t['rate_hz']:>9.2f} Hz  from {', '.join(t['publishers']) or '?'}"
+        lines.append(f"  {_shown(topic):<{width}}  {_shown('/'.join(t['types'])) or '?':<22} {t['messages']:>9} msgs "
+                     f"{t['rate_hz']:>9.2f} Hz  from {_shown(', '.join(t['publishers'])) or '?'}"
                      + (f"  [{'; '.join(extra)}]" if extra else ""))
-    lines.append(f"drops:       {total_gaps} messages missing by sequence number" if total_gaps
-                 else "drops:       none (no sequence gaps)")
+    drops = [f"{total_gaps} messages missing by sequence number"] if total_gaps else []
+    if restarts:  # a restarted publisher lost what it held, and what it was sent while down
+        drops.append(f"{restarts} publisher restart(s): data may be lost")
+    lines.append(f"drops:       {'; '.join(drops)}" if drops else "drops:       none (no sequence gaps, no restarts)")
+    if info["services"]:
+        lines.append(f"services ({len(info['services'])}):")
+        for name, sv in info["services"].items():
+            lines.append(f"  {name}  [{sv['request']} -> {sv['response']}]  {sv['requests']} requests, "
+                         f"{sv['replies']} replies ({sv['faults']} failed) to {sv['callers']} caller(s)")
     if info["nodes"]:
         lines.append(f"nodes ({len(info['nodes'])}):")
         for name, n in info["nodes"].items():
-            pubs = ", ".join(sorted(n.get("publishes", {})))
-            lines.append(f"  {name} (pid {n.get('pid', '?')} on {n.get('host', '?')}) publishes: {pubs or '-'}")
+            pubs = _shown(", ".join(sorted(n.get("publishes", {}))))
+            lines.append(f"  {_shown(name)} (pid {n.get('pid', '?')} on {_shown(n.get('host', '?'))}) "
+                         f"publishes: {pubs or '-'}")
     for a in info["attachments"]:
         lines.append(f"attachment:  {a['name']} ({a['media_type']}, {a['bytes']} bytes)")
     return "\n".join(lines)

@@ -23,6 +23,7 @@ from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, Chunk, DataEnd, Header, McapRecord, Metadata, Schema
 
 from palpa.record.format import (
+    LAUNCH_ATTACHMENT,
     MAGIC,
     META_BLOBS_OF,
     META_LATCHED,
@@ -43,6 +44,7 @@ __all__ = [
     "iter_file",
     "ReadableRecords",
     "iter_records",
+    "launch_text_of",
     "resolve_bag_paths",
 ]
 
@@ -291,3 +293,21 @@ def iter_bag(
     """:func:`iter_file` over several files (the pieces of a split recording), in order."""
     for i, path in enumerate(paths):
         yield from iter_file(path, file_index=i, on_damage=on_damage, on_record=on_record)
+
+
+def launch_text_of(bag: str | os.PathLike[str]) -> str | None:
+    """The resolved launch file a recording carries (attachment ``launch.resolved.yaml``, written when the
+    recorder opens each piece, so only the start of the first piece is read), or None if it has none."""
+    from mcap.stream_reader import StreamReader
+
+    for path in resolve_bag_paths(bag)[:1]:
+        try:
+            with open(path, "rb") as fh:
+                for rec in StreamReader(fh, emit_chunks=True).records:
+                    if isinstance(rec, Attachment) and rec.name == LAUNCH_ATTACHMENT:
+                        return bytes(rec.data).decode("utf-8", errors="replace")
+                    if isinstance(rec, Chunk | DataEnd):
+                        break  # messages have begun: the attachment would have come first
+        except (OSError, InvalidMagic) as exc:
+            raise BagError(f"{path}: cannot read: {exc}") from None
+    return None

@@ -5,8 +5,10 @@ launch file's ``record:`` section. SIGINT/SIGTERM finalise the file (summary, in
 loses at most the last ``flush_period_s`` (0.5 s) of messages, and ``palpa bag recover`` rebuilds the index.
 
 What gets recorded: topics matching ``topics`` (regexes over the whole name; empty = all) and not ``exclude``.
-Runtime topics (``_palpa/...``) only when a pattern starting with ``_palpa`` names them, except ``_palpa/log``
-which is always kept (a run's log lines are part of its record; exclude it explicitly to drop it). Heartbeats
+Runtime topics (``_palpa/...``) only when a pattern starting with ``_palpa`` names them, except ``_palpa/log`` and
+``_palpa/params`` (runtime parameter changes), which are always kept (a run's log lines and retunings are part of
+its record; exclude them explicitly to drop them). Service requests and replies (``NAME/request``,
+``NAME/reply/CLIENT``) are ordinary topics and recorded as such. Heartbeats
 are not recorded by default but feed the node list stored in the file.
 """
 
@@ -26,6 +28,7 @@ import palpa
 from palpa.errors import ParamError
 from palpa.node import Node, RawMessage
 from palpa.params import convert_params
+from palpa.params_runtime import PARAMS_TOPIC
 from palpa.record.format import (
     BLOBS_SCHEMA,
     BLOBS_SCHEMA_NAME,
@@ -56,6 +59,20 @@ __all__ = ["RecorderParams", "Recorder"]
 
 _ChannelKey = tuple[str, str, str, bool, int]  # topic, publisher, type, latched, sequence epoch (seq >> 32)
 _blobs_encoder = msgspec.msgpack.Encoder()
+_any_decoder = msgspec.msgpack.Decoder()
+
+
+def _well_formed(payload: bytes) -> bool:
+    """Whether a payload is what every palpa message is: one complete msgpack map."""
+    if not payload or not (payload[0] & 0xF0 == 0x80 or payload[0] in (0xDE, 0xDF)):
+        return False
+    try:
+        _any_decoder.decode(payload)
+    except msgspec.DecodeError:
+        return False
+    return True
+
+
 _COUNTERS = ("received", "gaps", "duplicates", "restarts", "decode_errors")
 
 
@@ -112,14 +129,14 @@ class Recorder(Node):
                 self._launch_text = Path(p.launch_file).read_bytes()
             except OSError as exc:
                 raise ParamError(f"{where}: parameter 'launch_file': cannot read {p.launch_file}: {exc}") from None
-        self._filter = TopicFilter(p.topics, p.exclude, always=(LOG_TOPIC,))
+        self._filter = TopicFilter(p.topics, p.exclude, always=(LOG_TOPIC, PARAMS_TOPIC))
         self._splitting = p.split_size_mb > 0 or p.split_duration_s > 0
         self._split_bytes = int(p.split_size_mb * 1e6) if p.split_size_mb > 0 else 1 << 62
         self._prepare_output(p)
 
     def setup(self) -> None:
         p = self.params
-        self._started_ns = time.time_ns()
+        self._record_started_ns = time.time_ns()  # not Node's uptime origin
         self._host = socket.gethostname()
         self._ids: dict[_ChannelKey, int] = {}
         self._blob_ids: dict[int, int] = {}
@@ -175,7 +192,7 @@ class Recorder(Node):
             "mcap_library": mcap.__version__,
             "host": self._host,
             "recorder": self.name,
-            "started_ns": str(self._started_ns),
+            "started_ns": str(self._record_started_ns),
             "file_opened_ns": str(self._opened_ns),
             "file_index": str(self._file_index),
             "output": str(out),
@@ -281,6 +298,8 @@ class Recorder(Node):
             if blobs:  # before the message, so a reader has them when the message comes
                 self._write_blobs(cid, raw, recv_ns)
             w.add_message(cid, recv_ns, h.stamp, seq & 0xFFFF_FFFF, payload)
+            if not _well_formed(payload):  # recorded as the wire carried it, and counted so the file says so
+                self._rx.raw_stats[topic].decode_errors += 1
             if h.latched or cached or (self._bus_latched and topic in self._bus_latched):
                 if cached:
                     self._bus_latched.add(topic)
