@@ -17,7 +17,15 @@ from typing import Literal
 import numpy as np
 
 import palpa
-from messages import DeviceStatus, PressureState, ProbeHeights, RobotPose, Text, Trigger, TriggerResult
+from messages import (
+    DeviceStatus,
+    PressureState,
+    ProbeHeights,
+    RobotPose,
+    Text,
+    Trigger,
+    TriggerResult,
+)
 from models.airfloat import (
     DEFAULT_INDENTER_RADIUS_MM,
     DEFAULT_SPS_RADIUS_MM,
