@@ -35,6 +35,8 @@ class AirfloatConfig:
     max_wait_ns: int
     max_gap_ns: int
     ramp_fits: bool
+    depth_offset_mm: float = 0.0
+    """From the calibration: added to eqs. 1-3's d_in (SPS air gap, fibre zero)."""
 
 
 @dataclass
@@ -90,7 +92,7 @@ class AirfloatEstimator:
         h = np.array([m.h_mm for m in batch], dtype=float)
         d_in, tilt = indentation_from_heights(h[:, 0], h[:, 1], h[:, 2], h[:, 3], c.sps_radius_mm,
                                               c.indenter_radius_mm)
-        d_in, tilt = np.atleast_1d(d_in), np.atleast_1d(tilt)
+        d_in, tilt = np.atleast_1d(d_in) + c.depth_offset_mm, np.atleast_1d(tilt)
         tol = c.max_gap_ns
         poses = [self.pose.at(m.stamp_ns, tol) for m in batch]
         forces = [self.force.at(m.stamp_ns, tol) for m in batch]
