@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import secrets
 import subprocess
 import sys
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -89,3 +91,21 @@ def env_for() -> object:
 
 
 __all__ = ["palpa_cmd", "short_ipc_base", "subprocess"]
+
+
+@functools.lru_cache(maxsize=1)
+def airfloat_calibration() -> Path:
+    """The simulated air-float probe (device 0) calibrated on the bench once per session, as `make demo` and a user
+    on the rig do before scanning (nodes.calibrate_airfloat: force sensor + the two reference samples)."""
+    from models.calibration_airfloat import save_calibration
+    from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate
+
+    path = Path(tempfile.mkdtemp(prefix="palpa-cal-")) / "calibration.yaml"
+    save_calibration(path, calibrate(0, [Reference.parse(t) for t in DEFAULT_REFERENCES]))
+    return path
+
+
+@pytest.fixture
+def calibration() -> Path:
+    """See :func:`airfloat_calibration`."""
+    return airfloat_calibration()

@@ -69,11 +69,9 @@ def test_calibration_beats_the_devices_errors(phantom: str, truth: float, kpa: f
     the paper's eq. 4 line is far off on the Fig. 11 samples; calibrated on the bench (nodes.calibrate_airfloat:
     force sensor + the two reference samples), it is within 10 % (held at one depth; BENCHMARKS.md has the
     Fig. 11 ramp protocol)."""
-    from models.calibration_airfloat import save_calibration
-    from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate
+    from conftest import airfloat_calibration
 
-    cal = tmp_path / "cal.yaml"
-    save_calibration(cal, calibrate(0, [Reference.parse(t) for t in DEFAULT_REFERENCES]))
+    cal = airfloat_calibration()
     _, before = held_estimate(held_probe(phantom, kpa, errors="realistic"))
     _, after = held_estimate(held_probe(phantom, kpa, errors="realistic", calibration=str(cal)))
     assert abs(before / truth - 1) > 0.15 and abs(after / truth - 1) < 0.10, (before, after)
@@ -170,12 +168,13 @@ def test_fibre_sim_rate_and_no_contact_when_lifted() -> None:
     assert pose.params.z_mm == 40.0
 
 
-def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path) -> None:  # type: ignore[no-untyped-def]
-    """Issue 6 acceptance as processes: launch/airfloat_sim.yaml over the 10.8 kPa phantom."""
+def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path, calibration) -> None:  # type: ignore[no-untyped-def]
+    """Issue 6 acceptance as processes: launch/airfloat_sim.yaml over the 10.8 kPa phantom, the simulated probe
+    calibrated on the bench first (uncalibrated it reads about a third low: BENCHMARKS.md)."""
     from launching import launched, spin_until
 
     with launched(procs, "launch/airfloat_sim.yaml", tmp_path / "run", "phantom:=phantoms/flat_10k.yaml",
-                  "pressure_kpa:=33.5") as (proc, node):
+                  "pressure_kpa:=33.5", f"calibration:={calibration}") as (proc, node):
         samples = node.subscribe("stiffness/sample", StiffnessSample)
         got: list[StiffnessSample] = []
 
@@ -189,7 +188,9 @@ def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path) -> None:  # 
         spin_until(node, enough, 60, "300 valid samples", proc)
     e = float(np.median([m.value for m in got[-200:]]))
     d = float(np.median([m.d_in_mm for m in got[-200:]]))
-    assert 1.0 <= d <= 3.0 and abs(e / 10.8 - 1) < 0.10, (d, e)
+    # the honest world's soft sample takes ~3.4 mm at 33.5 kPa (the old world's eq. 7 mirror gave ~2.3 mm); at
+    # 31 kPa (~1.9 mm) the calibrated estimate reads ~17 % low: eq. 7 vs the FE world depends on depth (BENCHMARKS.md)
+    assert 1.0 <= d <= 3.6 and abs(e / 10.8 - 1) < 0.10, (d, e)
 
 
 def test_calibration_file_sets_force_line_and_depth_offset(tmp_path) -> None:  # type: ignore[no-untyped-def]

@@ -3,7 +3,6 @@ pause/resume/abort of a scan, a pressure set-point never above the cap, tare, sa
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 from typing import Any
 
@@ -42,17 +41,11 @@ def until_done(g: GraphHarness, fut: Future[Any], limit_s: float, step_s: float 
     assert fut.done(), f"no reply within {limit_s} s of simulated time"
 
 
-@functools.lru_cache(maxsize=1)
 def calibration() -> str:
-    """The simulated probe (device 0) calibrated on the bench once per session, as a user does before scanning."""
-    import tempfile
+    """The simulated probe calibrated on the bench (once per session)."""
+    from conftest import airfloat_calibration
 
-    from models.calibration_airfloat import save_calibration
-    from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate
-
-    path = Path(tempfile.mkdtemp(prefix="palpa-cal-")) / "calibration.yaml"
-    save_calibration(path, calibrate(0, [Reference.parse(t) for t in DEFAULT_REFERENCES]))
-    return str(path)
+    return str(airfloat_calibration())
 
 
 def probe_graph(phantom: str = PHANTOM, kpa: float = 36.0, z: float = 5.0) -> tuple[GraphHarness, palpa.Node]:

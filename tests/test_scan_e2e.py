@@ -63,17 +63,6 @@ def test_ur_rtde_scan_through_emulator_matches_sim(procs: ProcessGroup, tmp_path
     assert math.dist((ia[0]["x_mm"], ia[0]["y_mm"]), (45.0, 18.0)) < 1.5
 
 
-@pytest.fixture(scope="module")
-def calibration(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The simulated probe (device 0) calibrated on the bench, as `make demo` does first."""
-    from models.calibration_airfloat import save_calibration
-    from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate
-
-    path = tmp_path_factory.mktemp("cal") / "calibration.yaml"
-    save_calibration(path, calibrate(0, [Reference.parse(t) for t in DEFAULT_REFERENCES]))
-    return path
-
-
 def test_airfloat_scan_finds_the_tumours_and_its_recording_replays(procs: ProcessGroup, tmp_path: Path,
                                                                     calibration: Path) -> None:
     """`make demo`'s scan (launch/scan_sim.yaml, defaults, calibrated probe) scored against the truth: the two large
