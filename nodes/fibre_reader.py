@@ -1,24 +1,28 @@
 """Fibre-optic reader node: the air-float probe's four displacement sensors -> ``probe/heights``.
 
-``driver: serial`` reads the DAQ line protocol (docs/devices.md) through pyserial; ``driver: sim`` computes the
-heights from the phantom, the robot pose (``robot/pose``) and the probe pressure (``pressure/state``). Both publish
-the same topics: ``probe/heights`` (h1..h4 mm, raw values, eqs. 1-3 depth and tilt) and ``probe/status``.
+``driver: serial`` reads the DAQ line protocol (docs/devices.md) through pyserial; ``driver: sim`` is the simulated
+probe (nodes/drivers/fibre_sim.py): heights from the world over the phantom, the robot pose (``robot/pose``) and
+the regulator's read-back (``pressure/state``), through the device's drawn errors. Both publish the same topics:
+``probe/heights`` (h1..h4 mm, raw values, eqs. 1-3 depth and tilt) and ``probe/status``; the sim driver also
+publishes its error draw once, latched, on ``sim/truth/fibre`` (JSON text) so that the recording keeps it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 from typing import Literal
 
 import numpy as np
 
 import palpa
-from messages import DeviceStatus, PressureState, ProbeHeights, RobotPose
+from messages import DeviceStatus, PressureState, ProbeHeights, RobotPose, Text
 from models.airfloat import (
     DEFAULT_INDENTER_RADIUS_MM,
     DEFAULT_SPS_RADIUS_MM,
     indentation_from_heights,
 )
+from models.airfloat_device import ProbeErrors
 from nodes.common import phantom_from_param
 from nodes.drivers.fibre import FibreDriver, FibreSample, SerialFibreDriver
 from nodes.drivers.fibre_sim import SimFibreDriver
@@ -43,6 +47,11 @@ class FibreReader(palpa.Node):
         """Phantom YAML (sim driver)."""
         noise_mm: float = -1.0
         """Sim sensor noise σ (mm); negative: the phantom file's value."""
+        sim_errors: Literal["realistic", "ideal"] = "realistic"
+        """Sim device errors drawn from ``device_seed`` (docs/physics.md); ``ideal``: a perfect device, unit tests
+        only."""
+        device_seed: int = 0
+        """Which simulated probe (its error draw); calibrate with the same one (``nodes.calibrate_airfloat``)."""
         sps_radius_mm: float = DEFAULT_SPS_RADIUS_MM
         indenter_radius_mm: float = DEFAULT_INDENTER_RADIUS_MM
         stroke_mm: float = 10.0
@@ -54,11 +63,17 @@ class FibreReader(palpa.Node):
         self.status_pub = self.publisher("probe/status", DeviceStatus, latched=True)
         self.driver: FibreDriver
         if p.driver == "sim":
+            phantom = phantom_from_param(p.phantom, self.name)
+            noise = phantom.noise.displacement_mm if p.noise_mm < 0 else p.noise_mm
+            errors = (ProbeErrors.draw(p.device_seed, noise_mm=noise) if p.sim_errors == "realistic"
+                      else dataclasses.replace(ProbeErrors.ideal(), noise_mm=noise))
             sim = SimFibreDriver(
-                phantom_from_param(p.phantom, self.name), self.clock.now_ns, rate_hz=p.rate_hz,
-                sps_radius_mm=p.sps_radius_mm, indenter_radius_mm=p.indenter_radius_mm, stroke_mm=p.stroke_mm,
-                noise_mm=None if p.noise_mm < 0 else p.noise_mm, seed=p.seed,
+                phantom, self.clock.now_ns, errors=errors, rate_hz=p.rate_hz, sps_radius_mm=p.sps_radius_mm,
+                indenter_radius_mm=p.indenter_radius_mm, stroke_mm=p.stroke_mm, seed=p.seed,
             )
+            self.publisher("sim/truth/fibre", Text, latched=True).publish(Text(
+                stamp_ns=self.clock.now_ns(), text=json.dumps({"driver": "sim", "errors": errors.as_dict()})))
+            self.log.info("sim probe errors (device_seed %d): %s", p.device_seed, errors.as_dict())
             self.subscribe("robot/pose", self.on_pose)
             self.subscribe("pressure/state", self.on_pressure)
             self.driver = sim

@@ -52,9 +52,7 @@ class MapAggregator(palpa.Node):
         min_area_mm2: float = 0.0
         """Smallest inclusion reported (0: two cells)."""
         title: str = ""
-        """Shown on map.png; default: the output directory."""
-        phantom: str = ""
-        """The phantom scanned (simulation): its file name is added to the title."""
+        """Shown on map.png (e.g. what was scanned); default: the output directory."""
 
     def setup(self) -> None:
         p = self.params
@@ -142,8 +140,6 @@ class MapAggregator(palpa.Node):
     def write(self, snap: MapSnapshot, found: list[Inclusion]) -> None:
         out = Path(self.params.output_dir)
         title = self.params.title or f"stiffness map — {out}"
-        if self.params.phantom:
-            title += f" — {Path(self.params.phantom).name}"
         title += f"\n{self.samples} samples, {len(found)} inclusion(s), {time.strftime('%Y-%m-%d %H:%M')}"
         paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title)
         self.written += 1

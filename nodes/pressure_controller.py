@@ -15,6 +15,7 @@ from typing import Literal
 import palpa
 from messages import DeviceStatus, PressureCommand, PressureState
 from models.airfloat import ForceCalibration
+from models.calibration_airfloat import CalibrationError, load_calibration
 from nodes.drivers.pressure import (
     AlicatPressureDriver,
     PressureDriver,
@@ -47,26 +48,39 @@ class PressureController(palpa.Node):
         force_offset: float = -2.34
         force_pressure_unit_kpa: float = 100.0
         """Eq. 4's pressure unit in kPa (100: the paper's P read as bar; see docs/physics.md)."""
+        calibration: str = ""
+        """Calibration YAML (``python -m nodes.calibrate_airfloat``): its force line replaces force_gain/offset."""
         port: str = "/dev/ttyUSB0"
         unit_id: str = "A"
         baudrate: int = 19200
         sim_tau_s: float = 0.05
         sim_rate_limit_kpa_s: float = 50.0
-        sim_noise_kpa: float = -1.0
-        """Sim read-back noise σ (kPa); negative: 0.01."""
+        sim_noise_kpa: float = 0.05
+        """Sim read-back white noise σ (kPa)."""
+        sim_tracking_kpa: float = 0.25
+        """Sim outlet wander about the set-point response, σ (kPa; 0: exact tracking, unit tests only)."""
+        seed: int = 0
+        """Seed of the sim regulator's noise and wander."""
 
     def setup(self) -> None:
         p = self.params
         if p.max_kpa <= 0:
             raise palpa.ParamError(f"{self.name}: max_kpa must be > 0")
         self.cal = ForceCalibration(p.force_gain, p.force_offset, p.force_pressure_unit_kpa)
+        if p.calibration:
+            try:
+                self.cal = load_calibration(p.calibration).force
+            except CalibrationError as exc:
+                raise palpa.ParamError(f"{self.name}: calibration: {exc}") from None
+            self.log.info("force line from %s: F = %.4f P/%g kPa %+.4f N", p.calibration, self.cal.gain,
+                          self.cal.pressure_unit_kpa, self.cal.offset)
         self.state_pub = self.publisher("pressure/state", PressureState)
         self.status_pub = self.publisher("pressure/status", DeviceStatus, latched=True)
         self.driver: PressureDriver
         if p.driver == "sim":
             self.driver = SimPressureDriver(self.clock.now_ns, p.max_kpa, tau_s=p.sim_tau_s,
                                             rate_limit_kpa_s=p.sim_rate_limit_kpa_s,
-                                            noise_kpa=0.01 if p.sim_noise_kpa < 0 else p.sim_noise_kpa)
+                                            noise_kpa=p.sim_noise_kpa, tracking_kpa=p.sim_tracking_kpa, seed=p.seed)
         else:
             self.driver = AlicatPressureDriver(p.port, p.unit_id, p.max_kpa, p.baudrate, require_device=False,
                                                clock=self.clock.now_ns)

@@ -82,6 +82,7 @@ SMOKE: dict[str, Smoke] = {
                                    "stiffness/sample", "map/stiffness", "map/inclusions"], timeout=60),
     # the rig's file: --check as is; the run with every driver simulated (never the default robot address)
     "scan_ur.yaml": Smoke(args=["scanner_driver:=sim", "fibre_driver:=sim", "pressure_driver:=sim",
+                                "phantom:=phantoms/airfloat_tumours.yaml",
                                 "region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "speed_mm_s:=20.0"],
                           topics=["robot/pose", "probe/heights", "pressure/state", "stiffness/sample",
                                   "robot/scan_status"], timeout=60),

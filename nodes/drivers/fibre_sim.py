@@ -1,30 +1,55 @@
-"""Simulated fibre-optic DAQ: the four sensor heights computed from the phantom, the robot pose and the probe
-pressure, through the same models the estimator inverts (plus sensor noise and stroke limits).
+"""Simulated fibre-optic DAQ: the air-float probe as a device in the simulated world.
+
+For each sample time it takes the robot pose and the regulator's read-back pressure (from the bus), and
+1. the probe's internal pressure and the force the tissue feels come from the *device's true force law*
+   (``models.airfloat_device.TrueProbe``: drawn gain/offset, bend, bore-friction hysteresis), never from the
+   estimator's eq. 4 calibration;
+2. the indentation depth comes from the world's inverse (``models.world.TissueWorld.depth_mm``: FE-grounded
+   mechanics, never eq. 7), with the friction's play: the indenter sticks while the depth lies between the
+   equilibria of F_air - f and F_air + f;
+3. the four extensions come from the true surface geometry (each SPS tip over the real dome under it, floating
+   on its air gap; the indenter ``depth`` below the true surface point under it, ``depth_reference="surface"``);
+4. the fibre channels report them through their calibration errors and noise, clipped to the stroke.
 
 Implements :class:`nodes.drivers.fibre.FibreDriver`; the node feeds it the latest pose and pressure from the bus.
 """
 
 from __future__ import annotations
 
+import contextlib
+import logging
 from collections.abc import Callable
+from typing import Protocol
 
 import numpy as np
 
-from models.airfloat import (
-    DEFAULT_INDENTER_RADIUS_MM,
-    DEFAULT_SPS_RADIUS_MM,
-    ForceCalibration,
-    heights_over_phantom,
-)
-from models.contact import corrected_depth
+from models.airfloat import DEFAULT_INDENTER_RADIUS_MM, DEFAULT_SPS_RADIUS_MM, heights_over_phantom
+from models.airfloat_device import ProbeErrors, TrueProbe
 from models.phantom import Phantom
 from models.timeseries import StampedBuffer
 from nodes.drivers.fibre import FibreCounters, FibreSample, FibreStatus
 
-__all__ = ["SimFibreDriver"]
+__all__ = ["IndentationWorld", "SimFibreDriver", "tissue_world"]
+
+log = logging.getLogger(__name__)
 
 _POSE_WAIT_NS = 50_000_000
 _POSE_HOLD_NS = 1_000_000_000
+
+
+class IndentationWorld(Protocol):
+    """What the driver needs of the world: depth (mm) of a sphere pressed with force_n (N) at (x, y) (mm)."""
+
+    def depth_mm(self, x: np.ndarray, y: np.ndarray, force_n: np.ndarray, *,
+                 indenter_radius_mm: float) -> np.ndarray: ...
+
+
+def tissue_world(phantom: Phantom) -> IndentationWorld:
+    """The FE-grounded world of ``models.world`` over a phantom."""
+    from models.world import TissueWorld
+
+    world: IndentationWorld = TissueWorld(phantom)
+    return world
 
 
 class SimFibreDriver:
@@ -35,32 +60,34 @@ class SimFibreDriver:
         phantom: Phantom,
         clock: Callable[[], int],
         *,
+        errors: ProbeErrors | None = None,
+        world: IndentationWorld | None = None,
         rate_hz: float = 500.0,
         sps_radius_mm: float = DEFAULT_SPS_RADIUS_MM,
         indenter_radius_mm: float = DEFAULT_INDENTER_RADIUS_MM,
         stroke_mm: float = 10.0,
-        noise_mm: float | None = None,
-        calibration: ForceCalibration | None = None,
         seed: int = 0,
     ) -> None:
         if rate_hz <= 0:
             raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
         self.phantom = phantom
+        self.errors = errors if errors is not None else ProbeErrors.draw(seed, noise_mm=phantom.noise.displacement_mm)
+        self.probe = TrueProbe(self.errors, stroke_mm)
+        self.world = world if world is not None else tissue_world(phantom)
         self._clock = clock
         self._period_ns = int(1e9 / rate_hz)
         self._a = sps_radius_mm
         self._r = indenter_radius_mm
         self._stroke = stroke_mm
-        self._noise = phantom.noise.displacement_mm if noise_mm is None else noise_mm
-        self._cal = calibration or ForceCalibration()
-        self._rng = np.random.default_rng(seed)
+        self._rng = np.random.default_rng([seed, 1])
         self._pose = StampedBuffer(max_gap_ns=200_000_000)
         self._pressure = StampedBuffer(max_gap_ns=500_000_000)
         self._next_ns: int | None = None
         self._seq = 0
         self._samples = 0
         self._open = False
-        self._e_guess: float | None = None
+        self._range_warned = False
+        self._depth = 0.0  # the indenter's last depth: bore friction makes it stick (hysteresis)
 
     # inputs from the bus
     def set_pose(self, stamp_ns: int, x_mm: float, y_mm: float, z_mm: float) -> None:
@@ -80,7 +107,7 @@ class SimFibreDriver:
         self._period_ns = int(1e9 / hz)
 
     def zero(self) -> None:
-        """Nothing to tare: the simulated sensors have no offset."""
+        """Nothing to tare: the simulated channels' errors are gain and bow, not offsets."""
 
     def status(self) -> FibreStatus:
         return FibreStatus(
@@ -119,7 +146,7 @@ class SimFibreDriver:
             return []
         xyz = np.asarray(poses)
         pressure = np.array([(self._pressure.at(t, 500_000_000) or (0.0,))[0] for t in keep])
-        heights = self._heights(xyz[:, 0], xyz[:, 1], xyz[:, 2], pressure)
+        heights = self.heights(xyz[:, 0], xyz[:, 1], xyz[:, 2], pressure)
         out = []
         for t, (h1, h2, h3, h4) in zip(keep, heights.tolist(), strict=True):
             self._seq += 1
@@ -129,28 +156,58 @@ class SimFibreDriver:
         self._samples += len(out)
         return out
 
-    def _heights(self, x: np.ndarray, y: np.ndarray, z_face: np.ndarray, pressure_kpa: np.ndarray) -> np.ndarray:
+    def _depths(self, x: np.ndarray, y: np.ndarray, probe_kpa: np.ndarray, touch: np.ndarray,
+                gap: np.ndarray) -> np.ndarray:
+        """Indentation (mm) per sample: the play operator between the extending and pushed-in equilibria."""
+        depth = np.zeros_like(x)
+        if not np.any(touch):
+            self._depth = 0.0
+            return depth
+        # the indenter cannot reach past its stroke: beyond it, the face is too high to touch
+        reach = np.clip(self._stroke - gap[touch], 0.0, None)
+        xt, yt = x[touch], y[touch]
+        shallow = self._world_depth(xt, yt, np.asarray(self.probe.tissue_force_n(probe_kpa[touch], True)), reach)
+        deep = self._world_depth(xt, yt, np.asarray(self.probe.tissue_force_n(probe_kpa[touch], False)), reach)
+        shallow, deep = np.minimum(np.nan_to_num(shallow), reach), np.minimum(np.nan_to_num(deep), reach)
+        d = np.empty_like(shallow)
+        last = self._depth
+        for i in range(d.size):
+            last = min(max(last, shallow[i]), deep[i])
+            d[i] = last
+        self._depth = last
+        depth[touch] = d
+        return depth
+
+    def _world_depth(self, x: np.ndarray, y: np.ndarray, force: np.ndarray, reach: np.ndarray) -> np.ndarray:
+        """The world's depth; where the force is beyond what the world tabulates (a thin layer pressed hard) the
+        indenter is taken to its stroke end, and the world's own range check reports it once."""
+        try:
+            return np.asarray(self.world.depth_mm(x, y, force, indenter_radius_mm=self._r), dtype=float)
+        except ValueError as exc:  # models.world.WorldRangeError: point by point, failing ones at full reach
+            if not self._range_warned:
+                self._range_warned = True
+                log.warning("sim probe pressed beyond the world's tables (indenter at its stroke end): %s", exc)
+            out = np.array(reach, dtype=float)
+            for i in range(x.size):
+                with contextlib.suppress(ValueError):
+                    out[i] = float(self.world.depth_mm(x[i:i + 1], y[i:i + 1], force[i:i + 1],
+                                                       indenter_radius_mm=self._r)[0])
+            return out
+
+    def heights(self, x: np.ndarray, y: np.ndarray, z_face: np.ndarray, readback_kpa: np.ndarray) -> np.ndarray:
+        """(n, 4) fibre readings h1..h4 (mm) for face-centre poses (x, y, z_face) and regulator read-backs."""
         ph = self.phantom
-        force = np.asarray(self._cal.force_n(pressure_kpa), dtype=float)
+        probe_kpa = np.asarray(self.probe.probe_pressure_kpa(readback_kpa), dtype=float)
         thickness = np.asarray(ph.thickness(x, y), dtype=float)
         inside = np.isfinite(thickness) & (thickness > 0)
         gap = z_face - np.where(inside, thickness, 0.0)
-        depth = np.zeros_like(x)
-        touch = inside & (force > 0) & (gap < self._stroke)
-        if np.any(touch):
-            # the felt modulus depends on how deep the indenter goes: a fixed point, warm-started from the
-            # previous batch (the probe moves little between batches), so two rounds converge
-            e = np.full(int(touch.sum()), self._e_guess or float(ph.youngs_modulus_kpa or 0.0))
-            for _ in range(2):
-                d = np.asarray(corrected_depth(force[touch], e, self._r, thickness[touch], ph.poisson_ratio))
-                e = np.asarray(ph.effective_modulus(x[touch], y[touch], self._r, d), dtype=float)
-            d = np.asarray(corrected_depth(force[touch], e, self._r, thickness[touch], ph.poisson_ratio))
-            self._e_guess = float(e[-1])
-            depth[touch] = d
+        touch = inside & (probe_kpa > 0) & (gap < self._stroke)
+        depth = self._depths(x, y, probe_kpa, touch, gap)
         xs, ys = np.where(inside, x, np.clip(x, 0, ph.size_mm[0])), np.where(inside, y, np.clip(y, 0, ph.size_mm[1]))
-        h = np.stack(heights_over_phantom(ph, xs, ys, z_face, depth, self._a, self._r), axis=-1)
+        h = np.stack(heights_over_phantom(ph, xs, ys, z_face, depth, self._a, self._r, depth_reference="surface"),
+                     axis=-1)
+        h[:, :3] -= self.probe.sps_gap_mm(probe_kpa)  # each SPS tip floats above the tissue on its air cushion
+        h = self.probe.fibre_readings_mm(h, self._rng)
         h = np.where(np.isfinite(h), h, self._stroke)
-        if self._noise > 0:
-            h = h + self._rng.normal(0.0, self._noise, h.shape)
         out: np.ndarray = np.clip(h, 0.0, self._stroke)
         return out

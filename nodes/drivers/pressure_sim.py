@@ -1,5 +1,9 @@
 """Simulated pressure regulator: the first-order, rate-limited plant of ``models.regulator`` behind the
-:class:`nodes.drivers.pressure.PressureDriver` interface, on the node's (possibly simulated) clock."""
+:class:`nodes.drivers.pressure.PressureDriver` interface, on the node's (possibly simulated) clock.
+
+A real regulator does not hold its set-point exactly: the outlet wanders about the plant's response as an
+Ornstein-Uhlenbeck process (``tracking_kpa`` sigma, ``tracking_tau_s`` correlation time; 0.25 kPa keeps it within
+about +-0.5 kPa, the issue's regulator tracking error), seeded. The read-back is the outlet plus white noise."""
 
 from __future__ import annotations
 
@@ -35,6 +39,8 @@ class SimPressureDriver:
         tau_s: float = 0.05,
         rate_limit_kpa_s: float = 50.0,
         noise_kpa: float = 0.0,
+        tracking_kpa: float = 0.0,
+        tracking_tau_s: float = 0.3,
         seed: int = 0,
     ) -> None:
         self._clock = clock
@@ -42,6 +48,9 @@ class SimPressureDriver:
         self._plant = RegulatorPlant(tau_s=tau_s, rate_limit_kpa_s=rate_limit_kpa_s, max_kpa=max_kpa)
         self._noise = noise_kpa
         self._rng = np.random.default_rng(seed)
+        self._track_sigma = float(tracking_kpa)
+        self._track_tau = float(tracking_tau_s)
+        self._wobble = self._track_sigma * float(self._rng.standard_normal()) if tracking_kpa > 0 else 0.0
         self._setpoint = 0.0
         self._t: int | None = None
         self._polls = 0
@@ -52,7 +61,12 @@ class SimPressureDriver:
     def _advance(self) -> None:
         now = self._clock()
         if self._t is not None and now > self._t:
-            self._plant.step(self._setpoint, (now - self._t) / 1e9)
+            dt = (now - self._t) / 1e9
+            self._plant.step(self._setpoint, dt)
+            if self._track_sigma > 0:  # exact OU step over dt
+                k = math.exp(-dt / self._track_tau)
+                self._wobble = k * self._wobble + self._track_sigma * math.sqrt(1 - k * k) * float(
+                    self._rng.standard_normal())
         self._t = now
 
     def _reading(self, flags: frozenset[str] = frozenset()) -> PressureReading:
@@ -60,7 +74,9 @@ class SimPressureDriver:
             raise PressureNotConnectedError("sim: device lost (fault injection)")
         self._advance()
         self._polls += 1
-        p = self._plant.pressure_kpa if self.stuck_at_kpa is None else self.stuck_at_kpa
+        p = max(0.0, self._plant.pressure_kpa + self._wobble * (self._plant.pressure_kpa > 0))
+        if self.stuck_at_kpa is not None:
+            p = self.stuck_at_kpa
         if self._noise:
             p = max(0.0, p + float(self._rng.normal(0.0, self._noise)))
         return PressureReading(self._t or 0, self._setpoint, p, flags)

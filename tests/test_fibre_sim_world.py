@@ -1,0 +1,107 @@
+"""The simulated air-float probe (nodes/drivers/fibre_sim.py, models/airfloat_device.py): the indentation comes from
+the world, the force from the device's own law, the heights from the true surface; errors are drawn and recorded.
+
+The world here is a test double (a Hertz half-space): these tests are about the device and geometry, not the
+tissue mechanics, which models/world owns and tests against FE."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import models.contact
+from models.airfloat import ForceCalibration, indentation_from_heights
+from models.airfloat_device import ProbeErrors, TrueProbe
+from models.phantom import load_phantom
+from nodes.drivers.fibre_sim import SimFibreDriver
+
+REPO = __import__("pathlib").Path(__file__).resolve().parent.parent
+FLAT = load_phantom(REPO / "phantoms" / "flat_26k.yaml")
+DOME = load_phantom(REPO / "phantoms" / "airfloat_tumours.yaml")
+
+
+class HalfSpace:
+    """Test double of the world: Hertz depth on a half-space of the phantom's background modulus."""
+
+    def __init__(self, e_kpa: float) -> None:
+        self.e = e_kpa / 1000.0  # N/mm^2
+        self.calls = 0
+
+    def depth_mm(self, x: np.ndarray, y: np.ndarray, force_n: np.ndarray, *, indenter_radius_mm: float) -> np.ndarray:
+        self.calls += 1
+        f = np.clip(np.asarray(force_n, dtype=float), 0.0, None)
+        return np.asarray((3 * f * 0.75 / (4 * self.e * np.sqrt(indenter_radius_mm))) ** (2 / 3))
+
+
+def driver(phantom=FLAT, errors: ProbeErrors | None = None, world: HalfSpace | None = None) -> SimFibreDriver:  # type: ignore[no-untyped-def]
+    return SimFibreDriver(phantom, lambda: 0, errors=errors or ProbeErrors.ideal(),
+                          world=world or HalfSpace(26.4))
+
+
+def d_in(h: np.ndarray) -> np.ndarray:
+    return np.asarray(indentation_from_heights(h[:, 0], h[:, 1], h[:, 2], h[:, 3])[0])
+
+
+def test_ideal_device_on_a_flat_sample_reads_the_worlds_depth() -> None:
+    w = HalfSpace(26.4)
+    drv = driver(world=w)
+    p = np.array([34.0, 36.0, 40.0])
+    h = drv.heights(np.full(3, 30.0), np.full(3, 30.0), np.full(3, 21.0), p)
+    f = 7.59 * p / 100 - 2.34  # the ideal device's force law: the paper's line
+    assert d_in(h) == pytest.approx(w.depth_mm(p, p, f, indenter_radius_mm=4.0), abs=1e-9)
+    assert w.calls > 0
+
+
+def test_the_driver_never_uses_the_estimators_models(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Contact laws (eq. 6-8) and the eq. 4 calibration object are the estimator's: the sim must not touch them."""
+    def boom(*a: object, **k: object) -> None:
+        raise AssertionError("the sim used an estimator model")
+
+    for name in ("corrected_depth", "corrected_force", "hertz_depth", "corrected_modulus"):
+        monkeypatch.setattr(models.contact, name, boom)
+    monkeypatch.setattr(ForceCalibration, "force_n", boom)
+    driver(errors=ProbeErrors.draw(1)).heights(np.full(4, 30.0), np.full(4, 30.0), np.full(4, 21.0),
+                                                np.full(4, 36.0))
+
+
+def test_sps_air_gap_makes_eqs_1_to_3_over_read_the_depth() -> None:
+    gap = 0.05
+    errs = ProbeErrors(sps_gap_mm=(gap, gap, gap))
+    w = HalfSpace(26.4)
+    h = driver(errors=errs, world=w).heights(np.array([30.0]), np.array([30.0]), np.array([21.0]), np.array([36.0]))
+    truth = w.depth_mm(np.zeros(1), np.zeros(1), np.array([7.59 * 0.36 - 2.34]), indenter_radius_mm=4.0)
+    assert d_in(h)[0] - truth[0] == pytest.approx(gap, abs=1e-6)  # the SPS plane sits `gap` above the tissue
+
+
+def test_bore_friction_makes_a_hysteresis_loop() -> None:
+    """Pressure up then down: at the same pressure the indenter sits deeper on the way down (it sticks)."""
+    drv = driver(errors=ProbeErrors(friction_n=0.03))
+    up = np.linspace(32.0, 40.0, 41)
+    p = np.concatenate([up, up[::-1]])
+    h = drv.heights(np.full(p.size, 30.0), np.full(p.size, 30.0), np.full(p.size, 21.0), p)
+    d = d_in(h)
+    rising, falling = d[:41], d[41:][::-1]
+    assert np.all(falling >= rising - 1e-12) and np.max(falling - rising) > 0.05
+
+
+def test_heights_follow_the_dome_not_a_plane() -> None:
+    """Over the dome's flank the three SPS read the curved surface; eqs. 1-3's plane then differs from the true
+    surface under the indenter, which the estimator has to live with."""
+    w = HalfSpace(26.4)
+    x, y, z = np.array([30.0]), np.array([12.0]), np.array([5.0])
+    h = driver(DOME, world=w).heights(x, y, z, np.array([36.0]))
+    surf = [z[0] - float(DOME.surface_z(30.0 + dx, 12.0 - dy)) for dx, dy in ((0, 6), (-5.196, -3), (5.196, -3))]
+    assert h[0, :3] == pytest.approx(surf, abs=1e-6)
+    truth = w.depth_mm(x, y, np.array([7.59 * 0.36 - 2.34]), indenter_radius_mm=4.0)[0]
+    assert abs(d_in(h)[0] - truth) > 0.005  # plane-versus-surface error of a real probe on a curved top
+
+
+def test_error_draws_are_seeded_and_realistic() -> None:
+    a, b, c = ProbeErrors.draw(3), ProbeErrors.draw(3), ProbeErrors.draw(4)
+    assert a == b and a != c
+    rmse = [TrueProbe(ProbeErrors.draw(s)).eq4_residual_rmse_n() for s in range(20)]
+    assert 0.025 < float(np.median(rmse)) < 0.05  # the paper's eq. 4 fit: RMSE < 0.0404 N
+    assert TrueProbe(ProbeErrors.ideal()).eq4_residual_rmse_n() < 1e-9
+    json.dumps(a.as_dict())  # recordable as it is
