@@ -4,10 +4,13 @@ Every type is a frozen, keyword-only ``palpa.Message`` encoded as a msgpack map;
 by the name carried in the envelope header. Stamps (``stamp_ns``) are host wall-clock ns since the Unix epoch,
 taken when the measurement was made (not when it was published).
 
+``messages.foxglove`` mirrors Foxglove's own schemas (metres, not mm) for the live views (nodes/foxglove_views.py).
+
 Evolution policy: add fields only with defaults; never reuse, rename or retype a field; a new meaning gets a new
 type name. See docs/wire.md.
 """
 
+from messages.foxglove import FrameTransform, Grid, ImageAnnotations, RawImage, SceneUpdate
 from messages.probe import (
     DeviceStatus,
     ImageInfo,
@@ -17,6 +20,15 @@ from messages.probe import (
     ProbeHeights,
 )
 from messages.robot import EStop, PlanWaypoint, RobotPose, ScanPlan, ScanStatus
+from messages.services import (
+    MapSaved,
+    PressureAck,
+    ProbeAt,
+    ProbeResult,
+    SetPressure,
+    Trigger,
+    TriggerResult,
+)
 from messages.std import Text
 from messages.stiffness import (
     DetectedInclusion,
@@ -32,20 +44,32 @@ __all__ = [
     "DetectedInclusion",
     "DeviceStatus",
     "EStop",
+    "FrameTransform",
+    "Grid",
     "Heartbeat",
+    "ImageAnnotations",
     "ImageInfo",
-    "IndenterDisplacements",
     "Inclusions",
+    "IndenterDisplacements",
     "LogRecord",
+    "MapSaved",
     "PlanWaypoint",
+    "PressureAck",
     "PressureCommand",
     "PressureState",
+    "ProbeAt",
     "ProbeHeights",
+    "ProbeResult",
+    "RawImage",
     "RobotPose",
     "ScanPlan",
+    "SceneUpdate",
     "ScanStatus",
+    "SetPressure",
     "StiffnessFit",
     "StiffnessMap",
     "StiffnessSample",
     "Text",
+    "Trigger",
+    "TriggerResult",
 ]

@@ -16,8 +16,19 @@ class Talker(palpa.Node):
         """Stop (exit 0) after this many messages; 0 runs until stopped."""
 
     def setup(self) -> None:
+        if self.params.rate_hz <= 0:
+            raise palpa.ParamError(f"{self.name}: rate_hz must be > 0, got {self.params.rate_hz}")
         self.out = self.publisher("chatter", Text)
-        self.timer(1.0 / self.params.rate_hz, self.tick, first_in_s=0.0)
+        self.ticker = self.timer(1.0 / self.params.rate_hz, self.tick, first_in_s=0.0)
+
+    def on_params_changed(self, old: Talker.Params, new: Talker.Params) -> bool | None:
+        """A new ``rate_hz`` takes effect at once (``palpa param set talker rate_hz 20``)."""
+        if new.rate_hz <= 0:
+            raise palpa.ParamError(f"parameter 'rate_hz': must be > 0, got {new.rate_hz}")
+        if new.rate_hz != old.rate_hz:
+            self.ticker.cancel()
+            self.ticker = self.timer(1.0 / new.rate_hz, self.tick, first_in_s=0.0)
+        return None
 
     def tick(self) -> None:
         seq = self.out.publish(Text(text=f"{self.params.text} {self.out.seq + 1}", stamp_ns=self.clock.now_ns()))

@@ -5,6 +5,7 @@ probe (nodes/drivers/fibre_sim.py): heights from the world over the phantom, the
 the regulator's read-back (``pressure/state``), through the device's drawn errors. Both publish the same topics:
 ``probe/heights`` (h1..h4 mm, raw values, eqs. 1-3 depth and tilt) and ``probe/status``; the sim driver also
 publishes its error draw once, latched, on ``sim/truth/fibre`` (JSON text) so that the recording keeps it.
+The service ``probe/tare`` (:class:`Trigger`) zeroes the sensors at the current pose (the device's ``$ZERO``).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Literal
 import numpy as np
 
 import palpa
-from messages import DeviceStatus, PressureState, ProbeHeights, RobotPose, Text
+from messages import DeviceStatus, PressureState, ProbeHeights, RobotPose, Text, Trigger, TriggerResult
 from models.airfloat import (
     DEFAULT_INDENTER_RADIUS_MM,
     DEFAULT_SPS_RADIUS_MM,
@@ -24,8 +25,9 @@ from models.airfloat import (
 )
 from models.airfloat_device import ProbeErrors
 from nodes.common import phantom_from_param
-from nodes.drivers.fibre import FibreDriver, FibreSample, SerialFibreDriver
+from nodes.drivers.fibre import FibreDriver, FibreError, FibreSample, SerialFibreDriver
 from nodes.drivers.fibre_sim import SimFibreDriver
+from palpa.service import RequestRefused
 
 __all__ = ["FibreReader"]
 
@@ -87,6 +89,7 @@ class FibreReader(palpa.Node):
             self._set_rate()
         self._last_connected: bool | None = None
         self.timer(1.0 / p.poll_hz, self.poll)
+        self.service("probe/tare", Trigger, TriggerResult, self.on_tare)
         self.timer(1.0, self.publish_status, first_in_s=0.0)
 
     def _set_rate(self) -> None:
@@ -94,6 +97,16 @@ class FibreReader(palpa.Node):
             self.driver.set_rate(self.params.rate_hz)
         except Exception as exc:  # the device may be absent now; the driver re-sends the rate on replug
             self.log.warning("could not set the sample rate yet: %s", exc)
+
+    def on_tare(self, req: Trigger) -> TriggerResult:
+        """Service ``probe/tare``: the current pose reads the calibration's zero heights from now on."""
+        try:
+            self.driver.zero()
+        except FibreError as exc:
+            raise RequestRefused(f"tare failed: {exc}") from None
+        self.log.info("sensors tared")
+        note = " (simulated sensors have no offset)" if self._sim is not None else ""
+        return TriggerResult(message=f"tared{note}", state="ok")
 
     def on_pose(self, msg: RobotPose) -> None:
         if self._sim is not None:

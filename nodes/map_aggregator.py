@@ -4,7 +4,8 @@ Publishes the map (``map/stiffness``) and inclusions (``map/inclusions``), both 
 scanning; when the scan reports ``done`` on ``robot/scan_status`` it writes ``map.npz``, ``map.png`` and
 ``inclusions.json`` into ``output_dir`` (each file atomically). It writes once per scan: a repeated ``done`` (a
 scanner lingering, a replay) writes nothing new, and shutdown writes only samples no file holds yet (a scan
-stopped half-way), so a node asked to stop after its scan exits at once.
+stopped half-way), so a node asked to stop after its scan exits at once. The service ``map/save``
+(:class:`Trigger` -> :class:`MapSaved`) writes them now, mid-scan.
 """
 
 from __future__ import annotations
@@ -18,10 +19,12 @@ import palpa
 from messages import (
     DetectedInclusion,
     Inclusions,
+    MapSaved,
     ScanPlan,
     ScanStatus,
     StiffnessMap,
     StiffnessSample,
+    Trigger,
 )
 from models.stiffness_map import (
     Inclusion,
@@ -31,6 +34,7 @@ from models.stiffness_map import (
     detect_inclusions,
 )
 from nodes.map_output import write_outputs
+from palpa.service import RequestRefused
 
 __all__ = ["MapAggregator"]
 
@@ -74,6 +78,15 @@ class MapAggregator(palpa.Node):
         self.subscribe("robot/plan", self.on_plan)
         self.subscribe("robot/scan_status", self.on_status)
         self.timer(1.0 / p.publish_hz, self.publish_map)
+        self.service("map/save", Trigger, MapSaved, self.on_save)
+
+    def on_save(self, req: Trigger) -> MapSaved:
+        """Service ``map/save``: write the map files from what has been received so far."""
+        if self.grid is None or not self.samples:
+            raise RequestRefused("no map to save yet (no valid stiffness sample received)")
+        snap = self.grid.snapshot()
+        paths = self.write(snap, self._detect(snap)[0])
+        return MapSaved(paths=[str(p) for p in paths], samples=self.samples)
 
     def _make_grid(self, x0: float, y0: float, x1: float, y1: float) -> None:
         self.grid = StiffnessGrid(x0, y0, x1, y1, self.params.resolution_mm, min_count=self.params.min_count)
@@ -137,7 +150,7 @@ class MapAggregator(palpa.Node):
         if final:
             self.write(snap, found)
 
-    def write(self, snap: MapSnapshot, found: list[Inclusion]) -> None:
+    def write(self, snap: MapSnapshot, found: list[Inclusion]) -> list[Path]:
         out = Path(self.params.output_dir)
         title = self.params.title or f"stiffness map — {out}"
         title += f"\n{self.samples} samples, {len(found)} inclusion(s), {time.strftime('%Y-%m-%d %H:%M')}"
@@ -148,6 +161,7 @@ class MapAggregator(palpa.Node):
             self.log.info("inclusion at (%.1f, %.1f) mm, radius %.1f mm, contrast %.2f",
                           inc.x_mm, inc.y_mm, inc.radius_mm, inc.contrast)
         self.log.info("map written: %s", ", ".join(str(p) for p in paths))
+        return list(paths)
 
     def on_shutdown(self) -> None:
         if self.grid is not None and self.unsaved:

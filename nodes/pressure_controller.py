@@ -4,16 +4,19 @@ Commands arrive on ``pressure/command`` (hold a set-point, ramp at a rate to a t
 ramp itself (a set-point per control tick), clamps every set-point to ``max_kpa``, and watches the read-back: a
 lost device, an over-pressure or a read-back far from the set-point for too long raises a fault on
 ``pressure/state`` and vents. ``driver: alicat`` talks to an Alicat controller over serial; ``driver: sim`` uses
-the regulator plant model. ``pressure/state`` carries eq. 4's indentation force.
+the regulator plant model. ``pressure/state`` carries eq. 4's indentation force. The service ``pressure/set``
+(:class:`SetPressure`) changes the set-point and answers with what the controller now follows; a set-point above
+the cap is refused there (a caller must know), where a topic command is clamped.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Literal
 
 import palpa
-from messages import DeviceStatus, PressureCommand, PressureState
+from messages import DeviceStatus, PressureAck, PressureCommand, PressureState, SetPressure
 from models.airfloat import ForceCalibration
 from models.calibration_airfloat import CalibrationError, load_calibration
 from nodes.drivers.pressure import (
@@ -23,6 +26,7 @@ from nodes.drivers.pressure import (
     PressureReading,
 )
 from nodes.drivers.pressure_sim import SimPressureDriver
+from palpa.service import RequestRefused
 
 __all__ = ["PressureController"]
 
@@ -94,6 +98,7 @@ class PressureController(palpa.Node):
         self.off_since_ns: int | None = None
         self.last_reading: PressureReading | None = None
         self.subscribe("pressure/command", self.on_command)
+        self.service("pressure/set", SetPressure, PressureAck, self.on_set)
         self.apply(PressureCommand(mode=p.startup, setpoint_kpa=p.setpoint_kpa, rate_kpa_s=p.ramp_rate_kpa_s))
         self.timer(1.0 / p.rate_hz, self.tick)
         self.timer(1.0, self.publish_status, first_in_s=0.0)
@@ -101,6 +106,18 @@ class PressureController(palpa.Node):
     # -- commands ----------------------------------------------------------------------------
     def on_command(self, cmd: PressureCommand) -> None:
         self.apply(cmd)
+
+    def on_set(self, req: SetPressure) -> PressureAck:
+        """Service ``pressure/set``: a set-point within [0, max_kpa], or a refusal that says why."""
+        cap = self.params.max_kpa
+        if not math.isfinite(req.setpoint_kpa) or req.setpoint_kpa < 0:
+            raise palpa.ParamError(f"setpoint_kpa must be a number >= 0, got {req.setpoint_kpa}")
+        if req.setpoint_kpa > cap:
+            raise RequestRefused(f"set-point {req.setpoint_kpa:g} kPa is above the cap {cap:g} kPa: refused")
+        if req.mode == "ramp" and not req.rate_kpa_s > 0:
+            raise palpa.ParamError(f"rate_kpa_s must be > 0 for a ramp, got {req.rate_kpa_s}")
+        self.apply(PressureCommand(mode=req.mode, setpoint_kpa=req.setpoint_kpa, rate_kpa_s=req.rate_kpa_s))
+        return PressureAck(setpoint_kpa=self.setpoint, target_kpa=self.target, max_kpa=cap, mode=self.mode)
 
     def apply(self, cmd: PressureCommand) -> None:
         """Take a command; a set-point above the cap is clamped and reported as a fault flag."""

@@ -5,6 +5,10 @@ Safety is enforced here whatever the driver: a plan that leaves the workspace bo
 acceleration cap is refused before any motion (naming the waypoint); while moving, a watchdog stops the arm when
 the probe's data goes stale (``watch_topic``) or ``pressure/state`` reports a fault, and ``robot/estop`` stops it
 at once. The arm's pose is published on ``robot/pose``; the plan, latched, on ``robot/plan`` before motion.
+
+Services (nodes.scan_control): ``scanner/probe_at`` probes one point and answers with the stiffness found there;
+``scanner/pause``, ``scanner/resume`` and ``scanner/abort`` control a scan or a probe. With ``autostart: false``
+the scanner does not scan but waits, idle, for probe requests.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from models.raster import (
     sweep_raster,
 )
 from nodes.drivers.robot import MotionStatus, RobotDriver
+from nodes.scan_control import MOVING, ScanControl
 from nodes.scan_progress import PathProgressMeter
 
 __all__ = ["RobotScanner"]
@@ -86,6 +91,8 @@ class RobotScanner(palpa.Node):
         """Phantom frame origin in the robot base frame (mm)."""
         tool_rotvec: tuple[float, float, float] = (0.0, math.pi, 0.0)
         """Fixed tool orientation (rotation vector, rad): probe pointing down."""
+        autostart: bool = True
+        """Run the raster at start-up (and exit when it is done); false: stay idle and serve probe_at requests."""
 
     def setup(self) -> None:
         p = self.params
@@ -103,16 +110,23 @@ class RobotScanner(palpa.Node):
         self.driver: RobotDriver = self._make_driver()
         self.driver.connect()
         self.plan = self._plan()
+        self.path: tuple[Waypoint, ...] = self.plan.waypoints
         self.meter = PathProgressMeter(self.plan.waypoints, self.plan.duration_s)
         self.check_plan()  # raises before any motion
-        self._publish_plan()
+        self.resume_index = 0
+        self.control = ScanControl(self)
+        if p.autostart:
+            self._publish_plan()
         if p.watch_topic == "probe/heights":
             self.subscribe("probe/heights", ProbeHeights, self.on_probe)
         elif p.watch_topic == "camera/indenters":
             self.subscribe("camera/indenters", IndenterDisplacements, self.on_probe)
         self.subscribe("pressure/state", self.on_pressure)
         self.subscribe("robot/estop", self.on_estop)
-        self.set_state("waiting", f"waiting for probe data on {p.watch_topic}" if p.watch_topic else "")
+        if p.autostart:
+            self.set_state("waiting", f"waiting for probe data on {p.watch_topic}" if p.watch_topic else "")
+        else:
+            self.set_state("idle", "waiting for scanner/probe_at requests")
         self.timer(1.0 / p.pose_rate_hz, self.publish_pose, first_in_s=0.0)
         self.timer(0.01, self.supervise)
         self.timer(0.2, self.publish_status)
@@ -147,6 +161,12 @@ class RobotScanner(palpa.Node):
 
     def check_plan(self) -> None:
         """Refuse a plan (and the path from the current pose to it) that leaves the box or exceeds a cap."""
+        self.check_path(self.plan.waypoints)
+        self.segments = self._segments(self.plan.waypoints)
+
+    def check_path(self, waypoints: tuple[Waypoint, ...]) -> None:
+        """Raise ParamError naming the first waypoint that leaves the workspace box or exceeds a cap (and when
+        the arm itself is outside the box)."""
         p = self.params
         x0, y0, z0, x1, y1, z1 = p.workspace_mm
         try:
@@ -161,23 +181,27 @@ class RobotScanner(palpa.Node):
             raise palpa.ParamError(f"{self.name}: refusing to move: the arm's current pose is outside the "
                                    f"workspace box ({exc})") from None
         try:
-            check_workspace(self.plan.waypoints, box)
+            check_workspace(waypoints, box)
         except WorkspaceViolation as exc:
             raise palpa.ParamError(f"{self.name}: refusing the plan before any motion: {exc}") from None
-        for i, w in enumerate(self.plan.waypoints):
+        for i, w in enumerate(waypoints):
             if w.speed_mm_s > p.max_speed_mm_s or w.accel_mm_s2 > p.max_accel_mm_s2:
                 raise palpa.ParamError(
                     f"{self.name}: refusing the plan before any motion: waypoint {i} ({w.kind}, line {w.line}) "
                     f"asks {w.speed_mm_s:g} mm/s, {w.accel_mm_s2:g} mm/s² over the caps "
                     f"{p.max_speed_mm_s:g} mm/s, {p.max_accel_mm_s2:g} mm/s²")
-        # indent mode holds at press points: run the path in segments that end at each hold
-        cuts = [i for i, w in enumerate(self.plan.waypoints) if w.hold_s > 0]
+
+    @staticmethod
+    def _segments(waypoints: tuple[Waypoint, ...]) -> list[tuple[int, int]]:
+        """Indent mode holds at press points: a path runs in segments that end at each hold."""
+        segments = []
         start_i = 0
-        for c in cuts:
-            self.segments.append((start_i, c))
+        for c in [i for i, w in enumerate(waypoints) if w.hold_s > 0]:
+            segments.append((start_i, c))
             start_i = c + 1
-        if start_i < len(self.plan.waypoints):
-            self.segments.append((start_i, len(self.plan.waypoints) - 1))
+        if start_i < len(waypoints):
+            segments.append((start_i, len(waypoints) - 1))
+        return segments
 
     def _publish_plan(self) -> None:
         p, plan = self.params, self.plan
@@ -197,7 +221,7 @@ class RobotScanner(palpa.Node):
 
     def on_pressure(self, msg: PressureState) -> None:
         bad = _STOPPING_FAULTS.intersection(msg.faults)
-        if bad and self.state in ("waiting", "scanning"):
+        if bad and self.state in ("waiting", "scanning", "probing", "paused"):
             self.halt("fault", f"pressure fault {', '.join(sorted(bad))}")
 
     def on_estop(self, msg: EStop) -> None:
@@ -210,6 +234,7 @@ class RobotScanner(palpa.Node):
         try:
             self.driver.stop(self.params.max_accel_mm_s2)
         finally:
+            self.control.fail_probe(f"the scanner stopped: {why}")
             self.log.error("STOP (%s): %s", state, why)
             self.set_state(state, why)
             self.finish(1 if state == "fault" else 2)
@@ -221,9 +246,34 @@ class RobotScanner(palpa.Node):
     def finish(self, code: int) -> None:
         self.timer(self.params.linger_s, lambda: self.request_shutdown(code), oneshot=True)
 
+    def run_path(self, plan: RasterPlan, state: str) -> None:
+        """Drive ``plan`` (already checked) from where the arm is, in ``state`` (scanning, probing)."""
+        self.path = plan.waypoints
+        self.segments = self._segments(plan.waypoints)
+        self.segment = 0
+        self.hold_until_ns = None
+        self.meter = PathProgressMeter(plan.waypoints, plan.duration_s)
+        self.set_state(state)
+        self._start_segment()
+
+    def pause(self) -> None:
+        """Stop the arm where it is; :meth:`resume` goes on towards the waypoint it was heading for."""
+        self.driver.stop(self.params.max_accel_mm_s2)
+        self.resume_index = self.driver.progress().index
+        self.set_state("paused", f"paused during {self.control.paused_from}")
+
+    def resume(self, state: str) -> None:
+        a, b = self.segments[self.segment]
+        a = min(a + self.resume_index, b)
+        self.segments[self.segment] = (a, b)
+        self.hold_until_ns = None
+        self.set_state(state)
+        self.driver.move_path(self.path[a : b + 1])
+
     def supervise(self) -> None:
         now = self.clock.now_ns()
         p = self.params
+        self.control.supervise(now)
         if self.state == "waiting":
             if self.last_probe_ns is not None or not p.watch_topic:
                 self.set_state("scanning")
@@ -231,7 +281,7 @@ class RobotScanner(palpa.Node):
             elif (now - self.started_ns) / 1e9 > p.startup_timeout_s:
                 self.halt("fault", f"no probe data on {p.watch_topic} within {p.startup_timeout_s:g} s")
             return
-        if self.state != "scanning":
+        if self.state not in MOVING or self.segment >= len(self.segments):
             return
         if p.watch_topic and self.last_probe_ns is not None and (now - self.last_probe_ns) / 1e9 > p.watchdog_s:
             self.halt("fault", f"probe data on {p.watch_topic} stale for more than {p.watchdog_s * 1000:.0f} ms")
@@ -255,7 +305,7 @@ class RobotScanner(palpa.Node):
                 self._start_segment()
             return
         if prog.status == MotionStatus.DONE:
-            hold = self.plan.waypoints[seg_end].hold_s
+            hold = self.path[seg_end].hold_s
             if hold > 0:
                 self.hold_until_ns = now + int(hold * 1e9)
             else:
@@ -265,6 +315,10 @@ class RobotScanner(palpa.Node):
             self.halt("stopped", prog.message or "the arm stopped")
 
     def _start_segment(self) -> None:
+        if self.segment >= len(self.segments) and self.state == "probing":
+            self.meter.complete()
+            self.control.path_done()
+            return
         if self.segment >= len(self.segments):
             self.meter.complete()
             self.set_state("done", f"scan complete in {(self.clock.now_ns() - self.started_ns) / 1e9:.1f} s")
@@ -272,7 +326,7 @@ class RobotScanner(palpa.Node):
             self.finish(0)
             return
         a, b = self.segments[self.segment]
-        self.driver.move_path(self.plan.waypoints[a : b + 1])
+        self.driver.move_path(self.path[a : b + 1])
 
     # -- outputs ---------------------------------------------------------------------------------
     def publish_pose(self) -> None:

@@ -2,10 +2,12 @@
 
 Layering (imports point downwards only)::
 
-    palpa.cli        command-line verbs (bus, topic, node, launch, record, play, bag)
+    palpa.cli        command-line verbs (bus, topic, node, service, param, launch, record, play, bag)
     palpa.launch     launch files and the process supervisor
     palpa.record     MCAP recording and replay
     palpa.node       the Node API: publishers, subscriptions, timers, parameters
+    palpa.service    services (request/reply over the bus; callers in palpa.service_client), run-time
+                     parameters on top of them (palpa.params_runtime)
     palpa.transport  ZeroMQ (and, in palpa.testing, in-memory) transports
     palpa.bus        the XSUB/XPUB proxy and latched-value cache
     palpa.wire       the envelope; palpa.message the typed-message base and registry

@@ -12,12 +12,13 @@ the last-value cache (a ROUTER). The default, with nothing set, is ``ipc:///tmp/
 
 from __future__ import annotations
 
+import ipaddress
 import os
 from dataclasses import dataclass
 
 from palpa.errors import BusError
 
-__all__ = ["BusAddress", "default_address", "from_env"]
+__all__ = ["BusAddress", "default_address", "from_env", "is_loopback_host"]
 
 _IPC_MAX = 100  # the kernel's sun_path limit is 107 bytes; keep a margin for the suffix
 
@@ -92,3 +93,13 @@ def default_address() -> str:
 def from_env() -> BusAddress:
     """The bus named by ``PALPA_BUS``, or the default one."""
     return BusAddress.parse(os.environ.get("PALPA_BUS") or default_address())
+
+
+def is_loopback_host(host: str) -> bool:
+    """True for ``localhost`` and loopback addresses (127.0.0.0/8, ``::1``, ``[::1]``)."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False

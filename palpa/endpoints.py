@@ -176,6 +176,7 @@ class Timer:
         self.due_ns = due_ns
         self.oneshot = oneshot
         self.cancelled = False
+        self.running = False
 
     def cancel(self) -> None:
         self.cancelled = True

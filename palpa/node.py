@@ -36,6 +36,7 @@ from palpa.endpoints import DEFAULT_BATCH, Publisher, RawMessage, Subscription, 
 from palpa.message import Message
 from palpa.params import Params as ParamsBase
 from palpa.params import convert_params
+from palpa.params_runtime import ParamServer
 from palpa.receive import Receiver
 from palpa.runtime_msgs import (
     CLOCK_ACK_TOPIC,
@@ -48,6 +49,8 @@ from palpa.runtime_msgs import (
     LogRecord,
     TopicCounters,
 )
+from palpa.service import DEFAULT_TIMEOUT_S, Responder, Service
+from palpa.service_client import Client
 from palpa.transport import Transport, TransportOptions, ZmqTransport
 from palpa.wire import (
     Header,
@@ -58,6 +61,8 @@ from palpa.wire import (
 __all__ = ["DEFAULT_BATCH", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
 
 M = TypeVar("M", bound=Message)
+Q = TypeVar("Q", bound=Message)
+R = TypeVar("R", bound=Message)
 _ACK_PERIOD_NS = 5_000_000
 
 
@@ -106,6 +111,7 @@ class Node:
         sim_clock: bool | None = None,
         wait_for_clock_s: float = 30.0,
         transport_options: TransportOptions | None = None,
+        serve_params: bool | None = None,
     ) -> None:
         self.name = name or _snake(type(self).__name__)
         if sim_clock is None:
@@ -124,6 +130,7 @@ class Node:
         self._dirty: list[Publisher[Any]] = []
         self._depth = 0
         self._timers: list[Timer] = []
+        self._services: dict[str, Service[Any, Any]] = {}
         self._shutdown = False
         self._closed = False
         self._started_ns = time.monotonic_ns()
@@ -144,6 +151,8 @@ class Node:
             self._last_ack_ns = 0
             self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
             self._await_first_tick(wait_for_clock_s)
+        if heartbeat_s > 0 if serve_params is None else serve_params:
+            ParamServer(self)
         self.setup()
 
     # -- declaration -------------------------------------------------------------------------------
@@ -152,6 +161,27 @@ class Node:
 
     def on_shutdown(self) -> None:
         """Called once before the node's sockets close: stop hardware, flush files."""
+
+    def on_params_changed(self, old: Any, new: Any) -> bool | None:
+        """Called when ``palpa param set`` (or a ParamSet request) would change ``self.params`` from ``old`` to
+        ``new`` (both validated): apply what needs applying (re-time a timer) and return None, or refuse the
+        whole change by returning False or raising :class:`palpa.ParamError` with the reason."""
+        return None
+
+    def service(
+        self, name: str, request_type: type[Q], response_type: type[R], handler: Callable[[Q], R | Responder[R]]
+    ) -> Service[Q, R]:
+        """Serve ``name`` with ``handler(request) -> response`` (deferred answers, refusals: :mod:`palpa.service`)."""
+        if self.resolve(name) in self._services:
+            raise ValueError(f"node {self.name!r} already serves {self.resolve(name)!r}")
+        srv = self._services[self.resolve(name)] = Service(self, name, request_type, response_type, handler)
+        return srv
+
+    def client(
+        self, name: str, request_type: type[Q], response_type: type[R], *, timeout_s: float = DEFAULT_TIMEOUT_S
+    ) -> Client[Q, R]:
+        """A caller of service ``name``: ``call(req)`` (blocking, safe in callbacks) or ``call_async(req)``."""
+        return Client(self, name, request_type, response_type, timeout_s=timeout_s)
 
     def resolve(self, topic: str) -> str:
         """The topic name on the bus after remapping and namespacing (``/x`` is absolute; ``_palpa/`` is global)."""
@@ -286,6 +316,8 @@ class Node:
         self._shutdown = True
         try:
             self.on_shutdown()
+            for srv in self._services.values():
+                srv.withdraw()
             self.flush()
         finally:
             self._closed = True
@@ -326,15 +358,18 @@ class Node:
         now = self.clock.now_ns()
         for t in list(self._timers):
             if t.cancelled:
-                self._timers.remove(t)
+                if t in self._timers:  # a nested run (inside a service call's wait) may have removed it
+                    self._timers.remove(t)
                 continue
-            if t.due_ns <= now:
+            if t.due_ns <= now and not t.running:  # never re-entered while it waits on a service call
                 if t.oneshot:
                     t.cancelled = True
                 else:
                     # skip missed periods rather than firing a burst after a stall
                     t.due_ns += t.period_ns * max(1, (now - t.due_ns) // t.period_ns + 1)
-                self._call(t.callback)
+                t.running = True
+                self._call(t.callback)  # never raises
+                t.running = False
 
     def _call(self, fn: Callable[..., object], *args: object) -> None:
         self._depth += 1
@@ -385,6 +420,7 @@ class Node:
                 sent={p.topic: p.seq for p in self._pubs.values()},
                 uptime_s=(time.monotonic_ns() - self._started_ns) / 1e9,
                 direct=[p.topic for p in self._pubs.values() if p.direct],
+                services={name: srv.types for name, srv in self._services.items()},
             )
         )
 

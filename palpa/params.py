@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import difflib
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Annotated, Any, TypeVar, get_args, get_origin
 
 import msgspec
+import yaml
 
 from palpa.errors import ParamError
 
-__all__ = ["InputPath", "Params", "convert_params", "describe_params", "input_paths"]
+__all__ = ["InputPath", "Params", "convert_params", "describe_params", "input_paths", "read_params_file"]
 
 P = TypeVar("P", bound="Params")
 
@@ -55,6 +57,18 @@ def convert_params(cls: type[P], values: Mapping[str, Any] | P | None, *, where:
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             text = f"{text}{hint} (declared parameters: {', '.join(declared) or 'none'})"
         raise ParamError(f"{where}: {text}") from None
+
+
+def read_params_file(path: Path, what: str) -> dict[str, Any]:
+    """A YAML mapping of parameter names to values (``--params-file``, ``palpa param load``); raises
+    :class:`ParamError` starting with ``what`` when the file cannot be read or is not a mapping."""
+    try:
+        loaded = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ParamError(f"{what}: {exc}") from None
+    if not isinstance(loaded, dict):
+        raise ParamError(f"{what}: expected a mapping of parameters")
+    return loaded
 
 
 def describe_params(cls: type[Params]) -> dict[str, str]:

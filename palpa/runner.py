@@ -26,7 +26,7 @@ import yaml
 
 from palpa.errors import PalpaError
 from palpa.node import Node
-from palpa.params import describe_params
+from palpa.params import describe_params, read_params_file
 from palpa.transport import TransportOptions
 
 __all__ = ["node_arg_parser", "params_from_args", "parse_remaps", "run_node", "run_node_code"]
@@ -62,13 +62,7 @@ def params_from_args(args: argparse.Namespace) -> dict[str, Any]:
     """Merge parameters: file, then JSON, then each -p in order (later wins)."""
     params: dict[str, Any] = {}
     if args.params_file is not None:
-        try:
-            loaded = yaml.safe_load(args.params_file.read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise PalpaError(f"--params-file {args.params_file}: {exc}") from None
-        if not isinstance(loaded, dict):
-            raise PalpaError(f"--params-file {args.params_file}: expected a mapping of parameters")
-        params.update(loaded)
+        params.update(read_params_file(args.params_file, f"--params-file {args.params_file}"))
     if args.params_json:
         try:
             loaded = json.loads(args.params_json)

@@ -41,6 +41,8 @@ class Heartbeat(Message, frozen=True, kw_only=True):
     state: str = "running"
     direct: list[str] = []
     """Published topics sent straight to their subscribers, past the proxy (palpa.direct)."""
+    services: dict[str, str] = {}
+    """Service name -> 'Request -> Response' (palpa.service)."""
 
 
 class LogRecord(Message, frozen=True, kw_only=True):

@@ -11,7 +11,7 @@ No sockets, no processes, no sleeps: everything runs in the calling thread, in m
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Generic, TypeVar
 
 import msgspec
@@ -34,6 +34,8 @@ class MemoryBus:
     def __init__(self) -> None:
         self._transports: list[MemoryTransport] = []
         self._cache: dict[bytes, list[bytes]] = {}
+        self.pump: Callable[[], None] | None = None
+        """Lets the other nodes run while one waits on a service call (set by :class:`GraphHarness`)."""
 
     def transport(self) -> MemoryTransport:
         t = MemoryTransport(self)
@@ -83,6 +85,11 @@ class MemoryTransport:
         if prefix in self.prefixes:
             self.prefixes.remove(prefix)
 
+    def pump(self) -> None:
+        """Run the rest of the graph once (a node blocked in a service call waits for the others this way)."""
+        if self.bus.pump is not None:
+            self.bus.pump()
+
     def poll(self, timeout_s: float) -> list[Delivery]:
         out = list(self.inbox)
         self.inbox.clear()
@@ -107,6 +114,7 @@ class GraphHarness:
                  clock: MockClock | None = None, bus: MemoryBus | None = None) -> None:
         self.bus = bus or MemoryBus()
         self.clock = clock or MockClock()
+        self.bus.pump = self._pump
         self._probe = Node(name="harness", transport=self.bus.transport(), clock=self.clock, heartbeat_s=0)
         self.raw: list[RawMessage] = []
         self._probe.subscribe_raw("", self.raw.append)
@@ -132,6 +140,11 @@ class GraphHarness:
             if not self.bus.pending():
                 return
         raise RuntimeError("the bus did not go quiet: a publish loop between callbacks?")
+
+    def _pump(self) -> None:
+        for node in self.nodes:
+            node.spin_once(0)
+        self._probe.spin_once(0)
 
     def publish(self, topic: str, msg: Message, *, stamp_ns: int | None = None, latched: bool = False,
                 blobs: Sequence[bytes] = ()) -> None:

@@ -23,7 +23,7 @@ from messages import EStop, Text
 from palpa.address import BusAddress
 from palpa.bus import Bus
 from palpa.cli.main import main
-from palpa.cli.topic import message_from_yaml
+from palpa.cli.common import message_from_yaml
 from palpa.current import announce, find_bus, withdraw
 
 

@@ -91,6 +91,8 @@ SMOKE: dict[str, Smoke] = {
                                           "map/stiffness", "robot/scan_status"], timeout=60),
     "replay_scan.yaml": Smoke(prepare=synthetic_scan_bag, topics=["probe/heights", "stiffness/sample", "map/stiffness"],
                               timeout=60),
+    # idle until asked: a probe_at is exercised by tests/test_service_cli.py
+    "probe_sim.yaml": Smoke(topics=["robot/pose", "robot/scan_status", "probe/heights", "pressure/state"], timeout=40),
     "camera_sim.yaml": Smoke(args=["cycles:=0", "speed_mm_s:=4.0"], topics=["robot/pose", "robot/scan_status", "camera/status", "camera/indenters", "camera/debug", "stiffness/sample"], timeout=40),
 }
 

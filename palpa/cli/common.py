@@ -7,15 +7,23 @@ import contextlib
 import importlib
 import json
 import os
+import time
 from pathlib import Path
 from typing import Any
 
+import msgspec
+import yaml
+
 from palpa.address import BusAddress
 from palpa.current import find_bus
+from palpa.errors import PalpaError
+from palpa.launch.validate import did_you_mean
+from palpa.message import Message, lookup
 from palpa.node import Node
 from palpa.runner import run_node_code
 
-__all__ = ["add_bus_arg", "bus_address", "bus_and_source", "import_message_modules", "run_with_params"]
+__all__ = ["add_bus_arg", "bus_address", "bus_and_source", "import_message_modules", "message_from_yaml",
+           "run_with_params"]
 
 
 def add_bus_arg(p: argparse.ArgumentParser) -> None:
@@ -41,6 +49,34 @@ def import_message_modules() -> None:
     for name in names:
         with contextlib.suppress(ImportError):
             importlib.import_module(name.strip())
+
+
+def message_from_yaml(type_name: str, text: str, what: str = "data", *, stamp: bool = True) -> Message:
+    """A message of type ``type_name`` from its fields written as YAML (``{text: hi}``). Unknown fields are
+    refused, naming the closest declared one (a misspelt ``engaged: false`` must not send the default
+    ``engaged: true``); with ``stamp``, a ``stamp_ns`` field left out is set to now. Errors name what was wrong
+    (the field path for a bad value)."""
+    import_message_modules()
+    cls = lookup(type_name)
+    try:
+        fields = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise PalpaError(f"{what} is not valid YAML: {exc}") from None
+    if fields is None:
+        fields = {}
+    if not isinstance(fields, dict):
+        raise PalpaError(f"{type_name}: {what} must be a mapping of fields, e.g. '{{name: value}}', got {text!r}")
+    declared = [f.name for f in msgspec.structs.fields(cls)]
+    for key in fields:
+        if key not in declared:
+            raise PalpaError(f"{type_name} has no field {key!r}{did_you_mean(str(key), declared)}; its fields: "
+                             f"{', '.join(declared)}")
+    if stamp and "stamp_ns" in declared and "stamp_ns" not in fields:
+        fields["stamp_ns"] = time.time_ns()
+    try:
+        return msgspec.convert(fields, cls)
+    except msgspec.ValidationError as exc:
+        raise PalpaError(f"{type_name}: {exc}") from None
 
 
 def run_with_params(cls: type[Node], params: dict[str, Any], args: argparse.Namespace, prog: str) -> int:

@@ -16,7 +16,8 @@ from palpa.errors import PalpaError
 __all__ = ["main"]
 
 # verb -> module under palpa.cli; modules that are missing (not yet built) are skipped
-VERBS = ("bus", "topic", "node", "run", "launch", "record", "play", "bag", "keygen", "schema")
+VERBS = ("bus", "topic", "node", "service", "param", "run", "launch", "record", "play", "bag", "keygen",
+         "schema", "viz")
 
 
 def build_parser() -> argparse.ArgumentParser:

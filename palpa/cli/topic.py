@@ -12,10 +12,10 @@ from typing import Any
 import msgspec
 import yaml
 
-from palpa.cli.common import add_bus_arg, bus_and_source, import_message_modules
+from palpa.cli.common import add_bus_arg, bus_and_source, import_message_modules, message_from_yaml
 from palpa.errors import BusError, PalpaError, RegistryError
 from palpa.launch.validate import did_you_mean
-from palpa.message import Message, lookup
+from palpa.message import lookup
 from palpa.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.wire import TopicStats
@@ -89,6 +89,8 @@ def graph_topics(beats: dict[str, Heartbeat]) -> dict[str, dict[str, Any]]:
             entry["pub"].append(hb.node + (" (direct)" if topic in hb.direct else ""))
             entry["types"].add(tname)
         for topic, tname in hb.subscribes.items():
+            if topic.startswith("_palpa/"):  # runtime traffic (heartbeats, parameter services): palpa node list -v
+                continue
             entry = topics.setdefault(topic, {"type": tname, "pub": [], "sub": [], "types": set()})
             entry["sub"].append(hb.node)
             if tname != "*":
@@ -232,31 +234,6 @@ def hz_line(stamps: list[int], stats: TopicStats) -> str:
     rate = 1.0 / mean if mean > 0 else math.inf
     return (f"rate {rate:.2f} Hz  min {min(dts) * 1e3:.2f} ms  max {max(dts) * 1e3:.2f} ms  "
             f"std {std * 1e3:.2f} ms  window {len(stamps)}  received {stats.received}  gaps {stats.gaps}")
-
-
-def message_from_yaml(type_name: str, data: str) -> Message:
-    """Build a message from YAML fields; unknown fields are refused (a misspelt ``engaged: false`` must not
-    send the default ``engaged: true``), naming the closest declared field."""
-    cls = lookup(type_name)
-    try:
-        fields = yaml.safe_load(data)
-    except yaml.YAMLError as exc:
-        raise PalpaError(f"data is not valid YAML: {exc}") from None
-    if fields is None:
-        fields = {}
-    if not isinstance(fields, dict):
-        raise PalpaError(f"{type_name}: data must be a mapping of fields, e.g. '{{name: value}}', got {data!r}")
-    declared = [f.name for f in msgspec.structs.fields(cls)]
-    for key in fields:
-        if key not in declared:
-            raise PalpaError(f"{type_name} has no field {key!r}{did_you_mean(str(key), declared)}; its fields: "
-                             f"{', '.join(declared)}")
-    if "stamp_ns" in declared and "stamp_ns" not in fields:
-        fields["stamp_ns"] = time.time_ns()
-    try:
-        return msgspec.convert(fields, cls)
-    except msgspec.ValidationError as exc:
-        raise PalpaError(f"{type_name}: {exc}") from None
 
 
 def _check_graph(node: Node, topic: str, type_name: str, where: str) -> None:

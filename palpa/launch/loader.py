@@ -25,9 +25,10 @@ from typing import Any
 
 import msgspec
 
+from palpa.address import is_loopback_host
 from palpa.errors import BusError, LaunchError, ParamError
-from palpa.launch.plan import RECORDER_NAME, RECORDER_TARGET, LaunchPlan, NodeSpec
-from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, RecordDecl
+from palpa.launch.plan import RECORDER_NAME, RECORDER_TARGET, VIZ_NAME, LaunchPlan, NodeSpec
+from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, RecordDecl, VizDecl
 from palpa.launch.source import Mark, Path_, Source, display_path
 from palpa.launch.subst import substitute
 from palpa.launch.validate import convert, did_you_mean, kind, lower_first
@@ -102,6 +103,9 @@ def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
         if name not in names:
             raise LaunchError(f"{col.set_by.get('progress', plan.file)}: progress report names node {name!r}, which "
                               f"is not in the graph{did_you_mean(name, names)}")
+    viz = plan.viz_node()
+    if viz is not None:
+        plan.nodes.insert(0, viz)  # first, so that it hears every node's first messages
     _validate_nodes(col)
     return plan
 
@@ -126,9 +130,9 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
     subst = {k: substitute(src, v, (k,), args, col.plan.run_dir) for k, v in data.items()}
     decl = convert(src, subst, LaunchFile)
 
-    # an included file's bus/record/progress apply unless the including file set its own (the top file wins),
+    # an included file's bus/record/progress/viz apply unless the including file set its own (the top file wins),
     # so a shipped scan can be included, with its recording and progress bar, next to one more node
-    own = {k for k in ("bus", "record", "progress") if getattr(decl, k) is not None and k not in col.set_by}
+    own = {k for k in ("bus", "record", "progress", "viz") if getattr(decl, k) is not None and k not in col.set_by}
     col.set_by.update(dict.fromkeys(own, src.name))
     if top:
         col.plan.description = decl.description
@@ -145,6 +149,8 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
             raise src.error(("progress", "topic"), "progress topic must not be empty")
     if "record" in own:
         _record(src, decl, col.plan)
+    if "viz" in own:
+        _viz(src, decl, col.plan)
     for i, entry in enumerate(decl.python_path):
         p = Path(entry)
         p = (p if p.is_absolute() else path.parent / p).resolve()
@@ -155,6 +161,8 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
     for i, inc in enumerate(decl.include):
         _include(src, i, inc, namespace, col)
     for i, nd in enumerate(decl.nodes):
+        if not nd.if_:
+            continue
         spec = _node_spec(src, i, nd, namespace, col)
         col.plan.nodes.append(spec)
         col.node_sources.append((src, ("nodes", i), spec))
@@ -166,12 +174,27 @@ def _record(src: Source, decl: LaunchFile, plan: LaunchPlan) -> None:
     if rec is None or rec is False:
         return
     plan.record = RecordDecl() if rec is True else rec
+    _check_regexes(src, "record", plan.record)
+
+
+def _check_regexes(src: Source, section: str, decl: RecordDecl | VizDecl) -> None:
     for key in ("topics", "exclude"):
-        for i, rx in enumerate(getattr(plan.record, key)):
+        for i, rx in enumerate(getattr(decl, key)):
             try:
                 re.compile(rx)
             except re.error as exc:
-                raise src.error(("record", key, i), f"not a regular expression: {exc}") from None
+                raise src.error((section, key, i), f"not a regular expression: {exc}") from None
+
+
+def _viz(src: Source, decl: LaunchFile, plan: LaunchPlan) -> None:
+    viz = VizDecl() if decl.viz is True else decl.viz
+    if viz is None or viz is False or not viz.enabled:
+        return
+    if not viz.allow_remote and not is_loopback_host(viz.host):
+        raise src.error(("viz", "host"), f"viz host {viz.host!r} is beyond loopback: the Foxglove protocol has "
+                                         "no authentication; set allow_remote: true to mean it")
+    _check_regexes(src, "viz", viz)
+    plan.viz = viz
 
 
 def _resolve_args(src: Source, raw: Any, given: _Given, run_dir: Path) -> dict[str, Any]:
@@ -229,6 +252,8 @@ def _node_spec(src: Source, i: int, nd: NodeDecl, namespace: str, col: _Collecte
                                           "launcher's own)")
     if nd.name == RECORDER_NAME and col.plan.record is not None:
         raise src.error((*where, "name"), "node name 'recorder' is taken by the record section's recorder")
+    if nd.name == VIZ_NAME and col.plan.viz is not None:
+        raise src.error((*where, "name"), "node name 'viz' is taken by the viz section's Foxglove bridge")
     col.names[nd.name] = str(src.mark(where))
     for key, value in nd.remap.items():
         if not key or not value:

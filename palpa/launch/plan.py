@@ -14,13 +14,15 @@ import yaml
 
 from palpa.address import BusAddress
 from palpa.errors import BusError
-from palpa.launch.schema import BusDecl, RecordDecl
+from palpa.launch.schema import BusDecl, RecordDecl, VizDecl
 from palpa.transport import TransportOptions
 
-__all__ = ["RECORDER_NAME", "RECORDER_TARGET", "LaunchPlan", "NodeSpec"]
+__all__ = ["RECORDER_NAME", "RECORDER_TARGET", "VIZ_NAME", "VIZ_TARGET", "LaunchPlan", "NodeSpec"]
 
 RECORDER_NAME = "recorder"
 RECORDER_TARGET = "palpa.record.recorder:Recorder"
+VIZ_NAME = "viz"
+VIZ_TARGET = "palpa.viz.bridge:Bridge"
 
 
 @dataclass
@@ -109,6 +111,8 @@ class LaunchPlan:
     progress_topic: str | None = None
     progress_report: list[str] = field(default_factory=list)
     recorder_available: bool = False
+    viz: VizDecl | None = None
+    """The Foxglove bridge the ``viz`` section asks for (enabled), or None."""
     node_params: dict[str, dict[str, Any]] = field(default_factory=dict)
     """Node name -> every parameter of a ``node:`` entry, defaults included (filled by the loader)."""
     files: list[str] = field(default_factory=list)
@@ -133,6 +137,17 @@ class LaunchPlan:
         return NodeSpec(name=RECORDER_NAME, target=RECORDER_TARGET, params=params, sigterm_timeout=10.0,
                         sigkill_timeout=5.0, where=f"{self.files[0] if self.files else self.file}: record",
                         env={"PALPA_NODE_MODULES": ",".join(modules)})
+
+    def viz_node(self) -> NodeSpec | None:
+        """The bridge node the ``viz`` section asks for (None without one): an ordinary node entry named ``viz``,
+        respawned if it fails (a viewer must not end a scan)."""
+        v = self.viz
+        if v is None:
+            return None
+        params = {"host": v.host, "port": v.port, "allow_remote": v.allow_remote, "topics": list(v.topics),
+                  "exclude": list(v.exclude), "client_publish": list(v.client_publish)}
+        return NodeSpec(name=VIZ_NAME, target=VIZ_TARGET, params=params, respawn=True,
+                        where=f"{self.files[0] if self.files else self.file}: viz")
 
     def bus_request(self, override: str | None = None) -> BusAddress:
         """The endpoints the launcher binds: ``override`` (``--bus-address``), else the ``bus`` section, else a

@@ -16,6 +16,7 @@ A launch file (YAML)::
     bus: {transport: ipc, latched: [scan/plan]}
     record: {topics: ["probe/.*"], exclude: ["camera/.*"]}
     progress: {topic: robot/scan_status}
+    viz: {enabled: $(arg viz), client_publish: [robot/estop]}
 
 Values are native YAML types. A string that is exactly ``$(arg name)`` takes the argument's value with its type,
 so the schema below also accepts such a string wherever it expects a number or a boolean.
@@ -27,7 +28,7 @@ import copy
 from typing import Annotated, Any, Literal
 
 import msgspec
-from msgspec import UNSET, Meta, Struct, UnsetType
+from msgspec import UNSET, Meta, Struct, UnsetType, field
 
 __all__ = [
     "NAME_PATTERN",
@@ -39,6 +40,7 @@ __all__ = [
     "ProgressDecl",
     "RecordDecl",
     "TransportDecl",
+    "VizDecl",
     "json_schema",
 ]
 
@@ -88,6 +90,8 @@ class NodeDecl(_Decl):
     output: Annotated[Literal["screen", "log"], Meta(description="screen: lines shown as `[name] line`; "
                                                                   "always kept in <run_dir>/<name>.log")] = "screen"
     transport: TransportDecl | None = None
+    if_: Annotated[bool, Meta(description="false: leave this node out (e.g. `if: $(arg viz)`)")] = field(
+        default=True, name="if")
 
 
 class TransportDecl(_Decl):
@@ -138,6 +142,19 @@ class RecordDecl(_Decl):
                                                              "heartbeat")] = 15.0
 
 
+class VizDecl(_Decl):
+    """Serve the graph to Foxglove with the bridge node ``viz`` (palpa.viz.bridge:Bridge), started first."""
+
+    enabled: Annotated[bool, Meta(description="false: no bridge (e.g. `enabled: $(arg viz)`)")] = True
+    host: Annotated[str, Meta(description="interface; beyond loopback needs allow_remote")] = "127.0.0.1"
+    port: Annotated[int, Meta(ge=0, le=65535, description="0: the OS chooses (see <run_dir>/viz.address)")] = 8765
+    allow_remote: bool = False
+    topics: Annotated[list[str], Meta(description="regular expressions; empty: every topic")] = []
+    exclude: Annotated[list[str], Meta(description="regular expressions of topics to leave out")] = []
+    client_publish: Annotated[list[str], Meta(description="topics a Foxglove client may publish, e.g. "
+                                                          "robot/estop")] = []
+
+
 class ProgressDecl(_Decl):
     """Show a progress bar from messages on ``topic`` with fields progress (0..1) and optionally state, message,
     eta_s, line, lines."""
@@ -159,6 +176,8 @@ class LaunchFile(_Decl):
     bus: BusDecl | None = None
     record: Annotated[bool | RecordDecl, Meta(description="true: record every topic")] | None = None
     progress: ProgressDecl | None = None
+    viz: Annotated[bool | VizDecl, Meta(description="true: serve every topic to Foxglove on "
+                                                    "ws://127.0.0.1:8765")] | None = None
 
 
 def json_schema() -> dict[str, Any]:

@@ -120,6 +120,7 @@ def bag_info(paths: Sequence[Path]) -> dict[str, Any]:
     """Everything ``bag info`` prints, as plain data (also ``--json``)."""
     files = [_file_info(p) for p in paths]
     topics: dict[str, dict[str, Any]] = {}
+    faults: dict[str, int] = {}
     for f in files:
         for cid, ch in f["channels"].items():
             info = channel_info(ch)
@@ -133,6 +134,8 @@ def bag_info(paths: Sequence[Path]) -> dict[str, Any]:
             if info.node and info.node not in t["publishers"]:
                 t["publishers"].append(info.node)
             t["messages"] += f["counts"].get(cid, 0)
+            if info.type == "ServiceFault":
+                faults[ch.topic] = faults.get(ch.topic, 0) + f["counts"].get(cid, 0)
             if cid in f["spans"]:
                 lo, hi = f["spans"][cid]
                 t["first_ns"] = min(t.get("first_ns", lo), lo)
@@ -165,9 +168,34 @@ def bag_info(paths: Sequence[Path]) -> dict[str, Any]:
         "messages": sum(t["messages"] for t in topics.values()),
         "topics": dict(sorted(topics.items())),
         "nodes": dict(sorted(nodes.items())),
+        "services": _services(topics, faults),
         "recording": recording,
         "attachments": [a for f in files for a in f["attachments"]],
     }
+
+
+def _services(topics: dict[str, dict[str, Any]], faults: dict[str, int]) -> dict[str, dict[str, Any]]:
+    """Service calls in the recording, from the request and reply topics (palpa.service): per service, the
+    request and response types, requests, replies, failed replies and callers."""
+    out: dict[str, dict[str, Any]] = {}
+    for topic, t in topics.items():
+        name, sep, client = topic.rpartition("/reply/")
+        if not sep:
+            name, sep, rest = topic.rpartition("/request")
+            if not sep or rest:
+                continue
+            client = ""
+        s = out.setdefault(name, {"request": "?", "response": "?", "requests": 0, "replies": 0, "faults": 0,
+                                  "callers": 0})
+        if client:
+            s["replies"] += t["messages"]
+            s["faults"] += faults.get(topic, 0)
+            s["callers"] += 1
+            s["response"] = "/".join(x for x in t["types"] if x != "ServiceFault") or s["response"]
+        else:
+            s["requests"] += t["messages"]
+            s["request"] = "/".join(t["types"]) or "?"
+    return {k: v for k, v in sorted(out.items()) if v["requests"] or v["callers"]}
 
 
 def _when(ns: int) -> str:
@@ -208,6 +236,11 @@ def format_info(info: dict[str, Any]) -> str:
                      + (f"  [{'; '.join(extra)}]" if extra else ""))
     lines.append(f"drops:       {total_gaps} messages missing by sequence number" if total_gaps
                  else "drops:       none (no sequence gaps)")
+    if info["services"]:
+        lines.append(f"services ({len(info['services'])}):")
+        for name, sv in info["services"].items():
+            lines.append(f"  {name}  [{sv['request']} -> {sv['response']}]  {sv['requests']} requests, "
+                         f"{sv['replies']} replies ({sv['faults']} failed) to {sv['callers']} caller(s)")
     if info["nodes"]:
         lines.append(f"nodes ({len(info['nodes'])}):")
         for name, n in info["nodes"].items():

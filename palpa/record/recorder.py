@@ -5,8 +5,10 @@ launch file's ``record:`` section. SIGINT/SIGTERM finalise the file (summary, in
 loses at most the last ``flush_period_s`` (0.5 s) of messages, and ``palpa bag recover`` rebuilds the index.
 
 What gets recorded: topics matching ``topics`` (regexes over the whole name; empty = all) and not ``exclude``.
-Runtime topics (``_palpa/...``) only when a pattern starting with ``_palpa`` names them, except ``_palpa/log``
-which is always kept (a run's log lines are part of its record; exclude it explicitly to drop it). Heartbeats
+Runtime topics (``_palpa/...``) only when a pattern starting with ``_palpa`` names them, except ``_palpa/log`` and
+``_palpa/params`` (runtime parameter changes), which are always kept (a run's log lines and retunings are part of
+its record; exclude them explicitly to drop them). Service requests and replies (``NAME/request``,
+``NAME/reply/CLIENT``) are ordinary topics and recorded as such. Heartbeats
 are not recorded by default but feed the node list stored in the file.
 """
 
@@ -26,6 +28,7 @@ import palpa
 from palpa.errors import ParamError
 from palpa.node import Node, RawMessage
 from palpa.params import convert_params
+from palpa.params_runtime import PARAMS_TOPIC
 from palpa.record.format import (
     BLOBS_SCHEMA,
     BLOBS_SCHEMA_NAME,
@@ -112,7 +115,7 @@ class Recorder(Node):
                 self._launch_text = Path(p.launch_file).read_bytes()
             except OSError as exc:
                 raise ParamError(f"{where}: parameter 'launch_file': cannot read {p.launch_file}: {exc}") from None
-        self._filter = TopicFilter(p.topics, p.exclude, always=(LOG_TOPIC,))
+        self._filter = TopicFilter(p.topics, p.exclude, always=(LOG_TOPIC, PARAMS_TOPIC))
         self._splitting = p.split_size_mb > 0 or p.split_duration_s > 0
         self._split_bytes = int(p.split_size_mb * 1e6) if p.split_size_mb > 0 else 1 << 62
         self._prepare_output(p)

@@ -1,0 +1,159 @@
+"""The robot scanner's services: probe one point, pause, resume and abort (palpa.service).
+
+``scanner/probe_at`` (:class:`ProbeAt` -> :class:`ProbeResult`) drives a short path at the point (a sweep line or
+an indentation, checked against the same workspace box and caps as a scan), collects the estimator's valid
+``stiffness/sample`` estimates within a radius of the point while it moves, and answers with their median once
+the arm is back up and the estimator has caught up. The reply is deferred: the scanner keeps running (watchdog,
+pose, status) meanwhile, and progress shows on ``robot/scan_status`` (state ``probing``) like a scan's.
+``scanner/pause`` stops the arm where it is, ``scanner/resume`` goes on from the waypoint it was heading for,
+``scanner/abort`` stops for good: a scan ends as ``stopped`` (the node exits 2), a probe is answered with a
+refusal and the scanner waits for the next request.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from typing import TYPE_CHECKING
+
+import palpa
+from messages import ProbeAt, ProbeResult, StiffnessSample, Trigger, TriggerResult
+from models.raster import RasterPlan, indent_raster, sweep_raster
+from palpa.service import RequestRefused, Responder
+
+if TYPE_CHECKING:
+    from nodes.robot_scanner import RobotScanner
+
+__all__ = ["MOVING", "ScanControl"]
+
+MOVING = ("scanning", "probing")
+_SETTLE_S = 0.6
+"""After a probe's path: time for the estimator to publish the last estimates (its max_wait_s is 0.25 s)."""
+
+
+class ScanControl:
+    """Serves the scanner's services and keeps the state of the probe in progress."""
+
+    def __init__(self, node: RobotScanner) -> None:
+        self.node = node
+        self.request: ProbeAt | None = None
+        self.responder: Responder[ProbeResult] | None = None
+        self.values: list[float] = []
+        self.unit = ""
+        self.started_ns = 0
+        self.settle_until_ns: int | None = None
+        self.paused_from = ""
+        self.probe = node.service("scanner/probe_at", ProbeAt, ProbeResult, self.on_probe_at)
+        node.service("scanner/pause", Trigger, TriggerResult, self.on_pause)
+        node.service("scanner/resume", Trigger, TriggerResult, self.on_resume)
+        node.service("scanner/abort", Trigger, TriggerResult, self.on_abort)
+        node.subscribe("stiffness/sample", StiffnessSample, self.on_sample)
+
+    # -- probe_at --------------------------------------------------------------------------------
+    def on_probe_at(self, req: ProbeAt) -> Responder[ProbeResult]:
+        node = self.node
+        if node.state not in ("idle", "done"):
+            raise RequestRefused(f"the scanner is {node.state}, not idle (abort first, or wait)")
+        p = node.params
+        last = node.last_probe_ns
+        if p.watch_topic and (last is None or (node.clock.now_ns() - last) / 1e9 > p.watchdog_s):
+            raise RequestRefused(f"no fresh probe data on {p.watch_topic}: is the probe's reader running?")
+        if not (req.length_mm > 0 and req.radius_mm > 0):
+            raise palpa.ParamError(f"length_mm and radius_mm must be > 0, got {req.length_mm}, {req.radius_mm}")
+        try:
+            plan = self._plan(req)
+            node.check_path(plan.waypoints)
+        except (ValueError, palpa.ParamError) as exc:
+            raise RequestRefused(f"cannot probe at ({req.x_mm:g}, {req.y_mm:g}) mm: {exc}") from None
+        self.request, self.values, self.started_ns = req, [], node.clock.now_ns()
+        self.responder = self.probe.defer()
+        node.log.info("probing (%.1f, %.1f) mm: %s, %d waypoints", req.x_mm, req.y_mm, req.mode,
+                      len(plan.waypoints))
+        node.run_path(plan, "probing")
+        return self.responder
+
+    def _plan(self, req: ProbeAt) -> RasterPlan:
+        p = self.node.params
+        half = req.length_mm / 2
+        ends = (req.x_mm, req.y_mm - half, req.x_mm, req.y_mm + half) if p.axis == "y" else \
+            (req.x_mm - half, req.y_mm, req.x_mm + half, req.y_mm)
+        common = dict(spacing_mm=p.spacing_mm, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
+                      approach_clearance_mm=p.approach_clearance_mm, retract_clearance_mm=p.retract_clearance_mm,
+                      transit_speed_mm_s=p.transit_speed_mm_s)
+        if req.mode == "sweep":
+            return sweep_raster(*ends, contact_z_mm=p.contact_z_mm, speed_mm_s=p.speed_mm_s,
+                                approach_speed_mm_s=p.approach_speed_mm_s, **common)
+        return indent_raster(req.x_mm, req.y_mm, req.x_mm, req.y_mm, contact_z_mm=p.contact_z_mm,
+                             depth_mm=p.indent_depth_mm, hold_s=p.hold_s, press_speed_mm_s=p.speed_mm_s,
+                             **common)
+
+    def on_sample(self, s: StiffnessSample) -> None:
+        req = self.request
+        if req is None or not s.valid or math.dist((s.x_mm, s.y_mm), (req.x_mm, req.y_mm)) > req.radius_mm:
+            return
+        self.values.append(s.value)
+        self.unit = s.unit
+
+    def path_done(self) -> None:
+        """The probe's path is complete: answer after the estimator's last estimates had time to arrive."""
+        self.settle_until_ns = self.node.clock.now_ns() + int(_SETTLE_S * 1e9)
+
+    def supervise(self, now_ns: int) -> None:
+        if self.settle_until_ns is not None and now_ns >= self.settle_until_ns:
+            self.settle_until_ns = None
+            self._answer()
+
+    def _answer(self) -> None:
+        node, req, responder = self.node, self.request, self.responder
+        self.request = self.responder = None
+        node.set_state("idle", "probe done")
+        if req is None or responder is None:
+            return
+        if not self.values:
+            responder.refuse(f"no valid stiffness estimate within {req.radius_mm:g} mm of ({req.x_mm:g}, "
+                             f"{req.y_mm:g}) mm (is the estimator running? probe data on "
+                             f"{node.params.watch_topic or 'no topic'}?)")
+            return
+        median = statistics.median(self.values)
+        mad = statistics.median(abs(v - median) for v in self.values)
+        node.log.info("probe at (%.1f, %.1f) mm: %.2f %s from %d estimates", req.x_mm, req.y_mm, median, self.unit,
+                      len(self.values))
+        responder.reply(ProbeResult(x_mm=req.x_mm, y_mm=req.y_mm, value=median, unit=self.unit,
+                                    samples=len(self.values), mad=mad,
+                                    duration_s=(node.clock.now_ns() - self.started_ns) / 1e9))
+
+    def fail_probe(self, why: str) -> None:
+        """End the probe in progress (if any) without a result."""
+        responder, self.responder, self.request, self.settle_until_ns = self.responder, None, None, None
+        if responder is not None:
+            responder.refuse(why)
+
+    # -- pause, resume, abort --------------------------------------------------------------------
+    def on_pause(self, req: Trigger) -> TriggerResult:
+        node = self.node
+        if node.state not in MOVING or self.settle_until_ns is not None:
+            raise RequestRefused(f"nothing to pause: the scanner is {node.state}"
+                                 + (" (the arm is back up, the result is coming)" if self.settle_until_ns else ""))
+        self.paused_from = node.state
+        node.pause()
+        return TriggerResult(message=f"paused ({self.paused_from})", state=node.state)
+
+    def on_resume(self, req: Trigger) -> TriggerResult:
+        node = self.node
+        if node.state != "paused":
+            raise RequestRefused(f"nothing to resume: the scanner is {node.state}")
+        node.resume(self.paused_from)
+        return TriggerResult(message=f"resumed ({node.state})", state=node.state)
+
+    def on_abort(self, req: Trigger) -> TriggerResult:
+        node = self.node
+        state = self.paused_from if node.state == "paused" else node.state
+        if state == "probing":
+            node.driver.stop(node.params.max_accel_mm_s2)
+            self.fail_probe("aborted by scanner/abort")
+            node.set_state("idle", "probe aborted")
+        elif state in ("scanning", "waiting"):
+            node.halt("stopped", "scan aborted by scanner/abort")
+        else:
+            raise RequestRefused(f"nothing to abort: the scanner is {node.state}")
+        return TriggerResult(message=f"aborted ({state})", state=node.state)

@@ -1,0 +1,99 @@
+"""``palpa param list|get|set|dump|load NODE``: a running node's parameters, through its parameter services."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from palpa.cli.common import add_bus_arg
+from palpa.cli.service import call_service
+from palpa.cli.topic import _tool_node
+from palpa.errors import PalpaError
+from palpa.message import Message
+from palpa.params import read_params_file
+from palpa.params_runtime import ParamGet, ParamSet, ParamValues, param_service
+
+__all__ = ["register"]
+
+
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = sub.add_parser("param", help="list, read, change or dump a running node's parameters")
+    verbs = p.add_subparsers(dest="param_verb", metavar="VERB", required=True)
+    ls = verbs.add_parser("list", help="parameters with type, default and current value")
+    ls.add_argument("node")
+    get = verbs.add_parser("get", help="one parameter's value (YAML)")
+    get.add_argument("node")
+    get.add_argument("name")
+    set_ = verbs.add_parser("set", help="change one parameter (VALUE is YAML: 20, 2.5, true, [1, 2])")
+    set_.add_argument("node")
+    set_.add_argument("name")
+    set_.add_argument("value")
+    dump = verbs.add_parser("dump", help="all parameters as YAML a launch file's params: accepts")
+    dump.add_argument("node")
+    dump.add_argument("-o", "--output", type=Path, help="write to this file instead of stdout")
+    load = verbs.add_parser("load", help="set every parameter a YAML mapping gives (what dump writes), at once")
+    load.add_argument("node")
+    load.add_argument("file", type=Path)
+    for verb, fn in ((ls, run_list), (get, run_get), (set_, run_set), (dump, run_dump), (load, run_load)):
+        verb.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the node")
+        add_bus_arg(verb)
+        verb.set_defaults(func=fn)
+
+
+def _ask(args: argparse.Namespace, verb: str, request: Message) -> ParamValues:
+    with _tool_node(args, f"param_{verb}") as node:
+        reply = call_service(node, param_service(args.node, verb), request, wait_s=args.timeout,
+                             timeout_s=args.timeout)
+    assert isinstance(reply, ParamValues)
+    return reply
+
+
+def _yaml(value: Any) -> str:
+    return yaml.safe_dump(value, sort_keys=False, default_flow_style=None, width=120).rstrip()
+
+
+def run_list(args: argparse.Namespace) -> int:
+    got = _ask(args, "get", ParamGet())
+    for name, value in got.values.items():
+        print(f"{name}: {got.types.get(name, '?')}  (now {value!r})")
+    return 0
+
+
+def run_get(args: argparse.Namespace) -> int:
+    got = _ask(args, "get", ParamGet())
+    if args.name not in got.values:
+        raise PalpaError(f"node {args.node!r} has no parameter {args.name!r} (has: {', '.join(got.values)})")
+    print(_yaml(got.values[args.name]).removesuffix("\n..."))
+    return 0
+
+
+def run_set(args: argparse.Namespace) -> int:
+    try:
+        value = yaml.safe_load(args.value) if args.value else ""
+    except yaml.YAMLError as exc:
+        raise PalpaError(f"value is not valid YAML: {exc}") from None
+    got = _ask(args, "set", ParamSet(values={args.name: value}))
+    print(f"{args.node}: {args.name} = {got.values[args.name]!r}")
+    return 0
+
+
+def run_dump(args: argparse.Namespace) -> int:
+    got = _ask(args, "get", ParamGet())
+    text = f"# parameters of node {args.node} (paste under its params: in a launch file, or --params-file)\n"
+    text += yaml.safe_dump(got.values, sort_keys=False, default_flow_style=False) if got.values else "{}\n"
+    if args.output is not None:
+        args.output.write_text(text)
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def run_load(args: argparse.Namespace) -> int:
+    values = read_params_file(args.file, str(args.file))
+    got = _ask(args, "set", ParamSet(values=values))
+    print(f"{args.node}: " + ", ".join(f"{k} = {got.values[k]!r}" for k in values))
+    return 0

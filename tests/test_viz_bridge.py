@@ -1,0 +1,265 @@
+"""The Foxglove bridge (palpa viz) spoken to by a WebSocket client: schemas, JSON payloads, latched values for a
+late subscriber, drops counted instead of waited for, abrupt disconnects, client publishing, loopback only."""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import foxglove
+import msgspec
+import pytest
+from conftest import palpa_cmd
+from foxglove_client import FoxgloveClient
+from procs import ProcessGroup, wait_until
+from test_launch_smoke import REPO
+
+import messages  # noqa: F401
+from messages import EStop, Inclusions, ProbeHeights, RobotPose, ScanPlan, StiffnessMap
+from messages.robot import PlanWaypoint
+from nodes.foxglove_views import ScanViews
+from palpa.address import BusAddress
+from palpa.errors import ParamError
+from palpa.testing import GraphHarness
+from palpa.viz import SUBPROTOCOL, Bridge
+
+
+@pytest.fixture
+def graph() -> Iterator[tuple[GraphHarness, Bridge]]:
+    g = GraphHarness()
+    bridge = g.add(Bridge, {"port": 0, "client_publish": ["robot/estop"], "queue_size": 1000}, name="viz")
+    try:
+        yield g, bridge
+    finally:
+        g.close()
+
+
+def client(bridge: Bridge) -> FoxgloveClient:
+    return FoxgloveClient(f"ws://127.0.0.1:{bridge.port}").open()
+
+
+PLAN = ScanPlan(stamp_ns=5, mode="sweep", region_mm=(0.0, 0.0, 10.0, 10.0), spacing_mm=5.0, speed_mm_s=10.0,
+                lines=2, estimated_duration_s=3.0,
+                waypoints=[PlanWaypoint(x_mm=0.0, y_mm=0.0, z_mm=5.0, speed_mm_s=10.0, kind="contact", line=0),
+                           PlanWaypoint(x_mm=10.0, y_mm=0.0, z_mm=5.0, speed_mm_s=10.0, kind="contact", line=0)])
+MAP = StiffnessMap(stamp_ns=6, unit="kPa", x_mm=[1.0, 3.0], y_mm=[1.0], stiffness=[20.0, math.nan], count=[3, 0],
+                   spread=[0.1, math.nan], samples=3)
+
+
+def test_channels_carry_the_json_schema_and_payloads_arrive_as_json(graph: tuple[GraphHarness, Bridge]) -> None:
+    g, bridge = graph
+    heights = ProbeHeights(stamp_ns=1, seq=1, h_mm=(1.0, 2.0, 3.0, 4.0), raw=(0.0,) * 4, d_in_mm=0.5,
+                           tilt_rad=0.01)
+    g.publish("probe/heights", heights)
+    c = client(bridge)
+    c.pump_until(lambda: c.channel("probe/heights") is not None, 5, "the probe/heights channel")
+    assert c.ws is not None and c.ws.subprotocol == SUBPROTOCOL
+    ch = c.channel("probe/heights")
+    assert ch is not None
+    assert (ch["encoding"], ch["schemaName"], ch["schemaEncoding"]) == ("json", "ProbeHeights", "jsonschema")
+    schema = json.loads(ch["schema"])
+    assert schema["type"] == "object" and "$ref" not in ch["schema"]
+    assert schema["properties"]["h_mm"]["items"] == {"type": "number"}  # plottable element by element
+    c.subscribe("probe/heights")
+    pose = RobotPose(stamp_ns=2, x_mm=1.0, y_mm=math.nan, z_mm=3.0)
+    g.publish("robot/pose", pose)
+    c.pump_until(lambda: c.channel("robot/pose") is not None, 5, "robot/pose advertised when first heard")
+    c.subscribe("robot/pose")
+    wait_until(lambda: bridge.server.stats()["clients"], 5)
+    g.publish("probe/heights", heights)
+    g.publish("robot/pose", pose)
+    c.pump_until(lambda: c.of("probe/heights") and c.of("robot/pose"), 5, "both messages")
+    assert c.of("probe/heights")[-1].data == json.loads(msgspec.json.encode(heights))
+    got = c.of("robot/pose")[-1]
+    assert got.data["y_mm"] is None and got.data["x_mm"] == 1.0  # NaN has no JSON spelling: null
+    assert got.log_time == c.of("robot/pose")[-1].log_time > 0
+    c.close()
+
+
+def test_a_client_joining_late_gets_the_latched_map_and_plan(graph: tuple[GraphHarness, Bridge]) -> None:
+    g, bridge = graph
+    g.add(ScanViews, name="views")
+    g.publish("robot/plan", PLAN, latched=True)
+    g.publish("map/stiffness", MAP, latched=True)
+    g.publish("map/inclusions", Inclusions(stamp_ns=7, unit="kPa", baseline=20.0, inclusions=[]), latched=True)
+    for _ in range(5):
+        g.publish("robot/pose", RobotPose(stamp_ns=8, x_mm=1.0, y_mm=2.0, z_mm=3.0))
+    early = client(bridge)  # watching before the late one: it sees the re-sent values too (the SDK cannot
+    early.pump_until(lambda: early.channel("viz/plan") is not None, 5, "adverts")  # address one client)
+    early.subscribe()
+    late = client(bridge)
+    wanted = ("robot/plan", "map/stiffness", "viz/map", "viz/plan", "viz/map_image")
+    late.pump_until(lambda: all(late.channel(t) for t in wanted), 5, "every latched topic advertised")
+    late.subscribe()
+    late.pump_until(lambda: all(late.of(t) for t in wanted), 5, "the latched values")
+    assert late.of("robot/plan")[0].data == json.loads(msgspec.json.encode(PLAN))
+    assert late.of("map/stiffness")[0].data["stiffness"] == [20.0, None]
+    assert late.of("viz/map")[0].data["column_count"] == 2
+    assert not late.of("robot/pose")  # not latched: nothing old is replayed
+    stats = bridge.stats()
+    assert stats["clients"][str(bridge.server._clients and max(bridge.server._clients))]["latched_resent"] >= 5
+    late.close()
+    early.close()
+
+
+def test_a_full_queue_drops_and_counts_instead_of_blocking_the_bus(graph: tuple[GraphHarness, Bridge]) -> None:
+    g, bridge = graph
+    server = bridge.server
+    server._queue_size = 3
+    g.publish("robot/pose", RobotPose(stamp_ns=1, x_mm=0.0, y_mm=0.0, z_mm=0.0))
+    c = client(bridge)
+    c.pump_until(lambda: c.channel("robot/pose") is not None, 5, "robot/pose advertised")
+    c.subscribe()
+    wait_until(lambda: server.stats()["clients"], 5)
+    release, busy = threading.Event(), threading.Event()
+    send = server._send
+
+    def stuck(key: tuple[str, str], payload: bytes, stamp_ns: int) -> None:  # the sender thread held up
+        busy.set()  # (a slow transcode, a GIL-starved thread)
+        release.wait(10)
+        send(key, payload, stamp_ns)
+
+    server._send = stuck  # type: ignore[method-assign]
+    g.publish("robot/pose", RobotPose(stamp_ns=2, x_mm=0.0, y_mm=0.0, z_mm=0.0))
+    wait_until(busy.is_set, 5)
+    for i in range(9):  # the bus side goes on at once: 3 queued, 6 dropped
+        g.publish("robot/pose", RobotPose(stamp_ns=10 + i, x_mm=0.0, y_mm=0.0, z_mm=0.0))
+    stats = server.stats()
+    assert stats["topics"]["robot/pose"]["dropped"] == 6
+    assert stats["clients"][str(next(iter(server._clients)))]["dropped"] == {"robot/pose": 6}
+    release.set()
+    c.pump_until(lambda: any(m.data["stamp_ns"] == 12 for m in c.of("robot/pose")), 5, "the queued ones")
+    assert [m.data["stamp_ns"] for m in c.of("robot/pose")][-3:] == [10, 11, 12]
+    assert bridge.counters()["robot/pose"].gaps == 0  # nothing lost on the bus side
+    c.close()
+
+
+def test_a_stalled_client_and_an_abrupt_disconnect_leave_the_bridge_serving(
+        graph: tuple[GraphHarness, Bridge]) -> None:
+    g, bridge = graph
+    g.publish("map/stiffness", MAP)
+    stalled, gone, reader = client(bridge), client(bridge), client(bridge)
+    for c in (stalled, gone, reader):
+        c.pump_until(lambda c=c: c.channel("map/stiffness") is not None, 5, "adverts")
+        c.subscribe()
+    wait_until(lambda: len(bridge.server.stats()["clients"]) == 3, 5)
+    gone.close_abruptly()
+    big = msgspec.structs.replace(MAP, x_mm=[float(i) for i in range(2000)], y_mm=[1.0],
+                                  stiffness=[1.0] * 2000, count=[1] * 2000, spread=[0.0] * 2000)
+    for i in range(400):  # ~16 MB of JSON that the stalled client never reads
+        g.publish("map/stiffness", msgspec.structs.replace(big, stamp_ns=100 + i))
+    reader.pump_until(lambda: any(m.data["stamp_ns"] == 499 for m in reader.of("map/stiffness")), 20,
+                      "the last map at the reading client")
+    clients = bridge.server.stats()["clients"]
+    assert sum(not c["connected"] for c in clients.values()) == 1  # the dropped connection, noticed
+    assert bridge.stats()["bus"]["map/stiffness"]["gaps"] == 0
+    stalled.close_abruptly()
+    reader.close()
+
+
+def test_a_client_may_publish_the_estop_and_nothing_else(graph: tuple[GraphHarness, Bridge]) -> None:
+    g, bridge = graph
+    c = client(bridge)
+    c.pump(0.1)
+    assert c.server_info["capabilities"] == ["clientPublish"]
+    c.advertise(1, "robot/estop", "EStop")
+    c.advertise(2, "robot/pose", "RobotPose")  # not in client_publish: refused
+    c.publish(2, {"stamp_ns": 1, "x_mm": 0.0, "y_mm": 0.0, "z_mm": 0.0})
+    c.publish(1, {"reason": "from foxglove"})
+    c.publish(1, {"engaged": "yes"})  # wrong type: refused and counted, the bridge goes on
+
+    def arrived() -> bool:
+        g.advance(0.05)
+        return bridge.client_errors == 1 and bool(g.published("robot/estop"))
+
+    wait_until(arrived, 5)
+    (stop,) = g.published("robot/estop")
+    assert stop == EStop(stamp_ns=stop.stamp_ns, engaged=True, reason="from foxglove") and stop.stamp_ns > 0
+    assert not [m for m in g.published("robot/pose")]
+    c.close()
+
+
+def test_loopback_only_unless_asked() -> None:
+    with pytest.raises(ParamError, match="allow_remote"):
+        Bridge(params={"host": "0.0.0.0", "port": 0}, transport=GraphHarness().bus.transport())
+
+
+def test_palpa_viz_serves_a_running_graph_and_survives_a_vanished_client(
+        ipc_bus: BusAddress, procs: ProcessGroup, env_for: Callable[..., dict[str, str]]) -> None:
+    """The CLI as a user runs it, on a real bus beside a talker process."""
+    env = env_for(ipc_bus)
+    procs.start(palpa_cmd("run", "nodes.demo:Talker", "-p", "rate_hz=50"), env=env)
+    viz = procs.start(palpa_cmd("viz", "--port", "0", "chatter"), env=env)
+    line = viz.wait_for_output("palpa viz ready", timeout=30)
+    url = line.split("ready ", 1)[1].split()[0]
+    first = FoxgloveClient(url).open()
+    first.pump_until(lambda: first.channel("chatter") is not None, 10, "chatter advertised")
+    assert {c["topic"] for c in first.channels.values()} <= {"chatter", "_palpa/log", "_palpa/viz/stats"}
+    first.subscribe("chatter")
+    first.pump_until(lambda: len(first.of("chatter")) >= 3, 10, "chatter messages")
+    assert first.of("chatter")[-1].data["text"].startswith("hello")
+    first.close_abruptly()
+    second = FoxgloveClient(url).open()
+    second.pump_until(lambda: second.channel("chatter") is not None, 10, "chatter advertised again")
+    second.subscribe("chatter")
+    second.pump_until(lambda: len(second.of("chatter")) >= 3, 10, "chatter after the first client vanished")
+    second.close()
+    assert viz.stop(10) == 0, viz.output()
+
+
+@pytest.mark.slow
+def test_a_viewer_joins_a_simulated_scan_midway(procs: ProcessGroup, tmp_path: Path) -> None:
+    """launch/scan_sim.yaml viz:=true on a tiny raster: a client watching from the start, another joining once
+    the map exists, getting the latched plan and map, then vanishing; the scan ends normally."""
+    run_dir = tmp_path / "run"
+    launch = procs.start(palpa_cmd("launch", str(REPO / "launch/scan_sim.yaml"), "viz:=true", "viz_port:=0",
+                                   "spacing_mm:=4.0", "region_mm:=[10.0, 14.0, 22.0, 22.0]", "time_scale:=3.0",
+                                   "--run-dir", str(run_dir), "--no-progress"), cwd=str(REPO))
+    address = run_dir / "viz.address"
+    wait_until(lambda: address.exists() and address.read_text().strip(), 60, "viz.address")
+    watcher = FoxgloveClient(address.read_text().strip()).open()
+
+    def watch() -> bool:
+        watcher.subscribe()
+        watcher.pump(0.05)
+        return bool(watcher.of("map/stiffness"))
+
+    wait_until(watch, 60, "a first map at the watching client")
+    late = FoxgloveClient(address.read_text().strip()).open()
+
+    def join() -> bool:
+        late.subscribe()
+        late.pump(0.05)
+        return bool(late.of("map/stiffness") and late.of("robot/plan") and late.of("viz/plan"))
+
+    wait_until(join, 5, "the latched map and plan at the late client")
+    plan = late.of("robot/plan")[0].data
+    assert plan["region_mm"] == [10.0, 14.0, 22.0, 22.0] and plan["waypoints"]
+    late.close_abruptly()
+    poses_then = len(watcher.of("robot/pose"))
+    assert launch.wait(120) == 0, launch.output()[-4000:]
+    watcher.pump(0.2)
+    assert len(watcher.of("robot/pose")) > poses_then  # served on after the late client vanished
+    assert watcher.of("viz/tf") and watcher.of("viz/map")
+    watcher.close()
+
+
+class _WithService(Bridge):
+    def services(self) -> list[foxglove.Service]:
+        return [foxglove.Service("ping", schema=foxglove.ServiceSchema("Ping"), handler=lambda req: b"{}")]
+
+
+def test_the_services_hook_advertises_what_a_subclass_offers() -> None:
+    g = GraphHarness()
+    bridge = g.add(_WithService, {"port": 0}, name="viz")
+    c = client(bridge)
+    try:
+        c.pump_until(lambda: bool(c.server_info), 5, "serverInfo")
+        assert "services" in c.server_info["capabilities"]
+        assert "clientPublish" not in c.server_info["capabilities"]  # client_publish is empty
+    finally:
+        c.close()
+        g.close()
