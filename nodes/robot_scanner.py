@@ -39,6 +39,7 @@ from models.raster import (
 from nodes.drivers.robot import MotionStatus, RobotDriver
 from nodes.scan_control import MOVING, ScanControl
 from nodes.scan_progress import PathProgressMeter
+from nodes.touchoff import SpecimenPlanner
 
 __all__ = ["RobotScanner"]
 
@@ -51,8 +52,25 @@ class RobotScanner(palpa.Node):
     class Params(palpa.Params):
         driver: Literal["sim", "ur_rtde"] = "sim"
         mode: Literal["sweep", "indent"] = "sweep"
-        region_mm: tuple[float, float, float, float] = (5.0, 5.0, 55.0, 55.0)
-        """x0, y0, x1, y1 of the raster in the phantom frame."""
+        region_mm: list[float] = []
+        """x0, y0, x1, y1 of the raster in the phantom frame; empty: the geometry's footprint less edge_margin_mm."""
+        geometry: str = ""
+        """Measured-geometry file (models.geometry): the specimen's footprint and thickness as someone measured them."""
+        edge_margin_mm: float = 4.0
+        """Default region: the footprint less this on every side."""
+        touchoff: Literal["off", "heights", "indenters", "force"] = "off"
+        """Find the surface before the raster (nodes/touchoff.py) by this contact signal; off: flat contact_z_mm."""
+        touch_grid: int = 3
+        """Touch-off points: a grid x grid lattice over the region (2: corners and centre)."""
+        touch_threshold: float = 0.0
+        """Contact threshold (heights, indenters: mm; force: N); 0: the signal's default (9 mm, 0.3 mm, 0.5 N)."""
+        search_speed_mm_s: float = 5.0
+        search_clearance_mm: float = 8.0
+        """Touch-off descents start this far above the thickest measured point (the box's top without geometry)."""
+        working_offset_mm: float = 1.0
+        """After a touch-off, sweep: the probe face's height above the found surface."""
+        max_press_fraction: float = 0.6
+        """After a touch-off, indent: never press deeper than this fraction of the thinnest found point."""
         spacing_mm: float = 2.0
         speed_mm_s: float = 10.0
         """Sweep: speed along a line. Indent: press and lift speed."""
@@ -109,6 +127,7 @@ class RobotScanner(palpa.Node):
         self.started_ns = self.clock.now_ns()
         self.driver: RobotDriver = self._make_driver()
         self.driver.connect()
+        self.specimen = SpecimenPlanner(self)  # refuses a specimen that does not fit, before any motion
         self.plan = self._plan()
         self.path: tuple[Waypoint, ...] = self.plan.waypoints
         self.meter = PathProgressMeter(self.plan.waypoints, self.plan.duration_s)
@@ -145,17 +164,17 @@ class RobotScanner(palpa.Node):
 
     def _plan(self) -> RasterPlan:
         p = self.params
-        x0, y0, x1, y1 = p.region_mm
+        x0, y0, x1, y1 = self.specimen.region
         common: dict[str, Any] = dict(
             spacing_mm=p.spacing_mm, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
             approach_clearance_mm=p.approach_clearance_mm, retract_clearance_mm=p.retract_clearance_mm,
-            transit_speed_mm_s=p.transit_speed_mm_s,
+            transit_speed_mm_s=p.transit_speed_mm_s, **self.specimen.plan_heights(),
         )
         if p.mode == "sweep":
-            return sweep_raster(x0, y0, x1, y1, contact_z_mm=p.contact_z_mm, speed_mm_s=p.speed_mm_s,
+            return sweep_raster(x0, y0, x1, y1, speed_mm_s=p.speed_mm_s,
                                 approach_speed_mm_s=p.approach_speed_mm_s, **common)
         # indent: press and lift at speed_mm_s
-        return indent_raster(x0, y0, x1, y1, contact_z_mm=p.contact_z_mm, depth_mm=p.indent_depth_mm,
+        return indent_raster(x0, y0, x1, y1, depth_mm=self.specimen.press_depth_mm(),
                              hold_s=p.hold_s, point_spacing_mm=p.point_spacing_mm or None,
                              press_speed_mm_s=p.speed_mm_s, **common)
 
@@ -206,7 +225,7 @@ class RobotScanner(palpa.Node):
     def _publish_plan(self) -> None:
         p, plan = self.params, self.plan
         self.plan_pub.publish(ScanPlan(
-            stamp_ns=self.clock.now_ns(), mode=plan.mode, region_mm=tuple(p.region_mm),
+            stamp_ns=self.clock.now_ns(), mode=plan.mode, region_mm=self.specimen.region,
             spacing_mm=plan.line_spacing_mm, speed_mm_s=p.speed_mm_s, lines=plan.line_count,
             estimated_duration_s=plan.duration_s,
             waypoints=[PlanWaypoint(x_mm=w.x_mm, y_mm=w.y_mm, z_mm=w.z_mm, speed_mm_s=w.speed_mm_s, kind=w.kind,
@@ -218,10 +237,12 @@ class RobotScanner(palpa.Node):
     # -- inputs ----------------------------------------------------------------------------------
     def on_probe(self, msg: ProbeHeights | IndenterDisplacements) -> None:
         self.last_probe_ns = self.clock.now_ns()
+        if self.state == "touching":
+            self.specimen.on_probe(msg)
 
     def on_pressure(self, msg: PressureState) -> None:
         bad = _STOPPING_FAULTS.intersection(msg.faults)
-        if bad and self.state in ("waiting", "scanning", "probing", "paused"):
+        if bad and self.state in ("waiting", "touching", "scanning", "probing", "paused"):
             self.halt("fault", f"pressure fault {', '.join(sorted(bad))}")
 
     def on_estop(self, msg: EStop) -> None:
@@ -275,11 +296,17 @@ class RobotScanner(palpa.Node):
         p = self.params
         self.control.supervise(now)
         if self.state == "waiting":
-            if self.last_probe_ns is not None or not p.watch_topic:
+            if (self.last_probe_ns is not None or not p.watch_topic) and self.specimen.touch is not None:
+                self.set_state("touching", "finding the specimen's surface")
+                self.specimen.touch.start()
+            elif self.last_probe_ns is not None or not p.watch_topic:
                 self.set_state("scanning")
                 self._start_segment()
             elif (now - self.started_ns) / 1e9 > p.startup_timeout_s:
                 self.halt("fault", f"no probe data on {p.watch_topic} within {p.startup_timeout_s:g} s")
+            return
+        if self.state == "touching":
+            self.supervise_touch(now)
             return
         if self.state not in MOVING or self.segment >= len(self.segments):
             return
@@ -314,6 +341,30 @@ class RobotScanner(palpa.Node):
         elif prog.status == MotionStatus.STOPPED:
             self.halt("stopped", prog.message or "the arm stopped")
 
+    def supervise_touch(self, now: int) -> None:
+        """Touch-off in progress: the same watchdog as a scan; at its end, the raster over the found surface (checked
+        against the box and caps again) or a fault."""
+        p, touch = self.params, self.specimen.touch
+        if touch is None:
+            return
+        if p.watch_topic and self.last_probe_ns is not None and (now - self.last_probe_ns) / 1e9 > p.watchdog_s:
+            self.halt("fault", f"probe data on {p.watch_topic} stale for more than {p.watchdog_s * 1000:.0f} ms")
+            return
+        touch.step()
+        if touch.failed:
+            self.halt("fault", touch.error)
+        elif touch.done:
+            try:
+                self.log.info("%s", self.specimen.finish_touch())
+                plan = self._plan()
+                self.check_path(plan.waypoints)
+            except (ValueError, palpa.ParamError) as exc:
+                self.halt("fault", f"no raster over the found surface: {exc}")
+                return
+            self.plan = plan
+            self._publish_plan()
+            self.run_path(plan, "scanning")
+
     def _start_segment(self) -> None:
         if self.segment >= len(self.segments) and self.state == "probing":
             self.meter.complete()
@@ -332,6 +383,8 @@ class RobotScanner(palpa.Node):
     def publish_pose(self) -> None:
         st = self.driver.state()
         x, y, z, rx, ry, rz = st.pose
+        if self.specimen.touch is not None:
+            self.specimen.touch.note_pose(st.stamp_ns, z)
         sx, sy, sz = st.speed_mm_s[:3]
         self.pose_pub.publish(RobotPose(stamp_ns=st.stamp_ns, x_mm=x, y_mm=y, z_mm=z, rx_rad=rx, ry_rad=ry,
                                         rz_rad=rz, speed_mm_s=math.sqrt(sx * sx + sy * sy + sz * sz),
