@@ -62,6 +62,8 @@ class RobotScanner(palpa.Node):
         """Find the surface before the raster (nodes/touchoff.py) by this contact signal; off: flat contact_z_mm."""
         touch_grid: int = 3
         """Touch-off points: a grid x grid lattice over the region (2: corners and centre)."""
+        touch_inset_mm: float = 0.0
+        """Touch-off points this far inside the region (the air-float probe's SPS ring must lie on the specimen)."""
         touch_threshold: float = 0.0
         """Contact threshold (heights, indenters: mm; force: N); 0: the signal's default (9 mm, 0.3 mm, 0.5 N)."""
         search_speed_mm_s: float = 5.0
@@ -212,10 +214,11 @@ class RobotScanner(palpa.Node):
 
     @staticmethod
     def _segments(waypoints: tuple[Waypoint, ...]) -> list[tuple[int, int]]:
-        """Indent mode holds at press points: a path runs in segments that end at each hold."""
+        """Indent mode holds at press points: a path runs in segments that end at each hold (and at each line's
+        retract, where the arm stops anyway: a long surface-following path is not handed to the arm at once)."""
         segments = []
         start_i = 0
-        for c in [i for i, w in enumerate(waypoints) if w.hold_s > 0]:
+        for c in [i for i, w in enumerate(waypoints) if w.hold_s > 0 or w.kind == "retract"]:
             segments.append((start_i, c))
             start_i = c + 1
         if start_i < len(waypoints):

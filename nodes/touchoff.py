@@ -62,6 +62,8 @@ class TouchOffConfig:
     accel_mm_s2: float = 500.0
     threshold: float = 9.0
     samples: int = 5
+    max_spread_mm: float = 3.0
+    """heights: samples whose three SPS differ by more than this are ignored (one hangs over an edge)."""
 
 
 class TouchOff:
@@ -104,6 +106,8 @@ class TouchOff:
         if self.cfg.signal != "heights" or not valid or not self._searching_here():
             return
         sps = statistics.fmean(h_mm[:3])
+        if max(h_mm[:3]) - min(h_mm[:3]) > self.cfg.max_spread_mm:
+            return  # a sensor hangs over an edge (or sees nothing): this sample does not give the surface here
         if sps < self.cfg.threshold:
             z = self._z_at(stamp_ns)
             if z is not None:
@@ -270,7 +274,10 @@ class SpecimenPlanner:
                                  search_speed_mm_s=p.search_speed_mm_s, transit_speed_mm_s=p.transit_speed_mm_s,
                                  accel_mm_s2=p.accel_mm_s2,
                                  threshold=p.touch_threshold or _DEFAULT_THRESHOLD[p.touchoff])
-            self.touch = TouchOff(node.driver, touch_points(self.region, p.touch_grid), cfg)
+            i = p.touch_inset_mm
+            x0, y0, x1, y1 = self.region
+            inner = (x0 + i, y0 + i, x1 - i, y1 - i) if x1 - x0 > 2 * i and y1 - y0 > 2 * i else self.region
+            self.touch = TouchOff(node.driver, touch_points(inner, p.touch_grid), cfg)
 
     def plan_heights(self) -> dict[str, object]:
         """Keyword arguments of the raster functions for the heights: flat, or over the surface."""
@@ -284,9 +291,10 @@ class SpecimenPlanner:
     def press_depth_mm(self) -> float:
         """Indent depth: the set depth, but never more than ``max_press_fraction`` of the thinnest found point."""
         p = self.node.params
-        if self.surface is None or self.touch is None or not self.touch.done:
+        if self.surface is None or self.touch is None:
             return float(p.indent_depth_mm)
-        thinnest = min(z for _, _, z in self.touch.touches)
+        # before the touch-off the plan is checked over the thickest measured point; after it, the thinnest found
+        thinnest = min(z for _, _, z in self.touch.touches) if self.touch.done else (self.prior_top or math.inf)
         return float(max(0.1, min(p.indent_depth_mm, p.max_press_fraction * thinnest)))
 
     def on_probe(self, msg: ProbeHeights | IndenterDisplacements) -> None:

@@ -160,6 +160,7 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
             col.plan.python_path.append(str(p))
     for i, inc in enumerate(decl.include):
         _include(src, i, inc, namespace, col)
+    col.plan.prepare.extend(list(c) for c in decl.prepare)
     for i, nd in enumerate(decl.nodes):
         if not nd.if_:
             continue
