@@ -255,6 +255,9 @@ class SpecimenPlanner:
                 self.region = region_in_footprint(footprint, p.edge_margin_mm)
                 what = (f"the specimen's footprint x {footprint[0]:g}..{footprint[2]:g}, y {footprint[1]:g}.."
                         f"{footprint[3]:g} mm less the {p.edge_margin_mm:g} mm edge margin,")
+            elif not p.autostart:  # serving probe_at only: no raster will run; a point plan at home passes checks
+                hx, hy = p.home_mm[0], p.home_mm[1]
+                self.region, what = (hx, hy, hx, hy), "the home position"
             else:
                 raise palpa.ParamError(f"{node.name}: no scan region: give region_mm (x0, y0, x1, y1 mm), or a "
                                        "geometry file with the specimen's footprint")

@@ -202,7 +202,7 @@ def test_json_schema_comes_from_the_same_definitions() -> None:
     timeout = node["properties"]["sigterm_timeout"]
     assert timeout["anyOf"][0] == {"type": "number", "minimum": 0.0} and timeout["default"] == 5.0
     assert timeout["anyOf"][1] == {"type": "string", "pattern": r"^\$\(arg [A-Za-z][A-Za-z0-9_-]*\)$"}
-    assert set(defs["LaunchFile"]["properties"]) == {"description", "args", "python_path", "include", "nodes",
+    assert set(defs["LaunchFile"]["properties"]) == {"description", "args", "python_path", "include", "prepare", "nodes",
                                                      "bus", "record", "progress", "viz"}
     out = subprocess.run([sys.executable, "-m", "palpa.cli.main", "launch", "--schema"], capture_output=True,
                          text=True, timeout=60, check=True)
