@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import math
 import re
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +25,7 @@ from models.surface import (
 from nodes.robot_scanner import RobotScanner
 from palpa.testing import NodeHarness
 
+REPO = Path(__file__).resolve().parent.parent
 BOX = (-10.0, -10.0, 0.5, 70.0, 70.0, 60.0)
 
 
@@ -131,9 +134,11 @@ def test_a_specimen_too_big_for_the_box_is_refused_before_motion_with_the_number
         NodeHarness(RobotScanner, touch_params(tall))
 
 
-def test_the_camera_probe_presses_the_set_depth_below_the_surface_it_found(tmp_path: Path) -> None:
-    geo = write_geometry(tmp_path, [0, 0, 40, 40], 12.0)
-    surface = 11.0  # the measurement said 12: the touch-off finds the real one
+@pytest.mark.parametrize(("surface", "press_z"), [(11.0, 6.0), (4.0, 4.0 - 0.6 * 4.0)], ids=["deep", "thin"])
+def test_the_camera_probe_presses_the_set_depth_below_the_surface_it_found(tmp_path: Path, surface: float,
+                                                                           press_z: float) -> None:
+    """The set depth (5 mm) below the found surface; on a thin specimen never more than 0.6 of its thickness."""
+    geo = write_geometry(tmp_path, [0, 0, 40, 40], 12.0)  # the measurement said 12: the touch-off finds the real one
     h = NodeHarness(RobotScanner, touch_params(geo, touchoff="indenters", mode="indent", watch_topic="camera/indenters",
                                               indent_depth_mm=5.0, hold_s=0.1, touch_grid=2))
     for _ in range(int(60 / 0.004)):
@@ -146,8 +151,23 @@ def test_the_camera_probe_presses_the_set_depth_below_the_surface_it_found(tmp_p
         if len(h.published("robot/plan")) > 1 or h.node.state == "fault":
             break
     holds = [w for w in h.published("robot/plan")[-1].waypoints if w.kind == "hold"]
-    assert holds and all(w.z_mm == pytest.approx(surface - 5.0, abs=0.1) for w in holds)
+    assert holds and all(w.z_mm == pytest.approx(press_z, abs=0.1) for w in holds)
     assert not math.isnan(holds[0].z_mm)
 
 
 
+
+
+def test_the_launch_refuses_a_specimen_wider_than_the_box_before_any_motion(tmp_path: Path) -> None:
+    """The one process-level check: phantom:= alone, the sim measurer's footprint, the scanner's refusal naming the
+    box and the extent, exit 1, and no plan ever published (nothing moved)."""
+    run = subprocess.run(
+        [sys.executable, "-m", "palpa.cli.main", "launch", str(REPO / "launch" / "scan_sim.yaml"),
+         f"phantom:={REPO / 'phantoms' / 'specimens' / 'too_wide_200x40.yaml'}", "--run-dir", str(tmp_path / "run"),
+         "--no-progress"], capture_output=True, text=True, timeout=120, check=False)
+    text = run.stdout + run.stderr
+    assert run.returncode == 2, text  # a node that cannot start (ParamError)
+    assert re.search(r"refusing the specimen before any motion: the specimen's footprint x -?\d+(\.5)?\.\.20\d(\.5)?, "
+                     r"y .* mm less the 7 mm edge margin, x .* does not fit the workspace box \(x -10\.\.150, y "
+                     r"-10\.\.150, z 0\.5\.\.100 mm\): x 19\d(\.5)? > x_max 150", text), text
+    assert "plan:" not in text
