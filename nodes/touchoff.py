@@ -292,13 +292,15 @@ class SpecimenPlanner:
         return {"contact_z_mm": 0.0, "surface": self.surface}
 
     def press_depth_mm(self) -> float:
-        """Indent depth: the set depth, but never more than ``max_press_fraction`` of the thinnest found point."""
+        """Indent depth: the set depth, but never more than ``max_press_fraction`` of the thinnest found point nor
+        closer than 0.2 mm to the workspace box's floor."""
         p = self.node.params
         if self.surface is None or self.touch is None:
             return float(p.indent_depth_mm)
         # before the touch-off the plan is checked over the thickest measured point; after it, the thinnest found
         thinnest = min(z for _, _, z in self.touch.touches) if self.touch.done else (self.prior_top or math.inf)
-        return float(max(0.1, min(p.indent_depth_mm, p.max_press_fraction * thinnest)))
+        floor = thinnest - p.workspace_mm[2] - 0.2  # and never within 0.2 mm of the box's floor
+        return float(max(0.1, min(p.indent_depth_mm, p.max_press_fraction * thinnest, floor)))
 
     def on_probe(self, msg: ProbeHeights | IndenterDisplacements) -> None:
         if self.touch is None:
