@@ -24,7 +24,7 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q
 
 lint: $(STAMP)
-	$(BIN)/ruff check palpa messages models nodes emulators tests
+	$(BIN)/ruff check palpa messages devices models nodes emulators tests
 	$(BIN)/mypy
 
 typecheck: $(STAMP)

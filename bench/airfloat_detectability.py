@@ -25,10 +25,9 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from models.world import TissueWorld  # noqa: E402
-
 from models.contact import corrected_modulus  # noqa: E402
 from models.phantom import parse_phantom  # noqa: E402
+from models.world import TissueWorld  # noqa: E402
 
 RADII = np.array([2.0, 3.0, 4.0, 5.0, 6.0, 7.0])
 RATIOS = np.array([1.5, 2.0, 3.0, 4.0, 6.0, 8.0])
@@ -40,8 +39,8 @@ E_BG = 26.4
 def world(radius: float, ratio: float, depth: float, thickness: float) -> TissueWorld:
     return TissueWorld(parse_phantom({
         "size_mm": [60, 60], "thickness_mm": thickness, "youngs_modulus_kpa": E_BG,
-        "inclusions": [{"center_mm": [30, 30], "radius_mm": radius, "depth_mm": depth,
-                        "youngs_modulus_kpa": E_BG * ratio}]}))
+        "inclusions": [{"center_mm": [30, 30], "radius_mm": float(radius), "depth_mm": float(depth),
+                        "youngs_modulus_kpa": float(E_BG * ratio)}]}))
 
 
 def contrast(force: float, radius: float, ratio: float, depth: float, thickness: float) -> tuple[float, float]:

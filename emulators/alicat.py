@@ -31,12 +31,20 @@ import threading
 import time
 from collections.abc import Callable
 
+from devices.alicat import (
+    KPA_PER_UNIT,
+    TERMINATOR,
+    UNKNOWN,
+    decode_command,
+    encode_frame,
+    encode_text_reply,
+)
 from emulators.pty_device import PtyDevice, serve_until_signal
 from models.regulator import RegulatorPlant
-from nodes.drivers.pressure import KPA_PER_UNIT
 
 FIRMWARE = "10v05.0-R24 emulated"
 FULL_SCALE_COUNTS = 64000
+_UNKNOWN_REPLY = UNKNOWN.encode("ascii") + TERMINATOR
 
 
 class AlicatEmulator(PtyDevice):
@@ -137,7 +145,7 @@ class AlicatEmulator(PtyDevice):
         if self.opl_kpa is not None and self.plant.pressure_kpa > self.opl_kpa:
             self.opl_tripped = True
 
-    def _frame(self) -> str:
+    def _frame(self) -> bytes:
         p = self.plant.pressure_kpa + (self._rng.gauss(0.0, self._noise) if self._noise else 0.0)
         codes = []
         if self.mode == "exhaust" or self.opl_tripped:
@@ -148,20 +156,20 @@ class AlicatEmulator(PtyDevice):
             codes.append("OPL")
         if p > self.full_scale_kpa * 1.0001:
             codes.append("POV")
-        return " ".join([self.unit_id, f"{p / self._k:+07.2f}", f"{self.setpoint_kpa / self._k:+07.2f}", *codes])
+        return encode_frame(self.unit_id, p / self._k, self.setpoint_kpa / self._k, codes)
 
     # -- protocol --------------------------------------------------------------------
 
     def handle_line(self, line: bytes) -> None:
         """Execute one received command line and reply (or not)."""
-        text = line.decode("ascii", "replace").strip()
-        if not text:
+        decoded = decode_command(line)
+        if decoded is None:
             return
-        target, rest = text[0].upper(), text[1:].strip().upper()
+        target, rest = decoded
         if target not in (self.unit_id, "*"):
             return  # addressed to another device on the bus
         with self._state_lock:
-            self.commands.append(text)
+            self.commands.append(line.decode("ascii", "replace").strip())
             if self.muted:
                 return
             if self._mute_next:
@@ -169,13 +177,13 @@ class AlicatEmulator(PtyDevice):
                 return
             if self._fail_next:
                 self._fail_next -= 1
-                reply = "?"
+                reply = _UNKNOWN_REPLY
             else:
                 self._advance()
-                reply = self._execute(rest.removeprefix("$$"))
-        self.write(reply.encode("ascii") + b"\r")
+                reply = self._execute(rest)
+        self.write(reply)
 
-    def _execute(self, cmd: str) -> str:
+    def _execute(self, cmd: str) -> bytes:
         if cmd == "":
             return self._frame()
         if cmd.isdigit():
@@ -184,7 +192,7 @@ class AlicatEmulator(PtyDevice):
             try:
                 return self._set(float(cmd[1:].strip()) * self._k)
             except ValueError:
-                return "?"
+                return _UNKNOWN_REPLY
         if cmd in ("HP", "H"):
             self.mode = "hold"
             return self._frame()
@@ -199,18 +207,18 @@ class AlicatEmulator(PtyDevice):
             self.opl_tripped = False
             return self._frame()
         if cmd == "VE":
-            return f"{self.unit_id}   {FIRMWARE}"
+            return encode_text_reply(self.unit_id, FIRMWARE)
         if cmd.startswith("R") and cmd[1:].isdigit() and int(cmd[1:]) in self.registers:
             reg = int(cmd[1:])
-            return f"{self.unit_id}   {reg:03d} = {self.registers[reg]}"
+            return encode_text_reply(self.unit_id, f"{reg:03d} = {self.registers[reg]}")
         if cmd.startswith("W") and "=" in cmd:
             reg_s, _, val_s = cmd[1:].partition("=")
             if reg_s.strip().isdigit() and val_s.strip().isdigit() and int(reg_s) in self.registers:
                 self.registers[int(reg_s)] = int(val_s)
-                return f"{self.unit_id}   {int(reg_s):03d} = {int(val_s)}"
-        return "?"
+                return encode_text_reply(self.unit_id, f"{int(reg_s):03d} = {int(val_s)}")
+        return _UNKNOWN_REPLY
 
-    def _set(self, kpa: float) -> str:
+    def _set(self, kpa: float) -> bytes:
         # Clipped to the device range; the driver is what enforces the lower, safe maximum.
         self.setpoint_kpa = min(max(kpa, 0.0), self.full_scale_kpa)
         return self._frame()

@@ -22,17 +22,17 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Self
 
-from emulators.pty_device import PtyDevice, serve_until_signal
-from nodes.drivers.fibre import (
+from devices.fibre_daq import (
     CHANNELS,
     CLOCK_MOD_US,
     SEQ_MOD,
-    FibreCalibration,
     SentenceError,
     decode_sentence,
-    encode_sentence,
-    load_calibration,
+    encode_data,
+    encode_reply,
 )
+from emulators.pty_device import PtyDevice, serve_until_signal
+from models.fibre_calibration import FibreCalibration, load_calibration
 
 RawSource = Callable[[float], Sequence[float]]
 """Device time in seconds since boot -> four raw ADC readings (SPS1, SPS2, SPS3, S1)."""
@@ -191,7 +191,7 @@ class FibreDaqEmulator(PtyDevice):
         self.sample_wall_ns.append((seq, tick_ns + self._wall_minus_mono))
         if fault == "drop":
             return None
-        line = encode_sentence(f"F,{seq},{t_us}," + ",".join(str(c) for c in counts))
+        line = encode_data(seq, t_us, counts)
         if fault == "corrupt":
             bad = (int(line[-4:-2], 16) ^ 0x5A) & 0xFF
             line = line[:-4] + b"%02X\r\n" % bad
@@ -228,7 +228,7 @@ class FibreDaqEmulator(PtyDevice):
         try:
             fields, _ = decode_sentence(line, require_checksum=False)
         except SentenceError as exc:
-            self.write(encode_sentence(f"R,?,ERR,{'checksum' if exc.kind == 'corrupt' else 'syntax'}"))
+            self.write(encode_reply("?", False, "checksum" if exc.kind == "corrupt" else "syntax"))
             return
         cmd, args = fields[0].upper(), fields[1:]
         self.commands.append(cmd)
@@ -236,35 +236,35 @@ class FibreDaqEmulator(PtyDevice):
             try:
                 hz = float(args[0])
             except (IndexError, ValueError):
-                self._reply(cmd, "ERR", "expected RATE,<hz>")
+                self._reply(cmd, False, "expected RATE,<hz>")
                 return
             lo, hi = RATE_RANGE_HZ
             if not lo <= hz <= hi:
-                self._reply(cmd, "ERR", f"range {lo:g}..{hi:g}")
+                self._reply(cmd, False, f"range {lo:g}..{hi:g}")
                 return
             with self._state_lock:
                 self.rate_hz = hz
                 self._next_tick = time.monotonic_ns() + int(1e9 / hz)
-            self._reply(cmd, "OK", f"{hz:g}")
+            self._reply(cmd, True, f"{hz:g}")
         elif cmd == "ZERO":
             with self._state_lock:
                 recent = list(self._recent_raw)
             if not recent:
                 recent = [tuple(float(v) for v in self.source(0.0))]
             means = [sum(col) / len(recent) for col in zip(*recent, strict=True)]
-            self._reply(cmd, "OK", *(f"{m:.1f}" for m in means))
+            self._reply(cmd, True, *(f"{m:.1f}" for m in means))
         elif cmd == "ID":
-            self._reply(cmd, "OK", "palpa-fibre-daq", FIRMWARE, "SN0001", ":".join(CHANNELS))
+            self._reply(cmd, True, "palpa-fibre-daq", FIRMWARE, "SN0001", ":".join(CHANNELS))
         elif cmd in ("START", "STOP"):
             with self._state_lock:
                 self.streaming = cmd == "START"
                 self._next_tick = time.monotonic_ns()
-            self._reply(cmd, "OK")
+            self._reply(cmd, True)
         else:
-            self._reply(cmd, "ERR", "unknown command")
+            self._reply(cmd, False, "unknown command")
 
-    def _reply(self, cmd: str, status: str, *data: str) -> None:
-        self.write(encode_sentence(",".join(("R", cmd, status, *data))))
+    def _reply(self, cmd: str, ok: bool, *data: str) -> None:
+        self.write(encode_reply(cmd, ok, *data))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from palpa.message import Message
+from palpa.message import Finite, Message
 
 Quad = tuple[float, float, float, float]
 
@@ -35,19 +35,19 @@ class PressureCommand(Message, frozen=True, kw_only=True):
     """
 
     mode: Literal["hold", "ramp", "vent"]
-    setpoint_kpa: float = 0.0
-    rate_kpa_s: float = 0.0
+    setpoint_kpa: Finite = 0.0
+    rate_kpa_s: Finite = 0.0
 
 
 class PressureState(Message, frozen=True, kw_only=True):
     """The regulator's state (topic ``pressure/state``); ``force_n`` is eq. 4's indentation force."""
 
     stamp_ns: int
-    setpoint_kpa: float
-    measured_kpa: float
-    force_n: float
+    setpoint_kpa: Finite
+    measured_kpa: Finite
+    force_n: Finite
     mode: str
-    max_kpa: float
+    max_kpa: Finite
     faults: list[str] = []
     """Empty when healthy; e.g. ``device_lost``, ``tracking_error``, ``over_pressure``, ``clamped``."""
 

@@ -4,34 +4,34 @@ from __future__ import annotations
 
 import msgspec
 
-from palpa.message import Message
+from palpa.message import Finite, Message
 
 
 class RobotPose(Message, frozen=True, kw_only=True):
     """TCP pose in the phantom frame (topic ``robot/pose``): position in mm, rotation vector in rad."""
 
     stamp_ns: int
-    x_mm: float
-    y_mm: float
-    z_mm: float
-    rx_rad: float = 0.0
-    ry_rad: float = 0.0
-    rz_rad: float = 0.0
-    speed_mm_s: float = 0.0
-    force_z_n: float = 0.0
+    x_mm: Finite
+    y_mm: Finite
+    z_mm: Finite
+    rx_rad: Finite = 0.0
+    ry_rad: Finite = 0.0
+    rz_rad: Finite = 0.0
+    speed_mm_s: Finite = 0.0
+    force_z_n: Finite = 0.0
 
 
 class PlanWaypoint(msgspec.Struct, frozen=True, kw_only=True):
     """One waypoint of a scan plan (phantom frame, mm)."""
 
-    x_mm: float
-    y_mm: float
-    z_mm: float
-    speed_mm_s: float
+    x_mm: Finite
+    y_mm: Finite
+    z_mm: Finite
+    speed_mm_s: Finite
     kind: str
     """``approach``, ``contact``, ``press``, ``hold``, ``lift``, ``retract``, ``transit``."""
     line: int
-    hold_s: float = 0.0
+    hold_s: Finite = 0.0
 
 
 class ScanPlan(Message, frozen=True, kw_only=True):
@@ -40,12 +40,12 @@ class ScanPlan(Message, frozen=True, kw_only=True):
     stamp_ns: int
     mode: str
     """``sweep`` or ``indent``."""
-    region_mm: tuple[float, float, float, float]
+    region_mm: tuple[Finite, Finite, Finite, Finite]
     """x0, y0, x1, y1."""
-    spacing_mm: float
-    speed_mm_s: float
+    spacing_mm: Finite
+    speed_mm_s: Finite
     lines: int
-    estimated_duration_s: float
+    estimated_duration_s: Finite
     waypoints: list[PlanWaypoint]
 
 
@@ -57,9 +57,9 @@ class ScanStatus(Message, frozen=True, kw_only=True):
     """``planning``, ``approach``, ``scanning``, ``done``, ``stopped``, ``fault``, ``estop``."""
     line: int
     lines: int
-    progress: float
+    progress: Finite
     """0..1 of the planned path length."""
-    eta_s: float
+    eta_s: Finite
     message: str = ""
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import msgspec
 
-from palpa.message import Message
+from palpa.message import Finite, Message
 
 
 class StiffnessSample(Message, frozen=True, kw_only=True):
@@ -63,10 +63,10 @@ class StiffnessMap(Message, frozen=True, kw_only=True):
 class DetectedInclusion(msgspec.Struct, frozen=True, kw_only=True):
     """One stiff region: centroid, equivalent radius and contrast (peak / healthy baseline)."""
 
-    x_mm: float
-    y_mm: float
-    radius_mm: float
-    contrast: float
+    x_mm: Finite
+    y_mm: Finite
+    radius_mm: Finite
+    contrast: Finite
 
 
 class Inclusions(Message, frozen=True, kw_only=True):

@@ -6,8 +6,8 @@ with them. Every error is drawn once per device from a seed (:meth:`ProbeErrors.
 run (``as_dict``); :meth:`ProbeErrors.ideal` is a perfect device for unit tests only. Magnitudes and their
 sources (docs/physics.md, "The simulated air-float device"):
 
-* **Force law.** The paper's Fig. 10 line F = 7.59 P[bar] - 2.34 is one probe's fit; this device's own line
-  differs by a drawn gain (sigma 3 %) and offset (sigma 0.03 N), bends by a drawn quadratic (the Fig. 6 CFD curves
+* **Force law.** The paper's Fig. 10 line F = 7.59 P[bar] - 2.34 is this probe's fit; the device's true line
+  differs by a drawn gain (sigma 0.5 %: 0.013 N at 33 kPa) and offset (sigma 0.01 N), bends by a drawn quadratic (the Fig. 6 CFD curves
   are linear only to ~0.2 N RMSE) and has **hysteresis**: the indenter rubs in its bore, so the tissue feels
   F_air - f when the indenter extends and F_air + f when it is pushed in (Fig. 9's advance/retrieve loops).
   f ~ 0.03 N and the bend make eq. 4's straight-line fit residual ~0.04 N RMSE, as the paper reports.
@@ -67,8 +67,8 @@ class ProbeErrors:
         """A realistic device, reproducible from ``seed`` (magnitudes in the module doc)."""
         rng = np.random.default_rng([seed, 14])
         return cls(
-            force_gain_n_per_bar=_PAPER_GAIN_N_PER_BAR * (1 + 0.03 * rng.standard_normal()),
-            force_offset_n=_PAPER_OFFSET_N + 0.03 * rng.standard_normal(),
+            force_gain_n_per_bar=_PAPER_GAIN_N_PER_BAR * (1 + 0.005 * rng.standard_normal()),
+            force_offset_n=_PAPER_OFFSET_N + 0.01 * rng.standard_normal(),
             # a bend of ~0.025 N RMS over 30-46 kPa
             force_bend_n_per_kpa2=float(rng.choice([-1.0, 1.0]) * abs(0.0012 + 0.0003 * rng.standard_normal())),
             friction_n=float(abs(0.03 + 0.005 * rng.standard_normal())),

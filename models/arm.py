@@ -335,10 +335,6 @@ class ArmModel:
         return _as_tuple(self._twist)
 
     @property
-    def linear_speed_mm_s(self) -> float:
-        return float(np.linalg.norm(self._twist[:3]))
-
-    @property
     def path_index(self) -> int:
         """Index of the waypoint being approached (the last one once a path is done); as in
         UR's moveL paths, it advances when the arm enters the blend around a waypoint."""

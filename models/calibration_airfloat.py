@@ -77,13 +77,15 @@ def fit_force_line(pressure_kpa: npt.ArrayLike, force_n: npt.ArrayLike,
 
 
 def fit_references(line: ForceCalibration, ramps: list[ReferenceRamp], *, indenter_radius_mm: float,
-                   poisson_ratio: float = 0.5, min_depth_mm: float = 0.5) -> tuple[float, float, float]:
+                   poisson_ratio: float = 0.5, min_depth_mm: float = 1.0,
+                   max_depth_mm: float = 3.2) -> tuple[float, float, float]:
     """(depth offset mm, force offset N, RMS relative force residual) that make eq. 7 return each reference's
-    modulus from ``line``'s force and d_in + offset. Points shallower than ``min_depth_mm`` are left out."""
+    modulus from ``line``'s force and d_in + offset. Only points between ``min_depth_mm`` and ``max_depth_mm`` (the
+    paper's 3 mm) count."""
     data = []
     for ramp in ramps:
         p, d = np.asarray(ramp.pressure_kpa, float), np.asarray(ramp.d_in_mm, float)
-        keep = np.isfinite(p) & np.isfinite(d) & (d > min_depth_mm)
+        keep = np.isfinite(p) & np.isfinite(d) & (d > min_depth_mm) & (d < max_depth_mm)
         if keep.sum() < 10:
             raise CalibrationError(f"reference {ramp.modulus_kpa} kPa: need >= 10 points deeper than "
                                    f"{min_depth_mm} mm, got {int(keep.sum())}")
@@ -92,14 +94,17 @@ def fit_references(line: ForceCalibration, ramps: list[ReferenceRamp], *, indent
 
     def residual(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         delta, df = x
-        out = [(f + df - np.asarray(corrected_force(r.modulus_kpa, np.clip(d + delta, 1e-6, None),
-                                                    indenter_radius_mm, r.thickness_mm, poisson_ratio)))
-               / np.maximum(f, 0.02) for r, f, d in data]
+        out = [f + df - np.asarray(corrected_force(r.modulus_kpa, np.clip(d + delta, 1e-6, None),
+                                                   indenter_radius_mm, r.thickness_mm, poisson_ratio))
+               for r, f, d in data]
         return np.concatenate(out)
 
+    # absolute force residuals (N): near contact a few hundredths of a newton of hysteresis and regulator
+    # wander would dominate relative ones
     sol = least_squares(residual, x0=[0.0, 0.0], bounds=([-0.5, -0.2], [0.5, 0.2]))
-    rms = float(np.sqrt(np.mean(sol.fun**2)))
-    return float(sol.x[0]), float(sol.x[1]), rms
+    forces = np.concatenate([f for _, f, _ in data])
+    rel = float(np.sqrt(np.mean((sol.fun / np.maximum(forces + sol.x[1], 1e-3)) ** 2)))
+    return float(sol.x[0]), float(sol.x[1]), rel
 
 
 def save_calibration(path: str | Path, cal: AirfloatCalibration) -> None:

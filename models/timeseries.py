@@ -31,9 +31,6 @@ class StampedBuffer:
     def latest_stamp(self) -> int | None:
         return self._t[-1] if self._t else None
 
-    def latest(self) -> tuple[float, ...] | None:
-        return self._v[-1] if self._v else None
-
     def add(self, stamp_ns: int, values: Sequence[float]) -> None:
         """Append a sample; one older than the newest is inserted in order; a repeated stamp replaces."""
         v = tuple(float(x) for x in values)

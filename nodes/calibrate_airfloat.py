@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from messages import PressureCommand, PressureState, ProbeHeights
-from models.airfloat import DEFAULT_INDENTER_RADIUS_MM
+from models.airfloat import DEFAULT_INDENTER_RADIUS_MM, ForceCalibration
 from models.airfloat_device import ProbeErrors, TrueProbe
 from models.calibration_airfloat import (
     AirfloatCalibration,
@@ -36,6 +36,7 @@ from models.calibration_airfloat import (
     fit_references,
     save_calibration,
 )
+from models.contact import corrected_force
 from models.geometry import load_geometry
 
 REPO = Path(__file__).resolve().parent.parent
@@ -107,10 +108,11 @@ def sim_reference_ramp(ref: Reference, seed: int, target_kpa: float) -> Referenc
     return ReferenceRamp(ref.modulus_kpa, thickness, np.interp(hs[inside], ts, kpa), d[inside])
 
 
-def _ramp_target(modulus_kpa: float) -> float:
-    """A pressure reaching ~3 mm on a 20 mm sample of this modulus with the paper's eq. 4 line (a rule of thumb
-    the operator would use; the ramp stops early if the depth would pass the stroke)."""
-    return 30.8 + 0.45 * modulus_kpa
+def _ramp_target(line: ForceCalibration, modulus_kpa: float, thickness_mm: float) -> float:
+    """The pressure that should reach 3 mm (the paper's maximum) on this sample by eq. 7 and the fitted line: the
+    operator's rule of thumb for where to stop the ramp."""
+    force = float(corrected_force(modulus_kpa, 3.0, DEFAULT_INDENTER_RADIUS_MM, thickness_mm))
+    return float(line.pressure_kpa(force))
 
 
 def calibrate(seed: int, references: list[Reference], plate_csv: Path | None = None) -> AirfloatCalibration:
@@ -121,9 +123,10 @@ def calibrate(seed: int, references: list[Reference], plate_csv: Path | None = N
     else:
         p, f = sim_force_plate(seed)
     line, rmse = fit_force_line(p, f)
-    ramps = [sim_reference_ramp(r, seed, _ramp_target(r.modulus_kpa)) for r in references]
+    ramps = [sim_reference_ramp(r, seed, _ramp_target(line, r.modulus_kpa, float(
+        load_geometry(r.geometry).thickness(*_CENTRE)))) for r in references]
     delta, df, rel = fit_references(line, ramps, indenter_radius_mm=DEFAULT_INDENTER_RADIUS_MM)
-    force = type(line)(line.gain, line.offset + df, line.pressure_unit_kpa)
+    force = ForceCalibration(line.gain, line.offset + df, line.pressure_unit_kpa)
     names = ", ".join(f"{Path(r.phantom).stem} ({r.modulus_kpa:g} kPa)" for r in references)
     return AirfloatCalibration(force=force, depth_offset_mm=delta, force_line_rmse_n=rmse, reference_rms_rel=rel,
                                source=f"nodes.calibrate_airfloat, sim probe seed {seed}; references: {names}")

@@ -44,7 +44,7 @@ class CameraTracker(palpa.Node):
         """opencv files: at the file's fps, as fast as decoded (drops), or every frame as fast as tracked."""
         exit_at_end: bool = False
         """opencv files: exit (code 0) when the video or sequence ends."""
-        poll_hz: float = 200.0
+        poll_hz: palpa.Positive = 200.0
         """How often the node asks the driver for a new frame."""
         # Algorithm 1
         hsv_lower: tuple[int, int, int] = (40, 100, 50)
@@ -53,22 +53,22 @@ class CameraTracker(palpa.Node):
         regions: list[tuple[int, int, int, int]] = []
         """Per marker (indenter order) search region x0, y0, x1, y1 (px); empty: four vertical strips."""
         window_half_px: tuple[int, int] = (24, 18)
-        min_area_px: float = 40.0
+        min_area_px: palpa.NonNegative = 40.0
         centroid: Literal["gray", "mask"] = "gray"
-        kalman_q: float = 0.09
-        kalman_r: float = 4.0
-        kalman_p0: float = 6.0
+        kalman_q: palpa.Positive = 0.09
+        kalman_r: palpa.Positive = 4.0
+        kalman_p0: palpa.Positive = 6.0
         zero_frames: int = 30
         """Frames averaged for the zero reference (1 = the paper's first frame)."""
         rest_x_px: list[float] = []
         """Stored calibration: marker x (px) at zero displacement; empty: measure it on the first frames."""
-        px_per_mm: float = PX_PER_MM
+        px_per_mm: palpa.Positive = PX_PER_MM
         direction: float = 1.0
-        debug_hz: float = 0.0
+        debug_hz: palpa.NonNegative = 0.0
         debug_encoding: Literal["png", "jpg", "bgr8"] = "png"
         # sim driver
         phantom: palpa.InputPath = ""
-        rate_hz: float = 30.0
+        rate_hz: palpa.Positive = 30.0
         """Sim camera frame rate (the paper's camera: 30 fps)."""
         pan_deg: float = 0.0
         """Sim: inclination of the sample's surface relative to the probe along its x (the paper's θ)."""
@@ -76,11 +76,11 @@ class CameraTracker(palpa.Node):
         """Sim: inclination along the probe's y (the paper's α)."""
         pixel_noise_px: float = -1.0
         """Sim raw centroid noise σ (px); negative: the phantom's noise.pixel (0.3 px by default)."""
-        image_noise_dn: float = 2.0
-        blur_sigma_px: float = 0.7
-        drift_amplitude: float = 0.08
-        soft_spring_n_per_mm: float = 0.05
-        hard_spring_n_per_mm: float = 0.25
+        image_noise_dn: palpa.NonNegative = 2.0
+        blur_sigma_px: palpa.NonNegative = 0.7
+        drift_amplitude: palpa.NonNegative = 0.08
+        soft_spring_n_per_mm: palpa.Positive = 0.05
+        hard_spring_n_per_mm: palpa.Positive = 0.25
         seed: int = 0
 
     def setup(self) -> None:
@@ -127,7 +127,6 @@ class CameraTracker(palpa.Node):
             self.driver.open()
         self.processed = 0
         self.frames_with_lost_marker = 0
-        self.last_result: TrackResult | None = None
         self._last_state: tuple[bool, str] | None = None
         self._debug_due_ns = 0
         self._read_timeout = 0.02 if p.pacing == "every" and p.driver == "opencv" else 0.0
@@ -154,7 +153,6 @@ class CameraTracker(palpa.Node):
     def handle(self, frame: Frame) -> None:
         """Track one frame and publish its displacements (once zeroed) and, when due, the debug image."""
         r = self.tracker.process(frame.image)
-        self.last_result = r
         self.processed += 1
         if not r.valid.all():
             self.frames_with_lost_marker += 1

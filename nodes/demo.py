@@ -10,7 +10,7 @@ class Talker(palpa.Node):
     """Publishes ``Text`` on ``chatter`` at ``rate_hz``; stops by itself after ``count`` messages if set."""
 
     class Params(palpa.Params):
-        rate_hz: float = 10.0
+        rate_hz: palpa.Positive = 10.0
         text: str = "hello"
         count: int = 0
         """Stop (exit 0) after this many messages; 0 runs until stopped."""

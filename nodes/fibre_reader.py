@@ -25,7 +25,8 @@ from models.airfloat import (
 )
 from models.airfloat_device import ProbeErrors
 from nodes.common import phantom_from_param
-from nodes.drivers.fibre import FibreDriver, FibreError, FibreSample, SerialFibreDriver
+from nodes.drivers.fibre import FibreDriver, FibreError, FibreSample
+from nodes.drivers.fibre_serial import SerialFibreDriver
 from nodes.drivers.fibre_sim import SimFibreDriver
 from palpa.service import RequestRefused
 
@@ -37,12 +38,12 @@ class FibreReader(palpa.Node):
 
     class Params(palpa.Params):
         driver: Literal["sim", "serial"] = "sim"
-        rate_hz: float = 500.0
+        rate_hz: palpa.Positive = 500.0
         """Sensor sample rate asked of the device (or simulated)."""
-        poll_hz: float = 50.0
+        poll_hz: palpa.Positive = 50.0
         """How often the node drains the driver's queue."""
         port: str = "/dev/ttyACM0"
-        baudrate: int = 115200
+        baudrate: palpa.PositiveInt = 115200
         calibration: palpa.InputPath = ""
         """Calibration YAML of the four channels (serial driver)."""
         phantom: palpa.InputPath = ""
@@ -54,9 +55,9 @@ class FibreReader(palpa.Node):
         only."""
         device_seed: int = 0
         """Which simulated probe (its error draw); calibrate with the same one (``nodes.calibrate_airfloat``)."""
-        sps_radius_mm: float = DEFAULT_SPS_RADIUS_MM
-        indenter_radius_mm: float = DEFAULT_INDENTER_RADIUS_MM
-        stroke_mm: float = 10.0
+        sps_radius_mm: palpa.Positive = DEFAULT_SPS_RADIUS_MM
+        indenter_radius_mm: palpa.Positive = DEFAULT_INDENTER_RADIUS_MM
+        stroke_mm: palpa.Positive = 10.0
         seed: int = 0
 
     def setup(self) -> None:

@@ -79,23 +79,23 @@ class LinearStage(palpa.Node):
         phantom: palpa.InputPath = ""
         """Phantom file to take the surface height at (x, y) from; empty: ``surface_z_mm``."""
         surface_z_mm: float = 30.0
-        start_gap_mm: float = 4.0
+        start_gap_mm: palpa.NonNegative = 4.0
         """Clearance above the surface (at the probe centre) at the top of each cycle. On an inclined sample the
         surface under an outer indenter is higher, by 8 mm x tan(angle): 4 mm keeps all four clear up to 25°."""
-        depth_mm: float = 8.0
+        depth_mm: palpa.Positive = 8.0
         """Press depth below the surface at the probe centre."""
-        speed_mm_s: float = 2.0
+        speed_mm_s: palpa.Positive = 2.0
         profile: Literal["triangle", "ramp_hold"] = "ramp_hold"
-        hold_s: float = 2.0
+        hold_s: palpa.NonNegative = 2.0
         """Time held at depth (ramp_hold)."""
-        settle_s: float = 1.5
+        settle_s: palpa.NonNegative = 1.5
         """Time at the top before the first press (the camera's zero reference is taken then)."""
-        dwell_s: float = 0.5
+        dwell_s: palpa.NonNegative = 0.5
         """Time at the top between cycles."""
         cycles: int = 1
         """Press cycles; 0: forever."""
         exit_when_done: bool = False
-        rate_hz: float = 100.0
+        rate_hz: palpa.Positive = 100.0
         start_after_topic: str = ""
         """Hold at the top until a message arrives on this topic, then start the profile (e.g. ``camera/indenters``,
         which the camera tracker publishes only once it has its zero reference). Empty: start at once."""

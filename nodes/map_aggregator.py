@@ -46,14 +46,14 @@ class MapAggregator(palpa.Node):
         output_dir: str = "out"
         region_mm: list[float] = []
         """x0, y0, x1, y1 of the grid; empty: taken from the scan plan (``robot/plan``)."""
-        resolution_mm: float = 2.0
-        min_count: int = 3
+        resolution_mm: palpa.Positive = 2.0
+        min_count: palpa.PositiveInt = 3
         """Samples a cell needs to count."""
-        publish_hz: float = 1.0
-        k_mad: float = 4.0
-        rel_threshold: float = 0.2
+        publish_hz: palpa.Positive = 1.0
+        k_mad: palpa.NonNegative = 4.0
+        rel_threshold: palpa.NonNegative = 0.2
         """A cell is stiff above baseline + max(k_mad * robust σ, rel_threshold * baseline)."""
-        min_area_mm2: float = 0.0
+        min_area_mm2: palpa.NonNegative = 0.0
         """Smallest inclusion reported (0: two cells)."""
         title: str = ""
         """Shown on map.png (e.g. what was scanned); default: the output directory."""
@@ -68,6 +68,8 @@ class MapAggregator(palpa.Node):
         self.pending: list[tuple[float, float, float]] = []
         self.written = 0
         self.changed = False
+        self.incomplete = ""
+        """Why this map lacks data the scan produced ('' when it has everything): it is then declared failed."""
         self.unsaved = 0
         """Samples taken since the files were last written."""
         self.touching = False
@@ -80,6 +82,7 @@ class MapAggregator(palpa.Node):
         self.subscribe("stiffness/sample", self.on_sample)
         self.subscribe("robot/plan", self.on_plan)
         self.subscribe("robot/scan_status", self.on_status)
+        self._own = self.subscribe("map/stiffness", StiffnessMap, self._on_own_map)
         self.timer(1.0 / p.publish_hz, self.publish_map)
         self.service("map/save", Trigger, MapSaved, self.on_save)
 
@@ -118,6 +121,17 @@ class MapAggregator(palpa.Node):
         else:
             self.grid.add(s.x_mm, s.y_mm, s.value)
 
+    def _on_own_map(self, m: StiffnessMap) -> None:
+        """The latched map of an earlier incarnation of this node (it was killed and respawned mid-scan): what it
+        had accumulated is gone, so this map cannot be complete."""
+        h = self._own.last_header
+        if h is None or h.node != self.name or h.inc == self.incarnation or m.final or not m.samples:
+            return
+        if not self.incomplete:
+            self.incomplete = (f"this node restarted mid-scan: its previous run had mapped {m.samples} samples, "
+                               "which are lost")
+            self.log.error("map INCOMPLETE: %s", self.incomplete)
+
     def on_status(self, st: ScanStatus) -> None:
         if st.state == "touching":
             self.touching = True
@@ -140,6 +154,8 @@ class MapAggregator(palpa.Node):
     def publish_map(self, final: bool = False) -> None:
         if self.grid is None or (not self.changed and not final):
             return
+        if final:
+            self._check_complete()
         self.changed = False
         snap = self.grid.snapshot()
         found, base = self._detect(snap)
@@ -169,6 +185,17 @@ class MapAggregator(palpa.Node):
                           inc.x_mm, inc.y_mm, inc.radius_mm, inc.contrast)
         self.log.info("map written: %s", ", ".join(str(p) for p in paths))
         return list(paths)
+
+    def _check_complete(self) -> None:
+        """A map missing samples (its estimator restarted, samples lost on the way) is declared failed: the
+        node's exit code says so, so the launch cannot end clean."""
+        stats = self.counters().get(self.resolve("stiffness/sample"))
+        if not self.incomplete and stats is not None and (stats.restarts or stats.gaps):
+            self.incomplete = (f"stiffness/sample lost {stats.gaps} sample(s) and its publisher restarted "
+                               f"{stats.restarts} time(s)")
+        if self.incomplete:
+            self.log.error("the map is INCOMPLETE and may be wrong: %s", self.incomplete)
+            self.exit_code = 1
 
     def on_shutdown(self) -> None:
         if self.grid is not None and self.unsaved:

@@ -36,32 +36,32 @@ class PressureController(palpa.Node):
 
     class Params(palpa.Params):
         driver: Literal["sim", "alicat"] = "sim"
-        max_kpa: float = 60.0
+        max_kpa: palpa.Positive = 60.0
         """Hard cap: no set-point above it is ever sent, whatever is commanded."""
-        rate_hz: float = 50.0
+        rate_hz: palpa.Positive = 50.0
         """Control/poll rate."""
         startup: Literal["vent", "hold", "ramp"] = "vent"
-        setpoint_kpa: float = 0.0
+        setpoint_kpa: palpa.NonNegative = 0.0
         """Start-up set-point (hold) or ramp target."""
-        ramp_rate_kpa_s: float = 5.0
-        tracking_tolerance_kpa: float = 3.0
-        tracking_timeout_s: float = 1.0
+        ramp_rate_kpa_s: palpa.Positive = 5.0
+        tracking_tolerance_kpa: palpa.Positive = 3.0
+        tracking_timeout_s: palpa.Positive = 1.0
         """A read-back further than the tolerance from the set-point for this long is a fault."""
-        lost_timeout_s: float = 0.5
+        lost_timeout_s: palpa.Positive = 0.5
         force_gain: float = 7.59
         force_offset: float = -2.34
-        force_pressure_unit_kpa: float = 100.0
+        force_pressure_unit_kpa: palpa.Positive = 100.0
         """Eq. 4's pressure unit in kPa (100: the paper's P read as bar; see docs/physics.md)."""
-        calibration: str = ""
+        calibration: palpa.InputPath = ""
         """Calibration YAML (``python -m nodes.calibrate_airfloat``): its force line replaces force_gain/offset."""
         port: str = "/dev/ttyUSB0"
         unit_id: str = "A"
-        baudrate: int = 19200
-        sim_tau_s: float = 0.05
-        sim_rate_limit_kpa_s: float = 50.0
-        sim_noise_kpa: float = 0.05
+        baudrate: palpa.PositiveInt = 19200
+        sim_tau_s: palpa.Positive = 0.05
+        sim_rate_limit_kpa_s: palpa.Positive = 50.0
+        sim_noise_kpa: palpa.NonNegative = 0.05
         """Sim read-back white noise σ (kPa)."""
-        sim_tracking_kpa: float = 0.25
+        sim_tracking_kpa: palpa.NonNegative = 0.25
         """Sim outlet wander about the set-point response, σ (kPa; 0: exact tracking, unit tests only)."""
         seed: int = 0
         """Seed of the sim regulator's noise and wander."""

@@ -3,7 +3,7 @@ along it and reports progress; exits 0 when the scan is complete (so a launch ca
 
 Safety is enforced here whatever the driver: a plan that leaves the workspace box or exceeds the speed or
 acceleration cap is refused before any motion (naming the waypoint); while moving, a watchdog stops the arm when
-the probe's data goes stale (``watch_topic``) or ``pressure/state`` reports a fault, and ``robot/estop`` stops it
+the probe's data goes stale (``watch_topic``), ``pressure/state`` reports a fault or goes quiet, and ``robot/estop`` stops it
 at once. The arm's pose is published on ``robot/pose``; the plan, latched, on ``robot/plan`` before motion.
 
 Services (nodes.scan_control): ``scanner/probe_at`` probes one point and answers with the stiffness found there;
@@ -73,38 +73,41 @@ class RobotScanner(palpa.Node):
         """After a touch-off, sweep: the probe face's height above the found surface."""
         max_press_fraction: float = 0.6
         """After a touch-off, indent: never press deeper than this fraction of the thinnest found point."""
-        spacing_mm: float = 2.0
-        speed_mm_s: float = 10.0
+        spacing_mm: palpa.Positive = 2.0
+        speed_mm_s: palpa.Positive = 10.0
         """Sweep: speed along a line. Indent: press and lift speed."""
         axis: Literal["x", "y"] = "y"
         """Lines run parallel to this axis (the paper's Fig. 12 scan: y)."""
         contact_z_mm: float = 5.0
         """Probe face height while sweeping (sweep), or the surface height pressed from (indent)."""
-        indent_depth_mm: float = 3.0
-        hold_s: float = 0.5
-        point_spacing_mm: float = 0.0
+        indent_depth_mm: palpa.Positive = 3.0
+        hold_s: palpa.NonNegative = 0.5
+        point_spacing_mm: palpa.NonNegative = 0.0
         """Indent mode: spacing of points along a line (0: same as spacing_mm)."""
-        approach_clearance_mm: float = 5.0
-        retract_clearance_mm: float = 15.0
-        transit_speed_mm_s: float = 40.0
-        approach_speed_mm_s: float = 10.0
-        accel_mm_s2: float = 500.0
+        approach_clearance_mm: palpa.NonNegative = 5.0
+        retract_clearance_mm: palpa.NonNegative = 15.0
+        transit_speed_mm_s: palpa.Positive = 40.0
+        approach_speed_mm_s: palpa.Positive = 10.0
+        accel_mm_s2: palpa.Positive = 500.0
         home_mm: tuple[float, float, float] = (0.0, 0.0, 40.0)
         """Start pose of the simulated arm (phantom frame)."""
         workspace_mm: tuple[float, float, float, float, float, float] = (-10.0, -10.0, 0.5, 70.0, 70.0, 60.0)
         """xmin, ymin, zmin, xmax, ymax, zmax: the arm never leaves this box."""
-        max_speed_mm_s: float = 50.0
-        max_accel_mm_s2: float = 1000.0
+        max_speed_mm_s: palpa.Positive = 50.0
+        max_accel_mm_s2: palpa.Positive = 1000.0
         watch_topic: Literal["probe/heights", "camera/indenters", ""] = "probe/heights"
         """Probe data that must stay fresh while moving ('' disables the watchdog: bench tests only)."""
-        watchdog_s: float = 0.05
-        startup_timeout_s: float = 10.0
+        watchdog_s: palpa.Positive = 0.05
+        pressure_watchdog_s: palpa.NonNegative = 0.5
+        """Once ``pressure/state`` has been heard, it going quiet this long while moving stops the arm like stale
+        probe data (a dead pressure controller means unknown contact force); 0 disables."""
+        startup_timeout_s: palpa.Positive = 10.0
         """How long to wait for the probe's first data before giving up."""
-        pose_rate_hz: float = 250.0
-        linger_s: float = 0.5
+        pose_rate_hz: palpa.Positive = 250.0
+        linger_s: palpa.NonNegative = 0.5
         """After the scan: keep publishing this long so the last samples reach the map, then exit."""
         # drivers
-        time_scale: float = 1.0
+        time_scale: palpa.Positive = 1.0
         """Sim driver: simulated seconds per clock second (use the graph's sim clock instead when you can)."""
         robot_host: str = "127.0.0.1"
         frame_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -123,11 +126,12 @@ class RobotScanner(palpa.Node):
         self.message = ""
         self.line = 0
         self.last_probe_ns: int | None = None
+        self.last_pressure_ns: int | None = None
         self.segments: list[tuple[int, int]] = []
         self.segment = 0
         self.hold_until_ns: int | None = None
         self.started_ns = self.clock.now_ns()
-        self.driver: RobotDriver = self._make_driver()
+        self.driver: RobotDriver = self.closing(self._make_driver())  # closed even if the plan is refused below
         self.driver.connect()
         self.specimen = SpecimenPlanner(self)  # refuses a specimen that does not fit, before any motion
         self.plan = self._plan()
@@ -244,6 +248,7 @@ class RobotScanner(palpa.Node):
             self.specimen.on_probe(msg)
 
     def on_pressure(self, msg: PressureState) -> None:
+        self.last_pressure_ns = self.clock.now_ns()
         bad = _STOPPING_FAULTS.intersection(msg.faults)
         if bad and self.state in ("waiting", "touching", "scanning", "probing", "paused"):
             self.halt("fault", f"pressure fault {', '.join(sorted(bad))}")
@@ -308,13 +313,16 @@ class RobotScanner(palpa.Node):
             elif (now - self.started_ns) / 1e9 > p.startup_timeout_s:
                 self.halt("fault", f"no probe data on {p.watch_topic} within {p.startup_timeout_s:g} s")
             return
-        if self.state == "touching":
-            self.supervise_touch(now)
-            return
-        if self.state not in MOVING or self.segment >= len(self.segments):
+        touching = self.state == "touching"  # the touch-off moves the arm: the same checks as a scan
+        if not touching and (self.state not in MOVING or self.segment >= len(self.segments)):
             return
         if p.watch_topic and self.last_probe_ns is not None and (now - self.last_probe_ns) / 1e9 > p.watchdog_s:
             self.halt("fault", f"probe data on {p.watch_topic} stale for more than {p.watchdog_s * 1000:.0f} ms")
+            return
+        if p.pressure_watchdog_s > 0 and self.last_pressure_ns is not None and \
+                (now - self.last_pressure_ns) / 1e9 > p.pressure_watchdog_s:
+            self.halt("fault", f"pressure/state silent for more than {p.pressure_watchdog_s * 1000:.0f} ms "
+                               "(the pressure controller died?)")
             return
         box = p.workspace_mm
         x, y, z = self.driver.state().pose[:3]
@@ -325,6 +333,9 @@ class RobotScanner(palpa.Node):
         prog = self.driver.progress()
         if prog.status in (MotionStatus.PROTECTIVE_STOP, MotionStatus.DISCONNECTED, MotionStatus.FAULT):
             self.halt("fault", f"robot {prog.status.name.lower()}: {prog.message}")
+            return
+        if touching:
+            self.supervise_touch()
             return
         seg_start, seg_end = self.segments[self.segment]
         self.meter.update(seg_start + prog.index, self.driver.state().pose[:3])
@@ -344,14 +355,11 @@ class RobotScanner(palpa.Node):
         elif prog.status == MotionStatus.STOPPED:
             self.halt("stopped", prog.message or "the arm stopped")
 
-    def supervise_touch(self, now: int) -> None:
-        """Touch-off in progress: the same watchdog as a scan; at its end, the raster over the found surface (checked
-        against the box and caps again) or a fault."""
-        p, touch = self.params, self.specimen.touch
+    def supervise_touch(self) -> None:
+        """Touch-off in progress (after the scan's own checks); at its end, the raster over the found surface
+        (checked against the box and caps again) or a fault."""
+        touch = self.specimen.touch
         if touch is None:
-            return
-        if p.watch_topic and self.last_probe_ns is not None and (now - self.last_probe_ns) / 1e9 > p.watchdog_s:
-            self.halt("fault", f"probe data on {p.watch_topic} stale for more than {p.watchdog_s * 1000:.0f} ms")
             return
         touch.step()
         if touch.failed:
@@ -400,11 +408,8 @@ class RobotScanner(palpa.Node):
         ))
 
     def on_shutdown(self) -> None:
-        try:
-            if self.state not in ("done",):
-                self.driver.stop(self.params.max_accel_mm_s2)
-        finally:
-            self.driver.close()
+        if self.state not in ("done",):
+            self.driver.stop(self.params.max_accel_mm_s2)  # the driver is closed after this (closing() in setup)
 
 
 if __name__ == "__main__":

@@ -32,44 +32,43 @@ class StiffnessEstimator(palpa.Node):
 
     class Params(palpa.Params):
         model: Literal["airfloat", "multi_indenter"] = "airfloat"
-        rate_hz: float = 50.0
+        rate_hz: palpa.Positive = 50.0
         """How often pending samples are decided and published."""
-        max_wait_s: float = 0.25
+        max_wait_s: palpa.Positive = 0.25
         """A sample whose pose/force has not arrived by then is published invalid (stale)."""
-        max_gap_s: float = 0.1
+        max_gap_s: palpa.Positive = 0.1
         """Largest hole in pose/force history that is still interpolated across."""
         # air-float
-        thickness_mm: float = 20.0
+        thickness_mm: palpa.Positive = 20.0
         """Tissue thickness for eq. 7 (mm) when no ``geometry`` file is given: a value someone measured."""
-        calibration: str = ""
+        calibration: palpa.InputPath = ""
         """Calibration YAML (``python -m nodes.calibrate_airfloat``): its depth offset is added to eqs. 1-3's d_in."""
-        geometry: str = ""
+        geometry: palpa.InputPath = ""
         """Measured-geometry YAML (a thickness map or constant, docs/physics.md); overrides ``thickness_mm``."""
         poisson_ratio: float = 0.5
-        sps_radius_mm: float = DEFAULT_SPS_RADIUS_MM
-        indenter_radius_mm: float = DEFAULT_INDENTER_RADIUS_MM
-        min_depth_mm: float = 0.3
-        max_depth_mm: float = 5.0
-        max_tilt_deg: float = 30.0
-        min_force_n: float = 0.02
-        stroke_mm: float = 10.0
+        sps_radius_mm: palpa.Positive = DEFAULT_SPS_RADIUS_MM
+        indenter_radius_mm: palpa.Positive = DEFAULT_INDENTER_RADIUS_MM
+        min_depth_mm: palpa.NonNegative = 0.3
+        max_depth_mm: palpa.Positive = 5.0
+        max_tilt_deg: palpa.Positive = 30.0
+        min_force_n: palpa.NonNegative = 0.02
+        stroke_mm: palpa.Positive = 10.0
         ramp_fits: bool = False
         """Fit each pressure ramp's force-depth curve with eqs. 6-8 (``stiffness/fit``)."""
         # multi-indenter
         solver: Literal["exact", "lm"] = "exact"
-        soft_spring_n_per_mm: float = 0.05
-        hard_spring_n_per_mm: float = 0.25
+        soft_spring_n_per_mm: palpa.Positive = 0.05
+        hard_spring_n_per_mm: palpa.Positive = 0.25
         indenter_circle_radius_mm: float = 0.0
         """0: the model's default geometry."""
-        min_displacement_mm: float = 0.05
-        max_condition: float = 1e6
+        min_displacement_mm: palpa.NonNegative = 0.05
+        max_condition: palpa.Positive = 1e6
 
     def setup(self) -> None:
         p = self.params
         self.samples = self.publisher("stiffness/sample", StiffnessSample)
         self.fits = self.publisher("stiffness/fit", StiffnessFit)
         self.published = 0
-        self.invalid = 0
         self.subscribe("robot/pose", self.on_pose)
         if p.model == "airfloat":
             try:
@@ -119,7 +118,6 @@ class StiffnessEstimator(palpa.Node):
         for s in out:
             self.samples.publish(s)
             self.published += 1
-            self.invalid += not s.valid
         for f in fits:
             self.log.info("ramp fit at (%.1f, %.1f): E eq.6 %.1f kPa, eq.7 %.1f kPa, eq.8 %.1f kPa (b %.2f, %d points)",
                           f.x_mm, f.y_mm, f.e_hertz_kpa, f.e_corrected_kpa, f.e_fung_kpa, f.b_fung, f.points)

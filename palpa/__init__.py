@@ -18,9 +18,9 @@ This package knows nothing about palpation: the domain lives in ``messages``, ``
 from palpa.address import BusAddress
 from palpa.clock import Clock, MockClock, SystemClock
 from palpa.errors import BusError, DecodeError, LaunchError, PalpaError, ParamError, RegistryError
-from palpa.message import Message, json_schema, lookup, registered
+from palpa.message import Finite, Message, json_schema, lookup, registered
 from palpa.node import Node, Publisher, RawMessage, Subscription, Timer
-from palpa.params import InputPath, Params
+from palpa.params import InputPath, NonNegative, Params, Positive, PositiveInt
 from palpa.runner import run_node
 
 __version__ = "0.1.0"
@@ -30,6 +30,7 @@ __all__ = [
     "BusError",
     "Clock",
     "DecodeError",
+    "Finite",
     "InputPath",
     "LaunchError",
     "Message",
@@ -37,7 +38,10 @@ __all__ = [
     "Node",
     "PalpaError",
     "ParamError",
+    "NonNegative",
     "Params",
+    "Positive",
+    "PositiveInt",
     "Publisher",
     "RawMessage",
     "RegistryError",

@@ -7,18 +7,22 @@
 * ``pub=EP;sub=EP;latch=EP``  -> explicit endpoints (what ``palpa bus`` prints when the OS chose the ports)
 
 ``pub`` is where publishers connect (the proxy's XSUB), ``sub`` where subscribers connect (its XPUB), ``latch``
-the last-value cache (a ROUTER). The default, with nothing set, is ``ipc:///tmp/palpa-<uid>``.
+the last-value cache (a ROUTER). The default, with nothing set, is ``ipc://<private dir>/bus``, where the private
+directory is ``$XDG_RUNTIME_DIR/palpa`` or ``/tmp/palpa-<uid>``, made 0700 and checked to be this user's and
+closed to others (another local user must not be able to create it first and take the bus's place).
 """
 
 from __future__ import annotations
 
 import ipaddress
 import os
+import stat
 from dataclasses import dataclass
+from pathlib import Path
 
 from palpa.errors import BusError
 
-__all__ = ["BusAddress", "default_address", "from_env", "is_loopback_host"]
+__all__ = ["BusAddress", "default_address", "from_env", "is_loopback_host", "private_dir"]
 
 _IPC_MAX = 100  # the kernel's sun_path limit is 107 bytes; keep a margin for the suffix
 
@@ -80,14 +84,38 @@ class BusAddress:
     def __str__(self) -> str:
         return f"pub={self.pub};sub={self.sub};latch={self.latch}"
 
-    @property
-    def is_tcp(self) -> bool:
-        return self.pub.startswith("tcp://")
+
+def private_dir() -> Path:
+    """This user's directory for ipc sockets (created 0700): ``$XDG_RUNTIME_DIR/palpa`` when that is set and
+    private, else ``/tmp/palpa-<uid>``. Raises :class:`BusError` when it exists but belongs to someone else or
+    others may enter it."""
+    xdg = os.environ.get("XDG_RUNTIME_DIR", "")
+    base = Path(xdg) / "palpa" if xdg and _is_private(Path(xdg)) else Path(f"/tmp/palpa-{os.getuid()}")
+    try:
+        base.mkdir(mode=0o700)
+    except FileExistsError:
+        pass
+    except OSError as exc:
+        raise BusError(f"cannot create the private socket directory {base}: {exc.strerror or exc}") from None
+    st = os.lstat(base)
+    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o077:
+        raise BusError(f"{base} is not a private directory of this user (owner uid {st.st_uid}, mode "
+                       f"{stat.S_IMODE(st.st_mode):04o}; expected uid {os.getuid()}, 0700): another user may have "
+                       "made it to receive and inject messages; remove it or set PALPA_BUS")
+    return base
+
+
+def _is_private(path: Path) -> bool:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return False
+    return stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid() and not st.st_mode & 0o077
 
 
 def default_address() -> str:
-    """The bus used when nothing says otherwise: one per user, on ipc."""
-    return f"ipc:///tmp/palpa-{os.getuid()}"
+    """The bus used when nothing says otherwise: one per user, on ipc, in :func:`private_dir`."""
+    return f"ipc://{private_dir()}/bus"
 
 
 def from_env() -> BusAddress:

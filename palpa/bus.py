@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -28,23 +29,24 @@ import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 
-from palpa.address import BusAddress
+from palpa.address import BusAddress, is_loopback_host
 from palpa.direct import DIRECTORY_PREFIX
 from palpa.errors import BusError
+from palpa.keys import ClientKeys, load_secret_key
+from palpa.latch import DEFAULT_LATCH_MAX_BYTES, DEFAULT_LATCH_MAX_ENTRIES, LatchCache
+from palpa.wire import MAX_MSG_BYTES
 
 __all__ = ["Bus", "CurveServer", "is_loopback_endpoint"]
 
 log = logging.getLogger("palpa.bus")
 
-_LOOPBACK_HOSTS = ("127.", "localhost", "[::1]", "::1")
-
-
 def is_loopback_endpoint(endpoint: str) -> bool:
-    """True for ipc/inproc endpoints and tcp endpoints on a loopback address."""
+    """True for ipc/inproc endpoints and tcp endpoints on a loopback address: ``localhost`` itself or a
+    literal loopback IP (127.0.0.0/8, ::1). Any other name (``localhost.example.com``, ``127.0.0.1.nip.io``)
+    resolves through DNS and may be anything: not loopback."""
     if not endpoint.startswith("tcp://"):
         return True
-    host = endpoint[len("tcp://") :].rpartition(":")[0]
-    return host.startswith(_LOOPBACK_HOSTS)
+    return is_loopback_host(endpoint[len("tcp://") :].rpartition(":")[0])
 
 
 @dataclass(frozen=True)
@@ -65,26 +67,31 @@ class Bus:
         latched_topics: Iterable[str] = (),
         hwm: int = 10_000,
         curve: CurveServer | None = None,
+        max_msg_bytes: int = MAX_MSG_BYTES,
+        latch_max_bytes: int = DEFAULT_LATCH_MAX_BYTES,
+        latch_max_entries: int = DEFAULT_LATCH_MAX_ENTRIES,
     ) -> None:
         self._requested = address
         self._latched_topics = sorted(set(latched_topics))
         self._hwm = hwm
         self._curve = curve
+        self._max_msg_bytes = max_msg_bytes
         self._ctx = zmq.Context()
         self._auth: ThreadAuthenticator | None = None
         self._threads: list[threading.Thread] = []
         self._stop = threading.Event()
-        self._cache: dict[bytes, list[bytes]] = {}
+        self._cache = LatchCache(frozenset(t.encode() for t in self._latched_topics), latch_max_bytes,
+                                 latch_max_entries)
         self._cache_lock = threading.Lock()
         self._watchers: dict[bytes, set[bytes]] = {}
         self.address: BusAddress | None = None
+        self.clients: ClientKeys | None = None
+        """The authorised CURVE client keys (None without CURVE); ``clients.reload()`` rereads the folder."""
 
     def _secure(self, sock: zmq.Socket[bytes]) -> None:
         if self._curve is None:
             return
-        public, secret = zmq.auth.load_certificate(str(self._curve.secret_key_file))
-        if secret is None:
-            raise BusError(f"{self._curve.secret_key_file}: not a CURVE secret key file")
+        public, secret = load_secret_key(self._curve.secret_key_file)
         sock.curve_secretkey = secret
         sock.curve_publickey = public
         sock.curve_server = True
@@ -100,14 +107,18 @@ class Bus:
             sock.bind(endpoint)
         except zmq.ZMQError as exc:
             raise BusError(f"cannot bind {endpoint}: {exc}") from None
+        if endpoint.startswith("ipc://"):  # only this user may connect (connecting needs write permission)
+            with contextlib.suppress(OSError):
+                os.chmod(endpoint[len("ipc://") :], 0o600)
         return str(sock.getsockopt_string(zmq.LAST_ENDPOINT))
 
     def start(self) -> BusAddress:
         """Bind all three endpoints and start the proxy and cache threads."""
         if self._curve is not None:
-            self._auth = ThreadAuthenticator(self._ctx)
+            self.clients = ClientKeys(self._curve.authorized_clients_dir)
+            self._auth = ThreadAuthenticator(self._ctx, log=logging.getLogger("palpa.bus.zap"))
             self._auth.start()
-            self._auth.configure_curve(domain="*", location=str(self._curve.authorized_clients_dir))
+            self._auth.configure_curve_callback(domain="*", credentials_provider=self.clients)
         xsub = self._ctx.socket(zmq.XSUB)
         xpub = self._ctx.socket(zmq.XPUB)
         router = self._ctx.socket(zmq.ROUTER)
@@ -117,6 +128,10 @@ class Bus:
             sock.linger = 0
         router.linger = 0
         router.router_mandatory = True
+        # a frame over the limit makes libzmq drop the connection of the peer that sent it: it never reaches
+        # Python, the proxy or any subscriber (nodes count what still exceeds their own limit)
+        for sock in (xsub, router):
+            sock.maxmsgsize = self._max_msg_bytes
         try:
             pub = self._bind(xsub, self._requested.pub)
             sub = self._bind(xpub, self._requested.sub)
@@ -127,6 +142,11 @@ class Bus:
             self._shutdown_ctx()
             raise
         self.address = BusAddress(pub, sub, latch)
+        # subscribe the proxy itself to the graph's latched topics: XSUB forwards subscriptions to every
+        # publisher (and to later ones), so they send these topics even when no subscriber exists yet, which is
+        # when the late joiner the cache exists for most needs them
+        for topic in self._latched_topics:
+            xsub.send(b"\x01" + topic.encode())
 
         capture: zmq.Socket[bytes] | None = None
         capture_sub: zmq.Socket[bytes] | None = None
@@ -186,8 +206,7 @@ class Bus:
                     except zmq.Again:
                         break
                     if len(frames) >= 3 and frames[0] in exact:
-                        with self._cache_lock:
-                            self._cache[frames[0]] = frames[1:]
+                        self._store(None, frames[0], frames[1:])
             if router in events:
                 while True:
                     try:
@@ -197,14 +216,14 @@ class Bus:
                     self._handle_latch(router, frames)
 
     def _handle_latch(self, router: zmq.Socket[bytes], frames: list[bytes]) -> None:
-        if len(frames) < 3 and not (len(frames) == 2 and frames[1] == b"GET"):
-            log.warning("latch: ignoring a request of %d frames", len(frames))
+        if len(frames) < 2:
+            log.warning("latch: ignoring a request of %d frame(s)", len(frames))
             return
         ident, verb = frames[0], frames[1]
         topic = frames[2] if len(frames) > 2 else b""
-        if verb == b"SET" and len(frames) >= 5:
-            with self._cache_lock:
-                self._cache[topic] = frames[3:]
+        if verb == b"SET":
+            if not self._store(router, topic, frames[3:], ident):
+                return
             for prefix, idents in list(self._watchers.items()):
                 if topic.startswith(prefix):
                     for watcher in list(idents):
@@ -213,11 +232,33 @@ class Bus:
         elif verb == b"GET":
             self._watchers.setdefault(topic, set()).add(ident)
             with self._cache_lock:
-                hits = [(t, v) for t, v in self._cache.items() if t.startswith(topic)]
+                hits = self._cache.matching(topic)
             for cached_topic, value in hits:
                 self._send(router, topic, ident, [b"VAL", cached_topic, *value])
         else:
-            log.warning("latch: ignoring unknown request %r", verb[:16])
+            log.warning("latch: ignoring unknown request %r (%d frames)", verb[:16], len(frames))
+            self._send(router, b"", ident, [b"ERR", b"", b"unknown request (expected SET or GET)"])
+
+    def _store(self, router: zmq.Socket[bytes] | None, topic: bytes, value: list[bytes], ident: bytes = b"") -> bool:
+        """Check and cache one value; a refusal is counted, logged and (to a SET's sender) answered with
+        ``ERR topic reason``."""
+        with self._cache_lock:
+            why = self._cache.check(topic, value) or self._cache.put(topic, value)
+            if why is not None:
+                self._cache.refused += 1
+                refused = self._cache.refused
+        if why is None:
+            return True
+        log.warning("latch: refused SET %r (%d refused so far): %s", topic[:80], refused, why)
+        if router is not None:
+            self._send(router, b"", ident, [b"ERR", topic[:1024], why.encode()])
+        return False
+
+    @property
+    def latch_refused(self) -> int:
+        """SETs (and captured values) the cache refused: malformed, not latched, or over its bounds."""
+        with self._cache_lock:
+            return self._cache.refused
 
     def _send(self, router: zmq.Socket[bytes], prefix: bytes, ident: bytes, frames: list[bytes]) -> None:
         try:
@@ -228,7 +269,8 @@ class Bus:
     def cached_topics(self) -> list[str]:
         """Topics with a cached last value."""
         with self._cache_lock:
-            return sorted(t.decode(errors="replace") for t in self._cache if not t.startswith(DIRECTORY_PREFIX))
+            return sorted(t.decode(errors="replace") for t in self._cache.values
+                          if not t.startswith(DIRECTORY_PREFIX))
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Stop the proxy and the cache, close every socket and remove ipc socket files."""

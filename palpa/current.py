@@ -1,7 +1,7 @@
 """Finding the running launch: every ``palpa launch`` binds a fresh bus, so it says where.
 
-While a launch runs, ``palpa launch`` keeps a per-user "current bus" file (``/tmp/palpa-<uid>.current``, or
-``$PALPA_CURRENT``) naming its bus, its pid and its run directory, and points ``runs/latest`` at the run
+While a launch runs, ``palpa launch`` keeps a per-user "current bus" file (``current`` in the private socket
+directory, palpa.address.private_dir; or ``$PALPA_CURRENT``) naming its bus, its pid and its run directory, and points ``runs/latest`` at the run
 directory when that is in a ``runs`` folder. The CLI tools pick the bus in this order: ``--bus``, ``--run DIR`` (that
 run's ``bus.address``), ``$PALPA_BUS``, the current launch (if its launcher is still alive), the default bus.
 """
@@ -13,7 +13,7 @@ import json
 import os
 from pathlib import Path
 
-from palpa.address import BusAddress, default_address
+from palpa.address import BusAddress, default_address, private_dir
 from palpa.errors import BusError
 
 __all__ = ["announce", "current_file", "find_bus", "read_current", "withdraw"]
@@ -23,7 +23,8 @@ CURRENT_ENV = "PALPA_CURRENT"
 
 def current_file() -> Path:
     """The per-user file that names the running launch's bus."""
-    return Path(os.environ.get(CURRENT_ENV) or f"/tmp/palpa-{os.getuid()}.current")
+    # in the private socket directory: a file another local user could make first would point tools at their bus
+    return Path(os.environ.get(CURRENT_ENV) or private_dir() / "current")
 
 
 def announce(address: BusAddress, run_dir: Path) -> None:

@@ -60,7 +60,7 @@ class Publisher(Generic[M]):
         self._always_batch = batch is not None and self.batch > 1
         self._topic_b = topic.encode()
         self._type_name = msg_type.type_name
-        self._header = HeaderTemplate(self._type_name, node.name, latched)
+        self._header = HeaderTemplate(self._type_name, node.name, latched, node.incarnation)
         self._pending_headers: list[bytes] = []
         self._pending_payloads: list[bytes] = []
         self._send = node._transport.sender(self._topic_b, direct)
@@ -89,20 +89,23 @@ class Publisher(Generic[M]):
             raise TypeError(
                 f"publisher {self.topic!r} carries {self._type_name}, not {type(msg).__name__}"
             )
-        self.seq = seq = self.seq + 1
         node = self.node
-        header = self._header.pack(seq, node.clock.now_ns() if stamp_ns is None else stamp_ns)
+        # everything that can fail (an unencodable field, a bad stamp) fails before any state changes, so a
+        # failed publish never leaves a header without its payload in the batch
+        payload = _encoder.encode(msg)
+        header = self._header.pack(self.seq + 1, node.clock.now_ns() if stamp_ns is None else stamp_ns)
+        self.seq = seq = self.seq + 1
         if self.batch > 1 and (node._depth or self._always_batch) and not blobs:
             if not self._pending_headers:
                 node._dirty.append(self)
             self._pending_headers.append(header)
-            self._pending_payloads.append(_encoder.encode(msg))
+            self._pending_payloads.append(payload)
             if len(self._pending_headers) >= self.batch:
                 self.flush()
             return seq
         if self._pending_headers:
             self.flush()
-        frames = [self._topic_b, header, _encoder.encode(msg)]
+        frames = [self._topic_b, header, payload]
         if blobs:
             frames.extend(blobs)
         self._send(frames, self.latched)

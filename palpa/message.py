@@ -10,15 +10,21 @@ never reuse a type name for a different meaning. Decoders ignore unknown fields,
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, TypeVar
+import sys
+from typing import Annotated, Any, ClassVar, TypeVar
 
 import msgspec
 
 from palpa.errors import RegistryError
 
-__all__ = ["Message", "json_schema", "lookup", "registered", "type_name_of"]
+__all__ = ["Finite", "Message", "json_schema", "lookup", "registered"]
 
 _REGISTRY: dict[str, type[Message]] = {}
+
+Finite = Annotated[float, msgspec.Meta(ge=-sys.float_info.max, le=sys.float_info.max)]
+"""A float that must be finite: NaN and ±inf fail validation at decode (a NaN compares false with both bounds).
+Use it for every field where a non-finite number makes no sense (a set-point, a rate, a pose); plain ``float``
+stays for fields where NaN means "no data" (a map cell, an invalid sample's value)."""
 
 M = TypeVar("M", bound="Message")
 
@@ -42,11 +48,6 @@ class Message(msgspec.Struct, frozen=True, kw_only=True):
                 f"{existing.__module__}.{existing.__qualname__}; set type_name to a unique name"
             )
         _REGISTRY[name] = cls
-
-
-def type_name_of(cls: type[Message]) -> str:
-    """The registered wire name of a message class."""
-    return cls.type_name
 
 
 def lookup(name: str) -> type[Message]:

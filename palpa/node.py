@@ -22,13 +22,14 @@ counted on its topic and logged at most every few seconds with what was wrong (t
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import socket
 import time
 import traceback
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, ClassVar, TypeVar, cast
+from typing import Any, ClassVar, Protocol, TypeVar, cast
 
 from palpa.address import BusAddress, from_env
 from palpa.clock import Clock, SystemClock, TopicClock
@@ -64,6 +65,16 @@ M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
 _ACK_PERIOD_NS = 5_000_000
+_SIM_CLOCK_TIMEOUT_S = 30.0
+"""Wall seconds without a clock tick after which a sim-clock node stops (PALPA_SIM_CLOCK_TIMEOUT_S; 0: never)."""
+_EXIT_CLOCK_LOST = 3
+
+
+class _Closable(Protocol):
+    def close(self) -> object: ...
+
+
+C = TypeVar("C", bound=_Closable)
 
 
 class _NoParams(ParamsBase):
@@ -82,13 +93,21 @@ class _BusLogHandler(logging.Handler):
         self._busy = True
         try:
             self._node._log_pub.publish(
-                LogRecord(node=self._node.name, level=record.levelname, text=record.getMessage(),
+                LogRecord(node=self._node.name, level=record.levelname, text=_truncate(record.getMessage()),
                           stamp_ns=self._node.clock.now_ns())
             )
         except Exception:  # a log line must never take the node down
             pass
         finally:
             self._busy = False
+
+
+LOG_TEXT_MAX = 4000
+"""Characters of a log line published on ``_palpa/log``; the rest is cut (a peer's bytes can end up in a line)."""
+
+
+def _truncate(text: str) -> str:
+    return text if len(text) <= LOG_TEXT_MAX else f"{text[:LOG_TEXT_MAX]}... ({len(text) - LOG_TEXT_MAX} more chars)"
 
 
 class Node:
@@ -111,13 +130,20 @@ class Node:
         sim_clock: bool | None = None,
         wait_for_clock_s: float = 30.0,
         transport_options: TransportOptions | None = None,
+        sim_clock_timeout_s: float | None = None,
         serve_params: bool | None = None,
     ) -> None:
         self.name = name or _snake(type(self).__name__)
+        self.incarnation = int.from_bytes(os.urandom(4), "big") | 1
+        """Drawn anew at every start and sent in every header (``inc``): receivers tell a restart from a repeat."""
         if sim_clock is None:
             sim_clock = os.environ.get("PALPA_SIM_CLOCK", "") not in ("", "0")
         self.params = convert_params(type(self).Params, params, where=f"node {self.name!r}")
         self._topic_clock = TopicClock() if sim_clock and clock is None else None
+        if sim_clock_timeout_s is None:
+            sim_clock_timeout_s = float(os.environ.get("PALPA_SIM_CLOCK_TIMEOUT_S", "") or _SIM_CLOCK_TIMEOUT_S)
+        self._clock_timeout_ns = int(sim_clock_timeout_s * 1e9)
+        self._last_tick_wall_ns = 0
         self.clock: Clock = clock or self._topic_clock or SystemClock()
         self.namespace = namespace.strip("/")
         self.remap = dict(remap or {})
@@ -125,6 +151,7 @@ class Node:
             address = bus if isinstance(bus, BusAddress) else (BusAddress.parse(bus) if bus else from_env())
             transport = ZmqTransport(address, transport_options or TransportOptions.from_env())
         self._transport = transport
+        self._resources = contextlib.ExitStack()
         self._rx = Receiver(self)
         self._pubs: dict[str, Publisher[Any]] = {}
         self._dirty: list[Publisher[Any]] = []
@@ -153,14 +180,36 @@ class Node:
             self._await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0 if serve_params is None else serve_params:
             ParamServer(self)
-        self.setup()
+        try:
+            self.setup()
+        except BaseException:
+            # a refused plan must not leave a robot connection or a serial port open behind it
+            self._release(linger_ms=0)
+            raise
 
     # -- declaration -------------------------------------------------------------------------------
     def setup(self) -> None:
         """Declare publishers, subscriptions and timers here (``self.params`` is ready)."""
 
     def on_shutdown(self) -> None:
-        """Called once before the node's sockets close: stop hardware, flush files."""
+        """Called once before the node's sockets close: stop hardware, flush files. Not called when
+        :meth:`setup` raised (only what :meth:`closing` registered is released then)."""
+
+    def closing(self, resource: C) -> C:
+        """Register ``resource`` (anything with ``close()``) to be closed when the node closes, after
+        :meth:`on_shutdown`, or at once if :meth:`setup` raises; returns it. Resources close in reverse order of
+        registration; a failing ``close()`` is logged and does not keep the others (or the sockets) open.
+
+        Register a driver before connecting it: ``self.driver = self.closing(make_driver()); self.driver.connect()``.
+        """
+        self._resources.callback(self._close_quietly, resource)
+        return resource
+
+    def _close_quietly(self, resource: _Closable) -> None:
+        try:
+            resource.close()
+        except Exception:
+            self.log.error("error closing %r:\n%s", resource, traceback.format_exc())
 
     def on_params_changed(self, old: Any, new: Any) -> bool | None:
         """Called when ``palpa param set`` (or a ParamSet request) would change ``self.params`` from ``old`` to
@@ -300,6 +349,12 @@ class Node:
                 self._rx.dispatch(delivery)
             self._run_timers()
         clock = self._topic_clock
+        if clock is not None and clock.started and self._clock_timeout_ns and \
+                time.monotonic_ns() - self._last_tick_wall_ns > self._clock_timeout_ns and not self._shutdown:
+            # sim-time timers (watchdogs included) stop with the clock: only the wall clock can tell
+            self.log.error("simulated time stopped: no tick on %s for %.1f s of wall time (did the clock node "
+                           "die?); stopping", CLOCK_TOPIC, self._clock_timeout_ns / 1e9)
+            self.request_shutdown(_EXIT_CLOCK_LOST)
         if clock is not None and clock.started and clock.now_ns() - self._last_ack_ns >= _ACK_PERIOD_NS:
             self._last_ack_ns = clock.now_ns()
             self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns))
@@ -320,9 +375,17 @@ class Node:
                 srv.withdraw()
             self.flush()
         finally:
+            self._release(int(linger_s * 1000))
+
+    def _release(self, linger_ms: int) -> None:
+        """Close the registered resources, then the sockets."""
+        self._shutdown = True
+        try:
+            self._resources.close()
+        finally:
             self._closed = True
             self.log.removeHandler(self._bus_handler)
-            self._transport.close(int(linger_s * 1000))
+            self._transport.close(linger_ms)
 
     def __enter__(self) -> Node:
         return self
@@ -350,6 +413,7 @@ class Node:
             for t in self._timers:
                 t.due_ns += tick.sim_ns
         clock.update(tick.sim_ns)
+        self._last_tick_wall_ns = time.monotonic_ns()
 
     # -- internals ---------------------------------------------------------------------------------
     def _run_timers(self) -> None:

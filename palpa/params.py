@@ -4,6 +4,7 @@ command line or a launch file and are validated (types, unknown names) before th
 from __future__ import annotations
 
 import difflib
+import sys
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Annotated, Any, TypeVar, get_args, get_origin
@@ -13,9 +14,20 @@ import yaml
 
 from palpa.errors import ParamError
 
-__all__ = ["InputPath", "Params", "convert_params", "describe_params", "input_paths", "read_params_file"]
+__all__ = [
+    "InputPath", "NonNegative", "Params", "Positive", "PositiveInt", "convert_params", "describe_params", "input_paths",
+    "read_params_file",
+]
 
 P = TypeVar("P", bound="Params")
+
+# Physical bounds declared in the type: a launch file's --check and a node's start refuse a value outside them
+# (naming file:line and the parameter) before anything runs. NaN and infinity fail them too.
+Positive = Annotated[float, msgspec.Meta(gt=0.0, le=sys.float_info.max)]
+"""A finite float > 0 (a rate, a speed, a period, a size)."""
+NonNegative = Annotated[float, msgspec.Meta(ge=0.0, le=sys.float_info.max)]
+"""A finite float >= 0 (a set-point, a clearance, a delay that may be zero)."""
+PositiveInt = Annotated[int, msgspec.Meta(gt=0)]
 
 InputPath = Annotated[str, msgspec.Meta(extra={"palpa": "input path"})]
 """A ``str`` parameter naming a file or folder the node reads ('' = not given): ``palpa launch --check`` (and
@@ -78,6 +90,7 @@ def describe_params(cls: type[Params]) -> dict[str, str]:
         default = "required" if field.required else repr(
             field.default if field.default is not msgspec.NODEFAULT else field.default_factory()
         )
-        tname = "path" if _is_input_path(field.type) else getattr(field.type, "__name__", None) or str(field.type)
+        tp = get_args(field.type)[0] if get_origin(field.type) is Annotated else field.type  # bounds: the base
+        tname = "path" if _is_input_path(field.type) else getattr(tp, "__name__", None) or str(tp)
         out[field.name] = f"{tname} = {default}"
     return out

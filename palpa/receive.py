@@ -17,7 +17,16 @@ import msgspec
 from palpa.endpoints import RawMessage, Subscription
 from palpa.errors import DecodeError
 from palpa.transport import Delivery
-from palpa.wire import Envelope, Header, SequenceTracker, TopicStats, parse_envelope
+from palpa.wire import (
+    COUNTER_MAX,
+    MAX_MSG_BYTES,
+    MAX_TOPIC_BYTES,
+    Envelope,
+    Header,
+    SequenceTracker,
+    TopicStats,
+    parse_envelope,
+)
 
 if TYPE_CHECKING:
     from palpa.node import Node
@@ -25,6 +34,8 @@ if TYPE_CHECKING:
 __all__ = ["Receiver"]
 
 _ERROR_LOG_INTERVAL_NS = 5_000_000_000
+_ERROR_TEXT_MAX = 300
+_ROUTES_MAX = 4096  # topics remembered (ours or not); an attacker inventing topic names only costs a re-scan
 
 
 class _RawSubscription(NamedTuple):
@@ -54,6 +65,10 @@ class Receiver:
         self._tracker = SequenceTracker()
         self._raw_tracker = SequenceTracker()
         self._last_error_log: dict[str, int] = {}
+        options = getattr(node._transport, "options", None)
+        self.max_bytes: int = getattr(options, "max_msg_bytes", 0) or MAX_MSG_BYTES
+        self.internal_errors = 0
+        """Envelopes whose handling raised where nothing should (a receive-path bug): counted, logged, survived."""
 
     def add(self, key: bytes, sub: Subscription[Any]) -> None:
         """Deliver envelopes on exactly topic ``key`` to ``sub``."""
@@ -67,8 +82,8 @@ class Receiver:
 
     def count_error(self, topic: str, stats: TopicStats, text: str) -> None:
         """Count a bad message on ``topic``; log it, at most once per topic every five seconds."""
-        stats.decode_errors += 1
-        stats.last_error = text
+        stats.decode_errors = min(COUNTER_MAX, stats.decode_errors + 1)
+        stats.last_error = text = text if len(text) <= _ERROR_TEXT_MAX else text[:_ERROR_TEXT_MAX] + "..."
         now = time.monotonic_ns()
         if now - self._last_error_log.get(topic, -_ERROR_LOG_INTERVAL_NS) >= _ERROR_LOG_INTERVAL_NS:
             self._last_error_log[topic] = now
@@ -78,6 +93,8 @@ class Receiver:
         """Who gets messages on this exact topic (cached per topic; None: a prefix match that is not ours)."""
         route = self.routes.get(topic_b, _NO_ROUTE)
         if route is _NO_ROUTE:
+            if len(topic_b) > MAX_TOPIC_BYTES:  # no subscription has such a name; parse_envelope refuses it
+                return None
             sub = self.subs.get(topic_b)
             raws = tuple(r.callback for r in self.raw if topic_b.startswith(r.prefix))
             if sub is None and not raws:
@@ -86,17 +103,33 @@ class Receiver:
                 topic = topic_b.decode(errors="replace")
                 rstats = self.raw_stats.setdefault(topic, TopicStats()) if raws else None
                 route = _Route(topic, sub, raws, rstats)
+            if len(self.routes) >= _ROUTES_MAX:
+                self.routes.clear()
             self.routes[topic_b] = route
         return route  # type: ignore[return-value]
 
     def dispatch(self, delivery: Delivery) -> None:
-        """Hand one received envelope to the subscriptions of its exact topic (typed and raw)."""
+        """Hand one received envelope to the subscriptions of its exact topic (typed and raw). Nothing a peer
+        sends stops the node: what the checks below miss is counted in :attr:`internal_errors` and logged."""
+        try:
+            self._dispatch(delivery)
+        except Exception as exc:
+            self.internal_errors += 1
+            self.count_error("(receive)", TopicStats(), f"internal error on {delivery.frames[0][:80]!r}: {exc!r}")
+
+    def _dispatch(self, delivery: Delivery) -> None:
         node = self._node
         frames = delivery.frames
         route = self._route(frames[0])
         if route is None:
             return
         topic, sub, raws, rstats = route
+        size = sum(map(len, frames))
+        if size > self.max_bytes:
+            stats = sub.stats if sub is not None else rstats
+            if stats is not None:
+                self.count_error(topic, stats, f"message of {size} bytes refused (max_msg_bytes {self.max_bytes})")
+            return
         try:
             env = parse_envelope(frames)
             items = env.messages() if rstats is not None else None
@@ -109,8 +142,8 @@ class Receiver:
         if items is not None and rstats is not None:
             tracker = self._raw_tracker
             for header, payload, blobs in items:
-                if not (cached and tracker.seen_at_least(topic, header.node, header.seq)) and \
-                        tracker.observe(topic, header.node, header.seq, rstats):
+                if not (cached and tracker.seen_at_least(topic, header.node, header.seq, header.inc)) and \
+                        tracker.observe(topic, header.node, header.seq, rstats, header.inc):
                     raw = RawMessage(topic, header, payload, blobs, cached, time.time_ns())
                     for callback in raws:
                         node._call(callback, raw)
@@ -136,13 +169,13 @@ class Receiver:
         first = headers[0]
         n = len(headers)
         if [h.seq for h in headers] != list(range(first.seq, first.seq + n)) or \
-                any(h.node != first.node or h.type != sub.type_name for h in headers):
+                any(h.node != first.node or h.type != sub.type_name or h.inc != first.inc for h in headers):
             return False
         try:
             msgs = sub.batch_decoder.decode(env.payload)
         except (msgspec.ValidationError, msgspec.DecodeError):
             return False
-        if len(msgs) != n or not self._tracker.observe_run(topic, first.node, first.seq, n, sub.stats):
+        if len(msgs) != n or not self._tracker.observe_run(topic, first.node, first.seq, n, sub.stats, first.inc):
             return False
         sub.last_blobs = []
         callback = sub.callback
@@ -173,9 +206,7 @@ class Receiver:
     def _deliver(self, sub: Subscription[Any], topic: str, header: Header, payload: bytes,
                  blobs: list[bytes], cached: bool) -> None:
         node = self._node
-        if cached and self._tracker.seen_at_least(topic, header.node, header.seq):
-            return
-        if not self._tracker.observe(topic, header.node, header.seq, sub.stats):
+        if cached and self._tracker.seen_at_least(topic, header.node, header.seq, header.inc):
             return
         if header.type != sub.type_name:
             self.count_error(topic, sub.stats, f"expected type {sub.type_name}, got {header.type}")
@@ -184,6 +215,9 @@ class Receiver:
             msg = sub.decoder.decode(payload)
         except (msgspec.ValidationError, msgspec.DecodeError) as exc:
             self.count_error(topic, sub.stats, f"{header.type}: {exc}")
+            return
+        # sequence numbers count only once the message is valid: garbage cannot fake gaps or restarts
+        if not self._tracker.observe(topic, header.node, header.seq, sub.stats, header.inc):
             return
         sub.last_header = header
         sub.last_blobs = blobs

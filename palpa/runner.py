@@ -37,7 +37,7 @@ def node_arg_parser(prog: str) -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog=prog, description=f"run the palpa node {prog}")
     ap.add_argument("--name", help="node name (default: from the class)")
     ap.add_argument("--namespace", default="", help="prefix for relative topic names")
-    ap.add_argument("--bus", help="bus address (default: $PALPA_BUS or ipc:///tmp/palpa-<uid>)")
+    ap.add_argument("--bus", help="bus address (default: $PALPA_BUS or ipc://$XDG_RUNTIME_DIR/palpa/bus, else ipc:///tmp/palpa-<uid>/bus)")
     ap.add_argument("-p", "--param", action="append", default=[], metavar="KEY=VALUE",
                     help="set a parameter; VALUE is parsed as YAML (repeatable)")
     ap.add_argument("--params-json", help="all parameters as one JSON object (used by the launcher)")

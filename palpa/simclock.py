@@ -18,6 +18,7 @@ from typing import Any
 
 from palpa.clock import SystemClock
 from palpa.node import Node
+from palpa.params import NonNegative, Positive
 from palpa.params import Params as ParamsBase
 from palpa.runner import run_node
 from palpa.runtime_msgs import CLOCK_ACK_TOPIC, CLOCK_TOPIC, ClockAck, ClockTick
@@ -29,13 +30,13 @@ class ClockSource(Node):
     """Publishes simulation time: ``start + time_scale * (wall time since start)`` at ``rate_hz`` wall ticks."""
 
     class Params(ParamsBase):
-        time_scale: float = 1.0
+        time_scale: Positive = 1.0
         """Simulated seconds per wall-clock second (> 0)."""
-        rate_hz: float = 1000.0
+        rate_hz: Positive = 1000.0
         """Ticks per wall-clock second: the time resolution timers in sim-clock nodes get."""
-        max_lead_s: float = 0.02
+        max_lead_s: NonNegative = 0.02
         """Simulated seconds the clock may run ahead of the slowest acknowledging node (0: no lockstep)."""
-        participant_timeout_s: float = 2.0
+        participant_timeout_s: Positive = 2.0
         """A node not heard for this long (wall clock) no longer holds the clock back (it died or stopped)."""
 
     def __init__(self, name: str | None = None, params: Mapping[str, Any] | Params | None = None,
@@ -52,8 +53,6 @@ class ClockSource(Node):
         self._sim = time.time_ns()
         self._acks: dict[str, tuple[int, int]] = {}
         """node -> (acknowledged sim ns, wall monotonic ns when heard)"""
-        self.held_ns = 0
-        """Simulated time withheld so far because a node lagged."""
         if self.params.max_lead_s > 0:
             self.subscribe(CLOCK_ACK_TOPIC, self._on_ack)
         self.timer(1.0 / self.params.rate_hz, self._tick, first_in_s=0.0)
@@ -71,7 +70,6 @@ class ClockSource(Node):
         if live and self.params.max_lead_s > 0:
             limit = min(live) + int(self.params.max_lead_s * 1e9)
             if proposed > limit:
-                self.held_ns += proposed - max(limit, self._sim)
                 proposed = max(limit, self._sim)
         self._sim = proposed
         return proposed

@@ -23,6 +23,9 @@ import zmq.auth
 from palpa.address import BusAddress
 from palpa.direct import DIRECTORY_PREFIX, DirectSocket, SubscriberSet, directory_entry
 from palpa.errors import BusError
+from palpa.handshake import HANDSHAKE_EVENTS, HandshakeWatch
+from palpa.keys import load_secret_key
+from palpa.wire import MAX_MSG_BYTES
 
 __all__ = ["Delivery", "SendFn", "Transport", "TransportOptions", "ZmqTransport", "curve_client_options"]
 
@@ -89,17 +92,20 @@ class TransportOptions:
     busy_poll_us: int = 0
     """Before blocking for input, check for it in a loop for up to this long (a CPU core kept busy in exchange
     for not paying the operating system's wake-up latency; 0: always block)."""
+    max_msg_bytes: int = MAX_MSG_BYTES
+    """The largest message this node accepts (all frames together; ZeroMQ disconnects a peer that sends a
+    single frame above it). Larger ones are refused and counted as bad messages on their topic."""
     direct: tuple[str, ...] = ()
     """Topics (names on the bus, after remapping) this node publishes straight to their subscribers instead of
     through the proxy: one hop instead of two (palpa.direct). ``PALPA_DIRECT`` takes them comma-separated."""
 
     ENV_VARS: ClassVar[dict[str, str]] = {
         "sndhwm": "PALPA_SNDHWM", "rcvhwm": "PALPA_RCVHWM", "busy_poll_us": "PALPA_BUSY_POLL_US",
-        "direct": "PALPA_DIRECT",
+        "direct": "PALPA_DIRECT", "max_msg_bytes": "PALPA_MAX_MSG_BYTES",
     }
 
     def __post_init__(self) -> None:
-        for name in ("sndhwm", "rcvhwm", "busy_poll_us"):
+        for name in ("sndhwm", "rcvhwm", "busy_poll_us", "max_msg_bytes"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise BusError(f"transport option {name}: expected an integer >= 0, got {value!r}")
@@ -152,6 +158,19 @@ def _send_frames(sock: zmq.Socket[bytes], frames: Sequence[bytes]) -> None:
             _send(sock, frame, flags, copy=False)
 
 
+def _check_ipc_owner(endpoint: str) -> None:
+    """Refuse an ipc socket another user made: it is their bus, not ours (they would read what we publish)."""
+    if not endpoint.startswith("ipc://"):
+        return
+    try:
+        owner = os.stat(endpoint[len("ipc://") :]).st_uid
+    except OSError:
+        return  # not there yet: the bus starts later (ZeroMQ connects when it appears)
+    if owner not in (os.getuid(), 0):
+        raise BusError(f"{endpoint} belongs to uid {owner}, not to this user: refusing to connect to another "
+                       "user's socket")
+
+
 def curve_client_options() -> dict[str, bytes] | None:
     """CURVE client keys from the environment, or None when the bus is not encrypted.
 
@@ -169,9 +188,7 @@ def curve_client_options() -> dict[str, bytes] | None:
         server_public, _ = zmq.auth.load_certificate(server)
     else:
         server_public = server.encode()
-    public, secret = zmq.auth.load_certificate(secret_file)
-    if secret is None:
-        raise BusError(f"PALPA_CURVE_SECRET={secret_file}: not a secret key file")
+    public, secret = load_secret_key(secret_file)
     return {"server": server_public, "public": public, "secret": secret}
 
 
@@ -204,13 +221,17 @@ class ZmqTransport:
         self._latch = self._ctx.socket(zmq.DEALER)
         self._pub.sndhwm = options.sndhwm
         self._sub.rcvhwm = options.rcvhwm
+        if options.max_msg_bytes:
+            self._sub.maxmsgsize = self._latch.maxmsgsize = options.max_msg_bytes
         self._sub.reconnect_ivl_max = _RECONNECT_MAX_MS  # withdrawn direct publishers stay connected (cheaply)
         for sock in (self._pub, self._sub, self._latch):
             if curve is not None:
                 sock.curve_serverkey = curve["server"]
                 sock.curve_publickey = curve["public"]
                 sock.curve_secretkey = curve["secret"]
-        monitor = self._pub.get_monitor_socket(zmq.EVENT_HANDSHAKE_SUCCEEDED)
+        for endpoint in (address.pub, address.sub, address.latch):
+            _check_ipc_owner(endpoint)
+        monitor = self._pub.get_monitor_socket(HANDSHAKE_EVENTS)
         try:
             self._pub.connect(address.pub)
             self._sub.connect(address.sub)
@@ -225,22 +246,33 @@ class ZmqTransport:
         for sock in (self._sub, self._latch, self._pub):
             self._watch(sock)
         self._closed = False
-        self.connected = self._await_proxy(monitor, connect_timeout_s)
+        self._prefixes: list[bytes] = []
+        self._watch_hs = HandshakeWatch(monitor, self._pub, address.pub, self._curve,
+                                        [(self._pub, address.pub), (self._sub, address.sub),
+                                         (self._latch, address.latch)], self._accepted)
+        self.connected = self._await_proxy(self._watch_hs, connect_timeout_s)
 
-    def _await_proxy(self, monitor: zmq.Socket[bytes], timeout_s: float) -> bool:
+    def _await_proxy(self, watch: HandshakeWatch, timeout_s: float) -> bool:
         """Wait (bounded) for the publisher's handshake with the proxy and for the proxy's first subscriptions,
-        so the first message published is not lost; returns False when the bus did not answer in time."""
+        so the first message published is not lost; returns False when the bus did not answer in time (a
+        refused node keeps the watch, which retries from :meth:`poll`)."""
         try:
-            if not monitor.poll(int(timeout_s * 1000)):
+            if not watch.wait(timeout_s):
                 return False
-            monitor.recv_multipart()
-            # the proxy forwards every current subscription on attach; none at all means nobody listens yet
-            if self._pub.poll(_SUBSCRIPTIONS_GRACE_MS):
-                self._drain_subscriptions(self._pub, self._bus_listeners)
+            self._accepted()
             return True
         finally:
-            self._pub.disable_monitor()
-            monitor.close(0)
+            if not watch.refused:
+                watch.close()
+
+    def _accepted(self) -> None:
+        # the proxy forwards every current subscription on attach; none at all means nobody listens yet
+        if self._pub.poll(_SUBSCRIPTIONS_GRACE_MS):
+            self._drain_subscriptions(self._pub, self._bus_listeners)
+        if self._watch_hs.refused:  # what the refused latch connection lost: ask again
+            for prefix in self._prefixes:
+                self._latch.send_multipart([b"GET", prefix])
+            self.connected = True
 
     def _watch(self, sock: zmq.Socket[bytes]) -> None:
         """Wait for input on ``sock`` too (in poll and in sub-ms waits)."""
@@ -315,6 +347,7 @@ class ZmqTransport:
     def subscribe(self, prefix: bytes, request_latched: bool) -> None:
         self._sub.setsockopt(zmq.SUBSCRIBE, prefix)
         if request_latched:
+            self._prefixes.append(prefix)
             self._latch.send_multipart([b"GET", prefix])
         if not self._curve:  # direct publishers of matching topics, now and later (palpa.direct)
             self._latch.send_multipart([b"GET", DIRECTORY_PREFIX + prefix])
@@ -324,6 +357,8 @@ class ZmqTransport:
 
     def poll(self, timeout_s: float, max_batch: int = 1000) -> list[Delivery]:
         out: list[Delivery] = []
+        if self._watch_hs.monitor is not None:  # refused by the bus: retry (palpa.handshake)
+            self._watch_hs.check()
         if timeout_s > 0:
             if self._busy_poll_ns:
                 timeout_s = self._busy_wait(timeout_s)
@@ -353,6 +388,9 @@ class ZmqTransport:
                         self._on_directory(frames[1], frames[3])
                     else:
                         out.append(Delivery(frames[1:], True))
+                elif frames and frames[0] == b"ERR" and len(frames) >= 3:
+                    log.warning("the bus's latch cache refused %r: %s", frames[1][:80],
+                                frames[2][:300].decode(errors="replace"))
         return out
 
     def _read_sub(self, out: list[Delivery], max_batch: int) -> None:
@@ -403,6 +441,8 @@ class ZmqTransport:
         if getattr(self, "_closed", False):
             return
         self._closed = True
+        if hasattr(self, "_watch_hs"):
+            self._watch_hs.close()
         if self._direct is not None:  # withdraws its announcements first (through the latch socket)
             self._direct.close(self._latch, linger_ms)
         for sock in (self._pub, self._sub, self._latch):

@@ -25,14 +25,18 @@ from __future__ import annotations
 import functools
 import struct
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Annotated, Any
 
 import msgspec
 
 from palpa.errors import DecodeError
 
 __all__ = [
+    "COUNTER_MAX",
     "Envelope",
+    "MAX_BATCH",
+    "MAX_MSG_BYTES",
+    "MAX_TOPIC_BYTES",
     "Header",
     "HeaderTemplate",
     "SequenceTracker",
@@ -46,14 +50,31 @@ __all__ = [
 ]
 
 
+_UINT64 = Annotated[int, msgspec.Meta(ge=0)]  # msgpack holds nothing above uint64
+
+MAX_MSG_BYTES = 16 * 2**20
+"""Default limit on one message (per bus: ZeroMQ's MAXMSGSIZE on its inputs; per node: ``max_msg_bytes``)."""
+MAX_TOPIC_BYTES = 1024
+MAX_BATCH = 10_000
+"""Messages one batch may carry; palpa's publishers send at most DEFAULT_BATCH (64)."""
+
+COUNTER_MAX = 2**63 - 1
+"""Receive counters saturate here: any msgpack reader (int64 or uint64) reads them, and no bytes a peer sends
+can push a counter past what a heartbeat encodes."""
+
+
 class Header(msgspec.Struct, frozen=True, omit_defaults=True, gc=False):
     """Frame 1 of the envelope. ``stamp`` is the publish time in ns since the Unix epoch."""
 
     type: str
-    seq: int
+    seq: _UINT64
     stamp: int
     node: str
     latched: bool = False
+    inc: _UINT64 = 0
+    """The publisher's incarnation: a number drawn anew each time a node starts (0: not given, as from older
+    publishers). A change means the publisher restarted, so its ``seq`` starting again at 1 is news, not a
+    duplicate."""
 
 
 _header_encoder = msgspec.msgpack.Encoder()
@@ -79,12 +100,13 @@ class HeaderTemplate:
     """Fast header encoding for one publisher: the constant fields are packed once, ``seq`` and ``stamp`` per
     message (as msgpack uint64, valid for every msgpack reader)."""
 
-    def __init__(self, type_name: str, node: str, latched: bool) -> None:
+    def __init__(self, type_name: str, node: str, latched: bool, inc: int = 0) -> None:
         enc = msgspec.msgpack.encode
-        entries = 5 if latched else 4
+        entries = 4 + bool(latched) + bool(inc)
         prefix = (
             bytes([0x80 | entries]) + enc("type") + enc(type_name) + enc("node") + enc(node)
-            + (enc("latched") + enc(True) if latched else b"") + enc("seq") + b"\xcf"
+            + (enc("latched") + enc(True) if latched else b"") + (enc("inc") + enc(inc) if inc else b"")
+            + enc("seq") + b"\xcf"
         )
         mid = enc("stamp") + b"\xcf"
         # the whole map in one struct: the constant parts as fixed-length byte strings, the two numbers as uint64
@@ -128,6 +150,8 @@ def parse_envelope(frames: list[bytes]) -> Envelope:
     """Validate the frame count and the header(s); raises :class:`DecodeError` saying what is wrong."""
     if len(frames) < 3:
         raise DecodeError(f"envelope has {len(frames)} frames, expected at least 3")
+    if len(frames[0]) > MAX_TOPIC_BYTES:
+        raise DecodeError(f"topic of {len(frames[0])} bytes (at most {MAX_TOPIC_BYTES})")
     head = frames[1]
     kind = head[0] if head else 0
     if kind & 0xF0 == 0x90 or kind == 0xDC or kind == 0xDD:  # a msgpack array: a batch
@@ -135,6 +159,8 @@ def parse_envelope(frames: list[bytes]) -> Envelope:
             headers = _batch_decoder.decode(head)
         except (msgspec.ValidationError, msgspec.DecodeError) as exc:
             raise DecodeError(f"bad batch header: {exc}") from None
+        if not headers or len(headers) > MAX_BATCH:
+            raise DecodeError(f"batch of {len(headers)} messages (1..{MAX_BATCH})")
         if len(frames) != 3:
             raise DecodeError(f"batch envelope has {len(frames)} frames, expected 3")
         return Envelope(headers, frames[2], [], True)
@@ -188,43 +214,57 @@ class SequenceTracker:
     """Tracks the last sequence number per (topic, publisher) and classifies each arrival."""
 
     _last: dict[tuple[str, str], int] = field(default_factory=dict)
+    _inc: dict[tuple[str, str], int] = field(default_factory=dict)
+    """The incarnation last seen per (topic, publisher), where one was given."""
 
-    def observe(self, topic: str, node: str, seq: int, stats: TopicStats) -> bool:
+    def observe(self, topic: str, node: str, seq: int, stats: TopicStats, inc: int = 0) -> bool:
         """Record one arrival; returns False when it is a duplicate that should be dropped.
 
         A latched message can reach a late joiner twice (live and from the bus cache); an exact repeat of the
-        last sequence number from the same publisher is that case.
+        last sequence number from the same incarnation of the same publisher is that case. A new incarnation is
+        a restart whatever its sequence number.
         """
         key = (topic, node)
         last = self._last.get(key)
+        if self._inc.get(key, 0) != inc:
+            self._inc[key] = inc
+            if last is not None:
+                stats.restarts = min(COUNTER_MAX, stats.restarts + 1)
+                last = None
         if last is not None:
             if seq == last:
-                stats.duplicates += 1
+                stats.duplicates = min(COUNTER_MAX, stats.duplicates + 1)
                 return False
             if seq < last:
-                stats.restarts += 1
+                stats.restarts = min(COUNTER_MAX, stats.restarts + 1)
             elif seq > last + 1:
-                stats.gaps += seq - last - 1
+                stats.gaps = min(COUNTER_MAX, stats.gaps + seq - last - 1)
         self._last[key] = seq
         stats.received += 1
         return True
 
-    def observe_run(self, topic: str, node: str, first: int, n: int, stats: TopicStats) -> bool:
+    def observe_run(self, topic: str, node: str, first: int, n: int, stats: TopicStats, inc: int = 0) -> bool:
         """Record ``n`` arrivals with consecutive sequence numbers from ``first`` (a batch) in one step; returns
-        False, recording nothing, when the run does not start after the last one seen (the caller then goes
-        message by message)."""
+        False, recording nothing, when the run does not start after the last one seen or comes from another
+        incarnation (the caller then goes message by message)."""
         key = (topic, node)
         last = self._last.get(key)
+        if self._inc.get(key, 0) != inc:
+            if last is not None:
+                return False
+            self._inc[key] = inc
         if last is not None:
             if first <= last:
                 return False
-            stats.gaps += first - last - 1
+            stats.gaps = min(COUNTER_MAX, stats.gaps + first - last - 1)
         self._last[key] = first + n - 1
         stats.received += n
         return True
 
-    def seen_at_least(self, topic: str, node: str, seq: int) -> bool:
-        """True when a message with this or a later sequence number from ``node`` was already delivered."""
-        last = self._last.get((topic, node))
-        return last is not None and last >= seq
+    def seen_at_least(self, topic: str, node: str, seq: int, inc: int = 0) -> bool:
+        """True when a message with this or a later sequence number from this incarnation of ``node`` was
+        already delivered."""
+        key = (topic, node)
+        last = self._last.get(key)
+        return last is not None and last >= seq and self._inc.get(key, 0) == inc
 

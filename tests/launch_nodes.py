@@ -4,6 +4,8 @@
     python launch_nodes.py crash [CODE]  exits with CODE (default 3) at once
     python launch_nodes.py steady        prints "tick N" every 0.1 s until SIGINT/SIGTERM, then exits 0
     python launch_nodes.py quit CODE S   prints a line, exits with CODE after S seconds
+    python launch_nodes.py crash_once F  exits 3 if file F does not exist (creating it), else is steady
+    python launch_nodes.py fail_on_stop  is steady, but exits 4 when stopped
     python launch_nodes.py parent        starts a grandchild (steady) in the same process group, then is steady
     python launch_nodes.py env           prints its PALPA_* environment as one JSON line, then is steady
     python launch_nodes.py loud          prints an INFO and a WARNING line, then is steady
@@ -67,6 +69,15 @@ def main(argv: list[str]) -> int:
         print(f"quit: exiting {argv[1]} in {argv[2]} s", flush=True)
         time.sleep(float(argv[2]))
         return int(argv[1])
+    if kind == "crash_once":  # fails the first time (no FILE yet), then runs steady
+        if not os.path.exists(argv[1]):
+            open(argv[1], "w").close()
+            print("crash_once: failing this first time", flush=True)
+            return 3
+        return steady()
+    if kind == "fail_on_stop":  # steady, but reports failure (exit 4) when asked to stop
+        steady()
+        return 4
     if kind == "parent":
         grandchild = subprocess.Popen([sys.executable, __file__, "steady"], stdout=subprocess.DEVNULL)
         print(f"parent pid {os.getpid()} grandchild pid {grandchild.pid}", flush=True)

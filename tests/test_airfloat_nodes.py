@@ -21,40 +21,69 @@ def measured(phantom: str) -> str:
     return phantom.replace("phantoms/", "phantoms/measured/")
 
 
-def held_probe(phantom: str, kpa: float, **est: object) -> GraphHarness:
+def held_probe(phantom: str, kpa: float, errors: str = "ideal", z_mm: float = 21.0, calibration: str = "",
+               geometry: str = "", **est: object) -> GraphHarness:
+    """The probe held z_mm above the table (1 mm above a 20 mm sample) at kpa; ``errors="ideal"``: a perfect device
+    and regulator, so that only the world and the estimator's model differ."""
     g = GraphHarness()
-    g.add(StaticPose, {"z_mm": 21.0})
-    g.add(PressureController, {"startup": "hold", "setpoint_kpa": kpa})
-    g.add(FibreReader, {"phantom": phantom})
-    g.add(StiffnessEstimator, {"geometry": measured(phantom), **est})
+    g.add(StaticPose, {"z_mm": z_mm})
+    g.add(PressureController, {"startup": "hold", "setpoint_kpa": kpa, "calibration": calibration,
+                               **({"sim_tracking_kpa": 0.0} if errors == "ideal" else {})})
+    g.add(FibreReader, {"phantom": phantom, "sim_errors": errors})
+    g.add(StiffnessEstimator, {"geometry": geometry or measured(phantom), "calibration": calibration, **est})
     return g
 
 
-@pytest.mark.parametrize(("phantom", "truth", "pressures"), [
-    ("phantoms/flat_26k.yaml", 26.4, (33.0, 36.0, 40.0)),
-    ("phantoms/flat_10k.yaml", 10.8, (32.0, 33.5, 34.5)),
-])
-def test_estimate_within_10_percent_at_1_to_3_mm(phantom: str, truth: float, pressures: tuple[float, ...]) -> None:
-    depths = []
-    for kpa in pressures:
-        g = held_probe(phantom, kpa)
-        g.advance(1.5)
-        recent = [m for m in g.published("stiffness/sample", StiffnessSample) if m.stamp_ns > g.clock.now_ns() - 5e8]
-        valid = [m for m in recent if m.valid]
-        assert len(valid) > 0.9 * len(recent) > 100
-        d = float(np.median([m.d_in_mm for m in valid]))
-        e = float(np.median([m.value for m in valid]))
-        depths.append(d)
-        assert abs(e / truth - 1) < 0.10, (kpa, d, e)
-        g.close()
-    assert min(depths) < 1.6 and max(depths) > 2.5  # the pressures span the 1-3 mm range
+def held_estimate(g: GraphHarness) -> tuple[float, float]:
+    """(median d_in mm, median E kPa) of the last 0.5 s of valid samples after 1.5 s."""
+    g.advance(1.5)
+    recent = [m for m in g.published("stiffness/sample", StiffnessSample) if m.stamp_ns > g.clock.now_ns() - 5e8]
+    valid = [m for m in recent if m.valid]
+    assert len(valid) > 0.9 * len(recent) > 100
+    g.close()
+    return float(np.median([m.d_in_mm for m in valid])), float(np.median([m.value for m in valid]))
+
+
+def test_eq7_on_a_thin_layer_within_3_percent_of_the_fe_world(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A perfect probe 1 mm into a 5 mm layer (chi = 0.4): the world is FE, the estimator eq. 7, and they agree
+    within 3 % (the issue's reference: eq. 7 is good on thick layers, ~5 % off at chi 0.54). A wrong shared constant
+    (eq. 7's 1.133 -> 1.333 moves E by 5 % here) turns this red."""
+    import yaml
+
+    from models.phantom import load_phantom
+    from models.world import TissueWorld
+
+    phantom, geometry = tmp_path / "thin.yaml", tmp_path / "thin_measured.yaml"
+    phantom.write_text(yaml.safe_dump({"size_mm": [60, 60], "thickness_mm": 5.0, "youngs_modulus_kpa": 26.4}))
+    geometry.write_text("thickness_mm: 5.0\n")
+    force = float(TissueWorld(load_phantom(phantom)).force_n(30.0, 30.0, 1.0, indenter_radius_mm=4.0))
+    kpa = (force + 2.34) / 7.59 * 100.0  # the ideal device's law: the paper's line
+    d, e = held_estimate(held_probe(str(phantom), kpa, z_mm=6.0, geometry=str(geometry)))
+    assert abs(d - 1.0) < 0.05 and abs(e / 26.4 - 1) < 0.03, (d, e)
+
+
+@pytest.mark.parametrize(("phantom", "truth", "kpa"), [("phantoms/flat_26k.yaml", 26.4, 36.0),
+                                                       ("phantoms/flat_10k.yaml", 10.8, 33.0)])
+def test_calibration_beats_the_devices_errors(phantom: str, truth: float, kpa: float, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The realistic simulated probe (device 0: its own force line, hysteresis, SPS gap, fibre errors) read with
+    the paper's eq. 4 line is far off on the Fig. 11 samples; calibrated on the bench (nodes.calibrate_airfloat:
+    force sensor + the two reference samples), it is within 10 % (held at one depth; BENCHMARKS.md has the
+    Fig. 11 ramp protocol)."""
+    from models.calibration_airfloat import save_calibration
+    from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate
+
+    cal = tmp_path / "cal.yaml"
+    save_calibration(cal, calibrate(0, [Reference.parse(t) for t in DEFAULT_REFERENCES]))
+    _, before = held_estimate(held_probe(phantom, kpa, errors="realistic"))
+    _, after = held_estimate(held_probe(phantom, kpa, errors="realistic", calibration=str(cal)))
+    assert abs(before / truth - 1) > 0.15 and abs(after / truth - 1) < 0.10, (before, after)
 
 
 def test_ramp_mode_fits_three_models() -> None:
     g = GraphHarness()
     g.add(StaticPose, {"z_mm": 21.0})
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": 30.0})  # just below contact force
-    g.add(FibreReader, {"phantom": "phantoms/flat_26k.yaml"})
+    g.add(FibreReader, {"phantom": "phantoms/flat_26k.yaml", "sim_errors": "ideal"})
     g.add(StiffnessEstimator, {"geometry": "phantoms/measured/flat_26k.yaml", "ramp_fits": True, "max_depth_mm": 3.2})
     g.advance(1.0)
     g.publish("pressure/command", PressureCommand(mode="ramp", setpoint_kpa=40.0, rate_kpa_s=4.0))
@@ -79,7 +108,7 @@ def test_pressure_never_exceeds_cap_whatever_is_commanded() -> None:
         h.advance(2.0)
     states = h.published("pressure/state")
     assert max(s.setpoint_kpa for s in states) <= 30.0
-    assert max(s.measured_kpa for s in states) <= 30.0 + 0.1  # read-back noise only
+    assert max(s.measured_kpa for s in states) <= 30.0 + 0.25  # read-back noise only (σ 0.05 kPa)
     assert "clamped" in states[-1].faults
 
 
@@ -161,3 +190,29 @@ def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path) -> None:  # 
     e = float(np.median([m.value for m in got[-200:]]))
     d = float(np.median([m.d_in_mm for m in got[-200:]]))
     assert 1.0 <= d <= 3.0 and abs(e / 10.8 - 1) < 0.10, (d, e)
+
+
+def test_calibration_file_sets_force_line_and_depth_offset(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The pressure controller publishes the file's force line; the estimator adds its depth offset to d_in."""
+    from messages import PressureState
+
+    cal = tmp_path / "cal.yaml"
+    cal.write_text("force: {gain: 8.0, offset: -2.5, pressure_unit_kpa: 100.0}\ndepth_offset_mm: 0.1\n")
+    h = NodeHarness(PressureController, {"startup": "hold", "setpoint_kpa": 36.0, "calibration": str(cal),
+                                         "sim_tracking_kpa": 0.0, "sim_noise_kpa": 0.0})
+    h.advance(1.0)
+    st = h.published("pressure/state", PressureState)[-1]
+    assert st.force_n == pytest.approx(8.0 * st.measured_kpa / 100 - 2.5)
+    e = NodeHarness(StiffnessEstimator, {"thickness_mm": 20.0, "calibration": str(cal)})
+    t0 = e.clock.now_ns()
+    for k in (0, 10_000_000):
+        e.publish("robot/pose", RobotPose(stamp_ns=t0 + k, x_mm=10.0, y_mm=0.0, z_mm=21.0))
+        e.publish("pressure/state", PressureState(stamp_ns=t0 + k, setpoint_kpa=36, measured_kpa=36, force_n=0.4,
+                                                  mode="hold", max_kpa=60))
+    e.publish("probe/heights", ProbeHeights(stamp_ns=t0 + 5_000_000, seq=1, h_mm=(1.0, 1.0, 1.0, 3.0),
+                                            raw=(0, 0, 0, 0), d_in_mm=2.0, tilt_rad=0.0))
+    e.advance(0.05)
+    assert e.published("stiffness/sample")[0].d_in_mm == pytest.approx(2.1)  # eqs. 1-3 give 2.0, + 0.1
+    with pytest.raises(Exception, match="cal.yaml: force: gain"):
+        cal.write_text("force: {gain: x, offset: 1}\n")
+        NodeHarness(StiffnessEstimator, {"calibration": str(cal)})

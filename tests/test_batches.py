@@ -76,7 +76,8 @@ def test_a_bad_payload_in_a_batch_costs_that_message_only() -> None:
                                      ("Text", 3, "x", {"text": "c"})]))
     stats = h.node.counters()["chatter"]
     assert h.node.texts == ["a", "c"]
-    assert (stats.received, stats.decode_errors) == (3, 1)
+    # sequence numbers count valid messages only (garbage cannot fake gaps): the bad one is an error and a gap
+    assert (stats.received, stats.decode_errors, stats.gaps) == (2, 1, 1)
     assert "at `$.text`" in stats.last_error
 
 
@@ -100,8 +101,8 @@ def test_gaps_repeats_mixed_types_and_publishers_are_counted_as_single_messages_
     h.publish_raw(batch(b"chatter", [("Text", 9, "x", {"text": "9"}), ("Text", 1, "y", {"text": "y1"})]))
     stats = h.node.counters()["chatter"]
     assert h.node.texts == ["1", "2", "5", "6", "8", "9", "y1"]
-    assert (stats.gaps, stats.duplicates, stats.decode_errors) == (2, 1, 1)
-    assert stats.received == 8 and "expected type Text, got RobotPose" in stats.last_error
+    assert (stats.gaps, stats.duplicates, stats.decode_errors) == (3, 1, 1)  # the wrong-typed 7 is a gap too
+    assert stats.received == 7 and "expected type Text, got RobotPose" in stats.last_error
 
 
 @pytest.mark.parametrize("frames, error", [

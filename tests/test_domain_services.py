@@ -213,7 +213,7 @@ def test_tare_over_the_serial_driver_zeroes_the_heights() -> None:
     from test_probe_nodes_serial import CAL, run_until
 
     from emulators.fibre_daq import FibreDaqEmulator, source_from_heights
-    from nodes.drivers.fibre import load_calibration
+    from models.fibre_calibration import load_calibration
 
     cal = load_calibration(CAL)
     with FibreDaqEmulator(source_from_heights(cal, lambda t: (1.5, 1.5, 1.5, 3.5)), rate_hz=200) as emu:

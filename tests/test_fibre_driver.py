@@ -1,4 +1,4 @@
-"""Fibre DAQ: protocol, calibration, clock filter, and the serial driver against the pty emulator."""
+"""Fibre DAQ: calibration, clock filter, and the serial driver against the pty emulator (the codec: test_devices_fibre_daq.py)."""
 
 from __future__ import annotations
 
@@ -14,24 +14,18 @@ from pathlib import Path
 import pytest
 from procs import ProcessGroup, wait_until
 
+from devices.fibre_daq import CHANNELS
 from emulators.fibre_daq import FibreDaqEmulator, fixed_pose, source_from_heights
+from models.clock_offset import ClockOffsetEstimator
+from models.fibre_calibration import FibreCalibration, FibreCalibrationError, load_calibration
 from nodes.drivers.fibre import (
-    CHANNELS,
-    ClockOffsetEstimator,
-    FibreCalibration,
-    FibreCalibrationError,
     FibreCommandError,
     FibreCounters,
     FibreDriver,
     FibreNotConnectedError,
     FibreSample,
-    SentenceError,
-    SerialFibreDriver,
-    checksum,
-    decode_sentence,
-    encode_sentence,
-    load_calibration,
 )
+from nodes.drivers.fibre_serial import SerialFibreDriver
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -79,27 +73,6 @@ def settled(drv: SerialFibreDriver) -> FibreCounters:
     """Drain what is queued, then return a counter baseline taken while data flows."""
     collect(drv, 5)
     return counters(drv)
-
-
-# --- protocol -------------------------------------------------------------------------
-
-
-def test_sentence_roundtrip_and_checksum() -> None:
-    line = encode_sentence("F,7,1000,1,2,3,4")
-    assert line.endswith(b"\r\n")
-    assert int(line[-4:-2], 16) == checksum(b"F,7,1000,1,2,3,4")
-    assert decode_sentence(line.rstrip(b"\r\n")) == (["F", "7", "1000", "1", "2", "3", "4"], False)
-    assert decode_sentence(b"\x00junk" + line.rstrip(b"\r\n")) == (["F", "7", "1000", "1", "2", "3", "4"], True)
-
-
-@pytest.mark.parametrize(
-    ("line", "kind"),
-    [(b"junk without marker", "resync"), (b"$F,1,2,3,4,5,6", "corrupt"), (b"$F,1,2,3,4,5,6*00", "corrupt"), (b"$F,1*ZZ", "corrupt")],
-)
-def test_decode_rejects(line: bytes, kind: str) -> None:
-    with pytest.raises(SentenceError) as exc:
-        decode_sentence(line)
-    assert exc.value.kind == kind
 
 
 # --- calibration ----------------------------------------------------------------------

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import models.contact
+from models._arrays import ArrayLike
 from models.airfloat import ForceCalibration, indentation_from_heights
 from models.airfloat_device import ProbeErrors, TrueProbe
 from models.phantom import load_phantom
@@ -29,10 +30,13 @@ class HalfSpace:
         self.e = e_kpa / 1000.0  # N/mm^2
         self.calls = 0
 
-    def depth_mm(self, x: np.ndarray, y: np.ndarray, force_n: np.ndarray, *, indenter_radius_mm: float) -> np.ndarray:
-        self.calls += 1
+    def depth_mm(self, x: ArrayLike, y: ArrayLike, force_n: ArrayLike, *, indenter_radius_mm: float = 4.0) -> ArrayLike:
         f = np.clip(np.asarray(force_n, dtype=float), 0.0, None)
         return np.asarray((3 * f * 0.75 / (4 * self.e * np.sqrt(indenter_radius_mm))) ** (2 / 3))
+
+    def force_n(self, x: ArrayLike, y: ArrayLike, depth_mm: ArrayLike, *, indenter_radius_mm: float = 4.0) -> ArrayLike:
+        self.calls += 1
+        return np.asarray(4 * self.e * np.sqrt(indenter_radius_mm) * np.asarray(depth_mm) ** 1.5 / (3 * 0.75))
 
 
 def driver(phantom=FLAT, errors: ProbeErrors | None = None, world: HalfSpace | None = None) -> SimFibreDriver:  # type: ignore[no-untyped-def]
@@ -50,7 +54,7 @@ def test_ideal_device_on_a_flat_sample_reads_the_worlds_depth() -> None:
     p = np.array([34.0, 36.0, 40.0])
     h = drv.heights(np.full(3, 30.0), np.full(3, 30.0), np.full(3, 21.0), p)
     f = 7.59 * p / 100 - 2.34  # the ideal device's force law: the paper's line
-    assert d_in(h) == pytest.approx(w.depth_mm(p, p, f, indenter_radius_mm=4.0), abs=1e-9)
+    assert d_in(h) == pytest.approx(np.asarray(w.depth_mm(p, p, f)), abs=1e-9)
     assert w.calls > 0
 
 
@@ -71,8 +75,8 @@ def test_sps_air_gap_makes_eqs_1_to_3_over_read_the_depth() -> None:
     errs = ProbeErrors(sps_gap_mm=(gap, gap, gap))
     w = HalfSpace(26.4)
     h = driver(errors=errs, world=w).heights(np.array([30.0]), np.array([30.0]), np.array([21.0]), np.array([36.0]))
-    truth = w.depth_mm(np.zeros(1), np.zeros(1), np.array([7.59 * 0.36 - 2.34]), indenter_radius_mm=4.0)
-    assert d_in(h)[0] - truth[0] == pytest.approx(gap, abs=1e-6)  # the SPS plane sits `gap` above the tissue
+    truth = float(w.depth_mm(0.0, 0.0, 7.59 * 0.36 - 2.34))
+    assert d_in(h)[0] - truth == pytest.approx(gap, abs=1e-6)  # the SPS plane sits `gap` above the tissue
 
 
 def test_bore_friction_makes_a_hysteresis_loop() -> None:
@@ -94,7 +98,7 @@ def test_heights_follow_the_dome_not_a_plane() -> None:
     h = driver(DOME, world=w).heights(x, y, z, np.array([36.0]))
     surf = [z[0] - float(DOME.surface_z(30.0 + dx, 12.0 - dy)) for dx, dy in ((0, 6), (-5.196, -3), (5.196, -3))]
     assert h[0, :3] == pytest.approx(surf, abs=1e-6)
-    truth = w.depth_mm(x, y, np.array([7.59 * 0.36 - 2.34]), indenter_radius_mm=4.0)[0]
+    truth = float(w.depth_mm(30.0, 12.0, 7.59 * 0.36 - 2.34))
     assert abs(d_in(h)[0] - truth) > 0.005  # plane-versus-surface error of a real probe on a curved top
 
 

@@ -31,7 +31,7 @@ def test_scalars_are_yaml_1_2_native_types(tmp_path: Path) -> None:
     f = write(tmp_path / "a.yaml", """
         nodes:
           - name: probe
-            cmd: [x]
+            cmd: ["true"]
             params:
               i: 3
               f: 2.5
@@ -73,6 +73,8 @@ def test_args_defaults_overrides_and_substitutions(tmp_path: Path, monkeypatch: 
                   "$(run_dir)/out", "echo $$(date)", "flags=$(arg flags)"]
             params: {flags: $(arg flags), on: $(arg count)}
     """)
+    (f.parent / "tool.sh").write_text("#!/bin/sh\n")
+    (f.parent / "tool.sh").chmod(0o755)  # --check refuses a cmd program that does not exist
     plan = load_launch(f, parse_overrides(["count:=7", "rate:=2.5"]), run_dir=tmp_path / "r")
     talker, tool = plan.nodes
     assert talker.params == {"rate_hz": 2.5, "count": 7, "text": "every 2.5 Hz"}
@@ -141,13 +143,13 @@ def test_a_whole_arg_keeps_its_type_so_a_list_in_a_string_field_is_an_error(tmp_
 def test_anchors_and_merge_keys(tmp_path: Path) -> None:
     f = write(tmp_path / "m.yaml", """
         nodes:
-          - &base {name: a, cmd: [x], sigterm_timeout: 1.0, output: log}
+          - &base {name: a, cmd: ["true"], sigterm_timeout: 1.0, output: log}
           - <<: *base
             name: b
             output: screen
     """)
     a, b = load_launch(f).nodes
-    assert (b.name, b.cmd, b.sigterm_timeout, b.output) == ("b", ["x"], 1.0, "screen")
+    assert (b.name, b.cmd, b.sigterm_timeout, b.output) == ("b", ["true"], 1.0, "screen")
     assert a.output == "log"
 
 
@@ -200,7 +202,7 @@ def test_json_schema_comes_from_the_same_definitions() -> None:
                                        "sigkill_timeout", "output"}
     # numbers and booleans also accept a whole-string $(arg name)
     timeout = node["properties"]["sigterm_timeout"]
-    assert timeout["anyOf"][0] == {"type": "number", "minimum": 0.0} and timeout["default"] == 5.0
+    assert timeout["anyOf"][0] == {"type": "number", "minimum": 0.0, "maximum": 1e9} and timeout["default"] == 5.0
     assert timeout["anyOf"][1] == {"type": "string", "pattern": r"^\$\(arg [A-Za-z][A-Za-z0-9_-]*\)$"}
     assert set(defs["LaunchFile"]["properties"]) == {"description", "args", "python_path", "include", "prepare", "nodes",
                                                      "bus", "record", "progress", "viz"}

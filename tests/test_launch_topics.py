@@ -18,7 +18,7 @@ def test_declared_topics_with_namespace_and_remap() -> None:
     assert declared_topics(Listener, "left", {"chatter": "/talk"}) == {
         "publishes": ["left/chatter_len"], "subscribes": ["talk"]}
     fibre = declared_topics(FibreReader)
-    assert fibre["publishes"] == ["probe/heights", "probe/status"]
+    assert fibre["publishes"] == ["probe/heights", "probe/status", "sim/truth/fibre"]  # the last: the sim device
     assert fibre["subscribes"] == ["pressure/state", "robot/pose"]  # the sim driver's inputs
     assert declared_topics(ClockSource) == {"publishes": [], "subscribes": []}  # runtime topics are not listed
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from messages import ScanPlan, ScanStatus, StiffnessSample
 from nodes.map_aggregator import MapAggregator
-from palpa.testing import NodeHarness
+from palpa.testing import MemoryBus, NodeHarness
 
 
 def sample(x: float, y: float, v: float, valid: bool = True) -> StiffnessSample:
@@ -101,3 +101,50 @@ def test_samples_of_the_touch_off_are_not_mapped(tmp_path: Path) -> None:
     sample(15, 98.0)  # measured during the touch-off, arriving late
     sample(21, 26.0)
     assert h.node.samples == 1
+
+
+def _raw_sample(seq: int, inc: int, x: float) -> list[bytes]:
+    import msgspec
+
+    header = msgspec.msgpack.encode({"type": "StiffnessSample", "seq": seq, "stamp": 1, "node": "estimator",
+                                     "inc": inc})
+    return [b"stiffness/sample", header, msgspec.msgpack.encode(sample(x, 5.0, 26.0))]
+
+
+def test_a_map_that_missed_samples_is_declared_failed(tmp_path: Path) -> None:
+    plan = ScanPlan(stamp_ns=0, mode="sweep", region_mm=(0.0, 0.0, 20.0, 20.0), spacing_mm=2.0, speed_mm_s=10.0,
+                    lines=10, estimated_duration_s=1.0, waypoints=[])
+    done = ScanStatus(stamp_ns=0, state="done", line=10, lines=10, progress=1.0, eta_s=0)
+    # complete: exit code 0
+    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / "ok")})
+    h.publish("robot/plan", plan)
+    for seq in range(1, 11):
+        h.publish_raw(_raw_sample(seq, 7, float(seq)))
+    h.publish("robot/scan_status", done)
+    assert h.node.exit_code == 0 and not h.node.incomplete
+    h.close()
+    # the estimator restarted mid-scan (a new incarnation): what it held is lost
+    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / "est")})
+    h.publish("robot/plan", plan)
+    for inc, n in ((7, 10), (8, 5)):
+        for seq in range(1, n + 1):
+            h.publish_raw(_raw_sample(seq, inc, float(seq)))
+    h.publish("robot/scan_status", done)
+    assert h.node.exit_code == 1 and "restarted 1 time" in h.node.incomplete
+    h.close()
+    # the map itself restarted: the bus still holds its previous incarnation's latched, unfinished map
+    bus = MemoryBus()
+    first = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / "map1")}, name="map", bus=bus)
+    first.publish("robot/plan", plan)
+    for seq in range(1, 11):
+        first.publish_raw(_raw_sample(seq, 7, float(seq)))
+    first.advance(1.0)  # publishes the (latched) map
+    for node in (first.node, first._probe):  # killed: no final map, its transport just goes away
+        node._transport.close(0)
+    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / "map2")}, name="map", bus=bus)
+    h.publish("robot/plan", plan)
+    for seq in range(11, 15):
+        h.publish_raw(_raw_sample(seq, 7, float(seq)))
+    h.publish("robot/scan_status", done)
+    assert h.node.exit_code == 1 and "restarted mid-scan" in h.node.incomplete and "10 samples" in h.node.incomplete
+    h.close()

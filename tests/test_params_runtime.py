@@ -80,5 +80,6 @@ def test_talker_retimes_on_a_new_rate() -> None:
     call(g, op, "set", ParamSet(values={"rate_hz": 20}), node="talker")
     g.advance(1.0)
     assert len(g.published("chatter")) - before in (20, 21)
-    with pytest.raises(RequestRefused, match="must be > 0"):
+    # the bound is in the Params type (palpa.Positive): refused as a bad request before the node sees it
+    with pytest.raises(BadRequestError, match=r"'rate_hz': Expected `float` > 0.0"):
         call(g, op, "set", ParamSet(values={"rate_hz": 0}), node="talker")

@@ -1,4 +1,4 @@
-"""Alicat pressure controller: frame parsing, and the serial driver against the pty emulator."""
+"""Alicat pressure controller: the serial driver against the pty emulator (the codec: test_devices_alicat.py)."""
 
 from __future__ import annotations
 
@@ -22,7 +22,6 @@ from nodes.drivers.pressure import (
     PressureNotConnectedError,
     PressureReading,
     PressureTimeoutError,
-    parse_frame,
 )
 
 pytestmark = pytest.mark.timeout(30)
@@ -75,22 +74,6 @@ def poll(drv: AlicatPressureDriver) -> PressureReading:
     reading = drv.read(1.0)
     assert reading is not None, f"no reading: {drv.status()}"
     return reading
-
-
-# --- frame parsing --------------------------------------------------------------------
-
-
-def test_parse_frame_codes_extra_columns_and_units() -> None:
-    assert parse_frame("A +030.00 +029.50", "A") == (30.0, 29.5, frozenset())
-    assert parse_frame("A +030.00 +029.50 +055.1 HLD OPL", "A") == (30.0, 29.5, frozenset({"HLD", "OPL"}))
-    measured, setpoint, _ = parse_frame("A +004.35 +004.35", "A", kpa_per_unit=6.894757293168361)
-    assert measured == pytest.approx(29.99, abs=0.01) and setpoint == measured
-    with pytest.raises(PressureCommandError):
-        parse_frame("?", "A")
-    with pytest.raises(ValueError, match="unit A"):
-        parse_frame("B +030.00 +030.00", "A")
-    with pytest.raises(ValueError, match="not numbers"):
-        parse_frame("A +03x.00 +030.00", "A")
 
 
 # --- driver against the emulator -------------------------------------------------------

@@ -9,7 +9,7 @@ from collections.abc import Callable
 from emulators.alicat import AlicatEmulator
 from emulators.fibre_daq import FibreDaqEmulator, source_from_heights
 from messages import PressureCommand
-from nodes.drivers.fibre import load_calibration
+from models.fibre_calibration import load_calibration
 from nodes.fibre_reader import FibreReader
 from nodes.pressure_controller import PressureController
 from palpa.testing import NodeHarness

@@ -10,6 +10,9 @@ from pathlib import Path
 
 import pytest
 from conftest import palpa_cmd
+from mcap.reader import make_reader
+from mcap.records import Message as McapMessage
+from mcap.stream_reader import StreamReader
 from procs import ProcessGroup, wait_until
 
 from messages import Text
@@ -48,10 +51,19 @@ def _unfinished_recording(tmp_path: Path) -> tuple[Path, list[int]]:
     return crashed, flushed
 
 
+def test_an_unfinished_file_is_readable_by_the_official_readers_up_to_its_last_flush(tmp_path: Path) -> None:
+    crashed, flushed = _unfinished_recording(tmp_path)
+    with open(crashed, "rb") as fh:
+        texts = [m.data for _, ch, m in make_reader(fh).iter_messages() if ch.topic == "chatter"]
+    with open(crashed, "rb") as fh:
+        streamed = [r for r in StreamReader(fh).records if isinstance(r, McapMessage)]
+    assert len(texts) == flushed[-1] and len([m for m in streamed if m.data in texts]) == flushed[-1]
+
+
 def test_recover_rebuilds_an_unfinished_file(tmp_path: Path) -> None:
     crashed, flushed = _unfinished_recording(tmp_path)
-    with pytest.raises(BagError, match="not closed cleanly"):
-        list(iter_file(crashed))
+    # palpa's reader reads it too (up to the last flush), and bag info says it was not finalized
+    assert [m.seq for m in iter_file(crashed)] == list(range(1, flushed[-1] + 1))
     assert not bag_info([crashed])["files"][0]["finalized"]
     report = recover(crashed)
     assert report.output == tmp_path / "crashed.recovered.mcap" and not report.finalized
@@ -114,8 +126,13 @@ def test_kill_9_then_recover(ipc_bus: BusAddress, procs: ProcessGroup, env_for, 
         talker.stop()
     finally:
         watch.close(0)
-    with pytest.raises(BagError):
-        list(iter_file(out))  # no summary, no footer: not a finished file
+    assert not bag_info([out])["files"][0]["finalized"]  # no summary: not a finished file
+    # yet the official readers read it as it is, up to its last complete chunk (a footer without a summary)
+    with open(out, "rb") as fh:
+        official = [m.sequence for _, ch, m in make_reader(fh).iter_messages() if ch.topic == "chatter"]
+    with open(out, "rb") as fh:
+        streamed = sum(1 for r in StreamReader(fh).records if isinstance(r, McapMessage))
+    assert len(official) >= 500 and streamed >= len(official)
     report = recover(out)
     view = check_official(report.output)
     msgs = [m for m in iter_file(report.output) if m.topic == "chatter"]

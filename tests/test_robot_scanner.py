@@ -134,3 +134,24 @@ def test_indent_mode_holds_at_each_point() -> None:
             break
     assert h.node.exit_code == 0
     assert (max(low) - min(low)) / 1e9 > 4 * 0.3  # it dwelt at the press depth at every point
+
+
+def pressure(h: NodeHarness[RobotScanner]) -> None:
+    h.publish("pressure/state", PressureState(stamp_ns=h.clock.now_ns(), setpoint_kpa=36, measured_kpa=36,
+                                              force_n=1, mode="hold", max_kpa=60))
+
+
+def test_pressure_state_going_quiet_stops_the_arm() -> None:
+    h = NodeHarness(RobotScanner, {**SMALL, "pressure_watchdog_s": 0.2})
+    moving(h)  # no pressure/state heard yet: not watched (a scanner without a pressure controller)
+    for _ in range(50):
+        pressure(h)
+        run_with_probe(h, 0.02)
+    assert h.published("robot/scan_status")[-1].state == "scanning"
+    quiet_from = h.clock.now_ns()
+    run_with_probe(h, 0.3)  # probe data keeps coming; the pressure controller is dead
+    st = h.published("robot/scan_status")[-1]
+    assert st.state == "fault" and "pressure/state silent" in st.message and speed(h) == 0.0
+    poses = h.published("robot/pose")
+    assert any(p.speed_mm_s > 15 for p in poses if quiet_from < p.stamp_ns < quiet_from + 200_000_000)
+    assert all(p.speed_mm_s == 0.0 for p in poses if p.stamp_ns > quiet_from + 240_000_000)

@@ -15,8 +15,8 @@ from test_launch_smoke import REPO
 from emulators.ur.process import UrEmulatorProcess
 from models.phantom import load_phantom
 
-SMALL_UR = ["fibre_driver:=sim", "pressure_driver:=sim", "phantom:=phantoms/airfloat_tumours.yaml", "region_mm:=[36.0, 33.0, 54.0, 51.0]", "spacing_mm:=3.0",
-            "speed_mm_s:=20.0", "home_mm:=[36.0, 33.0, 20.0]",
+SMALL_UR = ["fibre_driver:=sim", "pressure_driver:=sim", "phantom:=phantoms/airfloat_tumours.yaml", "region_mm:=[30.0, 6.0, 54.0, 30.0]", "spacing_mm:=3.0",
+            "speed_mm_s:=20.0", "home_mm:=[30.0, 6.0, 20.0]",
             # wall-clock graphs on a loaded 2-core CI machine: the rig default (0.1 s) is tested in test_robot_scanner
             "watchdog_s:=0.5"]
 
@@ -44,7 +44,7 @@ def match(found: list[dict[str, float]], truth: list[tuple[float, float]]) -> li
 
 def test_ur_rtde_scan_through_emulator_matches_sim(procs: ProcessGroup, tmp_path: Path) -> None:
     """launch/scan_ur.yaml with the ur_rtde driver against the emulator, then with the sim arm: same map."""
-    emu = UrEmulatorProcess.on_random_loopback(["--home", "36,33,20,0,3.141592653589793,0"])
+    emu = UrEmulatorProcess.on_random_loopback(["--home", "30,6,20,0,3.141592653589793,0"])
     emu.start()
     try:
         run_launch(procs, tmp_path / "ur", "launch/scan_ur.yaml", f"robot_host:={emu.host}", *SMALL_UR)
@@ -60,30 +60,42 @@ def test_ur_rtde_scan_through_emulator_matches_sim(procs: ProcessGroup, tmp_path
     ia, ib = inclusions(tmp_path / "ur"), inclusions(tmp_path / "sim")
     assert len(ia) == len(ib) == 1
     assert math.dist((ia[0]["x_mm"], ia[0]["y_mm"]), (ib[0]["x_mm"], ib[0]["y_mm"])) < 0.5
-    assert math.dist((ia[0]["x_mm"], ia[0]["y_mm"]), (45.0, 42.0)) < 1.5
+    assert math.dist((ia[0]["x_mm"], ia[0]["y_mm"]), (45.0, 18.0)) < 1.5
 
 
-def test_airfloat_scan_finds_the_tumours_and_its_recording_replays(procs: ProcessGroup, tmp_path: Path) -> None:
-    """`make demo`'s scan (launch/scan_sim.yaml, defaults): every inclusion of radius >= 4 mm and ratio >= 2 found
-    within 1.5 mm, at most one false positive; the recording replayed into a live estimator and map aggregator
-    (launch/replay_scan.yaml) gives the same map."""
+@pytest.fixture(scope="module")
+def calibration(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The simulated probe (device 0) calibrated on the bench, as `make demo` does first."""
+    from models.calibration_airfloat import save_calibration
+    from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate
+
+    path = tmp_path_factory.mktemp("cal") / "calibration.yaml"
+    save_calibration(path, calibrate(0, [Reference.parse(t) for t in DEFAULT_REFERENCES]))
+    return path
+
+
+def test_airfloat_scan_finds_the_tumours_and_its_recording_replays(procs: ProcessGroup, tmp_path: Path,
+                                                                    calibration: Path) -> None:
+    """`make demo`'s scan (launch/scan_sim.yaml, defaults, calibrated probe) scored against the truth: the two large
+    stiff tumours (r 6 x6, r 5 x4) found within 1.5 mm, no false positive, healthy cells called healthy (the
+    honest world hides the r 4 x2 and r 3 x3 ones at these settings: BENCHMARKS.md); the recording replayed into a
+    live estimator and map aggregator (launch/replay_scan.yaml) gives the same map."""
+    from models.scoring import score_scan
+
     run = tmp_path / "scan"
-    run_launch(procs, run, "launch/scan_sim.yaml", timeout=400)
+    run_launch(procs, run, "launch/scan_sim.yaml", f"calibration:={calibration}", timeout=400)
     for name in ("map.npz", "map.png", "inclusions.json"):
         assert (run / "map" / name).stat().st_size > 0
     assert (run / "recording.mcap").stat().st_size > 100_000
-    truth = load_phantom(REPO / "phantoms" / "airfloat_tumours.yaml").inclusions
-    found = inclusions(run)
-    base = 26.4
-    must = [inc for inc in truth if inc.radius_mm >= 4 and inc.youngs_modulus_kpa / base >= 2]
-    for inc in must:
-        err = min(math.dist((f["x_mm"], f["y_mm"]), inc.center_mm) for f in found)
-        assert err <= 1.5, (inc, found)
-    matched = [f for f in found if min(math.dist((f["x_mm"], f["y_mm"]), i.center_mm) for i in truth) <= 3.0]
-    assert len(found) - len(matched) <= 1
+    with np.load(run / "map" / "map.npz") as grid:
+        score = score_scan(load_phantom(REPO / "phantoms" / "airfloat_tumours.yaml"), inclusions(run), grid)
+    big = [s for s in score.inclusions if s.radius_mm >= 5]
+    assert all(s.found and s.centroid_error_mm <= 1.5 for s in big), score.summary()
+    assert not score.false_positives and score.specificity > 0.95, score.summary()
 
     replay = tmp_path / "replay"
-    run_launch(procs, replay, "launch/replay_scan.yaml", f"bag:={run / 'recording.mcap'}", "rate:=4.0", timeout=300)
+    run_launch(procs, replay, "launch/replay_scan.yaml", f"bag:={run / 'recording.mcap'}", "rate:=4.0",
+               f"calibration:={calibration}", timeout=300)
     a, b = np.load(run / "map" / "map.npz"), np.load(replay / "map" / "map.npz")
     fa_, fb_ = np.isfinite(a["stiffness"]), np.isfinite(b["stiffness"])
     # a sparse edge cell (at the minimum sample count) may tip either way: a handful of samples near the start
@@ -99,8 +111,9 @@ def test_airfloat_scan_finds_the_tumours_and_its_recording_replays(procs: Proces
 
 
 @pytest.mark.parametrize("phantom", ["flat_26k.yaml", "flat_10k.yaml"])
-def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path) -> None:
-    """The same nodes in-process (mock clock): a phantom without inclusions gives no detection at all."""
+def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path, calibration: Path) -> None:
+    """The same nodes in-process (mock clock), realistic calibrated probe: a phantom without inclusions gives no
+    detection at all, and the map's median is within 6 % of the truth."""
     from nodes.fibre_reader import FibreReader
     from nodes.map_aggregator import MapAggregator
     from nodes.pressure_controller import PressureController
@@ -110,9 +123,10 @@ def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path) -> None:
 
     path = str(REPO / "phantoms" / phantom)
     g = GraphHarness()
-    g.add(PressureController, {"startup": "hold", "setpoint_kpa": 34.0})
+    g.add(PressureController, {"startup": "hold", "setpoint_kpa": 34.0, "calibration": str(calibration)})
     g.add(FibreReader, {"phantom": path})
-    g.add(StiffnessEstimator, {"geometry": str(REPO / "phantoms" / "measured" / phantom)})
+    g.add(StiffnessEstimator, {"geometry": str(REPO / "phantoms" / "measured" / phantom),
+                               "calibration": str(calibration)})
     g.add(MapAggregator, {"output_dir": str(tmp_path)})
     scanner = g.add(RobotScanner, {"region_mm": [10, 10, 50, 50], "spacing_mm": 5.0, "speed_mm_s": 40.0,
                                    "contact_z_mm": 21.0, "home_mm": [10, 10, 30]})
@@ -124,7 +138,7 @@ def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path) -> None:
     assert json.loads((tmp_path / "inclusions.json").read_text()) == []
     grid = np.load(tmp_path / "map.npz")["stiffness"]
     truth = load_phantom(path).youngs_modulus_kpa
-    assert abs(np.nanmedian(grid) / truth - 1) < 0.05
+    assert abs(np.nanmedian(grid) / truth - 1) < 0.06
 
 
 def test_camera_probe_indent_scan_finds_the_tumours(procs: ProcessGroup, tmp_path: Path) -> None:

@@ -61,8 +61,8 @@ def test_param_set_retimes_the_talker_and_refuses_a_bad_value(
     assert main(["param", "set", "talker", "rate_hz", "fast", "--bus", bus]) == 1
     err = capsys.readouterr().err
     assert "parameter 'rate_hz': Expected `float`, got `str`" in err, err
-    assert main(["param", "set", "talker", "rate_hz", "-1", "--bus", bus]) == 1  # the node's own hook refuses
-    assert "must be > 0" in capsys.readouterr().err
+    assert main(["param", "set", "talker", "rate_hz", "-1", "--bus", bus]) == 1  # the Params type's bound refuses
+    assert "'rate_hz': Expected `float` > 0.0" in capsys.readouterr().err
     assert main(["param", "get", "talker", "rate_hz", "--bus", bus]) == 0
     assert capsys.readouterr().out.strip() == "20.0"
 

@@ -168,6 +168,6 @@ def test_the_launch_refuses_a_specimen_wider_than_the_box_before_any_motion(tmp_
     text = run.stdout + run.stderr
     assert run.returncode == 2, text  # a node that cannot start (ParamError)
     assert re.search(r"refusing the specimen before any motion: the specimen's footprint x -?\d+(\.5)?\.\.20\d(\.5)?, "
-                     r"y .* mm less the 7 mm edge margin, x .* does not fit the workspace box \(x -10\.\.150, y "
+                     r"y .* mm less the 6 mm edge margin, x .* does not fit the workspace box \(x -10\.\.150, y "
                      r"-10\.\.150, z 0\.5\.\.100 mm\): x 19\d(\.5)? > x_max 150", text), text
     assert "plan:" not in text

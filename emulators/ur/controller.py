@@ -17,7 +17,7 @@ from emulators.ur.rtde import OUTPUT_TYPES
 from emulators.ur.script import RtdeControlProgram, ScriptError, program_name
 from models.arm import TICK_S, ArmModel, ArmTarget, Pose
 
-RUNTIME_STOPPING, RUNTIME_STOPPED, RUNTIME_PLAYING = 0, 1, 2
+RUNTIME_STOPPED, RUNTIME_PLAYING = 1, 2  # RTDE runtime_state (0, "stopping", is never reported here)
 ROBOT_MODE_RUNNING = 7
 SAFETY_MODE_NORMAL, SAFETY_MODE_PROTECTIVE_STOP = 1, 3
 SAFETY_BIT_NORMAL, SAFETY_BIT_PROTECTIVE_STOP, SAFETY_BIT_STOPPED_DUE_TO_SAFETY = 1 << 0, 1 << 2, 1 << 10

@@ -18,12 +18,9 @@ import math
 import re
 from collections.abc import Generator, Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-from models.arm import ArmTarget, Pose
-
-if TYPE_CHECKING:
-    from emulators.ur.controller import UrController
+from models.arm import ArmModel, ArmTarget, Pose
 
 Tick = Generator[None, None, None]
 
@@ -105,10 +102,33 @@ def parse_path(source: str) -> list[PathMove]:
     return moves
 
 
+class ScriptHost(Protocol):
+    """What a running program needs from its controller (:class:`emulators.ur.controller.UrController`
+    provides it; the controller imports this module, never the other way round). The caller holds its lock."""
+
+    arm: ArmModel
+    in_int: list[int]
+    in_double: list[float]
+    out_int: list[int]
+    out_double: list[float]
+
+    def log(self, message: str) -> None: ...
+
+    def start_motion(self, targets: list[ArmTarget]) -> None: ...
+
+    def note_motion_start(self) -> None: ...
+
+    def protective_stop(self, reason: str) -> None: ...
+
+    def set_watchdog(self, input_name: str, min_hz: float) -> None: ...
+
+    def zero_ft_sensor(self) -> None: ...
+
+
 class RtdeControlProgram:
     """Native equivalent of ur_rtde's `rtde_control` script (main loop, move/stop threads)."""
 
-    def __init__(self, source: str, ctl: UrController) -> None:
+    def __init__(self, source: str, ctl: ScriptHost) -> None:
         self.name = program_name(source)
         self.ctl = ctl
         # ur_rtde injects the offsets after a comment that ends the `... =` line, so the

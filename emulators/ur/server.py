@@ -18,8 +18,9 @@ import time
 from collections.abc import Callable
 from types import TracebackType
 
-from emulators.ur import dashboard
 from emulators.ur.controller import ControllerConfig, FaultPlan, SurfaceLike, UrController
+from emulators.ur.dashboard import WELCOME
+from emulators.ur.dashboard import reply as dashboard_reply
 from emulators.ur.rtde import HEADER, RtdeSession
 from emulators.ur.script import ScriptReceiver
 from models.arm import TICK_S
@@ -271,7 +272,7 @@ class UrEmulator:
             conn.sock.close()
 
     def _serve_dashboard(self, conn: _Conn) -> None:
-        conn.send((dashboard.WELCOME + "\n").encode())
+        conn.send((WELCOME + "\n").encode())
         buf = b""
         while not conn.closed:
             data = conn.sock.recv(4096)
@@ -281,7 +282,7 @@ class UrEmulator:
             while b"\n" in buf:
                 line, buf = buf.split(b"\n", 1)
                 with self.controller.lock:
-                    answer, close = dashboard.reply(self.controller, line.decode(errors="replace"))
+                    answer, close = dashboard_reply(self.controller, line.decode(errors="replace"))
                 conn.send((answer + "\n").encode())
                 if close:
                     return

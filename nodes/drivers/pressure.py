@@ -3,13 +3,7 @@
 The supply pressure ``Ps`` of the air-float probe sets the indentation force (paper eq. 4,
 ``F = 7.59 Ps - 2.34``), so the controller is a safety item: the driver enforces its own
 hard maximum (``max_kpa``) whatever the node asks for. The protocol and its quirks are in
-``docs/devices.md``; in short, every command is ``<unit id><command>\\r`` and the device
-answers one line ending in ``\\r``::
-
-    A          -> A +030.00 +030.00            poll: unit id, pressure, set-point [, codes]
-    AS30.0     -> data frame                   new set-point (device units)
-    AHP / AC   -> data frame (+ HLD / - HLD)   hold valve at current position / cancel hold
-    A??        -> ?                            unknown command
+``docs/devices.md`` and its codec is :mod:`devices.alicat` (shared with the emulator).
 
 Polling is synchronous (no thread; use one driver from one thread): each call writes, then waits up to ``timeout_s`` for
 the reply. When the port fails (adapter unplugged) the driver closes it and re-opens it on
@@ -29,16 +23,19 @@ from typing import Protocol, runtime_checkable
 
 import serial
 
+from devices.alicat import (
+    KPA_PER_UNIT,
+    TERMINATOR,
+    UnknownCommandReply,
+    encode_command,
+    parse_frame,
+    parse_text_reply,
+    setpoint_command,
+)
+
 _IO_ERRORS = (serial.SerialException, OSError, termios.error)  # termios.error is not an OSError
 
 log = logging.getLogger(__name__)
-
-KPA_PER_UNIT = {"kPa": 1.0, "Pa": 1e-3, "bar": 100.0, "mbar": 0.1, "psi": 6.894757293168361}
-"""Device engineering units the driver can talk in (the device's configured pressure unit)."""
-
-DEVICE_STATUS_CODES = frozenset({"ADC", "EXH", "HLD", "LCK", "MOV", "OPL", "OVR", "POV", "TMF", "TOV", "VOV"})
-"""Alicat status codes that may trail a data frame (HLD: valve hold, EXH: exhaust,
-OPL: over-pressure limit tripped, POV: pressure over range, LCK: front panel locked, ...)."""
 
 FLAG_CLAMPED = "CLAMPED"  # driver flag: the requested set-point exceeded max_kpa and was clamped
 FLAG_OVER_MAX = "OVER_MAX"  # driver flag: measured pressure above max_kpa (+ tolerance)
@@ -130,31 +127,6 @@ class PressureDriver(Protocol):
         """Release the port (idempotent)."""
 
 
-def parse_frame(line: str, unit_id: str, kpa_per_unit: float = 1.0) -> tuple[float, float, frozenset[str]]:
-    """Parse a data frame ``"A +030.00 +029.50 [extra numbers] [codes]"``.
-
-    Returns ``(measured_kpa, setpoint_kpa, device codes)``. Extra numeric columns (valve
-    drive, temperature on some models) are ignored. Raises PressureCommandError for ``?``
-    and ValueError for anything that is not a frame of ``unit_id``.
-    """
-    tokens = line.split()
-    if tokens in (["?"], [unit_id, "?"]):
-        raise PressureCommandError("device answered '?'")
-    if len(tokens) < 3 or tokens[0].upper() != unit_id:
-        raise ValueError(f"not a data frame of unit {unit_id}: {line[:60]!r}")
-    try:
-        measured, setpoint = float(tokens[1]), float(tokens[2])
-    except ValueError:
-        raise ValueError(f"pressure/set-point columns are not numbers: {line[:60]!r}") from None
-    codes = []
-    for tok in tokens[3:]:
-        try:
-            float(tok)
-        except ValueError:
-            codes.append(tok.upper())
-    return measured * kpa_per_unit, setpoint * kpa_per_unit, frozenset(codes)
-
-
 class AlicatPressureDriver:
     """An Alicat pressure controller on a serial port, polled in ASCII.
 
@@ -199,7 +171,7 @@ class AlicatPressureDriver:
         self._k = KPA_PER_UNIT[device_unit]
         self._timeout = timeout_s
         self._backoff = backoff_s
-        self._space = " " if setpoint_space else ""
+        self._space = setpoint_space
         self._require = require_device
         self._over_tol = over_max_tolerance_kpa
         self._clock = clock
@@ -284,13 +256,13 @@ class AlicatPressureDriver:
         try:
             ser.reset_input_buffer()  # a late reply to an earlier, timed-out command
             t0 = self._clock()
-            ser.write(f"{self._uid}{command}\r".encode("ascii"))
+            ser.write(encode_command(self._uid, command))
             ser.timeout = timeout
-            raw = ser.read_until(b"\r")
+            raw = ser.read_until(TERMINATOR)
             t1 = self._clock()
         except _IO_ERRORS as exc:
             raise self._lost(exc) from None
-        if not raw.endswith(b"\r"):
+        if not raw.endswith(TERMINATOR):
             self._counts["timeouts"] += 1
             self._last_error = f"{self._port}: no reply to {self._uid}{command!s} within {timeout} s" + (
                 f" (partial {raw[:40]!r})" if raw else ""
@@ -302,7 +274,7 @@ class AlicatPressureDriver:
         line, stamp = self._transact(command, timeout_s)
         try:
             measured, setpoint, codes = parse_frame(line, self._uid, self._k)
-        except PressureCommandError:
+        except UnknownCommandReply:
             self._counts["unknown"] += 1
             self._last_error = f"{self._port}: device answered '?' to {self._uid}{command}"
             raise PressureCommandError(self._last_error + " (not supported by this model/firmware?)") from None
@@ -346,7 +318,7 @@ class AlicatPressureDriver:
                 self._last_error = f"set-point {kpa:g} kPa above the hard maximum {self._max:g} kPa: clamped"
                 log.warning("%s: %s", self._port, self._last_error)
         self._commanded = target
-        reading = self._frame(f"S{self._space}{target / self._k:.3f}", extra=extra)
+        reading = self._frame(setpoint_command(target / self._k, space=self._space), extra=extra)
         if abs(reading.setpoint_kpa - target) > max(0.01 * self._max, 0.05):
             self._last_error = f"{self._port}: device reports set-point {reading.setpoint_kpa:g} kPa after commanding {target:g} kPa"
             reading = PressureReading(reading.stamp_ns, reading.setpoint_kpa, reading.measured_kpa, reading.flags | {FLAG_SETPOINT_MISMATCH})
@@ -369,10 +341,11 @@ class AlicatPressureDriver:
     def identify(self) -> str:
         """Firmware identification (``AVE`` reply), e.g. ``10v05.0-R24``."""
         line, _ = self._transact("VE")
-        if line in ("?", f"{self._uid} ?"):
+        try:
+            return parse_text_reply(line, self._uid)
+        except UnknownCommandReply:
             self._counts["unknown"] += 1
-            raise PressureCommandError(f"{self._port}: device answered '?' to {self._uid}VE")
-        return line.split(maxsplit=1)[1] if line.upper().startswith(self._uid + " ") else line
+            raise PressureCommandError(f"{self._port}: device answered '?' to {self._uid}VE") from None
 
     def status(self) -> PressureStatus:
         """Connection state and counters."""

@@ -74,7 +74,7 @@ class SimPressureDriver:
             raise PressureNotConnectedError("sim: device lost (fault injection)")
         self._advance()
         self._polls += 1
-        p = max(0.0, self._plant.pressure_kpa + self._wobble * (self._plant.pressure_kpa > 0))
+        p = min(max(0.0, self._plant.pressure_kpa + self._wobble * (self._plant.pressure_kpa > 0)), self._max)
         if self.stuck_at_kpa is not None:
             p = self.stuck_at_kpa
         if self._noise:

@@ -28,7 +28,7 @@ __all__ = ["add_bus_arg", "bus_address", "bus_and_source", "import_message_modul
 
 def add_bus_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bus", help="bus address (default: --run's, else $PALPA_BUS, else the running launch's, "
-                                 "else ipc:///tmp/palpa-<uid>)")
+                                 "else ipc://$XDG_RUNTIME_DIR/palpa/bus or ipc:///tmp/palpa-<uid>/bus)")
     p.add_argument("--run", type=Path, metavar="DIR",
                    help="use the bus of the launch running in DIR (e.g. runs/latest)")
 

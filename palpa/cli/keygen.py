@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import zmq.auth
+from palpa.keys import create_key_pair
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -16,7 +16,6 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    args.dir.mkdir(parents=True, exist_ok=True)
-    public, secret = zmq.auth.create_certificates(str(args.dir), args.name)
-    print(f"public {public}\nsecret {secret}")
+    public, secret = create_key_pair(args.dir, args.name)
+    print(f"public {public}\nsecret {secret} (mode 0600: only you can read it)")
     return 0

@@ -12,7 +12,7 @@ from typing import Any
 
 import yaml
 
-from palpa.address import BusAddress
+from palpa.address import BusAddress, private_dir
 from palpa.errors import BusError
 from palpa.launch.schema import BusDecl, RecordDecl, VizDecl
 from palpa.transport import TransportOptions
@@ -153,7 +153,7 @@ class LaunchPlan:
 
     def bus_request(self, override: str | None = None) -> BusAddress:
         """The endpoints the launcher binds: ``override`` (``--bus-address``), else the ``bus`` section, else a
-        fresh ipc path ``/tmp/palpa-<pid>-<4 hex>``."""
+        fresh ipc path ``<private dir>/<pid>-<4 hex>`` (palpa.address.private_dir)."""
         if override:
             return _tcp_any(override) if _is_host_only(override) else BusAddress.parse(override)
         endpoint = self.bus.endpoint
@@ -164,7 +164,7 @@ class LaunchPlan:
                 endpoint = "tcp://" + endpoint
             return _tcp_any(endpoint) if _is_host_only(endpoint) else BusAddress.parse(endpoint)
         if endpoint is None:
-            return BusAddress.parse(f"ipc:///tmp/palpa-{os.getpid()}-{secrets.token_hex(2)}")
+            return BusAddress.parse(f"ipc://{private_dir()}/{os.getpid()}-{secrets.token_hex(2)}")
         if endpoint.startswith("tcp://"):
             raise BusError(f"bus endpoint {endpoint!r} is tcp but transport is ipc")
         return BusAddress.parse(endpoint if endpoint.startswith("ipc://") else f"ipc://{endpoint}")

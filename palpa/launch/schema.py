@@ -50,7 +50,8 @@ SUBST_PATTERN = r"^\$\(arg [A-Za-z][A-Za-z0-9_-]*\)$"
 
 Name = Annotated[str, Meta(pattern=NAME_PATTERN, description="letters, digits, '_' and '-'; starts with a letter")]
 Namespace = Annotated[str, Meta(pattern=NAMESPACE_PATTERN, description="prefix for relative topic names")]
-Seconds = Annotated[float, Meta(ge=0.0)]
+_FOREVER_S = 1e9  # a timeout beyond ~30 years is a typo (or .inf): refused
+Seconds = Annotated[float, Meta(ge=0.0, le=_FOREVER_S)]
 
 
 class _Decl(Struct, kw_only=True, forbid_unknown_fields=True):
@@ -79,7 +80,7 @@ class NodeDecl(_Decl):
     env: Annotated[dict[str, str], Meta(description="extra environment variables (strings)")] = {}
     respawn: Annotated[bool, Meta(description="start again when it fails (exits non-zero or is killed); exit "
                                               "code 0 means it has finished")] = False
-    respawn_delay: Annotated[float, Meta(gt=0.0, description="seconds before the first respawn; doubles after "
+    respawn_delay: Annotated[float, Meta(gt=0.0, le=_FOREVER_S, description="seconds before the first respawn; doubles after "
                                                               "each consecutive one (capped at 60 s)")] = 1.0
     respawn_max_retries: Annotated[int, Meta(ge=-1, description="consecutive respawns before giving up; "
                                                                  "-1: never give up")] = 5
@@ -103,6 +104,8 @@ class TransportDecl(_Decl):
                                                   "0: no limit")] | None = None
     busy_poll_us: Annotated[int, Meta(ge=0, le=1_000_000, description="spin this long for input before blocking: "
                                       "lower latency in exchange for a busy core")] | None = None
+    max_msg_bytes: Annotated[int, Meta(ge=1024, description="the largest message this node accepts (bytes, all "
+                                                           "frames); larger ones are refused and counted")] | None = None
     direct: Annotated[list[Annotated[str, Meta(min_length=1)]], Meta(
         description="topics (as on the bus, after namespace and remap) this node publishes straight to their "
                     "subscribers instead of through the proxy: lower latency (see palpa.direct)")] | None = None
@@ -129,6 +132,8 @@ class BusDecl(_Decl):
     latched: Annotated[list[str], Meta(description="topics whose last message is replayed to late "
                                                    "subscribers")] = []
     hwm: Annotated[int, Meta(gt=0, description="high-water mark of the proxy sockets (messages)")] = 10_000
+    max_msg_bytes: Annotated[int, Meta(ge=1024, description="the largest frame the bus accepts; a publisher "
+                                                            "sending a larger one is disconnected")] = 16 * 2**20
 
 
 class RecordDecl(_Decl):
@@ -137,9 +142,11 @@ class RecordDecl(_Decl):
     topics: Annotated[list[str], Meta(description="regular expressions; empty: every topic")] = []
     exclude: Annotated[list[str], Meta(description="regular expressions of topics to leave out")] = []
     split_size_mb: Annotated[float, Meta(gt=0)] | None = None
-    split_duration_s: Annotated[float, Meta(gt=0)] | None = None
-    ready_timeout_s: Annotated[float, Meta(gt=0, description="how long to wait for the recorder's "
+    split_duration_s: Annotated[float, Meta(gt=0, le=_FOREVER_S)] | None = None
+    ready_timeout_s: Annotated[float, Meta(gt=0, le=_FOREVER_S, description="how long to wait for the recorder's "
                                                              "heartbeat")] = 15.0
+    required: Annotated[bool, Meta(description="a recorder that dies stops the launch (exit 1) instead of "
+                                               "letting the rest of the run go unrecorded")] = True
 
 
 class VizDecl(_Decl):

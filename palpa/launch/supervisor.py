@@ -147,7 +147,8 @@ class Supervisor:
                 self._reaper = Reaper()
                 self._screen.say(f"reaper pid {self._reaper.pid} will kill the nodes' process groups if this "
                                  "launcher is killed")
-            bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched, hwm=plan.bus.hwm)
+            bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched, hwm=plan.bus.hwm,
+                      max_msg_bytes=plan.bus.max_msg_bytes)
             self.address = bus.start()
             tmp = plan.run_dir / ".bus.address.tmp"  # readers never see a half-written address
             tmp.write_text(f"{self.address}\n", encoding="utf-8")
@@ -385,6 +386,10 @@ class Supervisor:
         if p.state == "stopping":
             p.state = "done"
             p.outcome = {1: "stopped on SIGINT", 2: "needed SIGTERM", 3: "needed SIGKILL"}[p.stage]
+            if 0 < code < 128:  # it stopped when asked, but reports that its work failed (an incomplete map);
+                # 128+N is the signal's own exit status (stopped before its handler was in place), not a report
+                p.failed = True
+                p.outcome += f", reporting failure ({exit_text(code)})"
             self._screen.say(f"{p.spec.name} {p.outcome} ({exit_text(code)})", "WARNING" if p.escalated else "INFO")
             return
         if self._stopping:
@@ -425,6 +430,9 @@ class Supervisor:
         elif p is self._recorder:
             self._screen.say(f"the recorder ended ({exit_text(code)}): the recording is incomplete", "ERROR")
             p.failed = True
+            if self.plan.record is not None and self.plan.record.required:
+                self._request_stop(f"the recorder ended ({exit_text(code)}); record.required: the rest of the "
+                                   "run would go unrecorded", 1)
         elif not gave_up:
             level = "INFO" if code == 0 else "WARNING"
             self._screen.say(f"{spec.name} ended ({exit_text(code)}); it is not required, the graph keeps "
@@ -509,10 +517,14 @@ class Supervisor:
     def _finish(self) -> int:
         code = self._code if self._code is not None else 0
         failed = [p.spec.name for p in self._all() if p.failed]
+        restarted = [p.spec.name for p in self._all() if p.starts > 1 and not p.failed]
         reason = self._reason or "ended"
         if code == 0 and failed:
             code = 1
             reason += f"; failed: {', '.join(failed)}"
+        if restarted:  # a respawn recovers the graph, not what the node held or missed while down
+            code = code or 1
+            reason += f"; restarted mid-run (data lost while down): {', '.join(restarted)}"
         width = max((len(p.spec.name) for p in self._all()), default=4)
         lines = [f"summary (logs in {self.plan.run_dir}):"]
         for p in self._all():

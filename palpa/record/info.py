@@ -202,8 +202,16 @@ def _when(ns: int) -> str:
     return datetime.fromtimestamp(ns / 1e9, UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3] + " UTC" if ns else "-"
 
 
+def _shown(text: object) -> str:
+    """A name from the file as it may be printed: control and other non-printable characters escaped (a topic
+    or node name is whatever a peer sent; a raw escape sequence would rewrite the operator's terminal)."""
+    s = str(text)
+    return s if s.isprintable() else "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii")
+                                             for c in s)
+
+
 def format_info(info: dict[str, Any]) -> str:
-    """The human-readable report."""
+    """The human-readable report (every name from the file escaped, see :func:`_shown`)."""
     lines = []
     for f in info["files"]:
         state = "complete" if f["finalized"] else "NOT FINALIZED (run `palpa bag recover`)"
@@ -219,23 +227,28 @@ def format_info(info: dict[str, Any]) -> str:
         lines.append(f"recorded by: palpa {rec.get('palpa_version', '?')} on {rec.get('host', '?')} "
                      f"(node {rec.get('recorder', '?')}, mcap {rec.get('mcap_library', '?')})")
     lines.append(f"topics ({len(info['topics'])}):")
-    width = max((len(t) for t in info["topics"]), default=5)
-    total_gaps = 0
+    width = max((len(_shown(t)) for t in info["topics"]), default=5)
+    total_gaps = restarts = 0
     for topic, t in info["topics"].items():
         d = t["drops"]
         total_gaps += d["gaps"]
+        restarts += d["restarts"]
         extra = [f"{d['gaps']} dropped"] if d["gaps"] else []
         if d["restarts"]:
             extra.append(f"{d['restarts']} publisher restarts")
+        if d["decode_errors"]:
+            extra.append(f"{d['decode_errors']} malformed")
         if t["latched"]:
             extra.append("latched")
         if not t["schema"]:
             extra.append(t.get("schema_note", "no schema"))
-        lines.append(f"  {topic:<{width}}  {'/'.join(t['types']) or '?':<22} {t['messages']:>9} msgs "
-                     f"{t['rate_hz']:>9.2f} Hz  from {', '.join(t['publishers']) or '?'}"
+        lines.append(f"  {_shown(topic):<{width}}  {_shown('/'.join(t['types'])) or '?':<22} {t['messages']:>9} msgs "
+                     f"{t['rate_hz']:>9.2f} Hz  from {_shown(', '.join(t['publishers'])) or '?'}"
                      + (f"  [{'; '.join(extra)}]" if extra else ""))
-    lines.append(f"drops:       {total_gaps} messages missing by sequence number" if total_gaps
-                 else "drops:       none (no sequence gaps)")
+    drops = [f"{total_gaps} messages missing by sequence number"] if total_gaps else []
+    if restarts:  # a restarted publisher lost what it held, and what it was sent while down
+        drops.append(f"{restarts} publisher restart(s): data may be lost")
+    lines.append(f"drops:       {'; '.join(drops)}" if drops else "drops:       none (no sequence gaps, no restarts)")
     if info["services"]:
         lines.append(f"services ({len(info['services'])}):")
         for name, sv in info["services"].items():
@@ -244,8 +257,9 @@ def format_info(info: dict[str, Any]) -> str:
     if info["nodes"]:
         lines.append(f"nodes ({len(info['nodes'])}):")
         for name, n in info["nodes"].items():
-            pubs = ", ".join(sorted(n.get("publishes", {})))
-            lines.append(f"  {name} (pid {n.get('pid', '?')} on {n.get('host', '?')}) publishes: {pubs or '-'}")
+            pubs = _shown(", ".join(sorted(n.get("publishes", {}))))
+            lines.append(f"  {_shown(name)} (pid {n.get('pid', '?')} on {_shown(n.get('host', '?'))}) "
+                         f"publishes: {pubs or '-'}")
     for a in info["attachments"]:
         lines.append(f"attachment:  {a['name']} ({a['media_type']}, {a['bytes']} bytes)")
     return "\n".join(lines)

@@ -59,6 +59,20 @@ __all__ = ["RecorderParams", "Recorder"]
 
 _ChannelKey = tuple[str, str, str, bool, int]  # topic, publisher, type, latched, sequence epoch (seq >> 32)
 _blobs_encoder = msgspec.msgpack.Encoder()
+_any_decoder = msgspec.msgpack.Decoder()
+
+
+def _well_formed(payload: bytes) -> bool:
+    """Whether a payload is what every palpa message is: one complete msgpack map."""
+    if not payload or not (payload[0] & 0xF0 == 0x80 or payload[0] in (0xDE, 0xDF)):
+        return False
+    try:
+        _any_decoder.decode(payload)
+    except msgspec.DecodeError:
+        return False
+    return True
+
+
 _COUNTERS = ("received", "gaps", "duplicates", "restarts", "decode_errors")
 
 
@@ -284,6 +298,8 @@ class Recorder(Node):
             if blobs:  # before the message, so a reader has them when the message comes
                 self._write_blobs(cid, raw, recv_ns)
             w.add_message(cid, recv_ns, h.stamp, seq & 0xFFFF_FFFF, payload)
+            if not _well_formed(payload):  # recorded as the wire carried it, and counted so the file says so
+                self._rx.raw_stats[topic].decode_errors += 1
             if h.latched or cached or (self._bus_latched and topic in self._bus_latched):
                 if cached:
                     self._bus_latched.add(topic)

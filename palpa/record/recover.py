@@ -9,15 +9,20 @@ from the recorded sequence numbers (the recorder's own counters died with it) an
 from __future__ import annotations
 
 import os
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
+from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, DataEnd, Metadata, Schema
 
 from palpa.record.format import MD_DROPS, MD_RECOVERY, META_BLOBS_OF, BagError, dumps
 from palpa.record.reader import ChannelInfo, RawRecord, ReadableRecords, channel_info
 from palpa.record.writer import BagWriter
 from palpa.wire import SequenceTracker, TopicStats
+
+_FOOTER = struct.Struct("<BQQ")  # opcode, record length, summary start
 
 __all__ = ["RecoverReport", "default_recovered_path", "recover"]
 
@@ -38,6 +43,16 @@ class RecoverReport:
         gaps = sum(d["gaps"] for d in self.drops.values())
         return (f"recovered {self.messages} messages from {self.source} into {self.output}; the source {state}; "
                 f"{gaps} messages missing by sequence number")
+
+
+def _has_summary(fh: BinaryIO) -> bool:
+    """Whether the file ends with a Footer that points at a summary section (a finished file)."""
+    try:
+        fh.seek(-(_FOOTER.size + 12 + 8), os.SEEK_END)
+    except OSError:
+        return False
+    opcode, _length, summary_start = _FOOTER.unpack(fh.read(_FOOTER.size))
+    return bool(opcode == Opcode.FOOTER and summary_start != 0)
 
 
 def default_recovered_path(src: Path) -> Path:
@@ -96,7 +111,8 @@ def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str] | None = No
                 writer.add_attachment(rec.name, rec.media_type, rec.data, log_time=rec.log_time,
                                       create_time=rec.create_time)
             elif isinstance(rec, DataEnd):
-                report.finalized = True
+                # a footer without a summary is the provisional tail of a recorder that was killed
+                report.finalized = _has_summary(fh)
                 break
         report.damage = report.damage or records.damage
         report.drops = {t: s.as_dict() for t, s in stats.items()}

@@ -9,9 +9,11 @@ a chunk of large messages is not copied twice more through a RecordBuilder. The 
 (and ``mcap.records``'s); the tests read every file back with ``mcap.reader.make_reader``, CRCs checked.
 
 Crash safety: Schema and Channel records are written straight into the data section (outside chunks) when they
-are registered, and :meth:`BagWriter.flush` closes the open chunk and hands everything to the OS. A process
-killed after a flush therefore leaves a file whose prefix is valid MCAP up to the last complete chunk;
-``palpa bag recover`` rebuilds the summary from it.
+are registered, and :meth:`BagWriter.flush` closes the open chunk and hands everything to the OS. Every write
+outside a chunk's buffer ends with a provisional tail (DataEnd, a Footer without summary, the closing magic)
+that the next write overwrites: a process killed between writes leaves a complete, footer-terminated MCAP file
+without a summary section (the spec allows one), which the official ``mcap`` readers read as it is, up to the
+last complete chunk; ``palpa bag recover`` adds the summary (indexes, statistics).
 """
 
 from __future__ import annotations
@@ -55,6 +57,8 @@ _MESSAGE_INDEX = struct.Struct("<BQHI")  # opcode, record length, channel id, by
 _CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, record length, start, end, uncompressed size, crc, name length
 _MESSAGE_FIXED = 2 + 4 + 8 + 8
 _LITTLE = sys.byteorder == "little"
+# DataEnd (no CRC) + a Footer with no summary section (summary_start 0) + the closing magic
+_TAIL = struct.pack("<BQI", Opcode.DATA_END, 4, 0) + struct.pack("<BQQQI", Opcode.FOOTER, 20, 0, 0, 0) + MAGIC
 
 
 def _compressor(name: str) -> Callable[[bytearray], bytes | bytearray]:
@@ -126,6 +130,7 @@ class BagWriter:
         self._write(MAGIC)
         lib = library or f"palpa; mcap-python/{mcap.__version__}"
         self._write_record(Header(profile="", library=lib))
+        self._seal()
 
     # -- low level -------------------------------------------------------------------------------------
     def _write(self, data: bytes | bytearray | memoryview) -> None:
@@ -140,6 +145,12 @@ class BagWriter:
         offset = self._pos
         self._write(data)
         return offset, len(data)
+
+    def _seal(self) -> None:
+        """Write the provisional tail after the data so far, without moving the write position (see the
+        module docstring); the seek also hands Python's buffer to the OS."""
+        self._file.write(_TAIL)
+        self._file.seek(self._pos)
 
     @property
     def size(self) -> int:
@@ -163,6 +174,7 @@ class BagWriter:
         schema = Schema(id=schema_id, name=name, encoding=encoding, data=data)
         self._schemas[schema_id] = schema
         self._write_record(schema)
+        self._seal()
         return schema_id
 
     def register_channel(self, topic: str, message_encoding: str, schema_id: int,
@@ -177,6 +189,7 @@ class BagWriter:
                           metadata=dict(metadata))
         self._channels[channel_id] = channel
         self._write_record(channel)
+        self._seal()
         return channel_id
 
     # -- data ----------------------------------------------------------------------------------------
@@ -200,6 +213,7 @@ class BagWriter:
         """Write a Metadata record (string -> string) now, outside any chunk."""
         offset, length = self._write_record(Metadata(name=name, metadata=dict(data)))
         self._metadata_indexes.append(MetadataIndex(offset=offset, length=length, name=name))
+        self._seal()
 
     def add_attachment(self, name: str, media_type: str, data: bytes, *, log_time: int,
                        create_time: int = 0) -> None:
@@ -207,6 +221,7 @@ class BagWriter:
         record = Attachment(create_time=create_time, log_time=log_time, name=name, media_type=media_type,
                             data=data)
         offset, length = self._write_record(record)
+        self._seal()
         self._attachment_indexes.append(
             AttachmentIndex(offset=offset, length=length, create_time=create_time, log_time=log_time,
                             data_size=len(data), name=name, media_type=media_type)
@@ -249,6 +264,7 @@ class BagWriter:
         )
         self.start_time = start if len(self._chunk_indexes) == 1 else min(self.start_time, start)
         self.end_time = max(self.end_time, end)
+        self._seal()
 
     def flush(self) -> None:
         """Close the open chunk (if any) and pass everything written to the OS (and the disk, with fsync)."""
@@ -299,6 +315,7 @@ class BagWriter:
         self._write_record(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start,
                                   summary_crc=crc))
         self._write(MAGIC)
+        self._file.truncate()  # nothing of a longer provisional tail may remain
         self.finished = True
         self._file.flush()
         if self._fsync:

@@ -1,0 +1,104 @@
+"""Nodes dying mid-scan (issue 22): a dead clock, a silent pressure controller, a respawned map, a dead recorder.
+Nothing may freeze, and nothing may end clean after losing data."""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import time
+from pathlib import Path
+
+from procs import ProcessGroup, wait_until
+
+import palpa
+from palpa.runtime_msgs import ClockTick
+from palpa.testing import MemoryBus
+
+
+class Ticker(palpa.Node):
+    def setup(self) -> None:
+        self.ticks = 0
+        self.timer(0.01, self.tick)
+
+    def tick(self) -> None:
+        self.ticks += 1
+
+
+def sim_ticker(timeout_s: float) -> tuple[Ticker, palpa.Node, palpa.Publisher[ClockTick]]:
+    """A sim-clock node with the wall-clock guard at ``timeout_s``, and a clock node to tick it."""
+    bus = MemoryBus()
+    node = Ticker(transport=bus.transport(), heartbeat_s=0, sim_clock=True, wait_for_clock_s=0,
+                  sim_clock_timeout_s=timeout_s)
+    clock = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
+    return node, clock, clock.publisher("_palpa/clock", ClockTick)
+
+
+def test_a_sim_clock_node_stops_with_a_clear_error_when_simulated_time_stops() -> None:
+    node, clock, pub = sim_ticker(0.3)
+    logs: list[str] = []
+    node.log.error = lambda msg, *a: logs.append(msg % a)  # type: ignore[method-assign]
+    for i in range(20):
+        pub.publish(ClockTick(sim_ns=1_000_000_000 + i * 10_000_000))
+        node.spin_once(0)
+    assert node.ticks >= 10 and not node.is_shutdown
+    started = time.monotonic()
+    wait_until(lambda: (node.spin_once(0.02), node.is_shutdown)[1], 10, "the node to notice the dead clock")
+    assert time.monotonic() - started >= 0.3
+    assert node.exit_code == 3 and "simulated time stopped" in logs[0] and "_palpa/clock" in logs[0]
+    node.close(0)
+    clock.close(0)
+
+
+def test_a_held_clock_is_not_a_dead_clock() -> None:
+    """Lockstep holds simulated time back but keeps ticking: the guard counts ticks, not time's progress."""
+    node, clock, pub = sim_ticker(0.2)
+    deadline = time.monotonic() + 0.6
+    while time.monotonic() < deadline:
+        pub.publish(ClockTick(sim_ns=1_000_000_000))
+        node.spin_once(0.02)
+    assert not node.is_shutdown
+    node.close(0)
+    clock.close(0)
+
+
+def test_a_respawned_node_or_a_failure_reported_on_stop_never_ends_the_launch_clean(procs: ProcessGroup,
+                                                                                   tmp_path: Path) -> None:
+    from test_launch_supervisor import launch, prog, write
+
+    file = write(tmp_path, f"""
+        nodes:
+          - {{name: phoenix, cmd: {prog("crash_once", str(tmp_path / "crashed"))}, respawn: true,
+              respawn_delay: 0.1}}
+          - {{name: mapper, cmd: {prog("fail_on_stop")}}}
+          - {{name: quitter, cmd: {prog("quit", "0", "2.0")}, required: true}}
+    """)
+    proc = launch(procs, file, tmp_path / "run")
+    assert proc.wait(30) == 1
+    out = proc.output()
+    assert "restarted mid-run (data lost while down): phoenix" in out
+    assert re.search(r"! mapper\s+stopped on SIGINT, reporting failure \(exit code 4\)", out), out
+    assert "failed: mapper" in out
+
+
+def test_a_killed_recorder_stops_a_recording_launch_and_leaves_a_readable_file(procs: ProcessGroup,
+                                                                               tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+    from test_launch_supervisor import launch, prog, wait_started, write
+
+    file = write(tmp_path, f"""
+        record: {{}}
+        nodes:
+          - {{name: talker, node: nodes.demo:Talker, params: {{rate_hz: 100.0}}}}
+          - {{name: steady, cmd: {prog("steady")}}}
+    """)
+    run_dir = tmp_path / "run"
+    proc = launch(procs, file, run_dir)
+    pids = wait_started(run_dir, "recorder", "talker")
+    wait_until(lambda: (run_dir / "recording.mcap").stat().st_size > 4000, 20, "something recorded")
+    os.kill(pids["recorder"], signal.SIGKILL)
+    assert proc.wait(30) == 1
+    out = proc.output()
+    assert "the recorder ended (killed by SIGKILL); record.required: the rest of the run would go unrecorded" in out
+    with open(run_dir / "recording.mcap", "rb") as fh:  # as it was left, by the official reader
+        assert any(ch.topic == "chatter" for _, ch, _ in make_reader(fh).iter_messages())
