@@ -266,3 +266,18 @@ def test_replay_takes_the_phantom_from_the_recording(tmp_path: Path) -> None:
     plan = load_launch(REPO / "launch" / "replay_scan.yaml", {"bag": str(bare), "phantom": "x.yaml"},
                        run_dir=tmp_path / "r")
     assert plan.node_params["estimator"]["phantom"] == "x.yaml"
+
+
+def test_prepare_commands_are_substituted_and_kept_in_the_resolved_file(tmp_path: Path) -> None:
+    """scan_sim.yaml's prepare step measures the phantom given on the command line into the run directory, and
+    the estimator and scanner read what it writes (never the phantom)."""
+    plan = load_launch(REPO / "launch" / "scan_sim.yaml", {"phantom": "phantoms/specimens/dome_6_3.yaml"},
+                       run_dir=tmp_path)
+    measured = str(tmp_path / "measured_geometry.yaml")
+    assert plan.prepare == [["python", "-m", "models.geometry", "measure", "phantoms/specimens/dome_6_3.yaml",
+                             "--error-mm", "0.2", "-o", measured]]
+    params = {n.name: n.params for n in plan.nodes}
+    assert params["estimator"]["geometry"] == measured and params["scanner"]["geometry"] == measured
+    again = tmp_path / "resolved.yaml"
+    again.write_text(plan.to_yaml())
+    assert load_launch(again, {}, run_dir=tmp_path).prepare == plan.prepare

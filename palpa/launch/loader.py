@@ -289,7 +289,9 @@ def _validate_nodes(col: _Collected) -> None:
             except ParamError as exc:
                 raise _param_error(src, (*where, "params"), spec, str(exc), col) from None
             for name, value in input_paths(params).items():
-                if not Path(value).exists():
+                # a file in the run directory is made by the run itself (a prepare step) before the node starts
+                made_by_run = Path(value).resolve().is_relative_to(col.plan.run_dir.resolve())
+                if not made_by_run and not Path(value).exists():
                     raise src.error((*where, "params", name), f"param {name!r} of node {spec.name!r}: "
                                                               f"{value!r} does not exist (from {Path.cwd()})"
                                                               f"{_arg_note(col, src, (*where, 'params', name))}")
