@@ -218,11 +218,12 @@ class RobotScanner(palpa.Node):
 
     @staticmethod
     def _segments(waypoints: tuple[Waypoint, ...]) -> list[tuple[int, int]]:
-        """Indent mode holds at press points: a path runs in segments that end at each hold (and at each line's
-        retract, where the arm stops anyway: a long surface-following path is not handed to the arm at once)."""
+        """Indent mode holds at press points: a path runs in segments that end at each hold (and a long path at each
+        line's retract, where the arm stops anyway: planning hundreds of waypoints at once starves the node)."""
         segments = []
         start_i = 0
-        for c in [i for i, w in enumerate(waypoints) if w.hold_s > 0 or w.kind == "retract"]:
+        long = len(waypoints) > 200  # e.g. sweep lines following a dome
+        for c in [i for i, w in enumerate(waypoints) if w.hold_s > 0 or (long and w.kind == "retract")]:
             segments.append((start_i, c))
             start_i = c + 1
         if start_i < len(waypoints):
