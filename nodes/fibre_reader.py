@@ -17,7 +17,15 @@ from typing import Literal
 import numpy as np
 
 import palpa
-from messages import DeviceStatus, PressureState, ProbeHeights, RobotPose, Text, Trigger, TriggerResult
+from messages import (
+    DeviceStatus,
+    PressureState,
+    ProbeHeights,
+    RobotPose,
+    Text,
+    Trigger,
+    TriggerResult,
+)
 from models.airfloat import (
     DEFAULT_INDENTER_RADIUS_MM,
     DEFAULT_SPS_RADIUS_MM,
@@ -51,7 +59,7 @@ class FibreReader(palpa.Node):
         noise_mm: float = -1.0
         """Sim sensor noise σ (mm); negative: the phantom file's value."""
         sim_errors: Literal["realistic", "ideal"] = "realistic"
-        """Sim device errors drawn from ``device_seed`` (docs/physics.md); ``ideal``: a perfect device, unit tests
+        """Sim device errors drawn from ``device_seed`` (docs/airfloat-sim.md); ``ideal``: a perfect device, unit tests
         only."""
         device_seed: int = 0
         """Which simulated probe (its error draw); calibrate with the same one (``nodes.calibrate_airfloat``)."""

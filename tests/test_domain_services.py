@@ -3,6 +3,7 @@ pause/resume/abort of a scan, a pressure set-point never above the cap, tare, sa
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -41,11 +42,26 @@ def until_done(g: GraphHarness, fut: Future[Any], limit_s: float, step_s: float 
     assert fut.done(), f"no reply within {limit_s} s of simulated time"
 
 
+@functools.lru_cache(maxsize=1)
+def calibration() -> str:
+    """The simulated probe (device 0) calibrated on the bench once per session, as a user does before scanning."""
+    import tempfile
+
+    from models.calibration_airfloat import save_calibration
+    from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate
+
+    path = Path(tempfile.mkdtemp(prefix="palpa-cal-")) / "calibration.yaml"
+    save_calibration(path, calibrate(0, [Reference.parse(t) for t in DEFAULT_REFERENCES]))
+    return str(path)
+
+
 def probe_graph(phantom: str = PHANTOM, kpa: float = 36.0, z: float = 5.0) -> tuple[GraphHarness, palpa.Node]:
     g = GraphHarness()
-    g.add(PressureController, {"startup": "hold", "setpoint_kpa": kpa, "max_kpa": 60.0})
+    g.add(PressureController, {"startup": "hold", "setpoint_kpa": kpa, "max_kpa": 60.0,
+                               "calibration": calibration()})
     g.add(FibreReader, {"phantom": phantom})
-    g.add(StiffnessEstimator, {"phantom": phantom})
+    g.add(StiffnessEstimator, {"geometry": phantom.replace("phantoms/", "phantoms/measured/"),
+                               "calibration": calibration()})
     g.add(RobotScanner, {"autostart": False, "home_mm": [28.0, 28.0, 40.0], "watchdog_s": 0.5,
                          "speed_mm_s": 20.0, "contact_z_mm": z})
     op = g.add(palpa.Node, name="operator")
@@ -80,7 +96,10 @@ def test_probe_over_an_inclusion_reads_stiffer_than_healthy_tissue() -> None:
     probe = op.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=60)
     fut = probe.call_async(ProbeAt(x_mm=15.0, y_mm=18.0))
     until_done(g, fut, 20.0)
-    assert fut.result().value > 2 * float(load_phantom(PHANTOM).youngs_modulus(30.0, 30.0))
+    # issue 14's FE reference: a 6 mm x6 cylinder 2 mm under a 3.68 mm layer pushes back 1.5-1.6x harder at
+    # equal depth, which eq. 7 reads as ~1.7x the modulus (BENCHMARKS.md: the demo scan's peak is 1.65)
+    ratio = fut.result().value / float(load_phantom(PHANTOM).youngs_modulus(30.0, 30.0))
+    assert 1.45 < ratio < 2.0, ratio
     g.close()
 
 

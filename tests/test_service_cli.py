@@ -125,9 +125,14 @@ def test_service_call_probe_at_on_a_simulated_graph(procs: ProcessGroup, tmp_pat
     """`palpa service call scanner/probe_at` on launch/probe_sim.yaml (six processes, simulated time): the
     stiffness returned is within 10 % of the phantom's modulus at the point (healthy tissue; see
     tests/test_domain_services.py for why not over an inclusion yet)."""
+    from models.calibration_airfloat import save_calibration
+    from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate
+
+    cal = tmp_path / "calibration.yaml"  # the simulated probe calibrated on the bench first, as on the rig
+    save_calibration(cal, calibrate(0, [Reference.parse(t) for t in DEFAULT_REFERENCES]))
     bus = f"ipc://{short_ipc_base()}"
     procs.start(palpa_cmd("launch", "launch/probe_sim.yaml", "--bus-address", bus, "--run-dir",
-                          str(tmp_path / "run"), "--no-progress"), cwd=str(REPO))
+                          str(tmp_path / "run"), "--no-progress", f"calibration:={cal}"), cwd=str(REPO))
     names = ("clock", "pressure", "fibre", "estimator", "map", "scanner")
 
     def all_up() -> bool:  # as an operator would check before probing: every node of the graph is running
