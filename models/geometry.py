@@ -8,6 +8,8 @@ surface). The estimator reads that measurement from a small YAML file, never the
     thickness_mm: 20.0
     error_mm: 0.2                 # optional: the measurer's stated 1-sigma uncertainty (informational)
     source: "calliper, 4 points"  # optional free text
+    footprint_mm: [0, 0, 80, 50]  # optional: x0, y0, x1, y1 of the specimen on the table, as measured
+                                  # (the scanner's default region is it less an edge margin; a map's grid otherwise)
 
     # or a map: values[iy][ix] at the grid points x_mm[ix], y_mm[iy] (ascending), bilinear in between
     thickness_mm:
@@ -51,10 +53,11 @@ class MeasuredGeometry:
 
     def __init__(self, thickness_mm: float | None = None, *, x_mm: ArrayLike | None = None,
                  y_mm: ArrayLike | None = None, values: ArrayLike | None = None, error_mm: float = math.nan,
-                 source: str = "") -> None:
+                 source: str = "", footprint_mm: tuple[float, float, float, float] | None = None) -> None:
         self.constant = thickness_mm
         self.error_mm = error_mm
         self.source = source
+        self.footprint_given = footprint_mm
         self._interp: RegularGridInterpolator | None = None
         if thickness_mm is None:
             if x_mm is None or y_mm is None or values is None:
@@ -71,6 +74,19 @@ class MeasuredGeometry:
         pts = np.stack([ya.ravel(), xa.ravel()], -1)
         return _out(np.asarray(self._interp(pts), dtype=np.float64).reshape(xa.shape), x, y)
 
+    def footprint_mm(self) -> tuple[float, float, float, float] | None:
+        """The specimen's measured footprint (x0, y0, x1, y1): the file's ``footprint_mm``, else a map's grid extent,
+        else None (a constant thickness says nothing of where the specimen lies)."""
+        if self.footprint_given is not None:
+            return self.footprint_given
+        if self._interp is None:
+            return None
+        return (float(self.x_mm[0]), float(self.y_mm[0]), float(self.x_mm[-1]), float(self.y_mm[-1]))
+
+    def top_mm(self) -> float:
+        """The thickest measured point (mm): how high the specimen's surface may reach."""
+        return float(self.constant or 0.0) if self._interp is None else float(np.max(self.values))
+
     def to_yaml_data(self) -> dict[str, Any]:
         """The file's mapping (``load_geometry`` reads it back)."""
         data: dict[str, Any]
@@ -83,6 +99,8 @@ class MeasuredGeometry:
             data["error_mm"] = self.error_mm
         if self.source:
             data["source"] = self.source
+        if self.footprint_given is not None:
+            data["footprint_mm"] = [round(v, 3) for v in self.footprint_given]
         return data
 
 
@@ -96,9 +114,11 @@ def parse_geometry(data: Any, source: str = "<geometry>") -> MeasuredGeometry:
     """Validate a decoded geometry mapping; errors name ``source`` and the key."""
     if not isinstance(data, dict):
         raise GeometryError(f"{source}: expected a mapping with thickness_mm, got {type(data).__name__}")
-    unknown = set(data) - {"thickness_mm", "error_mm", "source"}
+    unknown = set(data) - {"thickness_mm", "error_mm", "source", "footprint_mm"}
     if unknown:
-        raise GeometryError(f"{source}: unknown key(s) {sorted(unknown)} (allowed: thickness_mm, error_mm, source)")
+        raise GeometryError(f"{source}: unknown key(s) {sorted(unknown)} (allowed: thickness_mm, error_mm, source, "
+                            "footprint_mm)")
+    fp = _footprint(data.get("footprint_mm"), source)
     if "thickness_mm" not in data:
         raise GeometryError(f"{source}: thickness_mm: required key missing")
     err = data.get("error_mm", math.nan)
@@ -107,7 +127,8 @@ def parse_geometry(data: Any, source: str = "<geometry>") -> MeasuredGeometry:
     text = str(data.get("source", ""))
     t = data["thickness_mm"]
     if not isinstance(t, dict):
-        return MeasuredGeometry(_positive_number(t, f"{source}: thickness_mm"), error_mm=float(err), source=text)
+        return MeasuredGeometry(_positive_number(t, f"{source}: thickness_mm"), error_mm=float(err), source=text,
+                                footprint_mm=fp)
     extra = set(t) - {"x_mm", "y_mm", "values"}
     if extra or len(t) != 3:
         raise GeometryError(f"{source}: thickness_mm: a map needs exactly x_mm, y_mm and values, got {sorted(t)}")
@@ -129,7 +150,19 @@ def parse_geometry(data: Any, source: str = "<geometry>") -> MeasuredGeometry:
                             f"(x_mm), got shape {values.shape}")
     if not np.all(np.isfinite(values) & (values > 0)):
         raise GeometryError(f"{source}: thickness_mm.values: every value must be a finite number > 0 (mm)")
-    return MeasuredGeometry(x_mm=axes[0], y_mm=axes[1], values=values, error_mm=float(err), source=text)
+    return MeasuredGeometry(x_mm=axes[0], y_mm=axes[1], values=values, error_mm=float(err), source=text,
+                            footprint_mm=fp)
+
+
+def _footprint(v: Any, source: str) -> tuple[float, float, float, float] | None:
+    if v is None:
+        return None
+    ok = isinstance(v, list) and len(v) == 4 and all(
+        isinstance(a, int | float) and not isinstance(a, bool) and math.isfinite(a) for a in v)
+    if not ok or not (v[0] < v[2] and v[1] < v[3]):
+        raise GeometryError(f"{source}: footprint_mm: expected [x0, y0, x1, y1] (mm) with x0 < x1 and y0 < y1, "
+                            f"got {v!r}")
+    return (float(v[0]), float(v[1]), float(v[2]), float(v[3]))
 
 
 def load_geometry(path: str | Path) -> MeasuredGeometry:
@@ -157,9 +190,12 @@ def measure_phantom(phantom: Any, *, error_mm: float, bias_mm: float = 0.0, seed
     true = np.asarray(phantom.thickness(xx, yy), dtype=np.float64)
     rng = np.random.default_rng(seed)
     measured = np.maximum(true + bias_mm + rng.normal(0.0, error_mm, true.shape), 0.05)
+    # the footprint as a ruler gives it: each edge to the nearest 0.5 mm after the same per-point error
+    edges = np.round((np.array([0.0, 0.0, lx, ly]) + rng.normal(0.0, error_mm, 4)) * 2) / 2
     src = (f"simulated measurement of {phantom.name or 'a phantom'}: per-point error N(0, {error_mm:g} mm), "
            f"bias {bias_mm:+g} mm, seed {seed}, {spacing_mm:g} mm grid")
-    return MeasuredGeometry(x_mm=xs, y_mm=ys, values=measured, error_mm=error_mm, source=src)
+    return MeasuredGeometry(x_mm=xs, y_mm=ys, values=measured, error_mm=error_mm, source=src,
+                            footprint_mm=(float(edges[0]), float(edges[1]), float(edges[2]), float(edges[3])))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -17,10 +17,16 @@ Two modes:
 * :func:`sweep_raster` -- per line: transit at retract height to above the line start,
   approach (down to approach height), contact (slow descent to the scan height
   ``contact_z_mm + offset_mm``), contact (slide to the line end at the scan speed), retract.
-  The scan height is constant: like the paper, the path does not follow the surface.
+  Without a ``surface`` the scan height is constant, as in the paper.
 * :func:`indent_raster` -- per grid point: approach (above the point), press (to
   ``contact_z_mm - depth_mm``), hold, lift (back to approach height); one transit at the
   start and one retract at the end.
+
+Both take an optional ``surface``: a height profile z_s(x, y) (mm; e.g. ``models.surface.SurfaceFit``, what
+the scanner's touch-off found). Every height is then taken over it -- ``contact_z_mm`` becomes the probe's working
+offset above the surface -- a sweep line follows it with intermediate contact points (``follow_step_mm`` apart,
+blended, only where the surface bends away from the straight line by more than 0.05 mm), and transit and retract
+run at one height: the surface's top over the region plus the retract clearance.
 
 The duration estimate assumes every move starts and ends at rest with a trapezoidal
 velocity profile (blends ignored), so it is an upper bound for a blended path.
@@ -29,7 +35,7 @@ velocity profile (blends ignored), so it is an upper bound for a blended path.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -49,6 +55,8 @@ __all__ = [
 
 WaypointKind = Literal["approach", "contact", "press", "hold", "lift", "retract", "transit"]
 _BLENDED = frozenset({"approach", "lift", "retract", "transit"})
+Surface = Callable[[float, float], float]
+_FOLLOW_TOL_MM = 0.05
 
 
 @dataclass(frozen=True, slots=True)
@@ -214,8 +222,11 @@ def sweep_raster(
     transit_speed_mm_s: float = 50.0,
     accel_mm_s2: float = 500.0,
     blend_mm: float = 0.0,
+    surface: Surface | None = None,
+    follow_step_mm: float = 2.0,
 ) -> RasterPlan:
-    """Sliding raster: the probe stays at ``contact_z_mm + offset_mm`` along each line.
+    """Sliding raster: the probe stays at ``contact_z_mm + offset_mm`` along each line (over ``surface`` when
+    given: see the module docstring).
 
     ``offset_mm`` > 0 leaves a clearance (the air-float probe's air gap), < 0 presses in.
     Approach and retract heights are ``contact_z_mm`` plus the clearances (mm); speeds mm/s,
@@ -240,16 +251,20 @@ def sweep_raster(
         )
     lines, actual = _lines(x0, y0, x1, y1, spacing_mm, None, axis)
     acc, fast, slow = accel_mm_s2, transit_speed_mm_s, approach_speed_mm_s
+    zs = _heights(surface, lines, follow_step_mm)
+    if surface is not None:
+        retract_z += zs.top
     pts: list[Waypoint] = []
     for i, ((xs, ys), (xe, ye)) in enumerate(lines):
+        follow = zs.along(xs, ys, xe, ye)
         pts += [
             Waypoint(xs, ys, retract_z, fast, acc, 0.0, 0.0, i, "transit"),
-            Waypoint(xs, ys, approach_z, fast, acc, 0.0, 0.0, i, "approach"),
-            Waypoint(xs, ys, scan_z, slow, acc, 0.0, 0.0, i, "contact"),
-            Waypoint(xe, ye, scan_z, speed_mm_s, acc, 0.0, 0.0, i, "contact"),
-            Waypoint(xe, ye, retract_z, fast, acc, 0.0, 0.0, i, "retract"),
+            Waypoint(xs, ys, approach_z + follow[0][2], fast, acc, 0.0, 0.0, i, "approach"),
+            Waypoint(xs, ys, scan_z + follow[0][2], slow, acc, 0.0, 0.0, i, "contact"),
         ]
-    wps = _blend(pts, blend_mm)
+        pts += [Waypoint(x, y, scan_z + z, speed_mm_s, acc, 0.0, 0.0, i, "contact") for x, y, z in follow[1:]]
+        pts.append(Waypoint(xe, ye, retract_z, fast, acc, 0.0, 0.0, i, "retract"))
+    wps = _blend_following(_blend(pts, blend_mm), 0.45 * follow_step_mm)
     return RasterPlan(wps, len(lines), estimate_duration_s(wps), actual, "sweep")
 
 
@@ -271,8 +286,10 @@ def indent_raster(
     transit_speed_mm_s: float = 50.0,
     accel_mm_s2: float = 500.0,
     blend_mm: float = 0.0,
+    surface: Surface | None = None,
 ) -> RasterPlan:
-    """Indentation grid: at each point approach, press ``depth_mm`` below ``contact_z_mm``,
+    """Indentation grid: at each point approach, press ``depth_mm`` below ``contact_z_mm`` (over ``surface``
+    when given: see the module docstring),
     hold ``hold_s`` seconds, lift; points ``point_spacing_mm`` apart along each line
     (default: ``spacing_mm``). Press and lift run at ``press_speed_mm_s``, the rest at the
     transit speed; units as in :func:`sweep_raster`.
@@ -299,20 +316,83 @@ def indent_raster(
     step = spacing_mm if point_spacing_mm is None else point_spacing_mm
     lines, actual = _lines(x0, y0, x1, y1, spacing_mm, step, axis)
     acc, fast, slow = accel_mm_s2, transit_speed_mm_s, press_speed_mm_s
+    zs = _heights(surface, lines, None)
+    if surface is not None:
+        retract_z += zs.top
     first = lines[0][0]
     pts = [Waypoint(first[0], first[1], retract_z, fast, acc, 0.0, 0.0, 0, "transit")]
     for i, line in enumerate(lines):
         for x, y in line:
+            z = zs.at(x, y)
             pts += [
-                Waypoint(x, y, approach_z, fast, acc, 0.0, 0.0, i, "approach"),
-                Waypoint(x, y, press_z, slow, acc, 0.0, 0.0, i, "press"),
-                Waypoint(x, y, press_z, slow, acc, 0.0, hold_s, i, "hold"),
-                Waypoint(x, y, approach_z, slow, acc, 0.0, 0.0, i, "lift"),
+                Waypoint(x, y, approach_z + z, fast, acc, 0.0, 0.0, i, "approach"),
+                Waypoint(x, y, press_z + z, slow, acc, 0.0, 0.0, i, "press"),
+                Waypoint(x, y, press_z + z, slow, acc, 0.0, hold_s, i, "hold"),
+                Waypoint(x, y, approach_z + z, slow, acc, 0.0, 0.0, i, "lift"),
             ]
     last = pts[-1]
     pts.append(Waypoint(last.x_mm, last.y_mm, retract_z, fast, acc, 0.0, 0.0, last.line, "retract"))
     wps = _blend(pts, blend_mm)
     return RasterPlan(wps, len(lines), estimate_duration_s(wps), actual, "indent")
+
+
+class _Heights:
+    """The surface's heights where a plan needs them (all 0 without a surface)."""
+
+    def __init__(self, surface: Surface | None, step_mm: float) -> None:
+        self.surface, self.step = surface, step_mm
+        self.top = -math.inf
+
+    def at(self, x: float, y: float) -> float:
+        if self.surface is None:
+            return 0.0
+        z = float(self.surface(x, y))
+        if not math.isfinite(z):
+            raise ValueError(f"raster: the surface is not finite at ({x:g}, {y:g}) mm")
+        self.top = max(self.top, z)
+        return z
+
+    def along(self, xs: float, ys: float, xe: float, ye: float) -> list[tuple[float, float, float]]:
+        """(x, y, z) from the line's start to its end: the ends, plus every step where the surface bends away
+        from the straight line between them."""
+        ends = [(xs, ys, self.at(xs, ys)), (xe, ye, self.at(xe, ye))]
+        if self.surface is None:
+            return ends
+        n = max(1, math.ceil(math.dist((xs, ys), (xe, ye)) / self.step - 1e-9))
+        pts = [(xs + (xe - xs) * k / n, ys + (ye - ys) * k / n) for k in range(n + 1)]
+        prof = [(x, y, self.at(x, y)) for x, y in pts]
+        chord = [ends[0][2] + (ends[1][2] - ends[0][2]) * k / n for k in range(n + 1)]
+        if max(abs(p[2] - c) for p, c in zip(prof, chord, strict=True)) <= _FOLLOW_TOL_MM:
+            return ends
+        return prof
+
+
+def _heights(surface: Surface | None, lines: list[list[tuple[float, float]]], step_mm: float | None) -> _Heights:
+    """Heights over every line (so that ``top`` covers the region before any waypoint is made)."""
+    if step_mm is not None:
+        _positive("follow_step_mm", step_mm)
+    hs = _Heights(surface, step_mm or 1.0)
+    for line in lines:
+        if step_mm is None:
+            for x, y in line:
+                hs.at(x, y)
+        else:
+            hs.along(*line[0], *line[-1])
+    return hs
+
+
+def _blend_following(points: tuple[Waypoint, ...], blend_mm: float) -> tuple[Waypoint, ...]:
+    """Blend the intermediate points of a followed contact line (not its ends), so that the probe glides."""
+    out = list(points)
+    for i in range(1, len(out) - 1):
+        prev, wp, nxt = out[i - 1], out[i], out[i + 1]
+        if wp.kind == prev.kind == nxt.kind == "contact" and prev.speed_mm_s == wp.speed_mm_s:
+            here = (wp.x_mm, wp.y_mm, wp.z_mm)
+            r = min(blend_mm, 0.5 * math.dist((prev.x_mm, prev.y_mm, prev.z_mm), here),
+                    0.5 * math.dist(here, (nxt.x_mm, nxt.y_mm, nxt.z_mm)))
+            out[i] = Waypoint(wp.x_mm, wp.y_mm, wp.z_mm, wp.speed_mm_s, wp.accel_mm_s2, r, wp.hold_s, wp.line,
+                              wp.kind)
+    return tuple(out)
 
 
 def _check_common(blend_mm: float, **positive: float) -> None:

@@ -72,6 +72,9 @@ class MapAggregator(palpa.Node):
         """Why this map lacks data the scan produced ('' when it has everything): it is then declared failed."""
         self.unsaved = 0
         """Samples taken since the files were last written."""
+        self.touching = False
+        self.raster_from_ns = 0
+        """Samples measured before the raster began (the scanner's touch-off finding the surface) are not mapped."""
         if p.region_mm:
             if len(p.region_mm) != 4:
                 raise palpa.ParamError(f"{self.name}: region_mm needs x0, y0, x1, y1, got {p.region_mm}")
@@ -113,7 +116,7 @@ class MapAggregator(palpa.Node):
             self.log.info("map region from the scan plan: %s mm (cells centred on the raster)", plan.region_mm)
 
     def on_sample(self, s: StiffnessSample) -> None:
-        if not s.valid:
+        if not s.valid or self.touching or s.stamp_ns < self.raster_from_ns:
             return
         self.unit = s.unit
         self.samples += 1
@@ -133,6 +136,10 @@ class MapAggregator(palpa.Node):
             self.log.error("map INCOMPLETE: %s", self.incomplete)
 
     def on_status(self, st: ScanStatus) -> None:
+        if st.state == "touching":
+            self.touching = True
+        elif self.touching:  # the touch-off is over: map only what is measured from now on
+            self.touching, self.raster_from_ns = False, st.stamp_ns
         if st.state == "done" and (self.unsaved or not self.written):
             self.log.info("scan done: writing the map")
             self.publish_map(final=True)

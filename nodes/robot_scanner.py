@@ -39,6 +39,7 @@ from models.raster import (
 from nodes.drivers.robot import MotionStatus, RobotDriver
 from nodes.scan_control import MOVING, ScanControl
 from nodes.scan_progress import PathProgressMeter
+from nodes.touchoff import SpecimenPlanner
 
 __all__ = ["RobotScanner"]
 
@@ -51,8 +52,27 @@ class RobotScanner(palpa.Node):
     class Params(palpa.Params):
         driver: Literal["sim", "ur_rtde"] = "sim"
         mode: Literal["sweep", "indent"] = "sweep"
-        region_mm: tuple[float, float, float, float] = (5.0, 5.0, 55.0, 55.0)
-        """x0, y0, x1, y1 of the raster in the phantom frame."""
+        region_mm: list[float] = []
+        """x0, y0, x1, y1 of the raster in the phantom frame; empty: the geometry's footprint less edge_margin_mm."""
+        geometry: str = ""
+        """Measured-geometry file (models.geometry): the specimen's footprint and thickness as someone measured them."""
+        edge_margin_mm: float = 4.0
+        """Default region: the footprint less this on every side."""
+        touchoff: Literal["off", "heights", "indenters", "force"] = "off"
+        """Find the surface before the raster (nodes/touchoff.py) by this contact signal; off: flat contact_z_mm."""
+        touch_grid: int = 3
+        """Touch-off points: a grid x grid lattice over the region (2: corners and centre)."""
+        touch_inset_mm: float = 0.0
+        """Touch-off points this far inside the region (the air-float probe's SPS ring must lie on the specimen)."""
+        touch_threshold: float = 0.0
+        """Contact threshold (heights, indenters: mm; force: N); 0: the signal's default (9 mm, 0.3 mm, 0.5 N)."""
+        search_speed_mm_s: float = 5.0
+        search_clearance_mm: float = 8.0
+        """Touch-off descents start this far above the thickest measured point (the box's top without geometry)."""
+        working_offset_mm: float = 1.0
+        """After a touch-off, sweep: the probe face's height above the found surface."""
+        max_press_fraction: float = 0.6
+        """After a touch-off, indent: never press deeper than this fraction of the thinnest found point."""
         spacing_mm: palpa.Positive = 2.0
         speed_mm_s: palpa.Positive = 10.0
         """Sweep: speed along a line. Indent: press and lift speed."""
@@ -113,6 +133,7 @@ class RobotScanner(palpa.Node):
         self.started_ns = self.clock.now_ns()
         self.driver: RobotDriver = self.closing(self._make_driver())  # closed even if the plan is refused below
         self.driver.connect()
+        self.specimen = SpecimenPlanner(self)  # refuses a specimen that does not fit, before any motion
         self.plan = self._plan()
         self.path: tuple[Waypoint, ...] = self.plan.waypoints
         self.meter = PathProgressMeter(self.plan.waypoints, self.plan.duration_s)
@@ -149,17 +170,17 @@ class RobotScanner(palpa.Node):
 
     def _plan(self) -> RasterPlan:
         p = self.params
-        x0, y0, x1, y1 = p.region_mm
+        x0, y0, x1, y1 = self.specimen.region
         common: dict[str, Any] = dict(
             spacing_mm=p.spacing_mm, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
             approach_clearance_mm=p.approach_clearance_mm, retract_clearance_mm=p.retract_clearance_mm,
-            transit_speed_mm_s=p.transit_speed_mm_s,
+            transit_speed_mm_s=p.transit_speed_mm_s, **self.specimen.plan_heights(),
         )
         if p.mode == "sweep":
-            return sweep_raster(x0, y0, x1, y1, contact_z_mm=p.contact_z_mm, speed_mm_s=p.speed_mm_s,
+            return sweep_raster(x0, y0, x1, y1, speed_mm_s=p.speed_mm_s,
                                 approach_speed_mm_s=p.approach_speed_mm_s, **common)
         # indent: press and lift at speed_mm_s
-        return indent_raster(x0, y0, x1, y1, contact_z_mm=p.contact_z_mm, depth_mm=p.indent_depth_mm,
+        return indent_raster(x0, y0, x1, y1, depth_mm=self.specimen.press_depth_mm(),
                              hold_s=p.hold_s, point_spacing_mm=p.point_spacing_mm or None,
                              press_speed_mm_s=p.speed_mm_s, **common)
 
@@ -197,10 +218,12 @@ class RobotScanner(palpa.Node):
 
     @staticmethod
     def _segments(waypoints: tuple[Waypoint, ...]) -> list[tuple[int, int]]:
-        """Indent mode holds at press points: a path runs in segments that end at each hold."""
+        """Indent mode holds at press points: a path runs in segments that end at each hold (and a long path at each
+        line's retract, where the arm stops anyway: planning hundreds of waypoints at once starves the node)."""
         segments = []
         start_i = 0
-        for c in [i for i, w in enumerate(waypoints) if w.hold_s > 0]:
+        long = len(waypoints) > 200  # e.g. sweep lines following a dome
+        for c in [i for i, w in enumerate(waypoints) if w.hold_s > 0 or (long and w.kind == "retract")]:
             segments.append((start_i, c))
             start_i = c + 1
         if start_i < len(waypoints):
@@ -210,7 +233,7 @@ class RobotScanner(palpa.Node):
     def _publish_plan(self) -> None:
         p, plan = self.params, self.plan
         self.plan_pub.publish(ScanPlan(
-            stamp_ns=self.clock.now_ns(), mode=plan.mode, region_mm=tuple(p.region_mm),
+            stamp_ns=self.clock.now_ns(), mode=plan.mode, region_mm=self.specimen.region,
             spacing_mm=plan.line_spacing_mm, speed_mm_s=p.speed_mm_s, lines=plan.line_count,
             estimated_duration_s=plan.duration_s,
             waypoints=[PlanWaypoint(x_mm=w.x_mm, y_mm=w.y_mm, z_mm=w.z_mm, speed_mm_s=w.speed_mm_s, kind=w.kind,
@@ -222,11 +245,13 @@ class RobotScanner(palpa.Node):
     # -- inputs ----------------------------------------------------------------------------------
     def on_probe(self, msg: ProbeHeights | IndenterDisplacements) -> None:
         self.last_probe_ns = self.clock.now_ns()
+        if self.state == "touching":
+            self.specimen.on_probe(msg)
 
     def on_pressure(self, msg: PressureState) -> None:
         self.last_pressure_ns = self.clock.now_ns()
         bad = _STOPPING_FAULTS.intersection(msg.faults)
-        if bad and self.state in ("waiting", "scanning", "probing", "paused"):
+        if bad and self.state in ("waiting", "touching", "scanning", "probing", "paused"):
             self.halt("fault", f"pressure fault {', '.join(sorted(bad))}")
 
     def on_estop(self, msg: EStop) -> None:
@@ -280,13 +305,17 @@ class RobotScanner(palpa.Node):
         p = self.params
         self.control.supervise(now)
         if self.state == "waiting":
-            if self.last_probe_ns is not None or not p.watch_topic:
+            if (self.last_probe_ns is not None or not p.watch_topic) and self.specimen.touch is not None:
+                self.set_state("touching", "finding the specimen's surface")
+                self.specimen.touch.start()
+            elif self.last_probe_ns is not None or not p.watch_topic:
                 self.set_state("scanning")
                 self._start_segment()
             elif (now - self.started_ns) / 1e9 > p.startup_timeout_s:
                 self.halt("fault", f"no probe data on {p.watch_topic} within {p.startup_timeout_s:g} s")
             return
-        if self.state not in MOVING or self.segment >= len(self.segments):
+        touching = self.state == "touching"  # the touch-off moves the arm: the same checks as a scan
+        if not touching and (self.state not in MOVING or self.segment >= len(self.segments)):
             return
         if p.watch_topic and self.last_probe_ns is not None and (now - self.last_probe_ns) / 1e9 > p.watchdog_s:
             self.halt("fault", f"probe data on {p.watch_topic} stale for more than {p.watchdog_s * 1000:.0f} ms")
@@ -306,6 +335,9 @@ class RobotScanner(palpa.Node):
         if prog.status in (MotionStatus.PROTECTIVE_STOP, MotionStatus.DISCONNECTED, MotionStatus.FAULT):
             self.halt("fault", f"robot {prog.status.name.lower()}: {prog.message}")
             return
+        if touching:
+            self.supervise_touch()
+            return
         seg_start, seg_end = self.segments[self.segment]
         self.meter.update(seg_start + prog.index, self.driver.state().pose[:3])
         if self.hold_until_ns is not None:
@@ -323,6 +355,27 @@ class RobotScanner(palpa.Node):
                 self._start_segment()
         elif prog.status == MotionStatus.STOPPED:
             self.halt("stopped", prog.message or "the arm stopped")
+
+    def supervise_touch(self) -> None:
+        """Touch-off in progress (after the scan's own checks); at its end, the raster over the found surface
+        (checked against the box and caps again) or a fault."""
+        touch = self.specimen.touch
+        if touch is None:
+            return
+        touch.step()
+        if touch.failed:
+            self.halt("fault", touch.error)
+        elif touch.done:
+            try:
+                self.log.info("%s", self.specimen.finish_touch())
+                plan = self._plan()
+                self.check_path(plan.waypoints)
+            except (ValueError, palpa.ParamError) as exc:
+                self.halt("fault", f"no raster over the found surface: {exc}")
+                return
+            self.plan = plan
+            self._publish_plan()
+            self.run_path(plan, "scanning")
 
     def _start_segment(self) -> None:
         if self.segment >= len(self.segments) and self.state == "probing":
@@ -342,6 +395,8 @@ class RobotScanner(palpa.Node):
     def publish_pose(self) -> None:
         st = self.driver.state()
         x, y, z, rx, ry, rz = st.pose
+        if self.specimen.touch is not None:
+            self.specimen.touch.note_pose(st.stamp_ns, z)
         sx, sy, sz = st.speed_mm_s[:3]
         self.pose_pub.publish(RobotPose(stamp_ns=st.stamp_ns, x_mm=x, y_mm=y, z_mm=z, rx_rad=rx, ry_rad=ry,
                                         rz_rad=rz, speed_mm_s=math.sqrt(sx * sx + sy * sy + sz * sz),

@@ -204,8 +204,8 @@ def test_json_schema_comes_from_the_same_definitions() -> None:
     timeout = node["properties"]["sigterm_timeout"]
     assert timeout["anyOf"][0] == {"type": "number", "minimum": 0.0, "maximum": 1e9} and timeout["default"] == 5.0
     assert timeout["anyOf"][1] == {"type": "string", "pattern": r"^\$\(arg [A-Za-z][A-Za-z0-9_-]*\)$"}
-    assert set(defs["LaunchFile"]["properties"]) == {"description", "args", "python_path", "include", "nodes",
-                                                     "bus", "record", "progress", "viz", "in_process"}
+    assert set(defs["LaunchFile"]["properties"]) == {"description", "args", "python_path", "include", "prepare",
+                                                     "nodes", "bus", "record", "progress", "viz", "in_process"}
     out = subprocess.run([sys.executable, "-m", "palpa.cli.main", "launch", "--schema"], capture_output=True,
                          text=True, timeout=60, check=True)
     assert json.loads(out.stdout) == json.loads(json.dumps(schema))
@@ -269,3 +269,18 @@ def test_replay_takes_the_geometry_from_the_recording(tmp_path: Path) -> None:
     plan = load_launch(REPO / "launch" / "replay_scan.yaml", {"bag": str(bare), "geometry": str(geo),
                                                                 "calibration": ""}, run_dir=tmp_path / "r")
     assert plan.node_params["estimator"]["geometry"] == str(geo)
+
+
+def test_prepare_commands_are_substituted_and_kept_in_the_resolved_file(tmp_path: Path) -> None:
+    """scan_sim.yaml's prepare step measures the phantom given on the command line into the run directory, and
+    the estimator and scanner read what it writes (never the phantom)."""
+    plan = load_launch(REPO / "launch" / "scan_sim.yaml", {"phantom": "phantoms/specimens/dome_6_3.yaml"},
+                       run_dir=tmp_path)
+    measured = str(tmp_path / "measured_geometry.yaml")
+    assert plan.prepare == [["python", "-m", "models.geometry", "measure", "phantoms/specimens/dome_6_3.yaml",
+                             "--error-mm", "0.2", "-o", measured]]
+    params = {n.name: n.params for n in plan.nodes}
+    assert params["estimator"]["geometry"] == measured and params["scanner"]["geometry"] == measured
+    again = tmp_path / "resolved.yaml"
+    again.write_text(plan.to_yaml())
+    assert load_launch(again, {}, run_dir=tmp_path).prepare == plan.prepare

@@ -85,6 +85,24 @@ def test_shutdown_writes_samples_taken_after_the_last_write(tmp_path: Path) -> N
     assert int(np.load(tmp_path / "map.npz")["count"].sum()) == 2
 
 
+def test_samples_of_the_touch_off_are_not_mapped(tmp_path: Path) -> None:
+    """While the scanner touches off (finding the surface) the probe's estimates are not the raster's: dropped."""
+    h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path), "region_mm": [0, 0, 10, 10]})
+
+    def sample(t: int, value: float) -> None:
+        h.publish("stiffness/sample", StiffnessSample(stamp_ns=t, model="airfloat", x_mm=5.0, y_mm=5.0, z_mm=0.0, value=value, unit="kPa",
+                                                      valid=True))
+
+    h.publish("robot/scan_status", ScanStatus(stamp_ns=10, state="touching", line=0, lines=1, progress=0.0,
+                                              eta_s=0.0))
+    sample(11, 99.0)
+    h.publish("robot/scan_status", ScanStatus(stamp_ns=20, state="scanning", line=0, lines=1, progress=0.0,
+                                              eta_s=0.0))
+    sample(15, 98.0)  # measured during the touch-off, arriving late
+    sample(21, 26.0)
+    assert h.node.samples == 1
+
+
 def _raw_sample(seq: int, inc: int, x: float) -> list[bytes]:
     import msgspec
 

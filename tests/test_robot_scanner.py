@@ -51,7 +51,9 @@ def test_scan_completes_with_progress_and_exit_0() -> None:
 
 
 def test_plan_leaving_the_box_is_refused_before_motion() -> None:
-    with pytest.raises(palpa.ParamError, match=r"refusing the plan before any motion: waypoint \d+ .*x"):
+    with pytest.raises(palpa.ParamError, match=r"before any motion: the scan region \(region_mm\) x 10\.\.80, y "
+                                               r"10\.\.20 mm does not fit the workspace box \(x -10\.\.70, y -10\.\.70, "
+                                               r"z 0\.5\.\.60 mm\): x 80 > x_max 70"):
         NodeHarness(RobotScanner, {**SMALL, "region_mm": [10, 10, 80, 20]})
 
 

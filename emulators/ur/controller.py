@@ -87,6 +87,8 @@ class UrController:
         self.protective_stopped = False
         self._pstop_tick = 0
         self.force = [0.0] * 6
+        self._world: Any = None
+        self._world_made = False
         self._force_offset = [0.0] * 6
         self._watchdog: tuple[str, int] | None = None
         self._input_tick: dict[str, int] = {}
@@ -330,6 +332,18 @@ class UrController:
         self.stream_paused_until = self.ticks + math.ceil(duration_s / TICK_S)
         self.log(f"RTDE streaming paused for {duration_s} s")
 
+    def _tissue_world(self) -> Any:
+        """models.world.TissueWorld over the phantom (None for a surface without tissue, or a spring sample)."""
+        if not self._world_made:
+            self._world_made = True
+            try:
+                from models.world import TissueWorld
+
+                self._world = TissueWorld(self.phantom)  # type: ignore[arg-type]
+            except (ImportError, ValueError, TypeError, AttributeError):
+                self._world = None
+        return self._world
+
     def _update_force(self) -> None:
         if self.phantom is None:
             return
@@ -340,7 +354,15 @@ class UrController:
             surface = math.nan  # outside the phantom
         depth = surface - (p[2] - o[2]) if math.isfinite(surface) else 0.0
         fz = 0.0
-        if depth > 0:
+        world = self._tissue_world()
+        if depth > 0 and world is not None:
+            try:  # the FE-grounded world of models.world: shares no formula with the estimators
+                fz = float(world.force_n(p[0] - o[0], p[1] - o[1], depth, indenter_radius_mm=c.tip_radius_mm))
+            except ValueError:  # pressed beyond the world's tables: the Hertz law below takes over
+                fz = math.nan
+            if not math.isfinite(fz):
+                fz = 0.0 if depth < 1e-3 else math.nan
+        if depth > 0 and (world is None or math.isnan(fz)):
             modulus = getattr(self.phantom, "effective_modulus", None)
             try:
                 e_kpa = float(modulus(p[0] - o[0], p[1] - o[1], c.tip_radius_mm, depth)) if modulus else 26.4

@@ -163,6 +163,7 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
             col.plan.python_path.append(str(p))
     for i, inc in enumerate(decl.include):
         _include(src, i, inc, namespace, col)
+    col.plan.prepare.extend(list(c) for c in decl.prepare)
     for i, nd in enumerate(decl.nodes):
         if not nd.if_:
             continue
@@ -289,7 +290,9 @@ def _validate_nodes(col: _Collected) -> None:
             except ParamError as exc:
                 raise _param_error(src, (*where, "params"), spec, str(exc), col) from None
             for name, value in input_paths(params).items():
-                if not Path(value).exists():
+                # a file in the run directory is made by the run itself (a prepare step) before the node starts
+                made_by_run = Path(value).resolve().is_relative_to(col.plan.run_dir.resolve())
+                if not made_by_run and not Path(value).exists():
                     raise src.error((*where, "params", name), f"param {name!r} of node {spec.name!r}: "
                                                               f"{value!r} does not exist (from {Path.cwd()})"
                                                               f"{_arg_note(col, src, (*where, 'params', name))}")

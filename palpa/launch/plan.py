@@ -106,6 +106,8 @@ class LaunchPlan:
     args: dict[str, Any] = field(default_factory=dict)
     nodes: list[NodeSpec] = field(default_factory=list)
     python_path: list[str] = field(default_factory=list)
+    prepare: list[list[str]] = field(default_factory=list)
+    """Commands run before any node starts (included files' first, in the order read)."""
     bus: BusDecl = field(default_factory=BusDecl)
     record: RecordDecl | None = None
     progress_topic: str | None = None
@@ -177,6 +179,8 @@ class LaunchPlan:
         doc["args"] = [{"name": k, "default": v} for k, v in self.args.items()]
         if self.python_path:
             doc["python_path"] = list(self.python_path)
+        if self.prepare:
+            doc["prepare"] = [list(c) for c in self.prepare]
         doc["nodes"] = [n.as_dict() for n in self.nodes]
         doc["bus"] = {"transport": self.bus.transport, "endpoint": self.bus.endpoint,
                       "latched": list(self.bus.latched), "hwm": self.bus.hwm}

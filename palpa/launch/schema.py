@@ -179,6 +179,10 @@ class LaunchFile(_Decl):
     python_path: Annotated[list[str], Meta(description="folders added to the import path of the launcher and "
                                                        "every node; relative to this file")] = []
     include: list[IncludeDecl] = []
+    prepare: Annotated[list[Annotated[list[str], Meta(min_length=1)]], Meta(
+        description="commands run one after the other, each to exit 0, after the run directory exists and before "
+                    "any node starts (e.g. a simulation's setup writing a file the nodes read); 'python' is the "
+                    "launcher's own interpreter")] = []
     nodes: list[NodeDecl] = []
     bus: BusDecl | None = None
     record: Annotated[bool | RecordDecl, Meta(description="true: record every topic")] | None = None

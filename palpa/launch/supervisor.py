@@ -139,6 +139,7 @@ class Supervisor:
         plan.run_dir.mkdir(parents=True, exist_ok=True)
         self._screen.open_launch_log(plan.run_dir / "launch.log")
         (plan.run_dir / "launch.resolved.yaml").write_text(plan.to_yaml(), encoding="utf-8")
+        self._prepare()
         old = self._install_signals()
         bus: Bus | None = None
         try:
@@ -179,6 +180,22 @@ class Supervisor:
         return self._finish()
 
     # -- phases ----------------------------------------------------------------------------------------
+    def _prepare(self) -> None:
+        """Run the file's ``prepare`` commands in order; the first that fails ends the launch before any node."""
+        env = dict(os.environ)
+        if self.plan.python_path:
+            env["PYTHONPATH"] = os.pathsep.join([*self.plan.python_path, *filter(None, [env.get("PYTHONPATH")])])
+        for argv in self.plan.prepare:
+            cmd = [sys.executable, *argv[1:]] if argv[0] == "python" else list(argv)
+            self._screen.say(f"prepare: {' '.join(argv)}")
+            try:
+                done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120, check=False)
+            except (OSError, subprocess.TimeoutExpired) as exc:
+                raise LaunchError(f"prepare: {' '.join(argv)}: {exc}") from None
+            if done.returncode != 0:
+                tail = (done.stderr or done.stdout).strip().splitlines()[-5:]
+                raise LaunchError(f"prepare: {' '.join(argv)} exited {done.returncode}: {' / '.join(tail)}")
+
     def _start_observer(self) -> None:
         topic = self.plan.progress_topic
         show = self._progress_opt is not False

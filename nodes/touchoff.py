@@ -1,0 +1,321 @@
+"""Touch-off: find the specimen's surface at a few points before the raster, as a rig does.
+
+For each point the arm lifts to ``start_z_mm``, moves over the point and descends at ``search_speed_mm_s``
+towards ``floor_z_mm`` while it watches a contact signal; at contact it stops, records the surface height there
+and goes on to the next point. The contact signals (``signal``):
+
+* ``heights`` -- the air-float probe's own surface-profile sensors: as soon as SPS1..3 read less than
+  ``threshold`` (mm, inside their stroke) the probe sees the surface below its face, so the surface is the face
+  height at that sample's stamp less the SPS mean (the median of ``samples`` readings). No force is needed.
+* ``indenters`` -- the camera probe: an indenter moved more than ``threshold`` (mm); the surface is where they
+  began to move (the samples since a quarter of the threshold extrapolated back to 0 along a line: springs).
+* ``force`` -- the arm's TCP force (ur_rtde's ``actual_TCP_force``): |Fz| above ``threshold`` (N); the surface is
+  the height where the force began (the samples from contact to ``threshold`` are extrapolated back to 0 N along
+  F^(2/3), the shape of any sphere's contact, so that the stiffness of the tissue does not bias it).
+
+A descent that reaches the floor without contact is an error naming the point (nothing under it). The driver
+is any :class:`nodes.drivers.robot.RobotDriver`; the scanner feeds probe data and calls :meth:`step` from its
+timer. Pure logic apart from the driver: testable on the sim driver with a mock clock, and on the UR emulator.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Literal
+
+import palpa
+from messages import IndenterDisplacements, ProbeHeights
+from models.geometry import GeometryError, load_geometry
+from models.surface import (
+    SpecimenDoesNotFit,
+    SurfaceFit,
+    check_fits,
+    fit_surface,
+    flat_surface,
+    region_in_footprint,
+    touch_points,
+)
+from models.timeseries import StampedBuffer
+from nodes.drivers.robot import MotionStatus, PathPoint, RobotDriver
+
+if TYPE_CHECKING:
+    from nodes.robot_scanner import RobotScanner
+
+__all__ = ["SpecimenPlanner", "TouchOff", "TouchOffConfig"]
+
+Signal = Literal["heights", "indenters", "force"]
+_NEAR_MM = 0.5
+
+
+@dataclass(frozen=True)
+class TouchOffConfig:
+    """Heights (mm, phantom frame), speeds (mm/s), acceleration (mm/s^2); ``threshold`` in mm or N (see module)."""
+
+    signal: Signal
+    start_z_mm: float
+    floor_z_mm: float
+    search_speed_mm_s: float = 5.0
+    transit_speed_mm_s: float = 40.0
+    accel_mm_s2: float = 500.0
+    threshold: float = 9.0
+    samples: int = 5
+    max_spread_mm: float = 3.0
+    """heights: samples whose three SPS differ by more than this are ignored (one hangs over an edge)."""
+
+
+class TouchOff:
+    """Runs the touch-off over ``points`` with ``driver``; ``touches`` holds (x, y, z_surface) when ``done``."""
+
+    def __init__(self, driver: RobotDriver, points: Sequence[tuple[float, float]], config: TouchOffConfig) -> None:
+        if not points:
+            raise ValueError("touch-off: no points")
+        if not config.floor_z_mm < config.start_z_mm:
+            raise ValueError(f"touch-off: the floor z {config.floor_z_mm:g} mm must lie below the start height "
+                             f"{config.start_z_mm:g} mm")
+        self.driver, self.points, self.cfg = driver, list(points), config
+        self.touches: list[tuple[float, float, float]] = []
+        self.index = 0
+        self.phase: Literal["idle", "searching", "stopping", "lifting", "done", "failed"] = "idle"
+        self.error = ""
+        self._z = StampedBuffer(max_gap_ns=200_000_000)
+        self._found: list[float] = []
+        self._rising: list[tuple[float, float]] = []  # (z, signal) since the contact signal began to rise
+
+    @property
+    def done(self) -> bool:
+        return self.phase == "done"
+
+    @property
+    def failed(self) -> bool:
+        return self.phase == "failed"
+
+    def start(self) -> None:
+        """Begin with the first point."""
+        self._go(0)
+
+    # -- probe data ------------------------------------------------------------------------------
+    def note_pose(self, stamp_ns: int, z_mm: float) -> None:
+        """The arm's height at a time (the scanner's pose stream): probe samples are matched to it by stamp."""
+        self._z.add(stamp_ns, (z_mm,))
+
+    def on_heights(self, stamp_ns: int, h_mm: Sequence[float], valid: bool = True) -> None:
+        """Air-float probe sample: SPS1..3 extensions (mm) below the face."""
+        if self.cfg.signal != "heights" or not valid or not self._searching_here():
+            return
+        sps = statistics.fmean(h_mm[:3])
+        if max(h_mm[:3]) - min(h_mm[:3]) > self.cfg.max_spread_mm:
+            return  # a sensor hangs over an edge (or sees nothing): this sample does not give the surface here
+        if sps < self.cfg.threshold:
+            z = self._z_at(stamp_ns)
+            if z is not None:
+                self._contact(z - sps)
+
+    def on_indenters(self, stamp_ns: int, displacement_mm: Sequence[float], valid: Sequence[bool]) -> None:
+        """Camera probe sample: indenter displacements (mm)."""
+        if self.cfg.signal != "indenters" or not self._searching_here():
+            return
+        moved = [d for d, ok in zip(displacement_mm, valid, strict=False) if ok]
+        z = self._z_at(stamp_ns)
+        if not moved or z is None:
+            return
+        if max(moved) > 0.25 * self.cfg.threshold:
+            self._rising.append((z, max(moved)))
+        if max(moved) > self.cfg.threshold:
+            # the indenters' springs move about linearly with the press: back to where they began to move
+            self._found = [self._zero_crossing(z, 1.0)] * self.cfg.samples
+            self._contact(self._found[0])
+
+    # -- driving ---------------------------------------------------------------------------------
+    def step(self) -> None:
+        """Advance: force contact, the end of a descent without contact, the arm at rest after a stop."""
+        if self.phase in ("idle", "done", "failed"):
+            return
+        st = self.driver.state()
+        prog = self.driver.progress()
+        if prog.status in (MotionStatus.PROTECTIVE_STOP, MotionStatus.DISCONNECTED, MotionStatus.FAULT):
+            self._fail(f"robot {prog.status.name.lower()} during the touch-off: {prog.message}")
+            return
+        if self.phase == "searching":
+            if self.cfg.signal == "force" and self._searching_here():
+                self._on_force(st.pose[2], abs(st.force_n[2]))
+            if self.phase == "searching" and prog.status == MotionStatus.DONE:
+                x, y = self.points[self.index]
+                self._fail(f"touch-off found no surface at ({x:g}, {y:g}) mm down to z {self.cfg.floor_z_mm:g} mm "
+                           f"({self._signal_text()}): is the specimen under the region?")
+            return
+        if self.phase == "lifting" and prog.status == MotionStatus.DONE:
+            self.phase = "done"
+        if self.phase == "stopping" and math.hypot(*st.speed_mm_s[:3]) < 0.5 and prog.status != MotionStatus.MOVING:
+            self._go(self.index + 1)
+
+    def _signal_text(self) -> str:
+        c = self.cfg
+        return {"heights": f"no SPS height under {c.threshold:g} mm", "indenters":
+                f"no indenter moved {c.threshold:g} mm", "force": f"no force over {c.threshold:g} N"}[c.signal]
+
+    def _on_force(self, z: float, f: float) -> None:
+        if f > 0.05 * self.cfg.threshold:
+            self._rising.append((z, f))
+        if f > self.cfg.threshold:
+            self._found = [self._zero_crossing(z, 2 / 3)] * self.cfg.samples  # a sphere: F^(2/3) linear in depth
+            self._contact(self._found[0])
+
+    def _zero_crossing(self, z_now: float, power: float) -> float:
+        """Height where the signal s began: s^power is taken as linear in the depth; fit it, extrapolate to 0."""
+        pts = [(z, f ** power) for z, f in self._rising]
+        if len(pts) < 3 or max(z for z, _ in pts) - min(z for z, _ in pts) < 1e-3:
+            return z_now
+        zs, gs = [p[0] for p in pts], [p[1] for p in pts]
+        mz, mg = statistics.fmean(zs), statistics.fmean(gs)
+        szz = sum((z - mz) ** 2 for z in zs)
+        slope = sum((z - mz) * (g - mg) for z, g in zip(zs, gs, strict=True)) / szz
+        return mz - mg / slope if slope < 0 else z_now
+
+    def _z_at(self, stamp_ns: int) -> float | None:
+        v = self._z.at(stamp_ns, max_extrapolate_ns=50_000_000)
+        return None if v is None else float(v[0])
+
+    def _searching_here(self) -> bool:
+        if self.phase != "searching":
+            return False
+        x, y = self.points[self.index]
+        pose = self.driver.state().pose
+        return math.hypot(pose[0] - x, pose[1] - y) < _NEAR_MM
+
+    def _contact(self, z_surface: float) -> None:
+        self._found.append(z_surface)
+        if len(self._found) < self.cfg.samples:
+            return
+        x, y = self.points[self.index]
+        z = statistics.median(self._found[: self.cfg.samples])
+        if z < self.cfg.floor_z_mm:
+            self._fail(f"touch-off found no specimen at ({x:g}, {y:g}) mm: the surface there is at z {z:.2f} mm, "
+                       f"below the floor {self.cfg.floor_z_mm:g} mm (the table): is the specimen under the region?")
+            return
+        self.touches.append((x, y, z))
+        self.driver.stop(self.cfg.accel_mm_s2)
+        self.phase = "stopping"
+
+    def _go(self, index: int) -> None:
+        self.index, self._found, self._rising = index, [], []
+        if index >= len(self.points):
+            self.driver.move_path([self._point(*self.driver.state().pose[:2], self.cfg.start_z_mm,
+                                               self.cfg.transit_speed_mm_s)])
+            self.phase = "lifting"
+            return
+        c = self.cfg
+        x0, y0 = self.driver.state().pose[:2]
+        x, y = self.points[index]
+        self.driver.move_path([self._point(x0, y0, c.start_z_mm, c.transit_speed_mm_s),
+                               self._point(x, y, c.start_z_mm, c.transit_speed_mm_s),
+                               self._point(x, y, c.floor_z_mm, c.search_speed_mm_s)])
+        self.phase = "searching"
+
+    def _point(self, x: float, y: float, z: float, speed: float) -> PathPoint:
+        return PathPoint(x, y, z, speed, self.cfg.accel_mm_s2)
+
+    def _fail(self, why: str) -> None:
+        self.driver.stop(self.cfg.accel_mm_s2)
+        self.phase, self.error = "failed", why
+
+
+_DEFAULT_THRESHOLD = {"heights": 9.0, "indenters": 0.3, "force": 0.5}
+
+
+class SpecimenPlanner:
+    """The scanner's specimen: its region (given, or the measured footprint less a margin), the prior surface
+    (the measured thickness), the touch-off that finds the real one, and the raster's surface after it.
+
+    Everything that can be refused is refused in the constructor, before any motion: a region or a specimen
+    height the workspace box cannot hold raises ``palpa.ParamError`` naming the box and the extent.
+    """
+
+    def __init__(self, node: RobotScanner) -> None:
+        self.node = node
+        p = node.params
+        box = p.workspace_mm
+        geo = None
+        if p.geometry:
+            try:
+                geo = load_geometry(p.geometry)
+            except GeometryError as exc:
+                raise palpa.ParamError(f"{node.name}: geometry: {exc}") from None
+        footprint = geo.footprint_mm() if geo is not None else None
+        try:
+            if p.region_mm:
+                if len(p.region_mm) != 4:
+                    raise palpa.ParamError(f"{node.name}: region_mm needs x0, y0, x1, y1, got {p.region_mm}")
+                self.region = (float(p.region_mm[0]), float(p.region_mm[1]), float(p.region_mm[2]),
+                               float(p.region_mm[3]))
+                what = "the scan region (region_mm)"
+            elif footprint is not None:
+                self.region = region_in_footprint(footprint, p.edge_margin_mm)
+                what = (f"the specimen's footprint x {footprint[0]:g}..{footprint[2]:g}, y {footprint[1]:g}.."
+                        f"{footprint[3]:g} mm less the {p.edge_margin_mm:g} mm edge margin,")
+            elif not p.autostart:  # serving probe_at only: no raster will run; a point plan at home passes checks
+                hx, hy = p.home_mm[0], p.home_mm[1]
+                self.region, what = (hx, hy, hx, hy), "the home position"
+            else:
+                raise palpa.ParamError(f"{node.name}: no scan region: give region_mm (x0, y0, x1, y1 mm), or a "
+                                       "geometry file with the specimen's footprint")
+            top = geo.top_mm() if geo is not None else None
+            clearance = p.search_clearance_mm if p.touchoff != "off" else p.retract_clearance_mm
+            check_fits(self.region, box, top_mm=top, clearance_mm=clearance, what=what)
+        except (SpecimenDoesNotFit, ValueError) as exc:
+            raise palpa.ParamError(f"{node.name}: refusing the specimen before any motion: {exc}") from None
+        self.prior_top = top
+        # until the touch-off has run, heights are over a level surface: the flat contact_z_mm, or the thickest
+        # measured point (so that the pre-motion check of the plan sees the specimen's real height)
+        self.surface: SurfaceFit | None = None if p.touchoff == "off" else flat_surface(top if top is not None else 0.0)
+        self.touch: TouchOff | None = None
+        if p.touchoff != "off":
+            start = (top + p.search_clearance_mm) if top is not None else box[5] - 1.0
+            cfg = TouchOffConfig(signal=p.touchoff, start_z_mm=min(start, box[5] - 0.5), floor_z_mm=box[2],
+                                 search_speed_mm_s=p.search_speed_mm_s, transit_speed_mm_s=p.transit_speed_mm_s,
+                                 accel_mm_s2=p.accel_mm_s2,
+                                 threshold=p.touch_threshold or _DEFAULT_THRESHOLD[p.touchoff])
+            i = p.touch_inset_mm
+            x0, y0, x1, y1 = self.region
+            inner = (x0 + i, y0 + i, x1 - i, y1 - i) if x1 - x0 > 2 * i and y1 - y0 > 2 * i else self.region
+            self.touch = TouchOff(node.driver, touch_points(inner, p.touch_grid), cfg)
+
+    def plan_heights(self) -> dict[str, object]:
+        """Keyword arguments of the raster functions for the heights: flat, or over the surface."""
+        p = self.node.params
+        if self.surface is None:
+            return {"contact_z_mm": p.contact_z_mm}
+        if p.mode == "sweep":
+            return {"contact_z_mm": p.working_offset_mm, "surface": self.surface}
+        return {"contact_z_mm": 0.0, "surface": self.surface}
+
+    def press_depth_mm(self) -> float:
+        """Indent depth: the set depth, but never more than ``max_press_fraction`` of the thinnest found point nor
+        closer than 0.2 mm to the workspace box's floor."""
+        p = self.node.params
+        if self.surface is None or self.touch is None:
+            return float(p.indent_depth_mm)
+        # before the touch-off the plan is checked over the thickest measured point; after it, the thinnest found
+        thinnest = min(z for _, _, z in self.touch.touches) if self.touch.done else (self.prior_top or math.inf)
+        floor = thinnest - p.workspace_mm[2] - 0.2  # and never within 0.2 mm of the box's floor
+        return float(max(0.1, min(p.indent_depth_mm, p.max_press_fraction * thinnest, floor)))
+
+    def on_probe(self, msg: ProbeHeights | IndenterDisplacements) -> None:
+        if self.touch is None:
+            return
+        if isinstance(msg, ProbeHeights):
+            self.touch.on_heights(msg.stamp_ns, msg.h_mm, msg.valid)
+        else:
+            self.touch.on_indenters(msg.stamp_ns, msg.displacement_mm, msg.valid)
+
+    def finish_touch(self) -> str:
+        """Fit the surface through the touches; returns a line for the log (raises ValueError if it cannot)."""
+        if self.touch is None:
+            raise ValueError("no touch-off ran")
+        fit = fit_surface(self.touch.touches)
+        self.surface = fit
+        zs = [z for _, _, z in self.touch.touches]
+        return (f"touch-off: {len(zs)} points, surface {min(zs):.2f}..{max(zs):.2f} mm, {fit.model} fit "
+                f"(rms {fit.rms_mm:.3f} mm)")

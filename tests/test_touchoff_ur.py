@@ -1,0 +1,62 @@
+"""Issue 15 through the ur_rtde driver against the UR emulator: the touch-off finds a domed specimen's surface by
+the TCP force (actual_TCP_force from the emulator's contact model over the world), and a sweep planned over the
+fitted surface keeps the probe's indentation in its working range along the dome."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+from procs import ur_emulator
+
+from models.phantom import load_phantom
+from models.raster import sweep_raster
+from models.surface import fit_surface, touch_points
+from nodes.drivers.robot import MotionStatus
+from nodes.drivers.robot_urrtde import URRtdeDriver
+from nodes.touchoff import TouchOff, TouchOffConfig
+
+DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm, 6 mm on the centre line, 3 mm at the y edges
+
+
+@pytest.mark.timeout(90)
+def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator() -> None:
+    truth = load_phantom(DOME)
+    with ur_emulator(["--unlock-delay", "0", "--home", f"10,10,20,0,{math.pi},0", "--phantom", DOME]) as emu:
+        ur = URRtdeDriver(emu.host, watchdog_hz=5.0)
+        try:
+            ur.connect()
+            region = (10.0, 8.0, 60.0, 32.0)
+            touch = TouchOff(ur, touch_points(region, 3), TouchOffConfig(
+                signal="force", start_z_mm=12.0, floor_z_mm=0.5, search_speed_mm_s=5.0, transit_speed_mm_s=60.0,
+                threshold=0.3))
+            touch.start()
+            deadline = time.monotonic() + 60
+            while not (touch.done or touch.failed) and time.monotonic() < deadline:
+                touch.step()
+                time.sleep(0.002)
+            assert touch.done, touch.error or "touch-off timed out"
+            errors = [z - float(truth.surface_z(x, y)) for x, y, z in touch.touches]
+            assert len(errors) == 9 and max(abs(e) for e in errors) < 0.15, errors
+            fit = fit_surface(touch.touches)
+            # sweep two lines across the dome pressing 0.5 mm below the found surface: the force must stay on
+            plan = sweep_raster(20, 8, 40, 32, spacing_mm=20, speed_mm_s=10, contact_z_mm=-0.5, surface=fit,
+                                approach_clearance_mm=3, retract_clearance_mm=6, transit_speed_mm_s=60)
+            ur.move_path(plan.waypoints)
+            depths, forces = [], []
+            deadline = time.monotonic() + 30
+            while ur.progress().status == MotionStatus.MOVING and time.monotonic() < deadline:
+                st = ur.state()
+                x, y, z = st.pose[:3]
+                vx, vy = st.speed_mm_s[:2]
+                if 9 < abs(vy) < 11 and abs(vx) < 1:  # sliding along a line (y) at the sweep speed
+                    depths.append(float(truth.surface_z(x, y)) - z)
+                    forces.append(st.force_n[2])
+                time.sleep(0.005)
+            assert ur.progress().status == MotionStatus.DONE
+            assert len(depths) > 50
+            assert min(depths) > 0.35 and max(depths) < 0.65, (min(depths), max(depths))
+            assert min(forces) > 0.0
+        finally:
+            ur.close()
