@@ -21,7 +21,10 @@ from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
 from palpa.node import Node
 
-SMALL = ["region_mm:=[30.0, 6.0, 54.0, 30.0]", "spacing_mm:=3.0"]  # around the r 5 x4 tumour at (45, 18)
+# around the r 5 x4 tumour at (45, 18); the measured geometry given as a user would (the in-memory composition
+# below runs no prepare step)
+SMALL = ["region_mm:=[30.0, 6.0, 54.0, 30.0]", "spacing_mm:=3.0",
+         f"geometry:={REPO / 'phantoms' / 'measured' / 'airfloat_tumours.yaml'}"]
 
 
 def test_time_jumps_from_deadline_to_deadline_and_messages_arrive_at_once() -> None:
