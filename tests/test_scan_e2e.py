@@ -72,7 +72,9 @@ def test_airfloat_scan_finds_the_tumours_and_its_recording_replays(procs: Proces
     from models.scoring import score_scan
 
     run = tmp_path / "scan"
-    run_launch(procs, run, "launch/scan_sim.yaml", f"calibration:={calibration}", timeout=400)
+    # composed in one process (issue 16): the same nodes, topics, recording and outputs as one process per node,
+    # at CPU speed; tests/test_launch_smoke.py runs the file as processes
+    run_launch(procs, run, "launch/scan_sim.yaml", "--in-process", f"calibration:={calibration}", timeout=400)
     for name in ("map.npz", "map.png", "inclusions.json"):
         assert (run / "map" / name).stat().st_size > 0
     assert (run / "recording.mcap").stat().st_size > 100_000
@@ -134,6 +136,7 @@ def test_camera_probe_indent_scan_finds_the_tumours(procs: ProcessGroup, tmp_pat
     """launch/scan_camera_sim.yaml (defaults): the camera probe's indentation scan of flat_26k_tumours finds every
     inclusion of radius >= 4 mm and ratio >= 2 within 1.5 mm, with at most one false positive."""
     run = tmp_path / "cam"
+    # as processes: composed (--in-process), the camera's touch-off finds a wrong surface (open, see BENCHMARKS.md)
     run_launch(procs, run, "launch/scan_camera_sim.yaml", timeout=500)
     phantom = load_phantom(REPO / "phantoms" / "flat_26k_tumours.yaml")
     found = inclusions(run)

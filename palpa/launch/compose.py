@@ -63,4 +63,5 @@ def compose_plan(plan: LaunchPlan) -> LaunchPlan:
         sigkill_timeout=max(s.sigkill_timeout for s in members),
         where=f"{where}: in_process ({', '.join(s.name for s in members)})",
     )
-    return dataclasses.replace(plan, nodes=[*rest, entry], record=None, in_process=True)
+    return dataclasses.replace(plan, nodes=[*rest, entry], record=None, in_process=True,
+                               composed_from=dataclasses.replace(plan, in_process=True).to_yaml())

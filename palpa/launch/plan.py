@@ -121,6 +121,10 @@ class LaunchPlan:
     """Every launch file read, the top-level one first."""
     in_process: bool = False
     """The file asks for its simulated-clock nodes in one process (see :mod:`palpa.launch.compose`)."""
+    composed_from: str | None = None
+    """The resolved launch file this plan was composed from (:func:`palpa.launch.compose.compose_plan`):
+    :meth:`to_yaml` gives it, so the run directory and the recording describe the graph as written (a replay
+    reads its nodes' parameters there), not the one process it ran in."""
 
     def recorder(self) -> NodeSpec | None:
         """The recorder node the ``record`` section asks for (None without one)."""
@@ -173,6 +177,8 @@ class LaunchPlan:
 
     def to_yaml(self) -> str:
         """The resolved graph as a launch file (loadable again: no includes, args fixed to their values)."""
+        if self.composed_from is not None:
+            return self.composed_from
         doc: dict[str, Any] = {}
         if self.description:
             doc["description"] = self.description
@@ -190,6 +196,8 @@ class LaunchPlan:
                              "split_duration_s": r.split_duration_s, "ready_timeout_s": r.ready_timeout_s}
         if self.progress_topic is not None:
             doc["progress"] = {"topic": self.progress_topic, "report": list(self.progress_report)}
+        if self.in_process:
+            doc["in_process"] = True
         header = "".join(f"# {line}\n" for line in [
             f"resolved from {self.files[0] if self.files else self.file}",
             *(f"includes {f}" for f in self.files[1:]),
