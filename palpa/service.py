@@ -155,7 +155,7 @@ class Responder(Generic[R]):
             return
         self.done = True
         node = self._service.node
-        if node._closed:
+        if node.closed:
             return
         header = Header(type=type_name, seq=self.seq, stamp=node.clock.now_ns(), node=node.name)
         node.publish_raw(reply_topic(self._service.name, self.client_id), header, payload)
@@ -227,7 +227,7 @@ class Service(Generic[Q, R]):
         except (BadRequestError, ParamError, msgspec.ValidationError) as exc:
             responder.fail("bad_request", str(exc))
         except Exception as exc:
-            self.node._handler_failed(self.handler)
+            self.node.dispatch.failed(self.handler)
             responder.fail("handler_error", f"{type(exc).__name__}: {exc}")
         else:
             if result is responder or (self._deferred and result is None):

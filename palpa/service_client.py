@@ -64,7 +64,7 @@ def set_wait_pump(node: Node, pump: Callable[[], None]) -> None:
 
 def _pump_of(node: Node) -> Callable[[], None] | None:
     pump = _pumps.get(node)
-    return pump if pump is not None else getattr(node._transport, "pump", None)
+    return pump if pump is not None else getattr(node.transport, "pump", None)
 
 
 class Future(Generic[R]):
@@ -90,7 +90,7 @@ class Future(Generic[R]):
     def add_done_callback(self, fn: Callable[[Future[R]], object]) -> None:
         """Call ``fn(future)`` from the node's loop once the call finishes (at once if it already has)."""
         if self._done:
-            self._client.node._call(fn, self)
+            self._client.node.dispatch.call(fn, self)
         else:
             self._callbacks.append(fn)
 
@@ -129,7 +129,7 @@ class Future(Generic[R]):
             return
         self._value, self._error, self._done = value, error, True
         for fn in self._callbacks:
-            self._client.node._call(fn, self)
+            self._client.node.dispatch.call(fn, self)
         self._callbacks.clear()
 
 
@@ -168,7 +168,7 @@ class Client(Generic[Q, R]):
     def ready(self) -> bool:
         """True once a live server is known and both request and reply subscriptions have reached the bus
         (a request sent before that could be lost, so calls wait for it)."""
-        t = self.node._transport
+        t = self.node.transport
         return self.server is not None and self.server.alive and t.has_subscribers(self._req_topic_b) \
             and t.has_subscribers(self._reply_topic_b)
 
