@@ -39,7 +39,7 @@ from palpa.message import Message
 from palpa.wire import Header
 
 if TYPE_CHECKING:
-    from palpa.node import Node
+    from palpa.nodeapi import NodeApi
 
 __all__ = [
     "DEFAULT_TIMEOUT_S",
@@ -165,7 +165,7 @@ class Service(Generic[Q, R]):
     """The server side of a service: decodes requests, runs the handler, sends the reply. Made by
     ``Node.service``."""
 
-    def __init__(self, node: Node, name: str, request_type: type[Q], response_type: type[R],
+    def __init__(self, node: NodeApi, name: str, request_type: type[Q], response_type: type[R],
                  handler: Callable[[Q], R | Responder[R]]) -> None:
         self.node = node
         self.name = node.resolve(name)
