@@ -4,35 +4,22 @@ from __future__ import annotations
 
 import contextlib
 import os
-import secrets
-import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / "tests"))
+from palpa.address import BusAddress
+from palpa.bus import Bus
+from tests.procs import ProcessGroup, bus_spec
 
-from procs import ProcessGroup  # noqa: E402
-
-from palpa.address import BusAddress  # noqa: E402
-from palpa.bus import Bus  # noqa: E402
+# only for tests still written as top-level modules (test_scan_e2e.py on the in-flight issue-14 branches: `from procs
+# import ...`); remove once every test imports `tests.procs`
+sys.path.append(str(Path(__file__).resolve().parent))
 
 # launches started by tests note their bus here, not in the user's own current-bus file (palpa.current)
 os.environ["PALPA_CURRENT"] = f"/tmp/pt-current-{os.getpid()}"
-
-
-def short_ipc_base() -> str:
-    """A fresh ipc base path well under the 107-character limit (pytest's tmp dirs are too long)."""
-    return f"/tmp/pt-{os.getpid()}-{secrets.token_hex(3)}"
-
-
-def bus_spec(transport: str) -> BusAddress:
-    if transport == "ipc":
-        return BusAddress.parse(f"ipc://{short_ipc_base()}")
-    return BusAddress("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")
 
 
 @pytest.fixture(params=["ipc", "tcp"])
@@ -72,10 +59,6 @@ def procs() -> Iterator[ProcessGroup]:
         group.cleanup()
 
 
-def palpa_cmd(*args: str) -> list[str]:
-    return [sys.executable, "-m", "palpa.cli.main", *args]
-
-
 @pytest.fixture
 def env_for() -> object:
     def make(address: BusAddress, **extra: str) -> dict[str, str]:
@@ -87,5 +70,3 @@ def env_for() -> object:
 
     return make
 
-
-__all__ = ["palpa_cmd", "short_ipc_base", "subprocess"]

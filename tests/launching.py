@@ -7,10 +7,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from conftest import palpa_cmd
-from procs import Proc, ProcessGroup, wait_until
-
 import palpa
+from tests.procs import Proc, ProcessGroup, palpa_cmd, wait_until
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -143,7 +143,7 @@ def test_fibre_sim_rate_and_no_contact_when_lifted() -> None:
 
 def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path) -> None:  # type: ignore[no-untyped-def]
     """Issue 6 acceptance as processes: launch/airfloat_sim.yaml over the 10.8 kPa phantom."""
-    from launching import launched, spin_until
+    from tests.launching import launched, spin_until
 
     with launched(procs, "launch/airfloat_sim.yaml", tmp_path / "run", "phantom:=phantoms/flat_10k.yaml",
                   "pressure_kpa:=33.5") as (proc, node):

@@ -14,9 +14,6 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
-from conftest import palpa_cmd, short_ipc_base
-from launching import launched
-from procs import ProcessGroup, wait_until
 
 import palpa
 from messages import EStop, Text
@@ -25,6 +22,8 @@ from palpa.bus import Bus
 from palpa.cli.common import message_from_yaml
 from palpa.cli.main import main
 from palpa.current import announce, find_bus, withdraw
+from tests.launching import launched
+from tests.procs import ProcessGroup, palpa_cmd, short_ipc_base, wait_until
 
 
 @contextmanager

@@ -9,8 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from procs import ProcessGroup
-from test_launch_smoke import REPO, Smoke, smoke
 
 from messages import Text
 from nodes.demo import Listener, Talker
@@ -20,6 +18,8 @@ from palpa.errors import LaunchError
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
 from palpa.node import Node
+from tests.procs import ProcessGroup
+from tests.test_launch_smoke import REPO, Smoke, smoke
 
 SMALL = ["region_mm:=[36.0, 33.0, 54.0, 51.0]", "spacing_mm:=3.0"]
 
@@ -109,7 +109,7 @@ def test_in_process_launch_is_seen_on_the_bus_by_outside_tools(procs: ProcessGro
 @pytest.mark.timeout(400)
 def test_in_process_and_multi_process_find_the_same_inclusions(procs: ProcessGroup, tmp_path: Path) -> None:
     """The same small scan composed and as one process per node: the same inclusions, within 0.05 mm."""
-    from test_scan_e2e import inclusions, run_launch
+    from tests.test_scan_e2e import inclusions, run_launch
 
     run_launch(procs, tmp_path / "in", "launch/scan_sim.yaml", "--in-process", *SMALL, timeout=120)
     run_launch(procs, tmp_path / "multi", "launch/scan_sim.yaml", *SMALL, "time_scale:=5.0", timeout=300)

@@ -11,8 +11,6 @@ from pathlib import Path
 
 import pytest
 import zmq
-from conftest import palpa_cmd
-from procs import ProcessGroup, wait_until
 
 import palpa
 from messages import Text
@@ -22,6 +20,7 @@ from palpa.endpoints import RawMessage
 from palpa.launch import load_launch
 from palpa.testing import MemoryBus
 from palpa.transport import TransportOptions, ZmqTransport
+from tests.procs import ProcessGroup, palpa_cmd, wait_until
 
 
 def _texts(n: int, start: int = 0) -> list[str]:

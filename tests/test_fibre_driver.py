@@ -12,7 +12,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from procs import ProcessGroup, wait_until
 
 from devices.fibre_daq import CHANNELS
 from emulators.fibre_daq import FibreDaqEmulator, fixed_pose, source_from_heights
@@ -26,6 +25,7 @@ from nodes.drivers.fibre import (
     FibreSample,
 )
 from nodes.drivers.fibre_serial import SerialFibreDriver
+from tests.procs import ProcessGroup, wait_until
 
 pytestmark = pytest.mark.timeout(30)
 

@@ -12,8 +12,6 @@ import msgpack
 import msgspec
 import pytest
 import zmq
-from conftest import bus_spec
-from procs import wait_until
 
 import palpa
 from messages import Text
@@ -27,6 +25,7 @@ from palpa.record.testing import check_official
 from palpa.runtime_msgs import LogRecord
 from palpa.testing import NodeHarness
 from palpa.transport import TransportOptions, ZmqTransport
+from tests.procs import bus_spec, wait_until
 
 
 def header(seq: int, node: str = "evil", type_: str = "Text", latched: bool = False) -> bytes:

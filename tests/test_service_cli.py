@@ -10,10 +10,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import REPO, palpa_cmd, short_ipc_base
-from procs import ProcessGroup, wait_until
-from test_service import Adder, AddReply, AddRequest
-from test_service_zmq import adder  # noqa: F401  (fixture)
 
 import palpa
 from models.phantom import load_phantom
@@ -23,6 +19,9 @@ from palpa.cli.main import main
 from palpa.params import convert_params
 from palpa.record.info import bag_info, format_info
 from palpa.service import RequestRefused
+from tests.procs import REPO, ProcessGroup, palpa_cmd, short_ipc_base, wait_until
+from tests.test_service import Adder, AddReply, AddRequest
+from tests.test_service_zmq import adder  # noqa: F401  (fixture)
 
 
 @pytest.fixture

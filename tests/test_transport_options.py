@@ -8,8 +8,6 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import bus_spec, palpa_cmd
-from procs import ProcessGroup, wait_until
 
 import palpa
 from messages import Text
@@ -19,6 +17,7 @@ from palpa.errors import BusError, LaunchError
 from palpa.launch import load_launch
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.transport import TransportOptions, ZmqTransport
+from tests.procs import ProcessGroup, bus_spec, palpa_cmd, wait_until
 
 
 def test_options_from_defaults_environment_and_flags() -> None:
