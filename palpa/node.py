@@ -31,10 +31,12 @@ import traceback
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar, Protocol, TypeVar, cast
 
+from palpa import env as palpa_env
 from palpa.address import BusAddress, from_env
 from palpa.clock import Clock, SystemClock, TopicClock
 from palpa.dispatch import Dispatch
 from palpa.endpoints import DEFAULT_BATCH, Publisher, RawMessage, Subscription, Timer, handler_type
+from palpa.errors import PalpaError
 from palpa.message import Message
 from palpa.params import Params as ParamsBase
 from palpa.params import convert_params
@@ -138,11 +140,15 @@ class Node:
         self.incarnation = int.from_bytes(os.urandom(4), "big") | 1
         """Drawn anew at every start and sent in every header (``inc``): receivers tell a restart from a repeat."""
         if sim_clock is None:
-            sim_clock = os.environ.get("PALPA_SIM_CLOCK", "") not in ("", "0")
+            sim_clock = palpa_env.flag(palpa_env.SIM_CLOCK)
         self.params = convert_params(type(self).Params, params, where=f"node {self.name!r}")
         self._topic_clock = TopicClock() if sim_clock and clock is None else None
         if sim_clock_timeout_s is None:
-            sim_clock_timeout_s = float(os.environ.get("PALPA_SIM_CLOCK_TIMEOUT_S", "") or _SIM_CLOCK_TIMEOUT_S)
+            text = palpa_env.get(palpa_env.SIM_CLOCK_TIMEOUT_S)
+            try:
+                sim_clock_timeout_s = float(text) if text else _SIM_CLOCK_TIMEOUT_S
+            except ValueError:
+                raise PalpaError(f"{palpa_env.SIM_CLOCK_TIMEOUT_S}={text!r}: expected seconds") from None
         self._clock_timeout_ns = int(sim_clock_timeout_s * 1e9)
         self._last_tick_wall_ns = 0
         self.clock: Clock = clock or self._topic_clock or SystemClock()

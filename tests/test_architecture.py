@@ -140,3 +140,25 @@ def test_the_checks_see_a_cycle_and_a_private_read(tmp_path: Path, monkeypatch: 
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     assert import_cycles(("fakepkg",)) == [["fakepkg.a", "fakepkg.b"]]
     assert foreign_private_access(("fakepkg",)) == ["fakepkg/b.py:5: node._depth"]
+
+
+def test_only_palpa_env_names_palpa_variables() -> None:
+    """The environment is read in one place: no other runtime module spells a ``PALPA_*`` name as a string."""
+    import re
+
+    spelt = []
+    for name, path in _modules(("palpa",)).items():
+        if name == "palpa.env":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and \
+                    re.fullmatch(r"PALPA_[A-Z0-9_]+", node.value):
+                spelt.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.value}")
+    assert spelt == []
+
+
+def test_every_variable_is_documented() -> None:
+    from palpa.env import VARIABLES
+
+    doc = (ROOT / "docs" / "launch.md").read_text()
+    assert [v for v in VARIABLES if f"| `{v}` |" not in doc] == []
