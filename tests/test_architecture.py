@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("palpa", "emulators")
+PACKAGES = ("palpa", "emulators", "yamlstruct")
 ALLOWED_PRIVATE = {"argparse._SubParsersAction"}  # the stdlib's only name for a subparsers annotation
 
 
@@ -162,3 +162,12 @@ def test_every_variable_is_documented() -> None:
 
     doc = (ROOT / "docs" / "launch.md").read_text()
     assert [v for v in VARIABLES if f"| `{v}` |" not in doc] == []
+
+
+def test_yamlstruct_and_models_do_not_import_the_runtime() -> None:
+    """models/ are pure and read YAML through yamlstruct, which must stay free of palpa (its __init__ pulls in
+    ZeroMQ and the node loop)."""
+    known = set(_modules(("palpa", "yamlstruct", "models")))
+    for pkg in ("yamlstruct", "models"):
+        for m, p in _modules((pkg,)).items():
+            assert not [t for t in _imports(m, p, known) if t.split(".")[0] == "palpa"], m
