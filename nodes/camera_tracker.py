@@ -22,6 +22,7 @@ import numpy as np
 
 import palpa
 from messages import DeviceStatus, ImageInfo, IndenterDisplacements, RobotPose
+from messages.probe import DeviceState
 from models.camera_render import CameraModel
 from models.kalman import KalmanParams
 from models.multi_indenter import PAPER_GEOMETRY, PX_PER_MM, ProbeGeometry
@@ -183,7 +184,7 @@ class CameraTracker(palpa.Node):
         self.debug_pub.publish(ImageInfo(stamp_ns=frame.stamp_ns, width=image.shape[1], height=image.shape[0],
                                          encoding=enc), blobs=[blob])
 
-    def _state(self) -> tuple[bool, str]:
+    def _state(self) -> tuple[bool, DeviceState]:
         info = self.driver.info()
         if info.ended:
             return False, "down"
