@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from typing import Generic, TypeVar, get_type_hints
+from typing import Any, Generic, NamedTuple, TypeVar, get_type_hints
 
 import msgspec
 
@@ -20,7 +20,8 @@ from palpa.message import Message
 from palpa.transport import Transport
 from palpa.wire import Header, HeaderTemplate, TopicStats, msgpack_array
 
-__all__ = ["DEFAULT_BATCH", "Publisher", "RawMessage", "Subscription", "Timer", "handler_type"]
+__all__ = ["DEFAULT_BATCH", "MsgInfo", "Publisher", "RawMessage", "Subscription", "Timer", "handler_type",
+           "wants_info"]
 
 M = TypeVar("M", bound=Message)
 DEFAULT_BATCH = 64
@@ -38,6 +39,16 @@ class RawMessage(msgspec.Struct, frozen=True, gc=False):
     blobs: list[bytes]
     from_cache: bool
     recv_ns: int
+
+
+class MsgInfo(NamedTuple):
+    """What came with a message besides its payload, handed to a callback that asks for it: ``def on_image(self,
+    msg: Image, info: palpa.MsgInfo)`` (the publisher, sequence number and stamp in ``header``, binary ``blobs``)."""
+
+    header: Header
+    blobs: list[bytes]
+    from_cache: bool
+    """True when it came from the latched cache (a value published before this node subscribed)."""
 
 
 class Publisher(Generic[M]):
@@ -138,13 +149,16 @@ class Subscription(Generic[M]):
         spinner: Spinner,
         topic: str,
         msg_type: type[M],
-        callback: Callable[[M], object] | None,
+        callback: Callable[[M], object] | Callable[[M, MsgInfo], object] | None,
         queue_size: int,
     ) -> None:
+        """``callback`` gets ``(msg)``, or ``(msg, info)`` when a parameter is annotated :class:`MsgInfo`."""
         self._spinner = spinner
         self.topic = topic
         self.type = msg_type
-        self.callback = callback
+        self.callback: Callable[..., object] | None = callback
+        self.with_info = callback is not None and wants_info(callback)
+        """Whether the callback takes ``(msg, info)``."""
         self.stats = TopicStats()
         self.queue: deque[M] = deque(maxlen=queue_size)
         self.last_header: Header | None = None
@@ -188,6 +202,15 @@ class Timer:
 
     def cancel(self) -> None:
         self.cancelled = True
+
+
+def wants_info(callback: Callable[..., object]) -> bool:
+    """Whether ``callback`` has a parameter annotated :class:`MsgInfo` (then it is called as ``(msg, info)``)."""
+    try:
+        hints: dict[str, Any] = get_type_hints(callback)
+    except Exception:  # unresolvable annotations: the plain form
+        return False
+    return any(h is MsgInfo for k, h in hints.items() if k != "return")
 
 
 def handler_type(callback: Callable[..., object]) -> type[Message]:

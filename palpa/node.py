@@ -35,7 +35,15 @@ from palpa import env as palpa_env
 from palpa.address import BusAddress, from_env
 from palpa.clock import Clock, SystemClock, TopicClock
 from palpa.dispatch import Dispatch
-from palpa.endpoints import DEFAULT_BATCH, Publisher, RawMessage, Subscription, Timer, handler_type
+from palpa.endpoints import (
+    DEFAULT_BATCH,
+    MsgInfo,
+    Publisher,
+    RawMessage,
+    Subscription,
+    Timer,
+    handler_type,
+)
 from palpa.errors import PalpaError
 from palpa.message import Message
 from palpa.params import Params as ParamsBase
@@ -62,7 +70,7 @@ from palpa.wire import (
     encode_header,
 )
 
-__all__ = ["DEFAULT_BATCH", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
+__all__ = ["DEFAULT_BATCH", "MsgInfo", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
 
 M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
@@ -292,13 +300,15 @@ class Node:
     def subscribe(
         self,
         topic: str,
-        type_or_callback: type[M] | Callable[[M], object],
-        callback: Callable[[M], object] | None = None,
+        type_or_callback: type[M] | Callable[[M], object] | Callable[[M, MsgInfo], object],
+        callback: Callable[[M], object] | Callable[[M, MsgInfo], object] | None = None,
         *,
         queue_size: int = 1000,
     ) -> Subscription[M]:
         """Subscribe to ``topic``: ``subscribe(t, self.on_msg)`` (type from the annotation),
-        ``subscribe(t, Type, cb)``, or ``subscribe(t, Type)`` to iterate."""
+        ``subscribe(t, Type, cb)``, or ``subscribe(t, Type)`` to iterate. A callback with a second parameter
+        annotated :class:`MsgInfo` gets ``(msg, info)``: the header and blobs of that very message (rather than
+        ``sub.last_header`` / ``sub.last_blobs``, which only say what came last)."""
         if isinstance(type_or_callback, type):
             msg_type: type[Any] = type_or_callback
         else:

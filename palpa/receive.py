@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 import msgspec
 
 from palpa.dispatch import Dispatch
-from palpa.endpoints import RawMessage, Subscription
+from palpa.endpoints import MsgInfo, RawMessage, Subscription
 from palpa.errors import DecodeError
 from palpa.transport import Delivery
 from palpa.wire import (
@@ -185,9 +185,14 @@ class Receiver:
             sub.queue.extend(msgs)
             return True
 
+        with_info = sub.with_info
+
         def deliver(i: int) -> None:
             sub.last_header = headers[i]
-            callback(msgs[i])
+            if with_info:
+                callback(msgs[i], MsgInfo(headers[i], [], False))
+            else:
+                callback(msgs[i])
 
         self._dispatch.call_each(deliver, n, callback)
         return True
@@ -210,7 +215,10 @@ class Receiver:
         sub.last_header = header
         sub.last_blobs = blobs
         if sub.callback is not None:
-            self._dispatch.call(sub.callback, msg)
+            if sub.with_info:
+                self._dispatch.call(sub.callback, msg, MsgInfo(header, blobs, cached))
+            else:
+                self._dispatch.call(sub.callback, msg)
         else:
             sub.queue.append(msg)
 
