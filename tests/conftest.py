@@ -12,10 +12,10 @@ import pytest
 
 from palpa.address import BusAddress
 from palpa.bus import Bus
-from tests.procs import ProcessGroup, bus_spec
+from tests.procs import ProcessGroup, bus_spec, palpa_cmd, short_ipc_base  # noqa: F401 (re-exported, see below)
 
 # only for tests still written as top-level modules (test_scan_e2e.py on the in-flight issue-14 branches: `from procs
-# import ...`); remove once every test imports `tests.procs`
+# import ...`, `from conftest import palpa_cmd`); remove with the re-exports once every test imports tests.procs
 sys.path.append(str(Path(__file__).resolve().parent))
 
 # launches started by tests note their bus here, not in the user's own current-bus file (palpa.current)
