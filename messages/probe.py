@@ -39,6 +39,12 @@ class PressureCommand(Message, frozen=True, kw_only=True):
     rate_kpa_s: Finite = 0.0
 
 
+PressureMode = Literal["hold", "ramp", "vent"]
+"""How the regulator drives its setpoint (commanded in ``PressureCommand.mode``, reported in ``PressureState``)."""
+DeviceState = Literal["ok", "down", "reconnecting", "fault"]
+"""A device driver's health in ``DeviceStatus``; on the wire a plain string."""
+
+
 class PressureState(Message, frozen=True, kw_only=True):
     """The regulator's state (topic ``pressure/state``); ``force_n`` is eq. 4's indentation force."""
 
@@ -46,7 +52,7 @@ class PressureState(Message, frozen=True, kw_only=True):
     setpoint_kpa: Finite
     measured_kpa: Finite
     force_n: Finite
-    mode: str
+    mode: PressureMode
     max_kpa: Finite
     faults: list[str] = []
     """Empty when healthy; e.g. ``device_lost``, ``tracking_error``, ``over_pressure``, ``clamped``."""
@@ -73,8 +79,7 @@ class DeviceStatus(Message, frozen=True, kw_only=True):
     stamp_ns: int
     device: str
     connected: bool
-    state: str
-    """``ok``, ``down``, ``reconnecting``, ``fault``."""
+    state: DeviceState
     message: str = ""
     counters: dict[str, int] = {}
     clock_offset_ns: int = 0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 import msgspec
 
 from palpa.message import Finite, Message
@@ -21,6 +23,13 @@ class RobotPose(Message, frozen=True, kw_only=True):
     force_z_n: Finite = 0.0
 
 
+WaypointKind = Literal["approach", "contact", "press", "hold", "lift", "retract", "transit"]
+"""What a waypoint is for (models.raster plans them); on the wire a plain string."""
+ScanState = Literal["planning", "waiting", "idle", "approach", "scanning", "probing", "paused", "done", "stopped",
+                    "fault", "estop"]
+"""The scanner's states (``robot/scan_status``); on the wire a plain string."""
+
+
 class PlanWaypoint(msgspec.Struct, frozen=True, kw_only=True):
     """One waypoint of a scan plan (phantom frame, mm)."""
 
@@ -28,8 +37,7 @@ class PlanWaypoint(msgspec.Struct, frozen=True, kw_only=True):
     y_mm: Finite
     z_mm: Finite
     speed_mm_s: Finite
-    kind: str
-    """``approach``, ``contact``, ``press``, ``hold``, ``lift``, ``retract``, ``transit``."""
+    kind: WaypointKind
     line: int
     hold_s: Finite = 0.0
 
@@ -53,8 +61,7 @@ class ScanStatus(Message, frozen=True, kw_only=True):
     """Scan progress (topic ``robot/scan_status``)."""
 
     stamp_ns: int
-    state: str
-    """``planning``, ``approach``, ``scanning``, ``done``, ``stopped``, ``fault``, ``estop``."""
+    state: ScanState
     line: int
     lines: int
     progress: Finite

@@ -1,7 +1,8 @@
 """Calibration of the fibre DAQ's four channels: raw ADC counts -> heights h1..h4 in mm.
 
 Each channel has a polynomial fit (paper 1, Fig. 3) over the raw range where it holds; the file format is
-in ``docs/devices.md`` ("Calibration file"). Pure: the loader reads one YAML file and nothing else.
+in ``docs/devices.md`` ("Calibration file"). Pure: the loader reads one YAML file and nothing else, through
+:mod:`yamlstruct` (the project's one YAML loader), so every error names ``file:line:col``.
 """
 
 from __future__ import annotations
@@ -10,11 +11,12 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, ClassVar
 
-import yaml
+import msgspec
 
 from devices.fibre_daq import CHANNELS
+from yamlstruct import Source, convert
 
 
 class FibreCalibrationError(ValueError):
@@ -69,64 +71,66 @@ class FibreCalibration:
         return tuple(ch.raw_for_height(h) for ch, h in zip(self.channels, heights_mm, strict=True))
 
 
+class _CalibrationSource(Source):
+    error_type: ClassVar[type[Exception]] = FibreCalibrationError
+    document: ClassVar[str] = "the calibration file"
+
+
+class _ChannelDecl(msgspec.Struct, forbid_unknown_fields=True):
+    poly: Annotated[list[float], msgspec.Meta(min_length=2, max_length=8)]
+    raw_range: tuple[float, float]
+    name: str | None = None
+    zero_mm: float = 0.0
+
+
+class _CalibrationFile(msgspec.Struct, forbid_unknown_fields=True):
+    channels: list[_ChannelDecl]
+    format: int | str | None = None
+    description: str | None = None
+    adc_bits: int | None = None
+
+
 def load_calibration(path: str | Path) -> FibreCalibration:
     """Load a fibre calibration YAML file (format in docs/devices.md).
 
     Raises:
-        FibreCalibrationError: naming the file, the channel and what is wrong.
+        FibreCalibrationError: ``file:line:col:`` and what is wrong (the channel, the key).
     """
     p = Path(path)
-    try:
-        doc = yaml.safe_load(p.read_text())
-    except OSError as exc:
-        raise FibreCalibrationError(f"{p}: cannot read calibration file: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise FibreCalibrationError(f"{p}: not valid YAML: {exc}") from None
-    return calibration_from_dict(doc, source=str(p))
+    return _calibration(_CalibrationSource.read(p), str(p))
 
 
 def calibration_from_dict(doc: Any, source: str = "<dict>") -> FibreCalibration:
-    """Validate a parsed calibration document; see :func:`load_calibration`."""
+    """Validate a parsed calibration document; see :func:`load_calibration` (errors name ``source`` only)."""
+    return _calibration(_CalibrationSource(path=Path(source), name=source, data=doc), source)
 
-    def fail(msg: str) -> FibreCalibrationError:
-        return FibreCalibrationError(f"{source}: {msg}")
 
-    if not isinstance(doc, dict) or not isinstance(doc.get("channels"), list):
-        raise fail("expected a mapping with a 'channels' list")
-    unknown = set(doc) - {"format", "description", "adc_bits", "channels"}
-    if unknown:
-        raise fail(f"unknown top-level keys {sorted(unknown)}")
-    chans = doc["channels"]
-    if len(chans) != len(CHANNELS):
-        raise fail(f"expected {len(CHANNELS)} channels {list(CHANNELS)} in wire order, got {len(chans)}")
+def _calibration(src: Source, source: str) -> FibreCalibration:
+    if not isinstance(src.data, dict):
+        raise src.error((), "expected a mapping with a 'channels' list")
+    doc: _CalibrationFile = convert(src, src.data, _CalibrationFile)
+    if len(doc.channels) != len(CHANNELS):
+        raise src.error(("channels",), f"expected {len(CHANNELS)} channels {list(CHANNELS)} in wire order, "
+                                       f"got {len(doc.channels)}")
     out = []
-    for i, (ch, expected_name) in enumerate(zip(chans, CHANNELS, strict=True)):
-        where = f"channels[{i}]"
-        if not isinstance(ch, dict):
-            raise fail(f"{where}: expected a mapping, got {type(ch).__name__}")
-        unknown = set(ch) - {"name", "poly", "raw_range", "zero_mm"}
-        if unknown:
-            raise fail(f"{where}: unknown keys {sorted(unknown)}")
-        name = ch.get("name", expected_name)
+    for i, (ch, expected_name) in enumerate(zip(doc.channels, CHANNELS, strict=True)):
+        where = ("channels", i)
+        name = expected_name if ch.name is None else ch.name
         if name != expected_name:
-            raise fail(f"{where}: name {name!r}, expected {expected_name!r} (wire order is {list(CHANNELS)})")
-        poly = ch.get("poly")
-        if not isinstance(poly, list) or not 2 <= len(poly) <= 8:
-            raise fail(f"{where} ({name}): 'poly' must be a list of 2..8 coefficients, lowest order first")
-        for k, c in enumerate(poly):
-            if isinstance(c, bool) or not isinstance(c, int | float) or not math.isfinite(c):
-                hint = " (YAML reads 1e-5 as a string: write 1.0e-5)" if isinstance(c, str) else ""
-                raise fail(f"{where} ({name}): poly[{k}] = {c!r} is not a finite number{hint}")
-        rr = ch.get("raw_range")
-        if not (isinstance(rr, list) and len(rr) == 2 and all(isinstance(v, int | float) for v in rr) and rr[0] < rr[1]):
-            raise fail(f"{where} ({name}): 'raw_range' must be [low, high] counts with low < high, got {rr!r}")
-        zero = ch.get("zero_mm", 0.0)
-        if not isinstance(zero, int | float):
-            raise fail(f"{where} ({name}): 'zero_mm' must be a number, got {zero!r}")
-        cal = ChannelCalibration(name, tuple(float(c) for c in poly), (float(rr[0]), float(rr[1])), float(zero))
-        grid = [rr[0] + (rr[1] - rr[0]) * j / 200 for j in range(201)]
+            raise src.error((*where, "name"), f"channels[{i}]: name {name!r}, expected {expected_name!r} (wire order "
+                                              f"is {list(CHANNELS)})")
+        for k, c in enumerate(ch.poly):
+            if not math.isfinite(c):
+                raise src.error((*where, "poly", k), f"channels[{i}] ({name}): poly[{k}] = {c!r} is not finite")
+        lo, hi = ch.raw_range
+        if not lo < hi:
+            raise src.error((*where, "raw_range"), f"channels[{i}] ({name}): 'raw_range' must be [low, high] counts "
+                                                   f"with low < high, got {[lo, hi]!r}")
+        cal = ChannelCalibration(name, tuple(ch.poly), (lo, hi), ch.zero_mm)
+        grid = [lo + (hi - lo) * j / 200 for j in range(201)]
         diffs = [cal.height_mm(b) - cal.height_mm(a) for a, b in zip(grid, grid[1:], strict=False)]
         if not (all(d > 0 for d in diffs) or all(d < 0 for d in diffs)):
-            raise fail(f"{where} ({name}): polynomial is not monotonic over raw_range {rr}; a displacement fit must be")
+            raise src.error((*where, "poly"), f"channels[{i}] ({name}): polynomial is not monotonic over raw_range "
+                                              f"{[lo, hi]}; a displacement fit must be")
         out.append(cal)
     return FibreCalibration(tuple(out), source)

@@ -23,6 +23,7 @@ import numpy as np
 
 import palpa
 from messages import DeviceStatus, ImageInfo, IndenterDisplacements, RobotPose, Text
+from messages.probe import DeviceState
 from models.camera_render import CameraModel
 from models.camera_world import ProbeErrorSpec
 from models.kalman import KalmanParams
@@ -209,7 +210,7 @@ class CameraTracker(palpa.Node):
         self.debug_pub.publish(ImageInfo(stamp_ns=frame.stamp_ns, width=image.shape[1], height=image.shape[0],
                                          encoding=enc), blobs=[blob])
 
-    def _state(self) -> tuple[bool, str]:
+    def _state(self) -> tuple[bool, DeviceState]:
         info = self.driver.info()
         if info.ended:
             return False, "down"

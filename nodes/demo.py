@@ -15,6 +15,8 @@ class Talker(palpa.Node):
         count: int = 0
         """Stop (exit 0) after this many messages; 0 runs until stopped."""
 
+    params: Params  # typed: mypy checks every self.params.<name>
+
     def setup(self) -> None:
         if self.params.rate_hz <= 0:
             raise palpa.ParamError(f"{self.name}: rate_hz must be > 0, got {self.params.rate_hz}")

@@ -17,6 +17,7 @@ from typing import Literal
 
 import palpa
 from messages import DeviceStatus, PressureAck, PressureCommand, PressureState, SetPressure
+from messages.probe import PressureMode
 from models.airfloat import ForceCalibration
 from models.calibration_airfloat import CalibrationError, load_calibration
 from nodes.drivers.pressure import (
@@ -89,7 +90,7 @@ class PressureController(palpa.Node):
             self.driver = AlicatPressureDriver(p.port, p.unit_id, p.max_kpa, p.baudrate, require_device=False,
                                                clock=self.clock.now_ns)
         self.driver.open()
-        self.mode = "vent"
+        self.mode: PressureMode = "vent"
         self.target = 0.0
         self.rate = 0.0
         self.setpoint = 0.0

@@ -27,6 +27,7 @@ from messages import (
     ScanPlan,
     ScanStatus,
 )
+from messages.robot import ScanState
 from models.raster import (
     RasterPlan,
     Waypoint,
@@ -122,7 +123,7 @@ class RobotScanner(palpa.Node):
         self.pose_pub = self.publisher("robot/pose", RobotPose)
         self.plan_pub = self.publisher("robot/plan", ScanPlan, latched=True)
         self.status_pub = self.publisher("robot/scan_status", ScanStatus, latched=True)
-        self.state = "planning"
+        self.state: ScanState = "planning"
         self.message = ""
         self.line = 0
         self.last_probe_ns: int | None = None
@@ -259,7 +260,7 @@ class RobotScanner(palpa.Node):
             self.halt("estop", f"e-stop: {msg.reason or 'engaged'}")
 
     # -- running ---------------------------------------------------------------------------------
-    def halt(self, state: str, why: str) -> None:
+    def halt(self, state: ScanState, why: str) -> None:
         """Stop the arm now and end the scan as ``state`` (fault, estop, stopped)."""
         try:
             self.driver.stop(self.params.max_accel_mm_s2)
@@ -269,14 +270,14 @@ class RobotScanner(palpa.Node):
             self.set_state(state, why)
             self.finish(1 if state == "fault" else 2)
 
-    def set_state(self, state: str, message: str = "") -> None:
+    def set_state(self, state: ScanState, message: str = "") -> None:
         self.state, self.message = state, message
         self.publish_status()
 
     def finish(self, code: int) -> None:
         self.timer(self.params.linger_s, lambda: self.request_shutdown(code), oneshot=True)
 
-    def run_path(self, plan: RasterPlan, state: str) -> None:
+    def run_path(self, plan: RasterPlan, state: ScanState) -> None:
         """Drive ``plan`` (already checked) from where the arm is, in ``state`` (scanning, probing)."""
         self.path = plan.waypoints
         self.segments = self._segments(plan.waypoints)
@@ -292,7 +293,7 @@ class RobotScanner(palpa.Node):
         self.resume_index = self.driver.progress().index
         self.set_state("paused", f"paused during {self.control.paused_from}")
 
-    def resume(self, state: str) -> None:
+    def resume(self, state: ScanState) -> None:
         a, b = self.segments[self.segment]
         a = min(a + self.resume_index, b)
         self.segments[self.segment] = (a, b)

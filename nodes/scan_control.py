@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import palpa
 from messages import ProbeAt, ProbeResult, StiffnessSample, Trigger, TriggerResult
+from messages.robot import ScanState
 from models.raster import RasterPlan, indent_raster, sweep_raster
 from palpa.service import RequestRefused, Responder
 
@@ -42,7 +43,7 @@ class ScanControl:
         self.unit = ""
         self.started_ns = 0
         self.settle_until_ns: int | None = None
-        self.paused_from = ""
+        self.paused_from: ScanState = "scanning"  # set by on_pause before anything reads it
         self.probe = node.service("scanner/probe_at", ProbeAt, ProbeResult, self.on_probe_at)
         node.service("scanner/pause", Trigger, TriggerResult, self.on_pause)
         node.service("scanner/resume", Trigger, TriggerResult, self.on_resume)

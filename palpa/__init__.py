@@ -19,7 +19,7 @@ from palpa.address import BusAddress
 from palpa.clock import Clock, MockClock, SystemClock
 from palpa.errors import BusError, DecodeError, LaunchError, PalpaError, ParamError, RegistryError
 from palpa.message import Finite, Message, json_schema, lookup, registered
-from palpa.node import Node, Publisher, RawMessage, Subscription, Timer
+from palpa.node import MsgInfo, Node, Publisher, RawMessage, Subscription, Timer
 from palpa.params import InputPath, NonNegative, Params, Positive, PositiveInt
 from palpa.runner import run_node
 
@@ -43,6 +43,7 @@ __all__ = [
     "Positive",
     "PositiveInt",
     "Publisher",
+    "MsgInfo",
     "RawMessage",
     "RegistryError",
     "Subscription",

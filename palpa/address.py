@@ -20,6 +20,7 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
+from palpa import env as palpa_env
 from palpa.errors import BusError
 
 __all__ = ["BusAddress", "default_address", "from_env", "is_loopback_host", "private_dir"]
@@ -120,7 +121,7 @@ def default_address() -> str:
 
 def from_env() -> BusAddress:
     """The bus named by ``PALPA_BUS``, or the default one."""
-    return BusAddress.parse(os.environ.get("PALPA_BUS") or default_address())
+    return BusAddress.parse(palpa_env.get(palpa_env.BUS) or default_address())
 
 
 def is_loopback_host(host: str) -> bool:

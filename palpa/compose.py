@@ -256,7 +256,7 @@ class Composition:
                 node.spin_once(0)
 
     def _inboxes(self) -> list[tuple[Node, MemoryTransport]]:
-        return [(n, n._transport) for n in self.nodes if isinstance(n._transport, MemoryTransport)]
+        return [(n, n.transport) for n in self.nodes if isinstance(n.transport, MemoryTransport)]
 
     def _next_due(self) -> int | None:
         dues = [d for n in self.nodes if (d := n.next_timer_due_ns()) is not None]

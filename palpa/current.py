@@ -13,18 +13,19 @@ import json
 import os
 from pathlib import Path
 
+from palpa import env as palpa_env
 from palpa.address import BusAddress, default_address, private_dir
 from palpa.errors import BusError
 
 __all__ = ["announce", "current_file", "find_bus", "read_current", "withdraw"]
 
-CURRENT_ENV = "PALPA_CURRENT"
+CURRENT_ENV = palpa_env.CURRENT
 
 
 def current_file() -> Path:
     """The per-user file that names the running launch's bus."""
     # in the private socket directory: a file another local user could make first would point tools at their bus
-    return Path(os.environ.get(CURRENT_ENV) or private_dir() / "current")
+    return Path(palpa_env.get(CURRENT_ENV) or private_dir() / "current")
 
 
 def announce(address: BusAddress, run_dir: Path) -> None:
@@ -97,7 +98,7 @@ def find_bus(bus: str | None = None, run: Path | None = None) -> tuple[BusAddres
         except OSError:
             raise BusError(f"--run {run}: no {address_file} (is it the run directory of a launch?)") from None
         return BusAddress.parse(text), f"the launch in {run}"
-    env = os.environ.get("PALPA_BUS")
+    env = palpa_env.get(palpa_env.BUS)
     if env:
         return BusAddress.parse(env), "$PALPA_BUS"
     current = read_current()

@@ -1,7 +1,8 @@
 """The endpoints a node hands out: publishers, subscriptions, timers, and the raw envelope type.
 
-They hold a reference to their :class:`palpa.node.Node` and use its transport, clock and batching state; create
-them through ``Node.publisher``, ``Node.subscribe`` and ``Node.timer``, not directly.
+They get what they use and no more: a publisher the transport, the clock and the node's :class:`~palpa.dispatch.Dispatch`
+(to batch inside callbacks), and a :class:`~palpa.dispatch.Spinner` for its blocking wait; a subscription only the
+spinner. Create them through ``Node.publisher``, ``Node.subscribe`` and ``Node.timer``, not directly.
 """
 
 from __future__ import annotations
@@ -9,17 +10,18 @@ from __future__ import annotations
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
-from typing import TYPE_CHECKING, Generic, TypeVar, get_type_hints
+from typing import Any, Generic, NamedTuple, TypeVar, get_type_hints
 
 import msgspec
 
+from palpa.clock import Clock
+from palpa.dispatch import Dispatch, Spinner
 from palpa.message import Message
+from palpa.transport import Transport
 from palpa.wire import Header, HeaderTemplate, TopicStats, msgpack_array
 
-if TYPE_CHECKING:
-    from palpa.node import Node
-
-__all__ = ["DEFAULT_BATCH", "Publisher", "RawMessage", "Subscription", "Timer", "handler_type"]
+__all__ = ["DEFAULT_BATCH", "MsgInfo", "Publisher", "RawMessage", "Subscription", "Timer", "handler_type",
+           "wants_info"]
 
 M = TypeVar("M", bound=Message)
 DEFAULT_BATCH = 64
@@ -39,6 +41,16 @@ class RawMessage(msgspec.Struct, frozen=True, gc=False):
     recv_ns: int
 
 
+class MsgInfo(NamedTuple):
+    """What came with a message besides its payload, handed to a callback that asks for it: ``def on_image(self,
+    msg: Image, info: palpa.MsgInfo)`` (the publisher, sequence number and stamp in ``header``, binary ``blobs``)."""
+
+    header: Header
+    blobs: list[bytes]
+    from_cache: bool
+    """True when it came from the latched cache (a value published before this node subscribed)."""
+
+
 class Publisher(Generic[M]):
     """Publishes one message type on one topic; ``publish`` returns the sequence number it used.
 
@@ -49,9 +61,14 @@ class Publisher(Generic[M]):
     """
 
     def __init__(
-        self, node: Node, topic: str, msg_type: type[M], latched: bool, batch: int | None, direct: bool | None
+        self, transport: Transport, clock: Clock, dispatch: Dispatch, spinner: Spinner, origin: tuple[str, int],
+        topic: str, msg_type: type[M], latched: bool, batch: int | None, direct: bool | None,
     ) -> None:
-        self.node = node
+        """``origin`` is the node's (name, incarnation) written into every header."""
+        self._transport = transport
+        self._clock = clock
+        self._dispatch = dispatch
+        self._spinner = spinner
         self.topic = topic
         self.type = msg_type
         self.latched = latched
@@ -60,27 +77,27 @@ class Publisher(Generic[M]):
         self._always_batch = batch is not None and self.batch > 1
         self._topic_b = topic.encode()
         self._type_name = msg_type.type_name
-        self._header = HeaderTemplate(self._type_name, node.name, latched, node.incarnation)
+        self._header = HeaderTemplate(self._type_name, origin[0], latched, origin[1])
         self._pending_headers: list[bytes] = []
         self._pending_payloads: list[bytes] = []
-        self._send = node._transport.sender(self._topic_b, direct)
-        self.direct = self._send != node._transport.send
+        self._send = transport.sender(self._topic_b, direct)
+        self.direct = self._send != transport.send
         """Whether this topic goes straight to its subscribers (the transport may have refused ``direct``)."""
 
     @property
     def has_subscribers(self) -> bool:
         """True once some subscriber's subscription for this topic has reached this node (ZeroMQ drops what is
         published before that)."""
-        return self.node._transport.has_subscribers(self._topic_b)
+        return self._transport.has_subscribers(self._topic_b)
 
     def wait_for_subscribers(self, timeout_s: float) -> bool:
         """Spin the node until :attr:`has_subscribers` or ``timeout_s`` passes; returns whether someone listens."""
         deadline = time.monotonic() + timeout_s
         while not self.has_subscribers:
             remaining = deadline - time.monotonic()
-            if remaining <= 0 or self.node.is_shutdown:
+            if remaining <= 0 or self._spinner.is_shutdown:
                 return False
-            self.node.spin_once(min(0.01, remaining))
+            self._spinner.spin_once(min(0.01, remaining))
         return True
 
     def publish(self, msg: M, *, blobs: Sequence[bytes] = (), stamp_ns: int | None = None) -> int:
@@ -89,15 +106,14 @@ class Publisher(Generic[M]):
             raise TypeError(
                 f"publisher {self.topic!r} carries {self._type_name}, not {type(msg).__name__}"
             )
-        node = self.node
         # everything that can fail (an unencodable field, a bad stamp) fails before any state changes, so a
         # failed publish never leaves a header without its payload in the batch
         payload = _encoder.encode(msg)
-        header = self._header.pack(self.seq + 1, node.clock.now_ns() if stamp_ns is None else stamp_ns)
+        header = self._header.pack(self.seq + 1, self._clock.now_ns() if stamp_ns is None else stamp_ns)
         self.seq = seq = self.seq + 1
-        if self.batch > 1 and (node._depth or self._always_batch) and not blobs:
+        if self.batch > 1 and (self._dispatch.depth or self._always_batch) and not blobs:
             if not self._pending_headers:
-                node._dirty.append(self)
+                self._dispatch.pending(self)
             self._pending_headers.append(header)
             self._pending_payloads.append(payload)
             if len(self._pending_headers) >= self.batch:
@@ -130,16 +146,19 @@ class Subscription(Generic[M]):
 
     def __init__(
         self,
-        node: Node,
+        spinner: Spinner,
         topic: str,
         msg_type: type[M],
-        callback: Callable[[M], object] | None,
+        callback: Callable[[M], object] | Callable[[M, MsgInfo], object] | None,
         queue_size: int,
     ) -> None:
-        self.node = node
+        """``callback`` gets ``(msg)``, or ``(msg, info)`` when a parameter is annotated :class:`MsgInfo`."""
+        self._spinner = spinner
         self.topic = topic
         self.type = msg_type
-        self.callback = callback
+        self.callback: Callable[..., object] | None = callback
+        self.with_info = callback is not None and wants_info(callback)
+        """Whether the callback takes ``(msg, info)``."""
         self.stats = TopicStats()
         self.queue: deque[M] = deque(maxlen=queue_size)
         self.last_header: Header | None = None
@@ -152,12 +171,12 @@ class Subscription(Generic[M]):
         """The next message, spinning the node while waiting; None on timeout or shutdown."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
         while not self.queue:
-            if self.node.is_shutdown:
+            if self._spinner.is_shutdown:
                 return None
             remaining = 0.1 if deadline is None else min(0.1, deadline - time.monotonic())
             if remaining <= 0:
                 return None
-            self.node.spin_once(remaining)
+            self._spinner.spin_once(remaining)
         return self.queue.popleft()
 
     def __iter__(self) -> Iterator[M]:
@@ -183,6 +202,15 @@ class Timer:
 
     def cancel(self) -> None:
         self.cancelled = True
+
+
+def wants_info(callback: Callable[..., object]) -> bool:
+    """Whether ``callback`` has a parameter annotated :class:`MsgInfo` (then it is called as ``(msg, info)``)."""
+    try:
+        hints: dict[str, Any] = get_type_hints(callback)
+    except Exception:  # unresolvable annotations: the plain form
+        return False
+    return any(h is MsgInfo for k, h in hints.items() if k != "return")
 
 
 def handler_type(callback: Callable[..., object]) -> type[Message]:

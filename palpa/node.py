@@ -31,9 +31,20 @@ import traceback
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar, Protocol, TypeVar, cast
 
+from palpa import env as palpa_env
 from palpa.address import BusAddress, from_env
 from palpa.clock import Clock, SystemClock, TopicClock
-from palpa.endpoints import DEFAULT_BATCH, Publisher, RawMessage, Subscription, Timer, handler_type
+from palpa.dispatch import Dispatch
+from palpa.endpoints import (
+    DEFAULT_BATCH,
+    MsgInfo,
+    Publisher,
+    RawMessage,
+    Subscription,
+    Timer,
+    handler_type,
+)
+from palpa.errors import PalpaError
 from palpa.message import Message
 from palpa.params import Params as ParamsBase
 from palpa.params import convert_params
@@ -59,7 +70,7 @@ from palpa.wire import (
     encode_header,
 )
 
-__all__ = ["DEFAULT_BATCH", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
+__all__ = ["DEFAULT_BATCH", "MsgInfo", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
 
 M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
@@ -137,11 +148,15 @@ class Node:
         self.incarnation = int.from_bytes(os.urandom(4), "big") | 1
         """Drawn anew at every start and sent in every header (``inc``): receivers tell a restart from a repeat."""
         if sim_clock is None:
-            sim_clock = os.environ.get("PALPA_SIM_CLOCK", "") not in ("", "0")
+            sim_clock = palpa_env.flag(palpa_env.SIM_CLOCK)
         self.params = convert_params(type(self).Params, params, where=f"node {self.name!r}")
         self._topic_clock = TopicClock() if sim_clock and clock is None else None
         if sim_clock_timeout_s is None:
-            sim_clock_timeout_s = float(os.environ.get("PALPA_SIM_CLOCK_TIMEOUT_S", "") or _SIM_CLOCK_TIMEOUT_S)
+            text = palpa_env.get(palpa_env.SIM_CLOCK_TIMEOUT_S)
+            try:
+                sim_clock_timeout_s = float(text) if text else _SIM_CLOCK_TIMEOUT_S
+            except ValueError:
+                raise PalpaError(f"{palpa_env.SIM_CLOCK_TIMEOUT_S}={text!r}: expected seconds") from None
         self._clock_timeout_ns = int(sim_clock_timeout_s * 1e9)
         self._last_tick_wall_ns = 0
         self.clock: Clock = clock or self._topic_clock or SystemClock()
@@ -152,18 +167,18 @@ class Node:
             transport = ZmqTransport(address, transport_options or TransportOptions.from_env())
         self._transport = transport
         self._resources = contextlib.ExitStack()
-        self._rx = Receiver(self)
+        self.log = logging.getLogger(f"palpa.node.{self.name}")
+        self.dispatch = Dispatch(self.log)
+        """Runs every callback of this node (exception isolation, batches flushed when callbacks return)."""
+        options = getattr(transport, "options", None)
+        self._rx = Receiver(self.dispatch, self.log, getattr(options, "max_msg_bytes", 0))
         self._pubs: dict[str, Publisher[Any]] = {}
-        self._dirty: list[Publisher[Any]] = []
-        self._depth = 0
         self._timers: list[Timer] = []
         self._services: dict[str, Service[Any, Any]] = {}
         self._shutdown = False
         self._closed = False
         self._started_ns = time.monotonic_ns()
-        self.handler_errors = 0
         self.exit_code = 0
-        self.log = logging.getLogger(f"palpa.node.{self.name}")
         self._log_pub: Publisher[LogRecord] | None = None
         self._bus_handler = _BusLogHandler(self)
         self.log.addHandler(self._bus_handler)
@@ -186,6 +201,21 @@ class Node:
             # a refused plan must not leave a robot connection or a serial port open behind it
             self._release(linger_ms=0)
             raise
+
+    @property
+    def transport(self) -> Transport:
+        """The connection to the bus (ZeroMQ, or in memory under :mod:`palpa.testing`)."""
+        return self._transport
+
+    @property
+    def closed(self) -> bool:
+        """True once the sockets are closed (after :meth:`close`, or a failed :meth:`setup`)."""
+        return self._closed
+
+    @property
+    def handler_errors(self) -> int:
+        """Callbacks that raised so far (each was logged; the node went on)."""
+        return self.dispatch.errors
 
     # -- declaration -------------------------------------------------------------------------------
     def setup(self) -> None:
@@ -255,7 +285,8 @@ class Node:
             if existing.type is not msg_type:
                 raise TypeError(f"topic {resolved!r} already published as {existing.type.type_name}")
             return existing
-        pub = Publisher(self, resolved, msg_type, latched, batch, direct)
+        pub = Publisher(self._transport, self.clock, self.dispatch, self, (self.name, self.incarnation), resolved,
+                        msg_type, latched, batch, direct)
         self._pubs[resolved] = pub
         return pub
 
@@ -269,13 +300,15 @@ class Node:
     def subscribe(
         self,
         topic: str,
-        type_or_callback: type[M] | Callable[[M], object],
-        callback: Callable[[M], object] | None = None,
+        type_or_callback: type[M] | Callable[[M], object] | Callable[[M, MsgInfo], object],
+        callback: Callable[[M], object] | Callable[[M, MsgInfo], object] | None = None,
         *,
         queue_size: int = 1000,
     ) -> Subscription[M]:
         """Subscribe to ``topic``: ``subscribe(t, self.on_msg)`` (type from the annotation),
-        ``subscribe(t, Type, cb)``, or ``subscribe(t, Type)`` to iterate."""
+        ``subscribe(t, Type, cb)``, or ``subscribe(t, Type)`` to iterate. A callback with a second parameter
+        annotated :class:`MsgInfo` gets ``(msg, info)``: the header and blobs of that very message (rather than
+        ``sub.last_header`` / ``sub.last_blobs``, which only say what came last)."""
         if isinstance(type_or_callback, type):
             msg_type: type[Any] = type_or_callback
         else:
@@ -433,30 +466,19 @@ class Node:
                     # skip missed periods rather than firing a burst after a stall
                     t.due_ns += t.period_ns * max(1, (now - t.due_ns) // t.period_ns + 1)
                 t.running = True
-                self._call(t.callback)  # never raises
+                self.dispatch.call(t.callback)  # never raises
                 t.running = False
-
-    def _call(self, fn: Callable[..., object], *args: object) -> None:
-        self._depth += 1
-        try:
-            fn(*args)
-        except Exception:
-            self._handler_failed(fn)
-        finally:
-            self._depth -= 1
-        if self._dirty and not self._depth:
-            self.flush()
-
-    def _handler_failed(self, fn: Callable[..., object]) -> None:
-        """Count and log the exception being handled; a failing callback never stops the node."""
-        self.handler_errors += 1
-        self.log.error("error in %s:\n%s", getattr(fn, "__qualname__", fn), traceback.format_exc())
 
     def flush(self) -> None:
         """Send every batched message still pending."""
-        dirty, self._dirty = self._dirty, []
-        for pub in dirty:
-            pub.flush()
+        self.dispatch.flush()
+
+    def count_bad_raw(self, topic: str) -> None:
+        """Count a message on raw-subscribed ``topic`` that its reader found malformed (the recorder keeps such
+        messages, and says so in the counters)."""
+        stats = self._rx.raw_stats.get(topic)
+        if stats is not None:
+            stats.decode_errors += 1
 
     def counters(self) -> dict[str, TopicStats]:
         """Receive counters per subscribed topic (typed and raw; the typed ones where a topic has both)."""
@@ -469,7 +491,7 @@ class Node:
         now = time.monotonic_ns()
         if now >= self._hb_due_ns:
             self._hb_due_ns = now + self._hb_period_ns
-            self._call(self._heartbeat)
+            self.dispatch.call(self._heartbeat)
 
     def _heartbeat(self) -> None:
         subs = {s.topic: s.type.type_name for s in self._rx.subs.values()}

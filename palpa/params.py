@@ -10,9 +10,9 @@ from pathlib import Path
 from typing import Annotated, Any, TypeVar, get_args, get_origin
 
 import msgspec
-import yaml
 
 from palpa.errors import ParamError
+from yamlstruct import Source, YamlError
 
 __all__ = [
     "InputPath", "NonNegative", "Params", "Positive", "PositiveInt", "convert_params", "describe_params", "input_paths",
@@ -75,12 +75,12 @@ def read_params_file(path: Path, what: str) -> dict[str, Any]:
     """A YAML mapping of parameter names to values (``--params-file``, ``palpa param load``); raises
     :class:`ParamError` starting with ``what`` when the file cannot be read or is not a mapping."""
     try:
-        loaded = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
+        src = Source.read(path)  # the one YAML reader (YAML 1.2 scalars, duplicate keys refused), with file:line
+    except YamlError as exc:
         raise ParamError(f"{what}: {exc}") from None
-    if not isinstance(loaded, dict):
-        raise ParamError(f"{what}: expected a mapping of parameters")
-    return loaded
+    if not isinstance(src.data, dict):
+        raise ParamError(f"{what}: {src.mark(())}: expected a mapping of parameters")
+    return src.data
 
 
 def describe_params(cls: type[Params]) -> dict[str, str]:

@@ -20,7 +20,7 @@ from palpa.params import convert_params, describe_params
 from palpa.service import RequestRefused
 
 if TYPE_CHECKING:
-    from palpa.node import Node
+    from palpa.nodeapi import NodeApi
 
 __all__ = ["PARAMS_TOPIC", "ParamChange", "ParamGet", "ParamServer", "ParamSet", "ParamValues", "param_service"]
 
@@ -62,7 +62,7 @@ class ParamChange(Message, frozen=True, kw_only=True):
 class ParamServer:
     """Serves a node's parameter services (made by the node when it announces itself on the graph)."""
 
-    def __init__(self, node: Node) -> None:
+    def __init__(self, node: NodeApi) -> None:
         self.node = node
         self._changes = node.publisher(PARAMS_TOPIC, ParamChange)
         node.service(param_service(node.name, "get"), ParamGet, ParamValues, self.on_get)

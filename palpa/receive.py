@@ -3,18 +3,21 @@
 ZeroMQ matches subscriptions by prefix; here each envelope goes to the subscription of exactly its topic (and to
 raw subscriptions whose prefix matches), duplicates and gaps are counted per publisher, and a malformed frame, an
 unknown type or an invalid payload is counted and logged with what was wrong: it never reaches a callback and
-never stops the node. Callbacks run through the node's ``_call`` (exception isolation, batching depth).
+never stops the node. Callbacks run through the node's :class:`~palpa.dispatch.Dispatch` (exception isolation,
+batching depth); the receiver never sees the node itself.
 """
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import msgspec
 
-from palpa.endpoints import RawMessage, Subscription
+from palpa.dispatch import Dispatch
+from palpa.endpoints import MsgInfo, RawMessage, Subscription
 from palpa.errors import DecodeError
 from palpa.transport import Delivery
 from palpa.wire import (
@@ -27,9 +30,6 @@ from palpa.wire import (
     TopicStats,
     parse_envelope,
 )
-
-if TYPE_CHECKING:
-    from palpa.node import Node
 
 __all__ = ["Receiver"]
 
@@ -54,10 +54,14 @@ _NO_ROUTE = object()
 
 
 class Receiver:
-    """Routes a node's received envelopes to its subscriptions; one per node (``node._rx``)."""
+    """Routes a node's received envelopes to its subscriptions; one per node.
 
-    def __init__(self, node: Node) -> None:
-        self._node = node
+    ``max_bytes`` bounds an envelope (0: :data:`palpa.wire.MAX_MSG_BYTES`); ``log`` gets the rate-limited reports
+    of bad input."""
+
+    def __init__(self, dispatch: Dispatch, log: logging.Logger, max_bytes: int = 0) -> None:
+        self._dispatch = dispatch
+        self._log = log
         self.subs: dict[bytes, Subscription[Any]] = {}
         self.raw: list[_RawSubscription] = []
         self.routes: dict[bytes, _Route | None] = {}
@@ -65,8 +69,7 @@ class Receiver:
         self._tracker = SequenceTracker()
         self._raw_tracker = SequenceTracker()
         self._last_error_log: dict[str, int] = {}
-        options = getattr(node._transport, "options", None)
-        self.max_bytes: int = getattr(options, "max_msg_bytes", 0) or MAX_MSG_BYTES
+        self.max_bytes: int = max_bytes or MAX_MSG_BYTES
         self.internal_errors = 0
         """Envelopes whose handling raised where nothing should (a receive-path bug): counted, logged, survived."""
 
@@ -87,7 +90,7 @@ class Receiver:
         now = time.monotonic_ns()
         if now - self._last_error_log.get(topic, -_ERROR_LOG_INTERVAL_NS) >= _ERROR_LOG_INTERVAL_NS:
             self._last_error_log[topic] = now
-            self._node.log.warning("dropped a bad message on %r (%d so far): %s", topic, stats.decode_errors, text)
+            self._log.warning("dropped a bad message on %r (%d so far): %s", topic, stats.decode_errors, text)
 
     def _route(self, topic_b: bytes) -> _Route | None:
         """Who gets messages on this exact topic (cached per topic; None: a prefix match that is not ours)."""
@@ -112,13 +115,12 @@ class Receiver:
         """Hand one received envelope to the subscriptions of its exact topic (typed and raw). Nothing a peer
         sends stops the node: what the checks below miss is counted in :attr:`internal_errors` and logged."""
         try:
-            self._dispatch(delivery)
+            self._handle(delivery)
         except Exception as exc:
             self.internal_errors += 1
             self.count_error("(receive)", TopicStats(), f"internal error on {delivery.frames[0][:80]!r}: {exc!r}")
 
-    def _dispatch(self, delivery: Delivery) -> None:
-        node = self._node
+    def _handle(self, delivery: Delivery) -> None:
         frames = delivery.frames
         route = self._route(frames[0])
         if route is None:
@@ -146,7 +148,7 @@ class Receiver:
                         tracker.observe(topic, header.node, header.seq, rstats, header.inc):
                     raw = RawMessage(topic, header, payload, blobs, cached, time.time_ns())
                     for callback in raws:
-                        node._call(callback, raw)
+                        self._dispatch.call(callback, raw)
         if sub is None:
             return
         if not env.batch:
@@ -164,7 +166,6 @@ class Receiver:
         """The common batch (one publisher, consecutive sequence numbers after the last seen, the subscribed
         type, every payload valid) decoded in one call and handed over in one loop. False when it is not that
         batch: nothing was recorded and the caller goes message by message."""
-        node = self._node
         headers = env.headers
         first = headers[0]
         n = len(headers)
@@ -183,29 +184,21 @@ class Receiver:
             sub.last_header = headers[-1]
             sub.queue.extend(msgs)
             return True
-        node._depth += 1
-        start = 0
-        try:
-            while start < n:
-                # one try per run of good messages, not per message; a failing one is skipped, the rest go on
-                i = start
-                try:
-                    for i in range(start, n):
-                        sub.last_header = headers[i]
-                        callback(msgs[i])
-                    start = n
-                except Exception:
-                    node._handler_failed(callback)
-                    start = i + 1
-        finally:
-            node._depth -= 1
-        if node._dirty and not node._depth:
-            node.flush()
+
+        with_info = sub.with_info
+
+        def deliver(i: int) -> None:
+            sub.last_header = headers[i]
+            if with_info:
+                callback(msgs[i], MsgInfo(headers[i], [], False))
+            else:
+                callback(msgs[i])
+
+        self._dispatch.call_each(deliver, n, callback)
         return True
 
     def _deliver(self, sub: Subscription[Any], topic: str, header: Header, payload: bytes,
                  blobs: list[bytes], cached: bool) -> None:
-        node = self._node
         if cached and self._tracker.seen_at_least(topic, header.node, header.seq, header.inc):
             return
         if header.type != sub.type_name:
@@ -222,7 +215,10 @@ class Receiver:
         sub.last_header = header
         sub.last_blobs = blobs
         if sub.callback is not None:
-            node._call(sub.callback, msg)
+            if sub.with_info:
+                self._dispatch.call(sub.callback, msg, MsgInfo(header, blobs, cached))
+            else:
+                self._dispatch.call(sub.callback, msg)
         else:
             sub.queue.append(msg)
 

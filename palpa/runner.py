@@ -46,14 +46,14 @@ def node_arg_parser(prog: str) -> argparse.ArgumentParser:
     ap.add_argument("--sim-clock", action="store_true", default=None,
                     help="follow simulation time on _palpa/clock (also PALPA_SIM_CLOCK=1)")
     ap.add_argument("--sndhwm", type=int, help="messages queued towards the bus before drops (default 10000; "
-                                              "also PALPA_SNDHWM)")
+                                              "also in $PALPA_TRANSPORT)")
     ap.add_argument("--rcvhwm", type=int, help="messages queued from the bus before drops (default 10000; "
-                                              "also PALPA_RCVHWM)")
+                                              "also in $PALPA_TRANSPORT)")
     ap.add_argument("--busy-poll-us", type=int, help="spin this long for input before blocking: lower latency "
-                                                     "for a busy core (default 0; also PALPA_BUSY_POLL_US)")
+                                                     "for a busy core (default 0, at most 1e6; also in $PALPA_TRANSPORT)")
     ap.add_argument("--direct", action="append", metavar="TOPIC",
                     help="publish TOPIC (as on the bus) straight to its subscribers, not through the proxy "
-                         "(repeatable; also PALPA_DIRECT=a,b)")
+                         "(repeatable; also in $PALPA_TRANSPORT)")
     ap.add_argument("--debug", action="store_true", help="debug logging and tracebacks")
     return ap
 

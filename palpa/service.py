@@ -39,7 +39,7 @@ from palpa.message import Message
 from palpa.wire import Header
 
 if TYPE_CHECKING:
-    from palpa.node import Node
+    from palpa.nodeapi import NodeApi
 
 __all__ = [
     "DEFAULT_TIMEOUT_S",
@@ -155,7 +155,7 @@ class Responder(Generic[R]):
             return
         self.done = True
         node = self._service.node
-        if node._closed:
+        if node.closed:
             return
         header = Header(type=type_name, seq=self.seq, stamp=node.clock.now_ns(), node=node.name)
         node.publish_raw(reply_topic(self._service.name, self.client_id), header, payload)
@@ -165,7 +165,7 @@ class Service(Generic[Q, R]):
     """The server side of a service: decodes requests, runs the handler, sends the reply. Made by
     ``Node.service``."""
 
-    def __init__(self, node: Node, name: str, request_type: type[Q], response_type: type[R],
+    def __init__(self, node: NodeApi, name: str, request_type: type[Q], response_type: type[R],
                  handler: Callable[[Q], R | Responder[R]]) -> None:
         self.node = node
         self.name = node.resolve(name)
@@ -227,7 +227,7 @@ class Service(Generic[Q, R]):
         except (BadRequestError, ParamError, msgspec.ValidationError) as exc:
             responder.fail("bad_request", str(exc))
         except Exception as exc:
-            self.node._handler_failed(self.handler)
+            self.node.dispatch.failed(self.handler)
             responder.fail("handler_error", f"{type(exc).__name__}: {exc}")
         else:
             if result is responder or (self._deferred and result is None):

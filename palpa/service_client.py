@@ -37,7 +37,7 @@ from palpa.service import (
 from palpa.wire import Header
 
 if TYPE_CHECKING:
-    from palpa.node import Node
+    from palpa.nodeapi import NodeApi
 
 __all__ = ["Client", "Future", "discover", "set_wait_pump"]
 
@@ -48,23 +48,23 @@ _MAX_NESTED_WAITS = 16
 _EXPIRY_PERIOD_S = 0.01
 _info_decoder = msgspec.msgpack.Decoder(ServiceInfo)
 _fault_decoder = msgspec.msgpack.Decoder(ServiceFault)
-_wait_depth: weakref.WeakKeyDictionary[Node, int] = weakref.WeakKeyDictionary()
+_wait_depth: weakref.WeakKeyDictionary[NodeApi, int] = weakref.WeakKeyDictionary()
 # what each node has heard of servers: a second client of a service in one node is not replayed the cached
 # announcement (the node's receiver drops what it has already delivered), so it starts from here
-_directory: weakref.WeakKeyDictionary[Node, dict[str, ServiceInfo]] = weakref.WeakKeyDictionary()
-_pumps: weakref.WeakKeyDictionary[Node, Callable[[], None]] = weakref.WeakKeyDictionary()
+_directory: weakref.WeakKeyDictionary[NodeApi, dict[str, ServiceInfo]] = weakref.WeakKeyDictionary()
+_pumps: weakref.WeakKeyDictionary[NodeApi, Callable[[], None]] = weakref.WeakKeyDictionary()
 
 
-def set_wait_pump(node: Node, pump: Callable[[], None]) -> None:
+def set_wait_pump(node: NodeApi, pump: Callable[[], None]) -> None:
     """For an executor that runs several nodes in one thread (in-process composition): while ``node`` waits in a
     blocking call, also call ``pump()``, which must spin the executor's other nodes once; otherwise the node would
     wait for a server it keeps from running. (:class:`palpa.testing.GraphHarness` does this through its bus.)"""
     _pumps[node] = pump
 
 
-def _pump_of(node: Node) -> Callable[[], None] | None:
+def _pump_of(node: NodeApi) -> Callable[[], None] | None:
     pump = _pumps.get(node)
-    return pump if pump is not None else getattr(node._transport, "pump", None)
+    return pump if pump is not None else getattr(node.transport, "pump", None)
 
 
 class Future(Generic[R]):
@@ -90,7 +90,7 @@ class Future(Generic[R]):
     def add_done_callback(self, fn: Callable[[Future[R]], object]) -> None:
         """Call ``fn(future)`` from the node's loop once the call finishes (at once if it already has)."""
         if self._done:
-            self._client.node._call(fn, self)
+            self._client.node.dispatch.call(fn, self)
         else:
             self._callbacks.append(fn)
 
@@ -129,7 +129,7 @@ class Future(Generic[R]):
             return
         self._value, self._error, self._done = value, error, True
         for fn in self._callbacks:
-            self._client.node._call(fn, self)
+            self._client.node.dispatch.call(fn, self)
         self._callbacks.clear()
 
 
@@ -137,7 +137,7 @@ class Client(Generic[Q, R]):
     """The caller side of a service. Made by ``Node.client``; ``call`` blocks (without blocking the node),
     ``call_async`` returns a :class:`Future`."""
 
-    def __init__(self, node: Node, name: str, request_type: type[Q], response_type: type[R], *,
+    def __init__(self, node: NodeApi, name: str, request_type: type[Q], response_type: type[R], *,
                  timeout_s: float = DEFAULT_TIMEOUT_S) -> None:
         self.node = node
         self.name = node.resolve(name)
@@ -168,7 +168,7 @@ class Client(Generic[Q, R]):
     def ready(self) -> bool:
         """True once a live server is known and both request and reply subscriptions have reached the bus
         (a request sent before that could be lost, so calls wait for it)."""
-        t = self.node._transport
+        t = self.node.transport
         return self.server is not None and self.server.alive and t.has_subscribers(self._req_topic_b) \
             and t.has_subscribers(self._reply_topic_b)
 
@@ -266,7 +266,7 @@ class Client(Generic[Q, R]):
             self._timer = None
 
 
-def discover(node: Node, name: str, wait_s: float) -> ServiceInfo:
+def discover(node: NodeApi, name: str, wait_s: float) -> ServiceInfo:
     """The live server of ``name`` as the bus's last-value cache announces it (a tool that does not know the
     response type yet asks this first); :class:`NoServerError` when none is announced within ``wait_s``."""
     topic = SERVICE_INFO_PREFIX + name

@@ -39,6 +39,8 @@ class ClockSource(Node):
         participant_timeout_s: Positive = 2.0
         """A node not heard for this long (wall clock) no longer holds the clock back (it died or stopped)."""
 
+    params: Params  # typed: mypy checks every self.params.<name>
+
     def __init__(self, name: str | None = None, params: Mapping[str, Any] | Params | None = None,
                  **kwargs: Any) -> None:
         kwargs["sim_clock"] = False  # the source of time cannot follow itself

@@ -11,21 +11,21 @@ import logging
 import os
 import select
 import time
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import ClassVar, Protocol, cast
+from typing import Protocol, cast
 
 import msgspec
 import zmq
 import zmq.auth
 
+from palpa import env as palpa_env
 from palpa.address import BusAddress
 from palpa.direct import DIRECTORY_PREFIX, DirectSocket, SubscriberSet, directory_entry
 from palpa.errors import BusError
 from palpa.handshake import HANDSHAKE_EVENTS, HandshakeWatch
 from palpa.keys import load_secret_key
-from palpa.wire import MAX_MSG_BYTES
+from palpa.options import TransportOptions
 
 __all__ = ["Delivery", "SendFn", "Transport", "TransportOptions", "ZmqTransport", "curve_client_options"]
 
@@ -78,68 +78,6 @@ _FD_SETSIZE = 1024
 _RECONNECT_MAX_MS = 2000
 
 
-@dataclass(frozen=True)
-class TransportOptions:
-    """How a node's sockets queue and wait. Set per node in a launch file (``transport:``), on a node's command
-    line (``--sndhwm``, ``--rcvhwm``, ``--busy-poll-us``), or in the environment (``PALPA_SNDHWM``,
-    ``PALPA_RCVHWM``, ``PALPA_BUSY_POLL_US``, which the launcher sets from the launch file)."""
-
-    sndhwm: int = 10_000
-    """Messages queued towards the bus before ZeroMQ drops new ones (subscribers see the drop as a seq gap);
-    0: no limit."""
-    rcvhwm: int = 10_000
-    """Messages queued from the bus before ZeroMQ drops new ones; 0: no limit."""
-    busy_poll_us: int = 0
-    """Before blocking for input, check for it in a loop for up to this long (a CPU core kept busy in exchange
-    for not paying the operating system's wake-up latency; 0: always block)."""
-    max_msg_bytes: int = MAX_MSG_BYTES
-    """The largest message this node accepts (all frames together; ZeroMQ disconnects a peer that sends a
-    single frame above it). Larger ones are refused and counted as bad messages on their topic."""
-    direct: tuple[str, ...] = ()
-    """Topics (names on the bus, after remapping) this node publishes straight to their subscribers instead of
-    through the proxy: one hop instead of two (palpa.direct). ``PALPA_DIRECT`` takes them comma-separated."""
-
-    ENV_VARS: ClassVar[dict[str, str]] = {
-        "sndhwm": "PALPA_SNDHWM", "rcvhwm": "PALPA_RCVHWM", "busy_poll_us": "PALPA_BUSY_POLL_US",
-        "direct": "PALPA_DIRECT", "max_msg_bytes": "PALPA_MAX_MSG_BYTES",
-    }
-
-    def __post_init__(self) -> None:
-        for name in ("sndhwm", "rcvhwm", "busy_poll_us", "max_msg_bytes"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
-                raise BusError(f"transport option {name}: expected an integer >= 0, got {value!r}")
-        if isinstance(self.direct, str) or not all(isinstance(t, str) and t for t in self.direct):
-            raise BusError(f"transport option direct: expected a list of topic names, got {self.direct!r}")
-        object.__setattr__(self, "direct", tuple(self.direct))
-
-    @classmethod
-    def from_env(
-        cls, env: Mapping[str, str] | None = None, **overrides: int | Sequence[str] | None
-    ) -> TransportOptions:
-        """Defaults, then the environment, then the non-None ``overrides`` (command-line flags)."""
-        env = os.environ if env is None else env
-        values: dict[str, object] = {}
-        for name, var in cls.ENV_VARS.items():
-            text = env.get(var, "").strip()
-            if not text:
-                continue
-            if name == "direct":
-                values[name] = tuple(t.strip() for t in text.split(",") if t.strip())
-                continue
-            try:
-                values[name] = int(text)
-            except ValueError:
-                raise BusError(f"{var}={text!r}: expected an integer") from None
-        values.update({k: v for k, v in overrides.items() if v is not None})
-        return cls(**values)  # type: ignore[arg-type]
-
-    @classmethod
-    def to_env(cls, given: Mapping[str, int | Sequence[str]]) -> dict[str, str]:
-        """Options (field -> value, e.g. a launch file's ``transport:``) as the variables :meth:`from_env` reads."""
-        return {cls.ENV_VARS[k]: str(v) if isinstance(v, int) else ",".join(v) for k, v in given.items()}
-
-
 # the backend's C methods, called without the pyzmq sugar layer's Python wrapper around every send and receive
 _send = zmq.backend.Socket.send
 _recv = zmq.backend.Socket.recv
@@ -178,10 +116,10 @@ def curve_client_options() -> dict[str, bytes] | None:
     ``PALPA_CURVE_SECRET``: the path to this client's ``.key_secret`` file (its public key must be authorised
     on the bus).
     """
-    server = os.environ.get("PALPA_BUS_SERVER_KEY")
+    server = palpa_env.get(palpa_env.BUS_SERVER_KEY) or None
     if not server:
         return None
-    secret_file = os.environ.get("PALPA_CURVE_SECRET")
+    secret_file = palpa_env.get(palpa_env.CURVE_SECRET) or None
     if not secret_file:
         raise BusError("PALPA_BUS_SERVER_KEY is set but PALPA_CURVE_SECRET (client secret key file) is not")
     if Path(server).is_file():

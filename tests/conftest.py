@@ -5,36 +5,18 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
-import secrets
-import subprocess
-import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(REPO / "tests"))
-
-from procs import ProcessGroup  # noqa: E402
-
-from palpa.address import BusAddress  # noqa: E402
-from palpa.bus import Bus  # noqa: E402
+from palpa.address import BusAddress
+from palpa.bus import Bus
+from tests.procs import ProcessGroup, bus_spec
 
 # launches started by tests note their bus here, not in the user's own current-bus file (palpa.current)
 os.environ["PALPA_CURRENT"] = f"/tmp/pt-current-{os.getpid()}"
-
-
-def short_ipc_base() -> str:
-    """A fresh ipc base path well under the 107-character limit (pytest's tmp dirs are too long)."""
-    return f"/tmp/pt-{os.getpid()}-{secrets.token_hex(3)}"
-
-
-def bus_spec(transport: str) -> BusAddress:
-    if transport == "ipc":
-        return BusAddress.parse(f"ipc://{short_ipc_base()}")
-    return BusAddress("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")
 
 
 @pytest.fixture(params=["ipc", "tcp"])
@@ -74,10 +56,6 @@ def procs() -> Iterator[ProcessGroup]:
         group.cleanup()
 
 
-def palpa_cmd(*args: str) -> list[str]:
-    return [sys.executable, "-m", "palpa.cli.main", *args]
-
-
 @pytest.fixture
 def env_for() -> object:
     def make(address: BusAddress, **extra: str) -> dict[str, str]:
@@ -89,8 +67,6 @@ def env_for() -> object:
 
     return make
 
-
-__all__ = ["palpa_cmd", "short_ipc_base", "subprocess"]
 
 
 @functools.lru_cache(maxsize=1)

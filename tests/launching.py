@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from conftest import palpa_cmd
-from procs import Proc, ProcessGroup, wait_until
-
 import palpa
+from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
+from tests.procs import Proc, ProcessGroup, palpa_cmd, wait_until
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -32,8 +30,15 @@ def launched(procs: ProcessGroup, file: str, run_dir: Path, *args: str) -> Itera
 
 
 def spin_until(node: palpa.Node, cond: Callable[[], bool], timeout: float, what: str, proc: Proc) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}:\n{proc.output()[-4000:]}")
-        node.spin_once(0.1)
+    """:func:`wait_until` spinning ``node``; a timeout shows the end of the launch's output."""
+    try:
+        wait_until(cond, timeout, what, step=lambda: node.spin_once(0.1))
+    except AssertionError as exc:
+        raise AssertionError(f"{exc}:\n{proc.output()[-4000:]}") from None
+
+
+def wait_nodes_up(node: palpa.Node, names: set[str], timeout: float, proc: Proc) -> None:
+    """Until every node in ``names`` has sent a heartbeat: the graph is up (a readiness signal, not a pause)."""
+    heard: set[str] = set()
+    node.subscribe(HEARTBEAT_TOPIC, Heartbeat, lambda hb: heard.add(hb.node))
+    spin_until(node, lambda: names <= heard, timeout, f"heartbeats of {sorted(names)}", proc)

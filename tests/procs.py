@@ -4,14 +4,38 @@ from __future__ import annotations
 
 import contextlib
 import os
+import secrets
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
+from typing import TypeVar
 
 from emulators.ur.process import UrEmulatorProcess
+from palpa.address import BusAddress
+
+T = TypeVar("T")
+REPO = Path(__file__).resolve().parent.parent
+
+
+def palpa_cmd(*args: str) -> list[str]:
+    """The ``palpa`` command line as this interpreter runs it (children inherit PYTHONPATH)."""
+    return [sys.executable, "-m", "palpa.cli.main", *args]
+
+
+def short_ipc_base() -> str:
+    """A fresh ipc base path well under the 107-character limit (pytest's tmp dirs are too long)."""
+    return f"/tmp/pt-{os.getpid()}-{secrets.token_hex(3)}"
+
+
+def bus_spec(transport: str) -> BusAddress:
+    """A bus address of one transport: ipc under a short path, or tcp on OS-chosen loopback ports."""
+    if transport == "ipc":
+        return BusAddress.parse(f"ipc://{short_ipc_base()}")
+    return BusAddress("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")
 
 
 def _ignore_sigint() -> None:
@@ -101,18 +125,22 @@ class ProcessGroup:
             p.log_path.unlink(missing_ok=True)
 
 
-def wait_until(cond: Callable[[], object], timeout: float = 10.0, what: str = "condition",
-               step: Callable[[], None] | None = None) -> None:
-    """Poll ``cond`` (calling ``step`` between polls, e.g. a node's spin_once) until true or the deadline."""
+def wait_until(cond: Callable[[], T | None], timeout: float = 10.0, what: str = "condition",
+               step: Callable[[], object] | None = None) -> T:
+    """Poll ``cond`` until it returns something truthy, and return that; ``step`` runs between polls (a node's
+    ``spin_once``, or a publish that is repeated until a late joiner hears it), else a 10 ms sleep. The one wait
+    helper of the tests: raises AssertionError naming ``what`` at the deadline."""
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if cond():
-            return
+    while True:
+        got = cond()
+        if got:
+            return got
+        if time.monotonic() >= deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         if step is not None:
             step()
         else:
             time.sleep(0.01)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
 @contextlib.contextmanager

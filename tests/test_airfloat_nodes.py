@@ -69,7 +69,7 @@ def test_calibration_beats_the_devices_errors(phantom: str, truth: float, kpa: f
     the paper's eq. 4 line is far off on the Fig. 11 samples; calibrated on the bench (nodes.calibrate_airfloat:
     force sensor + the two reference samples), it is within 10 % (held at one depth; BENCHMARKS.md has the
     Fig. 11 ramp protocol)."""
-    from conftest import airfloat_calibration
+    from tests.conftest import airfloat_calibration
 
     cal = airfloat_calibration()
     _, before = held_estimate(held_probe(phantom, kpa, errors="realistic"))
@@ -171,7 +171,7 @@ def test_fibre_sim_rate_and_no_contact_when_lifted() -> None:
 def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path, calibration) -> None:  # type: ignore[no-untyped-def]
     """Issue 6 acceptance as processes: launch/airfloat_sim.yaml over the 10.8 kPa phantom, the simulated probe
     calibrated on the bench first (uncalibrated it reads about a third low: BENCHMARKS.md)."""
-    from launching import launched, spin_until
+    from tests.launching import launched, spin_until
 
     with launched(procs, "launch/airfloat_sim.yaml", tmp_path / "run", "phantom:=phantoms/flat_10k.yaml",
                   "pressure_kpa:=33.5", f"calibration:={calibration}") as (proc, node):

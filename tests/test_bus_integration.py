@@ -12,13 +12,12 @@ import time
 import msgpack
 import pytest
 import zmq
-from conftest import palpa_cmd, short_ipc_base
-from procs import ProcessGroup, wait_until
 
 import palpa
 from messages import Text
 from palpa.address import BusAddress
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
+from tests.procs import ProcessGroup, palpa_cmd, short_ipc_base, wait_until
 
 
 def heartbeats(node: palpa.Node) -> palpa.Subscription[Heartbeat]:
@@ -28,12 +27,8 @@ def heartbeats(node: palpa.Node) -> palpa.Subscription[Heartbeat]:
 
 def wait_heartbeat(node: palpa.Node, name: str, timeout: float = 10.0) -> Heartbeat:
     sub = heartbeats(node)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        hb = sub.next(0.2)
-        if hb is not None and hb.node == name:
-            return hb
-    raise AssertionError(f"no heartbeat from {name!r} within {timeout} s")
+    return wait_until(lambda: (hb := sub.next(0.2)) is not None and hb.node == name and hb or None, timeout,
+                      f"a heartbeat from {name!r}")
 
 
 def test_talker_to_listener_processes(bus: BusAddress, procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]
@@ -72,12 +67,7 @@ def test_latched_topic_reaches_slow_joiner(bus: BusAddress) -> None:
             # v1 only if the cache answered before v2 reached it; never twice, never after v2
             assert got_cached in ([Text(text="plan v2")], [Text(text="plan v1"), Text(text="plan v2")])
             # live updates follow once the subscription has propagated (ZeroMQ's slow-joiner window)
-            deadline = time.monotonic() + 5
-            got = None
-            while got is None:
-                pub.publish(Text(text="plan v3"))
-                got = sub.next(0.05)
-                assert time.monotonic() < deadline
+            got = wait_until(lambda: sub.next(0.05), 5, "plan v3", step=lambda: pub.publish(Text(text="plan v3")))
             assert got == Text(text="plan v3")
             late.spin_once(0.2)
             assert all(m == Text(text="plan v3") for m in sub.queue)  # v2 never comes twice
@@ -89,9 +79,7 @@ def test_graph_declared_latched_topic(bus: BusAddress) -> None:
         pub = node.publisher("graph/latched", Text)
         with palpa.Node(name="warm", bus=bus, heartbeat_s=0) as warm:  # makes sure the proxy path is up
             s = warm.subscribe("graph/latched", Text)
-            deadline = time.monotonic() + 5
-            while s.next(0.05) is None and time.monotonic() < deadline:
-                pub.publish(Text(text="calibration"))
+            wait_until(lambda: s.next(0.05), 5, "calibration", step=lambda: pub.publish(Text(text="calibration")))
         with palpa.Node(name="late", bus=bus, heartbeat_s=0) as late:
             assert late.subscribe("graph/latched", Text).next(5.0) == Text(text="calibration")
 
@@ -143,11 +131,12 @@ def test_fuzz_frames_never_kill_a_node(ipc_bus: BusAddress, procs: ProcessGroup,
         wait_heartbeat(probe, "listener")
         # wait until our raw PUB is connected: a good message must come through
         lens = probe.subscribe("chatter_len", Text)
-        deadline = time.monotonic() + 10
-        while lens.next(0.05) is None:
+        def warmup() -> None:
+            nonlocal seq
             seq += 1
             pub.send_multipart([b"chatter", good_header(seq), msgpack.packb({"text": "warmup"})])
-            assert time.monotonic() < deadline, node.output()
+
+        wait_until(lambda: lens.next(0.05), 10, "the listener's first reply", step=warmup)
         warm = seq
         for i in range(10_000):
             kind = i % 5
@@ -277,11 +266,11 @@ def test_curve_bus_rejects_unknown_clients(tmp_path, procs: ProcessGroup) -> Non
         ok = good_sub.subscribe("secret", Text)
         bad = evil_sub.subscribe("secret", Text)
         pub = good_pub.publisher("secret", Text)
-        deadline = time.monotonic() + 10
-        while ok.next(0.05) is None:
+        def send() -> None:
             pub.publish(Text(text="tumour at (12, 30)"))
             evil_sub.spin_once(0)
-            assert time.monotonic() < deadline
+
+        wait_until(lambda: ok.next(0.05), 10, "the first message", step=send)
         for _ in range(20):
             pub.publish(Text(text="tumour at (12, 30)"))
             evil_sub.spin_once(0.02)

@@ -237,7 +237,7 @@ def test_table_i_rows_before_and_after_calibration(k: float) -> None:
 def test_camera_sim_launch_measures_a_tilted_spring(procs: Any, tmp_path: Path) -> None:
     """Issue 7 acceptance as processes: launch/camera_sim.yaml, the 0.62 N/mm sample inclined 15°, one press;
     the launch ends by itself (the stage is required) with exit 0."""
-    from launching import launched, spin_until
+    from tests.launching import launched, spin_until
 
     got: list[StiffnessSample] = []
     with launched(procs, "launch/camera_sim.yaml", tmp_path / "run", "phantom:=phantoms/springs_062.yaml",

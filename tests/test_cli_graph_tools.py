@@ -14,9 +14,6 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
-from conftest import palpa_cmd, short_ipc_base
-from launching import launched
-from procs import ProcessGroup, wait_until
 
 import palpa
 from messages import EStop, Text
@@ -25,6 +22,8 @@ from palpa.bus import Bus
 from palpa.cli.common import message_from_yaml
 from palpa.cli.main import main
 from palpa.current import announce, find_bus, withdraw
+from tests.launching import launched, wait_nodes_up
+from tests.procs import ProcessGroup, palpa_cmd, short_ipc_base, wait_until
 
 
 @contextmanager
@@ -144,6 +143,7 @@ def test_readme_commands_find_a_launch_from_a_second_terminal(procs: ProcessGrou
     with launched(procs, "launch/talker_listener.yaml", tmp_path / "run") as (proc, node):
         current = Path(os.environ["PALPA_CURRENT"])
         wait_until(lambda: current.exists(), 30, "the launcher's current-bus file")
+        wait_nodes_up(node, {"talker", "listener"}, 30, proc)  # as a user would: after the graph came up
         out = subprocess.run(palpa_cmd("node", "list"), env=env, capture_output=True, text=True, timeout=60)
         assert out.returncode == 0, out.stderr
         assert "talker" in out.stdout and "listener" in out.stdout
@@ -186,9 +186,11 @@ def test_schema_lists_type_names_and_suggests_a_close_one(capsys: pytest.Capture
     assert "did you mean 'EStop'?" in capsys.readouterr().err
 
 
-def test_a_node_that_cannot_start_says_why_in_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_node_that_cannot_start_says_why_in_one_line(ipc_bus: BusAddress,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    # on a live bus: without one the node would first wait out the bus handshake, which is not what is tested
     code = main(["run", "nodes.fibre_reader:FibreReader", "-p", "driver=sim", "-p", "phantom=no_such.yaml",
-                 "--bus", f"ipc://{short_ipc_base()}"])
+                 "--bus", str(ipc_bus)])
     err = capsys.readouterr().err
     assert code == 2 and "phantom file 'no_such.yaml' does not exist" in err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err

@@ -9,8 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from procs import ProcessGroup
-from test_launch_smoke import REPO, Smoke, smoke
 
 from messages import Text
 from nodes.demo import Listener, Talker
@@ -20,6 +18,8 @@ from palpa.errors import LaunchError
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
 from palpa.node import Node
+from tests.procs import ProcessGroup
+from tests.test_launch_smoke import REPO, Smoke, smoke
 
 # around the r 5 x4 tumour at (45, 18); the measured geometry given as a user would (the in-memory composition
 # below runs no prepare step)
@@ -115,7 +115,7 @@ def test_in_process_launch_is_seen_on_the_bus_by_outside_tools(procs: ProcessGro
                    "simulated time; open, see the closing note")
 def test_in_process_and_multi_process_find_the_same_inclusions(procs: ProcessGroup, tmp_path: Path) -> None:
     """The same small scan composed and as one process per node: the same inclusions, within 0.05 mm."""
-    from test_scan_e2e import inclusions, run_launch
+    from tests.test_scan_e2e import inclusions, run_launch
 
     run_launch(procs, tmp_path / "in", "launch/scan_sim.yaml", "--in-process", *SMALL, timeout=120)
     run_launch(procs, tmp_path / "multi", "launch/scan_sim.yaml", *SMALL, "time_scale:=5.0", timeout=300)

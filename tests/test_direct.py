@@ -11,8 +11,6 @@ from pathlib import Path
 
 import pytest
 import zmq
-from conftest import palpa_cmd
-from procs import ProcessGroup, wait_until
 
 import palpa
 from messages import Text
@@ -22,6 +20,7 @@ from palpa.endpoints import RawMessage
 from palpa.launch import load_launch
 from palpa.testing import MemoryBus
 from palpa.transport import TransportOptions, ZmqTransport
+from tests.procs import ProcessGroup, palpa_cmd, wait_until
 
 
 def _texts(n: int, start: int = 0) -> list[str]:
@@ -43,7 +42,7 @@ def proxy_spy(address: BusAddress, *topics: bytes) -> Iterator[zmq.Socket[bytes]
 
 
 def _direct(node: palpa.Node) -> ZmqTransport:
-    transport = node._transport
+    transport = node.transport
     assert isinstance(transport, ZmqTransport)
     return transport
 
@@ -188,15 +187,16 @@ def test_a_latched_direct_topic_still_reaches_a_late_joiner(ipc_bus: BusAddress)
 
 def test_options_launch_and_command_line_make_a_topic_direct(tmp_path: Path, ipc_bus: BusAddress,
                                                              procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]
-    assert TransportOptions.from_env({"PALPA_DIRECT": "a/b, c ,"}).direct == ("a/b", "c")
-    assert TransportOptions.from_env({"PALPA_DIRECT": "a"}, direct=("x",)).direct == ("x",)
+    assert TransportOptions.from_env({"PALPA_TRANSPORT": '{"direct": ["a/b", "c"]}'}).direct == ("a/b", "c")
+    assert TransportOptions.from_env({"PALPA_TRANSPORT": '{"direct": ["a"]}'}, direct=("x",)).direct == ("x",)
     with pytest.raises(palpa.BusError, match="expected a list of topic names"):
         TransportOptions(direct="chatter")  # type: ignore[arg-type]
 
     f = tmp_path / "g.yaml"
     f.write_text("nodes:\n  - {name: talker, node: nodes.demo:Talker, transport: {direct: [chatter, other]}}\n")
     (talker,) = load_launch(f).nodes
-    assert talker.child_env({}, bus=None, run_dir=tmp_path, python_path=[])["PALPA_DIRECT"] == "chatter,other"
+    env = talker.child_env({}, bus=None, run_dir=tmp_path, python_path=[])
+    assert TransportOptions.from_env(env).direct == ("chatter", "other")
     assert talker.as_dict()["transport"] == {"direct": ["chatter", "other"]}
 
     # a node process given --direct publishes that topic past the proxy

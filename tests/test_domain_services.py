@@ -7,7 +7,6 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from test_robot_scanner import SMALL, run_with_probe
 
 import palpa
 from messages import (
@@ -29,6 +28,7 @@ from nodes.stiffness_estimator import StiffnessEstimator
 from palpa.service import BadRequestError, RequestRefused
 from palpa.service_client import Future
 from palpa.testing import GraphHarness, NodeHarness
+from tests.test_robot_scanner import SMALL, run_with_probe
 
 PHANTOM = "phantoms/airfloat_tumours.yaml"
 
@@ -43,7 +43,7 @@ def until_done(g: GraphHarness, fut: Future[Any], limit_s: float, step_s: float 
 
 def calibration() -> str:
     """The simulated probe calibrated on the bench (once per session)."""
-    from conftest import airfloat_calibration
+    from tests.conftest import airfloat_calibration
 
     return str(airfloat_calibration())
 
@@ -222,10 +222,9 @@ def test_tare_and_save_map_now(tmp_path: Path) -> None:
 def test_tare_over_the_serial_driver_zeroes_the_heights() -> None:
     """probe/tare on the real serial driver against the DAQ emulator ($ZERO): the current pose then reads the
     calibration's zero heights (0 mm), where it read 1.5/1.5/1.5/3.5 mm before."""
-    from test_probe_nodes_serial import CAL, run_until
-
     from emulators.fibre_daq import FibreDaqEmulator, source_from_heights
     from models.fibre_calibration import load_calibration
+    from tests.test_probe_nodes_serial import CAL, run_until
 
     cal = load_calibration(CAL)
     with FibreDaqEmulator(source_from_heights(cal, lambda t: (1.5, 1.5, 1.5, 3.5)), rate_hz=200) as emu:

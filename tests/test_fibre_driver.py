@@ -12,7 +12,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from procs import ProcessGroup, wait_until
 
 from devices.fibre_daq import CHANNELS
 from emulators.fibre_daq import FibreDaqEmulator, fixed_pose, source_from_heights
@@ -26,6 +25,7 @@ from nodes.drivers.fibre import (
     FibreSample,
 )
 from nodes.drivers.fibre_serial import SerialFibreDriver
+from tests.procs import ProcessGroup, wait_until
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -103,10 +103,11 @@ _GOOD = "  - {{name: {n}, raw_range: [0, 1000], poly: [0.0, 0.001]}}\n"
     [
         ("".join(_GOOD.format(n=n) for n in CHANNELS[:3]), "expected 4 channels"),
         ("".join(_GOOD.format(n=n) for n in ("SPS2", "SPS1", "SPS3", "S1")), "name 'SPS2', expected 'SPS1'"),
-        (_GOOD.format(n="SPS1").replace("0.001", "1e-3") + "".join(_GOOD.format(n=n) for n in CHANNELS[1:]), "write 1.0e-5"),
+        (_GOOD.format(n="SPS1").replace("0.001", "lots") + "".join(_GOOD.format(n=n) for n in CHANNELS[1:]),
+         r"cal.yaml:2:\d+: channels\[0\].poly\[1\]: expected `float`, got `str`"),
         (_GOOD.format(n="SPS1").replace("[0.0, 0.001]", "[0.0, 0.001, -0.000002]") + "".join(_GOOD.format(n=n) for n in CHANNELS[1:]), "not monotonic"),
         (_GOOD.format(n="SPS1").replace("[0, 1000]", "[1000, 0]") + "".join(_GOOD.format(n=n) for n in CHANNELS[1:]), "raw_range"),
-        (_GOOD.format(n="SPS1").replace("}", ", gain: 2}") + "".join(_GOOD.format(n=n) for n in CHANNELS[1:]), "unknown keys"),
+        (_GOOD.format(n="SPS1").replace("}", ", gain: 2}") + "".join(_GOOD.format(n=n) for n in CHANNELS[1:]), r"cal.yaml:2:\d+: unknown key 'gain' in channels\[0\]"),
     ],
 )
 def test_load_calibration_errors_name_file_and_channel(tmp_path: Path, text: str, match: str) -> None:
@@ -114,6 +115,12 @@ def test_load_calibration_errors_name_file_and_channel(tmp_path: Path, text: str
     with pytest.raises(FibreCalibrationError, match=match) as exc:
         load_calibration(path)
     assert str(path) in str(exc.value)
+
+
+def test_calibration_reads_yaml_1_2_numbers(tmp_path: Path) -> None:
+    """1e-3 is a float (YAML 1.2 core schema; PyYAML's 1.1 rules read it as a string)."""
+    text = _GOOD.format(n="SPS1").replace("0.001", "1e-3") + "".join(_GOOD.format(n=n) for n in CHANNELS[1:])
+    assert load_calibration(_write_cal(tmp_path, text)).channels[0].poly == (0.0, 1e-3)
 
 
 def test_load_calibration_missing_file(tmp_path: Path) -> None:

@@ -6,12 +6,11 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from procs import wait_until
-
 from palpa.node import Node
 from palpa.record.recorder import Recorder
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.testing import MemoryBus
+from tests.procs import wait_until
 
 
 def _listen(bus: MemoryBus) -> tuple[Node, list[Heartbeat]]:

@@ -10,8 +10,6 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import palpa_cmd
-from procs import ProcessGroup
 
 import palpa
 from messages import Text
@@ -21,6 +19,7 @@ from palpa.cli.main import main
 from palpa.errors import BusError
 from palpa.keys import load_secret_key
 from palpa.transport import ZmqTransport
+from tests.procs import ProcessGroup, palpa_cmd
 
 
 @pytest.mark.parametrize(("endpoint", "loopback"), [

@@ -9,8 +9,8 @@ import textwrap
 from pathlib import Path
 
 import pytest
-from conftest import palpa_cmd
-from procs import ProcessGroup
+
+from tests.procs import ProcessGroup, palpa_cmd
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -17,11 +17,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import pytest
-from conftest import palpa_cmd
-from procs import ProcessGroup, wait_until
 
 import palpa
 from palpa.node import RawMessage
+from tests.procs import ProcessGroup, palpa_cmd, wait_until
 
 REPO = Path(__file__).resolve().parent.parent
 LAUNCH_DIR = REPO / "launch"

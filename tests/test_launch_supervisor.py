@@ -17,12 +17,11 @@ from datetime import datetime
 from pathlib import Path
 
 import pytest
-from conftest import palpa_cmd
-from procs import Proc, ProcessGroup, wait_until
 
 from palpa.address import BusAddress
 from palpa.launch import load_launch
 from palpa.launch.process import process_alive
+from tests.procs import Proc, ProcessGroup, palpa_cmd, wait_until
 
 TESTS = Path(__file__).resolve().parent
 HELPER = TESTS / "launch_nodes.py"

@@ -5,12 +5,11 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from test_launch_smoke import REPO
-
 from nodes.demo import Listener, Talker
 from nodes.fibre_reader import FibreReader
 from palpa.launch.topics import declared_topics
 from palpa.simclock import ClockSource
+from tests.test_launch_smoke import REPO
 
 
 def test_declared_topics_with_namespace_and_remap() -> None:

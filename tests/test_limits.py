@@ -12,8 +12,6 @@ import msgpack
 import msgspec
 import pytest
 import zmq
-from conftest import bus_spec
-from procs import wait_until
 
 import palpa
 from messages import Text
@@ -27,6 +25,7 @@ from palpa.record.testing import check_official
 from palpa.runtime_msgs import LogRecord
 from palpa.testing import NodeHarness
 from palpa.transport import TransportOptions, ZmqTransport
+from tests.procs import bus_spec, wait_until
 
 
 def header(seq: int, node: str = "evil", type_: str = "Text", latched: bool = False) -> bytes:
@@ -125,7 +124,7 @@ def test_a_node_refuses_and_counts_messages_over_its_limit(ipc_bus: BusAddress) 
         assert sub.next(5.0) == Text(text="fits")
         stats = node.counters()["chatter"]
         assert stats.decode_errors == 1 and "refused (max_msg_bytes 2048)" in stats.last_error
-    assert TransportOptions.from_env({"PALPA_MAX_MSG_BYTES": "5000"}).max_msg_bytes == 5000
+    assert TransportOptions.from_env({"PALPA_TRANSPORT": '{"max_msg_bytes": 5000}'}).max_msg_bytes == 5000
 
 
 def test_log_lines_on_the_bus_are_truncated() -> None:

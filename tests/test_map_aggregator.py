@@ -140,7 +140,7 @@ def test_a_map_that_missed_samples_is_declared_failed(tmp_path: Path) -> None:
         first.publish_raw(_raw_sample(seq, 7, float(seq)))
     first.advance(1.0)  # publishes the (latched) map
     for node in (first.node, first._probe):  # killed: no final map, its transport just goes away
-        node._transport.close(0)
+        node.transport.close(0)
     h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / "map2")}, name="map", bus=bus)
     h.publish("robot/plan", plan)
     for seq in range(11, 15):

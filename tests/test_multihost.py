@@ -16,9 +16,9 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from procs import ProcessGroup, wait_until
 
 from palpa.keys import create_key_pair
+from tests.procs import ProcessGroup, wait_until
 
 REPO = Path(__file__).resolve().parents[1]
 SUBNET = "10.222.{}.{}"

@@ -9,11 +9,10 @@ import signal
 import time
 from pathlib import Path
 
-from procs import ProcessGroup, wait_until
-
 import palpa
 from palpa.runtime_msgs import ClockTick
 from palpa.testing import MemoryBus
+from tests.procs import ProcessGroup, wait_until
 
 
 class Ticker(palpa.Node):
@@ -64,7 +63,7 @@ def test_a_held_clock_is_not_a_dead_clock() -> None:
 
 def test_a_respawned_node_or_a_failure_reported_on_stop_never_ends_the_launch_clean(procs: ProcessGroup,
                                                                                    tmp_path: Path) -> None:
-    from test_launch_supervisor import launch, prog, write
+    from tests.test_launch_supervisor import launch, prog, write
 
     file = write(tmp_path, f"""
         nodes:
@@ -84,7 +83,8 @@ def test_a_respawned_node_or_a_failure_reported_on_stop_never_ends_the_launch_cl
 def test_a_killed_recorder_stops_a_recording_launch_and_leaves_a_readable_file(procs: ProcessGroup,
                                                                                tmp_path: Path) -> None:
     from mcap.reader import make_reader
-    from test_launch_supervisor import launch, prog, wait_started, write
+
+    from tests.test_launch_supervisor import launch, prog, wait_started, write
 
     file = write(tmp_path, f"""
         record: {{}}

@@ -7,13 +7,13 @@ from __future__ import annotations
 from typing import Any
 
 import pytest
-from procs import ur_emulator
 
 import palpa
 from nodes.drivers.robot import PathPoint, RobotDriver, RobotDriverError
 from nodes.robot_scanner import RobotScanner
 from palpa.clock import MockClock
 from palpa.testing import MemoryBus, NodeHarness
+from tests.procs import ur_emulator
 
 SMALL: dict[str, Any] = {"region_mm": [10, 10, 20, 20], "spacing_mm": 5, "speed_mm_s": 20, "home_mm": [10, 10, 20]}
 OUT_OF_THE_BOX: dict[str, Any] = {**SMALL, "region_mm": [10, 10, 80, 20]}  # x = 80 > the workspace's 70

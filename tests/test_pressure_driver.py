@@ -10,7 +10,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
-from procs import ProcessGroup, wait_until
 
 from emulators.alicat import AlicatEmulator
 from nodes.drivers.pressure import (
@@ -23,6 +22,7 @@ from nodes.drivers.pressure import (
     PressureReading,
     PressureTimeoutError,
 )
+from tests.procs import ProcessGroup, wait_until
 
 pytestmark = pytest.mark.timeout(30)
 

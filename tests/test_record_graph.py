@@ -10,8 +10,6 @@ from pathlib import Path
 
 import msgspec
 import pytest
-from conftest import palpa_cmd, short_ipc_base
-from procs import ProcessGroup, wait_until
 
 from messages import Text
 from palpa.address import BusAddress
@@ -20,6 +18,7 @@ from palpa.node import Node, RawMessage
 from palpa.record.reader import iter_bag
 from palpa.record.testing import Rec, check_official, write_bag
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
+from tests.procs import ProcessGroup, palpa_cmd, short_ipc_base, wait_until
 
 MS = 1_000_000
 

@@ -9,11 +9,9 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import palpa_cmd
 from mcap.reader import make_reader
 from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
-from procs import ProcessGroup, wait_until
 
 from messages import Text
 from palpa.address import BusAddress
@@ -26,6 +24,7 @@ from palpa.record.recover import recover
 from palpa.record.testing import check_official
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.testing import NodeHarness
+from tests.procs import ProcessGroup, palpa_cmd, wait_until
 
 
 def _unfinished_recording(tmp_path: Path) -> tuple[Path, list[int]]:

@@ -12,7 +12,6 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from procs import ur_emulator
 
 from emulators.ur.process import UrEmulatorProcess
 from models.raster import sweep_raster
@@ -25,6 +24,7 @@ from nodes.drivers.robot import (
 )
 from nodes.drivers.robot_sim import SimRobotDriver
 from palpa.clock import MockClock
+from tests.procs import ur_emulator
 
 pytest.importorskip("rtde_control")
 from nodes.drivers.robot_urrtde import URRtdeDriver  # noqa: E402

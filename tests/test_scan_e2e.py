@@ -9,11 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from procs import ProcessGroup
-from test_launch_smoke import REPO
 
 from emulators.ur.process import UrEmulatorProcess
 from models.phantom import load_phantom
+from tests.procs import ProcessGroup, palpa_cmd
+from tests.test_launch_smoke import REPO
 
 SMALL_UR = ["fibre_driver:=sim", "pressure_driver:=sim", "phantom:=phantoms/airfloat_tumours.yaml", "region_mm:=[30.0, 6.0, 54.0, 30.0]", "spacing_mm:=3.0",
             "speed_mm_s:=20.0", "home_mm:=[30.0, 6.0, 20.0]",
@@ -24,9 +24,8 @@ SMALL_UR = ["fibre_driver:=sim", "pressure_driver:=sim", "phantom:=phantoms/airf
 # whole simulated scans: each launch is bounded by its own wait (run_launch's timeout), not the suite's 120 s
 pytestmark = pytest.mark.timeout(900)
 
-def run_launch(procs: ProcessGroup, run_dir: Path, file: str, *args: str, timeout: float = 240) -> str:
-    from conftest import palpa_cmd
 
+def run_launch(procs: ProcessGroup, run_dir: Path, file: str, *args: str, timeout: float = 240) -> str:
     p = procs.start(palpa_cmd("launch", str(REPO / file), "--run-dir", str(run_dir), "--no-progress", *args),
                     cwd=str(REPO))
     code = p.wait(timeout)

@@ -10,10 +10,6 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import REPO, palpa_cmd, short_ipc_base
-from procs import ProcessGroup, wait_until
-from test_service import Adder, AddReply, AddRequest
-from test_service_zmq import adder  # noqa: F401  (fixture)
 
 import palpa
 from models.phantom import load_phantom
@@ -23,6 +19,9 @@ from palpa.cli.main import main
 from palpa.params import convert_params
 from palpa.record.info import bag_info, format_info
 from palpa.service import RequestRefused
+from tests.procs import REPO, ProcessGroup, palpa_cmd, short_ipc_base, wait_until
+from tests.test_service import Adder, AddReply, AddRequest
+from tests.test_service_zmq import adder  # noqa: F401  (fixture)
 
 
 @pytest.fixture
@@ -125,7 +124,7 @@ def test_service_call_probe_at_on_a_simulated_graph(procs: ProcessGroup, tmp_pat
     """`palpa service call scanner/probe_at` on launch/probe_sim.yaml (six processes, simulated time): the
     stiffness returned is within 10 % of the phantom's modulus at the point (healthy tissue; see
     tests/test_domain_services.py for why not over an inclusion yet)."""
-    from conftest import airfloat_calibration
+    from tests.conftest import airfloat_calibration
 
     cal = airfloat_calibration()  # the simulated probe calibrated on the bench first, as on the rig
     bus = f"ipc://{short_ipc_base()}"

@@ -10,12 +10,12 @@ from collections.abc import Iterator
 import msgpack
 import pytest
 import zmq
-from procs import wait_until
-from test_service import Adder, AddReply, AddRequest
 
 import palpa
 from palpa.address import BusAddress
 from palpa.service import RequestRefused
+from tests.procs import wait_until
+from tests.test_service import Adder, AddReply, AddRequest
 
 
 @pytest.fixture

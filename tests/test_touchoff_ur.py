@@ -8,7 +8,6 @@ import math
 import time
 
 import pytest
-from procs import ur_emulator
 
 from models.phantom import load_phantom
 from models.raster import sweep_raster
@@ -16,6 +15,7 @@ from models.surface import fit_surface, touch_points
 from nodes.drivers.robot import MotionStatus
 from nodes.drivers.robot_urrtde import URRtdeDriver
 from nodes.touchoff import TouchOff, TouchOffConfig
+from tests.procs import ur_emulator
 
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm, 6 mm on the centre line, 3 mm at the y edges
 

@@ -8,8 +8,6 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from conftest import bus_spec, palpa_cmd
-from procs import ProcessGroup, wait_until
 
 import palpa
 from messages import Text
@@ -19,28 +17,45 @@ from palpa.errors import BusError, LaunchError
 from palpa.launch import load_launch
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.transport import TransportOptions, ZmqTransport
+from tests.procs import ProcessGroup, bus_spec, palpa_cmd, wait_until
 
 
 def test_options_from_defaults_environment_and_flags() -> None:
     assert TransportOptions.from_env({}) == TransportOptions(10_000, 10_000, 0)
-    env = {"PALPA_SNDHWM": "50", "PALPA_RCVHWM": " 7 ", "PALPA_BUSY_POLL_US": "200"}
+    env = TransportOptions(50, 7, 200).to_env()
+    assert list(env) == ["PALPA_TRANSPORT"]  # one value, not one variable per option
     assert TransportOptions.from_env(env) == TransportOptions(50, 7, 200)
     assert TransportOptions.from_env(env, rcvhwm=0, sndhwm=None) == TransportOptions(50, 0, 200)
-    with pytest.raises(BusError, match=r"PALPA_RCVHWM='lots': expected an integer"):
-        TransportOptions.from_env({"PALPA_RCVHWM": "lots"})
+    with pytest.raises(BusError, match=r"PALPA_TRANSPORT='.*': Expected `int`, got `str` - at `\$.rcvhwm`"):
+        TransportOptions.from_env({"PALPA_TRANSPORT": '{"rcvhwm": "lots"}'})
+    with pytest.raises(BusError, match=r"Object contains unknown field `rcvhmw`"):
+        TransportOptions.from_env({"PALPA_TRANSPORT": '{"rcvhmw": 5}'})
     with pytest.raises(BusError, match="transport option busy_poll_us: expected an integer >= 0, got -1"):
         TransportOptions(busy_poll_us=-1)
+
+
+def test_the_bounds_are_declared_once_and_checked_on_every_path() -> None:
+    """busy_poll_us <= 1e6: constructed, decoded from the environment, and given as a flag over the environment."""
+    with pytest.raises(BusError, match="busy_poll_us: expected an integer <= 1000000"):
+        TransportOptions(busy_poll_us=1_000_001)
+    with pytest.raises(BusError, match=r"Expected `int` <= 1000000 - at `\$.busy_poll_us`"):
+        TransportOptions.from_env({"PALPA_TRANSPORT": '{"busy_poll_us": 1000001}'})
+    with pytest.raises(BusError, match="busy_poll_us: expected an integer <= 1000000"):
+        TransportOptions.from_env({}, busy_poll_us=1_000_001)
+    with pytest.raises(BusError, match="max_msg_bytes: expected an integer >= 1024"):
+        TransportOptions(max_msg_bytes=10)
+    assert TransportOptions(busy_poll_us=1_000_000).busy_poll_us == 1_000_000
 
 
 def test_node_sockets_get_the_options(ipc_bus: BusAddress, monkeypatch: pytest.MonkeyPatch) -> None:
     with palpa.Node(name="explicit", bus=ipc_bus, heartbeat_s=0,
                     transport_options=TransportOptions(sndhwm=123, rcvhwm=45)) as node:
-        transport = node._transport
+        transport = node.transport
         assert isinstance(transport, ZmqTransport)
         assert (transport._pub.sndhwm, transport._sub.rcvhwm) == (123, 45)
-    monkeypatch.setenv("PALPA_RCVHWM", "77")
+    monkeypatch.setenv("PALPA_TRANSPORT", '{"rcvhwm": 77}')
     with palpa.Node(name="from_env", bus=ipc_bus, heartbeat_s=0) as node:
-        assert isinstance(node._transport, ZmqTransport) and node._transport._sub.rcvhwm == 77
+        assert isinstance(node.transport, ZmqTransport) and node.transport._sub.rcvhwm == 77
 
 
 def test_launch_file_sets_them_through_the_environment(tmp_path: Path) -> None:
@@ -50,10 +65,10 @@ def test_launch_file_sets_them_through_the_environment(tmp_path: Path) -> None:
                  "  - {name: plain, node: nodes.demo:Talker}\n")
     plan = load_launch(f)
     fast, plain = plan.nodes
-    assert fast.transport == {"rcvhwm": 100000, "busy_poll_us": 500} and plain.transport == {}
-    env = fast.child_env({"PALPA_SNDHWM": "9"}, bus=None, run_dir=tmp_path, python_path=[])
-    assert (env["PALPA_RCVHWM"], env["PALPA_BUSY_POLL_US"], env["PALPA_SNDHWM"]) == ("100000", "500", "9")
-    assert "PALPA_RCVHWM" not in plain.child_env({}, bus=None, run_dir=tmp_path, python_path=[])
+    assert fast.transport == TransportOptions(rcvhwm=100000, busy_poll_us=500) and plain.transport is None
+    env = fast.child_env({}, bus=None, run_dir=tmp_path, python_path=[])
+    assert TransportOptions.from_env(env) == fast.transport
+    assert "PALPA_TRANSPORT" not in plain.child_env({}, bus=None, run_dir=tmp_path, python_path=[])
     assert fast.as_dict()["transport"] == {"rcvhwm": 100000, "busy_poll_us": 500}
 
     f.write_text("nodes:\n  - {name: bad, node: nodes.demo:Listener, transport: {rcvhwm: -1}}\n")
@@ -131,9 +146,10 @@ def test_node_process_takes_flags_and_refuses_bad_values(ipc_bus: BusAddress, pr
                          env=env_for(ipc_bus))
         wait_until(lambda: "listener" in beats, 20, "the listener's heartbeat", step=lambda: watch.spin_once(0.05))
         assert ok.stop(10) == 0
-        bad = procs.start(palpa_cmd("run", "nodes.demo:Listener"), env={**env_for(ipc_bus), "PALPA_RCVHWM": "x"})
+        bad = procs.start(palpa_cmd("run", "nodes.demo:Listener"),
+                          env={**env_for(ipc_bus), "PALPA_TRANSPORT": '{"rcvhwm": "x"}'})
         assert bad.wait(20) == 2
-        assert "PALPA_RCVHWM='x': expected an integer" in bad.output()
+        assert "Expected `int`, got `str` - at `$.rcvhwm`" in bad.output()
     finally:
         watch.close(0)
 
@@ -144,7 +160,7 @@ def test_a_fast_timer_sleeps_between_ticks_instead_of_spinning(ipc_bus: BusAddre
     with palpa.Node(name="ticker", bus=ipc_bus, heartbeat_s=0) as node:
         ticks = [0]
         node.timer(0.001, lambda: ticks.__setitem__(0, ticks[0] + 1))
-        transport = node._transport
+        transport = node.transport
         polls = [0]
         real_poll = transport.poll
 

@@ -17,12 +17,12 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from procs import ur_emulator, wait_until
 
 from emulators.ur import ControllerConfig, FaultPlan, UrController, UrEmulator
 from emulators.ur.process import UrEmulatorProcess
 from emulators.ur.script import ScriptReceiver, parse_path
 from models.arm import ArmTarget
+from tests.procs import ur_emulator, wait_until
 
 rtde_control = pytest.importorskip("rtde_control")
 rtde_receive = pytest.importorskip("rtde_receive")

@@ -12,10 +12,6 @@ from pathlib import Path
 import foxglove
 import msgspec
 import pytest
-from conftest import palpa_cmd
-from foxglove_client import FoxgloveClient
-from procs import ProcessGroup, wait_until
-from test_launch_smoke import REPO
 
 import messages  # noqa: F401
 from messages import EStop, Inclusions, ProbeHeights, RobotPose, ScanPlan, StiffnessMap
@@ -25,6 +21,9 @@ from palpa.address import BusAddress
 from palpa.errors import ParamError
 from palpa.testing import GraphHarness
 from palpa.viz import SUBPROTOCOL, Bridge
+from tests.foxglove_client import FoxgloveClient
+from tests.procs import ProcessGroup, palpa_cmd, wait_until
+from tests.test_launch_smoke import REPO
 
 
 @pytest.fixture

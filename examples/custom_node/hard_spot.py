@@ -39,6 +39,8 @@ class HardSpots(palpa.Node):
         window: int = 200
         """Samples in the running median (the recent ones, not the whole scan)."""
 
+    params: Params  # typed: mypy checks every self.params.<name>
+
     def setup(self) -> None:
         if self.params.threshold <= 1 or self.params.window < 3:
             raise palpa.ParamError(f"node {self.name!r}: threshold must be > 1 and window >= 3")

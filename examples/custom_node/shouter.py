@@ -24,6 +24,8 @@ class Shouter(palpa.Node):
         every: int = 1
         """Shout only every N-th line heard (1: all of them)."""
 
+    params: Params  # typed: mypy checks every self.params.<name>
+
     def setup(self) -> None:
         if self.params.every < 1:
             raise palpa.ParamError(f"node {self.name!r}: parameter 'every' must be >= 1, got {self.params.every}")

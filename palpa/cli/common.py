@@ -6,7 +6,6 @@ import argparse
 import contextlib
 import importlib
 import json
-import os
 import time
 from pathlib import Path
 from typing import Any
@@ -14,6 +13,7 @@ from typing import Any
 import msgspec
 import yaml
 
+from palpa import env as palpa_env
 from palpa.address import BusAddress
 from palpa.current import find_bus
 from palpa.errors import PalpaError
@@ -45,10 +45,9 @@ def bus_address(args: argparse.Namespace) -> BusAddress:
 def import_message_modules() -> None:
     """Import the message packages so their types are in the registry (``PALPA_MESSAGES`` adds more,
     comma-separated module names)."""
-    names = ["messages", *filter(None, os.environ.get("PALPA_MESSAGES", "").split(","))]
-    for name in names:
+    for name in ["messages", *palpa_env.listed(palpa_env.MESSAGES)]:
         with contextlib.suppress(ImportError):
-            importlib.import_module(name.strip())
+            importlib.import_module(name)
 
 
 def message_from_yaml(type_name: str, text: str, what: str = "data", *, stamp: bool = True) -> Message:

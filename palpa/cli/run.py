@@ -7,6 +7,7 @@ import importlib
 import os
 import sys
 
+from palpa import env as palpa_env
 from palpa.current import read_current
 from palpa.errors import PalpaError
 from palpa.node import Node
@@ -53,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     cls = load_node_class(args.target)
     rest = list(args.rest)
     current = read_current()
-    if current is not None and "--bus" not in rest and not os.environ.get("PALPA_BUS"):
+    if current is not None and "--bus" not in rest and not palpa_env.get(palpa_env.BUS):
         print(f"palpa run: joining the running launch's bus ({current[1]})", file=sys.stderr)
         rest = ["--bus", current[0], *rest]
     return run_node_code(cls, rest, prog=args.target)

@@ -254,7 +254,7 @@ def run_pub(args: argparse.Namespace) -> int:
     msg = message_from_yaml(args.type, args.data)
     topic = bare_topic(args.topic)
     with _tool_node(args, "pub") as node:
-        if not getattr(node._transport, "connected", True):
+        if not getattr(node.transport, "connected", True):
             raise BusError(f"no bus answered on {args.bus_where}: nothing was sent (is the launch running? "
                            "--bus or --run DIR choose another)")
         pub = node.publisher(topic, type(msg), latched=args.latched)

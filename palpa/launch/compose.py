@@ -13,6 +13,7 @@ import dataclasses
 import json
 import sys
 
+from palpa import env as palpa_env
 from palpa.errors import LaunchError
 from palpa.launch.plan import LaunchPlan, NodeSpec
 
@@ -20,7 +21,7 @@ __all__ = ["CLOCK_TARGET", "COMPOSED_NAME", "compose_plan", "is_composable"]
 
 CLOCK_TARGET = "palpa.simclock:ClockSource"
 COMPOSED_NAME = "sim"
-_SIM_ENV = "PALPA_SIM_CLOCK"
+_SIM_ENV = palpa_env.SIM_CLOCK
 
 
 def is_composable(spec: NodeSpec) -> bool:

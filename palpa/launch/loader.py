@@ -272,7 +272,7 @@ def _node_spec(src: Source, i: int, nd: NodeDecl, namespace: str, col: _Collecte
         remap=dict(nd.remap), namespace=ns, env=dict(nd.env), respawn=nd.respawn, respawn_delay=nd.respawn_delay,
         respawn_max_retries=nd.respawn_max_retries, required=nd.required, sigterm_timeout=nd.sigterm_timeout,
         sigkill_timeout=nd.sigkill_timeout, output=nd.output,
-        transport=nd.transport.given() if nd.transport is not None else {}, where=str(src.mark(where)),
+        transport=nd.transport, where=str(src.mark(where)),
     )
 
 

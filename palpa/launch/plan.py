@@ -12,10 +12,11 @@ from typing import Any
 
 import yaml
 
+from palpa import env as palpa_env
 from palpa.address import BusAddress, private_dir
 from palpa.errors import BusError
 from palpa.launch.schema import BusDecl, RecordDecl, VizDecl
-from palpa.transport import TransportOptions
+from palpa.options import TransportOptions
 
 __all__ = ["RECORDER_NAME", "RECORDER_TARGET", "VIZ_NAME", "VIZ_TARGET", "LaunchPlan", "NodeSpec"]
 
@@ -43,8 +44,8 @@ class NodeSpec:
     sigterm_timeout: float = 5.0
     sigkill_timeout: float = 5.0
     output: str = "screen"
-    transport: dict[str, int | list[str]] = field(default_factory=dict)
-    """Transport options set by the launch file (palpa.transport.TransportOptions field -> value)."""
+    transport: TransportOptions | None = None
+    """Transport options set by the launch file (None: the child reads its own environment and flags)."""
     where: str = ""
 
     def argv(self) -> list[str]:
@@ -63,20 +64,21 @@ class NodeSpec:
                   python_path: list[str]) -> dict[str, str]:
         """The child's environment: ``base`` + PALPA_BUS, PALPA_RUN_DIR, PALPA_NODE_NAME, PYTHONUNBUFFERED=1,
         PYTHONPATH (the launch files' python_path first), PALPA_PARAMS/PALPA_REMAP/PALPA_NAMESPACE as JSON for
-        ``cmd`` entries, the transport options (PALPA_SNDHWM, ...), then the entry's own ``env``."""
+        ``cmd`` entries, the transport options (PALPA_TRANSPORT), then the entry's own ``env``."""
         env = dict(base)
         if bus is not None:
-            env["PALPA_BUS"] = str(bus)
-        env["PALPA_RUN_DIR"] = str(run_dir)
-        env["PALPA_NODE_NAME"] = self.name
+            env[palpa_env.BUS] = str(bus)
+        env[palpa_env.RUN_DIR] = str(run_dir)
+        env[palpa_env.NODE_NAME] = self.name
         env["PYTHONUNBUFFERED"] = "1"
         if python_path:
             env["PYTHONPATH"] = os.pathsep.join([*python_path, *filter(None, [base.get("PYTHONPATH")])])
         if self.cmd is not None:
-            env["PALPA_PARAMS"] = json.dumps(self.params)
-            env["PALPA_REMAP"] = json.dumps(self.remap)
-            env["PALPA_NAMESPACE"] = self.namespace
-        env.update(TransportOptions.to_env(self.transport))
+            env[palpa_env.PARAMS] = json.dumps(self.params)
+            env[palpa_env.REMAP] = json.dumps(self.remap)
+            env[palpa_env.NAMESPACE] = self.namespace
+        if self.transport is not None:
+            env.update(self.transport.to_env())
         env.update(self.env)
         return env
 
@@ -91,8 +93,8 @@ class NodeSpec:
                    respawn=self.respawn, respawn_delay=self.respawn_delay,
                    respawn_max_retries=self.respawn_max_retries, required=self.required,
                    sigterm_timeout=self.sigterm_timeout, sigkill_timeout=self.sigkill_timeout, output=self.output)
-        if self.transport:
-            out["transport"] = dict(self.transport)
+        if self.transport is not None:
+            out["transport"] = self.transport.given()
         return out
 
 
@@ -144,7 +146,7 @@ class LaunchPlan:
         modules = dict.fromkeys(n.target.partition(":")[0] for n in self.nodes if n.target)
         return NodeSpec(name=RECORDER_NAME, target=RECORDER_TARGET, params=params, sigterm_timeout=10.0,
                         sigkill_timeout=5.0, where=f"{self.files[0] if self.files else self.file}: record",
-                        env={"PALPA_NODE_MODULES": ",".join(modules)})
+                        env={palpa_env.NODE_MODULES: ",".join(modules)})
 
     def viz_node(self) -> NodeSpec | None:
         """The bridge node the ``viz`` section asks for (None without one): an ordinary node entry named ``viz``,

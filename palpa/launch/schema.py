@@ -30,6 +30,8 @@ from typing import Annotated, Any, Literal
 import msgspec
 from msgspec import UNSET, Meta, Struct, UnsetType, field
 
+from palpa.options import TransportOptions
+
 __all__ = [
     "NAME_PATTERN",
     "ArgDecl",
@@ -39,7 +41,6 @@ __all__ = [
     "NodeDecl",
     "ProgressDecl",
     "RecordDecl",
-    "TransportDecl",
     "VizDecl",
     "json_schema",
 ]
@@ -90,29 +91,9 @@ class NodeDecl(_Decl):
     sigkill_timeout: Annotated[Seconds, Meta(description="seconds after SIGTERM before SIGKILL")] = 5.0
     output: Annotated[Literal["screen", "log"], Meta(description="screen: lines shown as `[name] line`; "
                                                                   "always kept in <run_dir>/<name>.log")] = "screen"
-    transport: TransportDecl | None = None
+    transport: TransportOptions | None = None
     if_: Annotated[bool, Meta(description="false: leave this node out (e.g. `if: $(arg viz)`)")] = field(
         default=True, name="if")
-
-
-class TransportDecl(_Decl):
-    """Socket options of one node (palpa.transport.TransportOptions); unset ones keep the node's defaults."""
-
-    sndhwm: Annotated[int, Meta(ge=0, description="messages queued towards the bus before ZeroMQ drops new ones "
-                                                  "(seen by subscribers as sequence gaps); 0: no limit")] | None = None
-    rcvhwm: Annotated[int, Meta(ge=0, description="messages queued from the bus before ZeroMQ drops new ones; "
-                                                  "0: no limit")] | None = None
-    busy_poll_us: Annotated[int, Meta(ge=0, le=1_000_000, description="spin this long for input before blocking: "
-                                      "lower latency in exchange for a busy core")] | None = None
-    max_msg_bytes: Annotated[int, Meta(ge=1024, description="the largest message this node accepts (bytes, all "
-                                                           "frames); larger ones are refused and counted")] | None = None
-    direct: Annotated[list[Annotated[str, Meta(min_length=1)]], Meta(
-        description="topics (as on the bus, after namespace and remap) this node publishes straight to their "
-                    "subscribers instead of through the proxy: lower latency (see palpa.direct)")] | None = None
-
-    def given(self) -> dict[str, int | list[str]]:
-        """The options this entry sets."""
-        return {k: v for k in self.__struct_fields__ if (v := getattr(self, k)) is not None}
 
 
 class IncludeDecl(_Decl):

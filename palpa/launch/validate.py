@@ -1,119 +1,18 @@
-"""Validation against the schema Structs, with msgspec's errors turned into ``file:line:col: ...`` messages."""
+"""Validation of a launch file against its schema: :func:`yamlstruct.convert.convert` with the whole file's type
+(:class:`palpa.launch.schema.LaunchFile`) naming the allowed keys."""
 
 from __future__ import annotations
 
-import difflib
-import re
 from typing import Any
 
-import msgspec
-
-from palpa.errors import LaunchError
 from palpa.launch.schema import LaunchFile
 from palpa.launch.source import Path_, Source
+from yamlstruct.convert import convert as _convert
+from yamlstruct.convert import did_you_mean, kind, lower_first
 
 __all__ = ["convert", "did_you_mean", "kind", "lower_first"]
-
-_ERR_PATH_RE = re.compile(r"^(?P<what>.*) - at `\$(?P<path>[^`]*)`$", re.S)
-_PATH_PART_RE = re.compile(r"\.([A-Za-z_][\w-]*)|\[(\d+)\]|\[\.\.\.\]")
 
 
 def convert(src: Source, data: Any, typ: Any, base: Path_ = ()) -> Any:
     """``data`` (from ``src`` at ``base``) as ``typ``, strictly; a LaunchError at the offending key otherwise."""
-    try:
-        return msgspec.convert(data, typ, strict=True)
-    except msgspec.ValidationError as exc:
-        raise _validation_error(src, base, str(exc), data) from None
-
-
-def _validation_error(src: Source, base: Path_, text: str, data: Any) -> LaunchError:
-    m = _ERR_PATH_RE.match(text)
-    what, rel = (m.group("what"), m.group("path")) if m else (text, "")
-    path: Path_ = base
-    for part in _PATH_PART_RE.finditer(rel):
-        if part.group(1) is not None:
-            path = (*path, part.group(1))
-        elif part.group(2) is not None:
-            path = (*path, int(part.group(2)))
-        else:  # a value inside a dict: msgspec does not say which key, so find the first of the wrong kind
-            got = re.search(r"got `(\w+)`", what)
-            container = src.get(path)
-            if isinstance(container, dict) and got:
-                for k, v in container.items():
-                    if _kind_name(v) == got.group(1):
-                        path = (*path, k)
-                        break
-    label = _label(path)
-    unknown = re.match(r"Object contains unknown field `([^`]+)`", what)
-    if unknown:
-        key = unknown.group(1)
-        allowed = _allowed_keys(path)
-        return src.error((*path, key), f"unknown key {key!r} in {label}{did_you_mean(key, allowed)}; expected "
-                                       f"one of: {', '.join(allowed)}", key=True)
-    missing = re.match(r"Object missing required field `([^`]+)`", what)
-    if missing:
-        return src.error(path, f"{label} is missing the required key {missing.group(1)!r}")
-    return src.error(path, f"{label}: {lower_first(what)}")
-
-
-def _allowed_keys(path: Path_) -> list[str]:
-    typ: Any = LaunchFile
-    for part in path:
-        if isinstance(part, int):
-            continue
-        hints = {f.name: f.type for f in msgspec.structs.fields(typ)} if isinstance(typ, type) else {}
-        sub = hints.get(str(part))
-        typ = _struct_in(sub)
-        if typ is None:
-            return []
-    return [f.name for f in msgspec.structs.fields(typ)] if isinstance(typ, type) else []
-
-
-def _struct_in(t: Any) -> Any:
-    """The Struct type inside an annotation like ``list[X]``, ``X | None`` or ``Annotated[...]``."""
-    if isinstance(t, type) and issubclass(t, msgspec.Struct):
-        return t
-    for arg in getattr(t, "__args__", ()):
-        found = _struct_in(arg)
-        if found is not None:
-            return found
-    origin = getattr(t, "__origin__", None)
-    return _struct_in(origin) if origin is not None and origin is not t else None
-
-
-def _label(path: Path_) -> str:
-    if not path:
-        return "the launch file"
-    text = str(path[0])
-    for part in path[1:]:
-        text += f"[{part}]" if isinstance(part, int) else f".{part}"
-    return text
-
-
-def kind(value: Any) -> str:
-    """What a YAML value is, in words (mapping, list, string, ...)."""
-    return {"object": "mapping", "array": "list", "str": "string", "null": "null"}.get(_kind_name(value),
-                                                                                      _kind_name(value))
-
-
-def _kind_name(value: Any) -> str:
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return "bool"
-    if isinstance(value, dict):
-        return "object"
-    if isinstance(value, list):
-        return "array"
-    return type(value).__name__
-
-
-def lower_first(text: str) -> str:
-    """msgspec's messages start with a capital; ours continue a sentence."""
-    return text[:1].lower() + text[1:]
-
-
-def did_you_mean(name: str, choices: Any) -> str:
-    """The hint `` (did you mean 'x'?)`` naming the closest of ``choices``, or an empty string."""
-    close = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.6)
-    return f" (did you mean {close[0]!r}?)" if close else ""
+    return _convert(src, data, typ, base, root=LaunchFile)

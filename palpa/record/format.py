@@ -35,6 +35,7 @@ from collections.abc import Collection, Sequence
 from pathlib import Path
 from typing import Any
 
+from palpa import env as palpa_env
 from palpa.errors import PalpaError, RegistryError
 from palpa.message import json_schema, lookup
 
@@ -102,12 +103,12 @@ def import_message_modules() -> None:
     if _imported:
         return
     _imported = True
-    for name in ["messages", *filter(None, os.environ.get("PALPA_MESSAGES", "").split(","))]:
+    for name in ["messages", *palpa_env.listed(palpa_env.MESSAGES)]:
         with contextlib.suppress(ImportError):
-            importlib.import_module(name.strip())
+            importlib.import_module(name)
 
 
-NODE_MODULES_ENV = "PALPA_NODE_MODULES"
+NODE_MODULES_ENV = palpa_env.NODE_MODULES
 """Set by ``palpa launch`` on its recorder: the modules of the launched node classes, comma-separated."""
 _nodes_imported = False
 

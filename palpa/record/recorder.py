@@ -299,7 +299,7 @@ class Recorder(Node):
                 self._write_blobs(cid, raw, recv_ns)
             w.add_message(cid, recv_ns, h.stamp, seq & 0xFFFF_FFFF, payload)
             if not _well_formed(payload):  # recorded as the wire carried it, and counted so the file says so
-                self._rx.raw_stats[topic].decode_errors += 1
+                self.count_bad_raw(topic)
             if h.latched or cached or (self._bus_latched and topic in self._bus_latched):
                 if cached:
                     self._bus_latched.add(topic)

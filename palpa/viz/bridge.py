@@ -17,7 +17,6 @@ server can add them through :meth:`Bridge.services` (empty here), without touchi
 
 from __future__ import annotations
 
-import os
 from collections import deque
 from collections.abc import Mapping
 from pathlib import Path
@@ -27,6 +26,7 @@ import foxglove
 import msgspec
 
 import palpa
+from palpa import env as palpa_env
 from palpa.address import is_loopback_host
 from palpa.errors import ParamError, RegistryError
 from palpa.message import Message, lookup
@@ -106,7 +106,7 @@ class Bridge(Node):
         print(f"palpa viz ready {self.url} (subprotocol {SUBPROTOCOL})", flush=True)
 
     def _write_address(self) -> None:
-        run_dir = os.environ.get("PALPA_RUN_DIR")
+        run_dir = palpa_env.get(palpa_env.RUN_DIR)
         if run_dir and Path(run_dir).is_dir():
             try:
                 (Path(run_dir) / _ADDRESS_FILE).write_text(self.url + "\n")

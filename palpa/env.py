@@ -1,0 +1,65 @@
+"""Every ``PALPA_*`` environment variable, declared and read here and nowhere else.
+
+The launcher sets most of them on its children; a user sets ``PALPA_BUS``, ``PALPA_MESSAGES`` and the CURVE keys.
+Readers elsewhere call :func:`get` (or :func:`listed`) with a name from :data:`VARIABLES`, so that a variable's
+name, meaning and parsing live in one place (docs/launch.md lists them from this table).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+
+__all__ = ["BUS", "BUS_SERVER_KEY", "CURRENT", "CURVE_SECRET", "MESSAGES", "NAMESPACE", "NODE_MODULES", "NODE_NAME",
+           "PARAMS", "REMAP", "RUN_DIR", "SIM_CLOCK", "SIM_CLOCK_TIMEOUT_S", "TRANSPORT", "VARIABLES", "flag", "get",
+           "listed"]
+
+BUS = "PALPA_BUS"
+RUN_DIR = "PALPA_RUN_DIR"
+NODE_NAME = "PALPA_NODE_NAME"
+PARAMS = "PALPA_PARAMS"
+REMAP = "PALPA_REMAP"
+NAMESPACE = "PALPA_NAMESPACE"
+SIM_CLOCK = "PALPA_SIM_CLOCK"
+SIM_CLOCK_TIMEOUT_S = "PALPA_SIM_CLOCK_TIMEOUT_S"
+TRANSPORT = "PALPA_TRANSPORT"
+MESSAGES = "PALPA_MESSAGES"
+NODE_MODULES = "PALPA_NODE_MODULES"
+CURRENT = "PALPA_CURRENT"
+BUS_SERVER_KEY = "PALPA_BUS_SERVER_KEY"
+CURVE_SECRET = "PALPA_CURVE_SECRET"
+
+VARIABLES: dict[str, str] = {
+    BUS: "the bus address a node or tool joins (else the current launch's, else the default bus)",
+    RUN_DIR: "set by the launcher: the run directory (logs, recordings, the viz address)",
+    NODE_NAME: "set by the launcher: the node's name in the launch file",
+    PARAMS: "set by the launcher on `cmd:` entries: the parameters as a JSON object",
+    REMAP: "set by the launcher on `cmd:` entries: the remaps as a JSON object",
+    NAMESPACE: "set by the launcher on `cmd:` entries: the node's namespace",
+    SIM_CLOCK: "1: follow simulated time on _palpa/clock (as --sim-clock)",
+    SIM_CLOCK_TIMEOUT_S: "wall seconds without a clock tick after which a sim-clock node stops (0: never)",
+    TRANSPORT: "the node's transport options as one JSON object (palpa.options.TransportOptions; the launcher "
+               "sets it from `transport:`)",
+    MESSAGES: "extra message modules, comma-separated (for tools, the recorder and viz)",
+    NODE_MODULES: "set by the launcher on its recorder: the launched node classes' modules, comma-separated",
+    CURRENT: "the file naming the running launch (default: in the private runtime directory)",
+    BUS_SERVER_KEY: "the CURVE server's public key (Z85 text or a .key file) of an encrypted bus",
+    CURVE_SECRET: "the path to this client's .key_secret file on an encrypted bus",
+}
+
+
+def get(name: str, env: Mapping[str, str] | None = None) -> str:
+    """The value of variable ``name`` (one of :data:`VARIABLES`), stripped; "" when unset."""
+    if name not in VARIABLES:
+        raise KeyError(f"{name} is not a palpa environment variable (palpa.env.VARIABLES)")
+    return (os.environ if env is None else env).get(name, "").strip()
+
+
+def flag(name: str, env: Mapping[str, str] | None = None) -> bool:
+    """Whether a yes/no variable is set to something other than "" or "0"."""
+    return get(name, env) not in ("", "0")
+
+
+def listed(name: str, env: Mapping[str, str] | None = None) -> list[str]:
+    """A comma-separated variable as a list (empty items dropped)."""
+    return [item.strip() for item in get(name, env).split(",") if item.strip()]

@@ -1,0 +1,173 @@
+"""The layering rules that code review keeps forgetting, checked on the source: no import cycles between files of
+palpa/ or emulators/, no module reading another module's underscore names, and emulators that import nothing from
+nodes/ (an emulator tested against its driver's own codec proves nothing)."""
+
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGES = ("palpa", "emulators", "yamlstruct")
+ALLOWED_PRIVATE = {"argparse._SubParsersAction"}  # the stdlib's only name for a subparsers annotation
+
+
+def _modules(packages: tuple[str, ...]) -> dict[str, Path]:
+    out = {}
+    for pkg in packages:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return out
+
+
+def _imports(name: str, path: Path, known: set[str]) -> set[str]:
+    """Every project module ``name`` imports (at top level, under TYPE_CHECKING or inside functions alike)."""
+    is_pkg = path.name == "__init__.py"
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        targets: list[str] = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                pkg = name.split(".") if is_pkg else name.split(".")[:-1]
+                pkg = pkg[: len(pkg) - node.level + 1]
+                base = ".".join([*pkg, base] if base else pkg)
+            targets = [f"{base}.{a.name}" for a in node.names] + [base]
+        for t in targets:
+            while t and t not in known:
+                t = t.rpartition(".")[0]
+            if t and t != name:
+                found.add(t)
+    return found
+
+
+def import_cycles(packages: tuple[str, ...]) -> list[list[str]]:
+    """Strongly connected components of more than one module in the import graph (Tarjan)."""
+    mods = _modules(packages)
+    graph = {m: _imports(m, p, set(mods)) for m, p in mods.items()}
+    # a package's __init__ re-exports its modules: importing it is not a cycle with them
+    for m in graph:
+        graph[m] = {t for t in graph[m] if not (mods[t].name == "__init__.py" and m.startswith(t + "."))}
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    out: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in graph:
+        if v not in index:
+            visit(v)
+    return out
+
+
+def foreign_private_access(packages: tuple[str, ...]) -> list[str]:
+    """``obj._name`` (obj not self/cls) where the module does not define ``_name`` itself: a reach into another
+    module's private state."""
+    bad = []
+    for path in _modules(packages).values():
+        tree = ast.parse(path.read_text(), str(path))
+        own: set[str] = set()
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                own.add(node.name)
+            elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+                own.add(node.attr)
+            elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+                own.add(node.id)
+            elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+                own.add(node.target.id)
+        for node in ast.walk(tree):
+            if not (isinstance(node, ast.Attribute) and node.attr.startswith("_") and not node.attr.startswith("__")):
+                continue
+            if isinstance(node.value, ast.Name) and node.value.id in ("self", "cls"):
+                continue
+            text = ast.unparse(node)
+            if node.attr not in own and text not in ALLOWED_PRIVATE:
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno}: {text}")
+    return bad
+
+
+def test_no_import_cycles_in_palpa_or_emulators() -> None:
+    assert import_cycles(PACKAGES) == []
+
+
+def test_no_module_reads_another_modules_private_names() -> None:
+    assert foreign_private_access(PACKAGES) == []
+
+
+def test_emulators_import_nothing_from_nodes() -> None:
+    mods = _modules(("emulators",))
+    known = set(_modules(("emulators", "nodes")))
+    offenders = {m: sorted(t for t in _imports(m, p, known) if t.startswith("nodes")) for m, p in mods.items()}
+    assert {m: t for m, t in offenders.items() if t} == {}
+
+
+def test_the_checks_see_a_cycle_and_a_private_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The scans are not vacuous: a planted cycle and a planted private read are found."""
+    pkg = tmp_path / "fakepkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from fakepkg import b\n")
+    (pkg / "b.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from fakepkg.a import x\n"
+                              "def f(node):\n    return node._depth\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    assert import_cycles(("fakepkg",)) == [["fakepkg.a", "fakepkg.b"]]
+    assert foreign_private_access(("fakepkg",)) == ["fakepkg/b.py:5: node._depth"]
+
+
+def test_only_palpa_env_names_palpa_variables() -> None:
+    """The environment is read in one place: no other runtime module spells a ``PALPA_*`` name as a string."""
+    import re
+
+    spelt = []
+    for name, path in _modules(("palpa",)).items():
+        if name == "palpa.env":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and \
+                    re.fullmatch(r"PALPA_[A-Z0-9_]+", node.value):
+                spelt.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.value}")
+    assert spelt == []
+
+
+def test_every_variable_is_documented() -> None:
+    from palpa.env import VARIABLES
+
+    doc = (ROOT / "docs" / "launch.md").read_text()
+    assert [v for v in VARIABLES if f"| `{v}` |" not in doc] == []
+
+
+def test_yamlstruct_and_models_do_not_import_the_runtime() -> None:
+    """models/ are pure and read YAML through yamlstruct, which must stay free of palpa (its __init__ pulls in
+    ZeroMQ and the node loop)."""
+    known = set(_modules(("palpa", "yamlstruct", "models")))
+    for pkg in ("yamlstruct", "models"):
+        for m, p in _modules((pkg,)).items():
+            assert not [t for t in _imports(m, p, known) if t.split(".")[0] == "palpa"], m

@@ -1,0 +1,56 @@
+"""The one YAML loader: file:line:col errors for launch files, parameter files and calibrations alike."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import msgspec
+import pytest
+
+from palpa.errors import ParamError
+from palpa.params import read_params_file
+from yamlstruct import YamlError, load
+
+
+class Point(msgspec.Struct, forbid_unknown_fields=True):
+    x: float
+    y: float = 0.0
+
+
+class Doc(msgspec.Struct, forbid_unknown_fields=True):
+    points: list[Point]
+
+
+def test_a_struct_loads_and_errors_name_the_line(tmp_path: Path) -> None:
+    f = tmp_path / "d.yaml"
+    f.write_text("points:\n  - {x: 1e-3}\n  - {x: 2, yy: 3}\n")
+    with pytest.raises(YamlError, match=r"d.yaml:3:\d+: unknown key 'yy' in points\[1\] \(did you mean 'y'\?\)"):
+        load(f, Doc)
+    f.write_text("points:\n  - {x: 1e-3}\n  - {x: two}\n")
+    with pytest.raises(YamlError, match=r"d.yaml:3:\d+: points\[1\].x: expected `float`, got `str`"):
+        load(f, Doc)
+    f.write_text("points:\n  - {x: 1e-3}\n")
+    doc, _ = load(f, Doc)
+    assert doc == Doc([Point(1e-3)])
+
+
+def test_duplicate_keys_and_bad_yaml_are_refused_with_their_line(tmp_path: Path) -> None:
+    f = tmp_path / "d.yaml"
+    f.write_text("points: []\npoints: []\n")
+    with pytest.raises(YamlError, match=r"d.yaml:2:1: duplicate key 'points' \(first at line 1\)"):
+        load(f, Doc)
+    f.write_text("points: [\n")
+    with pytest.raises(YamlError, match=r"d.yaml:2:\d+: invalid YAML"):
+        load(f, Doc)
+
+
+def test_parameter_files_go_through_it(tmp_path: Path) -> None:
+    f = tmp_path / "p.yaml"
+    f.write_text("rate_hz: 5\nrate_hz: 6\n")
+    with pytest.raises(ParamError, match=r"--params-file p: .*p.yaml:2:1: duplicate key 'rate_hz'"):
+        read_params_file(f, "--params-file p")
+    f.write_text("- 1\n")
+    with pytest.raises(ParamError, match=r"p.yaml:1:1: expected a mapping of parameters"):
+        read_params_file(f, "p")
+    f.write_text("rate_hz: 1e3\nname: yes\n")
+    assert read_params_file(f, "p") == {"rate_hz": 1000.0, "name": "yes"}  # YAML 1.2: yes is a string
