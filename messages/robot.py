@@ -25,8 +25,8 @@ class RobotPose(Message, frozen=True, kw_only=True):
 
 WaypointKind = Literal["approach", "contact", "press", "hold", "lift", "retract", "transit"]
 """What a waypoint is for (models.raster plans them); on the wire a plain string."""
-ScanState = Literal["planning", "waiting", "idle", "approach", "scanning", "probing", "paused", "done", "stopped",
-                    "fault", "estop"]
+ScanState = Literal["planning", "waiting", "idle", "touching", "approach", "scanning", "probing", "paused", "done",
+                    "stopped", "fault", "estop"]
 """The scanner's states (``robot/scan_status``); on the wire a plain string."""
 
 
