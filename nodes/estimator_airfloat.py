@@ -15,7 +15,7 @@ import numpy as np
 from messages import PressureState, ProbeHeights, RobotPose, StiffnessFit, StiffnessSample
 from models.airfloat import indentation_from_heights
 from models.contact import corrected_modulus, fit_force_depth
-from models.phantom import Phantom
+from models.geometry import MeasuredGeometry
 from models.timeseries import StampedBuffer
 
 __all__ = ["AirfloatConfig", "AirfloatEstimator"]
@@ -42,7 +42,8 @@ class AirfloatEstimator:
     """Feed it pose, pressure and heights; ``ready(now)`` returns the samples (and fits) that can be decided."""
 
     cfg: AirfloatConfig
-    phantom: Phantom | None = None
+    geometry: MeasuredGeometry | None = None
+    """The measured thickness (map or constant); None: ``cfg.thickness_mm`` everywhere."""
     pose: StampedBuffer = field(init=False)
     force: StampedBuffer = field(init=False)
     pending: list[ProbeHeights] = field(default_factory=list)
@@ -96,8 +97,8 @@ class AirfloatEstimator:
         xyz = np.array([p if p is not None else (np.nan,) * 3 for p in poses])
         f = np.array([x[0] if x is not None else np.nan for x in forces])
         fault = np.array([x is not None and x[1] > 0 for x in forces])
-        if self.phantom is not None:
-            thick = np.asarray(self.phantom.thickness(xyz[:, 0], xyz[:, 1]), dtype=float)
+        if self.geometry is not None:
+            thick = np.asarray(self.geometry.thickness(xyz[:, 0], xyz[:, 1]), dtype=float)
         else:
             thick = np.full(len(batch), c.thickness_mm)
         ok_geom = np.isfinite(thick) & (thick > 0)
@@ -116,7 +117,7 @@ class AirfloatEstimator:
             elif max(m.h_mm) >= c.stroke_mm - 1e-6 or f[i] <= c.min_force_n:
                 reason = "no_contact"
             elif not ok_geom[i]:
-                reason = "off_phantom"
+                reason = "off_geometry"
             elif tilt[i] > c.max_tilt_rad:
                 reason = "tilt_too_large"
             elif d_in[i] < c.min_depth_mm:
@@ -145,8 +146,8 @@ class AirfloatEstimator:
         if len(f) < 5:
             return
         thick = self.cfg.thickness_mm
-        if self.phantom is not None:
-            thick = float(self.phantom.thickness(*self.ramp_xy))
+        if self.geometry is not None:
+            thick = float(self.geometry.thickness(*self.ramp_xy))
         fit = fit_force_depth(np.array(f), np.array(d), self.cfg.indenter_radius_mm, thick, self.cfg.poisson_ratio)
         self.fits.append(StiffnessFit(
             stamp_ns=stamp_ns, x_mm=self.ramp_xy[0], y_mm=self.ramp_xy[1], e_hertz_kpa=float(fit.E_hertz),

@@ -56,9 +56,7 @@ class MapAggregator(palpa.Node):
         min_area_mm2: float = 0.0
         """Smallest inclusion reported (0: two cells)."""
         title: str = ""
-        """Shown on map.png; default: the output directory."""
-        phantom: str = ""
-        """The phantom scanned (simulation): its file name is added to the title."""
+        """Shown on map.png (e.g. what was scanned); default: the output directory."""
 
     def setup(self) -> None:
         p = self.params
@@ -86,13 +84,19 @@ class MapAggregator(palpa.Node):
         """Service ``map/save``: write the map files from what has been received so far."""
         if self.grid is None or not self.samples:
             raise RequestRefused("no map to save yet (no valid stiffness sample received)")
+        self._bin_pending()
         snap = self.grid.snapshot()
         paths = self.write(snap, self._detect(snap)[0])
         return MapSaved(paths=[str(p) for p in paths], samples=self.samples)
 
     def _make_grid(self, x0: float, y0: float, x1: float, y1: float) -> None:
         self.grid = StiffnessGrid(x0, y0, x1, y1, self.params.resolution_mm, min_count=self.params.min_count)
-        if self.pending:
+        self._bin_pending()
+
+    def _bin_pending(self) -> None:
+        """Bin the samples received since the last snapshot in one call (one numpy call per sample cost more than
+        the rest of the node)."""
+        if self.grid is not None and self.pending:
             xs, ys, vs = zip(*self.pending, strict=True)
             self.grid.add(np.array(xs), np.array(ys), np.array(vs))
             self.pending.clear()
@@ -112,10 +116,7 @@ class MapAggregator(palpa.Node):
         self.samples += 1
         self.unsaved += 1
         self.changed = True
-        if self.grid is None:
-            self.pending.append((s.x_mm, s.y_mm, s.value))
-        else:
-            self.grid.add(s.x_mm, s.y_mm, s.value)
+        self.pending.append((s.x_mm, s.y_mm, s.value))
 
     def on_status(self, st: ScanStatus) -> None:
         if st.state == "done" and (self.unsaved or not self.written):
@@ -136,6 +137,7 @@ class MapAggregator(palpa.Node):
         if self.grid is None or (not self.changed and not final):
             return
         self.changed = False
+        self._bin_pending()
         snap = self.grid.snapshot()
         found, base = self._detect(snap)
         now = self.clock.now_ns()
@@ -155,8 +157,6 @@ class MapAggregator(palpa.Node):
     def write(self, snap: MapSnapshot, found: list[Inclusion]) -> list[Path]:
         out = Path(self.params.output_dir)
         title = self.params.title or f"stiffness map — {out}"
-        if self.params.phantom:
-            title += f" — {Path(self.params.phantom).name}"
         title += f"\n{self.samples} samples, {len(found)} inclusion(s), {time.strftime('%Y-%m-%d %H:%M')}"
         paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title)
         self.written += 1

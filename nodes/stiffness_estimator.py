@@ -20,7 +20,7 @@ from messages import (
     StiffnessSample,
 )
 from models.airfloat import DEFAULT_INDENTER_RADIUS_MM, DEFAULT_SPS_RADIUS_MM
-from nodes.common import phantom_from_param
+from models.geometry import GeometryError, load_geometry
 from nodes.estimator_airfloat import AirfloatConfig, AirfloatEstimator
 
 __all__ = ["StiffnessEstimator"]
@@ -39,9 +39,9 @@ class StiffnessEstimator(palpa.Node):
         """Largest hole in pose/force history that is still interpolated across."""
         # air-float
         thickness_mm: float = 20.0
-        """Local tissue thickness for eq. 7 when no phantom is given."""
-        phantom: str = ""
-        """Phantom file to take the local thickness from (simulation and phantom experiments)."""
+        """Tissue thickness for eq. 7 (mm) when no ``geometry`` file is given: a value someone measured."""
+        geometry: str = ""
+        """Measured-geometry YAML (a thickness map or constant, docs/physics.md); overrides ``thickness_mm``."""
         poisson_ratio: float = 0.5
         sps_radius_mm: float = DEFAULT_SPS_RADIUS_MM
         indenter_radius_mm: float = DEFAULT_INDENTER_RADIUS_MM
@@ -68,14 +68,17 @@ class StiffnessEstimator(palpa.Node):
         self.published = 0
         self.subscribe("robot/pose", self.on_pose)
         if p.model == "airfloat":
-            phantom = phantom_from_param(p.phantom, self.name) if p.phantom else None
+            try:
+                geometry = load_geometry(p.geometry) if p.geometry else None
+            except GeometryError as exc:
+                raise palpa.ParamError(f"{self.name}: geometry: {exc}") from None
             self.air = AirfloatEstimator(AirfloatConfig(
                 sps_radius_mm=p.sps_radius_mm, indenter_radius_mm=p.indenter_radius_mm,
                 thickness_mm=p.thickness_mm, poisson_ratio=p.poisson_ratio, min_depth_mm=p.min_depth_mm,
                 max_depth_mm=p.max_depth_mm, max_tilt_rad=math.radians(p.max_tilt_deg),
                 min_force_n=p.min_force_n, stroke_mm=p.stroke_mm, max_wait_ns=int(p.max_wait_s * 1e9),
                 max_gap_ns=int(p.max_gap_s * 1e9), ramp_fits=p.ramp_fits,
-            ), phantom)
+            ), geometry)
             self.subscribe("probe/heights", self.on_heights)
             self.subscribe("pressure/state", self.on_pressure)
         else:

@@ -64,7 +64,7 @@ __all__ = ["DEFAULT_BATCH", "Node", "Publisher", "RawMessage", "Subscription", "
 M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
-_ACK_PERIOD_NS = 5_000_000
+_ACK_PERIOD_NS = 10_000_000  # half the clock source's default max_lead_s: fewer acks, same lockstep bound
 
 
 class _Closable(Protocol):
@@ -320,7 +320,8 @@ class Node:
         self._run_timers()
         self._beat()
         due = self.next_timer_due_ns()
-        if due is not None and self.clock.is_real():
+        if due is not None and self.clock.is_real() and self._topic_clock is None:
+            # (simulated time moves only when a tick arrives: a sim-clock node just waits for input)
             timeout_s = max(0.0, min(timeout_s, (due - self.clock.now_ns()) / 1e9))
         elif not self.clock.is_real():
             timeout_s = 0.0 if self._timers else timeout_s

@@ -52,12 +52,16 @@ class ClockSource(Node):
         self._sim = time.time_ns()
         self._acks: dict[str, tuple[int, int]] = {}
         """node -> (acknowledged sim ns, wall monotonic ns when heard)"""
+        self.held_ns = 0
+        """Simulated time withheld so far because a node lagged."""
+        self._dropped: set[str] = set()
         if self.params.max_lead_s > 0:
             self.subscribe(CLOCK_ACK_TOPIC, self._on_ack)
         self.timer(1.0 / self.params.rate_hz, self._tick, first_in_s=0.0)
 
     def _on_ack(self, ack: ClockAck) -> None:
         self._acks[ack.node] = (ack.sim_ns, time.monotonic_ns())
+        self._dropped.discard(ack.node)
 
     def sim_now_ns(self) -> int:
         """Advance simulated time by the wall time since the last call (scaled), held back to the lockstep limit."""
@@ -66,6 +70,12 @@ class ClockSource(Node):
         self._wall = wall
         cutoff = wall - int(self.params.participant_timeout_s * 1e9)
         live = [sim for sim, heard in self._acks.values() if heard >= cutoff]
+        if len(live) < len(self._acks) - len(self._dropped):
+            for node, (_, heard) in self._acks.items():
+                if heard < cutoff and node not in self._dropped:
+                    self._dropped.add(node)  # said once: a node that stays away is not news every tick
+                    self.log.warning("%s not heard for %.1f s (wall clock): it no longer holds simulated time back",
+                                     node, self.params.participant_timeout_s)
         if live and self.params.max_lead_s > 0:
             limit = min(live) + int(self.params.max_lead_s * 1e9)
             if proposed > limit:

@@ -34,13 +34,22 @@ class MemoryBus:
     def __init__(self) -> None:
         self._transports: list[MemoryTransport] = []
         self._cache: dict[bytes, list[bytes]] = {}
+        self._listeners: dict[bytes, list[MemoryTransport]] = {}
         self.pump: Callable[[], None] | None = None
         """Lets the other nodes run while one waits on a service call (set by :class:`GraphHarness`)."""
 
     def transport(self) -> MemoryTransport:
         t = MemoryTransport(self)
-        self._transports.append(t)
+        self._add(t)
         return t
+
+    def _add(self, t: MemoryTransport) -> None:
+        self._transports.append(t)
+        self.changed()
+
+    def changed(self) -> None:
+        """Forget who listens to what (a transport subscribed, unsubscribed or closed)."""
+        self._listeners.clear()
 
     def _route(self, frames: list[bytes], latched: bool) -> None:
         if latched:
@@ -50,7 +59,11 @@ class MemoryBus:
 
     def listeners(self, topic: bytes) -> list[MemoryTransport]:
         """The open transports with a subscription matching ``topic`` (ZeroMQ's prefix rule)."""
-        return [t for t in self._transports if not t.closed and any(topic.startswith(p) for p in t.prefixes)]
+        found = self._listeners.get(topic)
+        if found is None:
+            found = self._listeners[topic] = [t for t in self._transports
+                                              if not t.closed and any(topic.startswith(p) for p in t.prefixes)]
+        return found
 
     def pending(self) -> bool:
         return any(t.inbox for t in self._transports if not t.closed)
@@ -76,6 +89,7 @@ class MemoryTransport:
 
     def subscribe(self, prefix: bytes, request_latched: bool) -> None:
         self.prefixes.append(prefix)
+        self.bus.changed()
         if request_latched:
             for topic, rest in self.bus._cache.items():
                 if topic.startswith(prefix):
@@ -84,6 +98,7 @@ class MemoryTransport:
     def unsubscribe(self, prefix: bytes) -> None:
         if prefix in self.prefixes:
             self.prefixes.remove(prefix)
+            self.bus.changed()
 
     def pump(self) -> None:
         """Run the rest of the graph once (a node blocked in a service call waits for the others this way)."""
@@ -97,6 +112,7 @@ class MemoryTransport:
 
     def close(self, linger_ms: int) -> None:
         self.closed = True
+        self.bus.changed()
 
 
 class GraphHarness:

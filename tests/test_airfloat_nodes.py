@@ -16,12 +16,17 @@ from nodes.stiffness_estimator import StiffnessEstimator
 from palpa.testing import GraphHarness, NodeHarness
 
 
+def measured(phantom: str) -> str:
+    """The shipped measured-geometry file of a phantom: all the estimator may know of its thickness."""
+    return phantom.replace("phantoms/", "phantoms/measured/")
+
+
 def held_probe(phantom: str, kpa: float, **est: object) -> GraphHarness:
     g = GraphHarness()
     g.add(StaticPose, {"z_mm": 21.0})
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": kpa})
     g.add(FibreReader, {"phantom": phantom})
-    g.add(StiffnessEstimator, {"phantom": phantom, **est})
+    g.add(StiffnessEstimator, {"geometry": measured(phantom), **est})
     return g
 
 
@@ -50,7 +55,7 @@ def test_ramp_mode_fits_three_models() -> None:
     g.add(StaticPose, {"z_mm": 21.0})
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": 30.0})  # just below contact force
     g.add(FibreReader, {"phantom": "phantoms/flat_26k.yaml"})
-    g.add(StiffnessEstimator, {"phantom": "phantoms/flat_26k.yaml", "ramp_fits": True, "max_depth_mm": 3.2})
+    g.add(StiffnessEstimator, {"geometry": "phantoms/measured/flat_26k.yaml", "ramp_fits": True, "max_depth_mm": 3.2})
     g.advance(1.0)
     g.publish("pressure/command", PressureCommand(mode="ramp", setpoint_kpa=40.0, rate_kpa_s=4.0))
     g.advance(2.0)
@@ -128,7 +133,7 @@ def test_fibre_sim_rate_and_no_contact_when_lifted() -> None:
     pose = g.add(StaticPose, {"z_mm": 40.0})  # 20 mm above a 20 mm thick phantom: beyond the stroke
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": 36.0})
     g.add(FibreReader, {"phantom": "phantoms/flat_26k.yaml", "rate_hz": 500.0})
-    g.add(StiffnessEstimator, {"phantom": "phantoms/flat_26k.yaml"})
+    g.add(StiffnessEstimator, {"thickness_mm": 20.0})
     g.advance(1.0)
     heights = g.published("probe/heights")
     assert 480 <= len(heights) <= 520

@@ -203,7 +203,7 @@ def test_json_schema_comes_from_the_same_definitions() -> None:
     assert timeout["anyOf"][0] == {"type": "number", "minimum": 0.0} and timeout["default"] == 5.0
     assert timeout["anyOf"][1] == {"type": "string", "pattern": r"^\$\(arg [A-Za-z][A-Za-z0-9_-]*\)$"}
     assert set(defs["LaunchFile"]["properties"]) == {"description", "args", "python_path", "include", "nodes",
-                                                     "bus", "record", "progress", "viz"}
+                                                     "bus", "record", "progress", "viz", "in_process"}
     out = subprocess.run([sys.executable, "-m", "palpa.cli.main", "launch", "--schema"], capture_output=True,
                          text=True, timeout=60, check=True)
     assert json.loads(out.stdout) == json.loads(json.dumps(schema))
@@ -243,24 +243,24 @@ def test_a_shipped_scan_can_be_included_with_one_more_node(tmp_path: Path) -> No
     assert plan.record is None and plan.progress_topic == "my/progress"
 
 
-def test_replay_takes_the_phantom_from_the_recording(tmp_path: Path) -> None:
-    """launch/replay_scan.yaml's default comes from the launch file the recording carries, not the demo's."""
+def test_replay_takes_the_geometry_from_the_recording(tmp_path: Path) -> None:
+    """launch/replay_scan.yaml's measured geometry comes from the launch file the recording carries, not the demo's."""
     from palpa.record.recorder import Recorder
     from palpa.testing import NodeHarness
 
     scanned = tmp_path / "scan.resolved.yaml"
     scanned.write_text("nodes:\n  - name: estimator\n    node: nodes.stiffness_estimator:StiffnessEstimator\n"
-                       f"    params: {{model: airfloat, phantom: {REPO / 'phantoms' / 'flat_26k.yaml'}}}\n")
+                       f"    params: {{model: airfloat, geometry: {REPO / 'phantoms' / 'measured' / 'flat_26k.yaml'}}}\n")
     bag = tmp_path / "run" / "recording.mcap"
     bag.parent.mkdir()
     NodeHarness(Recorder, {"output": str(bag), "launch_file": str(scanned)}).close()
     plan = load_launch(REPO / "launch" / "replay_scan.yaml", {"bag": str(bag.parent)}, run_dir=tmp_path / "r")
-    assert plan.node_params["estimator"]["phantom"] == str(REPO / "phantoms" / "flat_26k.yaml")
+    assert plan.node_params["estimator"]["geometry"] == str(REPO / "phantoms" / "measured" / "flat_26k.yaml")
 
     bare = tmp_path / "bare.mcap"
     NodeHarness(Recorder, {"output": str(bare)}).close()  # `palpa record`: no launch file in it
-    with pytest.raises(LaunchError, match=r"carries no launch file .*give phantom:=VALUE instead"):
+    with pytest.raises(LaunchError, match=r"carries no launch file .*give geometry:=VALUE instead"):
         load_launch(REPO / "launch" / "replay_scan.yaml", {"bag": str(bare)}, run_dir=tmp_path / "r")
-    plan = load_launch(REPO / "launch" / "replay_scan.yaml", {"bag": str(bare), "phantom": "x.yaml"},
+    plan = load_launch(REPO / "launch" / "replay_scan.yaml", {"bag": str(bare), "geometry": "x.yaml"},
                        run_dir=tmp_path / "r")
-    assert plan.node_params["estimator"]["phantom"] == "x.yaml"
+    assert plan.node_params["estimator"]["geometry"] == "x.yaml"

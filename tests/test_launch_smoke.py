@@ -70,7 +70,7 @@ def synthetic_scan_bag(tmp: Path) -> list[str]:
             recs.append(Rec(raw.topic, raw.header.stamp, raw.payload, seq[raw.topic], raw.header.type, raw.header.node))
     g.close()
     bag = write_bag(tmp / "synthetic.mcap", recs)
-    return [f"bag:={bag}", f"phantom:={phantom}", "rate:=1.0"]
+    return [f"bag:={bag}", f"geometry:={REPO / 'phantoms' / 'measured' / 'flat_26k.yaml'}", "rate:=1.0"]
 
 
 SMOKE: dict[str, Smoke] = {
@@ -82,6 +82,7 @@ SMOKE: dict[str, Smoke] = {
                                    "stiffness/sample", "map/stiffness", "map/inclusions"], timeout=60),
     # the rig's file: --check as is; the run with every driver simulated (never the default robot address)
     "scan_ur.yaml": Smoke(args=["scanner_driver:=sim", "fibre_driver:=sim", "pressure_driver:=sim",
+                                "phantom:=phantoms/airfloat_tumours.yaml",
                                 "region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "speed_mm_s:=20.0"],
                           topics=["robot/pose", "probe/heights", "pressure/state", "stiffness/sample",
                                   "robot/scan_status"], timeout=60),

@@ -198,7 +198,8 @@ def test_malformed_batch_is_counted() -> None:
     assert "batch header lists 2 messages but 1 payloads follow" in h.node.counters()["chatter"].last_error
 
 
-def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.MonkeyPatch,
+                                                          caplog: pytest.LogCaptureFixture) -> None:
     from palpa import simclock
     from palpa.runtime_msgs import ClockAck
 
@@ -222,3 +223,7 @@ def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.Mo
     assert src.sim_now_ns() == 1_320_000_000  # may lead the slowest node by 20 ms, no more
     wall[0] = 300_000_000 + 3_000_000_000  # the slow node went silent: it no longer holds the clock
     assert src.sim_now_ns() == 1_320_000_000 + 6_000_000_000
+    wall[0] += 100_000_000
+    src.sim_now_ns()
+    dropped = [r for r in caplog.records if "slow not heard" in r.getMessage()]
+    assert len(dropped) == 1 and dropped[0].levelname == "WARNING"  # said once, not on every tick

@@ -15,7 +15,7 @@ from test_launch_smoke import REPO
 from emulators.ur.process import UrEmulatorProcess
 from models.phantom import load_phantom
 
-SMALL_UR = ["fibre_driver:=sim", "pressure_driver:=sim", "region_mm:=[36.0, 33.0, 54.0, 51.0]", "spacing_mm:=3.0",
+SMALL_UR = ["fibre_driver:=sim", "pressure_driver:=sim", "phantom:=phantoms/airfloat_tumours.yaml", "region_mm:=[36.0, 33.0, 54.0, 51.0]", "spacing_mm:=3.0",
             "speed_mm_s:=20.0", "home_mm:=[36.0, 33.0, 20.0]",
             # wall-clock graphs on a loaded 2-core CI machine: the rig default (0.1 s) is tested in test_robot_scanner
             "watchdog_s:=0.5"]
@@ -112,7 +112,7 @@ def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path) -> None:
     g = GraphHarness()
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": 34.0})
     g.add(FibreReader, {"phantom": path})
-    g.add(StiffnessEstimator, {"phantom": path})
+    g.add(StiffnessEstimator, {"geometry": str(REPO / "phantoms" / "measured" / phantom)})
     g.add(MapAggregator, {"output_dir": str(tmp_path)})
     scanner = g.add(RobotScanner, {"region_mm": [10, 10, 50, 50], "spacing_mm": 5.0, "speed_mm_s": 40.0,
                                    "contact_z_mm": 21.0, "home_mm": [10, 10, 30]})

@@ -103,7 +103,7 @@ class SimFibreDriver:
         # wait up to 50 ms for poses so that motion is interpolated, not guessed; past that the sensor streams
         # on at the last known pose (a real DAQ does not wait for the robot; a stalled pose stream must not
         # look like a dead sensor)
-        end = now if now - latest_pose > _POSE_WAIT_NS else min(now, latest_pose + _POSE_WAIT_NS)
+        end = now if now - latest_pose > _POSE_WAIT_NS else min(now, latest_pose)
         if end < self._next_ns:
             return []
         stamps = np.arange(self._next_ns, end + 1, self._period_ns, dtype=np.int64)

@@ -46,6 +46,9 @@ def _add_options(p: argparse.ArgumentParser) -> None:
                             "plain lines every 5 %% otherwise)")
     shown.add_argument("--no-progress", dest="progress", action="store_false",
                        help="no progress view: every node line stays on screen")
+    p.add_argument("--in-process", action="store_true", default=None,
+                   help="run the simulated-clock nodes, clock and recorder in one process, as fast as the CPU "
+                        "allows (as the file's in_process: true)")
     p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS, help="show tracebacks")
 
 
@@ -77,18 +80,25 @@ def _run(args: argparse.Namespace) -> int:
         raise PalpaError("palpa launch: give a launch file (or --schema)")
     overrides = parse_overrides(list(args.overrides))
     if args.check:
-        plan = load_launch(args.file, overrides, run_dir=args.run_dir)
+        plan = _composed(load_launch(args.file, overrides, run_dir=args.run_dir), args.in_process)
         print(describe(plan))
         return 0
     run_dir, created = _make_run_dir(args.run_dir)
     try:
-        plan = load_launch(args.file, overrides, run_dir=run_dir)
+        plan = _composed(load_launch(args.file, overrides, run_dir=run_dir), args.in_process)
     except PalpaError:
         if created:
             with contextlib.suppress(OSError):
                 run_dir.rmdir()
         raise
     return Supervisor(plan, bus_address=args.bus_address, progress=args.progress, announce=True).run()
+
+
+def _composed(plan: LaunchPlan, flag: bool | None) -> LaunchPlan:
+    """The plan with its simulated-clock nodes composed in one process, when the flag or the file asks for it."""
+    from palpa.launch.compose import compose_plan
+
+    return compose_plan(plan) if flag or plan.in_process else plan
 
 
 def _make_run_dir(chosen: Path | None) -> tuple[Path, bool]:

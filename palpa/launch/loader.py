@@ -136,6 +136,7 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
     col.set_by.update(dict.fromkeys(own, src.name))
     if top:
         col.plan.description = decl.description
+    col.plan.in_process = col.plan.in_process or decl.in_process  # any file read may ask for it
     if "bus" in own and decl.bus is not None:
         col.plan.bus = decl.bus
         try:

@@ -117,6 +117,8 @@ class LaunchPlan:
     """Node name -> every parameter of a ``node:`` entry, defaults included (filled by the loader)."""
     files: list[str] = field(default_factory=list)
     """Every launch file read, the top-level one first."""
+    in_process: bool = False
+    """The file asks for its simulated-clock nodes in one process (see :mod:`palpa.launch.compose`)."""
 
     def recorder(self) -> NodeSpec | None:
         """The recorder node the ``record`` section asks for (None without one)."""

@@ -178,6 +178,9 @@ class LaunchFile(_Decl):
     progress: ProgressDecl | None = None
     viz: Annotated[bool | VizDecl, Meta(description="true: serve every topic to Foxglove on "
                                                     "ws://127.0.0.1:8765")] | None = None
+    in_process: Annotated[bool, Meta(description="run the simulated-clock nodes (env PALPA_SIM_CLOCK=1), the clock "
+                                                 "and the recorder in one process whose clock jumps from event to "
+                                                 "event (palpa.compose); also palpa launch --in-process")] = False
 
 
 def json_schema() -> dict[str, Any]:

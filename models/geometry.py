@@ -1,0 +1,197 @@
+"""Measured geometry: the sample's thickness as someone measured it, the only geometry the estimator knows.
+
+A rig knows a sample's thickness only as well as someone measured it (calliper, depth gauge, a scan of the
+surface). The estimator reads that measurement from a small YAML file, never the phantom (docs/physics.md,
+"Measured geometry"). Units mm, phantom frame (origin at a corner, as the robot's scan region)::
+
+    # a constant
+    thickness_mm: 20.0
+    error_mm: 0.2                 # optional: the measurer's stated 1-sigma uncertainty (informational)
+    source: "calliper, 4 points"  # optional free text
+
+    # or a map: values[iy][ix] at the grid points x_mm[ix], y_mm[iy] (ascending), bilinear in between
+    thickness_mm:
+      x_mm: [0, 10, 20]
+      y_mm: [0, 30, 60]
+      values: [[2.0, 2.0, 2.0], [4.0, 4.1, 4.0], [2.0, 2.0, 1.9]]
+
+Outside a map's grid the thickness is nan (the estimator marks such samples ``off_geometry``).
+
+``python -m models.geometry measure PHANTOM.yaml --error-mm 0.2 --seed 0 -o FILE`` is the *simulation's*
+measurer: it reads the phantom's true thickness on a grid and adds seeded Gaussian error (per point) plus an
+optional systematic ``--bias-mm``, writing both into the file's ``source`` line. It belongs to the sim setup, not
+to the graph.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from scipy.interpolate import RegularGridInterpolator
+
+from models._arrays import ArrayLike
+from models._arrays import as_f64 as _f64
+from models._arrays import scalar_or_array as _out
+
+__all__ = ["GeometryError", "MeasuredGeometry", "load_geometry", "measure_phantom", "parse_geometry"]
+
+
+class GeometryError(ValueError):
+    """A measured-geometry file is invalid; the message names the file, the key and why."""
+
+
+class MeasuredGeometry:
+    """Thickness (mm) at phantom-frame (x, y): a constant, or bilinear over a measured grid (nan outside it)."""
+
+    def __init__(self, thickness_mm: float | None = None, *, x_mm: ArrayLike | None = None,
+                 y_mm: ArrayLike | None = None, values: ArrayLike | None = None, error_mm: float = math.nan,
+                 source: str = "") -> None:
+        self.constant = thickness_mm
+        self.error_mm = error_mm
+        self.source = source
+        self._interp: RegularGridInterpolator | None = None
+        if thickness_mm is None:
+            if x_mm is None or y_mm is None or values is None:
+                raise GeometryError("measured geometry: give a constant thickness or x_mm, y_mm and values")
+            self.x_mm, self.y_mm, self.values = _f64(x_mm), _f64(y_mm), _f64(values)
+            self._interp = RegularGridInterpolator((self.y_mm, self.x_mm), self.values, bounds_error=False,
+                                                   fill_value=np.nan)
+
+    def thickness(self, x: ArrayLike, y: ArrayLike) -> ArrayLike:
+        """Measured thickness (mm) at (x, y); nan off a measured map."""
+        xa, ya = np.broadcast_arrays(_f64(x), _f64(y))
+        if self._interp is None:
+            return _out(np.full(xa.shape, float(self.constant or 0.0)), x, y)
+        pts = np.stack([ya.ravel(), xa.ravel()], -1)
+        return _out(np.asarray(self._interp(pts), dtype=np.float64).reshape(xa.shape), x, y)
+
+    def to_yaml_data(self) -> dict[str, Any]:
+        """The file's mapping (``load_geometry`` reads it back)."""
+        data: dict[str, Any]
+        if self._interp is None:
+            data = {"thickness_mm": float(self.constant or 0.0)}
+        else:
+            data = {"thickness_mm": {"x_mm": self.x_mm.tolist(), "y_mm": self.y_mm.tolist(),
+                                     "values": [[round(v, 4) for v in row] for row in self.values.tolist()]}}
+        if math.isfinite(self.error_mm):
+            data["error_mm"] = self.error_mm
+        if self.source:
+            data["source"] = self.source
+        return data
+
+
+def _positive_number(v: Any, where: str) -> float:
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v <= 0:
+        raise GeometryError(f"{where}: expected a finite number > 0 (mm), got {v!r}")
+    return float(v)
+
+
+def parse_geometry(data: Any, source: str = "<geometry>") -> MeasuredGeometry:
+    """Validate a decoded geometry mapping; errors name ``source`` and the key."""
+    if not isinstance(data, dict):
+        raise GeometryError(f"{source}: expected a mapping with thickness_mm, got {type(data).__name__}")
+    unknown = set(data) - {"thickness_mm", "error_mm", "source"}
+    if unknown:
+        raise GeometryError(f"{source}: unknown key(s) {sorted(unknown)} (allowed: thickness_mm, error_mm, source)")
+    if "thickness_mm" not in data:
+        raise GeometryError(f"{source}: thickness_mm: required key missing")
+    err = data.get("error_mm", math.nan)
+    if not (isinstance(err, int | float) and (math.isnan(err) or err >= 0)):
+        raise GeometryError(f"{source}: error_mm: expected a number >= 0, got {err!r}")
+    text = str(data.get("source", ""))
+    t = data["thickness_mm"]
+    if not isinstance(t, dict):
+        return MeasuredGeometry(_positive_number(t, f"{source}: thickness_mm"), error_mm=float(err), source=text)
+    extra = set(t) - {"x_mm", "y_mm", "values"}
+    if extra or len(t) != 3:
+        raise GeometryError(f"{source}: thickness_mm: a map needs exactly x_mm, y_mm and values, got {sorted(t)}")
+    axes = []
+    for key in ("x_mm", "y_mm"):
+        try:
+            a = np.asarray(t[key], dtype=np.float64)
+        except (TypeError, ValueError):
+            raise GeometryError(f"{source}: thickness_mm.{key}: expected a list of numbers") from None
+        if a.ndim != 1 or a.size < 2 or not np.all(np.isfinite(a)) or not np.all(np.diff(a) > 0):
+            raise GeometryError(f"{source}: thickness_mm.{key}: expected >= 2 finite, strictly ascending numbers")
+        axes.append(a)
+    try:
+        values = np.asarray(t["values"], dtype=np.float64)
+    except (TypeError, ValueError):
+        raise GeometryError(f"{source}: thickness_mm.values: expected rows of numbers") from None
+    if values.shape != (axes[1].size, axes[0].size):
+        raise GeometryError(f"{source}: thickness_mm.values: expected {axes[1].size} rows (y_mm) of {axes[0].size} "
+                            f"(x_mm), got shape {values.shape}")
+    if not np.all(np.isfinite(values) & (values > 0)):
+        raise GeometryError(f"{source}: thickness_mm.values: every value must be a finite number > 0 (mm)")
+    return MeasuredGeometry(x_mm=axes[0], y_mm=axes[1], values=values, error_mm=float(err), source=text)
+
+
+def load_geometry(path: str | Path) -> MeasuredGeometry:
+    """Read and validate a measured-geometry YAML file."""
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise GeometryError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    except yaml.YAMLError as exc:
+        raise GeometryError(f"{path}: invalid YAML: {exc}") from None
+    return parse_geometry(data, str(path))
+
+
+def measure_phantom(phantom: Any, *, error_mm: float, bias_mm: float = 0.0, seed: int = 0,
+                    spacing_mm: float = 5.0) -> MeasuredGeometry:
+    """The simulation's measurer: the phantom's thickness on a grid (corners included) + N(bias, error²) per point.
+
+    ``phantom`` is a ``models.phantom.Phantom`` (typed loosely so that the estimator's import of this module does
+    not pull the world in). A flat phantom gives a map too: its points scatter by error_mm like a real measurement.
+    """
+    lx, ly = phantom.size_mm
+    xs = np.linspace(0.0, lx, max(2, round(lx / spacing_mm) + 1))
+    ys = np.linspace(0.0, ly, max(2, round(ly / spacing_mm) + 1))
+    yy, xx = np.meshgrid(ys, xs, indexing="ij")
+    true = np.asarray(phantom.thickness(xx, yy), dtype=np.float64)
+    rng = np.random.default_rng(seed)
+    measured = np.maximum(true + bias_mm + rng.normal(0.0, error_mm, true.shape), 0.05)
+    src = (f"simulated measurement of {phantom.name or 'a phantom'}: per-point error N(0, {error_mm:g} mm), "
+           f"bias {bias_mm:+g} mm, seed {seed}, {spacing_mm:g} mm grid")
+    return MeasuredGeometry(x_mm=xs, y_mm=ys, values=measured, error_mm=error_mm, source=src)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m models.geometry measure PHANTOM --error-mm E [--bias-mm B] [--seed S] -o FILE``."""
+    ap = argparse.ArgumentParser(prog="python -m models.geometry", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="verb", required=True)
+    m = sub.add_parser("measure", help="write a measured-geometry file from a phantom, with a seeded error")
+    m.add_argument("phantom", type=Path)
+    m.add_argument("--error-mm", type=float, default=0.2, help="per-point 1-sigma measurement error (mm)")
+    m.add_argument("--bias-mm", type=float, default=0.0, help="systematic error added everywhere (mm)")
+    m.add_argument("--seed", type=int, default=0)
+    m.add_argument("--spacing-mm", type=float, default=5.0, help="measurement grid spacing (mm)")
+    m.add_argument("-o", "--output", type=Path, required=True)
+    args = ap.parse_args(argv)
+    from models.phantom import PhantomError, load_phantom
+
+    try:
+        ph = load_phantom(args.phantom)
+    except PhantomError as exc:
+        print(f"geometry: {exc}", file=sys.stderr)
+        return 1
+    geo = measure_phantom(ph, error_mm=args.error_mm, bias_mm=args.bias_mm, seed=args.seed,
+                          spacing_mm=args.spacing_mm)
+    header = (f"# Measured geometry (docs/physics.md): written by\n#   python -m models.geometry measure "
+              f"{args.phantom} --error-mm {args.error_mm:g} --bias-mm {args.bias_mm:g} --seed {args.seed} "
+              f"--spacing-mm {args.spacing_mm:g} -o {args.output}\n")
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(header + yaml.safe_dump(geo.to_yaml_data(), sort_keys=False, width=200, default_flow_style=None),
+                           encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,124 @@
+"""The batch evaluation runner and the random phantom generator (issue 16)."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import pytest
+
+from messages import RobotPose, ScanStatus, StiffnessSample
+from models.phantom import load_phantom, parse_phantom
+from models.phantom_gen import PhantomRanges, random_phantom
+from nodes.evaluate import RunSpec, scan_facts, score_run, summarize
+from palpa.record.testing import Rec, write_bag
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def test_random_phantoms_are_seeded_valid_and_keep_inclusions_apart() -> None:
+    r = PhantomRanges(inclusions=(3, 6), dome_probability=0.5)
+    assert random_phantom(7, r) == random_phantom(7, r)
+    assert random_phantom(7, r) != random_phantom(8, r)
+    domed = 0
+    for seed in range(40):
+        data = random_phantom(seed, r)
+        ph = parse_phantom(data, f"seed {seed}")  # the phantom model's own validation
+        domed += isinstance(data["thickness_mm"], dict)
+        lo_t = min(data["thickness_mm"].values()) if isinstance(data["thickness_mm"], dict) else data["thickness_mm"]
+        w, h = ph.size_mm
+        for i, a in enumerate(ph.inclusions):
+            x, y = a.center_mm
+            assert r.margin_mm + a.radius_mm <= x <= w - r.margin_mm - a.radius_mm
+            assert r.margin_mm + a.radius_mm <= y <= h - r.margin_mm - a.radius_mm
+            assert a.depth_mm < lo_t  # under the surface even at a dome's thin edge
+            for b in ph.inclusions[i + 1:]:
+                assert math.dist(a.center_mm, b.center_mm) >= a.radius_mm + b.radius_mm + r.margin_mm
+            ratio = a.youngs_modulus_kpa / ph.youngs_modulus_kpa
+            assert r.ratio[0] - 0.01 <= ratio <= r.ratio[1] + 0.01
+    assert 5 < domed < 35  # both kinds of top are drawn
+
+
+def test_bad_ranges_are_refused_with_the_field_named() -> None:
+    with pytest.raises(ValueError, match="radius_mm"):
+        PhantomRanges(radius_mm=(5.0, 2.0))
+
+
+def _fake_run(tmp: Path) -> RunSpec:
+    """A run directory as a launch leaves it: one detection 0.5 mm off the truth plus a false one, a map whose
+    cells are stiff over the true inclusion, and a recording of a 10 s scan along 30 mm with 4 valid samples."""
+    phantom = tmp / "ph.yaml"
+    phantom.write_text("size_mm: [40, 40]\nthickness_mm: 5\nyoungs_modulus_kpa: 20\npoisson_ratio: 0.5\n"
+                       "inclusions: [{center_mm: [20, 20], radius_mm: 5, depth_mm: 1, youngs_modulus_kpa: 80}]\n")
+    out = tmp / "run" / "map"
+    out.mkdir(parents=True)
+    (out / "inclusions.json").write_text(json.dumps([
+        {"x_mm": 20.5, "y_mm": 20.0, "radius_mm": 5.0, "contrast": 3.0},
+        {"x_mm": 5.0, "y_mm": 35.0, "radius_mm": 2.0, "contrast": 1.5}]))
+    axis = np.arange(1.0, 40.0, 2.0)
+    yy, xx = np.meshgrid(axis, axis, indexing="ij")
+    stiff = np.where(np.hypot(xx - 20, yy - 20) <= 5, 80.0, 20.0)
+    np.savez(out / "map.npz", stiffness=stiff, x_mm=axis, y_mm=axis, count=np.full(stiff.shape, 5))
+    t0 = 1_700_000_000_000_000_000
+    enc = msgspec.msgpack.encode
+    recs = [Rec("robot/scan_status", t0, enc(ScanStatus(stamp_ns=t0, state="waiting", line=0, lines=1, progress=0,
+                                                           eta_s=0)), 1, "ScanStatus", "scanner"),
+            Rec("robot/scan_status", t0 + 1, enc(ScanStatus(stamp_ns=t0 + 1, state="scanning", line=0, lines=1,
+                                                               progress=0, eta_s=0)), 2, "ScanStatus", "scanner")]
+    for i, y in enumerate([0.0, 10.0, 30.0]):  # 30 mm while scanning
+        t = t0 + 1 + i * 4_000_000_000
+        recs.append(Rec("robot/pose", t, enc(RobotPose(stamp_ns=t, x_mm=10.0, y_mm=y, z_mm=5.0)), i + 1,
+                        "RobotPose", "scanner"))
+    for i in range(6):
+        t = t0 + 2 + i
+        recs.append(Rec("stiffness/sample", t, enc(StiffnessSample(
+            stamp_ns=t, model="airfloat", x_mm=1, y_mm=1, z_mm=1, value=20, unit="kPa", valid=i < 4, reason="")),
+            i + 1, "StiffnessSample", "estimator"))
+    done = t0 + 10_000_000_001
+    recs.append(Rec("robot/scan_status", done, enc(ScanStatus(stamp_ns=done, state="done", line=1, lines=1,
+                                                               progress=1, eta_s=0)), 3, "ScanStatus", "scanner"))
+    recs.append(Rec("robot/pose", done + 1, enc(RobotPose(stamp_ns=done + 1, x_mm=10.0, y_mm=90.0, z_mm=5.0)), 9,
+                    "RobotPose", "scanner"))  # after the scan: not path
+    write_bag(tmp / "run" / "recording.mcap", recs)
+    return RunSpec("r0", phantom, 0, {"spacing_mm": 3}, run_dir=tmp / "run")
+
+
+def test_a_run_is_scored_against_its_phantom_and_its_recording(tmp_path: Path) -> None:
+    spec = _fake_run(tmp_path)
+    facts = scan_facts(spec.run_dir / "recording.mcap")
+    assert facts["scan_s"] == pytest.approx(10.0)
+    assert facts["path_mm"] == pytest.approx(30.0)
+    assert facts["probes"] == 4
+    row, incs = score_run(spec, load_phantom(spec.phantom))
+    assert (row["true_inclusions"], row["found"], row["missed"], row["false_positives"]) == (1, 1, 0, 1)
+    assert row["mean_centroid_error_mm"] == pytest.approx(0.5)
+    assert row["sensitivity"] > 0.9 and 0.9 < row["specificity"] < 1.0  # the false detection's cells
+    assert incs == [{"run": "r0", "inclusion": 0, "radius_mm": 5.0, "ratio": 4.0, "depth_mm": 1.0, "found": True,
+                     "centroid_error_mm": pytest.approx(0.5), "radius_error_mm": pytest.approx(0.0)}]
+    lines = summarize([{**row, "run": "r0", "spacing_mm": 3, "error": ""},
+                       {"run": "r1", "spacing_mm": 3, "error": "launch failed"}], ["spacing_mm"])
+    assert len(lines) == 1
+    assert lines[0].startswith("spacing_mm=3: 1 of 2 runs scored; inclusions found 1/1 (100 %); false positives 1")
+
+
+@pytest.mark.timeout(300)
+def test_evaluate_runs_a_generated_phantom_end_to_end(tmp_path: Path) -> None:
+    """`python -m nodes.evaluate` on one generated phantom, a small raster: tables and a summary."""
+    out = tmp_path / "eval"
+    proc = subprocess.run(
+        [sys.executable, "-m", "nodes.evaluate", str(REPO / "launch" / "scan_sim.yaml"), "--generate", "1",
+         "--phantom-seed", "3", "--jobs", "1", "-o", str(out), "--arg", "region_mm=[[8.0, 24.0, 20.0, 36.0]]",
+         "--arg", "spacing_mm=4.0"], capture_output=True, text=True, timeout=280, cwd=REPO)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    rows = list(csv.DictReader((out / "runs.csv").open()))
+    assert [r["run"] for r in rows] == ["random_3-s0"] and rows[0]["error"] == ""
+    assert int(rows[0]["true_inclusions"]) == 1 and float(rows[0]["probes"]) > 100
+    assert float(rows[0]["scan_s"]) > 5 and float(rows[0]["path_mm"]) > 40
+    assert (out / "summary.txt").read_text().startswith("region_mm=[8.0, 24.0, 20.0, 36.0], spacing_mm=4.0: 1 of 1")
+    assert json.loads((out / "runs.json").read_text())[0]["run"] == "random_3-s0"

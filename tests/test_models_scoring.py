@@ -1,0 +1,110 @@
+"""Scoring a scan against the phantom's truth (models/scoring.py): matching, false positives, cell statistics."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from models.phantom import parse_phantom
+from models.scoring import Detection, MapGrid, disc_iou, score_scan
+
+PHANTOM = parse_phantom({
+    "size_mm": [40, 40], "thickness_mm": 10, "youngs_modulus_kpa": 20.0,
+    "inclusions": [
+        {"center_mm": [10, 10], "radius_mm": 4, "depth_mm": 2, "youngs_modulus_kpa": 80.0},
+        {"center_mm": [30, 30], "radius_mm": 3, "depth_mm": 2, "youngs_modulus_kpa": 40.0},
+    ],
+})
+
+
+def grid(cell: float = 1.0) -> MapGrid:
+    x = np.arange(cell / 2, 40, cell)
+    s = np.full((x.size, x.size), 20.0)
+    return MapGrid(s, x, x.copy(), np.ones(s.shape, dtype=np.int64))
+
+
+def test_perfect_detection_scores_perfectly() -> None:
+    found = [{"x_mm": 10.0, "y_mm": 10.0, "radius_mm": 4.0, "contrast": 3.0},
+             {"x_mm": 30.0, "y_mm": 30.0, "radius_mm": 3.0, "contrast": 1.5}]
+    s = score_scan(PHANTOM, found, grid())
+    assert [i.found for i in s.inclusions] == [True, True]
+    assert [i.centroid_error_mm for i in s.inclusions] == [0.0, 0.0]
+    assert [i.ratio for i in s.inclusions] == [4.0, 2.0]
+    assert s.false_positives == ()
+    assert s.sensitivity == 1.0 and s.specificity == 1.0 and s.iou == 1.0 and s.symmetric_difference_mm2 == 0.0
+
+
+def test_offset_detection_counts_cells_exactly() -> None:
+    """A detection shifted by 1 mm along x on a 1 mm grid: one column of each side differs."""
+    s = score_scan(PHANTOM, [Detection(11.0, 10.0, 4.0)], grid())
+    first, second = s.inclusions
+    assert first.found and first.centroid_error_mm == pytest.approx(1.0) and first.radius_error_mm == 0.0
+    assert first.disc_iou == pytest.approx(disc_iou((10, 10), 4, (11, 10), 4))
+    assert not second.found and math.isnan(second.centroid_error_mm)
+    xx, yy = np.meshgrid(np.arange(0.5, 40), np.arange(0.5, 40))
+    truth = ((xx - 10) ** 2 + (yy - 10) ** 2 <= 16) | ((xx - 30) ** 2 + (yy - 30) ** 2 <= 9)
+    called = (xx - 11) ** 2 + (yy - 10) ** 2 <= 16
+    assert s.true_positive_cells == int((truth & called).sum())
+    assert s.false_positive_cells == int((~truth & called).sum())
+    assert s.false_negative_cells == int((truth & ~called).sum())
+    assert s.true_negative_cells == 1600 - int((truth | called).sum())
+    assert s.sensitivity == pytest.approx((truth & called).sum() / truth.sum())
+
+
+def test_far_detection_is_a_false_positive_and_matching_is_one_to_one() -> None:
+    """Two detections on one inclusion: the nearer matches, the other is a false positive; one beyond R + tol
+    matches nothing."""
+    found = [Detection(10.4, 10.0, 3.0), Detection(8.0, 10.0, 3.0), Detection(30.0, 34.0, 1.0)]
+    s = score_scan(PHANTOM, found, grid(2.0))  # tolerance = half a 2 mm cell: 3 + 1 = 4 mm, so 4.0 away does match
+    assert s.inclusions[0].detection == found[0] and s.inclusions[0].radius_error_mm == -1.0
+    assert s.inclusions[1].found and s.inclusions[1].centroid_error_mm == pytest.approx(4.0)
+    assert s.false_positives == (found[1],)
+    s = score_scan(PHANTOM, found, grid(2.0), tolerance_mm=0.5)
+    assert not s.inclusions[1].found and set(s.false_positives) == {found[1], found[2]}
+
+
+def test_no_detection_on_a_phantom_with_inclusions() -> None:
+    s = score_scan(PHANTOM, [], grid())
+    assert s.found == 0 and s.sensitivity == 0.0 and s.specificity == 1.0 and s.iou == 0.0
+    assert "MISSED" in s.summary()[0]
+
+
+def test_disc_iou_closed_forms() -> None:
+    assert disc_iou((0, 0), 2, (0, 0), 2) == 1.0
+    assert disc_iou((0, 0), 2, (5, 0), 2) == 0.0
+    assert disc_iou((0, 0), 1, (0.5, 0), 2) == pytest.approx(0.25)  # contained: area ratio
+    # two discs of radius 2 one radius apart: lens area 4 (2π/3 - √3/2)
+    lens = 4 * (2 * math.pi / 3 - math.sqrt(3) / 2)
+    assert disc_iou((0, 0), 2, (2, 0), 2) == pytest.approx(lens / (8 * math.pi - lens))
+
+
+def test_bad_records_name_the_key() -> None:
+    with pytest.raises(ValueError, match=r"inclusions\[0\]: y_mm must be a finite number"):
+        score_scan(PHANTOM, [{"x_mm": 1.0, "y_mm": "a", "radius_mm": 1.0}], grid())
+    with pytest.raises(ValueError, match="missing array 'count'"):
+        score_scan(PHANTOM, [], {"stiffness": np.zeros((2, 2)), "x_mm": [0, 1], "y_mm": [0, 1]})
+
+
+def test_scan_report_scores_a_run_against_its_phantom(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    import json
+
+    import yaml
+
+    from nodes.scan_report import main
+
+    g = grid()
+    (tmp_path / "map").mkdir()
+    np.savez(tmp_path / "map" / "map.npz", stiffness=g.stiffness, x_mm=g.x_mm, y_mm=g.y_mm, count=g.count)
+    (tmp_path / "map" / "inclusions.json").write_text(json.dumps(
+        [{"x_mm": 10.5, "y_mm": 10.0, "radius_mm": 4.0, "contrast": 3.0},
+         {"x_mm": 25.0, "y_mm": 5.0, "radius_mm": 2.0, "contrast": 1.4}]))
+    ph = tmp_path / "ph.yaml"
+    ph.write_text(yaml.safe_dump({
+        "size_mm": [40, 40], "thickness_mm": 10, "youngs_modulus_kpa": 20.0,
+        "inclusions": [{"center_mm": [10, 10], "radius_mm": 4, "depth_mm": 2, "youngs_modulus_kpa": 80.0}]}))
+    assert main([str(tmp_path), "--phantom", str(ph)]) == 0
+    out = capsys.readouterr().out
+    assert "1 of 1 found, 1 false positive(s)" in out
+    assert "centroid error 0.50 mm" in out and "false positive at (25.0, 5.0)" in out
