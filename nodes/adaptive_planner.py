@@ -80,6 +80,8 @@ class AdaptivePlanner(palpa.Node):
         self.unit = ""
         self.queue = initial_design(self.cfg)
         self.probed: list[tuple[float, float]] = []
+        self.given_up: list[tuple[float, float]] = []
+        """Points the scanner refused every time: never chosen again, not counted as probes."""
         self.tries: dict[tuple[float, float], int] = {}
         self.refused = 0
         self.inflight: tuple[float, float] | None = None
@@ -141,7 +143,7 @@ class AdaptivePlanner(palpa.Node):
             self.retry_at_ns = self.clock.now_ns() + 500_000_000
         else:
             self.log.warning("probe at (%.1f, %.1f) mm refused %d times (%s): giving it up", *point, n, err)
-            self.probed.append(point)  # never chosen again
+            self.given_up.append(point)
 
     def _observations(self) -> tuple[list[tuple[float, float]], list[float]]:
         if self.pending:
@@ -166,12 +168,13 @@ class AdaptivePlanner(palpa.Node):
     def _decide(self) -> tuple[bool, str]:
         """Stop, or queue the acquisition's next point."""
         b = self.belief
+        if len(self.given_up) >= self.cfg.max_probes:
+            return True, f"{len(self.given_up)} points refused by the scanner"
         if b is None:
-            return (True, "no stiffness estimate from any probe") if len(self.probed) >= self.cfg.initial**2 \
-                else (False, "")
+            return True, "no stiffness estimate from the initial probes"
         stop, why = should_stop(b, len(self.probed), self.cfg)
         if not stop:
-            self.queue.append(next_probe(b, self.probed, self.cfg))
+            self.queue.append(next_probe(b, self.probed + self.given_up, self.cfg))
         return stop, why
 
     # -- output ------------------------------------------------------------------------------------
@@ -213,6 +216,6 @@ class AdaptivePlanner(palpa.Node):
                         for i in found]))
         out.mkdir(parents=True, exist_ok=True)
         (out / "planner.json").write_text(json.dumps({
-            "probes": len([q for q in self.probed if self.tries.get(q, 0) <= p.retries]), "refused": self.refused,
-            "sim_s": elapsed, "stop": why, "points": self.probed}, indent=1) + "\n")
+            "probes": len(self.probed), "refused": self.refused, "sim_s": elapsed, "stop": why,
+            "points": self.probed, "given_up": self.given_up}, indent=1) + "\n")
         self.timer(0.2, lambda: self.request_shutdown(0), oneshot=True)
