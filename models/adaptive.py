@@ -48,8 +48,10 @@ class PlannerConfig:
     """An ``initial x initial`` grid of probes before the acquisition takes over."""
     beta: float = 2.0
     """Width of the confidence band, in posterior standard deviations (LSE's beta^1/2)."""
-    implicit_fraction: float = 0.5
-    """The level h sits this fraction of the way from the baseline to the highest mean (ILS-UCB's implicit level)."""
+    implicit_fraction: float = 0.0
+    """The level h sits this fraction of the way from the baseline to the highest mean (ILS-UCB's implicit level).
+    Off by default: with inclusions of unlike contrast, a level halfway to the stiffest one calls a weak one
+    background before it is ever touched; the floor below (the detector's own threshold) is the level then."""
     rel_threshold: float = 0.2
     """h is at least ``baseline * (1 + rel_threshold)``: the map detector's own floor."""
     stop_area_mm2: float = 16.0

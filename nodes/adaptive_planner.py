@@ -46,7 +46,7 @@ class AdaptivePlanner(palpa.Node):
         initial: int = 4
         """An initial x initial grid of probes first."""
         beta: float = 2.0
-        implicit_fraction: float = 0.5
+        implicit_fraction: float = 0.0
         rel_threshold: float = 0.2
         stop_area_mm2: float = 16.0
         max_probes: int = 60
