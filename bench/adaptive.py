@@ -138,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
             "iou_raster": r["iou"], "iou_adaptive": a["iou"], "stop": plan["stop"],
         })
         try:
-            curves[r_spec.id] = belief_curve(a_spec)
+            curves[r_spec.phantom.stem] = belief_curve(a_spec)
         except (OSError, ValueError) as exc:
             print(f"{a_spec.id}: no belief curve ({exc})", file=sys.stderr)
     if rows:
@@ -169,12 +169,12 @@ def _plot(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[i
     import matplotlib.pyplot as plt
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5), dpi=100)
-    for i, (run, curve) in enumerate(curves.items()):
+    for i, row in enumerate(rows):
+        curve = curves.get(row["phantom"])
         if curve:
             n, err, found = zip(*curve, strict=True)
             ax1.plot(n, err, color="tab:blue", alpha=0.4, label="adaptive (belief after each probe)" if i == 0 else None)
-            total = max(rows[i]["inclusions"], 1) if i < len(rows) else 1
-            ax2.plot(n, np.array(found) / total, color="tab:blue", alpha=0.4,
+            ax2.plot(n, np.array(found) / max(row["inclusions"], 1), color="tab:blue", alpha=0.4,
                      label="adaptive" if i == 0 else None)
     ax1.scatter([r["probes_raster_eq"] for r in rows], [r["err_raster_mm"] for r in rows], color="tab:red",
                 marker="s", label="raster (final map)")

@@ -26,8 +26,22 @@ from pathlib import Path
 import numpy as np
 
 import palpa
-from messages import DetectedInclusion, Inclusions, ProbeAt, ProbeResult, StiffnessMap, StiffnessSample
-from models.adaptive import Belief, PlannerConfig, fit_belief, initial_design, next_probe, should_stop
+from messages import (
+    DetectedInclusion,
+    Inclusions,
+    ProbeAt,
+    ProbeResult,
+    StiffnessMap,
+    StiffnessSample,
+)
+from models.adaptive import (
+    Belief,
+    PlannerConfig,
+    fit_belief,
+    initial_design,
+    next_probe,
+    should_stop,
+)
 from models.stiffness_map import MapSnapshot, StiffnessGrid, detect_inclusions
 from nodes.map_output import write_outputs
 from palpa.service import ServiceError
@@ -49,6 +63,8 @@ class AdaptivePlanner(palpa.Node):
         implicit_fraction: float = 0.0
         rel_threshold: float = 0.2
         stop_area_mm2: float = 16.0
+        epsilon: float = 0.1
+        """LSE's accuracy, a fraction of the baseline (models.adaptive.PlannerConfig)."""
         max_probes: int = 60
         mode: str = "sweep"
         """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
@@ -70,8 +86,10 @@ class AdaptivePlanner(palpa.Node):
         if p.mode not in ("sweep", "indent"):
             raise palpa.ParamError(f"{self.name}: mode must be sweep or indent, got {p.mode!r}")
         try:
-            self.cfg = PlannerConfig(tuple(p.region_mm), p.resolution_mm, p.initial, p.beta,
-                                     p.implicit_fraction, p.rel_threshold, p.stop_area_mm2, p.max_probes)
+            self.cfg = PlannerConfig(tuple(p.region_mm), resolution_mm=p.resolution_mm, initial=p.initial,
+                                     beta=p.beta, implicit_fraction=p.implicit_fraction, epsilon=p.epsilon,
+                                     rel_threshold=p.rel_threshold, stop_area_mm2=p.stop_area_mm2,
+                                     max_probes=p.max_probes)
         except ValueError as exc:
             raise palpa.ParamError(f"{self.name}: {exc}") from None
         x0, y0, x1, y1 = p.region_mm
@@ -117,7 +135,7 @@ class AdaptivePlanner(palpa.Node):
                 return
         x, y = self.queue.pop(0)
         self.inflight = (x, y)
-        req = ProbeAt(x_mm=x, y_mm=y, mode=self.params.mode,  # type: ignore[arg-type]
+        req = ProbeAt(x_mm=x, y_mm=y, mode=self.params.mode,
                       length_mm=self.params.length_mm, radius_mm=self.params.radius_mm)
         self.probe_at.call_async(req).add_done_callback(self.on_result)
 
