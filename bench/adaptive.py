@@ -90,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("-o", "--out", type=Path, default=Path("runs/bench_adaptive"))
     ap.add_argument("--generate", type=int, default=20)
     ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--rerun", action="store_true")
+    ap.add_argument("--rerun", action="store_true", help="run again even where a run's outputs exist")
+    ap.add_argument("--no-run", action="store_true", help="only score and compare the runs already made")
     ap.add_argument("--timeout", type=float, default=900.0)
     opts = ap.parse_args(argv)
     out: Path = opts.out
@@ -105,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     # phantom by phantom, both methods: a bench cut short still compares what it ran
     todo = [(launch, s) for pair in zip(specs["raster"], specs["adaptive"], strict=True)
             for launch, s in zip((RASTER, ADAPTIVE), pair, strict=True)
-            if opts.rerun or not (s.run_dir / "map" / "inclusions.json").exists()]
+            if not opts.no_run and (opts.rerun or not (s.run_dir / "map" / "inclusions.json").exists())]
     t0 = time.monotonic()
     with ThreadPoolExecutor(max(1, opts.jobs)) as pool:
         for (launch, spec), ran in zip(todo, pool.map(
