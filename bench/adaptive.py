@@ -79,7 +79,7 @@ def belief_curve(spec: RunSpec) -> list[tuple[int, float, int]]:
         except ValueError:
             found = []
         dets = [{"x_mm": i.x_mm, "y_mm": i.y_mm, "radius_mm": i.radius_mm, "contrast": i.contrast} for i in found]
-        s = score_scan(ph, dets, {"stiffness": grid, "x_mm": xs, "y_mm": ys})
+        s = score_scan(ph, dets, {"stiffness": grid, "x_mm": xs, "y_mm": ys, "count": np.array(b.count).reshape(grid.shape)})
         errs = [x.centroid_error_mm for x in s.inclusions if x.found]
         out.append((b.samples, float(np.mean(errs)) if errs else math.nan, s.found))
     return out

@@ -78,7 +78,9 @@ class PlannerConfig:
         """Cell centres (x, y) of the belief grid over the region."""
         x0, y0, x1, y1 = self.region_mm
         r = self.resolution_mm
-        return (np.arange(x0 + r / 2, x1, r, dtype=np.float64), np.arange(y0 + r / 2, y1, r, dtype=np.float64))
+        # as models.stiffness_map.StiffnessGrid: the last cell may reach past x1 / y1
+        nx, ny = (max(1, math.ceil(span / r - 1e-9)) for span in (x1 - x0, y1 - y0))
+        return x0 + r * (np.arange(nx, dtype=np.float64) + 0.5), y0 + r * (np.arange(ny, dtype=np.float64) + 0.5)
 
 
 @dataclass(frozen=True)

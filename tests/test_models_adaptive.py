@@ -132,3 +132,12 @@ def test_closed_loop_finds_the_disc_and_classifies_it_with_fewer_probes_than_a_r
     assert len(found) == 1 and math.dist((found[0].x_mm, found[0].y_mm), (28.0, 12.0)) < 2.0
     assert belief.mean[6, 14] > belief.level > belief.mean[19, 0]   # (29, 13) inside, (1, 39) far away
     assert _closed_loop(0)[0] == probed
+
+
+def test_belief_grid_has_the_map_grids_cells_when_the_region_is_not_a_whole_number_of_cells() -> None:
+    from models.stiffness_map import StiffnessGrid
+
+    cfg = PlannerConfig((2.0, 2.0, 45.0, 40.0))
+    xs, ys = cfg.grid()
+    g = StiffnessGrid(2.0, 2.0, 45.0, 40.0, 2.0).snapshot()
+    assert np.array_equal(xs, g.x_mm) and np.array_equal(ys, g.y_mm)
