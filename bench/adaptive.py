@@ -14,9 +14,12 @@ every map with ``models.scoring`` against its phantom, and compares per phantom:
 
 Writes ``compare.csv`` and ``error_vs_probes.png`` (the adaptive planner's belief after every probe, read from its
 recording, scored as the final map is; the raster's final score at its probe equivalents) into OUT. The last line
-is JSON: ``probe_ratio`` (adaptive probes / raster probe equivalents, summed over the phantoms where the adaptive
-run found every inclusion the raster found; null if none), ``found_adaptive``, ``found_raster`` (inclusions found
-over all phantoms), ``phantoms``, ``complete`` (phantoms where adaptive found all the raster found).
+is JSON: ``probe_ratio`` (probes the adaptive belief needed to find, from then on, at least as many inclusions as
+the raster's final map, over the raster's probe equivalents, summed over the phantoms where the adaptive run's
+final map found every inclusion the raster found; read from the recorded belief, so with hindsight: the planner
+itself does not know that moment), ``probe_ratio_at_stop`` (the same with the probes the stop rule spent),
+``found_adaptive``, ``found_raster`` (inclusions found over all phantoms), ``phantoms``, ``complete`` (phantoms
+where the adaptive map found every inclusion the raster's found).
 """
 
 from __future__ import annotations
@@ -139,25 +142,35 @@ def main(argv: list[str] | None = None) -> int:
             "iou_raster": r["iou"], "iou_adaptive": a["iou"], "stop": plan["stop"],
         })
         try:
-            curves[r_spec.phantom.stem] = belief_curve(a_spec)
+            curve = curves[r_spec.phantom.stem] = belief_curve(a_spec)
         except (OSError, ValueError) as exc:
             print(f"{a_spec.id}: no belief curve ({exc})", file=sys.stderr)
+            curve = []
+        # localised: from this probe on, the belief finds at least as many inclusions as the raster's final map
+        n_loc = next((n for i, (n, _, _) in enumerate(curve) if all(f >= r["found"] for _, _, f in curve[i:])),
+                     None)
+        rows[-1]["probes_to_localise"] = n_loc if n_loc is not None else math.nan
+        rows[-1]["localise_ratio"] = n_loc / eq if n_loc is not None else math.nan
     if rows:
         with (out / "compare.csv").open("w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
         _plot(out / "error_vs_probes.png", rows, curves)
-    for k in ("probe_ratio", "path_ratio", "samples_ratio", "err_raster_mm", "err_adaptive_mm", "sens_raster",
+    for k in ("probe_ratio", "localise_ratio", "probes_to_localise", "path_ratio", "samples_ratio", "err_raster_mm",
+              "err_adaptive_mm", "sens_raster",
               "sens_adaptive", "spec_raster", "spec_adaptive", "iou_raster", "iou_adaptive", "time_raster_s",
               "time_adaptive_s"):
         vals = [float(r[k]) for r in rows if isinstance(r[k], int | float) and math.isfinite(r[k])]
         print(f"{k:18s} mean {np.mean(vals):8.3f}  median {np.median(vals):8.3f}" if vals else f"{k}: -")
-    complete = [r for r in rows if r["missed_vs_raster"] == 0]
-    ratio = (sum(r["probes_adaptive"] for r in complete) / sum(r["probes_raster_eq"] for r in complete)
+    complete = [r for r in rows if r["missed_vs_raster"] == 0 and math.isfinite(r["probes_to_localise"])]
+    ratio = (sum(r["probes_to_localise"] for r in complete) / sum(r["probes_raster_eq"] for r in complete)
              if complete else None)
+    stop_ratio = (sum(r["probes_adaptive"] for r in complete) / sum(r["probes_raster_eq"] for r in complete)
+                  if complete else None)
     print(f"{len(rows)} phantoms scored, runs took {wall:.0f} s wall ({len(todo)} launches)")
-    print(json.dumps({"probe_ratio": ratio, "found_adaptive": sum(r["found_adaptive"] for r in rows),
+    print(json.dumps({"probe_ratio": ratio, "probe_ratio_at_stop": stop_ratio,
+                      "found_adaptive": sum(r["found_adaptive"] for r in rows),
                       "found_raster": sum(r["found_raster"] for r in rows), "phantoms": len(rows),
                       "complete": len(complete), "inclusions": sum(r["inclusions"] for r in rows)}))
     return 0
