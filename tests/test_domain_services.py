@@ -45,7 +45,7 @@ def probe_graph(phantom: str = PHANTOM, kpa: float = 36.0, z: float = 5.0) -> tu
     g = GraphHarness()
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": kpa, "max_kpa": 60.0})
     g.add(FibreReader, {"phantom": phantom})
-    g.add(StiffnessEstimator, {"phantom": phantom})
+    g.add(StiffnessEstimator, {"geometry": phantom.replace("phantoms/", "phantoms/measured/")})  # as measured
     g.add(RobotScanner, {"autostart": False, "home_mm": [28.0, 28.0, 40.0], "watchdog_s": 0.5,
                          "speed_mm_s": 20.0, "contact_z_mm": z})
     op = g.add(palpa.Node, name="operator")
