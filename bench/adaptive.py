@@ -94,6 +94,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--generate", type=int, default=20)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--rerun", action="store_true", help="run again even where a run's outputs exist")
+    ap.add_argument("--adaptive-arg", action="append", default=[], metavar="NAME=VALUE",
+                    help="an arg of the adaptive launch file (repeatable), e.g. epsilon=0.2")
     ap.add_argument("--no-run", action="store_true", help="only score and compare the runs already made")
     ap.add_argument("--timeout", type=float, default=900.0)
     opts = ap.parse_args(argv)
@@ -106,6 +108,10 @@ def main(argv: list[str] | None = None) -> int:
         phantoms.append(path)
     specs = {name: plan_runs(launch, phantoms, [0], {}, out / name, margin_mm=2.0, geometry_error_mm=0.2)
              for name, launch in (("raster", RASTER), ("adaptive", ADAPTIVE))}
+    for item in opts.adaptive_arg:
+        name, _, value = item.partition("=")
+        for s in specs["adaptive"]:
+            s.overrides[name] = yaml.safe_load(value)
     # phantom by phantom, both methods: a bench cut short still compares what it ran
     todo = [(launch, s) for pair in zip(specs["raster"], specs["adaptive"], strict=True)
             for launch, s in zip((RASTER, ADAPTIVE), pair, strict=True)
