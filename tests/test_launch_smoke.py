@@ -89,6 +89,10 @@ SMOKE: dict[str, Smoke] = {
     "scan_camera_sim.yaml": Smoke(args=["region_mm:=[14.0, 14.0, 18.0, 18.0]", "time_scale:=2.0"],
                                   topics=["robot/pose", "robot/plan", "camera/indenters", "stiffness/sample",
                                           "map/stiffness", "robot/scan_status"], timeout=60),
+    "scan_adaptive_sim.yaml": Smoke(args=["region_mm:=[36.0, 33.0, 48.0, 45.0]", "initial:=2", "max_probes:=5",
+                                          "time_scale:=2.0"],
+                                    topics=["robot/pose", "probe/heights", "stiffness/sample", "planner/mean",
+                                            "planner/std"], timeout=90),
     "replay_scan.yaml": Smoke(prepare=synthetic_scan_bag, topics=["probe/heights", "stiffness/sample", "map/stiffness"],
                               timeout=60),
     # idle until asked: a probe_at is exercised by tests/test_service_cli.py

@@ -1,0 +1,214 @@
+"""Raster against adaptive palpation (issue 20), through the batch runner's pieces (nodes.evaluate).
+
+    .venv/bin/python bench/adaptive.py -o runs/bench_adaptive --generate 20 --jobs 2
+
+Runs ``launch/scan_sim.yaml`` (the 3 mm sweep raster) and ``launch/scan_adaptive_sim.yaml`` (the GP planner) on the
+shipped phantom and N generated ones (``models.phantom_gen`` seeds 0..N-1), each ``palpa launch --in-process`` in
+its own run directory (a run whose ``map/inclusions.json`` exists is not run again: ``--rerun`` to force), scores
+every map with ``models.scoring`` against its phantom, and compares per phantom:
+
+* probes: the adaptive planner's probes (``planner.json``) against the raster's *probe equivalents*, its swept
+  length in contact divided by the planner's sweep length (the raster's lines over the region), so one unit is the
+  same 6 mm of tissue swept in both; also path length (all motion), valid samples and simulated time;
+* found / missed inclusions, centroid error, cell sensitivity, specificity and IoU against the inclusion mask.
+
+Writes ``compare.csv`` and ``error_vs_probes.png`` (the adaptive planner's belief after every probe, read from its
+recording, scored as the final map is; the raster's final score at its probe equivalents) into OUT. The last line
+is JSON: ``probe_ratio`` (probes the adaptive belief needed to find, from then on, at least as many inclusions as
+the raster's final map, over the raster's probe equivalents, summed over the phantoms where the adaptive run's
+final map found every inclusion the raster found; read from the recorded belief, so with hindsight: the planner
+itself does not know that moment), ``probe_ratio_at_stop`` (the same with the probes the stop rule spent),
+``found_adaptive``, ``found_raster`` (inclusions found over all phantoms), ``phantoms``, ``complete`` (phantoms
+where the adaptive map found every inclusion the raster's found).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from models.phantom import load_phantom  # noqa: E402
+from models.phantom_gen import PhantomRanges, random_phantom  # noqa: E402
+from nodes.evaluate import RunSpec, launch_one, plan_runs, score_run  # noqa: E402
+
+RASTER = REPO / "launch" / "scan_sim.yaml"
+ADAPTIVE = REPO / "launch" / "scan_adaptive_sim.yaml"
+SPACING_MM = 3.0
+LENGTH_MM = 6.0
+
+
+def raster_probe_equivalents(spec: RunSpec) -> float:
+    """The raster's swept length in contact over the planner's sweep length (lines every SPACING_MM along x)."""
+    x0, y0, x1, y1 = spec.overrides["region_mm"]
+    lines = math.floor((x1 - x0) / SPACING_MM + 1e-9) + 1
+    return lines * (y1 - y0) / LENGTH_MM
+
+
+def belief_curve(spec: RunSpec) -> list[tuple[int, float, int]]:
+    """(probes, mean centroid error of found inclusions, inclusions found) after every probe of an adaptive run,
+    from its recorded ``planner/mean``, detected and scored as the final map is."""
+    import msgspec
+
+    from messages import StiffnessMap
+    from models.scoring import score_scan
+    from models.stiffness_map import MapSnapshot, detect_inclusions
+    from palpa.record.reader import iter_bag, resolve_bag_paths
+
+    ph = load_phantom(spec.phantom)
+    out = []
+    for m in iter_bag(resolve_bag_paths(str(spec.run_dir / "recording.mcap"))):
+        if m.topic != "planner/mean":
+            continue
+        b = msgspec.msgpack.decode(m.payload, type=StiffnessMap)
+        xs, ys = np.array(b.x_mm), np.array(b.y_mm)
+        grid = np.array(b.stiffness).reshape(len(ys), len(xs))
+        snap = MapSnapshot(grid, xs, ys, np.array(b.count).reshape(grid.shape), np.array(b.spread).reshape(grid.shape),
+                           float(xs[1] - xs[0]))
+        try:
+            found = detect_inclusions(snap)
+        except ValueError:
+            found = []
+        dets = [{"x_mm": i.x_mm, "y_mm": i.y_mm, "radius_mm": i.radius_mm, "contrast": i.contrast} for i in found]
+        s = score_scan(ph, dets, {"stiffness": grid, "x_mm": xs, "y_mm": ys, "count": np.array(b.count).reshape(grid.shape)})
+        errs = [x.centroid_error_mm for x in s.inclusions if x.found]
+        out.append((b.samples, float(np.mean(errs)) if errs else math.nan, s.found))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("-o", "--out", type=Path, default=Path("runs/bench_adaptive"))
+    ap.add_argument("--generate", type=int, default=20)
+    ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--rerun", action="store_true", help="run again even where a run's outputs exist")
+    ap.add_argument("--adaptive-arg", action="append", default=[], metavar="NAME=VALUE",
+                    help="an arg of the adaptive launch file (repeatable), e.g. epsilon=0.2")
+    ap.add_argument("--no-run", action="store_true", help="only score and compare the runs already made")
+    ap.add_argument("--timeout", type=float, default=900.0)
+    opts = ap.parse_args(argv)
+    out: Path = opts.out
+    (out / "phantoms").mkdir(parents=True, exist_ok=True)
+    phantoms = [REPO / "phantoms" / "airfloat_tumours.yaml"]
+    for seed in range(opts.generate):
+        path = out / "phantoms" / f"random_{seed}.yaml"
+        path.write_text(yaml.safe_dump(random_phantom(seed, PhantomRanges()), sort_keys=False), encoding="utf-8")
+        phantoms.append(path)
+    specs = {name: plan_runs(launch, phantoms, [0], {}, out / name, margin_mm=2.0, geometry_error_mm=0.2)
+             for name, launch in (("raster", RASTER), ("adaptive", ADAPTIVE))}
+    for item in opts.adaptive_arg:
+        name, _, value = item.partition("=")
+        for s in specs["adaptive"]:
+            s.overrides[name] = yaml.safe_load(value)
+    # phantom by phantom, both methods: a bench cut short still compares what it ran
+    todo = [(launch, s) for pair in zip(specs["raster"], specs["adaptive"], strict=True)
+            for launch, s in zip((RASTER, ADAPTIVE), pair, strict=True)
+            if not opts.no_run and (opts.rerun or not (s.run_dir / "map" / "inclusions.json").exists())]
+    t0 = time.monotonic()
+    with ThreadPoolExecutor(max(1, opts.jobs)) as pool:
+        for (launch, spec), ran in zip(todo, pool.map(
+                lambda job: launch_one(job[0], job[1], in_process=True, timeout_s=opts.timeout), todo), strict=True):
+            print(f"{launch.stem} {spec.id}: exit {ran['exit_code']}, {ran['wall_s']:.0f} s", file=sys.stderr)
+    wall = time.monotonic() - t0
+    rows: list[dict[str, Any]] = []
+    curves: dict[str, list[tuple[int, float, int]]] = {}
+    for r_spec, a_spec in zip(specs["raster"], specs["adaptive"], strict=True):
+        ph = load_phantom(r_spec.phantom)
+        try:
+            r, r_inc = score_run(r_spec, ph)
+            a, a_inc = score_run(a_spec, ph)
+            plan = json.loads((a_spec.run_dir / "map" / "planner.json").read_text())
+        except (OSError, ValueError, KeyError) as exc:
+            print(f"{r_spec.id}: not scored ({exc})", file=sys.stderr)
+            continue
+        missed = sum(1 for x, y in zip(r_inc, a_inc, strict=True) if x["found"] and not y["found"])
+        eq = raster_probe_equivalents(r_spec)
+        rows.append({
+            "phantom": r_spec.phantom.stem, "inclusions": r["true_inclusions"],
+            "found_raster": r["found"], "found_adaptive": a["found"], "missed_vs_raster": missed,
+            "probes_raster_eq": round(eq, 1), "probes_adaptive": plan["probes"], "probe_ratio": plan["probes"] / eq,
+            "path_ratio": a["path_mm"] / r["path_mm"], "samples_ratio": a["probes"] / max(r["probes"], 1),
+            "time_raster_s": r["scan_s"], "time_adaptive_s": plan["sim_s"],
+            "err_raster_mm": r["mean_centroid_error_mm"], "err_adaptive_mm": a["mean_centroid_error_mm"],
+            "fp_raster": r["false_positives"], "fp_adaptive": a["false_positives"],
+            "sens_raster": r["sensitivity"], "sens_adaptive": a["sensitivity"],
+            "spec_raster": r["specificity"], "spec_adaptive": a["specificity"],
+            "iou_raster": r["iou"], "iou_adaptive": a["iou"], "stop": plan["stop"],
+        })
+        try:
+            curve = curves[r_spec.phantom.stem] = belief_curve(a_spec)
+        except (OSError, ValueError) as exc:
+            print(f"{a_spec.id}: no belief curve ({exc})", file=sys.stderr)
+            curve = []
+        # localised: from this probe on, the belief finds at least as many inclusions as the raster's final map
+        n_loc = next((n for i, (n, _, _) in enumerate(curve) if all(f >= r["found"] for _, _, f in curve[i:])),
+                     None)
+        rows[-1]["probes_to_localise"] = n_loc if n_loc is not None else math.nan
+        rows[-1]["localise_ratio"] = n_loc / eq if n_loc is not None else math.nan
+    if rows:
+        with (out / "compare.csv").open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+        _plot(out / "error_vs_probes.png", rows, curves)
+    for k in ("probe_ratio", "localise_ratio", "probes_to_localise", "path_ratio", "samples_ratio", "err_raster_mm",
+              "err_adaptive_mm", "sens_raster",
+              "sens_adaptive", "spec_raster", "spec_adaptive", "iou_raster", "iou_adaptive", "time_raster_s",
+              "time_adaptive_s"):
+        vals = [float(r[k]) for r in rows if isinstance(r[k], int | float) and math.isfinite(r[k])]
+        print(f"{k:18s} mean {np.mean(vals):8.3f}  median {np.median(vals):8.3f}" if vals else f"{k}: -")
+    complete = [r for r in rows if r["missed_vs_raster"] == 0 and math.isfinite(r["probes_to_localise"])]
+    ratio = (sum(r["probes_to_localise"] for r in complete) / sum(r["probes_raster_eq"] for r in complete)
+             if complete else None)
+    stop_ratio = (sum(r["probes_adaptive"] for r in complete) / sum(r["probes_raster_eq"] for r in complete)
+                  if complete else None)
+    print(f"{len(rows)} phantoms scored, runs took {wall:.0f} s wall ({len(todo)} launches)")
+    print(json.dumps({"probe_ratio": ratio, "probe_ratio_at_stop": stop_ratio,
+                      "found_adaptive": sum(r["found_adaptive"] for r in rows),
+                      "found_raster": sum(r["found_raster"] for r in rows), "phantoms": len(rows),
+                      "complete": len(complete), "inclusions": sum(r["inclusions"] for r in rows)}))
+    return 0
+
+
+def _plot(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[int, float, int]]]) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5), dpi=100)
+    for i, row in enumerate(rows):
+        curve = curves.get(row["phantom"])
+        if curve:
+            n, err, found = zip(*curve, strict=True)
+            ax1.plot(n, err, color="tab:blue", alpha=0.4, label="adaptive (belief after each probe)" if i == 0 else None)
+            ax2.plot(n, np.array(found) / max(row["inclusions"], 1), color="tab:blue", alpha=0.4,
+                     label="adaptive" if i == 0 else None)
+    ax1.scatter([r["probes_raster_eq"] for r in rows], [r["err_raster_mm"] for r in rows], color="tab:red",
+                marker="s", label="raster (final map)")
+    ax2.scatter([r["probes_raster_eq"] for r in rows], [r["found_raster"] / max(r["inclusions"], 1) for r in rows],
+                color="tab:red", marker="s", label="raster")
+    ax1.set(xlabel="probes spent (6 mm sweeps; raster: swept length / 6 mm)", ylabel="mean centroid error (mm)")
+    ax2.set(xlabel="probes spent", ylabel="fraction of true inclusions found")
+    for ax in (ax1, ax2):
+        ax.grid(alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

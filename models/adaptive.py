@@ -1,0 +1,190 @@
+"""Adaptive palpation: where to probe next, from what has been measured so far, and when to stop.
+
+The belief is a Gaussian-process regression of stiffness over the specimen (scikit-learn's
+``GaussianProcessRegressor``: a constant times a squared-exponential kernel plus white noise, hyper-parameters fitted
+by maximum marginal likelihood with a deterministic optimiser start). The question a palpation asks is not "how
+stiff is every point" but "where does stiff tissue end": the acquisition is aimed at the level set that separates
+inclusion from background, after
+
+* Bryan et al., "Active learning for identifying function threshold boundaries" (NIPS 2005): the *straddle*
+  score ``beta * sigma(x) - |mu(x) - h|`` is high where the confidence band around the mean straddles the level h;
+* Gotovos et al., "Active learning for level set estimation" (IJCAI 2013, LSE): a point is classified once its band
+  lies wholly above or below h; only ambiguous points are worth probing; the *implicit* level is a fraction of the
+  (unknown) maximum, not a fixed number;
+* Garg et al., "Tumor localization using automated palpation with Gaussian process adaptive sampling" (CASE 2016,
+  ILS-UCB): the same straddle score with an implicit level, which matched a dense raster with >= 10x fewer probes.
+
+Our level h (:func:`level`) is implicit as in LSE/ILS-UCB, but floored at the map detector's own "stiff" threshold
+(``baseline * (1 + rel_threshold)``), so a specimen without inclusions does not send the planner chasing noise.
+The stop rule (:func:`should_stop`) is LSE's: stop when the ambiguous area (cells whose band still straddles h) is
+below a tolerance, or when the probe budget is spent. Our own code, written from the papers' ideas.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+__all__ = ["Belief", "PlannerConfig", "acquisition", "ambiguous", "fit_belief", "initial_design", "level",
+           "next_probe", "should_stop"]
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """The planner's knobs (mm, and the estimator's stiffness unit)."""
+
+    region_mm: tuple[float, float, float, float]
+    """x0, y0, x1, y1 the planner may probe in (the scanner's box is checked by the scanner itself)."""
+    resolution_mm: float = 2.0
+    """Cell size of the belief grid (and of the written map)."""
+    initial: int = 4
+    """An ``initial x initial`` grid of probes before the acquisition takes over."""
+    beta: float = 2.0
+    """Width of the confidence band, in posterior standard deviations (LSE's beta^1/2)."""
+    implicit_fraction: float = 0.0
+    """The level h sits this fraction of the way from the baseline to the highest mean (ILS-UCB's implicit level).
+    Off by default: with inclusions of unlike contrast, a level halfway to the stiffest one calls a weak one
+    background before it is ever touched; the floor below (the detector's own threshold) is the level then."""
+    rel_threshold: float = 0.2
+    """h is at least ``baseline * (1 + rel_threshold)``: the map detector's own floor."""
+    stop_area_mm2: float = 16.0
+    """Stop when the ambiguous area is smaller than this."""
+    epsilon: float = 0.1
+    """LSE's accuracy: a cell whose band is within this fraction of the baseline of the level counts as classified
+    (without it a sharp boundary never is: the cells it crosses stay ambiguous however often they are probed)."""
+    max_probes: int = 60
+    """Budget: stop after this many probes whatever the belief says."""
+    length_scale_mm: tuple[float, float] = (1.0, 3.0)
+    """Bounds of the kernel's length scale: at most about the smallest inclusion worth finding (a longer one lets
+    a flat first grid vouch for tissue it never touched)."""
+    min_separation_mm: float = 1.0
+    """A point this close to an earlier probe is not chosen again (a repeat teaches the GP little)."""
+
+    def __post_init__(self) -> None:
+        x0, y0, x1, y1 = self.region_mm
+        if not (x1 > x0 and y1 > y0) or not all(math.isfinite(v) for v in self.region_mm):
+            raise ValueError(f"PlannerConfig.region_mm: expected x0 < x1 and y0 < y1, got {self.region_mm}")
+        if not self.resolution_mm > 0 or self.initial < 2 or self.max_probes < 1 or not self.beta > 0:
+            raise ValueError("PlannerConfig: resolution_mm > 0, initial >= 2, max_probes >= 1 and beta > 0 needed")
+
+    def grid(self) -> tuple[FloatArray, FloatArray]:
+        """Cell centres (x, y) of the belief grid over the region."""
+        x0, y0, x1, y1 = self.region_mm
+        r = self.resolution_mm
+        # as models.stiffness_map.StiffnessGrid: the last cell may reach past x1 / y1
+        nx, ny = (max(1, math.ceil(span / r - 1e-9)) for span in (x1 - x0, y1 - y0))
+        return x0 + r * (np.arange(nx, dtype=np.float64) + 0.5), y0 + r * (np.arange(ny, dtype=np.float64) + 0.5)
+
+
+@dataclass(frozen=True)
+class Belief:
+    """The posterior over the grid: mean and standard deviation, indexed [iy, ix], and the level in use."""
+
+    x_mm: FloatArray
+    y_mm: FloatArray
+    mean: FloatArray
+    std: FloatArray
+    baseline: float
+    level: float
+    kernel: object = None
+    """The fitted kernel (scikit-learn), to refit later without optimising the hyper-parameters again."""
+
+
+def initial_design(cfg: PlannerConfig) -> list[tuple[float, float]]:
+    """A regular ``initial x initial`` grid of probe points, cell-centred in the region, in serpentine order."""
+    x0, y0, x1, y1 = cfg.region_mm
+    n = cfg.initial
+    xs = [x0 + (i + 0.5) * (x1 - x0) / n for i in range(n)]
+    ys = [y0 + (j + 0.5) * (y1 - y0) / n for j in range(n)]
+    return [(x, y) for j, y in enumerate(ys) for x in (xs if j % 2 == 0 else xs[::-1])]
+
+
+def level(mean: FloatArray, baseline: float, cfg: PlannerConfig) -> float:
+    """The implicit level h: ``implicit_fraction`` from the baseline to the highest mean, floored at the
+    detector's threshold ``baseline * (1 + rel_threshold)``."""
+    top = float(np.max(mean))
+    return max(baseline + cfg.implicit_fraction * (top - baseline), baseline * (1.0 + cfg.rel_threshold))
+
+
+def fit_belief(points: Sequence[tuple[float, float]], values: Sequence[float], cfg: PlannerConfig, *,
+               kernel: object = None) -> Belief:
+    """Fit the GP to the observations so far and evaluate it on the grid. Deterministic: one optimiser start from
+    fixed initial hyper-parameters; with ``kernel`` (a previous belief's), no optimisation at all, only the
+    posterior (milliseconds instead of seconds). Raises ValueError on fewer than 2 points or a non-finite value."""
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+    from threadpoolctl import threadpool_limits
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    vals = np.asarray(values, dtype=np.float64)
+    if len(pts) < 2 or len(vals) != len(pts) or not (np.all(np.isfinite(pts)) and np.all(np.isfinite(vals))):
+        raise ValueError(f"fit_belief: need >= 2 finite (x, y, value) observations, got {len(pts)} points, "
+                         f"{len(vals)} values")
+    baseline = float(np.median(vals))
+    if not baseline > 0:
+        raise ValueError(f"fit_belief: the median stiffness must be > 0, got {baseline}")
+    # residuals relative to the healthy baseline, and a prior amplitude of at least rel_threshold: far from the
+    # data an inclusion of the smallest contrast the detector reports stays possible, so unexplored tissue stays
+    # ambiguous (with the amplitude learnt from data alone, a first grid that misses every inclusion would make
+    # the GP sure there is none)
+    scale = baseline
+    lo, hi = cfg.length_scale_mm
+    if kernel is None:
+        kernel = (ConstantKernel(1.0, (cfg.rel_threshold**2, 1e2)) * RBF(min(max(2.0, lo), hi), length_scale_bounds=(lo, hi))
+                  + WhiteKernel(0.05, (1e-4, 1.0)))
+        gp = GaussianProcessRegressor(kernel=kernel, n_restarts_optimizer=0, random_state=0)
+    else:
+        gp = GaussianProcessRegressor(kernel=kernel, optimizer=None)
+    with warnings.catch_warnings(), threadpool_limits(1):  # a small problem: BLAS threads only contend
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        # fitted on standardised residuals from the baseline: the prior mean far from data is the healthy tissue
+        gp.fit(pts, (vals - baseline) / scale)
+    xs, ys = cfg.grid()
+    gx, gy = np.meshgrid(xs, ys)
+    mu, sd = gp.predict(np.column_stack([gx.ravel(), gy.ravel()]), return_std=True)
+    mean = baseline + scale * np.asarray(mu, dtype=np.float64).reshape(gx.shape)
+    std = scale * np.asarray(sd, dtype=np.float64).reshape(gx.shape)
+    return Belief(xs, ys, mean, std, baseline, level(mean, baseline, cfg), gp.kernel_)
+
+
+def acquisition(belief: Belief, beta: float) -> FloatArray:
+    """The straddle score ``beta * sigma - |mu - h|`` on the grid (higher: more worth probing)."""
+    return beta * belief.std - np.abs(belief.mean - belief.level)
+
+
+def ambiguous(belief: Belief, beta: float, epsilon: float = 0.0) -> npt.NDArray[np.bool_]:
+    """Cells not yet classified: the band ``mu +- beta * sigma`` reaches past the level h by more than
+    ``epsilon * baseline`` (LSE's epsilon-accurate classification)."""
+    return np.abs(belief.mean - belief.level) + epsilon * belief.baseline < beta * belief.std
+
+
+def next_probe(belief: Belief, probed: Sequence[tuple[float, float]], cfg: PlannerConfig) -> tuple[float, float]:
+    """The grid cell with the highest acquisition, skipping cells within ``min_separation_mm`` of a probe already
+    made (ties: the first in row-major order, so the choice is deterministic)."""
+    score = acquisition(belief, cfg.beta).copy()
+    gx, gy = np.meshgrid(belief.x_mm, belief.y_mm)
+    for px, py in probed:
+        score[(gx - px) ** 2 + (gy - py) ** 2 < cfg.min_separation_mm**2] = -np.inf
+    i = int(np.argmax(score))
+    return float(gx.flat[i]), float(gy.flat[i])
+
+
+def should_stop(belief: Belief, probes: int, cfg: PlannerConfig) -> tuple[bool, str]:
+    """LSE's stop rule: the ambiguous area is below ``stop_area_mm2``, or the budget is spent. Never before the
+    initial design is done. Returns (stop, why)."""
+    if probes >= cfg.max_probes:
+        return True, f"probe budget spent ({probes} probes)"
+    if probes < cfg.initial**2:
+        return False, f"initial design: {probes} of {cfg.initial**2} probes"
+    area = float(np.count_nonzero(ambiguous(belief, cfg.beta, cfg.epsilon))) * cfg.resolution_mm**2
+    if area < cfg.stop_area_mm2:
+        return True, f"map classified: {area:.0f} mm^2 ambiguous < {cfg.stop_area_mm2:g} mm^2 after {probes} probes"
+    return False, f"{area:.0f} mm^2 still ambiguous after {probes} probes"

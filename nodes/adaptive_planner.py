@@ -1,0 +1,239 @@
+"""Adaptive palpation planner (issue 20): probes where the map is still ambiguous, stops when it is not.
+
+Drives the scanner through ``scanner/probe_at`` (the scanner on ``autostart: false``), one request at a time with
+the non-blocking call form: the reply arrives in a callback, the node keeps running meanwhile. The scanner checks
+every request against its workspace box, speed caps and watchdog; a refused request is logged, the point is
+retried up to ``retries`` times (the scanner may be busy or still waiting for probe data) and then given up, and
+the planner carries on with the next best point.
+
+What it learns from: every valid ``stiffness/sample`` binned into the belief grid (the per-cell median, as the map
+aggregator's), so a sweep teaches it the cells it crossed, not one number. The belief is
+:func:`models.adaptive.fit_belief` (GP regression), the next point :func:`models.adaptive.next_probe` (straddle /
+ILS-UCB acquisition at the implicit level), the end :func:`models.adaptive.should_stop` (LSE's ambiguous area or the
+budget).
+
+Publishes ``planner/mean`` and ``planner/std`` (StiffnessMap, latched) after every probe, and at the end writes the
+same files as a raster scan's map (``map.npz`` of the GP mean, ``map.png``, ``inclusions.json``: nodes.map_output)
+plus ``planner.json`` (probes, refusals, simulated time, why it stopped), publishes ``map/inclusions`` and exits 0:
+it is the launch's required node.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+import palpa
+from messages import (
+    DetectedInclusion,
+    Inclusions,
+    ProbeAt,
+    ProbeResult,
+    StiffnessMap,
+    StiffnessSample,
+)
+from models.adaptive import (
+    Belief,
+    PlannerConfig,
+    fit_belief,
+    initial_design,
+    next_probe,
+    should_stop,
+)
+from models.stiffness_map import MapSnapshot, StiffnessGrid, detect_inclusions
+from nodes.map_output import write_outputs
+from palpa.service import ServiceError
+from palpa.service_client import Future
+
+__all__ = ["AdaptivePlanner"]
+
+
+class AdaptivePlanner(palpa.Node):
+    """Picks probe points from a GP belief of stiffness and sends them to the scanner (module doc)."""
+
+    class Params(palpa.Params):
+        region_mm: tuple[float, float, float, float] = (2.0, 2.0, 58.0, 58.0)
+        """x0, y0, x1, y1 the planner probes in (the scanner refuses what is outside its own box)."""
+        resolution_mm: float = 2.0
+        initial: int = 4
+        """An initial x initial grid of probes first."""
+        beta: float = 2.0
+        implicit_fraction: float = 0.0
+        rel_threshold: float = 0.2
+        stop_area_mm2: float = 16.0
+        epsilon: float = 0.1
+        """LSE's accuracy, a fraction of the baseline (models.adaptive.PlannerConfig)."""
+        max_probes: int = 60
+        mode: str = "sweep"
+        """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
+        length_mm: float = 6.0
+        radius_mm: float = 3.0
+        """Samples within this distance of the point make the scanner's answer (the planner bins them all)."""
+        min_count: int = 1
+        """Samples a cell needs to count as observed."""
+        refit_every: int = 8
+        """Re-optimise the GP's hyper-parameters every this many probes (a fit costs seconds, a posterior ms)."""
+        retries: int = 2
+        call_timeout_s: float = 120.0
+        """Wall seconds a probe may take before the planner gives it up."""
+        output_dir: str = "out"
+        title: str = ""
+
+    def setup(self) -> None:
+        p = self.params
+        if p.mode not in ("sweep", "indent"):
+            raise palpa.ParamError(f"{self.name}: mode must be sweep or indent, got {p.mode!r}")
+        try:
+            self.cfg = PlannerConfig(tuple(p.region_mm), resolution_mm=p.resolution_mm, initial=p.initial,
+                                     beta=p.beta, implicit_fraction=p.implicit_fraction, epsilon=p.epsilon,
+                                     rel_threshold=p.rel_threshold, stop_area_mm2=p.stop_area_mm2,
+                                     max_probes=p.max_probes)
+        except ValueError as exc:
+            raise palpa.ParamError(f"{self.name}: {exc}") from None
+        x0, y0, x1, y1 = p.region_mm
+        self.grid = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
+        self.pending: list[tuple[float, float, float]] = []
+        self.unit = ""
+        self.queue = initial_design(self.cfg)
+        self.probed: list[tuple[float, float]] = []
+        self.given_up: list[tuple[float, float]] = []
+        """Points the scanner refused every time: never chosen again, not counted as probes."""
+        self.tries: dict[tuple[float, float], int] = {}
+        self.refused = 0
+        self.inflight: tuple[float, float] | None = None
+        self.retry_at_ns = 0
+        self.started_ns: int | None = None
+        self.belief: Belief | None = None
+        self.done = False
+        self.probe_at = self.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=p.call_timeout_s)
+        self.mean_pub = self.publisher("planner/mean", StiffnessMap, latched=True)
+        self.std_pub = self.publisher("planner/std", StiffnessMap, latched=True)
+        self.inc_pub = self.publisher("map/inclusions", Inclusions, latched=True)
+        self.subscribe("stiffness/sample", StiffnessSample, self.on_sample)
+        self.timer(0.05, self.step)
+
+    def on_sample(self, s: StiffnessSample) -> None:
+        if s.valid:
+            self.unit = s.unit
+            self.pending.append((s.x_mm, s.y_mm, s.value))
+
+    # -- the loop ----------------------------------------------------------------------------------
+    def step(self) -> None:
+        """Send the next request when none is in flight and the scanner is there."""
+        if self.done or self.inflight is not None or self.clock.now_ns() < self.retry_at_ns:
+            return
+        if not self.probe_at.ready():
+            return
+        if self.started_ns is None:
+            self.started_ns = self.clock.now_ns()
+        if not self.queue:
+            stop, why = self._decide()
+            if stop:
+                self.finish(why)
+                return
+        x, y = self.queue.pop(0)
+        self.inflight = (x, y)
+        req = ProbeAt(x_mm=x, y_mm=y, mode=self.params.mode,
+                      length_mm=self.params.length_mm, radius_mm=self.params.radius_mm)
+        self.probe_at.call_async(req).add_done_callback(self.on_result)
+
+    def on_result(self, fut: Future[ProbeResult]) -> None:
+        point, self.inflight = self.inflight, None
+        assert point is not None
+        err = fut.exception()
+        if err is None:
+            r = fut.result()
+            self.probed.append(point)
+            self.log.info("probe %d at (%.1f, %.1f) mm: %.2f %s from %d estimates", len(self.probed), *point,
+                          r.value, r.unit, r.samples)
+            self._update_belief()
+            return
+        self._refused(point, err)
+
+    def _refused(self, point: tuple[float, float], err: ServiceError) -> None:
+        self.refused += 1
+        n = self.tries[point] = self.tries.get(point, 0) + 1
+        if n <= self.params.retries:
+            self.log.warning("probe at (%.1f, %.1f) mm refused (%s): retrying", *point, err)
+            self.queue.insert(0, point)
+            self.retry_at_ns = self.clock.now_ns() + 500_000_000
+        else:
+            self.log.warning("probe at (%.1f, %.1f) mm refused %d times (%s): giving it up", *point, n, err)
+            self.given_up.append(point)
+
+    def _observations(self) -> tuple[list[tuple[float, float]], list[float]]:
+        if self.pending:
+            xs, ys, vs = zip(*self.pending, strict=True)
+            self.grid.add(np.array(xs), np.array(ys), np.array(vs))
+            self.pending.clear()
+        snap = self.grid.snapshot()
+        ok = np.isfinite(snap.stiffness)
+        gx, gy = np.meshgrid(snap.x_mm, snap.y_mm)
+        return list(zip(gx[ok].tolist(), gy[ok].tolist(), strict=True)), snap.stiffness[ok].tolist()
+
+    def _update_belief(self) -> None:
+        pts, vals = self._observations()
+        if len(pts) < 2:
+            return
+        # hyper-parameters re-optimised every refit_every probes; in between only the posterior is updated
+        old = self.belief
+        reuse = old is not None and len(self.probed) % self.params.refit_every != 0
+        self.belief = fit_belief(pts, vals, self.cfg, kernel=old.kernel if reuse and old else None)
+        self._publish_belief(final=False)
+
+    def _decide(self) -> tuple[bool, str]:
+        """Stop, or queue the acquisition's next point."""
+        b = self.belief
+        if len(self.given_up) >= self.cfg.max_probes:
+            return True, f"{len(self.given_up)} points refused by the scanner"
+        if b is None:
+            return True, "no stiffness estimate from the initial probes"
+        stop, why = should_stop(b, len(self.probed), self.cfg)
+        if not stop:
+            self.queue.append(next_probe(b, self.probed + self.given_up, self.cfg))
+        return stop, why
+
+    # -- output ------------------------------------------------------------------------------------
+    def _snapshot(self, b: Belief) -> MapSnapshot:
+        counts = self.grid.snapshot().count
+        return MapSnapshot(stiffness=b.mean, x_mm=b.x_mm, y_mm=b.y_mm, count=counts, spread=b.std,
+                           resolution_mm=self.params.resolution_mm)
+
+    def _publish_belief(self, final: bool) -> None:
+        b = self.belief
+        assert b is not None
+        snap = self._snapshot(b)
+        now = self.clock.now_ns()
+        for pub, grid in ((self.mean_pub, b.mean), (self.std_pub, b.std)):
+            pub.publish(StiffnessMap(stamp_ns=now, unit=self.unit, x_mm=b.x_mm.tolist(), y_mm=b.y_mm.tolist(),
+                                     stiffness=grid.ravel().tolist(), count=snap.count.ravel().tolist(),
+                                     spread=b.std.ravel().tolist(), samples=len(self.probed), final=final))
+
+    def finish(self, why: str) -> None:
+        self.done = True
+        p = self.params
+        elapsed = (self.clock.now_ns() - (self.started_ns or 0)) / 1e9
+        self.log.info("stopping: %s (%d probes, %d refusals, %.1f s)", why, len(self.probed), self.refused, elapsed)
+        out = Path(p.output_dir)
+        found = []
+        if self.belief is not None:
+            self._publish_belief(final=True)
+            snap = self._snapshot(self.belief)
+            try:
+                found = detect_inclusions(snap, rel_threshold=p.rel_threshold)
+            except ValueError as exc:
+                self.log.warning("no inclusion detection: %s", exc)
+            title = (p.title or "adaptive palpation (GP mean)") + f"\n{len(self.probed)} probes, {len(found)} found"
+            write_outputs(out, snap, found, unit=self.unit or "?", title=title)
+        self.inc_pub.publish(Inclusions(
+            stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,
+            baseline=self.belief.baseline if self.belief is not None else float("nan"),
+            inclusions=[DetectedInclusion(x_mm=i.x_mm, y_mm=i.y_mm, radius_mm=i.radius_mm, contrast=i.contrast)
+                        for i in found]))
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "planner.json").write_text(json.dumps({
+            "probes": len(self.probed), "refused": self.refused, "sim_s": elapsed, "stop": why,
+            "points": self.probed, "given_up": self.given_up}, indent=1) + "\n")
+        self.timer(0.2, lambda: self.request_shutdown(0), oneshot=True)

@@ -1,0 +1,59 @@
+"""The adaptive planner node driving the real scanner, composed in memory (launch/scan_adaptive_sim.yaml, small)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from test_launch_smoke import REPO
+
+from messages import StiffnessMap
+from palpa.clock import MockClock
+from palpa.compose import Composition
+from palpa.launch import load_launch, parse_overrides
+from palpa.launch.compose import compose_plan
+from palpa.node import Node
+
+SMALL = ["region_mm:=[36.0, 33.0, 54.0, 51.0]", "initial:=2", "max_probes:=8"]
+BOX_X_MAX = 46.0
+"""The scanner's workspace ends here in these tests: the planner's points at x = 49.5 mm lie outside it."""
+
+
+def _adaptive(tmp: Path) -> tuple[dict[str, Any], list[dict[str, float]], list[StiffnessMap]]:
+    from palpa.cli.run import load_node_class
+
+    plan = compose_plan(load_launch(REPO / "launch" / "scan_adaptive_sim.yaml", parse_overrides(SMALL),
+                                    run_dir=tmp))
+    clock = MockClock(1_700_000_000_000_000_000)
+    comp = Composition(clock=clock, heartbeat_s=0)
+    for n in json.loads(plan.nodes[0].cmd[-1])["nodes"]:  # type: ignore[index]
+        if n["name"] == "scanner":
+            n["params"]["workspace_mm"] = [-10.0, -10.0, 0.5, BOX_X_MAX, 70.0, 60.0]
+            n["params"]["region_mm"] = [5.0, 5.0, 40.0, 40.0]   # its (unused) raster must fit the box too
+        if n["name"] != "recorder":
+            comp.add(load_node_class(n["target"]), n["name"], n["params"], required=n["required"])
+    beliefs: list[StiffnessMap] = []
+    watcher = comp.adopt(Node(name="watcher", transport=comp.transport(), clock=clock, heartbeat_s=0))
+    watcher.subscribe("planner/mean", StiffnessMap, beliefs.append)
+    assert comp.run(max_sim_s=300.0) == 0
+    out = tmp / "map"
+    assert (out / "map.npz").exists()
+    return (json.loads((out / "planner.json").read_text()), json.loads((out / "inclusions.json").read_text()),
+            beliefs)
+
+
+def test_planner_probes_through_the_scanner_carries_on_after_refusals_and_is_deterministic(tmp_path: Path) -> None:
+    """Requests outside the scanner's box are refused by the scanner (the planner never checks the box itself);
+    the planner gives those points up and spends its budget on the rest; it publishes its belief after each
+    probe and writes the map; the same seed gives the same probe sequence and the same inclusions."""
+    a, inc_a, beliefs = _adaptive(tmp_path / "a")
+    assert a["refused"] >= 3                                    # (49.5, y) refused, retried twice, given up
+    assert a["probes"] >= 3                                     # and it carried on
+    assert all(p[0] < BOX_X_MAX for p in a["points"]) and len(a["points"]) == a["probes"]
+    assert [49.5, 37.5] in a["given_up"]
+    assert beliefs and beliefs[-1].final and len(beliefs[-1].stiffness) == 9 * 9
+    assert np.all(np.isfinite(beliefs[-1].stiffness))
+    b, inc_b, _ = _adaptive(tmp_path / "b")
+    assert a["points"] == b["points"] and inc_a == inc_b
