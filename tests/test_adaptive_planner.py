@@ -7,7 +7,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from test_launch_smoke import REPO
 
 from messages import StiffnessMap
 from palpa.clock import MockClock
@@ -15,6 +14,7 @@ from palpa.compose import Composition
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
 from palpa.node import Node
+from tests.procs import REPO
 
 SMALL = ["region_mm:=[36.0, 33.0, 54.0, 51.0]", "initial:=2", "max_probes:=8"]
 BOX_X_MAX = 46.0
