@@ -79,7 +79,7 @@ class ClockSource(Node):
         """Whether a process of this host exists (replaceable in tests)."""
         self._host = socket.gethostname()
         self._wall = time.monotonic_ns()
-        self._sim = time.time_ns()
+        self._sim = time.time_ns() // 1_000_000_000 * 1_000_000_000  # on a whole second, as palpa.compose starts
         self._acks: dict[str, int] = {}
         """participating node -> the simulated ns it acknowledged last"""
         self._heard: dict[str, int] = {}

@@ -12,8 +12,10 @@ For each sample time it takes the robot pose and the regulator's read-back press
 4. the fibre channels report them through their calibration errors and noise, clipped to the stroke.
 
 Samples fall on a grid of absolute simulated time (multiples of the period), and each one's noise is a function of
-the seed and its grid index, so what the sensor reports depends on simulated time and the seed only, not on when
-or how often the node reads the driver (a composed run reads it at other instants than a multi-process one).
+the seed and its grid index counted from the whole second of the first sample (simulated time starts on a whole
+second, composed or not: the same seed then gives the same noise in every run), so what the sensor reports depends
+on simulated time and the seed only, not on when or how often the node reads the driver (a composed run reads it at other instants
+than a multi-process one).
 
 Implements :class:`nodes.drivers.fibre.FibreDriver`; the node feeds it the latest pose and pressure from the bus.
 """
@@ -90,6 +92,7 @@ class SimFibreDriver:
         self._stroke = stroke_mm
         self._seed = seed
         self._noise_block: tuple[int, np.ndarray] | None = None  # (block index, its standard normals)
+        self._first_index: int | None = None  # noise counts grid indices from here
         self._pose = StampedBuffer(max_gap_ns=200_000_000)
         self._pressure = StampedBuffer(max_gap_ns=500_000_000)
         self._next_ns: int | None = None
@@ -234,9 +237,12 @@ class SimFibreDriver:
         return out
 
     def _unit_noise(self, stamps: np.ndarray) -> np.ndarray:
-        """(n, 4) standard normals for samples at ``stamps`` (ns): drawn per block of 1024 grid indices from the
-        seed and the block's index, so a sample's noise does not depend on which samples were read before it."""
+        """(n, 4) standard normals for samples at ``stamps`` (ns): drawn per block of 1024 grid indices (from the
+        whole second of the first sample) from the seed and the block's index, so a sample's noise does not depend on which samples were read before it."""
         idx = stamps // self._period_ns
+        if self._first_index is None and idx.size:  # the whole second of the first sample (a run starts on one)
+            self._first_index = int(stamps[0]) // 1_000_000_000 * 1_000_000_000 // self._period_ns
+        idx = idx - (self._first_index or 0)
         out = np.empty((idx.size, 4))
         for i, k in enumerate(idx.tolist()):
             block, row = divmod(k, 1024)

@@ -7,7 +7,8 @@ about +-0.5 kPa, the issue's regulator tracking error), seeded. The read-back is
 
 Both depend only on simulated time and the seed, not on how often or when the driver is called (a composed run
 and a multi-process one poll at different instants): the wander is stepped on a fixed 10 ms grid of absolute
-simulated time, one draw per grid step, and each read-back's noise is drawn from the seed and its time stamp."""
+simulated time, one draw per grid step, and each read-back's noise is drawn from the seed and its time stamp
+(counted from the whole second of the driver's opening: simulated time starts on a whole second, composed or not)."""
 
 from __future__ import annotations
 
@@ -59,6 +60,7 @@ class SimPressureDriver:
         self._track_tau = float(tracking_tau_s)
         self._wobble = self._track_sigma * float(self._rng.standard_normal()) if tracking_kpa > 0 else 0.0
         self._wobble_t: int | None = None  # the grid instant the wander's value belongs to
+        self._opened = 0
         self._setpoint = 0.0
         self._t: int | None = None
         self._polls = 0
@@ -100,12 +102,13 @@ class SimPressureDriver:
         if self.stuck_at_kpa is not None:
             p = self.stuck_at_kpa
         if self._noise:
-            noise = np.random.default_rng([self._seed, 2, self._t or 0]).standard_normal()
+            noise = np.random.default_rng([self._seed, 2, max(0, (self._t or 0) - self._opened)]).standard_normal()
             p = max(0.0, p + self._noise * float(noise))
         return PressureReading(self._t or 0, self._setpoint, p, flags)
 
     def open(self) -> None:
         self._t = self._clock()
+        self._opened = self._t // 1_000_000_000 * 1_000_000_000  # its whole second: a run starts on one
 
     def close(self) -> None:
         """Nothing to release."""
