@@ -203,15 +203,9 @@ def test_malformed_batch_is_counted() -> None:
 
 def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.MonkeyPatch,
                                                           caplog: pytest.LogCaptureFixture) -> None:
-    from palpa import simclock
     from palpa.runtime_msgs import ClockAck
 
-    wall = [0]
-    monkeypatch.setattr(simclock.time, "monotonic_ns", lambda: wall[0])
-    monkeypatch.setattr(simclock.time, "time_ns", lambda: 1_000_000_000)
-    bus = MemoryBus()
-    src = simclock.ClockSource(params={"time_scale": 2.0, "max_lead_s": 0.02}, transport=bus.transport(),
-                               heartbeat_s=0)
+    wall, bus, src = _clock_source(monkeypatch)
     wall[0] = 100_000_000  # 0.1 s wall at 2x: free running, 0.2 s simulated
     assert src.sim_now_ns() == 1_200_000_000
     laggard = palpa.Node(name="slow", transport=bus.transport(), heartbeat_s=0)
@@ -234,11 +228,9 @@ def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.Mo
     assert len(dropped) == 1 and dropped[0].levelname == "WARNING"  # said once, not on every tick
 
 
-def _lockstep(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], Any, Any, Any]:
-    """A clock source on a memory bus with a controlled wall clock, and a participant 'slow' (pid 4242 on this
-    host) that acked 1.1 s of simulated time: (wall, source, ack publisher, heartbeat publisher)."""
+def _clock_source(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], MemoryBus, Any]:
+    """A clock source (2x, 20 ms lead, simulated time from 1 s) on a memory bus, its wall clock ``wall[0]``."""
     from palpa import simclock
-    from palpa.runtime_msgs import ClockAck, Heartbeat
 
     wall = [0]
     monkeypatch.setattr(simclock.time, "monotonic_ns", lambda: wall[0])
@@ -246,6 +238,15 @@ def _lockstep(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], Any, Any, Any
     bus = MemoryBus()
     src = simclock.ClockSource(params={"time_scale": 2.0, "max_lead_s": 0.02}, transport=bus.transport(),
                                heartbeat_s=0)
+    return wall, bus, src
+
+
+def _lockstep(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], Any, Any, Any]:
+    """A clock source and a participant 'slow' (pid 4242 on this host) that acked 1.1 s of simulated time:
+    (wall, source, ack publisher, heartbeat publisher)."""
+    from palpa.runtime_msgs import ClockAck, Heartbeat
+
+    wall, bus, src = _clock_source(monkeypatch)
     peer = palpa.Node(name="slow", transport=bus.transport(), heartbeat_s=0)
     ack = peer.publisher("_palpa/clock_ack", ClockAck)
     hb = peer.publisher("_palpa/heartbeat", Heartbeat)
