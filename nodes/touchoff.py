@@ -7,8 +7,10 @@ and goes on to the next point. The contact signals (``signal``):
 * ``heights`` -- the air-float probe's own surface-profile sensors: as soon as SPS1..3 read less than
   ``threshold`` (mm, inside their stroke) the probe sees the surface below its face, so the surface is the face
   height at that sample's stamp less the SPS mean (the median of ``samples`` readings). No force is needed.
-* ``indenters`` -- the camera probe: an indenter moved more than ``threshold`` (mm); the surface is where they
-  began to move (the samples since a quarter of the threshold extrapolated back to 0 along a line: springs).
+* ``indenters`` -- the camera probe: an indenter moved more than ``threshold`` (mm) from where it was when the
+  search over this point began (a tare: guide friction can hold an indenter in after the previous press); the
+  surface is where they began to move (the samples since a quarter of the threshold extrapolated back to 0 along
+  a line: springs).
 * ``force`` -- the arm's TCP force (ur_rtde's ``actual_TCP_force``): |Fz| above ``threshold`` (N); the surface is
   the height where the force began (the samples from contact to ``threshold`` are extrapolated back to 0 N along
   F^(2/3), the shape of any sphere's contact, so that the stiffness of the tissue does not bias it).
@@ -83,6 +85,7 @@ class TouchOff:
         self._z = StampedBuffer(max_gap_ns=200_000_000)
         self._found: list[float] = []
         self._rising: list[tuple[float, float]] = []  # (z, signal) since the contact signal began to rise
+        self._tare: tuple[float, ...] | None = None  # indenters: their displacements when the search here began
 
     @property
     def done(self) -> bool:
@@ -117,13 +120,23 @@ class TouchOff:
         """Camera probe sample: indenter displacements (mm)."""
         if self.cfg.signal != "indenters" or not self._searching_here():
             return
-        moved = [d for d, ok in zip(displacement_mm, valid, strict=False) if ok]
         z = self._z_at(stamp_ns)
-        if not moved or z is None:
+        if z is None:
             return
-        if max(moved) > 0.25 * self.cfg.threshold:
-            self._rising.append((z, max(moved)))
-        if max(moved) > self.cfg.threshold:
+        if self._tare is None:
+            # tared on the first sample over the point (above the surface): the guides' friction can hold an
+            # indenter a fraction of a millimetre in after the last press, and that offset is not contact here
+            self._tare = tuple(displacement_mm)
+            return
+        moved = [(d - t, d) for d, t, ok in zip(displacement_mm, self._tare, valid, strict=False) if ok]
+        if not moved:
+            return
+        rise, d = max(moved)
+        if rise > 0.25 * self.cfg.threshold:
+            # the fit goes through the indenter's own displacement, not the tared one: one held in by friction
+            # slides back along the line of a free one (its spring and the sample), which ends where contact began
+            self._rising.append((z, d))
+        if rise > self.cfg.threshold:
             # the indenters' springs move about linearly with the press: back to where they began to move
             self._found = [self._zero_crossing(z, 1.0)] * self.cfg.samples
             self._contact(self._found[0])
@@ -200,7 +213,7 @@ class TouchOff:
         self.phase = "stopping"
 
     def _go(self, index: int) -> None:
-        self.index, self._found, self._rising = index, [], []
+        self.index, self._found, self._rising, self._tare = index, [], [], None
         if index >= len(self.points):
             self.driver.move_path([self._point(*self.driver.state().pose[:2], self.cfg.start_z_mm,
                                                self.cfg.transit_speed_mm_s)])

@@ -407,6 +407,8 @@ class Node:
             self.on_shutdown()
             for srv in self._services.values():
                 srv.withdraw()
+            if self._topic_clock is not None:  # the lockstep clock stops waiting for this node now, not later
+                self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns, leaving=True))
             self.flush()
         finally:
             self._release(int(linger_s * 1000))

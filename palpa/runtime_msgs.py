@@ -64,7 +64,9 @@ class ClockAck(Message, frozen=True, kw_only=True):
     """A sim-clock node's report that it has handled everything up to ``sim_ns`` (topic ``_palpa/clock_ack``).
 
     The clock source never runs more than a small lead ahead of the slowest node, so an overloaded machine slows
-    simulated time down instead of starving nodes of data (lockstep, as in Gazebo)."""
+    simulated time down instead of starving nodes of data (lockstep, as in Gazebo). ``leaving``: the node's last
+    ack, sent as it closes: it no longer holds simulated time back."""
 
     node: str
     sim_ns: int
+    leaving: bool = False

@@ -5,15 +5,31 @@ simulated graph can run ``time_scale`` times faster than real time and still sta
 consistently. ``palpa play --clock`` drives the same topic from a recording.
 
 Lockstep: every sim-clock node acknowledges the time it has handled (``_palpa/clock_ack``); the source never runs
-more than ``max_lead_s`` of simulated time ahead of the slowest node heard in the last ``participant_timeout_s``.
-On an overloaded machine simulated time therefore slows down — ``time_scale`` is a ceiling — instead of nodes
-falling behind and seeing each other's data go stale.
+more than ``max_lead_s`` of simulated time ahead of the slowest participating node. On an overloaded machine
+simulated time therefore slows down — ``time_scale`` is a ceiling — instead of nodes falling behind and seeing
+each other's data go stale.
+
+Who participates: a node is in from its first ack until it *leaves*, never because it is slow. A CPU-starved node
+may not ack for seconds; dropping it then lets time run on without it, and its peers' sim-time watchdogs trip on
+its stale data. So a node leaves only
+
+* by saying so: its last ack, sent as it closes (a clean shutdown, a crash that still runs ``close``), carries
+  ``leaving``;
+* when its process is gone: the node's heartbeats name its pid and host; for a node on this host whose pid no
+  longer exists (checked once it has been silent for ``check_after_s``), the clock stops waiting at once;
+* when nothing at all (ack or heartbeat) has come from it for ``participant_timeout_s`` and its process cannot be
+  checked (another host, or no heartbeat heard). A node on this host whose process is alive holds time however
+  long it is silent (a warning says so once).
+
+A node that acks again after it was dropped takes part again.
 """
 
 from __future__ import annotations
 
+import os
+import socket
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
 from palpa.clock import SystemClock
@@ -21,7 +37,14 @@ from palpa.node import Node
 from palpa.params import NonNegative, Positive
 from palpa.params import Params as ParamsBase
 from palpa.runner import run_node
-from palpa.runtime_msgs import CLOCK_ACK_TOPIC, CLOCK_TOPIC, ClockAck, ClockTick
+from palpa.runtime_msgs import (
+    CLOCK_ACK_TOPIC,
+    CLOCK_TOPIC,
+    HEARTBEAT_TOPIC,
+    ClockAck,
+    ClockTick,
+    Heartbeat,
+)
 
 __all__ = ["ClockSource"]
 
@@ -36,8 +59,11 @@ class ClockSource(Node):
         """Ticks per wall-clock second: the time resolution timers in sim-clock nodes get."""
         max_lead_s: NonNegative = 0.02
         """Simulated seconds the clock may run ahead of the slowest acknowledging node (0: no lockstep)."""
-        participant_timeout_s: Positive = 2.0
-        """A node not heard for this long (wall clock) no longer holds the clock back (it died or stopped)."""
+        participant_timeout_s: Positive = 30.0
+        """A node whose process cannot be checked (another host) and not heard for this long (wall clock, acks or
+        heartbeats) no longer holds the clock back. A live process on this host holds it however long it is silent."""
+        check_after_s: Positive = 2.0
+        """A node on this host silent for this long (wall clock) has its process checked: gone, it is dropped."""
 
     params: Params  # typed: mypy checks every self.params.<name>
 
@@ -51,32 +77,68 @@ class ClockSource(Node):
         if self.params.time_scale <= 0 or self.params.rate_hz <= 0:
             raise ValueError("time_scale and rate_hz must be > 0")
         self._pub = self.publisher(CLOCK_TOPIC, ClockTick, batch=1)
+        self.pid_alive: Callable[[int], bool] = _pid_alive
+        """Whether a process of this host exists (replaceable in tests)."""
+        self._host = socket.gethostname()
         self._wall = time.monotonic_ns()
-        self._sim = time.time_ns()
-        self._acks: dict[str, tuple[int, int]] = {}
-        """node -> (acknowledged sim ns, wall monotonic ns when heard)"""
-        self._dropped: set[str] = set()
+        self._sim = time.time_ns() // 1_000_000_000 * 1_000_000_000  # on a whole second, as palpa.compose starts
+        self._acks: dict[str, int] = {}
+        """participating node -> the simulated ns it acknowledged last"""
+        self._heard: dict[str, int] = {}
+        """participating node -> wall monotonic ns it was last heard (an ack or a heartbeat)"""
+        self._pids: dict[str, int] = {}
+        """participating node -> its pid, when its heartbeats say it runs on this host"""
+        self._held: set[str] = set()
         if self.params.max_lead_s > 0:
             self.subscribe(CLOCK_ACK_TOPIC, self._on_ack)
+            self.subscribe(HEARTBEAT_TOPIC, self._on_heartbeat)
         self.timer(1.0 / self.params.rate_hz, self._tick, first_in_s=0.0)
 
     def _on_ack(self, ack: ClockAck) -> None:
-        self._acks[ack.node] = (ack.sim_ns, time.monotonic_ns())
-        self._dropped.discard(ack.node)
+        if ack.leaving:
+            if self._acks.pop(ack.node, None) is not None:
+                self.log.info("%s left: it no longer holds simulated time back", ack.node)
+            return
+        self._acks[ack.node] = ack.sim_ns
+        self._heard[ack.node] = time.monotonic_ns()
+        self._held.discard(ack.node)
+
+    def _on_heartbeat(self, hb: Heartbeat) -> None:
+        if hb.node in self._acks:  # only participants: every node heartbeats, few follow the clock
+            self._heard[hb.node] = time.monotonic_ns()
+            if hb.host == self._host:
+                self._pids[hb.node] = hb.pid
+            else:
+                self._pids.pop(hb.node, None)
+
+    def _still_in(self, node: str, wall: int) -> bool:
+        """Whether ``node`` still holds simulated time back (see the module's docstring); says a drop once."""
+        silent_s = (wall - self._heard.get(node, wall)) / 1e9
+        if silent_s < self.params.check_after_s:
+            return True
+        pid = self._pids.get(node)
+        if pid is not None:
+            if self.pid_alive(pid):
+                if silent_s >= self.params.participant_timeout_s and node not in self._held:
+                    self._held.add(node)
+                    self.log.warning("%s (pid %d) not heard for %.0f s (wall clock) but alive: simulated time waits "
+                                     "for it", node, pid, silent_s)
+                return True
+            why = f"its process (pid {pid}) is gone"
+        elif silent_s < self.params.participant_timeout_s:
+            return True
+        else:
+            why = f"not heard for {self.params.participant_timeout_s:.1f} s (wall clock)"
+        self._acks.pop(node)
+        self.log.warning("%s %s: it no longer holds simulated time back", node, why)
+        return False
 
     def sim_now_ns(self) -> int:
         """Advance simulated time by the wall time since the last call (scaled), held back to the lockstep limit."""
         wall = time.monotonic_ns()
         proposed = self._sim + int((wall - self._wall) * self.params.time_scale)
         self._wall = wall
-        cutoff = wall - int(self.params.participant_timeout_s * 1e9)
-        live = [sim for sim, heard in self._acks.values() if heard >= cutoff]
-        if len(live) < len(self._acks) - len(self._dropped):
-            for node, (_, heard) in self._acks.items():
-                if heard < cutoff and node not in self._dropped:
-                    self._dropped.add(node)  # said once: a node that stays away is not news every tick
-                    self.log.warning("%s not heard for %.1f s (wall clock): it no longer holds simulated time back",
-                                     node, self.params.participant_timeout_s)
+        live = [sim for node, sim in list(self._acks.items()) if self._still_in(node, wall)]
         if live and self.params.max_lead_s > 0:
             limit = min(live) + int(self.params.max_lead_s * 1e9)
             if proposed > limit:
@@ -86,6 +148,21 @@ class ClockSource(Node):
 
     def _tick(self) -> None:
         self._pub.publish(ClockTick(sim_ns=self.sim_now_ns()))
+
+
+def _pid_alive(pid: int) -> bool:
+    """A process with this pid exists on this host and has not died (a zombie, not yet reaped, has)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, another user's
+        return True
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rsplit(b")", 1)[-1].split()[0] != b"Z"
+    except (OSError, IndexError):
+        return True  # no procfs: kill(0) said it exists
 
 
 if __name__ == "__main__":

@@ -109,3 +109,55 @@ def test_error_draws_are_seeded_and_realistic() -> None:
     assert 0.025 < float(np.median(rmse)) < 0.05  # the paper's eq. 4 fit: RMSE < 0.0404 N
     assert TrueProbe(ProbeErrors.ideal()).eq4_residual_rmse_n() < 1e-9
     json.dumps(a.as_dict())  # recordable as it is
+
+
+def _fibre_readings(read_every_ns: int, first_read_ns: int) -> dict[int, tuple[float, ...]]:
+    """A noisy sim probe over a pose ramp (one pose per ms), read every ``read_every_ns`` from ``first_read_ns``."""
+    now = [0]
+    drv = SimFibreDriver(FLAT, lambda: now[0], errors=ProbeErrors.draw(3, noise_mm=0.01), world=HalfSpace(26.4),
+                         seed=5)
+    drv.open()
+    out: dict[int, tuple[float, ...]] = {}
+    for ms in range(400):
+        drv.set_pose(ms * 1_000_000, 30.0, 30.0, 24.0 - ms * 0.002)
+        drv.set_pressure(ms * 1_000_000, 36.0)
+        now[0] = ms * 1_000_000
+        if now[0] >= first_read_ns and (now[0] - first_read_ns) % read_every_ns == 0:
+            out.update({s.stamp_ns: s.heights_mm for s in drv.read()})
+    return out
+
+
+def test_the_sim_probe_reports_the_same_at_the_same_simulated_time_however_it_is_read() -> None:
+    """Sample times and noise depend on simulated time and the seed, not on when or how often the node reads the
+    driver (a composed run and a multi-process one read it at other instants)."""
+    a, b = _fibre_readings(1_000_000, 3_000_000), _fibre_readings(37_000_000, 20_000_000)
+    common = sorted(set(a) & set(b))
+    assert len(common) > 150
+    assert all(a[t] == b[t] for t in common)
+    assert len({a[t] for t in common}) == len(common)
+
+
+def _pressure_readings(poll_every_ms: int) -> dict[int, float]:
+    from nodes.drivers.pressure_sim import SimPressureDriver
+
+    now = [0]
+    drv = SimPressureDriver(lambda: now[0], 60.0, noise_kpa=0.05, tracking_kpa=0.25, seed=7)
+    drv.open()
+    out = {}
+    for ms in range(0, 3000):
+        now[0] = 1_000_000_000 + ms * 1_000_000
+        if ms == 100:
+            drv.set_setpoint(36.0)
+        if ms % poll_every_ms == 0 or ms % 50 == 0:
+            r = drv.read()
+            assert r is not None
+            if ms % 50 == 0:
+                out[ms] = r.measured_kpa
+    return out
+
+
+def test_the_sim_regulator_wanders_the_same_however_often_it_is_polled() -> None:
+    """The outlet's wander and the read-back noise follow simulated time and the seed, not the number of polls."""
+    a, b = _pressure_readings(3), _pressure_readings(50)
+    assert a.keys() == b.keys() and all(a[k] == pytest.approx(b[k], abs=1e-9) for k in a)  # the plant's float steps
+    assert len({round(v, 6) for ms, v in a.items() if ms > 1000}) > 30

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import socket
+from typing import Any
+
 import msgspec
 import pytest
 
@@ -200,15 +203,9 @@ def test_malformed_batch_is_counted() -> None:
 
 def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.MonkeyPatch,
                                                           caplog: pytest.LogCaptureFixture) -> None:
-    from palpa import simclock
     from palpa.runtime_msgs import ClockAck
 
-    wall = [0]
-    monkeypatch.setattr(simclock.time, "monotonic_ns", lambda: wall[0])
-    monkeypatch.setattr(simclock.time, "time_ns", lambda: 1_000_000_000)
-    bus = MemoryBus()
-    src = simclock.ClockSource(params={"time_scale": 2.0, "max_lead_s": 0.02}, transport=bus.transport(),
-                               heartbeat_s=0)
+    wall, bus, src = _clock_source(monkeypatch)
     wall[0] = 100_000_000  # 0.1 s wall at 2x: free running, 0.2 s simulated
     assert src.sim_now_ns() == 1_200_000_000
     laggard = palpa.Node(name="slow", transport=bus.transport(), heartbeat_s=0)
@@ -221,9 +218,83 @@ def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.Mo
     src.spin_once(0)
     wall[0] = 300_000_000
     assert src.sim_now_ns() == 1_320_000_000  # may lead the slowest node by 20 ms, no more
-    wall[0] = 300_000_000 + 3_000_000_000  # the slow node went silent: it no longer holds the clock
-    assert src.sim_now_ns() == 1_320_000_000 + 6_000_000_000
+    wall[0] = 300_000_000 + 3_000_000_000  # silent for 3 s: slow, not gone (no process to check): still holding
+    assert src.sim_now_ns() == 1_320_000_000
+    wall[0] = 300_000_000 + 30_000_000_000  # silent for participant_timeout_s: it no longer holds the clock
+    assert src.sim_now_ns() == 1_320_000_000 + 2 * 27_000_000_000
     wall[0] += 100_000_000
     src.sim_now_ns()
     dropped = [r for r in caplog.records if "slow not heard" in r.getMessage()]
     assert len(dropped) == 1 and dropped[0].levelname == "WARNING"  # said once, not on every tick
+
+
+def _clock_source(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], MemoryBus, Any]:
+    """A clock source (2x, 20 ms lead, simulated time from 1 s) on a memory bus, its wall clock ``wall[0]``."""
+    from palpa import simclock
+
+    wall = [0]
+    monkeypatch.setattr(simclock.time, "monotonic_ns", lambda: wall[0])
+    monkeypatch.setattr(simclock.time, "time_ns", lambda: 1_000_000_000)
+    bus = MemoryBus()
+    src = simclock.ClockSource(params={"time_scale": 2.0, "max_lead_s": 0.02}, transport=bus.transport(),
+                               heartbeat_s=0)
+    return wall, bus, src
+
+
+def _lockstep(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], Any, Any, Any]:
+    """A clock source and a participant 'slow' (pid 4242 on this host) that acked 1.1 s of simulated time:
+    (wall, source, ack publisher, heartbeat publisher)."""
+    from palpa.runtime_msgs import ClockAck, Heartbeat
+
+    wall, bus, src = _clock_source(monkeypatch)
+    peer = palpa.Node(name="slow", transport=bus.transport(), heartbeat_s=0)
+    ack = peer.publisher("_palpa/clock_ack", ClockAck)
+    hb = peer.publisher("_palpa/heartbeat", Heartbeat)
+    ack.publish(ClockAck(node="slow", sim_ns=1_100_000_000))
+    hb.publish(Heartbeat(node="slow", pid=4242, host=socket.gethostname(), publishes={}, subscribes={}, counters={},
+                         sent={}, uptime_s=1.0))
+    src.spin_once(0)
+    return wall, src, ack, hb
+
+
+def test_lockstep_waits_for_a_silent_node_whose_process_is_alive(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A CPU-starved node (no ack for minutes of wall time) whose process lives holds simulated time back."""
+    wall, src, _, _ = _lockstep(monkeypatch)
+    src.pid_alive = lambda pid: pid == 4242
+    for wall[0] in (1_000_000_000, 10_000_000_000, 300_000_000_000):
+        assert src.sim_now_ns() == 1_120_000_000  # 20 ms ahead of its last ack, however long it is silent
+
+
+def test_lockstep_drops_a_node_whose_process_is_gone_or_that_left(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Its process gone: dropped once silent for check_after_s (2 s), not before; a 'leaving' ack: at once."""
+    from palpa.runtime_msgs import ClockAck
+
+    wall, src, ack, _ = _lockstep(monkeypatch)
+    src.pid_alive = lambda pid: False
+    wall[0] = 1_900_000_000
+    assert src.sim_now_ns() == 1_120_000_000  # silent < 2 s: not checked yet
+    wall[0] = 2_100_000_000
+    assert src.sim_now_ns() == 1_120_000_000 + 2 * 200_000_000  # gone: time runs free
+    ack.publish(ClockAck(node="slow", sim_ns=2_000_000_000))  # it acks again: it takes part again
+    src.spin_once(0)
+    src.pid_alive = lambda pid: True
+    wall[0] = 3_000_000_000
+    assert src.sim_now_ns() == 2_020_000_000
+    ack.publish(ClockAck(node="slow", sim_ns=2_000_000_000, leaving=True))
+    src.spin_once(0)
+    wall[0] = 3_100_000_000
+    assert src.sim_now_ns() == 2_020_000_000 + 2 * 100_000_000  # it left: not waited for
+
+
+def test_a_sim_clock_node_says_it_leaves_as_it_closes() -> None:
+    """Its last clock ack carries 'leaving', so the lockstep clock stops waiting for it at once."""
+    from palpa.runtime_msgs import ClockAck
+
+    bus = MemoryBus()
+    node = palpa.Node(name="sim", transport=bus.transport(), sim_clock=True, wait_for_clock_s=0, heartbeat_s=0)
+    h = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
+    acks: list[ClockAck] = []
+    h.subscribe("_palpa/clock_ack", ClockAck, acks.append)
+    node.close(0)
+    h.spin_once(0)
+    assert [a.leaving for a in acks] == [True] and acks[0].node == "sim"

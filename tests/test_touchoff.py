@@ -171,3 +171,28 @@ def test_the_launch_refuses_a_specimen_wider_than_the_box_before_any_motion(tmp_
                      r"y .* mm less the 6 mm edge margin, x .* does not fit the workspace box \(x -10\.\.150, y "
                      r"-10\.\.150, z 0\.5\.\.100 mm\): x 19\d(\.5)? > x_max 150", text), text
     assert "plan:" not in text
+def test_an_indenter_held_in_by_guide_friction_after_a_press_does_not_count_as_contact(tmp_path: Path) -> None:
+    """After each press the indenters stay up to 0.14 mm in (Coulomb friction in their guides, as the sim probe
+    is built): the next point's descent starts from that offset (a quarter of the 0.3 mm threshold is below it:
+    untared, the whole descent is 'rising'), and the surface is still where contact began, not 0.35 mm lower
+    where the held-in indenters begin to slide again."""
+    geo = write_geometry(tmp_path, [0, 0, 40, 40], 12.0)
+    h = NodeHarness(RobotScanner, touch_params(geo, touchoff="indenters", mode="indent", watch_topic="camera/indenters",
+                                              indent_depth_mm=5.0, hold_s=0.1, touch_grid=2))
+    surface, gain, hold = 10.0, (0.4, 0.4, 0.2, 0.4), (0.14, 0.1, 0.02, 0.12)  # per indenter: soft, soft, hard, soft
+    stuck = [0.0] * 4
+    for _ in range(int(60 / 0.004)):
+        z = h.node.driver.state().pose[2]
+        press = [max(0.0, surface - z) * g for g in gain]
+        stuck = [max(s, min(p, f)) for s, p, f in zip(stuck, press, hold, strict=True)]  # held in, never released
+        d = [max(p, s) for p, s in zip(press, stuck, strict=True)]  # slides back along its free line
+        h.publish("camera/indenters", IndenterDisplacements(stamp_ns=h.clock.now_ns(), frame_seq=0,
+                                                            displacement_mm=(d[0], d[1], d[2], d[3]),
+                                                            centroid_x_px=(0, 0, 0, 0), centroid_y_px=(0, 0, 0, 0),
+                                                            valid=(True,) * 4))
+        h.advance(0.004)
+        if len(h.published("robot/plan")) > 1 or h.node.state == "fault":
+            break
+    touch = h.node.specimen.touch
+    assert touch is not None and touch.done, h.node.message
+    assert len(touch.touches) == 5 and [round(z, 1) for _, _, z in touch.touches] == [surface] * 5

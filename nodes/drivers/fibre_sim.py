@@ -11,6 +11,12 @@ For each sample time it takes the robot pose and the regulator's read-back press
    on its air gap; the indenter ``depth`` below the true surface point under it, ``depth_reference="surface"``);
 4. the fibre channels report them through their calibration errors and noise, clipped to the stroke.
 
+Samples fall on a grid of absolute simulated time (multiples of the period), and each one's noise is a function of
+the seed and its grid index counted from the whole second of the first sample (simulated time starts on a whole
+second, composed or not: the same seed then gives the same noise in every run), so what the sensor reports depends
+on simulated time and the seed only, not on when or how often the node reads the driver (a composed run reads it at other instants
+than a multi-process one).
+
 Implements :class:`nodes.drivers.fibre.FibreDriver`; the node feeds it the latest pose and pressure from the bus.
 """
 
@@ -84,7 +90,9 @@ class SimFibreDriver:
         self._a = sps_radius_mm
         self._r = indenter_radius_mm
         self._stroke = stroke_mm
-        self._rng = np.random.default_rng([seed, 1])
+        self._seed = seed
+        self._noise_block: tuple[int, np.ndarray] | None = None  # (block index, its standard normals)
+        self._first_index: int | None = None  # noise counts grid indices from here
         self._pose = StampedBuffer(max_gap_ns=200_000_000)
         self._pressure = StampedBuffer(max_gap_ns=500_000_000)
         self._next_ns: int | None = None
@@ -132,7 +140,7 @@ class SimFibreDriver:
             return []
         now = self._clock()
         if self._next_ns is None:
-            self._next_ns = now
+            self._next_ns = -(-now // self._period_ns) * self._period_ns
         # wait up to 50 ms for poses so that motion is interpolated, not guessed; past that the sensor streams
         # on at the last known pose (a real DAQ does not wait for the robot; a stalled pose stream must not
         # look like a dead sensor)
@@ -152,7 +160,7 @@ class SimFibreDriver:
             return []
         xyz = np.asarray(poses)
         pressure = np.array([(self._pressure.at(t, 500_000_000) or (0.0,))[0] for t in keep])
-        heights = self.heights(xyz[:, 0], xyz[:, 1], xyz[:, 2], pressure)
+        heights = self.heights(xyz[:, 0], xyz[:, 1], xyz[:, 2], pressure, np.asarray(keep, dtype=np.int64))
         out = []
         for t, (h1, h2, h3, h4) in zip(keep, heights.tolist(), strict=True):
             self._seq += 1
@@ -228,8 +236,25 @@ class SimFibreDriver:
         out: np.ndarray = np.minimum(d, reach)
         return out
 
-    def heights(self, x: np.ndarray, y: np.ndarray, z_face: np.ndarray, readback_kpa: np.ndarray) -> np.ndarray:
-        """(n, 4) fibre readings h1..h4 (mm) for face-centre poses (x, y, z_face) and regulator read-backs."""
+    def _unit_noise(self, stamps: np.ndarray) -> np.ndarray:
+        """(n, 4) standard normals for samples at ``stamps`` (ns): drawn per block of 1024 grid indices (from the
+        whole second of the first sample) from the seed and the block's index, so a sample's noise does not depend on which samples were read before it."""
+        idx = stamps // self._period_ns
+        if self._first_index is None and idx.size:  # the whole second of the first sample (a run starts on one)
+            self._first_index = int(stamps[0]) // 1_000_000_000 * 1_000_000_000 // self._period_ns
+        idx = idx - (self._first_index or 0)
+        out = np.empty((idx.size, 4))
+        for i, k in enumerate(idx.tolist()):
+            block, row = divmod(k, 1024)
+            if self._noise_block is None or self._noise_block[0] != block:
+                self._noise_block = (block, np.random.default_rng([self._seed, 1, block]).standard_normal((1024, 4)))
+            out[i] = self._noise_block[1][row]
+        return out
+
+    def heights(self, x: np.ndarray, y: np.ndarray, z_face: np.ndarray, readback_kpa: np.ndarray,
+                stamps: np.ndarray | None = None) -> np.ndarray:
+        """(n, 4) fibre readings h1..h4 (mm) for face-centre poses (x, y, z_face) and regulator read-backs at
+        ``stamps`` (ns; their noise; None: noiseless)."""
         ph = self.phantom
         probe_kpa = np.asarray(self.probe.probe_pressure_kpa(readback_kpa), dtype=float)
         thickness = np.asarray(ph.thickness(x, y), dtype=float)
@@ -241,7 +266,9 @@ class SimFibreDriver:
         h = np.stack(heights_over_phantom(ph, xs, ys, z_face, depth, self._a, self._r, depth_reference="surface"),
                      axis=-1)
         h[:, :3] -= self.probe.sps_gap_mm(probe_kpa)  # each SPS tip floats above the tissue on its air cushion
-        h = self.probe.fibre_readings_mm(h, self._rng)
+        h = self.probe.fibre_readings_mm(h)
+        if stamps is not None and self.errors.noise_mm > 0:
+            h = h + self.errors.noise_mm * self._unit_noise(stamps)
         h = np.where(np.isfinite(h), h, self._stroke)
         out: np.ndarray = np.clip(h, 0.0, self._stroke)
         return out

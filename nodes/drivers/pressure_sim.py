@@ -3,7 +3,12 @@
 
 A real regulator does not hold its set-point exactly: the outlet wanders about the plant's response as an
 Ornstein-Uhlenbeck process (``tracking_kpa`` sigma, ``tracking_tau_s`` correlation time; 0.25 kPa keeps it within
-about +-0.5 kPa, the issue's regulator tracking error), seeded. The read-back is the outlet plus white noise."""
+about +-0.5 kPa, the issue's regulator tracking error), seeded. The read-back is the outlet plus white noise.
+
+Both depend only on simulated time and the seed, not on how often or when the driver is called (a composed run
+and a multi-process one poll at different instants): the wander is stepped on a fixed 10 ms grid of absolute
+simulated time, one draw per grid step, and each read-back's noise is drawn from the seed and its time stamp
+(counted from the whole second of the driver's opening: simulated time starts on a whole second, composed or not)."""
 
 from __future__ import annotations
 
@@ -22,6 +27,8 @@ from nodes.drivers.pressure import (
 )
 
 __all__ = ["SimPressureDriver"]
+
+_WANDER_STEP_NS = 10_000_000
 
 
 class SimPressureDriver:
@@ -47,10 +54,13 @@ class SimPressureDriver:
         self._max = float(max_kpa)
         self._plant = RegulatorPlant(tau_s=tau_s, rate_limit_kpa_s=rate_limit_kpa_s, max_kpa=max_kpa)
         self._noise = noise_kpa
+        self._seed = seed
         self._rng = np.random.default_rng(seed)
         self._track_sigma = float(tracking_kpa)
         self._track_tau = float(tracking_tau_s)
         self._wobble = self._track_sigma * float(self._rng.standard_normal()) if tracking_kpa > 0 else 0.0
+        self._wobble_t: int | None = None  # the grid instant the wander's value belongs to
+        self._opened = 0
         self._setpoint = 0.0
         self._t: int | None = None
         self._polls = 0
@@ -63,11 +73,25 @@ class SimPressureDriver:
         if self._t is not None and now > self._t:
             dt = (now - self._t) / 1e9
             self._plant.step(self._setpoint, dt)
-            if self._track_sigma > 0:  # exact OU step over dt
-                k = math.exp(-dt / self._track_tau)
-                self._wobble = k * self._wobble + self._track_sigma * math.sqrt(1 - k * k) * float(
-                    self._rng.standard_normal())
+        if self._track_sigma > 0:
+            self._wander_to(now)
         self._t = now
+
+    def _wander_to(self, now: int) -> None:
+        """Step the wander (exact OU steps of the grid's 10 ms) to the last grid instant not after ``now``."""
+        grid = now - now % _WANDER_STEP_NS
+        if self._wobble_t is None:
+            self._wobble_t = grid
+            return
+        n = (grid - self._wobble_t) // _WANDER_STEP_NS
+        if n <= 0:
+            return
+        k = math.exp(-_WANDER_STEP_NS / 1e9 / self._track_tau)
+        kick = self._track_sigma * math.sqrt(1 - k * k)
+        w = self._wobble
+        for z in self._rng.standard_normal(int(n)).tolist():
+            w = k * w + kick * z
+        self._wobble, self._wobble_t = w, grid
 
     def _reading(self, flags: frozenset[str] = frozenset()) -> PressureReading:
         if self.lost:
@@ -78,11 +102,13 @@ class SimPressureDriver:
         if self.stuck_at_kpa is not None:
             p = self.stuck_at_kpa
         if self._noise:
-            p = max(0.0, p + float(self._rng.normal(0.0, self._noise)))
+            noise = np.random.default_rng([self._seed, 2, max(0, (self._t or 0) - self._opened)]).standard_normal()
+            p = max(0.0, p + self._noise * float(noise))
         return PressureReading(self._t or 0, self._setpoint, p, flags)
 
     def open(self) -> None:
         self._t = self._clock()
+        self._opened = self._t // 1_000_000_000 * 1_000_000_000  # its whole second: a run starts on one
 
     def close(self) -> None:
         """Nothing to release."""
