@@ -44,7 +44,7 @@ class _KeepsDriver(RobotScanner):
 def test_refused_plan_closes_the_sim_driver_and_the_transport() -> None:
     _KeepsDriver.made.clear()
     transport = MemoryBus().transport()
-    with pytest.raises(palpa.ParamError, match="refusing the plan before any motion"):
+    with pytest.raises(palpa.ParamError, match="refusing the specimen before any motion"):
         _KeepsDriver(params=OUT_OF_THE_BOX, transport=transport, clock=MockClock(), heartbeat_s=0)
     (driver,) = _KeepsDriver.made
     with pytest.raises(RobotDriverError, match="not connected"):
@@ -67,8 +67,8 @@ def test_refused_plan_disconnects_from_the_ur_emulator() -> None:
     pytest.importorskip("rtde_control")
     with ur_emulator([]) as emu:
         params = {**OUT_OF_THE_BOX, "driver": "ur_rtde", "robot_host": emu.host}
-        # the emulated arm starts at (300, 0, 300) mm, outside the box too: check_plan() refuses on that first
-        with pytest.raises(palpa.ParamError, match="refusing to move"):
+        # refused after the driver connected: the region does not fit the box (the specimen check comes first)
+        with pytest.raises(palpa.ParamError, match="refusing the specimen before any motion"):
             RobotScanner(params=params, transport=MemoryBus().transport(), clock=MockClock(), heartbeat_s=0)
         assert emu.command("program")["source"]  # the driver did connect and upload its control script
         emu.wait_state(lambda st: st["clients"] == 0, timeout_s=10.0)
