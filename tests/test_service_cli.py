@@ -138,6 +138,9 @@ def test_service_call_probe_at_on_a_simulated_graph(procs: ProcessGroup, tmp_pat
         return all(f"{n}  pid" in listed for n in names)
 
     wait_until(all_up, 90, "the six nodes of launch/probe_sim.yaml")
+    # and the probe is reading (the scanner refuses a probe at once without fresh probe data, as it should)
+    assert main(["topic", "echo", "probe/heights", "-n", "3", "--timeout", "60", "--bus", bus]) == 0
+    capsys.readouterr()
     code = main(["service", "call", "scanner/probe_at", "ProbeAt", "{x_mm: 30, y_mm: 36}", "--bus", bus,
                  "--wait", "60", "--timeout", "60", "--feedback", "robot/scan_status"])
     out = capsys.readouterr()
