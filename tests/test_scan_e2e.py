@@ -58,7 +58,9 @@ def test_ur_rtde_scan_through_emulator_matches_sim(procs: ProcessGroup, tmp_path
     assert np.median(rel) < 0.02 and rel.max() < 0.15
     ia, ib = inclusions(tmp_path / "ur"), inclusions(tmp_path / "sim")
     assert len(ia) == len(ib) == 1
-    assert math.dist((ia[0]["x_mm"], ia[0]["y_mm"]), (ib[0]["x_mm"], ib[0]["y_mm"])) < 0.5
+    # each run draws its own sensor noise, regulator wander and hysteresis on its own timing (the honest world):
+    # the two maps agree cell by cell (above), their centroids within a mm, and each is within 1.5 mm of the truth
+    assert math.dist((ia[0]["x_mm"], ia[0]["y_mm"]), (ib[0]["x_mm"], ib[0]["y_mm"])) < 1.0
     assert math.dist((ia[0]["x_mm"], ia[0]["y_mm"]), (45.0, 18.0)) < 1.5
 
 
