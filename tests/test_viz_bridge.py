@@ -67,10 +67,15 @@ def test_channels_carry_the_json_schema_and_payloads_arrive_as_json(graph: tuple
     g.publish("robot/pose", pose)
     c.pump_until(lambda: c.channel("robot/pose") is not None, 5, "robot/pose advertised when first heard")
     c.subscribe("robot/pose")
-    wait_until(lambda: bridge.server.stats()["clients"], 5)
-    g.publish("probe/heights", heights)
-    g.publish("robot/pose", pose)
-    c.pump_until(lambda: c.of("probe/heights") and c.of("robot/pose"), 5, "both messages")
+    # The SDK takes a subscribe op on its own thread: a message published before it lands has no subscriber
+    # and is (rightly) not sent, so publish again until both have arrived rather than guess when it landed.
+    def both() -> bool:
+        if not (c.of("probe/heights") and c.of("robot/pose")):
+            g.publish("probe/heights", heights)
+            g.publish("robot/pose", pose)
+            return False
+        return True
+    c.pump_until(both, 5, "both messages")
     assert c.of("probe/heights")[-1].data == json.loads(msgspec.json.encode(heights))
     got = c.of("robot/pose")[-1]
     assert got.data["y_mm"] is None and got.data["x_mm"] == 1.0  # NaN has no JSON spelling: null
