@@ -99,6 +99,8 @@ class CameraTracker(palpa.Node):
         tolerance_spread: Literal["normal", "uniform"] = "normal"
         """Sim: how the probe's springs and scales fall in their tolerance bands (models.camera_world)."""
 
+    params: Params
+
     def setup(self) -> None:
         p = self.params
         self.indenters = self.publisher("camera/indenters", IndenterDisplacements)

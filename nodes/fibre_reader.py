@@ -68,6 +68,8 @@ class FibreReader(palpa.Node):
         stroke_mm: palpa.Positive = 10.0
         seed: int = 0
 
+    params: Params
+
     def setup(self) -> None:
         p = self.params
         self.heights = self.publisher("probe/heights", ProbeHeights)

@@ -67,6 +67,8 @@ class PressureController(palpa.Node):
         seed: int = 0
         """Seed of the sim regulator's noise and wander."""
 
+    params: Params
+
     def setup(self) -> None:
         p = self.params
         if p.max_kpa <= 0:
