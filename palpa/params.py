@@ -12,11 +12,11 @@ from typing import Annotated, Any, TypeVar, get_args, get_origin
 import msgspec
 
 from palpa.errors import ParamError
-from yamlstruct import Source, YamlError
+from yamlstruct import Source, YamlError, convert, did_you_mean
 
 __all__ = [
     "InputPath", "NonNegative", "Params", "Positive", "PositiveInt", "convert_params", "describe_params", "input_paths",
-    "read_params_file",
+    "parse_param_value", "read_params_file",
 ]
 
 P = TypeVar("P", bound="Params")
@@ -71,16 +71,41 @@ def convert_params(cls: type[P], values: Mapping[str, Any] | P | None, *, where:
         raise ParamError(f"{where}: {text}") from None
 
 
-def read_params_file(path: Path, what: str) -> dict[str, Any]:
+def read_params_file(path: Path, what: str, params_type: type[Params] | None = None) -> dict[str, Any]:
     """A YAML mapping of parameter names to values (``--params-file``, ``palpa param load``); raises
-    :class:`ParamError` starting with ``what`` when the file cannot be read or is not a mapping."""
+    :class:`ParamError` starting with ``what`` when the file cannot be read or is not a mapping, and, given the
+    node's ``params_type``, at the ``file:line:col`` of a name it does not declare or a value of the wrong type."""
     try:
         src = Source.read(path)  # the one YAML reader (YAML 1.2 scalars, duplicate keys refused), with file:line
+        if not isinstance(src.data, dict):
+            raise src.error((), "expected a mapping of parameters")
+        if params_type is not None:
+            _check_values(src, params_type)
     except YamlError as exc:
         raise ParamError(f"{what}: {exc}") from None
-    if not isinstance(src.data, dict):
-        raise ParamError(f"{what}: {src.mark(())}: expected a mapping of parameters")
     return src.data
+
+
+def _check_values(src: Source, cls: type[Params]) -> None:
+    """Each value of the mapping ``src`` against its field of ``cls`` (the file may give only some of them)."""
+    fields = {f.name: f.type for f in msgspec.structs.fields(cls)}
+    owner = cls.__qualname__.removesuffix(".Params")
+    for name, value in src.data.items():
+        if name not in fields:
+            raise src.error((name,), f"node class {owner} has no parameter {name!r}{did_you_mean(name, fields)}; "
+                                     f"declared: {', '.join(fields) or 'none'}", key=True)
+        convert(src, value, fields[name], (name,))
+
+
+def parse_param_value(text: str, what: str) -> Any:
+    """A parameter value typed on a command line (``-p name=VALUE``, ``palpa param set``), read as YAML by the
+    project's one reader (YAML 1.2: ``yes`` stays a string); an empty text is the empty string."""
+    if not text:
+        return ""
+    try:
+        return Source.from_text(text, what).data
+    except YamlError as exc:
+        raise ParamError(str(exc)) from None
 
 
 def describe_params(cls: type[Params]) -> dict[str, str]:
