@@ -214,6 +214,6 @@ def test_calibration_file_sets_force_line_and_depth_offset(tmp_path) -> None:  #
                                             raw=(0, 0, 0, 0), d_in_mm=2.0, tilt_rad=0.0))
     e.advance(0.05)
     assert e.published("stiffness/sample")[0].d_in_mm == pytest.approx(2.1)  # eqs. 1-3 give 2.0, + 0.1
-    with pytest.raises(Exception, match="cal.yaml: force: gain"):
+    with pytest.raises(Exception, match=r"cal.yaml:1:\d+: force.gain: expected `float`, got `str`"):
         cal.write_text("force: {gain: x, offset: 1}\n")
         NodeHarness(AirfloatStiffnessEstimator, {"calibration": str(cal)})

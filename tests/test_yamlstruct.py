@@ -87,3 +87,24 @@ def test_command_line_values_are_read_as_yaml_1_2() -> None:
     assert parse_param_value("", "-p a") == ""
     with pytest.raises(ParamError, match=r"^-p a:1:\d+: invalid YAML"):
         parse_param_value("[1, 2", "-p a")
+
+
+def test_the_airfloat_calibration_goes_through_it(tmp_path: Path) -> None:
+    from models.calibration_airfloat import CalibrationError, load_calibration
+
+    f = tmp_path / "cal.yaml"
+    f.write_text("force: {gain: 8.0, offset: -2.5}\ndepth_offset_mm: 0.1\n")
+    cal = load_calibration(f)
+    assert (cal.force.gain, cal.force.offset, cal.force.pressure_unit_kpa, cal.depth_offset_mm) == (8.0, -2.5, 100.0,
+                                                                                                    0.1)
+    cases = {
+        "force: {gain: 8, offset: .inf}\n": r"cal.yaml:1:26: force.offset: expected a finite `float`, got inf$",
+        "force: {gain: 8, offset: 1}\nfource: 2\n": r"cal.yaml:2:1: unknown key 'fource' in the calibration file "
+                                                    r"\(did you mean 'force'\?\)",
+        "force: {gain: 0, offset: 1}\n": r"cal.yaml:1:8: force: ForceCalibration: gain must be finite and > 0",
+        "depth_offset_mm: 0.1\n": r"cal.yaml:1:1: the calibration file is missing the required key 'force'",
+    }
+    for text, match in cases.items():
+        f.write_text(text)
+        with pytest.raises(CalibrationError, match=match):
+            load_calibration(f)

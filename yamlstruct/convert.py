@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import difflib
 import re
+import sys
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -63,6 +64,8 @@ def _validation_error(src: Source, base: Path_, text: str, root: Any, root_path:
     missing = re.match(r"Object missing required field `([^`]+)`", what)
     if missing:
         return src.error(path, f"{named} is missing the required key {missing.group(1)!r}")
+    for bound in (f" <= {sys.float_info.max!r}", f" >= {-sys.float_info.max!r}"):  # the bound that means finite
+        what = what.replace(f"`float`{bound}", "a finite `float`")
     value = src.get(path)
     shown = f", got {value!r}" if " got " not in what and value is not None else ""  # a bound: show the value
     return src.error(path, f"{named}: {lower_first(what)}{shown}")
