@@ -222,3 +222,34 @@ def test_the_params_check_sees_a_node_that_forgot_the_annotation() -> None:
         params: Params
 
     assert untyped_params([Forgot, Typed, palpa.Node]) == [f"{__name__}.{Forgot.__qualname__}"]
+
+
+YAML_READERS = {"safe_load", "load", "full_load", "unsafe_load", "compose", "safe_load_all", "load_all"}
+
+
+def yaml_read_outside_yamlstruct(packages: tuple[str, ...]) -> list[str]:
+    """Every call of a PyYAML reader outside yamlstruct/ (writing with ``yaml.safe_dump`` is fine)."""
+    found = []
+    for name, path in _modules(packages).items():
+        if name.split(".")[0] == "yamlstruct":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "yaml" \
+                    and node.attr in YAML_READERS:
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno}: yaml.{node.attr}")
+    return found
+
+
+def test_yaml_is_read_only_through_yamlstruct() -> None:
+    """One YAML reader (YAML 1.2 scalars, duplicate keys refused, file:line:col in every error): launch files,
+    parameter files, phantoms, calibrations and geometries all go through yamlstruct."""
+    assert yaml_read_outside_yamlstruct(("palpa", "models", "nodes", "emulators", "devices", "messages", "bench",
+                                         "yamlstruct")) == []
+
+
+def test_the_yaml_check_sees_a_reader(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    pkg = tmp_path / "fakepkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("import yaml\n\ndef f(t):\n    return yaml.safe_dump(yaml.safe_load(t))\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    assert yaml_read_outside_yamlstruct(("fakepkg",)) == ["fakepkg/__init__.py:4: yaml.safe_load"]
