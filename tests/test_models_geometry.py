@@ -48,9 +48,6 @@ def test_a_bad_file_names_its_line(tmp_path: Path) -> None:
     f.write_text("thickness_mm:\n  x_mm: [0, 10]\n  y_mm: [0, 10]\n  values: [[2, 2], [2, .nan]]\n")
     with pytest.raises(GeometryError, match=r"g.yaml:4:24: thickness_mm.values\[1\]\[1\]: expected `float` > 0.0, got nan"):
         load_geometry(f)
-    f.write_text("thickness_mm: 2\nthickness_mm: 3\n")
-    with pytest.raises(GeometryError, match=r"g.yaml:2:1: duplicate key 'thickness_mm'"):
-        load_geometry(f)
 
 
 def test_measure_is_seeded_and_its_error_is_what_it_states() -> None:
