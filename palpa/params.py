@@ -3,7 +3,6 @@ command line or a launch file and are validated (types, unknown names) before th
 
 from __future__ import annotations
 
-import difflib
 import sys
 from collections.abc import Mapping
 from pathlib import Path
@@ -58,17 +57,19 @@ def convert_params(cls: type[P], values: Mapping[str, Any] | P | None, *, where:
         return msgspec.convert(data, cls, strict=True)
     except msgspec.ValidationError as exc:
         text = str(exc)
+        declared = tuple(describe_params(cls))
         # msgspec says "... - at `$.name`": turn the JSON path into a parameter name.
         if " - at `$." in text:
             what, _, path = text.rpartition(" - at `$.")
-            text = f"parameter {path.rstrip('`')!r}: {what}"
-        elif text.startswith("Object contains unknown field"):
-            declared = list(describe_params(cls))
+            path = path.rstrip("`")
+            raise ParamError(f"{where}: parameter {path!r}: {what}", param=path.split(".")[0].split("[")[0],
+                             reason=what, declared=declared) from None
+        if text.startswith("Object contains unknown field"):
             unknown = text.rpartition(" ")[2].strip("`")
-            close = difflib.get_close_matches(unknown, declared, n=1, cutoff=0.6)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            text = f"{text}{hint} (declared parameters: {', '.join(declared) or 'none'})"
-        raise ParamError(f"{where}: {text}") from None
+            raise ParamError(f"{where}: {text}{did_you_mean(unknown, declared)} (declared parameters: "
+                             f"{', '.join(declared) or 'none'})", param=unknown, reason=text, unknown=True,
+                             declared=declared) from None
+        raise ParamError(f"{where}: {text}", reason=text, declared=declared) from None
 
 
 def read_params_file(path: Path, what: str, params_type: type[Params] | None = None) -> dict[str, Any]:
