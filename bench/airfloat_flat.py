@@ -45,7 +45,7 @@ def ramp_fit(sample: str, xy: tuple[float, float], target: float, device_seed: i
         g.add(FibreReader, {"phantom": str(REPO / "phantoms" / f"{sample}.yaml"), "device_seed": device_seed,
                             "seed": seed})
         g.add(AirfloatStiffnessEstimator, {"geometry": geo, "ramp_fits": True, "max_depth_mm": 3.3,
-                                   "calibration": calibration})
+                                           "calibration": calibration})
         g.advance(1.0)
         g.publish("pressure/command", PressureCommand(mode="ramp", setpoint_kpa=target, rate_kpa_s=2.0))
         g.advance((target - 30.0) / 2.0 + 1.0)

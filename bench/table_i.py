@@ -48,7 +48,7 @@ def press_once(k: float, pan: float, tilt: float, *, device_seed: int, seed: int
     g.add(CameraTracker, {"phantom": SPRINGS[k], "pan_deg": pan, "tilt_deg": tilt, "seed": seed,
                           "device_seed": device_seed, "calibration_file": calibration_file, "tolerance_spread": spread})
     g.add(MultiIndenterStiffnessEstimator, {"min_displacement_mm": 1.0,
-                               "calibration_file": calibration_file})
+                                            "calibration_file": calibration_file})
     g.advance(1.2 + 2 * (depth_mm + 4.0) / speed_mm_s + hold_s + 0.3)
     samples: list[StiffnessSample] = g.published("stiffness/sample", StiffnessSample)
     g.close()

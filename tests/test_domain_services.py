@@ -54,7 +54,7 @@ def probe_graph(phantom: str = PHANTOM, kpa: float = 36.0, z: float = 5.0) -> tu
                                "calibration": calibration()})
     g.add(FibreReader, {"phantom": phantom})
     g.add(AirfloatStiffnessEstimator, {"geometry": phantom.replace("phantoms/", "phantoms/measured/"),
-                               "calibration": calibration()})
+                                       "calibration": calibration()})
     g.add(RobotScanner, {"autostart": False, "home_mm": [28.0, 28.0, 40.0], "watchdog_s": 0.5,
                          "speed_mm_s": 20.0, "contact_z_mm": z})
     op = g.add(palpa.Node, name="operator")
