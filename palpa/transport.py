@@ -21,7 +21,13 @@ import zmq.auth
 
 from palpa import env as palpa_env
 from palpa.address import BusAddress
-from palpa.direct import DIRECTORY_PREFIX, DirectSocket, SubscriberSet, directory_entry
+from palpa.direct import (
+    CLIENT_KEYS_TOPIC,
+    DIRECTORY_PREFIX,
+    DirectSocket,
+    SubscriberSet,
+    directory_entry,
+)
 from palpa.errors import BusError
 from palpa.handshake import HANDSHAKE_EVENTS, HandshakeWatch
 from palpa.keys import load_secret_key
@@ -149,6 +155,7 @@ class ZmqTransport:
         self._address = address
         curve = curve_client_options()
         self._curve = curve is not None
+        self._bus_server_key = curve["server"] if curve is not None else b""
         self._direct: DirectSocket | None = None
         self._peers: set[str] = set()
         self._bus_listeners = SubscriberSet()
@@ -237,14 +244,14 @@ class ZmqTransport:
         if not direct:
             return self.send
         if self._direct is None:
-            # a CURVE bus: this node holds client keys only, it cannot serve its own encrypted socket
-            opened = "the bus is CURVE-encrypted" if self._curve else \
-                DirectSocket.bind(self._ctx, self._address, self.options.sndhwm)
+            opened = DirectSocket.bind(self._ctx, self._address, self.options.sndhwm, self._curve)
             if isinstance(opened, str):
                 log.warning("%s goes through the bus, not direct: %s", topic.decode(errors="replace"), opened)
                 return self.send
             self._direct = opened
             self._watch(opened.sock)
+            if self._curve:  # whom to let in: the bus's own authorised keys (announcements wait for them)
+                self._latch.send_multipart([b"GET", CLIENT_KEYS_TOPIC])
         self._direct.announce(self._latch, topic)
         return self._send_direct
 
@@ -259,14 +266,24 @@ class ZmqTransport:
         entry = directory_entry(key, payload)
         if entry is None:
             return
-        endpoint, alive = entry
-        if alive and endpoint not in self._peers:
-            try:
-                self._sub.connect(endpoint)
-            except zmq.ZMQError as exc:
-                log.warning("cannot connect to direct publisher %s: %s", endpoint, exc)
-                return
-            self._peers.add(endpoint)
+        endpoint, alive, server_key = entry
+        if not alive or endpoint in self._peers:
+            return
+        if self._curve != (server_key is not None):
+            log.warning("cannot connect to direct publisher %s: it is %s and this node's bus is %s", endpoint,
+                        *(("encrypted", "not") if server_key else ("not encrypted", "encrypted")))
+            return
+        try:
+            if server_key is not None:  # libzmq copies the options at connect: the bus's key is back for later
+                self._sub.curve_serverkey = server_key
+            self._sub.connect(endpoint)
+        except zmq.ZMQError as exc:
+            log.warning("cannot connect to direct publisher %s: %s", endpoint, exc)
+            return
+        finally:
+            if server_key is not None:
+                self._sub.curve_serverkey = self._bus_server_key
+        self._peers.add(endpoint)
 
     def send(self, frames: Sequence[bytes], latched: bool) -> None:
         self._publish(self._pub, frames, latched)
@@ -287,8 +304,8 @@ class ZmqTransport:
         if request_latched:
             self._prefixes.append(prefix)
             self._latch.send_multipart([b"GET", prefix])
-        if not self._curve:  # direct publishers of matching topics, now and later (palpa.direct)
-            self._latch.send_multipart([b"GET", DIRECTORY_PREFIX + prefix])
+        # direct publishers of matching topics, now and later (palpa.direct)
+        self._latch.send_multipart([b"GET", DIRECTORY_PREFIX + prefix])
 
     def unsubscribe(self, prefix: bytes) -> None:
         self._sub.setsockopt(zmq.UNSUBSCRIBE, prefix)
@@ -324,6 +341,9 @@ class ZmqTransport:
                 if frames and frames[0] == b"VAL" and len(frames) >= 4:
                     if frames[1].startswith(DIRECTORY_PREFIX):
                         self._on_directory(frames[1], frames[3])
+                    elif frames[1] == CLIENT_KEYS_TOPIC:
+                        if self._direct is not None:
+                            self._direct.allow(self._latch, frames[3])
                     else:
                         out.append(Delivery(frames[1:], True))
                 elif frames and frames[0] == b"ERR" and len(frames) >= 3:
