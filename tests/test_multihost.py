@@ -74,12 +74,14 @@ class Graph:
         return out.stdout
 
 
-def test_a_talker_and_listener_over_three_hosts_survive_a_link_going_down(
+def test_a_direct_topic_across_hosts_with_curve_survives_a_link_going_down(
         hosts: Hosts, procs: ProcessGroup, tmp_path: Path) -> None:
+    """A talker on host 2 publishes ``chatter`` direct (its own CURVE socket on its own address, palpa.direct), a
+    listener on host 3 and the recorder on host 1 connect to it there; host 2's link goes down and comes back."""
     g = Graph(hosts, procs, tmp_path, "calibration")
     rec_file = tmp_path / "run.mcap"
     recorder = g.start(1, "record", "-o", str(rec_file), "chatter", "calibration")
-    talker = g.start(2, "run", "nodes.demo:Talker", "-p", "rate_hz=50")
+    talker = g.start(2, "run", "nodes.demo:Talker", "-p", "rate_hz=50", "--direct", "chatter")
     listener = g.start(3, "run", "nodes.demo:Listener")
     # a latched value published once from host 2, read later from host 4 (a late joiner)
     cal = g.start(2, "run", "nodes.demo:Talker", "--name", "cal", "-p", "count=1", "--remap", "chatter:=calibration")
@@ -88,6 +90,8 @@ def test_a_talker_and_listener_over_three_hosts_survive_a_link_going_down(
     assert "hello 1" in g.cli("topic", "echo", "calibration", "-n", "1", "--timeout", "20")
     wait_until(lambda: {"talker", "listener", "recorder"} <= set(g.cli("node", "list").split()), 30,
                "node list from host 4 to show the graph")
+    assert re.search(r"pub chatter \[Text\] sent \d+ \(direct\)", g.cli("node", "list", "-v")), talker.output()
+    assert "goes through the bus" not in talker.output()
     # host 2's link goes down for 3 s mid-run, then comes back: nothing hangs, the stream resumes
     hosts.link(2, "down")
     time.sleep(3.0)  # the outage itself (not a readiness wait)
