@@ -197,6 +197,10 @@ class DirectSocket:
         the socket, which is then loopback or ipc only)."""
         return self._curve is None or z85_key in (self._curve.allowed.keys or ())
 
+    def carries(self, topic: bytes) -> bool:
+        """Whether ``topic`` leaves from this socket (announced, or waiting for the client keys to be)."""
+        return topic in self.topics or topic in self._pending
+
     @property
     def ready(self) -> bool:
         """Whether announcing is safe: always in plaintext; with CURVE once the bus's client keys are known."""

@@ -235,7 +235,7 @@ class ZmqTransport:
 
     def has_subscribers(self, topic: bytes) -> bool:
         direct = self._direct
-        listeners = direct.listeners if direct is not None and topic in direct.topics else self._bus_listeners
+        listeners = direct.listeners if direct is not None and direct.carries(topic) else self._bus_listeners
         return listeners.covers(topic)
 
     def sender(self, topic: bytes, direct: bool | None) -> SendFn:

@@ -70,7 +70,11 @@ def test_a_direct_topic_on_a_curve_bus_is_encrypted_and_open_only_to_the_bus_s_c
 
         got: list[str] = []
         sub_node.subscribe("fast", Text, lambda m: got.append(m.text))
+        # the subscription reaches the publisher through the bus first; that is not a listener of a direct topic
+        wait_until(lambda: _transport(pub_node).has_subscribers(b"fast"), 10, "the subscription via the bus",
+                   step=spin)
         fast = pub_node.publisher("fast", Text, direct=True)
+        assert not fast.has_subscribers
         direct = _transport(pub_node)._direct
         assert fast.direct and direct is not None and direct.endpoint.startswith("tcp://127.0.0.1:")
         wait_until(lambda: fast.has_subscribers, 10, "the subscriber on the direct socket", step=spin)
