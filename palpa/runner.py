@@ -17,14 +17,12 @@ import json
 import logging
 import signal
 import sys
-import threading
 from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
 import yaml
-import zmq
 
 from palpa.errors import PalpaError
 from palpa.node import Node
@@ -100,10 +98,6 @@ def run_node(cls: type[Node], argv: Sequence[str] | None = None, *, prog: str | 
     sys.exit(run_node_code(cls, argv, prog=prog))
 
 
-_LINGER_S = 0.5
-"""How long a stopping node's queued messages may take to leave (then they are dropped)."""
-
-
 def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: str | None = None) -> int:
     """:func:`run_node` without the ``sys.exit``: returns the exit code."""
     ap = node_arg_parser(prog or cls.__name__)
@@ -142,16 +136,5 @@ def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: s
     try:
         node.spin()
     finally:
-        node.close(_LINGER_S)
-        _flush_context(_LINGER_S + 1.0)
+        node.close()
     return node.exit_code
-
-
-def _flush_context(timeout_s: float) -> None:
-    """Let the sockets' linger run before the process exits: closing a socket only hands its queue to libzmq's
-    I/O thread, which dies with the process, so without this whatever a publisher had still queued (the tail of a
-    burst, far more of it across a slow link) would be lost without a gap anyone could count. Terminating the
-    context waits for that; in a thread with a deadline, since a socket someone left open would block it forever."""
-    done = threading.Thread(target=zmq.Context.instance().term, name="palpa-flush", daemon=True)
-    done.start()
-    done.join(timeout_s)

@@ -29,6 +29,7 @@ from palpa.direct import (
     directory_entry,
 )
 from palpa.errors import BusError
+from palpa.exitflush import note_linger
 from palpa.handshake import HANDSHAKE_EVENTS, HandshakeWatch
 from palpa.keys import load_secret_key
 from palpa.options import TransportOptions
@@ -405,3 +406,4 @@ class ZmqTransport:
             self._direct.close(self._latch, linger_ms)
         for sock in (self._pub, self._sub, self._latch):
             sock.close(linger_ms)
+        note_linger(self._ctx, linger_ms)
