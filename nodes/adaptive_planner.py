@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class AdaptivePlanner(palpa.Node):
         epsilon: float = 0.1
         """LSE's accuracy, a fraction of the baseline (models.adaptive.PlannerConfig)."""
         max_probes: int = 60
-        mode: str = "sweep"
+        mode: Literal["sweep", "indent"] = "sweep"
         """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
         length_mm: float = 6.0
         radius_mm: float = 3.0
@@ -81,12 +82,14 @@ class AdaptivePlanner(palpa.Node):
         output_dir: str = "out"
         title: str = ""
 
+    params: Params
+
     def setup(self) -> None:
         p = self.params
         if p.mode not in ("sweep", "indent"):
             raise palpa.ParamError(f"{self.name}: mode must be sweep or indent, got {p.mode!r}")
         try:
-            self.cfg = PlannerConfig(tuple(p.region_mm), resolution_mm=p.resolution_mm, initial=p.initial,
+            self.cfg = PlannerConfig(p.region_mm, resolution_mm=p.resolution_mm, initial=p.initial,
                                      beta=p.beta, implicit_fraction=p.implicit_fraction, epsilon=p.epsilon,
                                      rel_threshold=p.rel_threshold, stop_area_mm2=p.stop_area_mm2,
                                      max_probes=p.max_probes)

@@ -31,6 +31,7 @@ import os
 import socket
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import zmq
@@ -216,7 +217,7 @@ class DirectSocket:
         """Whether announcing is safe: always in plaintext; with CURVE once the bus's client keys are known."""
         return self._curve is None or self._curve.allowed.keys is not None
 
-    def allow(self, latch: zmq.Socket[bytes], keys_payload: bytes) -> None:
+    def allow(self, to_cache: Callable[[list[bytes]], None], keys_payload: bytes) -> None:
         """The bus's authorised client keys (one Z85 key a line) arrived or changed: accept exactly those, and
         make the announcements that waited for them."""
         if self._curve is None:
@@ -224,10 +225,10 @@ class DirectSocket:
         self._curve.allowed.keys = frozenset(k for k in keys_payload.split(b"\n") if k)
         pending, self._pending = self._pending, []
         for topic in pending:
-            self.announce(latch, topic)
+            self.announce(to_cache, topic)
 
-    def announce(self, latch: zmq.Socket[bytes], topic: bytes) -> None:
-        """Tell the bus's directory (through the latch socket) that ``topic`` is published here (with CURVE, as
+    def announce(self, to_cache: Callable[[list[bytes]], None], topic: bytes) -> None:
+        """Tell the bus's directory (through ``to_cache``, the transport's non-blocking send to the cache) that ``topic`` is published here (with CURVE, as
         soon as the client keys are known)."""
         if topic in self.topics:
             return
@@ -236,13 +237,12 @@ class DirectSocket:
                 self._pending.append(topic)
             return
         self.topics.append(topic)
-        latch.send_multipart([b"SET", directory_key(topic, self.endpoint), b"",
-                              directory_value(self.endpoint, self.server_key)])
+        to_cache([b"SET", directory_key(topic, self.endpoint), b"", directory_value(self.endpoint, self.server_key)])
 
-    def close(self, latch: zmq.Socket[bytes], linger_ms: int) -> None:
+    def close(self, to_cache: Callable[[list[bytes]], None], linger_ms: int) -> None:
         """Withdraw every announcement, close the socket and remove its ipc file."""
         for topic in self.topics:
-            latch.send_multipart([b"SET", directory_key(topic, self.endpoint), b"", b""])
+            to_cache([b"SET", directory_key(topic, self.endpoint), b"", b""])
         self.sock.close(linger_ms)
         if self._curve is not None:
             self._curve.close()

@@ -7,6 +7,7 @@ import os
 import random
 import signal
 import sys
+import threading
 import time
 
 import msgpack
@@ -265,6 +266,19 @@ def test_curve_bus_rejects_unknown_clients(tmp_path, procs: ProcessGroup) -> Non
             make("evil_sub", "evil") as evil_sub:
         ok = good_sub.subscribe("secret", Text)
         bad = evil_sub.subscribe("secret", Text)
+        # the refused node's own calls never block, whatever its latch connection is doing between retries (a
+        # DEALER without a live connection blocks a plain send for good: CI hung here once)
+        done = threading.Event()
+
+        def churn() -> None:
+            latched = evil_sub.publisher("evil/latched", Text, latched=True)
+            for i in range(300):
+                evil_sub.subscribe(f"evil/{i}", Text)
+                latched.publish(Text(text=str(i)))
+            done.set()
+
+        threading.Thread(target=churn, daemon=True).start()
+        assert done.wait(30), "a refused node blocked in subscribe() or a latched publish()"
         pub = good_pub.publisher("secret", Text)
         def send() -> None:
             pub.publish(Text(text="tumour at (12, 30)"))

@@ -110,15 +110,15 @@ def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path, calibratio
     from nodes.map_aggregator import MapAggregator
     from nodes.pressure_controller import PressureController
     from nodes.robot_scanner import RobotScanner
-    from nodes.stiffness_estimator import StiffnessEstimator
+    from nodes.stiffness_estimator import AirfloatStiffnessEstimator
     from palpa.testing import GraphHarness
 
     path = str(REPO / "phantoms" / phantom)
     g = GraphHarness()
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": 34.0, "calibration": str(calibration)})
     g.add(FibreReader, {"phantom": path})
-    g.add(StiffnessEstimator, {"geometry": str(REPO / "phantoms" / "measured" / phantom),
-                               "calibration": str(calibration)})
+    g.add(AirfloatStiffnessEstimator, {"geometry": str(REPO / "phantoms" / "measured" / phantom),
+                                       "calibration": str(calibration)})
     g.add(MapAggregator, {"output_dir": str(tmp_path)})
     scanner = g.add(RobotScanner, {"region_mm": [10, 10, 50, 50], "spacing_mm": 5.0, "speed_mm_s": 40.0,
                                    "contact_z_mm": 21.0, "home_mm": [10, 10, 30]})
