@@ -7,7 +7,6 @@ whatever happened (tests/netns.py). See docs/multihost.md for the same by hand.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import subprocess
@@ -20,6 +19,8 @@ import numpy as np
 import pytest
 
 from palpa.keys import create_key_pair
+from palpa.launch import load_launch
+from palpa.launch.loader import parse_overrides
 from palpa.record.reader import iter_bag
 from tests.netns import Hosts, why_no_netns
 from tests.procs import REPO, Proc, ProcessGroup, wait_until
@@ -27,7 +28,8 @@ from tests.procs import REPO, Proc, ProcessGroup, wait_until
 _WHY = why_no_netns()
 pytestmark = pytest.mark.skipif(bool(_WHY), reason=_WHY or "ok")
 GEOMETRY = REPO / "phantoms" / "measured" / "airfloat_tumours.yaml"
-PHANTOM = REPO / "phantoms" / "airfloat_tumours.yaml"
+HOST_OF = {"clock": 1, "pressure": 2, "fibre": 2, "estimator": 3, "map": 3, "scanner": 3}
+"""Where each node of launch/scan_sim.yaml runs; the bus and the recorder are on host 1, the tools on host 4."""
 
 
 @pytest.fixture
@@ -63,9 +65,6 @@ class Graph:
 
     def start(self, i: int, *args: str, env: dict[str, str] | None = None) -> Proc:
         return self.procs.start(self.palpa(i, *args), env={**self.env, **(env or {})})
-
-    def node(self, i: int, cls: str, name: str, params: dict[str, object], *args: str) -> Proc:
-        return self.start(i, "run", cls, "--name", name, "--params-json", json.dumps(params), *args)
 
     def cli(self, *args: str, timeout: float = 30) -> str:
         """A palpa command from host 4, which runs nothing else."""
@@ -122,26 +121,20 @@ def test_a_simulated_scan_split_over_three_hosts_survives_a_link_going_down(
     g = Graph(hosts, procs, tmp_path)
     rec_file, out_dir = tmp_path / "run.mcap", tmp_path / "map"
     recorder = g.start(1, "record", "-o", str(rec_file), "--exclude", "_palpa/clock.*")
-    clock = g.node(1, "palpa.simclock:ClockSource", "clock", {"time_scale": 4.0, "rate_hz": 250.0})
-    sim = ("--sim-clock",)
-    # a dead clock stops a sim node after this many wall seconds: above the outage plus TCP's retransmit backoff
-    g.env["PALPA_SIM_CLOCK_TIMEOUT_S"] = "20"
-    nodes = [
-        g.node(2, "nodes.pressure_controller:PressureController", "pressure",
-               {"driver": "sim", "startup": "hold", "setpoint_kpa": 36.0, "max_kpa": 60.0}, *sim),
-        g.node(2, "nodes.fibre_reader:FibreReader", "fibre",
-               {"driver": "sim", "phantom": str(PHANTOM), "poll_hz": 10.0, "seed": 0}, *sim),
-        g.node(3, "nodes.stiffness_estimator:StiffnessEstimator", "estimator",
-               {"model": "airfloat", "geometry": str(GEOMETRY), "rate_hz": 10.0}, *sim),
-        g.node(3, "nodes.map_aggregator:MapAggregator", "map",
-               {"output_dir": str(out_dir), "resolution_mm": 2.0}, *sim),
-    ]
-    scanner = g.node(3, "nodes.robot_scanner:RobotScanner", "scanner", {
-        "driver": "sim", "mode": "sweep", "region_mm": [38.0, 12.0, 52.0, 24.0], "geometry": str(GEOMETRY),
-        "touchoff": "heights", "touch_inset_mm": 5.0, "search_clearance_mm": 12.0, "working_offset_mm": 1.0,
-        "spacing_mm": 4.0, "speed_mm_s": 20.0, "home_mm": [0.0, 0.0, 90.0], "watch_topic": "probe/heights",
-        "workspace_mm": [-10.0, -10.0, 0.5, 150.0, 150.0, 100.0],
-        "watchdog_s": 0.5, "startup_timeout_s": 60.0}, *sim)
+    # launch/scan_sim.yaml's own nodes and parameters, resolved by the launch loader, each started on its host
+    plan = load_launch(REPO / "launch" / "scan_sim.yaml", parse_overrides([
+        "region_mm:=[38.0, 12.0, 52.0, 24.0]", "spacing_mm:=4.0", "time_scale:=4.0", f"geometry:={GEOMETRY}",
+        f"output_dir:={out_dir}"]), run_dir=tmp_path)
+    placed = {spec.name: spec for spec in plan.nodes}
+    assert set(placed) == set(HOST_OF), "scan_sim.yaml's nodes changed: place the new ones on a host"
+    started: dict[str, Proc] = {}
+    for name, host in HOST_OF.items():
+        spec = placed[name]
+        # a dead clock stops a sim node after this many wall seconds: above the outage plus TCP's retransmit backoff
+        env = {**g.env, **spec.env, **({"PALPA_SIM_CLOCK_TIMEOUT_S": "20"} if spec.env else {})}
+        started[name] = procs.start(hosts.cmd(host, *spec.argv()), env=env)
+    clock, scanner = started["clock"], started["scanner"]
+    nodes = [started[n] for n in ("pressure", "fibre", "estimator", "map")]
     # the raster starts once the touch-off is done: take the drivers' host off the network during it
     scanner.wait_for_output("touch-off:", 90)
     assert scanner.popen.poll() is None, scanner.output()
@@ -150,8 +143,17 @@ def test_a_simulated_scan_split_over_three_hosts_survives_a_link_going_down(
     hosts.link(2, "up")
     # from host 4, while the graph runs: every node's heartbeat, and the plan (latched) to a late joiner
     names = {"clock", "pressure", "fibre", "estimator", "map", "scanner", "recorder"}
-    if scanner.popen.poll() is None:
-        wait_until(lambda: names <= set(g.cli("node", "list").split()), 30, "node list from host 4 to show the graph")
+    listed: list[str] = []
+
+    def all_listed() -> bool:
+        listed.append(g.cli("node", "list"))
+        return names <= set(listed[-1].split()) or scanner.popen.poll() is not None
+
+    try:
+        wait_until(all_listed, 30, "node list from host 4 to show the graph")
+    except AssertionError:
+        raise AssertionError("\n".join([listed[-1] if listed else "", *(p.output()[-2000:] for p in [clock, *nodes]),
+                                        scanner.output()[-2000:]])) from None
     assert "waypoints" in g.cli("topic", "echo", "robot/plan", "-n", "1", "--timeout", "20")
     assert scanner.wait(90) == 0, scanner.output()
     assert "scan complete" in scanner.output()
