@@ -42,7 +42,7 @@ from palpa.address import BusAddress, is_loopback_host
 
 __all__ = [
     "CLIENT_KEYS_TOPIC", "DIRECTORY_PREFIX", "DirectSocket", "SubscriberSet", "bind_candidates", "directory_entry",
-    "directory_key", "directory_value",
+    "directory_key", "directory_value", "follow_directory",
 ]
 
 DIRECTORY_PREFIX = b"_palpa/direct/"
@@ -75,6 +75,36 @@ def directory_entry(key: bytes, payload: bytes) -> tuple[str, bool, bytes | None
         return None
     _, sep, server_key = payload.partition(b"\0")
     return endpoint.decode(errors="replace"), bool(payload), server_key if sep and server_key else None
+
+
+def follow_directory(sub: zmq.Socket[bytes], peers: set[str], key: bytes, payload: bytes,
+                     bus_server_key: bytes | None) -> None:
+    """Connect ``sub`` to a direct publisher the cache told about (once per endpoint, recorded in ``peers``), with
+    its CURVE key when the bus is encrypted (``bus_server_key``: the key ``sub`` uses for the bus, put back after).
+    A withdrawn one is not disconnected: its last messages may still be on their way (a disconnect would drop
+    them); ZeroMQ keeps retrying a dead endpoint at most every few seconds, and a publisher that comes back there
+    is received once, not twice."""
+    entry = directory_entry(key, payload)
+    if entry is None:
+        return
+    endpoint, alive, server_key = entry
+    if not alive or endpoint in peers:
+        return
+    if (bus_server_key is None) != (server_key is None):
+        log.warning("cannot connect to direct publisher %s: it is %s and this node's bus is %s", endpoint,
+                    *(("encrypted", "not") if server_key else ("not encrypted", "encrypted")))
+        return
+    try:
+        if server_key is not None:  # libzmq copies the options at connect: later reconnects keep this key
+            sub.curve_serverkey = server_key
+        sub.connect(endpoint)
+    except zmq.ZMQError as exc:
+        log.warning("cannot connect to direct publisher %s: %s", endpoint, exc)
+        return
+    finally:
+        if server_key is not None and bus_server_key is not None:
+            sub.curve_serverkey = bus_server_key
+    peers.add(endpoint)
 
 
 def own_address_towards(host: str) -> str:

@@ -26,7 +26,7 @@ from palpa.direct import (
     DIRECTORY_PREFIX,
     DirectSocket,
     SubscriberSet,
-    directory_entry,
+    follow_directory,
 )
 from palpa.errors import BusError
 from palpa.exitflush import note_linger
@@ -156,7 +156,7 @@ class ZmqTransport:
         self._address = address
         curve = curve_client_options()
         self._curve = curve is not None
-        self._bus_server_key = curve["server"] if curve is not None else b""
+        self._bus_server_key = curve["server"] if curve is not None else None
         self._direct: DirectSocket | None = None
         self._peers: set[str] = set()
         self._bus_listeners = SubscriberSet()
@@ -269,32 +269,6 @@ class ZmqTransport:
         assert self._direct is not None
         self._publish(self._direct.sock, frames, latched)
 
-    def _on_directory(self, key: bytes, payload: bytes) -> None:
-        """Connect to a direct publisher the cache told about. A withdrawn one is not disconnected: its last
-        messages may still be on their way (a disconnect would drop them); ZeroMQ keeps retrying a dead endpoint
-        at most every few seconds, and a publisher that comes back there is received once, not twice."""
-        entry = directory_entry(key, payload)
-        if entry is None:
-            return
-        endpoint, alive, server_key = entry
-        if not alive or endpoint in self._peers:
-            return
-        if self._curve != (server_key is not None):
-            log.warning("cannot connect to direct publisher %s: it is %s and this node's bus is %s", endpoint,
-                        *(("encrypted", "not") if server_key else ("not encrypted", "encrypted")))
-            return
-        try:
-            if server_key is not None:  # libzmq copies the options at connect: the bus's key is back for later
-                self._sub.curve_serverkey = server_key
-            self._sub.connect(endpoint)
-        except zmq.ZMQError as exc:
-            log.warning("cannot connect to direct publisher %s: %s", endpoint, exc)
-            return
-        finally:
-            if server_key is not None:
-                self._sub.curve_serverkey = self._bus_server_key
-        self._peers.add(endpoint)
-
     def send(self, frames: Sequence[bytes], latched: bool) -> None:
         self._publish(self._pub, frames, latched)
 
@@ -360,7 +334,7 @@ class ZmqTransport:
                     break
                 if frames and frames[0] == b"VAL" and len(frames) >= 4:
                     if frames[1].startswith(DIRECTORY_PREFIX):
-                        self._on_directory(frames[1], frames[3])
+                        follow_directory(self._sub, self._peers, frames[1], frames[3], self._bus_server_key)
                     elif frames[1] == CLIENT_KEYS_TOPIC:
                         if self._direct is not None:
                             self._direct.allow(self._to_cache, frames[3])
