@@ -112,6 +112,22 @@ def _missing(report: str) -> int:
     return sum(int(n) for n in re.findall(r"(\d+) (?:messages )?missing", report))
 
 
+def wait_for_listing(g: Graph, names: set[str], procs: list[Proc]) -> None:
+    """Until `palpa node list` on host 4 shows every one of ``names`` (their heartbeats); on timeout, the last
+    listing and the nodes' output."""
+    listed: list[str] = []
+
+    def all_listed() -> bool:
+        listed.append(g.cli("node", "list"))
+        return names <= set(listed[-1].split())
+
+    try:
+        wait_until(all_listed, 30, "node list from host 4 to show the graph")
+    except AssertionError:
+        raise AssertionError("\n".join([f"wanted {sorted(names)}, listed:", listed[-1] if listed else "",
+                                        *(p.output()[-2000:] for p in procs)])) from None
+
+
 def test_a_simulated_scan_split_over_three_hosts_survives_a_link_going_down(
         hosts: Hosts, procs: ProcessGroup, tmp_path: Path) -> None:
     """Bus, clock and recorder on host 1; the simulated probe drivers (pressure, fibre) on host 2; estimator, map
@@ -123,18 +139,27 @@ def test_a_simulated_scan_split_over_three_hosts_survives_a_link_going_down(
     recorder = g.start(1, "record", "-o", str(rec_file), "--exclude", "_palpa/clock.*")
     # launch/scan_sim.yaml's own nodes and parameters, resolved by the launch loader, each started on its host
     plan = load_launch(REPO / "launch" / "scan_sim.yaml", parse_overrides([
-        "region_mm:=[38.0, 12.0, 52.0, 24.0]", "spacing_mm:=4.0", "time_scale:=4.0", f"geometry:={GEOMETRY}",
+        "region_mm:=[38.0, 12.0, 52.0, 24.0]", "spacing_mm:=4.0", "time_scale:=8.0", f"geometry:={GEOMETRY}",
         f"output_dir:={out_dir}"]), run_dir=tmp_path)
     placed = {spec.name: spec for spec in plan.nodes}
     assert set(placed) == set(HOST_OF), "scan_sim.yaml's nodes changed: place the new ones on a host"
     started: dict[str, Proc] = {}
-    for name, host in HOST_OF.items():
+
+    def start(name: str) -> Proc:
         spec = placed[name]
         # a dead clock stops a sim node after this many wall seconds: above the outage plus TCP's retransmit backoff
         env = {**g.env, **spec.env, **({"PALPA_SIM_CLOCK_TIMEOUT_S": "20"} if spec.env else {})}
-        started[name] = procs.start(hosts.cmd(host, *spec.argv()), env=env)
-    clock, scanner = started["clock"], started["scanner"]
-    nodes = [started[n] for n in ("pressure", "fibre", "estimator", "map")]
+        started[name] = procs.start(hosts.cmd(HOST_OF[name], *spec.argv()), env=env)
+        return started[name]
+
+    # everything but the scanner first, and host 4 sees all of them by their heartbeats (the scan, once started,
+    # is too short to list it reliably on a loaded machine)
+    for name in HOST_OF:
+        if name != "scanner":
+            start(name)
+    clock, nodes = started["clock"], [started[n] for n in ("pressure", "fibre", "estimator", "map")]
+    wait_for_listing(g, {*started, "recorder"}, [clock, *nodes])
+    scanner = start("scanner")
     # the raster starts once the touch-off is done: take the drivers' host off the network during it
     scanner.wait_for_output("touch-off:", 90)
     assert scanner.popen.poll() is None, scanner.output()
@@ -143,23 +168,13 @@ def test_a_simulated_scan_split_over_three_hosts_survives_a_link_going_down(
     time.sleep(2.0)  # the outage itself (not a readiness wait)
     up_ns = time.time_ns()
     hosts.link(2, "up")
-    # from host 4, while the graph runs: every node's heartbeat, and the plan (latched) to a late joiner
-    names = {"clock", "pressure", "fibre", "estimator", "map", "scanner", "recorder"}
-    listed: list[str] = []
-
-    def all_listed() -> bool:
-        listed.append(g.cli("node", "list"))
-        return names <= set(listed[-1].split()) or scanner.popen.poll() is not None
-
-    try:
-        wait_until(all_listed, 30, "node list from host 4 to show the graph")
-    except AssertionError:
-        raise AssertionError("\n".join([listed[-1] if listed else "", *(p.output()[-2000:] for p in [clock, *nodes]),
-                                        scanner.output()[-2000:]])) from None
-    assert "waypoints" in g.cli("topic", "echo", "robot/plan", "-n", "1", "--timeout", "20")
     assert scanner.wait(90) == 0, scanner.output()
     assert "scan complete" in scanner.output()
     nodes[3].wait_for_output("map written", 30)
+    # after the outage, from host 4: the nodes still running, by their heartbeats, and the scan plan the scanner
+    # latched before it ended (a late joiner gets it from the bus's cache)
+    wait_for_listing(g, {"clock", "pressure", "fibre", "estimator", "map", "recorder"}, [clock, *nodes])
+    assert "waypoints" in g.cli("topic", "echo", "robot/plan", "-n", "1", "--timeout", "20")
     for p in [clock, *nodes]:
         assert p.popen.poll() is None, p.output()
         assert p.stop(20) == 0, p.output()
