@@ -55,16 +55,23 @@ def _curve(sock: zmq.Socket[bytes], keys: Path, server: bool) -> None:
         sock.curve_serverkey = zmq.auth.load_certificate(str(keys / "server.key"))[0]
 
 
+def _raw_socket(args: argparse.Namespace, kind: int, server: bool) -> tuple[zmq.Context[zmq.Socket[bytes]],
+                                                                          zmq.Socket[bytes]]:
+    """A raw pyzmq socket of its own context with the bench's queues, with CURVE keys for ``zmq-curve``."""
+    ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context()
+    sock = ctx.socket(kind)
+    sock.sndhwm = sock.rcvhwm = HWM
+    if args.kind == "zmq-curve":
+        _curve(sock, Path(args.keys), server)
+    return ctx, sock
+
+
 def role_sub(args: argparse.Namespace) -> None:
     """Receive until N are in or nothing came for IDLE_S after the first; print the Counter's result as JSON."""
     counter = Counter(args.n)
     deadline = time.monotonic() + 60
     if args.kind.startswith("zmq"):
-        ctx = zmq.Context()
-        sub = ctx.socket(zmq.SUB)
-        sub.rcvhwm = HWM
-        if args.kind == "zmq-curve":
-            _curve(sub, Path(args.keys), server=True)
+        _, sub = _raw_socket(args, zmq.SUB, server=True)
         sub.subscribe(b"bench")
         sub.bind(args.endpoint)
         dec = msgspec.msgpack.Decoder(Blob)
@@ -99,11 +106,7 @@ def role_sub(args: argparse.Namespace) -> None:
 
 def role_pub(args: argparse.Namespace) -> None:
     if args.kind.startswith("zmq"):
-        ctx = zmq.Context()
-        sock = ctx.socket(zmq.PUB)
-        sock.sndhwm = HWM
-        if args.kind == "zmq-curve":
-            _curve(sock, Path(args.keys), server=False)
+        ctx, sock = _raw_socket(args, zmq.PUB, server=False)
         sock.connect(args.endpoint)
         time.sleep(1.0)  # a raw PUB cannot tell when the subscription has arrived (palpa's waits for it, below)
         enc = msgspec.msgpack.Encoder()
