@@ -47,6 +47,8 @@ class Burst(palpa.Node):
         n: int = 300
         size: int = 20_000
 
+    params: Params
+
     def setup(self) -> None:
         self.out = self.publisher("test/burst", Text)
         self.timer(0.01, self.tick)
