@@ -30,7 +30,7 @@ import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 
 from palpa.address import BusAddress, is_loopback_host
-from palpa.direct import DIRECTORY_PREFIX
+from palpa.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
 from palpa.errors import BusError
 from palpa.keys import ClientKeys, load_secret_key
 from palpa.latch import DEFAULT_LATCH_MAX_BYTES, DEFAULT_LATCH_MAX_ENTRIES, LatchCache
@@ -197,7 +197,11 @@ class Bus:
         exact = {t.encode() for t in self._latched_topics}
         if capture_sub is not None:
             poller.register(capture_sub, zmq.POLLIN)
+        keys_generation = 0
         while not self._stop.is_set():
+            if self.clients is not None and self.clients.generation != keys_generation:
+                keys_generation = self.clients.generation
+                self._publish_client_keys(router, self.clients.listing())
             events = dict(poller.poll(100))
             if capture_sub is not None and capture_sub in events:
                 while True:
@@ -239,6 +243,20 @@ class Bus:
             log.warning("latch: ignoring unknown request %r (%d frames)", verb[:16], len(frames))
             self._send(router, b"", ident, [b"ERR", b"", b"unknown request (expected SET or GET)"])
 
+    def _publish_client_keys(self, router: zmq.Socket[bytes], listing: bytes) -> None:
+        """Cache the authorised client keys (read at start and on every reload) and push them to whoever asked:
+        direct CURVE publishers let in exactly these (palpa.direct)."""
+        value = [b"", listing]
+        with self._cache_lock:
+            why = self._cache.put(CLIENT_KEYS_TOPIC, value)
+        if why is not None:
+            log.error("latch: cannot cache the authorised client keys: %s", why)
+            return
+        for prefix, idents in list(self._watchers.items()):
+            if CLIENT_KEYS_TOPIC.startswith(prefix):
+                for watcher in list(idents):
+                    self._send(router, prefix, watcher, [b"VAL", CLIENT_KEYS_TOPIC, *value])
+
     def _store(self, router: zmq.Socket[bytes] | None, topic: bytes, value: list[bytes], ident: bytes = b"") -> bool:
         """Check and cache one value; a refusal is counted, logged and (to a SET's sender) answered with
         ``ERR topic reason``."""
@@ -270,7 +288,7 @@ class Bus:
         """Topics with a cached last value."""
         with self._cache_lock:
             return sorted(t.decode(errors="replace") for t in self._cache.values
-                          if not t.startswith(DIRECTORY_PREFIX))
+                          if not t.startswith(DIRECTORY_PREFIX) and t != CLIENT_KEYS_TOPIC)
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Stop the proxy and the cache, close every socket and remove ipc socket files."""

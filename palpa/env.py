@@ -10,9 +10,9 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping
 
-__all__ = ["BUS", "BUS_SERVER_KEY", "CURRENT", "CURVE_SECRET", "MESSAGES", "NAMESPACE", "NODE_MODULES", "NODE_NAME",
-           "PARAMS", "REMAP", "RUN_DIR", "SIM_CLOCK", "SIM_CLOCK_TIMEOUT_S", "TRANSPORT", "VARIABLES", "flag", "get",
-           "listed"]
+__all__ = ["BUS", "BUS_SERVER_KEY", "CURRENT", "CURVE_SECRET", "DIRECT_HOST", "MESSAGES", "NAMESPACE", "NODE_MODULES",
+           "NODE_NAME", "PARAMS", "REMAP", "RUN_DIR", "SIM_CLOCK", "SIM_CLOCK_TIMEOUT_S", "TRANSPORT", "VARIABLES", "flag",
+           "get", "listed"]
 
 BUS = "PALPA_BUS"
 RUN_DIR = "PALPA_RUN_DIR"
@@ -28,6 +28,7 @@ NODE_MODULES = "PALPA_NODE_MODULES"
 CURRENT = "PALPA_CURRENT"
 BUS_SERVER_KEY = "PALPA_BUS_SERVER_KEY"
 CURVE_SECRET = "PALPA_CURVE_SECRET"
+DIRECT_HOST = "PALPA_DIRECT_HOST"
 
 VARIABLES: dict[str, str] = {
     BUS: "the bus address a node or tool joins (else the current launch's, else the default bus)",
@@ -45,6 +46,8 @@ VARIABLES: dict[str, str] = {
     CURRENT: "the file naming the running launch (default: in the private runtime directory)",
     BUS_SERVER_KEY: "the CURVE server's public key (Z85 text or a .key file) of an encrypted bus",
     CURVE_SECRET: "the path to this client's .key_secret file on an encrypted bus",
+    DIRECT_HOST: "the address this node's direct topics are served on when the bus is on another host (default: "
+                 "this host's address on the route to the bus)",
 }
 
 

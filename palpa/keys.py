@@ -59,6 +59,8 @@ class ClientKeys:
         self._lock = threading.Lock()
         self.refused = 0
         """Handshakes refused so far."""
+        self.generation = 0
+        """How many times the folder was read (a change tells the bus to republish the keys)."""
         self.reload()
 
     def reload(self) -> int:
@@ -68,8 +70,13 @@ class ClientKeys:
         keys = frozenset(k if isinstance(k, bytes) else str(k).encode()
                          for k in zmq.auth.load_certificates(str(self.directory)))
         self._keys = keys
+        self.generation += 1
         log.info("CURVE: %d authorised client key(s) from %s", len(keys), self.directory)
         return len(keys)
+
+    def listing(self) -> bytes:
+        """The authorised keys, Z85, one a line (what the bus publishes for direct CURVE publishers)."""
+        return b"\n".join(sorted(self._keys))
 
     def callback(self, domain: str, z85_key: bytes) -> bool:
         """pyzmq's hook: True lets the client in; a refusal is counted and logged (at most every few seconds

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import msgspec
 
-from palpa.direct import DIRECTORY_PREFIX
+from palpa.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
 from palpa.errors import DecodeError, RegistryError
 from palpa.message import lookup
 from palpa.wire import MAX_TOPIC_BYTES, decode_header
@@ -45,6 +45,8 @@ class LatchCache:
         except UnicodeDecodeError:
             return "topic is not UTF-8"
         header, payload = value[0], value[1]
+        if topic.startswith(CLIENT_KEYS_TOPIC.rpartition(b"/")[0] + b"/"):
+            return "topics under _palpa/curve/ are written by the bus only"
         if topic.startswith(DIRECTORY_PREFIX):  # a direct publisher's announcement (palpa.direct)
             if len(value) != 2 or header or len(payload) > _ENDPOINT_MAX or b"\0" not in topic:
                 return "malformed direct-topic announcement"

@@ -21,8 +21,15 @@ import zmq.auth
 
 from palpa import env as palpa_env
 from palpa.address import BusAddress
-from palpa.direct import DIRECTORY_PREFIX, DirectSocket, SubscriberSet, directory_entry
+from palpa.direct import (
+    CLIENT_KEYS_TOPIC,
+    DIRECTORY_PREFIX,
+    DirectSocket,
+    SubscriberSet,
+    follow_directory,
+)
 from palpa.errors import BusError
+from palpa.exitflush import note_linger
 from palpa.handshake import HANDSHAKE_EVENTS, HandshakeWatch
 from palpa.keys import load_secret_key
 from palpa.options import TransportOptions
@@ -149,6 +156,7 @@ class ZmqTransport:
         self._address = address
         curve = curve_client_options()
         self._curve = curve is not None
+        self._bus_server_key = curve["server"] if curve is not None else None
         self._direct: DirectSocket | None = None
         self._peers: set[str] = set()
         self._bus_listeners = SubscriberSet()
@@ -186,6 +194,7 @@ class ZmqTransport:
         self._closed = False
         self._prefixes: list[bytes] = []
         self._unsent_latched: dict[bytes, list[bytes]] = {}
+        self._directory_prefixes: list[bytes] = []
         self._watch_hs = HandshakeWatch(monitor, self._pub, address.pub, self._curve,
                                         [(self._pub, address.pub), (self._sub, address.sub),
                                          (self._latch, address.latch)], self._accepted)
@@ -211,6 +220,10 @@ class ZmqTransport:
         if self._watch_hs.refused:  # what the refused latch connection lost: ask again, set again
             for prefix in self._prefixes:
                 self._to_cache([b"GET", prefix])
+            for prefix in self._directory_prefixes:
+                self._to_cache([b"GET", DIRECTORY_PREFIX + prefix])
+            if self._direct is not None and self._curve:
+                self._to_cache([b"GET", CLIENT_KEYS_TOPIC])
             unsent, self._unsent_latched = self._unsent_latched, {}
             for topic, frames in unsent.items():
                 self._to_cache(frames, latched_topic=topic)
@@ -232,7 +245,7 @@ class ZmqTransport:
 
     def has_subscribers(self, topic: bytes) -> bool:
         direct = self._direct
-        listeners = direct.listeners if direct is not None and topic in direct.topics else self._bus_listeners
+        listeners = direct.listeners if direct is not None and direct.carries(topic) else self._bus_listeners
         return listeners.covers(topic)
 
     def sender(self, topic: bytes, direct: bool | None) -> SendFn:
@@ -241,36 +254,20 @@ class ZmqTransport:
         if not direct:
             return self.send
         if self._direct is None:
-            # a CURVE bus: this node holds client keys only, it cannot serve its own encrypted socket
-            opened = "the bus is CURVE-encrypted" if self._curve else \
-                DirectSocket.bind(self._ctx, self._address, self.options.sndhwm)
+            opened = DirectSocket.bind(self._ctx, self._address, self.options.sndhwm, self._curve)
             if isinstance(opened, str):
                 log.warning("%s goes through the bus, not direct: %s", topic.decode(errors="replace"), opened)
                 return self.send
             self._direct = opened
             self._watch(opened.sock)
-        self._direct.announce(self._latch, topic)
+            if self._curve:  # whom to let in: the bus's own authorised keys (announcements wait for them)
+                self._to_cache([b"GET", CLIENT_KEYS_TOPIC])
+        self._direct.announce(self._to_cache, topic)
         return self._send_direct
 
     def _send_direct(self, frames: Sequence[bytes], latched: bool) -> None:
         assert self._direct is not None
         self._publish(self._direct.sock, frames, latched)
-
-    def _on_directory(self, key: bytes, payload: bytes) -> None:
-        """Connect to a direct publisher the cache told about. A withdrawn one is not disconnected: its last
-        messages may still be on their way (a disconnect would drop them); ZeroMQ keeps retrying a dead endpoint
-        at most every few seconds, and a publisher that comes back there is received once, not twice."""
-        entry = directory_entry(key, payload)
-        if entry is None:
-            return
-        endpoint, alive = entry
-        if alive and endpoint not in self._peers:
-            try:
-                self._sub.connect(endpoint)
-            except zmq.ZMQError as exc:
-                log.warning("cannot connect to direct publisher %s: %s", endpoint, exc)
-                return
-            self._peers.add(endpoint)
 
     def send(self, frames: Sequence[bytes], latched: bool) -> None:
         self._publish(self._pub, frames, latched)
@@ -300,8 +297,9 @@ class ZmqTransport:
         if request_latched:
             self._prefixes.append(prefix)
             self._to_cache([b"GET", prefix])  # asked again on acceptance when it cannot go now
-        if not self._curve:  # direct publishers of matching topics, now and later (palpa.direct)
-            self._to_cache([b"GET", DIRECTORY_PREFIX + prefix])
+        # direct publishers of matching topics, now and later (palpa.direct), on any bus; asked again on acceptance
+        self._directory_prefixes.append(prefix)
+        self._to_cache([b"GET", DIRECTORY_PREFIX + prefix])
 
     def unsubscribe(self, prefix: bytes) -> None:
         self._sub.setsockopt(zmq.UNSUBSCRIBE, prefix)
@@ -336,7 +334,10 @@ class ZmqTransport:
                     break
                 if frames and frames[0] == b"VAL" and len(frames) >= 4:
                     if frames[1].startswith(DIRECTORY_PREFIX):
-                        self._on_directory(frames[1], frames[3])
+                        follow_directory(self._sub, self._peers, frames[1], frames[3], self._bus_server_key)
+                    elif frames[1] == CLIENT_KEYS_TOPIC:
+                        if self._direct is not None:
+                            self._direct.allow(self._to_cache, frames[3])
                     else:
                         out.append(Delivery(frames[1:], True))
                 elif frames and frames[0] == b"ERR" and len(frames) >= 3:
@@ -395,6 +396,7 @@ class ZmqTransport:
         if hasattr(self, "_watch_hs"):
             self._watch_hs.close()
         if self._direct is not None:  # withdraws its announcements first (through the latch socket)
-            self._direct.close(self._latch, linger_ms)
+            self._direct.close(self._to_cache, linger_ms)
         for sock in (self._pub, self._sub, self._latch):
             sock.close(linger_ms)
+        note_linger(self._ctx, linger_ms)

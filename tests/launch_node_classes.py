@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import palpa
+from messages import Text
 
 
 class LaunchTestProgress(palpa.Message, frozen=True, kw_only=True):
@@ -36,3 +37,25 @@ class ProgressTicker(palpa.Node):
             self.log.warning("halfway there")
         if self.step >= n:
             self.request_shutdown(0)
+
+
+class Burst(palpa.Node):
+    """Once someone listens, publishes ``n`` texts of ``size`` bytes at once on ``test/burst``, then exits 0: most of
+    the burst is still queued when the node closes."""
+
+    class Params(palpa.Params):
+        n: int = 300
+        size: int = 20_000
+
+    params: Params
+
+    def setup(self) -> None:
+        self.out = self.publisher("test/burst", Text)
+        self.timer(0.01, self.tick)
+
+    def tick(self) -> None:
+        if not self.out.has_subscribers:
+            return
+        for i in range(self.params.n):
+            self.out.publish(Text(text=f"{i} " + "x" * self.params.size))
+        self.request_shutdown(0)
