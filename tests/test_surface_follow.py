@@ -1,0 +1,131 @@
+"""Issue 15, surface following: the air-float probe's own heights keep its face at the working clearance along a
+sweep line where the touched-off surface is wrong (a 2 x 2 touch-off grid fits a plane to a dome: ~1.2 mm low
+over the crest). The control law alone, then the scanner with the simulated probe over the dome (in process, mock
+clock); tests/test_touchoff_ur.py runs the same through the ur_rtde driver against the UR emulator."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import pytest
+
+from messages import ProbeHeights
+from models.following import (
+    FollowConfig,
+    clearance_error,
+    densify_slides,
+    follow_step,
+    gap_from_heights,
+    in_working_range,
+    is_slide,
+)
+from models.phantom import load_phantom
+from models.raster import sweep_raster
+from nodes.fibre_reader import FibreReader
+from nodes.pressure_controller import PressureController
+from nodes.robot_scanner import RobotScanner
+from palpa.testing import GraphHarness
+
+DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm: 6 mm on the centre line y = 20, 3 mm at the y edges
+REGION = [22.0, 6.0, 28.0, 34.0]  # two lines along y, across the crest (x clear of both inclusions' cores)
+
+
+def test_the_law_closes_the_clearance_error_at_its_gain_capped_and_bounded() -> None:
+    cfg = FollowConfig(target_gap_mm=1.0, gain_per_s=5.0, max_rate_mm_s=2.0, max_offset_mm=1.5)
+    assert follow_step(0.0, 0.2, 0.01, cfg) == pytest.approx(-0.01)  # 0.2 mm too high: down by gain*dt*error
+    assert follow_step(0.0, -0.2, 0.01, cfg) == pytest.approx(+0.01)  # too close: up
+    assert follow_step(0.0, 8.0, 0.01, cfg) == pytest.approx(-0.02)  # one wild sample moves it max_rate*dt only
+    assert follow_step(-1.49, 2.0, 0.01, cfg) == pytest.approx(-1.5)  # never beyond max_offset
+    assert follow_step(0.0, -1.0, 0.1, cfg, limits_mm=(-1.0, 0.05)) == pytest.approx(0.05)  # nor the box's limits
+    # a face that follows its own measurement converges on the working clearance over a surface 1 mm off the plan
+    u, surface_error = 0.0, 1.0
+    for _ in range(300):  # 3 s at 100 Hz
+        gap = 1.0 - surface_error + u  # planned 1 mm over a surface that is really 1 mm higher, plus the offset
+        e = clearance_error((gap, gap, gap, gap + 1.5), cfg)
+        assert e is not None
+        u = follow_step(u, e, 0.01, cfg)
+    assert u == pytest.approx(1.0, abs=0.01)
+    assert gap_from_heights((1.3, 1.3, 1.3, 3.0), cfg) == pytest.approx(1.3)  # eq. 2 on a level surface
+    assert clearance_error((1.3, 1.3, 1.3, 3.0), cfg) == pytest.approx(0.3)
+    # on a slope d_n says 1.1 mm, but the uphill SPS is 0.1 mm from the face: raise until it is min_sps clear
+    assert clearance_error((0.1, 1.6, 1.6, 3.0), cfg) == pytest.approx(0.1 - 0.3)
+    assert clearance_error((1.0, 1.0, 10.0, 3.0), cfg) is None  # an SPS sees nothing (over an edge)
+    assert in_working_range((0.4, 0.3, 0.5, 2.5)) and not in_working_range((0.0, 0.3, 0.5, 2.5))
+    assert not in_working_range((1.0, 1.0, 1.0, 9.8))  # the indenter at the end of its stroke
+
+
+def test_densified_slides_keep_the_line_and_mark_only_sliding_moves() -> None:
+    plan = sweep_raster(0, 0, 10, 20, spacing_mm=10, speed_mm_s=10, contact_z_mm=1.0, surface=lambda x, y: 5.0)
+    dense = densify_slides(plan.waypoints, 1.5)
+    slides = [w for i, w in enumerate(dense) if is_slide(dense, i)]
+    assert len(slides) == 2 * 14  # 20 mm lines in 14 steps of <= 1.5 mm
+    assert all(w.z_mm == 6.0 and w.x_mm in (0.0, 10.0) and w.blend_mm == pytest.approx(0.675) for w in slides[:-1]
+               if w is not slides[13])
+    assert not is_slide(dense, [w.kind for w in dense].index("contact"))  # the descent onto a line is no slide
+
+
+def geometry(tmp_path: Path) -> str:
+    f = tmp_path / "geometry.yaml"
+    f.write_text("thickness_mm: 6.0\nfootprint_mm: [0, 0, 70, 40]\n")  # as measured: its top, its footprint
+    return str(f)
+
+
+def sweep_over_the_dome(tmp_path: Path, gain: float) -> dict[str, Any]:
+    """The scanner (sim arm), the sim regulator and the sim fibre probe over the dome; touch-off on 2 x 2 points,
+    then two lines at 10 mm/s. Returns the probe's samples while sliding (mid-line) and the scanner."""
+    truth = load_phantom(DOME)
+    g = GraphHarness()
+    g.add(PressureController, {"startup": "hold", "setpoint_kpa": 36.0, "sim_tracking_kpa": 0.0})
+    g.add(FibreReader, {"phantom": DOME, "sim_errors": "ideal", "poll_hz": 100.0})
+    scanner = g.add(RobotScanner, {
+        "geometry": geometry(tmp_path), "region_mm": REGION, "touchoff": "heights", "touch_grid": 2,
+        "search_clearance_mm": 6.0, "spacing_mm": 6.0, "speed_mm_s": 10.0, "home_mm": [25, 20, 14],
+        "watchdog_s": 0.5, "follow_gain_per_s": gain, "linger_s": 0.1, "retract_clearance_mm": 6.0})
+    decoder = msgspec.msgpack.Decoder(ProbeHeights)
+    seen = 0
+    samples: list[tuple[ProbeHeights, float]] = []  # (sample, true clearance of the face)
+    for _ in range(int(60 / 0.01)):
+        g.advance(0.01)
+        raws = g.raw[seen:]
+        seen = len(g.raw)
+        if scanner.state != "scanning":
+            if scanner.state in ("done", "fault"):
+                break
+            continue
+        seg_start = scanner.segments[scanner.segment][0] if scanner.segment < len(scanner.segments) else 0
+        i = seg_start + scanner.driver.progress().index
+        x, y, z = scanner.driver.state().pose[:3]
+        # mid-line: each line starts at the plan's height and the follower settles over its first 4 mm
+        if not (is_slide(scanner.path, i) and REGION[1] + 4 < y < REGION[3] - 4):
+            continue
+        for raw in raws:
+            if raw.topic == "probe/heights":
+                samples.append((decoder.decode(raw.payload), z - float(truth.surface_z(x, y))))
+    g.close()
+    return {"scanner": scanner, "samples": samples}
+
+
+@pytest.mark.timeout(240)
+def test_following_keeps_the_face_at_its_clearance_where_the_coarse_touch_off_is_a_millimetre_off(
+        tmp_path: Path) -> None:
+    truth = load_phantom(DOME)
+    free = sweep_over_the_dome(tmp_path, gain=0.0)
+    s = free["scanner"]
+    assert s.state == "done", s.message
+    fit = s.specimen.surface
+    assert fit.model == "plane" and fit.z(25, 20) < float(truth.surface_z(25, 20)) - 0.9  # the premise: 1 mm off
+    out = [m for m, _ in free["samples"] if not in_working_range(m.h_mm)]
+    assert len(free["samples"]) > 500 and len(out) > 0.15 * len(free["samples"])  # the face rests on the crest
+
+    followed = sweep_over_the_dome(tmp_path, gain=10.0)
+    s = followed["scanner"]
+    assert s.state == "done", s.message
+    assert s.follower is not None and s.follower.resends > 5
+    got = followed["samples"]
+    assert len(got) > 500
+    assert all(in_working_range(m.h_mm) for m, _ in got), min(min(m.h_mm[:3]) for m, _ in got)
+    clearances = [c for _, c in got]
+    assert min(clearances) > 0.4 and max(clearances) < 1.5, (min(clearances), max(clearances))
+    assert all(0.3 < m.d_in_mm < 5.0 for m, _ in got)  # eqs. 1-3's indentation inside the estimator's range
