@@ -5,6 +5,7 @@ clock); tests/test_touchoff_ur.py runs the same through the ur_rtde driver again
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,7 @@ from models.raster import sweep_raster
 from nodes.fibre_reader import FibreReader
 from nodes.pressure_controller import PressureController
 from nodes.robot_scanner import RobotScanner
+from palpa.clock import MockClock
 from palpa.testing import GraphHarness
 
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm: 6 mm on the centre line y = 20, 3 mm at the y edges
@@ -72,22 +74,32 @@ def geometry(tmp_path: Path) -> str:
     return str(f)
 
 
-def sweep_over_the_dome(tmp_path: Path, gain: float) -> dict[str, Any]:
-    """The scanner (sim arm), the sim regulator and the sim fibre probe over the dome; touch-off on 2 x 2 points,
-    then two lines at 10 mm/s. Returns the probe's samples while sliding (mid-line) and the scanner."""
+def sweep_over_the_dome(tmp_path: Path, gain: float, *, wall_clock: bool = False, timeout_s: float = 60.0,
+                        **scanner: Any) -> dict[str, Any]:
+    """The scanner (sim arm, or ``scanner`` params for another driver), the sim regulator and the sim fibre probe
+    over the dome; touch-off on 2 x 2 points, then two lines at 10 mm/s. ``wall_clock``: the harness's clock follows
+    the wall clock (a real-time driver: the UR emulator). Returns the probe's samples while sliding (mid-line) and
+    the scanner."""
     truth = load_phantom(DOME)
-    g = GraphHarness()
+    g = GraphHarness(clock=MockClock(time.time_ns()) if wall_clock else None)
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": 36.0, "sim_tracking_kpa": 0.0})
     g.add(FibreReader, {"phantom": DOME, "sim_errors": "ideal", "poll_hz": 100.0})
     scanner = g.add(RobotScanner, {
         "geometry": geometry(tmp_path), "region_mm": REGION, "touchoff": "heights", "touch_grid": 2,
         "search_clearance_mm": 6.0, "spacing_mm": 6.0, "speed_mm_s": 10.0, "home_mm": [25, 20, 14],
-        "watchdog_s": 0.5, "follow_gain_per_s": gain, "linger_s": 0.1, "retract_clearance_mm": 6.0})
+        "watchdog_s": 0.5, "follow_gain_per_s": gain, "linger_s": 0.1, "retract_clearance_mm": 6.0, **scanner})
     decoder = msgspec.msgpack.Decoder(ProbeHeights)
     seen = 0
     samples: list[tuple[ProbeHeights, float]] = []  # (sample, true clearance of the face)
-    for _ in range(int(60 / 0.01)):
-        g.advance(0.01)
+    deadline = time.monotonic() + timeout_s
+    for _ in range(int(timeout_s / 0.01)):
+        if wall_clock:
+            time.sleep(0.005)
+            g.advance(max(0.0, (time.time_ns() - g.clock.now_ns()) / 1e9))
+            if time.monotonic() > deadline:
+                break
+        else:
+            g.advance(0.01)
         raws = g.raw[seen:]
         seen = len(g.raw)
         if scanner.state != "scanning":

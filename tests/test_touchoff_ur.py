@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 
 import pytest
 
+from models.following import in_working_range
 from models.phantom import load_phantom
 from models.raster import sweep_raster
 from models.surface import fit_surface, touch_points
@@ -16,6 +18,7 @@ from nodes.drivers.robot import MotionStatus
 from nodes.drivers.robot_urrtde import URRtdeDriver
 from nodes.touchoff import TouchOff, TouchOffConfig
 from tests.procs import ur_emulator
+from tests.test_surface_follow import sweep_over_the_dome
 
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm, 6 mm on the centre line, 3 mm at the y edges
 
@@ -60,3 +63,24 @@ def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator() 
             assert min(forces) > 0.0
         finally:
             ur.close()
+
+
+@pytest.mark.timeout(120)
+def test_the_scanner_follows_the_dome_by_the_probe_heights_through_ur_rtde(tmp_path: Path) -> None:
+    """The scanner node on the ur_rtde driver against the emulator, with the simulated air-float probe over the same
+    dome (in process, the harness's clock on the wall clock): a 2 x 2 touch-off by the probe's heights fits a plane
+    ~1.2 mm under the crest, and following keeps every mid-line sample's SPS ring clear of the tissue and the face
+    0.4-1.5 mm above it, each correction going out as a new ur_rtde path."""
+    with ur_emulator(["--unlock-delay", "0", "--home", f"25,20,14,0,{math.pi},0", "--phantom", DOME]) as emu:
+        run = sweep_over_the_dome(tmp_path, gain=10.0, wall_clock=True, timeout_s=90.0, driver="ur_rtde",
+                                  robot_host=emu.host)
+    s = run["scanner"]
+    assert s.state == "done", s.message
+    fit = s.specimen.surface
+    assert fit.model == "plane" and fit.z(25, 20) < float(load_phantom(DOME).surface_z(25, 20)) - 0.9
+    assert s.follower is not None and s.follower.resends > 5
+    got = run["samples"]
+    assert len(got) > 500
+    assert all(in_working_range(m.h_mm) for m, _ in got), min(min(m.h_mm[:3]) for m, _ in got)
+    clearances = [c for _, c in got]
+    assert min(clearances) > 0.4 and max(clearances) < 1.5, (min(clearances), max(clearances))
