@@ -27,8 +27,9 @@ from models.raster import sweep_raster
 from nodes.fibre_reader import FibreReader
 from nodes.pressure_controller import PressureController
 from nodes.robot_scanner import RobotScanner
+from nodes.surface_follow import LineFollower
 from palpa.clock import MockClock
-from palpa.testing import GraphHarness
+from palpa.testing import GraphHarness, NodeHarness
 
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm: 6 mm on the centre line y = 20, 3 mm at the y edges
 REGION = [22.0, 6.0, 28.0, 34.0]  # two lines along y, across the crest (x clear of both inclusions' cores)
@@ -141,3 +142,40 @@ def test_following_keeps_the_face_at_its_clearance_where_the_coarse_touch_off_is
     clearances = [c for _, c in got]
     assert min(clearances) > 0.4 and max(clearances) < 1.5, (min(clearances), max(clearances))
     assert all(0.3 < m.d_in_mm < 5.0 for m, _ in got)  # eqs. 1-3's indentation inside the estimator's range
+
+
+def test_the_follower_never_takes_a_line_out_of_the_box_nor_follows_off_the_line() -> None:
+    plan = densify_slides(sweep_raster(0, 0, 10, 20, spacing_mm=10, speed_mm_s=10, contact_z_mm=1.0,
+                                       surface=lambda x, y: 0.0).waypoints, 1.5)
+    f = LineFollower(FollowConfig(target_gap_mm=1.0), (0.5, 60.0))
+    f.start_line(plan, 0)
+    assert f.limits == (0.5 - 1.0, 60.0 - 1.0)  # the line's contact heights are at z 1 mm
+    f.track(plan, 0)  # heading for the transit: not sliding, samples ignored
+    f.on_heights(0, (3.0, 3.0, 3.0, 5.0), True)
+    f.on_heights(10_000_000, (3.0, 3.0, 3.0, 5.0), True)
+    assert f.offset_mm == 0.0 and not f.due(10**9)
+    f.track(plan, [w.kind for w in plan].index("contact") + 1)  # sliding
+    for k in range(200):  # the face reads 2 mm too high for 2 s: down, but only to the box's floor
+        f.on_heights(k * 10_000_000, (3.0, 3.0, 3.0, 5.0), True)
+    assert f.offset_mm == pytest.approx(-0.5) and f.due(2 * 10**9)
+    assert min(w.z_mm for w in f.shifted(plan)) == pytest.approx(0.5)
+
+
+def test_stale_probe_data_still_stops_the_arm_while_following(tmp_path: Path) -> None:
+    """The sim arm sweeping with following on, its probe's heights stop mid-line: the watchdog stops it."""
+    h = NodeHarness(RobotScanner, {
+        "geometry": geometry(tmp_path), "region_mm": REGION, "touchoff": "heights", "touch_grid": 2,
+        "spacing_mm": 6.0, "speed_mm_s": 10.0, "home_mm": [25, 20, 14], "watchdog_s": 0.1})
+    for _ in range(int(60 / 0.004)):
+        x, y, z = h.node.driver.state().pose[:3]
+        gap = min(max(z - 5.0, 0.0), 10.0)  # a level surface at 5 mm
+        h.publish("probe/heights", ProbeHeights(stamp_ns=h.clock.now_ns(), seq=0, h_mm=(gap, gap, gap, gap + 1.5),
+                                                raw=(0, 0, 0, 0), d_in_mm=1.5, tilt_rad=0.0))
+        h.advance(0.004)
+        if h.node.follower is not None and h.node.follower.sliding and y > 15:
+            break
+    assert h.node.state == "scanning" and h.node.follower is not None and h.node.follower.sliding
+    h.advance(0.3)  # no more heights
+    assert h.node.state == "fault" and "stale" in h.node.message
+    h.advance(0.2)
+    assert h.node.driver.progress().status.value == "stopped"
