@@ -61,7 +61,12 @@ class RobotScanner(palpa.Node):
         geometry: str = ""
         """Measured-geometry file (models.geometry): the specimen's footprint and thickness as someone measured them."""
         edge_margin_mm: float = 4.0
-        """Default region: the footprint less this on every side."""
+        """Default region: the footprint (or the searched extent) less this on every side."""
+        search_box_mm: list[float] = []
+        """xmin, ymin, zmin, xmax, ymax, zmax: without region_mm, find the specimen in this box: touch down from its
+        top towards its floor at a grid of points search_step_mm apart (contact or none, by the touchoff signal);
+        the region is the extent of the points that found it less edge_margin_mm, its surface fitted through them."""
+        search_step_mm: palpa.Positive = 10.0
         touchoff: Literal["off", "heights", "indenters", "force"] = "off"
         """Find the surface before the raster (nodes/touchoff.py) by this contact signal; off: flat contact_z_mm."""
         touch_grid: int = 3
