@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 
-from models.following import in_working_range
 from models.phantom import load_phantom
 from models.raster import sweep_raster
 from models.surface import fit_surface, touch_points
@@ -18,7 +17,7 @@ from nodes.drivers.robot import MotionStatus
 from nodes.drivers.robot_urrtde import URRtdeDriver
 from nodes.touchoff import TouchOff, TouchOffConfig
 from tests.procs import ur_emulator
-from tests.test_surface_follow import sweep_over_the_dome
+from tests.test_surface_follow import check_without_and_with_following, sweep_over_the_dome
 
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm, 6 mm on the centre line, 3 mm at the y edges
 
@@ -69,24 +68,11 @@ def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator() 
 def test_the_scanner_follows_the_dome_by_the_probe_heights_through_ur_rtde(tmp_path: Path) -> None:
     """The scanner node on the ur_rtde driver against the emulator, with the simulated air-float probe over the same
     dome (in process, the harness's clock on the wall clock): a 2 x 2 touch-off by the probe's heights fits a plane
-    ~1.2 mm under the crest; without following the face rests on the crest, and following keeps every mid-line sample's SPS ring clear of the tissue and the face
-    0.4-1.5 mm above it, each correction going out as a new ur_rtde path."""
+    ~1.2 mm under the crest; without following the face rests on the crest, and following keeps every mid-line
+    sample's SPS ring clear of the tissue and the face 0.4-1.5 mm above it, each correction a new ur_rtde path."""
     runs = {}
     for gain in (0.0, 10.0):
         with ur_emulator(["--unlock-delay", "0", "--home", f"25,20,14,0,{math.pi},0", "--phantom", DOME]) as emu:
             runs[gain] = sweep_over_the_dome(tmp_path, gain=gain, wall_clock=True, timeout_s=90.0, driver="ur_rtde",
                                              robot_host=emu.host)
-    free = runs[0.0]["samples"]
-    assert runs[0.0]["scanner"].state == "done" and len(free) > 500
-    assert sum(not in_working_range(m.h_mm) for m, _ in free) > 0.15 * len(free)  # the face rests on the crest
-    run = runs[10.0]
-    s = run["scanner"]
-    assert s.state == "done", s.message
-    fit = s.specimen.surface
-    assert fit.model == "plane" and fit.z(25, 20) < float(load_phantom(DOME).surface_z(25, 20)) - 0.9
-    assert s.follower is not None and s.follower.resends > 5
-    got = run["samples"]
-    assert len(got) > 500
-    assert all(in_working_range(m.h_mm) for m, _ in got), min(min(m.h_mm[:3]) for m, _ in got)
-    clearances = [c for _, c in got]
-    assert min(clearances) > 0.4 and max(clearances) < 1.5, (min(clearances), max(clearances))
+    check_without_and_with_following(runs[0.0], runs[10.0])
