@@ -419,6 +419,9 @@ class RobotScanner(palpa.Node):
         if self.segment >= len(self.segments):
             self.meter.complete()
             self.set_state("done", f"scan complete in {(self.clock.now_ns() - self.started_ns) / 1e9:.1f} s")
+            if self.follower is not None:
+                self.log.info("surface following: %d corrections, the largest %+.2f mm", self.follower.resends,
+                              self.follower.largest_mm)
             self.log.info("scan complete")
             self.finish(0)
             return

@@ -37,6 +37,8 @@ class LineFollower:
         self.sliding = False
         self.limits = (-math.inf, math.inf)
         self.resends = 0
+        self.largest_mm = 0.0
+        """The largest offset sent so far (mm, either sign): how wrong the fitted surface was under the lines."""
         self._last_stamp: int | None = None
         self._sent_ns = 0
 
@@ -75,4 +77,6 @@ class LineFollower:
 
     def sent(self, now_ns: int) -> None:
         self.sent_mm, self._sent_ns = self.offset_mm, now_ns
+        if abs(self.offset_mm) > abs(self.largest_mm):
+            self.largest_mm = self.offset_mm
         self.resends += 1
