@@ -27,7 +27,7 @@ _MAX_DT_S = 0.05  # a gap in the samples longer than this is not integrated over
 class LineFollower:
     """Offset of the current sweep line from its plan, driven by ``probe/heights`` while sliding."""
 
-    def __init__(self, cfg: FollowConfig, box_z_mm: tuple[float, float], *, deadband_mm: float = 0.08,
+    def __init__(self, cfg: FollowConfig, box_z_mm: tuple[float, float], *, deadband_mm: float = 0.1,
                  min_interval_s: float = 0.1) -> None:
         self.cfg, self.box_z = cfg, box_z_mm
         self.deadband_mm, self.min_interval_ns = deadband_mm, int(min_interval_s * 1e9)
@@ -43,10 +43,13 @@ class LineFollower:
         self._sent_ns = 0
 
     def start_line(self, waypoints: Sequence[Waypoint], line: int) -> None:
-        """A new line from its plan: offset 0, bounded so that every contact height of it stays in the box."""
+        """A new line from its plan, bounded so that every contact height of it stays in the box. The next line of
+        a boustrophedon starts beside where the last one ended: it starts at that offset (the first at 0)."""
         zs = [w.z_mm for w in waypoints if w.kind == "contact" and w.line == line]
-        self.line, self.offset_mm, self.sent_mm, self.sliding, self._last_stamp = line, 0.0, 0.0, False, None
         self.limits = (self.box_z[0] - min(zs), self.box_z[1] - max(zs)) if zs else (0.0, 0.0)
+        carried = self.offset_mm if line == self.line + 1 else 0.0
+        carried = max(self.limits[0], min(self.limits[1], carried)) if self.limits[0] <= self.limits[1] else 0.0
+        self.line, self.offset_mm, self.sent_mm, self.sliding, self._last_stamp = line, carried, carried, False, None
 
     def track(self, path: Sequence[Waypoint], index: int) -> None:
         """The arm is heading for ``path[index]``: following runs only while it slides along the line."""
