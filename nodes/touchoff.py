@@ -15,7 +15,8 @@ and goes on to the next point. The contact signals (``signal``):
   the height where the force began (the samples from contact to ``threshold`` are extrapolated back to 0 N along
   F^(2/3), the shape of any sphere's contact, so that the stiffness of the tissue does not bias it).
 
-A descent that reaches the floor without contact is an error naming the point (nothing under it). The driver
+A descent that reaches the floor without contact is an error naming the point (nothing under it); in a search for
+the specimen (``search``, the scanner's ``search_box_mm``) it is a miss, and so is a ring half over an edge. The driver
 is any :class:`nodes.drivers.robot.RobotDriver`; the scanner feeds probe data and calls :meth:`step` from its
 timer. Pure logic apart from the driver: testable on the sim driver with a mock clock, and on the UR emulator.
 """
@@ -121,8 +122,8 @@ class TouchOff:
         sps = statistics.fmean(h_mm[:3])
         if max(h_mm[:3]) - min(h_mm[:3]) > self.cfg.max_spread_mm or max(h_mm[:3]) >= self.cfg.stroke_mm - 0.05:
             # a sensor hangs over an edge (or sees nothing: the end of its stroke): this sample does not give the
-            # surface here; a search
-            # stops there (something is under the ring: going on down could put the face on the specimen's edge)
+            # surface here; a search stops there (something is under the ring: going on down could put the face on
+            # the specimen's edge)
             if self.cfg.search and min(h_mm[:3]) < self.cfg.threshold:
                 self._edge += 1
                 if self._edge >= self.cfg.samples:
