@@ -244,8 +244,11 @@ class TouchOff:
     def _go(self, index: int) -> None:
         self.index, self._found, self._rising, self._tare, self._edge = index, [], [], None, 0
         if index >= len(self.points):
-            self.driver.move_path([self._point(*self.driver.state().pose[:2], self.cfg.start_z_mm,
-                                               self.cfg.transit_speed_mm_s)])
+            x, y, z = self.driver.state().pose[:3]
+            if self.cfg.start_z_mm - z < 0.5:  # contact came at the start height: no lift (a move of a few
+                self.phase = "done"  # hundredths of a millimetre can end before ur_rtde sees it start)
+                return
+            self.driver.move_path([self._point(x, y, self.cfg.start_z_mm, self.cfg.transit_speed_mm_s)])
             self.phase = "lifting"
             return
         c = self.cfg
