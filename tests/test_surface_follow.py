@@ -162,6 +162,10 @@ def test_the_follower_never_takes_a_line_out_of_the_box_nor_follows_off_the_line
         f.on_heights(k * 10_000_000, (3.0, 3.0, 3.0, 5.0), True)
     assert f.offset_mm == pytest.approx(-0.5) and f.due(2 * 10**9)
     assert min(w.z_mm for w in f.shifted(plan)) == pytest.approx(0.5)
+    f.start_line(plan, 1)  # the next line starts beside where this one ended: at its offset
+    assert f.offset_mm == pytest.approx(-0.5) and not f.sliding and not f.due(3 * 10**9)
+    f.start_line(plan, 0)  # any other line (a new scan) starts on its plan
+    assert f.offset_mm == 0.0
 
 
 def test_stale_probe_data_still_stops_the_arm_while_following(tmp_path: Path) -> None:
