@@ -10,11 +10,11 @@ three surface-profile sensors measure the face's normal distance to the tissue, 
     e = min(d_n - target, min(h1, h2, h3) - min_sps)
     u <- clamp(u - clamp(gain * dt * e, +-max_rate * dt), lo, hi)
 
-an integral law (the plan's own slope is the feed-forward; the measurement corrects the offset), its rate capped
-so that one bad sample cannot jerk the arm (the second term of ``e``: on a slope the uphill SPS comes closer to
-the face than d_n says, ``slope * a``, and an SPS pushed back to the face reads 0 and no longer sees the plane, so
-the face is also kept ``min_sps`` clear of the highest point under the ring), and ``u`` bounded by ``max_offset_mm`` and by the workspace box
-(``lo``, ``hi``: the caller's limits). A sample is not used when its SPS disagree by more than ``max_spread_mm``
+an integral law (the plan's own slope is the feed-forward; the measurement corrects the offset), its rate capped so
+that one bad sample cannot jerk the arm, ``u`` bounded by ``max_offset_mm`` and by the workspace box (``lo``, ``hi``:
+the caller's limits). The second term of ``e``: on a slope the uphill SPS comes closer to the face than d_n says
+(by about ``slope * a``), and an SPS pushed back to the face reads 0 and no longer sees the plane, so the face is
+also kept ``min_sps`` clear of the highest point under the ring. A sample is not used when its SPS disagree by more than ``max_spread_mm``
 (one hangs over an edge) or one of them reads the end of its stroke (it sees nothing).
 
 The indentation's working range (:func:`in_working_range`): the SPS ring floats clear of the face (each SPS above
@@ -32,8 +32,8 @@ from dataclasses import dataclass
 from models.airfloat import DEFAULT_SPS_RADIUS_MM, surface_plane_from_heights
 from models.raster import Waypoint
 
-__all__ = ["FollowConfig", "clearance_error", "densify_slides", "follow_step", "gap_from_heights", "in_working_range", "is_slide",
-           "shift_line"]
+__all__ = ["FollowConfig", "clearance_error", "densify_slides", "follow_step", "gap_from_heights", "in_working_range",
+           "is_slide", "shift_line"]
 
 
 @dataclass(frozen=True)

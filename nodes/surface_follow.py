@@ -5,7 +5,7 @@ checks as any plan.
 How a correction reaches the arm: the scanner re-sends the rest of the current line (the plan's waypoints from the
 one being approached, every contact height plus the offset) as a new path, at most every ``min_interval_s`` and
 only once the offset moved ``deadband_mm`` from the one sent. Both drivers take a new path while moving (the arm
-blends out of the old one: a short slow-down), and each re-sent path is checked against the workspace box and the
+decelerates out of the old one and sets off on the new: a short slow-down), and each re-sent path is checked against the workspace box and the
 speed and acceleration caps before it goes (``RobotScanner.check_path``), so following cannot leave the box: the
 offset is also bounded so that the line stays inside it. Stale probe data stops the arm as before (the scanner's
 watchdog); without fresh samples the offset does not move.
