@@ -427,7 +427,7 @@ class RobotScanner(palpa.Node):
             return
         a, b = self.segments[self.segment]
         if self.follower is not None and self.state == "scanning":
-            self.follower.start_line(self.path[a : b + 1], self.path[b].line)
+            self.follower.start_line(self.path[a : b + 1], self.path[b].line, self.specimen.plan_z())
         self._send(a, b)
 
     def _send(self, a: int, b: int) -> None:
@@ -455,6 +455,8 @@ class RobotScanner(palpa.Node):
         x, y, z, rx, ry, rz = st.pose
         if self.specimen.touch is not None:
             self.specimen.touch.note_pose(st.stamp_ns, z)
+        if self.follower is not None:
+            self.follower.note_pose(st.stamp_ns, x, y, z)
         sx, sy, sz = st.speed_mm_s[:3]
         self.pose_pub.publish(RobotPose(stamp_ns=st.stamp_ns, x_mm=x, y_mm=y, z_mm=z, rx_rad=rx, ry_rad=ry,
                                         rz_rad=rz, speed_mm_s=math.sqrt(sx * sx + sy * sy + sz * sz),

@@ -26,7 +26,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import statistics
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
@@ -345,6 +345,13 @@ class SpecimenPlanner:
         if p.mode == "sweep":
             return {"contact_z_mm": p.working_offset_mm, "surface": self.surface}
         return {"contact_z_mm": 0.0, "surface": self.surface}
+
+    def plan_z(self) -> Callable[[float, float], float] | None:
+        """A sweep's planned face height at (x, y) over the found surface (None: no surface)."""
+        surface, offset = self.surface, self.node.params.working_offset_mm
+        if surface is None:
+            return None
+        return lambda x, y: surface.z(x, y) + offset
 
     def press_depth_mm(self) -> float:
         """Indent depth: the set depth, but never more than ``max_press_fraction`` of the thinnest found point nor

@@ -153,6 +153,8 @@ def test_the_follower_never_takes_a_line_out_of_the_box_nor_follows_off_the_line
     f = LineFollower(FollowConfig(target_gap_mm=1.0), (0.5, 60.0))
     f.start_line(plan, 0)
     assert f.limits == (0.5 - 1.0, 60.0 - 1.0)  # the line's contact heights are at z 1 mm
+    for k in range(201):
+        f.note_pose(k * 10_000_000, 0.0, 5.0, 1.0)
     f.track(plan, 0)  # heading for the transit: not sliding, samples ignored
     f.on_heights(0, (3.0, 3.0, 3.0, 5.0), True)
     f.on_heights(10_000_000, (3.0, 3.0, 3.0, 5.0), True)
@@ -187,3 +189,33 @@ def test_stale_probe_data_still_stops_the_arm_while_following(tmp_path: Path) ->
     assert state == "fault" and "stale" in h.node.message
     h.advance(0.2)
     assert h.node.driver.progress().status.value == "stopped"
+
+
+def follow_with_late_samples(plan_z: bool) -> list[float]:
+    """A face over a level surface at 0 whose plan (fit + 1 mm) is 0.6 mm low, samples delivered 0.2 s late and the
+    arm taking a re-sent offset at once: the offsets asked, every 2 ms for 3 s."""
+    plan = densify_slides(sweep_raster(0, 0, 10, 200, spacing_mm=10, speed_mm_s=10, contact_z_mm=1.0,
+                                       surface=lambda x, y: -0.6).waypoints, 1.5)
+    f = LineFollower(FollowConfig(target_gap_mm=1.0, gain_per_s=10.0), (0.0, 60.0))
+    f.start_line(plan, 0, (lambda x, y: 0.4) if plan_z else None)
+    f.track(plan, [w.kind for w in plan].index("contact") + 1)
+    faces: list[float] = []  # the face's height every 2 ms
+    asked = []
+    for k in range(1500):
+        now = k * 2_000_000
+        faces.append(0.4 + f.sent_mm)
+        f.note_pose(now, 0.0, 10.0, faces[-1])
+        if k >= 100:  # the sample taken 0.2 s ago arrives now
+            gap = faces[k - 100]
+            f.on_heights(now - 200_000_000, (gap, gap, gap, gap + 1.5), True)
+        if f.due(now):
+            f.sent(now)
+        asked.append(f.sent_mm)
+    return asked
+
+
+def test_late_samples_are_read_against_where_the_face_was_so_the_delay_cannot_make_it_oscillate() -> None:
+    naive = follow_with_late_samples(plan_z=False)
+    assert max(naive) > 0.6 + 0.2  # the premise: the error alone, 0.2 s late, overshoots (and rings)
+    asked = follow_with_late_samples(plan_z=True)
+    assert max(asked) < 0.6 + 0.1 and asked[-1] == pytest.approx(0.6, abs=0.1)
