@@ -6,7 +6,8 @@ and fits a smooth surface through them (:func:`fit_surface`: a plane, or a quadr
 raster is then planned at the probe's working offset over that surface (``models.raster``'s ``surface``).
 
 The region comes from the specimen: by default its footprint (as someone measured it) less an edge margin
-(:func:`region_in_footprint`); :func:`check_fits` refuses, before any motion, a region or a specimen height that the
+(:func:`region_in_footprint`), or, given only a box to search, the extent of the points of a coarse grid
+(:func:`search_points`) where the touch-off found the specimen, less the margin (:func:`region_from_touches`); :func:`check_fits` refuses, before any motion, a region or a specimen height that the
 workspace box cannot hold, naming the box and the extent. Units mm, phantom frame (origin at a corner, z up, table
 at z = 0). Pure functions; the scanner (nodes/touchoff.py) supplies the measurements.
 """
@@ -26,7 +27,9 @@ __all__ = [
     "check_fits",
     "fit_surface",
     "flat_surface",
+    "region_from_touches",
     "region_in_footprint",
+    "search_points",
     "touch_points",
 ]
 
@@ -156,3 +159,32 @@ def check_fits(region: Region, box: Box, *, top_mm: float | None = None, clearan
     if top_mm is not None and top_mm < box[2]:
         raise SpecimenDoesNotFit(f"the specimen's surface (top z {top_mm:.1f} mm) lies below the workspace box's "
                                  f"floor ({_box_text(box)}): z_min {box[2]:g}")
+
+
+def search_points(box: Region, step_mm: float) -> list[tuple[float, float]]:
+    """A grid over ``box`` (x0, y0, x1, y1), edges included, at most ``step_mm`` apart, row by row boustrophedon: where
+    a search touches down to find the specimen (contact or none)."""
+    if not (math.isfinite(step_mm) and step_mm > 0):
+        raise ValueError(f"search_points: step_mm must be finite and > 0, got {step_mm!r}")
+    x0, y0, x1, y1 = box
+    xs = np.linspace(x0, x1, max(2, math.ceil((x1 - x0) / step_mm) + 1)).tolist()
+    ys = np.linspace(y0, y1, max(2, math.ceil((y1 - y0) / step_mm) + 1)).tolist()
+    return [(float(x), float(y)) for j, y in enumerate(ys) for x in (xs if j % 2 == 0 else xs[::-1])]
+
+
+def region_from_touches(touches: Sequence[tuple[float, float, float]], margin_mm: float,
+                        searched: Region | None = None) -> Region:
+    """The scan region from a search: the extent (x0, y0, x1, y1) of the points where the specimen was found, less
+    ``margin_mm``. ValueError naming the ``searched`` box when nothing, or too little to scan, was found."""
+    where = (f" in the searched box x {searched[0]:g}..{searched[2]:g}, y {searched[1]:g}..{searched[3]:g} mm"
+             if searched is not None else "")
+    if not touches:
+        raise ValueError(f"the search found no specimen{where}: is it under the box, and thicker than the floor?")
+    xs, ys = [t[0] for t in touches], [t[1] for t in touches]
+    extent = (min(xs), min(ys), max(xs), max(ys))
+    try:
+        return region_in_footprint(extent, margin_mm)
+    except ValueError:
+        raise ValueError(f"the search found the specimen only at x {extent[0]:g}..{extent[2]:g}, y {extent[1]:g}.."
+                         f"{extent[3]:g} mm{where}: smaller than twice the {margin_mm:g} mm edge margin (a finer "
+                         "search_step_mm, or a smaller edge_margin_mm)") from None

@@ -13,6 +13,7 @@ the scanner does not scan but waits, idle, for probe requests.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, Literal
 
@@ -28,6 +29,7 @@ from messages import (
     ScanStatus,
 )
 from messages.robot import ScanState
+from models.following import FollowConfig, densify_slides
 from models.raster import (
     RasterPlan,
     Waypoint,
@@ -40,6 +42,7 @@ from models.raster import (
 from nodes.drivers.robot import MotionStatus, RobotDriver
 from nodes.scan_control import MOVING, ScanControl
 from nodes.scan_progress import PathProgressMeter
+from nodes.surface_follow import LineFollower
 from nodes.touchoff import SpecimenPlanner
 
 __all__ = ["RobotScanner"]
@@ -58,7 +61,12 @@ class RobotScanner(palpa.Node):
         geometry: str = ""
         """Measured-geometry file (models.geometry): the specimen's footprint and thickness as someone measured them."""
         edge_margin_mm: float = 4.0
-        """Default region: the footprint less this on every side."""
+        """Default region: the footprint (or the searched extent) less this on every side."""
+        search_box_mm: list[float] = []
+        """xmin, ymin, zmin, xmax, ymax, zmax: without region_mm, find the specimen in this box: touch down from its
+        top towards its floor at a grid of points search_step_mm apart (contact or none, by the touchoff signal);
+        the region is the extent of the points that found it less edge_margin_mm, its surface fitted through them."""
+        search_step_mm: palpa.Positive = 10.0
         touchoff: Literal["off", "heights", "indenters", "force"] = "off"
         """Find the surface before the raster (nodes/touchoff.py) by this contact signal; off: flat contact_z_mm."""
         touch_grid: int = 3
@@ -72,6 +80,14 @@ class RobotScanner(palpa.Node):
         """Touch-off descents start this far above the thickest measured point (the box's top without geometry)."""
         working_offset_mm: float = 1.0
         """After a touch-off, sweep: the probe face's height above the found surface."""
+        follow_gain_per_s: palpa.NonNegative = 10.0
+        """Sweep over a found surface with the air-float probe: its heights hold the face's clearance (eq. 2's d_n)
+        at working_offset_mm along each line, taking this fraction of the error out per second (0: no following;
+        nodes/surface_follow.py)."""
+        follow_step_mm: palpa.Positive = 1.5
+        """Following: the lines' waypoints at most this far apart (a correction acts within one step)."""
+        follow_max_offset_mm: palpa.Positive = 2.0
+        """Following never moves a line more than this from its plan."""
         max_press_fraction: float = 0.6
         """After a touch-off, indent: never press deeper than this fraction of the thinnest found point."""
         spacing_mm: palpa.Positive = 2.0
@@ -137,6 +153,12 @@ class RobotScanner(palpa.Node):
         self.driver: RobotDriver = self.closing(self._make_driver())  # closed even if the plan is refused below
         self.driver.connect()
         self.specimen = SpecimenPlanner(self)  # refuses a specimen that does not fit, before any motion
+        self.follower: LineFollower | None = None
+        if p.mode == "sweep" and p.touchoff != "off" and p.watch_topic == "probe/heights" and p.follow_gain_per_s > 0:
+            self.follower = LineFollower(FollowConfig(target_gap_mm=p.working_offset_mm,
+                                                      gain_per_s=p.follow_gain_per_s,
+                                                      max_offset_mm=p.follow_max_offset_mm),
+                                         (p.workspace_mm[2], p.workspace_mm[5]))
         self.plan = self._plan()
         self.path: tuple[Waypoint, ...] = self.plan.waypoints
         self.meter = PathProgressMeter(self.plan.waypoints, self.plan.duration_s)
@@ -180,8 +202,11 @@ class RobotScanner(palpa.Node):
             transit_speed_mm_s=p.transit_speed_mm_s, **self.specimen.plan_heights(),
         )
         if p.mode == "sweep":
-            return sweep_raster(x0, y0, x1, y1, speed_mm_s=p.speed_mm_s,
+            plan = sweep_raster(x0, y0, x1, y1, speed_mm_s=p.speed_mm_s,
                                 approach_speed_mm_s=p.approach_speed_mm_s, **common)
+            if self.follower is None:
+                return plan
+            return dataclasses.replace(plan, waypoints=densify_slides(plan.waypoints, p.follow_step_mm))
         # indent: press and lift at speed_mm_s
         return indent_raster(x0, y0, x1, y1, depth_mm=self.specimen.press_depth_mm(),
                              hold_s=p.hold_s, point_spacing_mm=p.point_spacing_mm or None,
@@ -190,7 +215,7 @@ class RobotScanner(palpa.Node):
     def check_plan(self) -> None:
         """Refuse a plan (and the path from the current pose to it) that leaves the box or exceeds a cap."""
         self.check_path(self.plan.waypoints)
-        self.segments = self._segments(self.plan.waypoints)
+        self.segments = self._segments(self.plan.waypoints, self.follower is not None)
 
     def check_path(self, waypoints: tuple[Waypoint, ...]) -> None:
         """Raise ParamError naming the first waypoint that leaves the workspace box or exceeds a cap (and when
@@ -220,12 +245,13 @@ class RobotScanner(palpa.Node):
                     f"{p.max_speed_mm_s:g} mm/s, {p.max_accel_mm_s2:g} mm/s²")
 
     @staticmethod
-    def _segments(waypoints: tuple[Waypoint, ...]) -> list[tuple[int, int]]:
-        """Indent mode holds at press points: a path runs in segments that end at each hold (and a long path at each
-        line's retract, where the arm stops anyway: planning hundreds of waypoints at once starves the node)."""
+    def _segments(waypoints: tuple[Waypoint, ...], by_line: bool = False) -> list[tuple[int, int]]:
+        """Indent mode holds at press points: a path runs in segments that end at each hold (and a long path, or
+        one whose lines are followed, at each line's retract, where the arm stops anyway: planning hundreds of
+        waypoints at once starves the node)."""
         segments = []
         start_i = 0
-        long = len(waypoints) > 200  # e.g. sweep lines following a dome
+        long = by_line or len(waypoints) > 200  # e.g. sweep lines following a dome
         for c in [i for i, w in enumerate(waypoints) if w.hold_s > 0 or (long and w.kind == "retract")]:
             segments.append((start_i, c))
             start_i = c + 1
@@ -250,6 +276,8 @@ class RobotScanner(palpa.Node):
         self.last_probe_ns = self.clock.now_ns()
         if self.state == "touching":
             self.specimen.on_probe(msg)
+        elif self.follower is not None and self.state == "scanning" and isinstance(msg, ProbeHeights):
+            self.follower.on_heights(msg.stamp_ns, msg.h_mm, msg.valid)
 
     def on_pressure(self, msg: PressureState) -> None:
         self.last_pressure_ns = self.clock.now_ns()
@@ -282,7 +310,7 @@ class RobotScanner(palpa.Node):
     def run_path(self, plan: RasterPlan, state: ScanState) -> None:
         """Drive ``plan`` (already checked) from where the arm is, in ``state`` (scanning, probing)."""
         self.path = plan.waypoints
-        self.segments = self._segments(plan.waypoints)
+        self.segments = self._segments(plan.waypoints, self.follower is not None and state == "scanning")
         self.segment = 0
         self.hold_until_ns = None
         self.meter = PathProgressMeter(plan.waypoints, plan.duration_s)
@@ -301,7 +329,7 @@ class RobotScanner(palpa.Node):
         self.segments[self.segment] = (a, b)
         self.hold_until_ns = None
         self.set_state(state)
-        self.driver.move_path(self.path[a : b + 1])
+        self._send(a, b)
 
     def supervise(self) -> None:
         now = self.clock.now_ns()
@@ -343,6 +371,11 @@ class RobotScanner(palpa.Node):
             return
         seg_start, seg_end = self.segments[self.segment]
         self.meter.update(seg_start + prog.index, self.driver.state().pose[:3])
+        if self.follower is not None and self.state == "scanning" and prog.status == MotionStatus.MOVING:
+            self.follower.track(self.path, seg_start + prog.index)
+            if self.follower.due(now):
+                self._resend(self.follower, seg_start + prog.index, seg_end, now)
+                return
         if self.hold_until_ns is not None:
             if now >= self.hold_until_ns:
                 self.hold_until_ns = None
@@ -388,11 +421,35 @@ class RobotScanner(palpa.Node):
         if self.segment >= len(self.segments):
             self.meter.complete()
             self.set_state("done", f"scan complete in {(self.clock.now_ns() - self.started_ns) / 1e9:.1f} s")
+            if self.follower is not None:
+                self.log.info("surface following: %d corrections, the largest %+.2f mm", self.follower.resends,
+                              self.follower.largest_mm)
             self.log.info("scan complete")
             self.finish(0)
             return
         a, b = self.segments[self.segment]
-        self.driver.move_path(self.path[a : b + 1])
+        if self.follower is not None and self.state == "scanning":
+            self.follower.start_line(self.path[a : b + 1], self.path[b].line, self.specimen.plan_z())
+        self._send(a, b)
+
+    def _send(self, a: int, b: int) -> None:
+        """Drive path[a..b] (the current line's heights at the follower's offset while scanning)."""
+        pts = self.path[a : b + 1]
+        if self.follower is not None and self.state == "scanning":
+            pts = self.follower.shifted(pts)
+        self.driver.move_path(pts)
+
+    def _resend(self, follower: LineFollower, i: int, b: int, now: int) -> None:
+        """Surface following: the rest of the line (from the waypoint being approached) again, at the new offset,
+        after the same checks as the plan (box, caps)."""
+        try:
+            self.check_path(follower.shifted(self.path[i : b + 1]))
+        except palpa.ParamError as exc:
+            self.halt("fault", f"surface following: {exc}")
+            return
+        self.segments[self.segment] = (i, b)
+        self._send(i, b)
+        follower.sent(now)
 
     # -- outputs ---------------------------------------------------------------------------------
     def publish_pose(self) -> None:
@@ -400,6 +457,8 @@ class RobotScanner(palpa.Node):
         x, y, z, rx, ry, rz = st.pose
         if self.specimen.touch is not None:
             self.specimen.touch.note_pose(st.stamp_ns, z)
+        if self.follower is not None:
+            self.follower.note_pose(st.stamp_ns, x, y, z)
         sx, sy, sz = st.speed_mm_s[:3]
         self.pose_pub.publish(RobotPose(stamp_ns=st.stamp_ns, x_mm=x, y_mm=y, z_mm=z, rx_rad=rx, ry_rad=ry,
                                         rz_rad=rz, speed_mm_s=math.sqrt(sx * sx + sy * sy + sz * sz),

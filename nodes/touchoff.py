@@ -15,16 +15,18 @@ and goes on to the next point. The contact signals (``signal``):
   the height where the force began (the samples from contact to ``threshold`` are extrapolated back to 0 N along
   F^(2/3), the shape of any sphere's contact, so that the stiffness of the tissue does not bias it).
 
-A descent that reaches the floor without contact is an error naming the point (nothing under it). The driver
+A descent that reaches the floor without contact is an error naming the point (nothing under it); in a search for
+the specimen (``search``, the scanner's ``search_box_mm``) it is a miss, and so is a ring half over an edge. The driver
 is any :class:`nodes.drivers.robot.RobotDriver`; the scanner feeds probe data and calls :meth:`step` from its
 timer. Pure logic apart from the driver: testable on the sim driver with a mock clock, and on the UR emulator.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
@@ -37,7 +39,9 @@ from models.surface import (
     check_fits,
     fit_surface,
     flat_surface,
+    region_from_touches,
     region_in_footprint,
+    search_points,
     touch_points,
 )
 from models.timeseries import StampedBuffer
@@ -66,6 +70,11 @@ class TouchOffConfig:
     samples: int = 5
     max_spread_mm: float = 3.0
     """heights: samples whose three SPS differ by more than this are ignored (one hangs over an edge)."""
+    stroke_mm: float = 10.0
+    """heights: the SPS's stroke; a reading at its end sees nothing."""
+    search: bool = False
+    """Searching for the specimen: a point with nothing under it (no contact down to the floor, a surface below the
+    floor, or, heights, ``samples`` readings with an SPS ring half over an edge) is a miss, not an error."""
 
 
 class TouchOff:
@@ -79,6 +88,8 @@ class TouchOff:
                              f"{config.start_z_mm:g} mm")
         self.driver, self.points, self.cfg = driver, list(points), config
         self.touches: list[tuple[float, float, float]] = []
+        self.misses: list[tuple[float, float]] = []
+        self._edge = 0  # heights, search: samples with the SPS ring half over an edge at this point
         self.index = 0
         self.phase: Literal["idle", "searching", "stopping", "lifting", "done", "failed"] = "idle"
         self.error = ""
@@ -109,8 +120,15 @@ class TouchOff:
         if self.cfg.signal != "heights" or not valid or not self._searching_here():
             return
         sps = statistics.fmean(h_mm[:3])
-        if max(h_mm[:3]) - min(h_mm[:3]) > self.cfg.max_spread_mm:
-            return  # a sensor hangs over an edge (or sees nothing): this sample does not give the surface here
+        if max(h_mm[:3]) - min(h_mm[:3]) > self.cfg.max_spread_mm or max(h_mm[:3]) >= self.cfg.stroke_mm - 0.05:
+            # a sensor hangs over an edge (or sees nothing: the end of its stroke): this sample does not give the
+            # surface here; a search stops there (something is under the ring: going on down could put the face on
+            # the specimen's edge)
+            if self.cfg.search and min(h_mm[:3]) < self.cfg.threshold:
+                self._edge += 1
+                if self._edge >= self.cfg.samples:
+                    self._miss()
+            return
         if sps < self.cfg.threshold:
             z = self._z_at(stamp_ns)
             if z is not None:
@@ -155,6 +173,9 @@ class TouchOff:
             if self.cfg.signal == "force" and self._searching_here():
                 self._on_force(st.pose[2], abs(st.force_n[2]))
             if self.phase == "searching" and prog.status == MotionStatus.DONE:
+                if self.cfg.search:
+                    self._miss()
+                    return
                 x, y = self.points[self.index]
                 self._fail(f"touch-off found no surface at ({x:g}, {y:g}) mm down to z {self.cfg.floor_z_mm:g} mm "
                            f"({self._signal_text()}): is the specimen under the region?")
@@ -204,6 +225,9 @@ class TouchOff:
             return
         x, y = self.points[self.index]
         z = statistics.median(self._found[: self.cfg.samples])
+        if z < self.cfg.floor_z_mm and self.cfg.search:
+            self._miss()
+            return
         if z < self.cfg.floor_z_mm:
             self._fail(f"touch-off found no specimen at ({x:g}, {y:g}) mm: the surface there is at z {z:.2f} mm, "
                        f"below the floor {self.cfg.floor_z_mm:g} mm (the table): is the specimen under the region?")
@@ -212,11 +236,19 @@ class TouchOff:
         self.driver.stop(self.cfg.accel_mm_s2)
         self.phase = "stopping"
 
+    def _miss(self) -> None:
+        self.misses.append(self.points[self.index])
+        self.driver.stop(self.cfg.accel_mm_s2)
+        self.phase = "stopping"
+
     def _go(self, index: int) -> None:
-        self.index, self._found, self._rising, self._tare = index, [], [], None
+        self.index, self._found, self._rising, self._tare, self._edge = index, [], [], None, 0
         if index >= len(self.points):
-            self.driver.move_path([self._point(*self.driver.state().pose[:2], self.cfg.start_z_mm,
-                                               self.cfg.transit_speed_mm_s)])
+            x, y, z = self.driver.state().pose[:3]
+            if self.cfg.start_z_mm - z < 0.5:  # contact came at the start height: no lift (a move of a few
+                self.phase = "done"  # hundredths of a millimetre can end before ur_rtde sees it start)
+                return
+            self.driver.move_path([self._point(x, y, self.cfg.start_z_mm, self.cfg.transit_speed_mm_s)])
             self.phase = "lifting"
             return
         c = self.cfg
@@ -248,6 +280,7 @@ class SpecimenPlanner:
 
     def __init__(self, node: RobotScanner) -> None:
         self.node = node
+        self.search_box: tuple[float, ...] | None = None
         p = node.params
         box = p.workspace_mm
         geo = None
@@ -264,6 +297,10 @@ class SpecimenPlanner:
                 self.region = (float(p.region_mm[0]), float(p.region_mm[1]), float(p.region_mm[2]),
                                float(p.region_mm[3]))
                 what = "the scan region (region_mm)"
+            elif p.search_box_mm:
+                self.search_box = _search_box(node.name, p.search_box_mm, p.touchoff, box)
+                sb = self.search_box
+                self.region, what = (sb[0], sb[1], sb[3], sb[4]), "the search box (search_box_mm)"
             elif footprint is not None:
                 self.region = region_in_footprint(footprint, p.edge_margin_mm)
                 what = (f"the specimen's footprint x {footprint[0]:g}..{footprint[2]:g}, y {footprint[1]:g}.."
@@ -272,8 +309,8 @@ class SpecimenPlanner:
                 hx, hy = p.home_mm[0], p.home_mm[1]
                 self.region, what = (hx, hy, hx, hy), "the home position"
             else:
-                raise palpa.ParamError(f"{node.name}: no scan region: give region_mm (x0, y0, x1, y1 mm), or a "
-                                       "geometry file with the specimen's footprint")
+                raise palpa.ParamError(f"{node.name}: no scan region: give region_mm (x0, y0, x1, y1 mm), a "
+                                       "search_box_mm to find the specimen in, or a geometry file with its footprint")
             top = geo.top_mm() if geo is not None else None
             clearance = p.search_clearance_mm if p.touchoff != "off" else p.retract_clearance_mm
             check_fits(self.region, box, top_mm=top, clearance_mm=clearance, what=what)
@@ -290,6 +327,11 @@ class SpecimenPlanner:
                                  search_speed_mm_s=p.search_speed_mm_s, transit_speed_mm_s=p.transit_speed_mm_s,
                                  accel_mm_s2=p.accel_mm_s2,
                                  threshold=p.touch_threshold or _DEFAULT_THRESHOLD[p.touchoff])
+            if self.search_box is not None:  # from the box's top down to its floor, at every point of a grid
+                sb = self.search_box
+                cfg = dataclasses.replace(cfg, start_z_mm=sb[5], floor_z_mm=sb[2], search=True)
+                self.touch = TouchOff(node.driver, search_points(self.region, p.search_step_mm), cfg)
+                return
             i = p.touch_inset_mm
             x0, y0, x1, y1 = self.region
             inner = (x0 + i, y0 + i, x1 - i, y1 - i) if x1 - x0 > 2 * i and y1 - y0 > 2 * i else self.region
@@ -303,6 +345,13 @@ class SpecimenPlanner:
         if p.mode == "sweep":
             return {"contact_z_mm": p.working_offset_mm, "surface": self.surface}
         return {"contact_z_mm": 0.0, "surface": self.surface}
+
+    def plan_z(self) -> Callable[[float, float], float] | None:
+        """A sweep's planned face height at (x, y) over the found surface (None: no surface)."""
+        surface, offset = self.surface, self.node.params.working_offset_mm
+        if surface is None:
+            return None
+        return lambda x, y: surface.z(x, y) + offset
 
     def press_depth_mm(self) -> float:
         """Indent depth: the set depth, but never more than ``max_press_fraction`` of the thinnest found point nor
@@ -327,8 +376,33 @@ class SpecimenPlanner:
         """Fit the surface through the touches; returns a line for the log (raises ValueError if it cannot)."""
         if self.touch is None:
             raise ValueError("no touch-off ran")
+        found = ""
+        if self.search_box is not None:
+            sb, p = self.search_box, self.node.params
+            self.region = region_from_touches(self.touch.touches, p.edge_margin_mm, (sb[0], sb[1], sb[3], sb[4]))
+            xs, ys = [t[0] for t in self.touch.touches], [t[1] for t in self.touch.touches]
+            found = (f"search: the specimen under {len(xs)} of {len(xs) + len(self.touch.misses)} points, extent x "
+                     f"{min(xs):g}..{max(xs):g}, y {min(ys):g}..{max(ys):g} mm; region x {self.region[0]:g}.."
+                     f"{self.region[2]:g}, y {self.region[1]:g}..{self.region[3]:g} mm; ")
         fit = fit_surface(self.touch.touches)
         self.surface = fit
         zs = [z for _, _, z in self.touch.touches]
-        return (f"touch-off: {len(zs)} points, surface {min(zs):.2f}..{max(zs):.2f} mm, {fit.model} fit "
+        return (f"{found}touch-off: {len(zs)} points, surface {min(zs):.2f}..{max(zs):.2f} mm, {fit.model} fit "
                 f"(rms {fit.rms_mm:.3f} mm)")
+
+
+def _search_box(name: str, values: Sequence[float], signal: str,
+                box: tuple[float, float, float, float, float, float]) -> tuple[float, ...]:
+    """search_box_mm checked: six numbers, a box inside the workspace, and a contact signal to search with."""
+    if signal == "off":
+        raise palpa.ParamError(f"{name}: search_box_mm needs a contact signal to find the specimen with: touchoff "
+                               "heights, force or indenters (it is off)")
+    sb = tuple(float(v) for v in values)
+    if len(sb) != 6 or not all(math.isfinite(v) for v in sb) or not (sb[0] <= sb[3] and sb[1] <= sb[4]
+                                                                     and sb[2] < sb[5]):
+        raise palpa.ParamError(f"{name}: search_box_mm needs xmin, ymin, zmin, xmax, ymax, zmax (mm) with zmin < zmax, "
+                               f"got {list(values)}")
+    if sb[2] < box[2] or sb[5] > box[5]:
+        raise SpecimenDoesNotFit(f"the search box's heights z {sb[2]:g}..{sb[5]:g} mm leave the workspace box (x "
+                                 f"{box[0]:g}..{box[3]:g}, y {box[1]:g}..{box[4]:g}, z {box[2]:g}..{box[5]:g} mm)")
+    return sb

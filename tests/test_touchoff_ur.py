@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 
 import pytest
 
@@ -16,6 +17,7 @@ from nodes.drivers.robot import MotionStatus
 from nodes.drivers.robot_urrtde import URRtdeDriver
 from nodes.touchoff import TouchOff, TouchOffConfig
 from tests.procs import ur_emulator
+from tests.test_surface_follow import check_without_and_with_following, sweep_over_the_dome
 
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm, 6 mm on the centre line, 3 mm at the y edges
 
@@ -60,3 +62,17 @@ def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator() 
             assert min(forces) > 0.0
         finally:
             ur.close()
+
+
+@pytest.mark.timeout(200)
+def test_the_scanner_follows_the_dome_by_the_probe_heights_through_ur_rtde(tmp_path: Path) -> None:
+    """The scanner node on the ur_rtde driver against the emulator, with the simulated air-float probe over the same
+    dome (in process, the harness's clock on the wall clock): a 2 x 2 touch-off by the probe's heights fits a plane
+    ~1.2 mm under the crest; without following the face rests on the crest, and following keeps every mid-line
+    sample's SPS ring clear of the tissue and the face 0.4-1.5 mm above it, each correction a new ur_rtde path."""
+    runs = {}
+    for gain in (0.0, 10.0):
+        with ur_emulator(["--unlock-delay", "0", "--home", f"25,20,14,0,{math.pi},0", "--phantom", DOME]) as emu:
+            runs[gain] = sweep_over_the_dome(tmp_path, gain=gain, wall_clock=True, timeout_s=90.0, driver="ur_rtde",
+                                             robot_host=emu.host)
+    check_without_and_with_following(runs[0.0], runs[10.0])

@@ -8,7 +8,8 @@ For each sample time it takes the robot pose and the regulator's read-back press
    eq. 7; its force-depth curve per 0.5 mm cell, inverted), with the friction's play: the indenter sticks while the depth lies between the
    equilibria of F_air - f and F_air + f;
 3. the four extensions come from the true surface geometry (each SPS tip over the real dome under it, floating
-   on its air gap; the indenter ``depth`` below the true surface point under it, ``depth_reference="surface"``);
+   on its air gap; the indenter ``depth`` below the true surface point under it, ``depth_reference="surface"``;
+   a tip off the specimen over the table, z = 0);
 4. the fibre channels report them through their calibration errors and noise, clipped to the stroke.
 
 Samples fall on a grid of absolute simulated time (multiples of the period), and each one's noise is a function of
@@ -262,9 +263,10 @@ class SimFibreDriver:
         gap = z_face - np.where(inside, thickness, 0.0)
         touch = inside & (probe_kpa > 0) & (gap < self._stroke)
         depth = self._depths(x, y, probe_kpa, touch, gap)
-        xs, ys = np.where(inside, x, np.clip(x, 0, ph.size_mm[0])), np.where(inside, y, np.clip(y, 0, ph.size_mm[1]))
-        h = np.stack(heights_over_phantom(ph, xs, ys, z_face, depth, self._a, self._r, depth_reference="surface"),
+        h = np.stack(heights_over_phantom(ph, x, y, z_face, depth, self._a, self._r, depth_reference="surface"),
                      axis=-1)
+        # a tip with no specimen under it reaches for the table (z = 0) under the vertical probe, if within its stroke
+        h = np.where(np.isfinite(h), h, z_face[:, None])
         h[:, :3] -= self.probe.sps_gap_mm(probe_kpa)  # each SPS tip floats above the tissue on its air cushion
         h = self.probe.fibre_readings_mm(h)
         if stamps is not None and self.errors.noise_mm > 0:

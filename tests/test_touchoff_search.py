@@ -1,0 +1,99 @@
+"""Issue 15, the region from a touch-off search: given only a box, the scanner touches down on a grid inside it
+(contact or none, by the air-float probe's own heights), and plans the region from the extent where it found the
+specimen less the edge margin. On a phantom smaller than the box, in process on the sim arm and through ur_rtde
+against the UR emulator."""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import pytest
+
+from models.surface import region_from_touches, search_points
+from nodes.fibre_reader import FibreReader
+from nodes.pressure_controller import PressureController
+from nodes.robot_scanner import RobotScanner
+from palpa.clock import MockClock
+from palpa.testing import GraphHarness
+from tests.procs import ur_emulator
+
+SMALL = "phantoms/specimens/small_40x30_8mm.yaml"  # 40 x 30 mm, 8 mm thick, at the origin of the phantom frame
+BOX = [-10.0, -10.0, 0.5, 50.0, 40.0, 16.0]  # 60 x 50 mm of table around it, searched from 16 mm down
+RING = 6.0  # the SPS ring's radius: a point counts only with the whole ring on the specimen
+
+
+def test_search_points_cover_the_box_and_the_region_is_the_touched_extent_less_the_margin() -> None:
+    pts = search_points((0, 0, 20, 10), 10)
+    assert pts == [(0, 0), (10, 0), (20, 0), (20, 10), (10, 10), (0, 10)]
+    assert len(search_points((0, 0, 25, 10), 10)) == 4 * 2  # at most step apart: 25 mm in 3 steps
+    touches = [(10.0, 10.0, 8.0), (20.0, 10.0, 8.0), (20.0, 20.0, 8.1), (10.0, 20.0, 7.9)]
+    assert region_from_touches(touches, 2.0) == (12.0, 12.0, 18.0, 18.0)
+    with pytest.raises(ValueError, match=r"found no specimen in the searched box x 0\.\.60, y 0\.\.50 mm"):
+        region_from_touches([], 2.0, (0, 0, 60, 50))
+    with pytest.raises(ValueError, match=r"only at x 10\.\.20, y 10\.\.10 mm.*twice the 2 mm edge margin"):
+        region_from_touches(touches[:2], 2.0)
+
+
+def search(driver: dict[str, Any], wall_clock: bool, timeout_s: float) -> RobotScanner:
+    """The scanner with the sim probe over SMALL, given only BOX; returns it once the raster's plan is out."""
+    g = GraphHarness(clock=MockClock(time.time_ns()) if wall_clock else None)
+    g.add(PressureController, {"startup": "hold", "setpoint_kpa": 36.0, "sim_tracking_kpa": 0.0})
+    g.add(FibreReader, {"phantom": SMALL, "sim_errors": "ideal", "poll_hz": 100.0})
+    scanner = g.add(RobotScanner, {
+        "search_box_mm": BOX, "search_step_mm": 10.0, "edge_margin_mm": 2.0, "touchoff": "heights",
+        "search_speed_mm_s": 20.0, "transit_speed_mm_s": 45.0, "spacing_mm": 4.0, "home_mm": [0, 0, 16],
+        "watchdog_s": 0.5, **driver})
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and len(g.published("robot/plan")) < 2 and scanner.state != "fault":
+        if wall_clock:
+            time.sleep(0.005)
+            g.advance(max(0.0, (time.time_ns() - g.clock.now_ns()) / 1e9))
+        else:
+            g.advance(0.05)
+    g.close()
+    return scanner
+
+
+def expected_region() -> tuple[float, float, float, float]:
+    """The grid points with the whole SPS ring on the 40 x 30 mm specimen, their extent less the 2 mm margin."""
+    inside = [(x, y) for x, y in search_points((BOX[0], BOX[1], BOX[3], BOX[4]), 10.0)
+              if RING <= x <= 40 - RING and RING <= y <= 30 - RING]
+    xs, ys = [p[0] for p in inside], [p[1] for p in inside]
+    return (min(xs) + 2, min(ys) + 2, max(xs) - 2, max(ys) - 2)
+
+
+def check_found(scanner: RobotScanner) -> None:
+    assert scanner.state == "scanning", scanner.message
+    assert scanner.specimen.region == pytest.approx(expected_region())  # (2, 2, 28, 18): inside the specimen
+    touch = scanner.specimen.touch
+    assert touch is not None and len(touch.touches) + len(touch.misses) == len(touch.points) == 7 * 6
+    assert all(abs(z - 8.0) < 0.1 for _, _, z in touch.touches)
+    assert scanner.plan.waypoints and all(
+        2 - 1e-9 <= w.x_mm <= 28 + 1e-9 and 2 - 1e-9 <= w.y_mm <= 18 + 1e-9 for w in scanner.plan.waypoints)
+
+
+@pytest.mark.timeout(120)
+def test_the_scanner_finds_a_small_specimen_in_a_big_box_on_the_sim_arm() -> None:
+    check_found(search({}, wall_clock=False, timeout_s=90))
+
+
+@pytest.mark.timeout(180)
+def test_the_scanner_finds_a_small_specimen_in_a_big_box_through_ur_rtde() -> None:
+    with ur_emulator(["--unlock-delay", "0", "--home", f"0,0,16,0,{math.pi},0", "--phantom", SMALL]) as emu:
+        scanner = search({"driver": "ur_rtde", "robot_host": emu.host}, wall_clock=True, timeout_s=150)
+    check_found(scanner)
+
+
+def test_a_search_box_outside_the_workspace_or_without_a_contact_signal_is_refused_before_motion() -> None:
+    import palpa
+    from palpa.testing import NodeHarness
+
+    with pytest.raises(palpa.ParamError, match=r"the search box \(search_box_mm\) x -10\.\.90, y -10\.\.40 mm does "
+                                               r"not fit the workspace box .* x 90 > x_max 70"):
+        NodeHarness(RobotScanner, {"search_box_mm": [-10, -10, 0.5, 90, 40, 16], "touchoff": "heights"})
+    with pytest.raises(palpa.ParamError, match=r"search box's heights z 0\.5\.\.80 mm leave the workspace box"):
+        NodeHarness(RobotScanner, {"search_box_mm": [-10, -10, 0.5, 50, 40, 80], "touchoff": "heights"})
+    with pytest.raises(palpa.ParamError, match="needs a contact signal"):
+        NodeHarness(RobotScanner, {"search_box_mm": BOX})
