@@ -47,6 +47,7 @@ from nodes.evaluate import RunSpec, launch_one, plan_runs, score_run  # noqa: E4
 RASTER = REPO / "launch" / "scan_sim.yaml"
 ADAPTIVE = REPO / "launch" / "scan_adaptive_sim.yaml"
 SPACING_MM = 3.0
+MARGIN_MM = 6.0
 LENGTH_MM = 6.0
 
 
@@ -97,6 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--adaptive-arg", action="append", default=[], metavar="NAME=VALUE",
                     help="an arg of the adaptive launch file (repeatable), e.g. epsilon=0.2")
     ap.add_argument("--no-run", action="store_true", help="only score and compare the runs already made")
+    ap.add_argument("--only", nargs="+", default=[RASTER.stem, ADAPTIVE.stem], choices=[RASTER.stem, ADAPTIVE.stem],
+                    help="run only these launch files (the others' runs are scored if present)")
     ap.add_argument("--timeout", type=float, default=900.0)
     opts = ap.parse_args(argv)
     out: Path = opts.out
@@ -106,7 +109,8 @@ def main(argv: list[str] | None = None) -> int:
         path = out / "phantoms" / f"random_{seed}.yaml"
         path.write_text(yaml.safe_dump(random_phantom(seed, PhantomRanges()), sort_keys=False), encoding="utf-8")
         phantoms.append(path)
-    specs = {name: plan_runs(launch, phantoms, [0], {}, out / name, margin_mm=2.0, geometry_error_mm=0.2)
+    # both methods on the same region: the raster's own edge margin (the SPS ring stays on the specimen)
+    specs = {name: plan_runs(launch, phantoms, [0], {}, out / name, margin_mm=MARGIN_MM, geometry_error_mm=0.2)
              for name, launch in (("raster", RASTER), ("adaptive", ADAPTIVE))}
     for item in opts.adaptive_arg:
         name, _, value = item.partition("=")
@@ -115,7 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     # phantom by phantom, both methods: a bench cut short still compares what it ran
     todo = [(launch, s) for pair in zip(specs["raster"], specs["adaptive"], strict=True)
             for launch, s in zip((RASTER, ADAPTIVE), pair, strict=True)
-            if not opts.no_run and (opts.rerun or not (s.run_dir / "map" / "inclusions.json").exists())]
+            if not opts.no_run and launch.stem in opts.only
+            and (opts.rerun or not (s.run_dir / "map" / "inclusions.json").exists())]
     t0 = time.monotonic()
     with ThreadPoolExecutor(max(1, opts.jobs)) as pool:
         for (launch, spec), ran in zip(todo, pool.map(

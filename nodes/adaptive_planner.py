@@ -31,6 +31,7 @@ from messages import (
     Inclusions,
     ProbeAt,
     ProbeResult,
+    ScanStatus,
     StiffnessMap,
     StiffnessSample,
 )
@@ -42,7 +43,9 @@ from models.adaptive import (
     next_probe,
     should_stop,
 )
+from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import MapSnapshot, StiffnessGrid, detect_inclusions
+from models.surface import region_in_footprint
 from nodes.map_output import write_outputs
 from palpa.service import ServiceError
 from palpa.service_client import Future
@@ -54,8 +57,12 @@ class AdaptivePlanner(palpa.Node):
     """Picks probe points from a GP belief of stiffness and sends them to the scanner (module doc)."""
 
     class Params(palpa.Params):
-        region_mm: tuple[float, float, float, float] = (2.0, 2.0, 58.0, 58.0)
-        """x0, y0, x1, y1 the planner probes in (the scanner refuses what is outside its own box)."""
+        region_mm: list[float] = []
+        """x0, y0, x1, y1 the planner probes in (the scanner refuses what is outside its own box); empty: the
+        measured footprint (``geometry``) less ``edge_margin_mm``."""
+        geometry: str = ""
+        """Measured-geometry file (models.geometry), for the footprint when no region is given."""
+        edge_margin_mm: float = 6.0
         resolution_mm: float = 2.0
         initial: int = 4
         """An initial x initial grid of probes first."""
@@ -86,13 +93,15 @@ class AdaptivePlanner(palpa.Node):
         if p.mode not in ("sweep", "indent"):
             raise palpa.ParamError(f"{self.name}: mode must be sweep or indent, got {p.mode!r}")
         try:
-            self.cfg = PlannerConfig(tuple(p.region_mm), resolution_mm=p.resolution_mm, initial=p.initial,
+            region = self._region()
+            self.cfg = PlannerConfig(region, resolution_mm=p.resolution_mm, initial=p.initial,
                                      beta=p.beta, implicit_fraction=p.implicit_fraction, epsilon=p.epsilon,
                                      rel_threshold=p.rel_threshold, stop_area_mm2=p.stop_area_mm2,
-                                     max_probes=p.max_probes)
-        except ValueError as exc:
+                                     max_probes=p.max_probes,
+                                     sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
+        except (ValueError, GeometryError) as exc:
             raise palpa.ParamError(f"{self.name}: {exc}") from None
-        x0, y0, x1, y1 = p.region_mm
+        x0, y0, x1, y1 = region
         self.grid = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
         self.pending: list[tuple[float, float, float]] = []
         self.unit = ""
@@ -111,8 +120,25 @@ class AdaptivePlanner(palpa.Node):
         self.mean_pub = self.publisher("planner/mean", StiffnessMap, latched=True)
         self.std_pub = self.publisher("planner/std", StiffnessMap, latched=True)
         self.inc_pub = self.publisher("map/inclusions", Inclusions, latched=True)
+        self.scanner_state = ""
         self.subscribe("stiffness/sample", StiffnessSample, self.on_sample)
+        self.subscribe("robot/scan_status", ScanStatus, self.on_status)
         self.timer(0.05, self.step)
+
+    def _region(self) -> tuple[float, float, float, float]:
+        p = self.params
+        if p.region_mm:
+            if len(p.region_mm) != 4:
+                raise ValueError(f"region_mm needs x0, y0, x1, y1, got {p.region_mm}")
+            x0, y0, x1, y1 = (float(v) for v in p.region_mm)
+            return x0, y0, x1, y1
+        footprint = load_geometry(p.geometry).footprint_mm() if p.geometry else None
+        if footprint is None:
+            raise ValueError("no region: give region_mm, or a geometry file with the specimen's footprint")
+        return region_in_footprint(footprint, p.edge_margin_mm)
+
+    def on_status(self, s: ScanStatus) -> None:
+        self.scanner_state = s.state
 
     def on_sample(self, s: StiffnessSample) -> None:
         if s.valid:
@@ -124,7 +150,8 @@ class AdaptivePlanner(palpa.Node):
         """Send the next request when none is in flight and the scanner is there."""
         if self.done or self.inflight is not None or self.clock.now_ns() < self.retry_at_ns:
             return
-        if not self.probe_at.ready():
+        # the scanner may first be finding the surface (touch-off): a request would only be refused
+        if not self.probe_at.ready() or self.scanner_state not in ("idle", "done"):
             return
         if self.started_ns is None:
             self.started_ns = self.clock.now_ns()

@@ -8,7 +8,9 @@ at once. The arm's pose is published on ``robot/pose``; the plan, latched, on ``
 
 Services (nodes.scan_control): ``scanner/probe_at`` probes one point and answers with the stiffness found there;
 ``scanner/pause``, ``scanner/resume`` and ``scanner/abort`` control a scan or a probe. With ``autostart: false``
-the scanner does not scan but waits, idle, for probe requests.
+the scanner does not scan but waits, idle, for probe requests; with a touch-off set it finds the surface first,
+and probes then follow the found surface as a scan's lines would (sweep: the working offset; indent: the press depth
+below it).
 """
 
 from __future__ import annotations
@@ -149,7 +151,7 @@ class RobotScanner(palpa.Node):
             self.subscribe("camera/indenters", IndenterDisplacements, self.on_probe)
         self.subscribe("pressure/state", self.on_pressure)
         self.subscribe("robot/estop", self.on_estop)
-        if p.autostart:
+        if p.autostart or self.specimen.touch is not None:  # serving probe_at: the surface is found first
             self.set_state("waiting", f"waiting for probe data on {p.watch_topic}" if p.watch_topic else "")
         else:
             self.set_state("idle", "waiting for scanner/probe_at requests")
@@ -367,6 +369,14 @@ class RobotScanner(palpa.Node):
         if touch.failed:
             self.halt("fault", touch.error)
         elif touch.done:
+            if not self.params.autostart:
+                try:
+                    self.log.info("%s", self.specimen.finish_touch())
+                except ValueError as exc:
+                    self.halt("fault", f"no surface from the touch-off: {exc}")
+                    return
+                self.set_state("idle", "surface found: waiting for scanner/probe_at requests")
+                return
             try:
                 self.log.info("%s", self.specimen.finish_touch())
                 plan = self._plan()
