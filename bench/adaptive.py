@@ -93,6 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("-o", "--out", type=Path, default=Path("runs/bench_adaptive"))
     ap.add_argument("--generate", type=int, default=20)
+    ap.add_argument("--first-seed", type=int, default=0, help="seed of the first generated phantom (a set to tune "
+                    "settings on must not be the set they are judged on)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--rerun", action="store_true", help="run again even where a run's outputs exist")
     ap.add_argument("--adaptive-arg", action="append", default=[], metavar="NAME=VALUE",
@@ -101,11 +103,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", nargs="+", default=[RASTER.stem, ADAPTIVE.stem], choices=[RASTER.stem, ADAPTIVE.stem],
                     help="run only these launch files (the others' runs are scored if present)")
     ap.add_argument("--timeout", type=float, default=900.0)
+    ap.add_argument("--determinism", action="store_true",
+                    help="run the first phantom's adaptive launch again and compare (JSON 'deterministic')")
     opts = ap.parse_args(argv)
     out: Path = opts.out
     (out / "phantoms").mkdir(parents=True, exist_ok=True)
     phantoms = [REPO / "phantoms" / "airfloat_tumours.yaml"]
-    for seed in range(opts.generate):
+    for seed in range(opts.first_seed, opts.first_seed + opts.generate):
         path = out / "phantoms" / f"random_{seed}.yaml"
         path.write_text(yaml.safe_dump(random_phantom(seed, PhantomRanges()), sort_keys=False), encoding="utf-8")
         phantoms.append(path)
@@ -127,6 +131,7 @@ def main(argv: list[str] | None = None) -> int:
                 lambda job: launch_one(job[0], job[1], in_process=True, timeout_s=opts.timeout), todo), strict=True):
             print(f"{launch.stem} {spec.id}: exit {ran['exit_code']}, {ran['wall_s']:.0f} s", file=sys.stderr)
     wall = time.monotonic() - t0
+    deterministic = _same_again(specs["adaptive"][0], opts.timeout) if opts.determinism else None
     rows: list[dict[str, Any]] = []
     curves: dict[str, list[tuple[int, float, int]]] = {}
     for r_spec, a_spec in zip(specs["raster"], specs["adaptive"], strict=True):
@@ -183,8 +188,26 @@ def main(argv: list[str] | None = None) -> int:
     print(json.dumps({"probe_ratio": ratio, "probe_ratio_at_stop": stop_ratio,
                       "found_adaptive": sum(r["found_adaptive"] for r in rows),
                       "found_raster": sum(r["found_raster"] for r in rows), "phantoms": len(rows),
-                      "complete": len(complete), "inclusions": sum(r["inclusions"] for r in rows)}))
+                      "complete": len(complete), "inclusions": sum(r["inclusions"] for r in rows),
+                      "deterministic": deterministic}))
     return 0
+
+
+def _same_again(spec: RunSpec, timeout_s: float) -> bool:
+    """Run ``spec``'s adaptive launch once more in a sibling directory: the same probe points, the same inclusions
+    and the same map (the runs are deterministic for a seed, lockstep simulated clock and all)."""
+    again = RunSpec(spec.id, spec.phantom, spec.seed, spec.args, spec.overrides, spec.run_dir.with_name(spec.id + "-again"))
+    ran = launch_one(ADAPTIVE, again, in_process=True, timeout_s=timeout_s)
+    if ran["exit_code"] != 0:
+        return False
+    a, b = spec.run_dir / "map", again.run_dir / "map"
+    same_points = json.loads((a / "planner.json").read_text())["points"] == \
+        json.loads((b / "planner.json").read_text())["points"]
+    same_found = (a / "inclusions.json").read_text() == (b / "inclusions.json").read_text()
+    with np.load(a / "map.npz") as ga, np.load(b / "map.npz") as gb:
+        same_map = bool(np.array_equal(ga["stiffness"], gb["stiffness"], equal_nan=True))
+    print(f"determinism ({spec.id}): points {same_points}, inclusions {same_found}, map {same_map}", file=sys.stderr)
+    return same_points and same_found and same_map
 
 
 def _plot(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[int, float, int]]]) -> None:

@@ -65,7 +65,11 @@ class AdaptivePlanner(palpa.Node):
         edge_margin_mm: float = 6.0
         resolution_mm: float = 2.0
         initial: int = 4
-        """An initial x initial grid of probes first."""
+        """An initial x initial grid of probes first (unless seed_spacing_mm)."""
+        seed_spacing_mm: float = 0.0
+        """> 0: the initial grid's points about this far apart instead (a seed that scales with the specimen)."""
+        max_length_scale_mm: float = 3.0
+        """Upper bound of the GP kernel's length scale (models.adaptive.PlannerConfig.length_scale_mm)."""
         beta: float = 2.0
         implicit_fraction: float = 0.0
         rel_threshold: float = 0.2
@@ -97,7 +101,8 @@ class AdaptivePlanner(palpa.Node):
             self.cfg = PlannerConfig(region, resolution_mm=p.resolution_mm, initial=p.initial,
                                      beta=p.beta, implicit_fraction=p.implicit_fraction, epsilon=p.epsilon,
                                      rel_threshold=p.rel_threshold, stop_area_mm2=p.stop_area_mm2,
-                                     max_probes=p.max_probes,
+                                     max_probes=p.max_probes, seed_spacing_mm=p.seed_spacing_mm,
+                                     length_scale_mm=(1.0, p.max_length_scale_mm),
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
         except (ValueError, GeometryError) as exc:
             raise palpa.ParamError(f"{self.name}: {exc}") from None
@@ -155,6 +160,9 @@ class AdaptivePlanner(palpa.Node):
             return
         if self.started_ns is None:
             self.started_ns = self.clock.now_ns()
+        if len(self.probed) >= self.cfg.max_probes:   # the initial design too stays within the budget
+            self.finish(f"probe budget spent ({len(self.probed)} probes)")
+            return
         if not self.queue:
             stop, why = self._decide()
             if stop:
@@ -217,9 +225,10 @@ class AdaptivePlanner(palpa.Node):
             return True, f"{len(self.given_up)} points refused by the scanner"
         if b is None:
             return True, "no stiffness estimate from the initial probes"
-        stop, why = should_stop(b, len(self.probed), self.cfg)
+        observed = self.grid.snapshot().count >= self.params.min_count
+        stop, why = should_stop(b, len(self.probed), self.cfg, observed)
         if not stop:
-            self.queue.append(next_probe(b, self.probed + self.given_up, self.cfg))
+            self.queue.append(next_probe(b, self.probed + self.given_up, self.cfg, observed))
         return stop, why
 
     # -- output ------------------------------------------------------------------------------------

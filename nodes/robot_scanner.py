@@ -151,7 +151,9 @@ class RobotScanner(palpa.Node):
             self.subscribe("camera/indenters", IndenterDisplacements, self.on_probe)
         self.subscribe("pressure/state", self.on_pressure)
         self.subscribe("robot/estop", self.on_estop)
-        if p.autostart or self.specimen.touch is not None:  # serving probe_at: the surface is found first
+        # serving probe_at too, the scanner is idle only once it could probe: the probe's data flows and the
+        # surface is found (a request before that would only be refused)
+        if p.autostart or self.specimen.touch is not None or p.watch_topic:
             self.set_state("waiting", f"waiting for probe data on {p.watch_topic}" if p.watch_topic else "")
         else:
             self.set_state("idle", "waiting for scanner/probe_at requests")
@@ -311,6 +313,8 @@ class RobotScanner(palpa.Node):
             if (self.last_probe_ns is not None or not p.watch_topic) and self.specimen.touch is not None:
                 self.set_state("touching", "finding the specimen's surface")
                 self.specimen.touch.start()
+            elif (self.last_probe_ns is not None or not p.watch_topic) and not p.autostart:
+                self.set_state("idle", "waiting for scanner/probe_at requests")
             elif self.last_probe_ns is not None or not p.watch_topic:
                 self.set_state("scanning")
                 self._start_segment()

@@ -53,10 +53,12 @@ class ScanControl:
     # -- probe_at --------------------------------------------------------------------------------
     def on_probe_at(self, req: ProbeAt) -> Responder[ProbeResult]:
         node = self.node
-        if node.state not in ("idle", "done"):
-            raise RequestRefused(f"the scanner is {node.state}, not idle (abort first, or wait)")
         p = node.params
         last = node.last_probe_ns
+        if node.state == "waiting" and p.watch_topic and last is None:
+            raise RequestRefused(f"no fresh probe data on {p.watch_topic}: is the probe's reader running?")
+        if node.state not in ("idle", "done"):
+            raise RequestRefused(f"the scanner is {node.state}, not idle (abort first, or wait)")
         if p.watch_topic and (last is None or (node.clock.now_ns() - last) / 1e9 > p.watchdog_s):
             raise RequestRefused(f"no fresh probe data on {p.watch_topic}: is the probe's reader running?")
         if not (req.length_mm > 0 and req.radius_mm > 0):

@@ -16,7 +16,8 @@ from palpa.launch.compose import compose_plan
 from palpa.node import Node
 from tests.procs import REPO
 
-SMALL = ["region_mm:=[36.0, 33.0, 54.0, 51.0]", "initial:=2", "max_probes:=8"]
+SMALL = ["region_mm:=[36.0, 33.0, 54.0, 51.0]", "initial:=2", "seed_spacing_mm:=0", "max_probes:=8",
+         f"geometry:={REPO / 'phantoms' / 'measured' / 'airfloat_tumours.yaml'}"]
 BOX_X_MAX = 46.0
 """The scanner's workspace ends here in these tests: the planner's points at x = 49.5 mm lie outside it."""
 

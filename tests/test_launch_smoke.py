@@ -93,6 +93,17 @@ SMOKE: dict[str, Smoke] = {
                                           "time_scale:=2.0"],
                                     topics=["robot/pose", "probe/heights", "stiffness/sample", "planner/mean",
                                             "planner/std"], timeout=90),
+    "scan_adaptive_camera_sim.yaml": Smoke(args=["region_mm:=[12.0, 12.0, 20.0, 20.0]", "seed_spacing_mm:=0",
+                                                 "initial:=2", "max_probes:=4", "touchoff:=off", "time_scale:=2.0"],
+                                           topics=["robot/pose", "camera/indenters", "stiffness/sample",
+                                                   "planner/mean", "planner/std"], timeout=90),
+    # the rig's file with the sim arm (the ur_rtde driver against the emulator: tests/test_adaptive_camera_ur.py)
+    "scan_adaptive_camera_ur.yaml": Smoke(args=["scanner_driver:=sim", "phantom:=phantoms/flat_26k_tumours.yaml",
+                                                "region_mm:=[12.0, 12.0, 20.0, 20.0]", "seed_spacing_mm:=0",
+                                                "initial:=2", "max_probes:=4", "touchoff:=off",
+                                                "watchdog_s:=0.5"],
+                                          topics=["robot/pose", "camera/indenters", "stiffness/sample",
+                                                  "planner/mean"], timeout=90),
     "replay_scan.yaml": Smoke(prepare=synthetic_scan_bag, topics=["probe/heights", "stiffness/sample", "map/stiffness"],
                               timeout=60),
     # idle until asked: a probe_at is exercised by tests/test_service_cli.py
