@@ -58,9 +58,10 @@ def raster_probe_equivalents(spec: RunSpec) -> float:
     return lines * (y1 - y0) / LENGTH_MM
 
 
-def belief_curve(spec: RunSpec) -> list[tuple[int, float, int]]:
-    """(probes, mean centroid error of found inclusions, inclusions found) after every probe of an adaptive run,
-    from its recorded ``planner/mean``, detected and scored as the final map is."""
+def map_curve(spec: RunSpec, topic: str) -> list[tuple[float, float, int]]:
+    """(samples, mean centroid error of found inclusions, inclusions found) for every map a run recorded on
+    ``topic`` (the planner's ``planner/mean`` after each probe, the raster aggregator's ``map/stiffness`` as it
+    grows), detected and scored as a final map is."""
     import msgspec
 
     from messages import StiffnessMap
@@ -71,7 +72,7 @@ def belief_curve(spec: RunSpec) -> list[tuple[int, float, int]]:
     ph = load_phantom(spec.phantom)
     out = []
     for m in iter_bag(resolve_bag_paths(str(spec.run_dir / "recording.mcap"))):
-        if m.topic != "planner/mean":
+        if m.topic != topic:
             continue
         b = msgspec.msgpack.decode(m.payload, type=StiffnessMap)
         xs, ys = np.array(b.x_mm), np.array(b.y_mm)
@@ -85,8 +86,16 @@ def belief_curve(spec: RunSpec) -> list[tuple[int, float, int]]:
         dets = [{"x_mm": i.x_mm, "y_mm": i.y_mm, "radius_mm": i.radius_mm, "contrast": i.contrast} for i in found]
         s = score_scan(ph, dets, {"stiffness": grid, "x_mm": xs, "y_mm": ys, "count": np.array(b.count).reshape(grid.shape)})
         errs = [x.centroid_error_mm for x in s.inclusions if x.found]
-        out.append((b.samples, float(np.mean(errs)) if errs else math.nan, s.found))
+        out.append((float(b.samples), float(np.mean(errs)) if errs else math.nan, s.found))
     return out
+
+
+def raster_curve(spec: RunSpec, equivalents: float) -> list[tuple[float, float, int]]:
+    """The raster's growing map against probes spent: its valid samples so far over its final count, times its
+    probe equivalents (samples come at a steady rate while the probe sweeps)."""
+    curve = map_curve(spec, "map/stiffness")
+    total = max((n for n, _, _ in curve), default=0.0)
+    return [(n / total * equivalents, e, f) for n, e, f in curve] if total > 0 else []
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -133,7 +142,8 @@ def main(argv: list[str] | None = None) -> int:
     wall = time.monotonic() - t0
     deterministic = _same_again(specs["adaptive"][0], opts.timeout) if opts.determinism else None
     rows: list[dict[str, Any]] = []
-    curves: dict[str, list[tuple[int, float, int]]] = {}
+    curves: dict[str, list[tuple[float, float, int]]] = {}
+    raster_curves: dict[str, list[tuple[float, float, int]]] = {}
     for r_spec, a_spec in zip(specs["raster"], specs["adaptive"], strict=True):
         ph = load_phantom(r_spec.phantom)
         try:
@@ -158,7 +168,8 @@ def main(argv: list[str] | None = None) -> int:
             "iou_raster": r["iou"], "iou_adaptive": a["iou"], "stop": plan["stop"],
         })
         try:
-            curve = curves[r_spec.phantom.stem] = belief_curve(a_spec)
+            curve = curves[r_spec.phantom.stem] = map_curve(a_spec, "planner/mean")
+            raster_curves[r_spec.phantom.stem] = raster_curve(r_spec, eq)
         except (OSError, ValueError) as exc:
             print(f"{a_spec.id}: no belief curve ({exc})", file=sys.stderr)
             curve = []
@@ -172,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
-        _plot(out / "error_vs_probes.png", rows, curves)
+        _plot(out / "error_vs_probes.png", rows, curves, raster_curves)
     for k in ("probe_ratio", "localise_ratio", "probes_to_localise", "path_ratio", "samples_ratio", "err_raster_mm",
               "err_adaptive_mm", "sens_raster",
               "sens_adaptive", "spec_raster", "spec_adaptive", "iou_raster", "iou_adaptive", "time_raster_s",
@@ -210,7 +221,8 @@ def _same_again(spec: RunSpec, timeout_s: float) -> bool:
     return same_points and same_found and same_map
 
 
-def _plot(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[int, float, int]]]) -> None:
+def _plot(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[float, float, int]]],
+          raster_curves: dict[str, list[tuple[float, float, int]]]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -218,21 +230,24 @@ def _plot(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[i
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5), dpi=100)
     for i, row in enumerate(rows):
-        curve = curves.get(row["phantom"])
-        if curve:
-            n, err, found = zip(*curve, strict=True)
-            ax1.plot(n, err, color="tab:blue", alpha=0.4, label="adaptive (belief after each probe)" if i == 0 else None)
-            ax2.plot(n, np.array(found) / max(row["inclusions"], 1), color="tab:blue", alpha=0.4,
-                     label="adaptive" if i == 0 else None)
+        for curve_set, colour, label in ((raster_curves, "tab:red", "raster (its map as it grows)"),
+                                         (curves, "tab:blue", "adaptive (belief after each probe)")):
+            curve = curve_set.get(row["phantom"])
+            if curve:
+                n, err, found = zip(*curve, strict=True)
+                ax1.plot(n, err, color=colour, alpha=0.35, lw=1, label=label if i == 0 else None)
+                ax2.plot(n, np.array(found) / max(row["inclusions"], 1), color=colour, alpha=0.35, lw=1,
+                         label=label if i == 0 else None)
+    ax1.scatter([r["probes_adaptive"] for r in rows], [r["err_adaptive_mm"] for r in rows], color="tab:blue",
+                marker="o", s=18, zorder=3, label="adaptive, where its stop rule stopped")
     ax1.scatter([r["probes_raster_eq"] for r in rows], [r["err_raster_mm"] for r in rows], color="tab:red",
-                marker="s", label="raster (final map)")
-    ax2.scatter([r["probes_raster_eq"] for r in rows], [r["found_raster"] / max(r["inclusions"], 1) for r in rows],
-                color="tab:red", marker="s", label="raster")
-    ax1.set(xlabel="probes spent (6 mm sweeps; raster: swept length / 6 mm)", ylabel="mean centroid error (mm)")
+                marker="s", s=18, zorder=3, label="raster, final map")
+    ax1.set(xlabel="probes spent (6 mm sweeps; raster: swept length / 6 mm)", ylabel="mean centroid error (mm)",
+            ylim=(0, 6))
     ax2.set(xlabel="probes spent", ylabel="fraction of true inclusions found")
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
-        ax.legend()
+        ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)
