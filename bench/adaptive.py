@@ -12,14 +12,17 @@ every map with ``models.scoring`` against its phantom, and compares per phantom:
   same 6 mm of tissue swept in both; also path length (all motion), valid samples and simulated time;
 * found / missed inclusions, centroid error, cell sensitivity, specificity and IoU against the inclusion mask.
 
-Writes ``compare.csv`` and ``error_vs_probes.png`` (the adaptive planner's belief after every probe, read from its
-recording, scored as the final map is; the raster's final score at its probe equivalents) into OUT. The last line
-is JSON: ``probe_ratio`` (probes the adaptive belief needed to find, from then on, at least as many inclusions as
-the raster's final map, over the raster's probe equivalents, summed over the phantoms where the adaptive run's
-final map found every inclusion the raster found; read from the recorded belief, so with hindsight: the planner
-itself does not know that moment), ``probe_ratio_at_stop`` (the same with the probes the stop rule spent),
-``found_adaptive``, ``found_raster`` (inclusions found over all phantoms), ``phantoms``, ``complete`` (phantoms
-where the adaptive map found every inclusion the raster's found).
+Writes ``compare.csv`` and ``error_vs_probes.png`` (error and inclusions found against probes spent: the adaptive
+planner's belief after every probe and the raster's map as it grows, both read from their recordings and scored as
+a final map is) into OUT. The last line is JSON: ``probe_ratio`` (the probes the planner spent until its own stop
+rule stopped it, over the raster's probe equivalents, summed over the phantoms where the adaptive map found every
+inclusion the raster's found: adaptive over raster probes at equal or better detection), ``probe_ratio_all`` (the
+same over every phantom, whatever was missed), ``probe_ratio_localise`` (the probes after which the recorded belief
+finds, from then on, at least as many inclusions as the raster's final map: hindsight, the planner itself does not
+know that moment), ``found_adaptive``, ``found_raster`` (true inclusions found over all phantoms),
+``missed_vs_raster`` (inclusions the raster found and the adaptive map did not), ``phantoms``, ``complete``
+(phantoms where the adaptive map found every inclusion the raster's found), and with ``--determinism``
+``deterministic`` (the first phantom's adaptive run made again gives the same points, inclusions and map).
 """
 
 from __future__ import annotations
@@ -88,6 +91,11 @@ def map_curve(spec: RunSpec, topic: str) -> list[tuple[float, float, int]]:
         errs = [x.centroid_error_mm for x in s.inclusions if x.found]
         out.append((float(b.samples), float(np.mean(errs)) if errs else math.nan, s.found))
     return out
+
+
+def _localised(curve: list[tuple[float, float, int]], target: int) -> float:
+    """The first x of ``curve`` from which on it finds at least ``target`` inclusions (nan: never for good)."""
+    return next((n for i, (n, _, _) in enumerate(curve) if all(f >= target for _, _, f in curve[i:])), math.nan)
 
 
 def raster_curve(spec: RunSpec, equivalents: float) -> list[tuple[float, float, int]]:
@@ -174,29 +182,36 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{a_spec.id}: no belief curve ({exc})", file=sys.stderr)
             curve = []
         # localised: from this probe on, the belief finds at least as many inclusions as the raster's final map
-        n_loc = next((n for i, (n, _, _) in enumerate(curve) if all(f >= r["found"] for _, _, f in curve[i:])),
-                     None)
-        rows[-1]["probes_to_localise"] = n_loc if n_loc is not None else math.nan
-        rows[-1]["localise_ratio"] = n_loc / eq if n_loc is not None else math.nan
+        n_loc = _localised(curve, r["found"])
+        r_loc = _localised(raster_curves.get(r_spec.phantom.stem, []), r["found"])
+        rows[-1]["probes_to_localise"] = n_loc
+        rows[-1]["localise_ratio"] = n_loc / eq
+        rows[-1]["raster_probes_to_localise"] = r_loc
+        # in simulated seconds, pro rata: the planner's probes take about equal time, the raster samples steadily
+        rows[-1]["localise_s_adaptive"] = plan["sim_s"] * n_loc / max(plan["probes"], 1)
+        rows[-1]["localise_s_raster"] = r["scan_s"] * r_loc / eq
     if rows:
         with (out / "compare.csv").open("w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
         _plot(out / "error_vs_probes.png", rows, curves, raster_curves)
-    for k in ("probe_ratio", "localise_ratio", "probes_to_localise", "path_ratio", "samples_ratio", "err_raster_mm",
+    for k in ("probe_ratio", "localise_ratio", "probes_to_localise", "raster_probes_to_localise",
+              "localise_s_adaptive", "localise_s_raster", "fp_raster", "fp_adaptive", "path_ratio", "samples_ratio", "err_raster_mm",
               "err_adaptive_mm", "sens_raster",
               "sens_adaptive", "spec_raster", "spec_adaptive", "iou_raster", "iou_adaptive", "time_raster_s",
               "time_adaptive_s"):
         vals = [float(r[k]) for r in rows if isinstance(r[k], int | float) and math.isfinite(r[k])]
         print(f"{k:18s} mean {np.mean(vals):8.3f}  median {np.median(vals):8.3f}" if vals else f"{k}: -")
     complete = [r for r in rows if r["missed_vs_raster"] == 0 and math.isfinite(r["probes_to_localise"])]
-    ratio = (sum(r["probes_to_localise"] for r in complete) / sum(r["probes_raster_eq"] for r in complete)
-             if complete else None)
-    stop_ratio = (sum(r["probes_adaptive"] for r in complete) / sum(r["probes_raster_eq"] for r in complete)
-                  if complete else None)
+    def pooled(key: str, over: list[dict[str, Any]]) -> float | None:
+        return sum(r[key] for r in over) / sum(r["probes_raster_eq"] for r in over) if over else None
+
     print(f"{len(rows)} phantoms scored, runs took {wall:.0f} s wall ({len(todo)} launches)")
-    print(json.dumps({"probe_ratio": ratio, "probe_ratio_at_stop": stop_ratio,
+    print(json.dumps({"probe_ratio": pooled("probes_adaptive", complete),
+                      "probe_ratio_all": pooled("probes_adaptive", rows),
+                      "probe_ratio_localise": pooled("probes_to_localise", complete),
+                      "missed_vs_raster": sum(r["missed_vs_raster"] for r in rows),
                       "found_adaptive": sum(r["found_adaptive"] for r in rows),
                       "found_raster": sum(r["found_raster"] for r in rows), "phantoms": len(rows),
                       "complete": len(complete), "inclusions": sum(r["inclusions"] for r in rows),

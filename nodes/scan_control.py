@@ -83,15 +83,17 @@ class ScanControl:
         common = dict(spacing_mm=p.spacing_mm, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
                       approach_clearance_mm=p.approach_clearance_mm, retract_clearance_mm=p.retract_clearance_mm,
                       transit_speed_mm_s=p.transit_speed_mm_s)
-        # over the surface the touch-off found (when one ran) as a scan's lines: contact_z_mm flat otherwise
+        # over the surface the touch-off found (when one ran), as the scan's own lines would be (SpecimenPlanner.
+        # plan_heights: a sweep at the working offset above it, a press from it); flat contact_z_mm otherwise
         spec = self.node.specimen
+        surface = spec.surface if req.mode == p.mode else None
         if req.mode == "sweep":
-            heights = spec.plan_heights() if p.mode == "sweep" else {"contact_z_mm": p.contact_z_mm}
-            return sweep_raster(*ends, speed_mm_s=p.speed_mm_s, approach_speed_mm_s=p.approach_speed_mm_s,
-                                **heights, **common)
-        heights = spec.plan_heights() if p.mode == "indent" else {"contact_z_mm": p.contact_z_mm}
-        return indent_raster(req.x_mm, req.y_mm, req.x_mm, req.y_mm, depth_mm=spec.press_depth_mm(),
-                             hold_s=p.hold_s, press_speed_mm_s=p.speed_mm_s, **heights, **common)
+            return sweep_raster(*ends, contact_z_mm=p.working_offset_mm if surface else p.contact_z_mm,
+                                surface=surface, speed_mm_s=p.speed_mm_s, approach_speed_mm_s=p.approach_speed_mm_s,
+                                **common)
+        return indent_raster(req.x_mm, req.y_mm, req.x_mm, req.y_mm, contact_z_mm=0.0 if surface else p.contact_z_mm,
+                             surface=surface, depth_mm=spec.press_depth_mm(), hold_s=p.hold_s,
+                             press_speed_mm_s=p.speed_mm_s, **common)
 
     def on_sample(self, s: StiffnessSample) -> None:
         req = self.request
