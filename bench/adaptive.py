@@ -46,6 +46,7 @@ sys.path.insert(0, str(REPO))
 from models.phantom import load_phantom  # noqa: E402
 from models.phantom_gen import PhantomRanges, random_phantom  # noqa: E402
 from nodes.evaluate import RunSpec, launch_one, plan_runs, score_run  # noqa: E402
+from yamlstruct import Source  # noqa: E402
 
 RASTER = REPO / "launch" / "scan_sim.yaml"
 ADAPTIVE = REPO / "launch" / "scan_adaptive_sim.yaml"
@@ -136,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     for item in opts.adaptive_arg:
         name, _, value = item.partition("=")
         for s in specs["adaptive"]:
-            s.overrides[name] = yaml.safe_load(value)
+            s.overrides[name] = Source.from_text(value, f"--adaptive-arg {name}").data
     # phantom by phantom, both methods: a bench cut short still compares what it ran
     todo = [(launch, s) for pair in zip(specs["raster"], specs["adaptive"], strict=True)
             for launch, s in zip((RASTER, ADAPTIVE), pair, strict=True)

@@ -28,7 +28,7 @@ from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate  #
 from nodes.fibre_reader import FibreReader  # noqa: E402
 from nodes.pressure_controller import PressureController  # noqa: E402
 from nodes.static_pose import StaticPose  # noqa: E402
-from nodes.stiffness_estimator import StiffnessEstimator  # noqa: E402
+from nodes.stiffness_estimator import AirfloatStiffnessEstimator  # noqa: E402
 from palpa.testing import GraphHarness  # noqa: E402
 
 SAMPLES = [("flat_26k", 26.4, 42.5), ("flat_10k", 10.8, 35.6)]  # name, truth, ramp target (kPa): ~3 mm deep
@@ -44,8 +44,8 @@ def ramp_fit(sample: str, xy: tuple[float, float], target: float, device_seed: i
                                    "calibration": calibration})
         g.add(FibreReader, {"phantom": str(REPO / "phantoms" / f"{sample}.yaml"), "device_seed": device_seed,
                             "seed": seed})
-        g.add(StiffnessEstimator, {"geometry": geo, "ramp_fits": True, "max_depth_mm": 3.3,
-                                   "calibration": calibration})
+        g.add(AirfloatStiffnessEstimator, {"geometry": geo, "ramp_fits": True, "max_depth_mm": 3.3,
+                                           "calibration": calibration})
         g.advance(1.0)
         g.publish("pressure/command", PressureCommand(mode="ramp", setpoint_kpa=target, rate_kpa_s=2.0))
         g.advance((target - 30.0) / 2.0 + 1.0)

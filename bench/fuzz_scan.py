@@ -28,7 +28,7 @@ from nodes.fibre_reader import FibreReader  # noqa: E402  (after the sys.path li
 from nodes.map_aggregator import MapAggregator  # noqa: E402
 from nodes.pressure_controller import PressureController  # noqa: E402
 from nodes.robot_scanner import RobotScanner  # noqa: E402
-from nodes.stiffness_estimator import StiffnessEstimator  # noqa: E402
+from nodes.stiffness_estimator import AirfloatStiffnessEstimator  # noqa: E402
 from palpa.testing import GraphHarness  # noqa: E402
 from palpa.wire import COUNTER_MAX, msgpack_array  # noqa: E402
 
@@ -80,7 +80,7 @@ def scan(out: Path, frames: int, seed: int) -> dict[str, object]:
     g = GraphHarness()
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": 36.0}, heartbeat_s=1.0)
     g.add(FibreReader, {"phantom": PHANTOM, "seed": 3}, heartbeat_s=1.0)
-    g.add(StiffnessEstimator, {"phantom": PHANTOM}, heartbeat_s=1.0)
+    g.add(AirfloatStiffnessEstimator, {"geometry": PHANTOM.replace("/phantoms/", "/phantoms/measured/")}, heartbeat_s=1.0)
     mapper = g.add(MapAggregator, {"output_dir": str(out)}, heartbeat_s=1.0)
     scanner = g.add(RobotScanner, {"region_mm": [2, 2, 58, 58], "spacing_mm": 4.0, "speed_mm_s": 40.0,
                                    "contact_z_mm": 5.0, "home_mm": [2, 2, 20], "watchdog_s": 0.5},

@@ -28,7 +28,7 @@ from messages import StiffnessSample
 from nodes.camera_calibrate import REFERENCES, calibrate, press_reference
 from nodes.camera_tracker import CameraTracker
 from nodes.linear_stage import LinearStage
-from nodes.stiffness_estimator import StiffnessEstimator
+from nodes.stiffness_estimator import MultiIndenterStiffnessEstimator
 from palpa.testing import GraphHarness
 
 SPRINGS = {0.29: "phantoms/springs_029.yaml", 0.37: "phantoms/springs_037.yaml",
@@ -47,8 +47,8 @@ def press_once(k: float, pan: float, tilt: float, *, device_seed: int, seed: int
                         "settle_s": 1.2, "dwell_s": 0.0})
     g.add(CameraTracker, {"phantom": SPRINGS[k], "pan_deg": pan, "tilt_deg": tilt, "seed": seed,
                           "device_seed": device_seed, "calibration_file": calibration_file, "tolerance_spread": spread})
-    g.add(StiffnessEstimator, {"model": "multi_indenter", "min_displacement_mm": 1.0,
-                               "calibration_file": calibration_file})
+    g.add(MultiIndenterStiffnessEstimator, {"min_displacement_mm": 1.0,
+                                            "calibration_file": calibration_file})
     g.advance(1.2 + 2 * (depth_mm + 4.0) / speed_mm_s + hold_s + 0.3)
     samples: list[StiffnessSample] = g.published("stiffness/sample", StiffnessSample)
     g.close()

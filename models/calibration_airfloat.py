@@ -21,10 +21,12 @@ certified moduli and measured thicknesses. The calibration file (YAML)::
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, ClassVar
 
+import msgspec
 import numpy as np
 import numpy.typing as npt
 import yaml
@@ -32,6 +34,7 @@ from scipy.optimize import least_squares
 
 from models.airfloat import ForceCalibration
 from models.contact import corrected_force
+from yamlstruct import Source, convert
 
 __all__ = ["AirfloatCalibration", "CalibrationError", "ReferenceRamp", "fit_force_line", "fit_references",
            "load_calibration", "save_calibration"]
@@ -121,31 +124,48 @@ def save_calibration(path: str | Path, cal: AirfloatCalibration) -> None:
                           + yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
 
 
-def _number(data: Any, key: str, where: str) -> float:
-    v = data.get(key) if isinstance(data, dict) else None
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
-        raise CalibrationError(f"{where}: {key}: expected a finite number, got {v!r}")
-    return float(v)
+class _CalibrationSource(Source):
+    error_type: ClassVar[type[Exception]] = CalibrationError
+    document: ClassVar[str] = "the calibration file"
+
+
+_Finite = Annotated[float, msgspec.Meta(ge=-sys.float_info.max, le=sys.float_info.max)]  # NaN and inf fail
+
+
+class _ForceDecl(msgspec.Struct, forbid_unknown_fields=True):
+    gain: _Finite
+    offset: _Finite
+    pressure_unit_kpa: _Finite = 100.0
+
+
+class _ResidualsDecl(msgspec.Struct, forbid_unknown_fields=True):
+    force_line_rmse_n: float = math.nan
+    reference_rms_rel: float = math.nan
+
+
+class _CalibrationFile(msgspec.Struct, forbid_unknown_fields=True):
+    force: _ForceDecl
+    depth_offset_mm: _Finite = 0.0
+    residuals: _ResidualsDecl = msgspec.field(default_factory=_ResidualsDecl)
+    source: str = ""
 
 
 def load_calibration(path: str | Path) -> AirfloatCalibration:
-    """Read a calibration YAML; errors name the file and key."""
-    where = str(path)
+    """Read a calibration YAML (module doc) through :mod:`yamlstruct`, the project's one YAML loader.
+
+    Raises:
+        CalibrationError: ``file:line:col: key: what is wrong`` (unreadable, malformed, an unknown key, a value
+            that is not a finite number, a force line the model refuses).
+    """
+    src = _CalibrationSource.read(Path(path))
+    if not isinstance(src.data, dict):
+        raise src.error((), "expected a mapping with force: {gain, offset, pressure_unit_kpa}")
+    doc: _CalibrationFile = convert(src, src.data, _CalibrationFile)
+    f = doc.force
     try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise CalibrationError(f"{where}: cannot read: {exc}") from None
-    if not isinstance(data, dict) or not isinstance(data.get("force"), dict):
-        raise CalibrationError(f"{where}: expected a mapping with force: {{gain, offset, pressure_unit_kpa}}")
-    f = data["force"]
-    try:
-        force = ForceCalibration(_number(f, "gain", f"{where}: force"), _number(f, "offset", f"{where}: force"),
-                                 _number(f, "pressure_unit_kpa", f"{where}: force") if "pressure_unit_kpa" in f
-                                 else 100.0)
+        force = ForceCalibration(f.gain, f.offset, f.pressure_unit_kpa)
     except ValueError as exc:
-        raise CalibrationError(f"{where}: force: {exc}") from None
-    res = data.get("residuals") or {}
-    return AirfloatCalibration(
-        force=force, depth_offset_mm=_number(data, "depth_offset_mm", where) if "depth_offset_mm" in data else 0.0,
-        force_line_rmse_n=float(res.get("force_line_rmse_n", math.nan)),
-        reference_rms_rel=float(res.get("reference_rms_rel", math.nan)), source=str(data.get("source", "")))
+        raise src.error(("force",), f"force: {exc}") from None
+    return AirfloatCalibration(force=force, depth_offset_mm=doc.depth_offset_mm,
+                               force_line_rmse_n=doc.residuals.force_line_rmse_n,
+                               reference_rms_rel=doc.residuals.reference_rms_rel, source=doc.source)

@@ -17,23 +17,27 @@ reference. Known: that the first reference is rigid, and each further reference'
    not see the contact offset, friction or lag. Each reference gives one k_i; the file keeps their
    mean.
 
-Pure: arrays in, numbers out; reading and writing the YAML file is the node's.
+Pure: arrays in, numbers out; the file is read by :func:`load_probe_calibration` through :mod:`yamlstruct` (the
+project's one YAML loader) and written by the node.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, ClassVar
 
+import msgspec
 import numpy as np
 import numpy.typing as npt
 
 from models.tracker import poly_to_mm
+from yamlstruct import Source, convert
 
 FloatArray = npt.NDArray[np.float64]
 
-__all__ = ["CalibrationError", "ProbeCalibration", "fit_scale", "fit_springs"]
+__all__ = ["CalibrationError", "ProbeCalibration", "fit_scale", "fit_springs", "load_probe_calibration"]
 
 
 class CalibrationError(ValueError):
@@ -73,22 +77,46 @@ class ProbeCalibration:
     @classmethod
     def from_dict(cls, doc: Any, source: str = "<calibration>") -> ProbeCalibration:
         """Read a calibration file's contents; errors name ``source`` and the key."""
-        if not isinstance(doc, dict):
-            raise CalibrationError(f"{source}: expected a mapping with scale_poly and k_n_per_mm")
-        unknown = set(doc) - {"scale_poly", "k_n_per_mm", "direction", "info"}
-        missing = {"scale_poly", "k_n_per_mm"} - set(doc)
-        if unknown or missing:
-            raise CalibrationError(f"{source}: unknown keys {sorted(unknown)}, missing {sorted(missing)}")
-        try:
-            return cls(tuple(tuple(float(c) for c in p) for p in doc["scale_poly"]),
-                       tuple(float(k) for k in doc["k_n_per_mm"]), float(doc.get("direction", 1.0)),
-                       dict(doc.get("info") or {}))
-        except (TypeError, ValueError) as exc:
-            raise CalibrationError(f"{source}: {exc}") from None
+        return _probe_calibration(_CalibrationSource(path=Path(source), name=source, data=doc))
 
     def to_mm(self, u_px: npt.ArrayLike) -> FloatArray:
         """Displacements (mm) for pixel offsets u (..., n) from the zero reference."""
         return poly_to_mm(u_px, self.scale_poly)
+
+
+class _CalibrationSource(Source):
+    error_type: ClassVar[type[Exception]] = CalibrationError
+    document: ClassVar[str] = "the calibration file"
+
+
+class _CalibrationFile(msgspec.Struct, forbid_unknown_fields=True):
+    scale_poly: list[list[float]]
+    k_n_per_mm: list[float]
+    direction: float = 1.0
+    info: dict[str, Any] | None = None
+
+
+def _probe_calibration(src: Source) -> ProbeCalibration:
+    if not isinstance(src.data, dict):
+        raise src.error((), "expected a mapping with scale_poly and k_n_per_mm")
+    doc: _CalibrationFile = convert(src, src.data, _CalibrationFile)
+    try:
+        return ProbeCalibration(tuple(tuple(p) for p in doc.scale_poly), tuple(doc.k_n_per_mm), doc.direction,
+                                dict(doc.info or {}))
+    except CalibrationError as exc:
+        text = str(exc).removeprefix("calibration: ")
+        where = ("direction",) if "direction" in text else ("scale_poly",) if "scale_poly" in text else ("k_n_per_mm",)
+        raise src.error(where, text) from None
+
+
+def load_probe_calibration(path: str | Path) -> ProbeCalibration:
+    """Read a camera-probe calibration file (``nodes/camera_calibrate.py`` writes it).
+
+    Raises:
+        CalibrationError: ``file:line:col: what is wrong`` (unreadable, malformed, an unknown or missing key, a
+            wrong type, or values the calibration cannot hold).
+    """
+    return _probe_calibration(_CalibrationSource.read(Path(path)))
 
 
 def fit_scale(travel_mm: npt.ArrayLike, u_px: npt.ArrayLike, direction: npt.ArrayLike,

@@ -31,8 +31,9 @@ import argparse
 import math
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, ClassVar
 
+import msgspec
 import numpy as np
 import yaml
 from scipy.interpolate import RegularGridInterpolator
@@ -40,6 +41,8 @@ from scipy.interpolate import RegularGridInterpolator
 from models._arrays import ArrayLike
 from models._arrays import as_f64 as _f64
 from models._arrays import scalar_or_array as _out
+from yamlstruct import Source, convert
+from yamlstruct.convert import kind
 
 __all__ = ["GeometryError", "MeasuredGeometry", "load_geometry", "measure_phantom", "parse_geometry"]
 
@@ -104,76 +107,62 @@ class MeasuredGeometry:
         return data
 
 
-def _positive_number(v: Any, where: str) -> float:
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v <= 0:
-        raise GeometryError(f"{where}: expected a finite number > 0 (mm), got {v!r}")
-    return float(v)
+class _GeometrySource(Source):
+    error_type: ClassVar[type[Exception]] = GeometryError
+    document: ClassVar[str] = "the geometry file"
+
+
+_Finite = Annotated[float, msgspec.Meta(ge=-sys.float_info.max, le=sys.float_info.max)]  # NaN and inf fail
+_PositiveMm = Annotated[float, msgspec.Meta(gt=0.0, le=sys.float_info.max)]
+
+
+class _MapDecl(msgspec.Struct, forbid_unknown_fields=True):
+    x_mm: Annotated[list[_Finite], msgspec.Meta(min_length=2)]
+    y_mm: Annotated[list[_Finite], msgspec.Meta(min_length=2)]
+    values: list[list[_PositiveMm]]
+
+
+class _GeometryFile(msgspec.Struct, forbid_unknown_fields=True):
+    thickness_mm: _PositiveMm | _MapDecl
+    error_mm: float = math.nan
+    source: str = ""
+    footprint_mm: tuple[_Finite, _Finite, _Finite, _Finite] | None = None
+
+
+def _geometry(src: Source) -> MeasuredGeometry:
+    if not isinstance(src.data, dict):
+        raise src.error((), f"expected a mapping with thickness_mm, got {kind(src.data)}")
+    doc: _GeometryFile = convert(src, src.data, _GeometryFile)
+    if not (math.isnan(doc.error_mm) or doc.error_mm >= 0):
+        raise src.error(("error_mm",), f"error_mm: expected a number >= 0 (mm), got {doc.error_mm!r}")
+    fp = doc.footprint_mm
+    if fp is not None and not (fp[0] < fp[2] and fp[1] < fp[3]):
+        raise src.error(("footprint_mm",), f"footprint_mm: expected [x0, y0, x1, y1] (mm) with x0 < x1 and y0 < y1, "
+                                           f"got {list(fp)!r}")
+    t = doc.thickness_mm
+    if not isinstance(t, _MapDecl):
+        return MeasuredGeometry(t, error_mm=doc.error_mm, source=doc.source, footprint_mm=fp)
+    for key in ("x_mm", "y_mm"):
+        if not np.all(np.diff(getattr(t, key)) > 0):
+            raise src.error(("thickness_mm", key), f"thickness_mm.{key}: expected strictly ascending numbers")
+    if len(t.values) != len(t.y_mm) or any(len(row) != len(t.x_mm) for row in t.values):
+        raise src.error(("thickness_mm", "values"), f"thickness_mm.values: expected {len(t.y_mm)} rows (one per y_mm) "
+                                                    f"of {len(t.x_mm)} values (one per x_mm), got {len(t.values)} rows "
+                                                    f"of lengths {[len(row) for row in t.values]}")
+    x, y, values = (np.asarray(a, dtype=np.float64) for a in (t.x_mm, t.y_mm, t.values))
+    return MeasuredGeometry(x_mm=x, y_mm=y, values=values, error_mm=doc.error_mm, source=doc.source,
+                            footprint_mm=fp)
 
 
 def parse_geometry(data: Any, source: str = "<geometry>") -> MeasuredGeometry:
     """Validate a decoded geometry mapping; errors name ``source`` and the key."""
-    if not isinstance(data, dict):
-        raise GeometryError(f"{source}: expected a mapping with thickness_mm, got {type(data).__name__}")
-    unknown = set(data) - {"thickness_mm", "error_mm", "source", "footprint_mm"}
-    if unknown:
-        raise GeometryError(f"{source}: unknown key(s) {sorted(unknown)} (allowed: thickness_mm, error_mm, source, "
-                            "footprint_mm)")
-    fp = _footprint(data.get("footprint_mm"), source)
-    if "thickness_mm" not in data:
-        raise GeometryError(f"{source}: thickness_mm: required key missing")
-    err = data.get("error_mm", math.nan)
-    if not (isinstance(err, int | float) and (math.isnan(err) or err >= 0)):
-        raise GeometryError(f"{source}: error_mm: expected a number >= 0, got {err!r}")
-    text = str(data.get("source", ""))
-    t = data["thickness_mm"]
-    if not isinstance(t, dict):
-        return MeasuredGeometry(_positive_number(t, f"{source}: thickness_mm"), error_mm=float(err), source=text,
-                                footprint_mm=fp)
-    extra = set(t) - {"x_mm", "y_mm", "values"}
-    if extra or len(t) != 3:
-        raise GeometryError(f"{source}: thickness_mm: a map needs exactly x_mm, y_mm and values, got {sorted(t)}")
-    axes = []
-    for key in ("x_mm", "y_mm"):
-        try:
-            a = np.asarray(t[key], dtype=np.float64)
-        except (TypeError, ValueError):
-            raise GeometryError(f"{source}: thickness_mm.{key}: expected a list of numbers") from None
-        if a.ndim != 1 or a.size < 2 or not np.all(np.isfinite(a)) or not np.all(np.diff(a) > 0):
-            raise GeometryError(f"{source}: thickness_mm.{key}: expected >= 2 finite, strictly ascending numbers")
-        axes.append(a)
-    try:
-        values = np.asarray(t["values"], dtype=np.float64)
-    except (TypeError, ValueError):
-        raise GeometryError(f"{source}: thickness_mm.values: expected rows of numbers") from None
-    if values.shape != (axes[1].size, axes[0].size):
-        raise GeometryError(f"{source}: thickness_mm.values: expected {axes[1].size} rows (y_mm) of {axes[0].size} "
-                            f"(x_mm), got shape {values.shape}")
-    if not np.all(np.isfinite(values) & (values > 0)):
-        raise GeometryError(f"{source}: thickness_mm.values: every value must be a finite number > 0 (mm)")
-    return MeasuredGeometry(x_mm=axes[0], y_mm=axes[1], values=values, error_mm=float(err), source=text,
-                            footprint_mm=fp)
-
-
-def _footprint(v: Any, source: str) -> tuple[float, float, float, float] | None:
-    if v is None:
-        return None
-    ok = isinstance(v, list) and len(v) == 4 and all(
-        isinstance(a, int | float) and not isinstance(a, bool) and math.isfinite(a) for a in v)
-    if not ok or not (v[0] < v[2] and v[1] < v[3]):
-        raise GeometryError(f"{source}: footprint_mm: expected [x0, y0, x1, y1] (mm) with x0 < x1 and y0 < y1, "
-                            f"got {v!r}")
-    return (float(v[0]), float(v[1]), float(v[2]), float(v[3]))
+    return _geometry(_GeometrySource(path=Path(source), name=source, data=data))
 
 
 def load_geometry(path: str | Path) -> MeasuredGeometry:
-    """Read and validate a measured-geometry YAML file."""
-    try:
-        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise GeometryError(f"{path}: cannot read: {exc.strerror or exc}") from None
-    except yaml.YAMLError as exc:
-        raise GeometryError(f"{path}: invalid YAML: {exc}") from None
-    return parse_geometry(data, str(path))
+    """Read and validate a measured-geometry YAML file through :mod:`yamlstruct` (the project's one YAML loader);
+    a :class:`GeometryError` reads ``file:line:col: key: what is wrong``."""
+    return _geometry(_GeometrySource.read(Path(path)))
 
 
 def measure_phantom(phantom: Any, *, error_mm: float, bias_mm: float = 0.0, seed: int = 0,

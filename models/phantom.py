@@ -19,19 +19,20 @@ overlap, the later one in the file wins. The buried-inclusion response felt by a
 from __future__ import annotations
 
 import math
-import re
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 import msgspec
 import numpy as np
 import numpy.typing as npt
-import yaml
 from scipy.special import chndtr
 
 from models._arrays import ArrayLike, FloatArray
 from models._arrays import as_f64 as _f64
 from models._arrays import scalar_or_array as _out
+from yamlstruct import Source, convert
+from yamlstruct.convert import kind, label
+from yamlstruct.source import Path_
 
 _Pos = Annotated[float, msgspec.Meta(gt=0)]
 _NonNeg = Annotated[float, msgspec.Meta(ge=0)]
@@ -43,12 +44,7 @@ _GL_NODES, _GL_WEIGHTS = np.polynomial.legendre.leggauss(24)
 
 
 class PhantomError(ValueError):
-    """A phantom file or dict is invalid; the message names the source, the key path and why."""
-
-    def __init__(self, source: str, key: str, reason: str, line: int | None = None) -> None:
-        self.source, self.key, self.reason, self.line = source, key, reason, line
-        where = f"{source}: {key}: " if key else f"{source}: "
-        super().__init__(where + reason + (f" (line {line})" if line else ""))
+    """A phantom file or mapping is invalid; the message reads ``file:line:col: key.path: what is wrong``."""
 
 
 class DomedThickness(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -273,8 +269,6 @@ class Phantom(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=T
         return _out(k, x, y, depth_mm)
 
 
-
-
 def _inclusion_table(incs: tuple[Inclusion, ...]) -> tuple[FloatArray, ...]:
     """Columns (n, 1) of centre x, centre y, radius, top depth and height (inf: to the table)."""
     rows = np.array(
@@ -295,173 +289,67 @@ def _bulb_cdf(z: FloatArray, c: FloatArray) -> FloatArray:
 
 # ---------------------------------------------------------------------- loading and validation
 
-_AT = re.compile(r"^(?P<msg>.*?)(?: - at `\$(?P<path>[^`]*)`)?$", re.S)
-_UNKNOWN = re.compile(r"Object contains unknown field `(?P<key>[^`]*)`")
-_MISSING = re.compile(r"Object missing required field `(?P<key>[^`]*)`")
+
+class _PhantomSource(Source):
+    error_type: ClassVar[type[Exception]] = PhantomError
+    document: ClassVar[str] = "the phantom"
 
 
-def _join(path: str, key: str) -> str:
-    return f"{path}.{key}" if path else key
-
-
-_TYPE_WORDS = {
-    "float": "a number",
-    "int": "an integer",
-    "object": "a mapping",
-    "array": "a list",
-    "str": "a string",
-    "null": "nothing",
-}
-_CONSTRAINT = re.compile(r"^Expected `[^`]*` (?P<op>[<>]=?) (?P<bound>\S+)$")
-_EXPECTED = re.compile(r"^Expected `(?P<want>[^`]*)`, got `(?P<got>[^`]*)`$")
-_LENGTH = re.compile(r"^Expected `array` of length (?P<n>\d+), got \d+$")
-_ALLOWED = {"": Phantom, "noise": Noise, "thickness_mm": DomedThickness}
-
-
-def _lookup(data: Any, key: str) -> Any:
-    """The raw value at a key path in the undecoded data, or a sentinel when absent."""
-    node = data
-    for part in re.findall(r"[^.\[\]]+|\[\d+\]", key):
-        try:
-            node = node[int(part[1:-1])] if part.startswith("[") else node[part]
-        except (KeyError, IndexError, TypeError, ValueError):
-            return _MISSING_VALUE
-    return node
-
-
-_MISSING_VALUE = object()
-
-
-def _translate(err: msgspec.ValidationError, data: Any) -> tuple[str, str]:
-    """(key path, reason) from a msgspec error such as "Expected `float` > 0.0 - at `$.a[1].b`"."""
-    m = _AT.match(str(err))
-    msg, path = (m.group("msg"), (m.group("path") or "").lstrip(".")) if m else (str(err), "")
-    if u := _UNKNOWN.fullmatch(msg):
-        parent = re.sub(r"\[\d+\]$", "", path)
-        struct = Inclusion if parent == "inclusions" else _ALLOWED.get(parent)
-        allowed = f" (allowed: {', '.join(struct.__struct_fields__)})" if struct else ""
-        return _join(path, u.group("key")), "unknown key" + allowed
-    if u := _MISSING.fullmatch(msg):
-        return _join(path, u.group("key")), "required key missing"
-    value = _lookup(data, path)
-    got = "" if value is _MISSING_VALUE else f", got {value!r}"
-    if n := _LENGTH.fullmatch(msg):
-        return path, f"expected a list of {n.group('n')} numbers{got}"
-    if c := _CONSTRAINT.fullmatch(msg):
-        return path, f"must be {c.group('op')} {c.group('bound')}{got}"
-    if e := _EXPECTED.fullmatch(msg):
-        wants = [_TYPE_WORDS.get(w.strip(), w.strip()) for w in e.group("want").split("|")]
-        want = " or ".join(w for w in wants if w != "nothing")
-        return path, f"expected {want}{got}"
-    return path, msg[0].lower() + msg[1:] + got
-
-
-def _check_finite(obj: Any, path: str, source: str) -> None:
+def _check_finite(obj: Any, path: Path_, src: Source) -> None:
     if isinstance(obj, float) and not math.isfinite(obj):
-        raise PhantomError(source, path, f"must be a finite number, got {obj}")
+        raise src.error(path, f"{label(path, src.document)}: must be a finite number, got {obj}")
     if isinstance(obj, msgspec.Struct):
         for f in obj.__struct_fields__:
-            _check_finite(getattr(obj, f), _join(path, f), source)
+            _check_finite(getattr(obj, f), (*path, f), src)
     elif isinstance(obj, tuple):
         for i, item in enumerate(obj):
-            _check_finite(item, f"{path}[{i}]", source)
+            _check_finite(item, (*path, i), src)
 
 
-def _validate(ph: Phantom, source: str) -> None:
-    _check_finite(ph, "", source)
+def _validate(ph: Phantom, src: Source) -> None:
+    """What the schema cannot say: one material, inclusions of that material, inside the footprint, below the top."""
+    _check_finite(ph, (), src)
     tissue, spring = ph.youngs_modulus_kpa is not None, ph.spring_constant_n_per_mm is not None
     if tissue == spring:
-        raise PhantomError(
-            source,
-            "youngs_modulus_kpa",
-            "give exactly one of youngs_modulus_kpa (tissue) or spring_constant_n_per_mm (spring sample)"
-            + (", got both" if tissue else ", got neither"),
-        )
-    own, other = (
-        ("spring_constant_n_per_mm", "youngs_modulus_kpa")
-        if spring
-        else ("youngs_modulus_kpa", "spring_constant_n_per_mm")
-    )
+        raise src.error(("youngs_modulus_kpa",), "youngs_modulus_kpa: give exactly one of youngs_modulus_kpa (tissue) or "
+                            "spring_constant_n_per_mm (spring sample)" + (", got both" if tissue else ", got neither"))
+    own, other = (("spring_constant_n_per_mm", "youngs_modulus_kpa") if spring
+                  else ("youngs_modulus_kpa", "spring_constant_n_per_mm"))
     lx, ly = ph.size_mm
     for i, inc in enumerate(ph.inclusions):
-        at = f"inclusions[{i}]"
+        at: Path_ = ("inclusions", i)
         if getattr(inc, other) is not None:
-            raise PhantomError(source, f"{at}.{other}", f"not allowed in a phantom that uses {own}")
+            raise src.error((*at, other), f"{label((*at, other), '')}: not allowed in a phantom that uses {own}")
         if getattr(inc, own) is None:
-            raise PhantomError(source, f"{at}.{own}", "required key missing")
+            raise src.error(at, f"{label((*at, own), '')}: required key missing")
         cx, cy = inc.center_mm
         if not (0 <= cx <= lx and 0 <= cy <= ly):
-            raise PhantomError(
-                source,
-                f"{at}.center_mm",
-                f"must lie inside the footprint [0, {lx}] x [0, {ly}] mm, got [{cx}, {cy}]",
-            )
+            raise src.error((*at, "center_mm"), f"{label((*at, 'center_mm'), '')}: must lie inside the footprint "
+                                                f"[0, {lx}] x [0, {ly}] mm, got [{cx}, {cy}]")
         local = float(ph.thickness(cx, cy))
         if inc.depth_mm >= local:
-            raise PhantomError(
-                source,
-                f"{at}.depth_mm",
-                f"must be less than the local thickness {local:.1f} mm, got {inc.depth_mm}",
-            )
+            raise src.error((*at, "depth_mm"), f"{label((*at, 'depth_mm'), '')}: must be less than the local "
+                                               f"thickness {local:.1f} mm, got {inc.depth_mm}")
 
 
-def parse_phantom(data: Any, source: str = "<phantom>") -> Phantom:
-    """Validate a decoded phantom mapping (e.g. from YAML); source names it in errors."""
-    if not isinstance(data, dict):
-        raise PhantomError(
-            source, "", f"expected a mapping at the top level, got {type(data).__name__}"
-        )
-    try:
-        ph = msgspec.convert(data, Phantom)
-    except msgspec.ValidationError as e:
-        key, reason = _translate(e, data)
-        raise PhantomError(source, key, reason) from None
-    _validate(ph, source)
+def _phantom(src: Source) -> Phantom:
+    if not isinstance(src.data, dict):
+        raise src.error((), f"expected a mapping at the top level, got {kind(src.data)}")
+    ph: Phantom = convert(src, src.data, Phantom)
+    _validate(ph, src)
     return ph
 
 
-def _line_of(text: str, key: str) -> int | None:
-    """1-based line of the deepest YAML node on the key path (e.g. "inclusions[1].depth_mm")."""
-    try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
-    except yaml.YAMLError:
-        return None
-    line = None if node is None else node.start_mark.line + 1
-    for part in re.findall(r"[^.\[\]]+|\[\d+\]", key):
-        if isinstance(node, yaml.MappingNode) and not part.startswith("["):
-            hit = [(k, v) for k, v in node.value if k.value == part]
-            if not hit:
-                break
-            line, node = hit[0][0].start_mark.line + 1, hit[0][1]
-        elif isinstance(node, yaml.SequenceNode) and part.startswith("["):
-            i = int(part[1:-1])
-            if i >= len(node.value):
-                break
-            node = node.value[i]
-            line = node.start_mark.line + 1
-        else:
-            break
-    return line
+def parse_phantom(data: Any, source: str = "<phantom>") -> Phantom:
+    """Validate a decoded phantom mapping (e.g. from :mod:`models.phantom_gen`); errors name ``source`` and the key."""
+    return _phantom(_PhantomSource(path=Path(source), name=source, data=data))
 
 
 def load_phantom(path: str | Path) -> Phantom:
-    """Read and validate a phantom YAML file; errors are ``PhantomError`` naming file, key and line."""
-    source = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8")
-    except OSError as e:
-        raise PhantomError(source, "", f"cannot read: {e.strerror or e}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        raise PhantomError(
-            source,
-            "",
-            f"invalid YAML: {getattr(e, 'problem', None) or e}",
-            None if mark is None else mark.line + 1,
-        ) from None
-    try:
-        return parse_phantom(data, source)
-    except PhantomError as e:
-        raise PhantomError(source, e.key, e.reason, _line_of(text, e.key)) from None
+    """Read and validate a phantom YAML file through :mod:`yamlstruct` (the project's one YAML loader).
+
+    Raises:
+        PhantomError: ``file:line:col: key.path: what is wrong`` (unreadable file, malformed YAML, a key the format
+            does not have, a wrong type or bound, or a physically impossible phantom).
+    """
+    return _phantom(_PhantomSource.read(Path(path)))

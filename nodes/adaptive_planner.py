@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -77,7 +78,7 @@ class AdaptivePlanner(palpa.Node):
         epsilon: float = 0.1
         """LSE's accuracy, a fraction of the baseline (models.adaptive.PlannerConfig)."""
         max_probes: int = 60
-        mode: str = "sweep"
+        mode: Literal["sweep", "indent"] = "sweep"
         """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
         length_mm: float = 6.0
         radius_mm: float = 3.0
@@ -91,6 +92,8 @@ class AdaptivePlanner(palpa.Node):
         """Wall seconds a probe may take before the planner gives it up."""
         output_dir: str = "out"
         title: str = ""
+
+    params: Params
 
     def setup(self) -> None:
         p = self.params

@@ -99,6 +99,8 @@ class CameraTracker(palpa.Node):
         tolerance_spread: Literal["normal", "uniform"] = "normal"
         """Sim: how the probe's springs and scales fall in their tolerance bands (models.camera_world)."""
 
+    params: Params
+
     def setup(self) -> None:
         p = self.params
         self.indenters = self.publisher("camera/indenters", IndenterDisplacements)
@@ -143,10 +145,11 @@ class CameraTracker(palpa.Node):
                                                                                 text=truth))
             self.log.info("sim probe: %s", truth)
             self.subscribe("robot/pose", self.on_pose)
-            self.driver = self.sim
+            self.driver = self.closing(self.sim)
         else:
             try:
-                self.driver = OpenCVSource(p.device, pacing=p.pacing)
+                # closed by the node whatever happens next, a failing open() or setup() included
+                self.driver = self.closing(OpenCVSource(p.device, pacing=p.pacing))
                 self.driver.open()
             except CameraError as exc:
                 raise palpa.ParamError(f"node {self.name!r}: device {p.device!r}: {exc}") from None
@@ -242,9 +245,6 @@ class CameraTracker(palpa.Node):
             counters={"frames": info.frames, "dropped": info.dropped, "processed": self.processed,
                       "frames_with_lost_marker": self.frames_with_lost_marker, "reconnects": info.reconnects},
         ))
-
-    def on_shutdown(self) -> None:
-        self.driver.close()
 
 
 def _quad(v: object) -> tuple[float, float, float, float]:

@@ -5,9 +5,8 @@ from __future__ import annotations
 from functools import lru_cache
 from pathlib import Path
 
-import yaml
-
 from models.camera_calibration import CalibrationError, ProbeCalibration
+from models.camera_calibration import load_probe_calibration as read_probe_calibration
 from models.phantom import Phantom, PhantomError, load_phantom
 from palpa.errors import ParamError
 
@@ -35,11 +34,9 @@ def phantom_from_param(path: str, node: str) -> Phantom:
 def load_probe_calibration(path: str, node: str) -> ProbeCalibration:
     """Read a camera-probe calibration file (YAML, nodes/camera_calibrate.py writes it); a missing or invalid one
     is a :class:`ParamError` naming the file."""
-    p = Path(path)
-    if not p.is_file():
+    if not Path(path).is_file():
         raise ParamError(f"{node}: calibration file {path!r} does not exist")
     try:
-        doc = yaml.safe_load(p.read_text())
-        return ProbeCalibration.from_dict(doc, source=path)
-    except (yaml.YAMLError, CalibrationError) as exc:
+        return read_probe_calibration(path)
+    except CalibrationError as exc:
         raise ParamError(f"{node}: {exc}") from None

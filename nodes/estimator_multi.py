@@ -5,12 +5,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
 
 from messages import IndenterDisplacements, RobotPose, StiffnessSample
-from models.multi_indenter import PAPER_GEOMETRY, ProbeGeometry, solve_exact, solve_lm
+from models.multi_indenter import ProbeGeometry, solve_exact, solve_lm
 from models.timeseries import StampedBuffer
-from nodes.common import load_probe_calibration
 
 __all__ = ["MultiIndenterEstimator"]
 
@@ -30,23 +28,6 @@ class MultiIndenterEstimator:
 
     def __post_init__(self) -> None:
         self.pose = StampedBuffer(max_gap_ns=self.max_gap_ns)
-
-    @classmethod
-    def from_params(cls, p: Any) -> MultiIndenterEstimator:
-        """Build from the estimator node's parameters (spring constants and geometry have the paper's defaults;
-        ``calibration_file`` replaces the spring constants by the probe's identified ones)."""
-        kwargs: dict[str, float] = {"k_soft_n_per_mm": p.soft_spring_n_per_mm,
-                                    "k_hard_n_per_mm": p.hard_spring_n_per_mm}
-        if p.indenter_circle_radius_mm > 0:
-            kwargs["radius_mm"] = p.indenter_circle_radius_mm
-        geometry = ProbeGeometry.paper(**kwargs) if kwargs != {"k_soft_n_per_mm": 0.05, "k_hard_n_per_mm": 0.25} \
-            else PAPER_GEOMETRY
-        if p.calibration_file:
-            # the probe's own springs, identified on reference springs (nodes/camera_calibrate.py)
-            k = load_probe_calibration(p.calibration_file, "estimator").k_n_per_mm
-            geometry = ProbeGeometry(geometry.x_mm, geometry.y_mm, k, geometry.stroke_mm)
-        return cls(geometry, p.solver, p.min_displacement_mm, p.max_condition, int(p.max_wait_s * 1e9),
-                   int(p.max_gap_s * 1e9))
 
     def add_pose(self, m: RobotPose) -> None:
         self.pose.add(m.stamp_ns, (m.x_mm, m.y_mm, m.z_mm))

@@ -45,6 +45,7 @@ from models.geometry import measure_phantom
 from models.phantom import Phantom, load_phantom
 from models.phantom_gen import PhantomRanges, random_phantom
 from models.scoring import score_scan
+from yamlstruct import Source, YamlError
 
 __all__ = ["RunSpec", "main", "scan_facts", "score_run"]
 
@@ -230,8 +231,8 @@ def _parse_grid(items: Sequence[str]) -> dict[str, list[Any]]:
             raise SystemExit(f"--arg {item!r}: expected NAME=V1,V2,... (values are YAML; a list in brackets)")
         text = values if values.startswith("[[") else f"[{values}]"
         try:
-            parsed = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
+            parsed = Source.from_text(text, f"--arg {name}").data
+        except YamlError as exc:
             raise SystemExit(f"--arg {item!r}: {exc}") from None
         grid[name] = list(parsed)
     return grid

@@ -68,6 +68,8 @@ class FibreReader(palpa.Node):
         stroke_mm: palpa.Positive = 10.0
         seed: int = 0
 
+    params: Params
+
     def setup(self) -> None:
         p = self.params
         self.heights = self.publisher("probe/heights", ProbeHeights)
@@ -87,11 +89,12 @@ class FibreReader(palpa.Node):
             self.log.info("sim probe errors (device_seed %d): %s", p.device_seed, errors.as_dict())
             self.subscribe("robot/pose", self.on_pose)
             self.subscribe("pressure/state", self.on_pressure)
-            self.driver = sim
+            self.driver = self.closing(sim)
             self._sim: SimFibreDriver | None = sim
         else:
-            self.driver = SerialFibreDriver(p.port, p.baudrate, p.calibration, require_device=False,
-                                            clock=self.clock.now_ns)
+            # closed by the node whatever happens next, a failing setup() included
+            self.driver = self.closing(SerialFibreDriver(p.port, p.baudrate, p.calibration, require_device=False,
+                                                         clock=self.clock.now_ns))
             self._sim = None
         self.driver.open()
         if p.driver == "serial":
@@ -157,9 +160,6 @@ class FibreReader(palpa.Node):
             counters={k: int(v) for k, v in dataclasses.asdict(st.counters).items()},
             clock_offset_ns=st.clock_offset_ns or 0,
         ))
-
-    def on_shutdown(self) -> None:
-        self.driver.close()
 
 
 if __name__ == "__main__":

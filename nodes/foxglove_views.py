@@ -78,6 +78,7 @@ class ScanViews(palpa.Node):
     """Converts map, inclusions, plan and pose into Foxglove schemas (see the module docstring)."""
 
     Params = ScanViewsParams
+    params: ScanViewsParams
 
     def setup(self) -> None:
         self.grid_pub = self.publisher("viz/map", Grid, latched=True)

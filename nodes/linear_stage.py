@@ -100,6 +100,8 @@ class LinearStage(palpa.Node):
         """Hold at the top until a message arrives on this topic, then start the profile (e.g. ``camera/indenters``,
         which the camera tracker publishes only once it has its zero reference). Empty: start at once."""
 
+    params: Params
+
     def setup(self) -> None:
         p = self.params
         problems = [name for name, ok in (

@@ -58,6 +58,8 @@ class MapAggregator(palpa.Node):
         title: str = ""
         """Shown on map.png (e.g. what was scanned); default: the output directory."""
 
+    params: Params
+
     def setup(self) -> None:
         p = self.params
         self.map_pub = self.publisher("map/stiffness", StiffnessMap, latched=True)

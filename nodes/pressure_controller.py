@@ -67,6 +67,8 @@ class PressureController(palpa.Node):
         seed: int = 0
         """Seed of the sim regulator's noise and wander."""
 
+    params: Params
+
     def setup(self) -> None:
         p = self.params
         if p.max_kpa <= 0:
@@ -83,12 +85,13 @@ class PressureController(palpa.Node):
         self.status_pub = self.publisher("pressure/status", DeviceStatus, latched=True)
         self.driver: PressureDriver
         if p.driver == "sim":
-            self.driver = SimPressureDriver(self.clock.now_ns, p.max_kpa, tau_s=p.sim_tau_s,
-                                            rate_limit_kpa_s=p.sim_rate_limit_kpa_s,
-                                            noise_kpa=p.sim_noise_kpa, tracking_kpa=p.sim_tracking_kpa, seed=p.seed)
+            self.driver = self.closing(SimPressureDriver(
+                self.clock.now_ns, p.max_kpa, tau_s=p.sim_tau_s, rate_limit_kpa_s=p.sim_rate_limit_kpa_s,
+                noise_kpa=p.sim_noise_kpa, tracking_kpa=p.sim_tracking_kpa, seed=p.seed))
         else:
-            self.driver = AlicatPressureDriver(p.port, p.unit_id, p.max_kpa, p.baudrate, require_device=False,
-                                               clock=self.clock.now_ns)
+            # closed by the node whatever happens next, a failing setup() included (after on_shutdown's vent)
+            self.driver = self.closing(AlicatPressureDriver(p.port, p.unit_id, p.max_kpa, p.baudrate,
+                                                            require_device=False, clock=self.clock.now_ns))
         self.driver.open()
         self.mode: PressureMode = "vent"
         self.target = 0.0
@@ -226,7 +229,6 @@ class PressureController(palpa.Node):
             self.driver.vent()
         except PressureError as exc:
             self.log.warning("could not vent on shutdown: %s", exc)
-        self.driver.close()
 
 
 if __name__ == "__main__":

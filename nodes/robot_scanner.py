@@ -120,6 +120,8 @@ class RobotScanner(palpa.Node):
         autostart: bool = True
         """Run the raster at start-up (and exit when it is done); false: stay idle and serve probe_at requests."""
 
+    params: Params
+
     def setup(self) -> None:
         p = self.params
         self.pose_pub = self.publisher("robot/pose", RobotPose)

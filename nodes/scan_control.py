@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import statistics
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import palpa
 from messages import ProbeAt, ProbeResult, StiffnessSample, Trigger, TriggerResult
@@ -80,7 +80,7 @@ class ScanControl:
         half = req.length_mm / 2
         ends = (req.x_mm, req.y_mm - half, req.x_mm, req.y_mm + half) if p.axis == "y" else \
             (req.x_mm - half, req.y_mm, req.x_mm + half, req.y_mm)
-        common = dict(spacing_mm=p.spacing_mm, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
+        common: dict[str, Any] = dict(spacing_mm=p.spacing_mm, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
                       approach_clearance_mm=p.approach_clearance_mm, retract_clearance_mm=p.retract_clearance_mm,
                       transit_speed_mm_s=p.transit_speed_mm_s)
         # over the surface the touch-off found (when one ran), as the scan's own lines would be (SpecimenPlanner.

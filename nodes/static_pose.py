@@ -17,6 +17,8 @@ class StaticPose(palpa.Node):
         z_mm: float = 21.0
         rate_hz: float = 250.0
 
+    params: Params
+
     def setup(self) -> None:
         self.pub = self.publisher("robot/pose", RobotPose)
         self.timer(1.0 / self.params.rate_hz, self.tick, first_in_s=0.0)

@@ -29,7 +29,16 @@ class DecodeError(PalpaError):
 
 
 class ParamError(PalpaError):
-    """A node parameter is missing, unknown or of the wrong type."""
+    """A node parameter is missing, unknown or of the wrong type.
+
+    When validation found it, :attr:`param` names the parameter, :attr:`reason` says what was wrong with it,
+    :attr:`unknown` tells a name the node does not declare, and :attr:`declared` lists the names it does (so a
+    launch file can point at the key without re-reading the message)."""
+
+    def __init__(self, message: str, *, param: str = "", reason: str = "", unknown: bool = False,
+                 declared: tuple[str, ...] = ()) -> None:
+        super().__init__(message)
+        self.param, self.reason, self.unknown, self.declared = param, reason, unknown, declared
 
 
 class BusError(PalpaError):

@@ -125,7 +125,10 @@ class Node:
     """Base class of every node. Override :meth:`setup` to declare publishers, subscriptions and timers."""
 
     Params: ClassVar[type[ParamsBase]] = _NoParams
-    params: Any
+    params: ParamsBase
+    """This node's parameters, validated into :attr:`Params`. A subclass declaring ``class Params`` also declares
+    ``params: Params`` so that mypy checks every ``self.params.<name>`` (tests/test_architecture.py holds every
+    node class in the project to it)."""
 
     def __init__(
         self,
@@ -194,7 +197,7 @@ class Node:
             self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
             self._await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0 if serve_params is None else serve_params:
-            ParamServer(self)
+            ParamServer(self, lambda: self.params, self._change_params)
         try:
             self.setup()
         except BaseException:
@@ -243,9 +246,17 @@ class Node:
 
     def on_params_changed(self, old: Any, new: Any) -> bool | None:
         """Called when ``palpa param set`` (or a ParamSet request) would change ``self.params`` from ``old`` to
-        ``new`` (both validated): apply what needs applying (re-time a timer) and return None, or refuse the
-        whole change by returning False or raising :class:`palpa.ParamError` with the reason."""
+        ``new``, both validated instances of this node's :attr:`Params` (a subclass annotates them so:
+        ``def on_params_changed(self, old: Talker.Params, new: Talker.Params)``): apply what needs applying
+        (re-time a timer) and return None, or refuse the whole change by returning False or raising
+        :class:`palpa.ParamError` with the reason."""
         return None
+
+    def _change_params(self, old: ParamsBase, new: ParamsBase) -> bool:
+        if self.on_params_changed(old, new) is False:
+            return False
+        self.params = new
+        return True
 
     def service(
         self, name: str, request_type: type[Q], response_type: type[R], handler: Callable[[Q], R | Responder[R]]

@@ -29,7 +29,6 @@ class NodeApi(Protocol):
     clock: Clock
     log: logging.Logger
     dispatch: Dispatch
-    params: Any
 
     @property
     def transport(self) -> Transport: ...
@@ -60,8 +59,6 @@ class NodeApi(Protocol):
 
     def service(self, name: str, request_type: type[Any], response_type: type[Any],
                 handler: Callable[[Any], Any]) -> object: ...
-
-    def on_params_changed(self, old: Any, new: Any) -> bool | None: ...
 
     def spin_once(self, timeout_s: float = 0.0) -> None: ...
 

@@ -3,7 +3,6 @@ command line or a launch file and are validated (types, unknown names) before th
 
 from __future__ import annotations
 
-import difflib
 import sys
 from collections.abc import Mapping
 from pathlib import Path
@@ -12,11 +11,11 @@ from typing import Annotated, Any, TypeVar, get_args, get_origin
 import msgspec
 
 from palpa.errors import ParamError
-from yamlstruct import Source, YamlError
+from yamlstruct import Source, YamlError, convert, did_you_mean
 
 __all__ = [
     "InputPath", "NonNegative", "Params", "Positive", "PositiveInt", "convert_params", "describe_params", "input_paths",
-    "read_params_file",
+    "parse_param_value", "read_params_file",
 ]
 
 P = TypeVar("P", bound="Params")
@@ -58,29 +57,56 @@ def convert_params(cls: type[P], values: Mapping[str, Any] | P | None, *, where:
         return msgspec.convert(data, cls, strict=True)
     except msgspec.ValidationError as exc:
         text = str(exc)
+        declared = tuple(describe_params(cls))
         # msgspec says "... - at `$.name`": turn the JSON path into a parameter name.
         if " - at `$." in text:
             what, _, path = text.rpartition(" - at `$.")
-            text = f"parameter {path.rstrip('`')!r}: {what}"
-        elif text.startswith("Object contains unknown field"):
-            declared = list(describe_params(cls))
+            path = path.rstrip("`")
+            raise ParamError(f"{where}: parameter {path!r}: {what}", param=path.split(".")[0].split("[")[0],
+                             reason=what, declared=declared) from None
+        if text.startswith("Object contains unknown field"):
             unknown = text.rpartition(" ")[2].strip("`")
-            close = difflib.get_close_matches(unknown, declared, n=1, cutoff=0.6)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            text = f"{text}{hint} (declared parameters: {', '.join(declared) or 'none'})"
-        raise ParamError(f"{where}: {text}") from None
+            raise ParamError(f"{where}: {text}{did_you_mean(unknown, declared)} (declared parameters: "
+                             f"{', '.join(declared) or 'none'})", param=unknown, reason=text, unknown=True,
+                             declared=declared) from None
+        raise ParamError(f"{where}: {text}", reason=text, declared=declared) from None
 
 
-def read_params_file(path: Path, what: str) -> dict[str, Any]:
+def read_params_file(path: Path, what: str, params_type: type[Params] | None = None) -> dict[str, Any]:
     """A YAML mapping of parameter names to values (``--params-file``, ``palpa param load``); raises
-    :class:`ParamError` starting with ``what`` when the file cannot be read or is not a mapping."""
+    :class:`ParamError` starting with ``what`` when the file cannot be read or is not a mapping, and, given the
+    node's ``params_type``, at the ``file:line:col`` of a name it does not declare or a value of the wrong type."""
     try:
         src = Source.read(path)  # the one YAML reader (YAML 1.2 scalars, duplicate keys refused), with file:line
+        if not isinstance(src.data, dict):
+            raise src.error((), "expected a mapping of parameters")
+        if params_type is not None:
+            _check_values(src, params_type)
     except YamlError as exc:
         raise ParamError(f"{what}: {exc}") from None
-    if not isinstance(src.data, dict):
-        raise ParamError(f"{what}: {src.mark(())}: expected a mapping of parameters")
     return src.data
+
+
+def _check_values(src: Source, cls: type[Params]) -> None:
+    """Each value of the mapping ``src`` against its field of ``cls`` (the file may give only some of them)."""
+    fields = {f.name: f.type for f in msgspec.structs.fields(cls)}
+    owner = cls.__qualname__.removesuffix(".Params")
+    for name, value in src.data.items():
+        if name not in fields:
+            raise src.error((name,), f"node class {owner} has no parameter {name!r}{did_you_mean(name, fields)}; "
+                                     f"declared: {', '.join(fields) or 'none'}", key=True)
+        convert(src, value, fields[name], (name,))
+
+
+def parse_param_value(text: str, what: str) -> Any:
+    """A parameter value typed on a command line (``-p name=VALUE``, ``palpa param set``), read as YAML by the
+    project's one reader (YAML 1.2: ``yes`` stays a string); an empty text is the empty string."""
+    if not text:
+        return ""
+    try:
+        return Source.from_text(text, what).data
+    except YamlError as exc:
+        raise ParamError(str(exc)) from None
 
 
 def describe_params(cls: type[Params]) -> dict[str, str]:

@@ -4,19 +4,20 @@
 (:class:`ParamSet` -> :class:`ParamValues`). A set merges the given values into the current ones and validates
 the whole set with msgspec, as at launch (an error names the parameter: ``parameter 'rate_hz': Expected `float`,
 got `str```); the node's ``on_params_changed(old, new)`` may then refuse it (return False or raise ParamError).
-An accepted change replaces ``node.params`` at once and is published on ``_palpa/params`` (:class:`ParamChange`),
+An accepted change replaces the node's ``params`` at once and is published on ``_palpa/params`` (:class:`ParamChange`),
 which the recorder keeps like the log. ``palpa param list|get|set|dump NODE`` is the command line.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import msgspec
 
 from palpa.errors import ParamError
 from palpa.message import Message
-from palpa.params import convert_params, describe_params
+from palpa.params import Params, convert_params, describe_params
 from palpa.service import RequestRefused
 
 if TYPE_CHECKING:
@@ -60,25 +61,31 @@ class ParamChange(Message, frozen=True, kw_only=True):
 
 
 class ParamServer:
-    """Serves a node's parameter services (made by the node when it announces itself on the graph)."""
+    """Serves a node's parameter services (made by the node when it announces itself on the graph).
 
-    def __init__(self, node: NodeApi) -> None:
+    ``current()`` is the node's parameters now; ``change(old, new)`` asks the node to take ``new`` (False, or a
+    raised :class:`ParamError`, refuses it) and replaces its parameters when it does."""
+
+    def __init__(self, node: NodeApi, current: Callable[[], Params],
+                 change: Callable[[Params, Params], bool]) -> None:
         self.node = node
+        self.current = current
+        self.change = change
         self._changes = node.publisher(PARAMS_TOPIC, ParamChange)
         node.service(param_service(node.name, "get"), ParamGet, ParamValues, self.on_get)
         node.service(param_service(node.name, "set"), ParamSet, ParamValues, self.on_set)
 
     def values(self) -> ParamValues:
         node = self.node
-        return ParamValues(node=node.name, values=msgspec.to_builtins(node.params),
-                           types=describe_params(type(node.params)))
+        params = self.current()
+        return ParamValues(node=node.name, values=msgspec.to_builtins(params), types=describe_params(type(params)))
 
     def on_get(self, req: ParamGet) -> ParamValues:
         return self.values()
 
     def on_set(self, req: ParamSet) -> ParamValues:
         node = self.node
-        old = node.params
+        old = self.current()
         current: dict[str, Any] = msgspec.to_builtins(old)
         unknown = sorted(set(req.values) - set(current))
         if unknown:
@@ -89,12 +96,11 @@ class ParamServer:
         changed = {k: v for k, v in after.items() if v != current[k]}
         if changed:
             try:
-                verdict = node.on_params_changed(old, new)
+                accepted = self.change(old, new)
             except ParamError as exc:
                 raise RequestRefused(str(exc)) from None
-            if verdict is False:
+            if not accepted:
                 raise RequestRefused(f"node {node.name!r} refused the change of {', '.join(changed)}")
-            node.params = new
             node.log.info("parameters changed: %s", ", ".join(f"{k}={v!r}" for k, v in changed.items()))
             self._changes.publish(ParamChange(node=node.name, stamp_ns=node.clock.now_ns(), changed=changed,
                                               previous={k: current[k] for k in changed}))

@@ -22,11 +22,9 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-import yaml
-
 from palpa.errors import PalpaError
 from palpa.node import Node
-from palpa.params import describe_params, read_params_file
+from palpa.params import Params, describe_params, parse_param_value, read_params_file
 from palpa.transport import TransportOptions
 
 __all__ = ["node_arg_parser", "params_from_args", "parse_remaps", "run_node", "run_node_code"]
@@ -58,11 +56,12 @@ def node_arg_parser(prog: str) -> argparse.ArgumentParser:
     return ap
 
 
-def params_from_args(args: argparse.Namespace) -> dict[str, Any]:
-    """Merge parameters: file, then JSON, then each -p in order (later wins)."""
+def params_from_args(args: argparse.Namespace, params_type: type[Params] | None = None) -> dict[str, Any]:
+    """Merge parameters: file, then JSON, then each -p in order (later wins). Given the node's ``params_type``,
+    the file's names and values are checked at their ``file:line:col``."""
     params: dict[str, Any] = {}
     if args.params_file is not None:
-        params.update(read_params_file(args.params_file, f"--params-file {args.params_file}"))
+        params.update(read_params_file(args.params_file, f"--params-file {args.params_file}", params_type))
     if args.params_json:
         try:
             loaded = json.loads(args.params_json)
@@ -75,10 +74,7 @@ def params_from_args(args: argparse.Namespace) -> dict[str, Any]:
         key, sep, value = item.partition("=")
         if not sep or not key:
             raise PalpaError(f"--param {item!r}: expected KEY=VALUE")
-        try:
-            params[key] = yaml.safe_load(value) if value else ""
-        except yaml.YAMLError as exc:
-            raise PalpaError(f"--param {key}: value is not valid YAML: {exc}") from None
+        params[key] = parse_param_value(value, f"--param {key}")
     return params
 
 
@@ -113,7 +109,7 @@ def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: s
     try:
         node = cls(
             name=args.name,
-            params=params_from_args(args),
+            params=params_from_args(args, cls.Params),
             namespace=args.namespace,
             remap=parse_remaps(args.remap),
             bus=args.bus,

@@ -185,6 +185,7 @@ class ZmqTransport:
             self._watch(sock)
         self._closed = False
         self._prefixes: list[bytes] = []
+        self._unsent_latched: dict[bytes, list[bytes]] = {}
         self._watch_hs = HandshakeWatch(monitor, self._pub, address.pub, self._curve,
                                         [(self._pub, address.pub), (self._sub, address.sub),
                                          (self._latch, address.latch)], self._accepted)
@@ -207,9 +208,12 @@ class ZmqTransport:
         # the proxy forwards every current subscription on attach; none at all means nobody listens yet
         if self._pub.poll(_SUBSCRIPTIONS_GRACE_MS):
             self._drain_subscriptions(self._pub, self._bus_listeners)
-        if self._watch_hs.refused:  # what the refused latch connection lost: ask again
+        if self._watch_hs.refused:  # what the refused latch connection lost: ask again, set again
             for prefix in self._prefixes:
-                self._latch.send_multipart([b"GET", prefix])
+                self._to_cache([b"GET", prefix])
+            unsent, self._unsent_latched = self._unsent_latched, {}
+            for topic, frames in unsent.items():
+                self._to_cache(frames, latched_topic=topic)
             self.connected = True
 
     def _watch(self, sock: zmq.Socket[bytes]) -> None:
@@ -279,16 +283,25 @@ class ZmqTransport:
         else:
             _send_frames(sock, frames)
         if latched:
-            self._latch.send(b"SET", zmq.SNDMORE)
-            _send_frames(self._latch, frames)
+            self._to_cache([b"SET", *frames], latched_topic=frames[0])
+
+    def _to_cache(self, frames: Sequence[bytes], latched_topic: bytes | None = None) -> None:
+        """Send to the bus's last-value cache without ever blocking: a DEALER with no live connection (the
+        bus refused this node's key, or it is not up yet) would block ``send`` for good. What cannot go now
+        is kept (the newest value per latched topic) and sent when the bus accepts the node."""
+        try:
+            self._latch.send_multipart(list(frames), zmq.NOBLOCK)
+        except zmq.Again:
+            if latched_topic is not None:
+                self._unsent_latched[latched_topic] = list(frames)
 
     def subscribe(self, prefix: bytes, request_latched: bool) -> None:
         self._sub.setsockopt(zmq.SUBSCRIBE, prefix)
         if request_latched:
             self._prefixes.append(prefix)
-            self._latch.send_multipart([b"GET", prefix])
+            self._to_cache([b"GET", prefix])  # asked again on acceptance when it cannot go now
         if not self._curve:  # direct publishers of matching topics, now and later (palpa.direct)
-            self._latch.send_multipart([b"GET", DIRECTORY_PREFIX + prefix])
+            self._to_cache([b"GET", DIRECTORY_PREFIX + prefix])
 
     def unsubscribe(self, prefix: bytes) -> None:
         self._sub.setsockopt(zmq.UNSUBSCRIBE, prefix)

@@ -1,12 +1,16 @@
 """The layering rules that code review keeps forgetting, checked on the source: no import cycles between files of
-palpa/ or emulators/, no module reading another module's underscore names, and emulators that import nothing from
-nodes/ (an emulator tested against its driver's own codec proves nothing)."""
+palpa/ or emulators/, no module reading another module's underscore names, emulators that import nothing from
+nodes/ (an emulator tested against its driver's own codec proves nothing), and node classes whose ``params`` is
+typed as their own ``Params``."""
 
 from __future__ import annotations
 
 import ast
+import importlib
 import sys
+import typing
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -171,3 +175,81 @@ def test_yamlstruct_and_models_do_not_import_the_runtime() -> None:
     for pkg in ("yamlstruct", "models"):
         for m, p in _modules((pkg,)).items():
             assert not [t for t in _imports(m, p, known) if t.split(".")[0] == "palpa"], m
+
+
+def untyped_params(classes: list[type[Any]]) -> list[str]:
+    """The node classes whose ``params`` is not annotated as their own ``Params`` (mypy would then check no
+    ``self.params.<name>``: the base class declares only :class:`palpa.Params`)."""
+    from palpa.node import Node
+
+    return [f"{c.__module__}.{c.__qualname__}" for c in classes
+            if c.Params is not Node.Params and typing.get_type_hints(c).get("params") is not c.Params]
+
+
+def _project_node_classes() -> list[type[Any]]:
+    from palpa.node import Node
+
+    for name in _modules(("palpa", "nodes")):
+        if not name.endswith("__main__"):
+            importlib.import_module(name)
+    found, todo = [], [Node]
+    while todo:
+        for sub in todo.pop().__subclasses__():
+            todo.append(sub)
+            if sub.__module__.split(".")[0] in ("palpa", "nodes"):
+                found.append(sub)
+    return found
+
+
+def test_every_node_class_types_its_params() -> None:
+    classes = _project_node_classes()
+    assert {"nodes.stiffness_estimator.AirfloatStiffnessEstimator", "palpa.record.player.Player"} <= {
+        f"{c.__module__}.{c.__qualname__}" for c in classes}
+    assert untyped_params(classes) == []
+
+
+def test_the_params_check_sees_a_node_that_forgot_the_annotation() -> None:
+    import palpa
+
+    class Forgot(palpa.Node):
+        class Params(palpa.Params):
+            rate_hz: float = 1.0
+
+    class Typed(palpa.Node):
+        class Params(palpa.Params):
+            rate_hz: float = 1.0
+
+        params: Params
+
+    assert untyped_params([Forgot, Typed, palpa.Node]) == [f"{__name__}.{Forgot.__qualname__}"]
+
+
+YAML_READERS = {"safe_load", "load", "full_load", "unsafe_load", "compose", "safe_load_all", "load_all"}
+
+
+def yaml_read_outside_yamlstruct(packages: tuple[str, ...]) -> list[str]:
+    """Every call of a PyYAML reader outside yamlstruct/ (writing with ``yaml.safe_dump`` is fine)."""
+    found = []
+    for name, path in _modules(packages).items():
+        if name.split(".")[0] == "yamlstruct":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "yaml" \
+                    and node.attr in YAML_READERS:
+                found.append(f"{path.relative_to(ROOT)}:{node.lineno}: yaml.{node.attr}")
+    return found
+
+
+def test_yaml_is_read_only_through_yamlstruct() -> None:
+    """One YAML reader (YAML 1.2 scalars, duplicate keys refused, file:line:col in every error): launch files,
+    parameter files, phantoms, calibrations and geometries all go through yamlstruct."""
+    assert yaml_read_outside_yamlstruct(("palpa", "models", "nodes", "emulators", "devices", "messages", "bench",
+                                         "yamlstruct")) == []
+
+
+def test_the_yaml_check_sees_a_reader(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    pkg = tmp_path / "fakepkg"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("import yaml\n\ndef f(t):\n    return yaml.safe_dump(yaml.safe_load(t))\n")
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    assert yaml_read_outside_yamlstruct(("fakepkg",)) == ["fakepkg/__init__.py:4: yaml.safe_load"]

@@ -19,7 +19,7 @@ from models.camera_render import CameraModel, Renderer
 from nodes.camera_tracker import CameraTracker
 from nodes.linear_stage import LinearStage, StageProfile
 from nodes.static_pose import StaticPose
-from nodes.stiffness_estimator import StiffnessEstimator
+from nodes.stiffness_estimator import MultiIndenterStiffnessEstimator
 from palpa.testing import GraphHarness, NodeHarness
 
 SPRINGS = {0.29: "phantoms/springs_029.yaml", 0.37: "phantoms/springs_037.yaml",
@@ -88,7 +88,7 @@ def test_lost_marker_reaches_the_estimator_as_invalid() -> None:
     g = GraphHarness()
     g.add(StaticPose, {"x_mm": 20.0, "y_mm": 20.0, "z_mm": 40.0})
     cam = g.add(CameraTracker, {"phantom": SPRINGS[0.62]})
-    g.add(StiffnessEstimator, {"model": "multi_indenter", "min_displacement_mm": 1.0})
+    g.add(MultiIndenterStiffnessEstimator, {"min_displacement_mm": 1.0})
     g.advance(1.2)
     g.nodes[0].params = StaticPose.Params(x_mm=20.0, y_mm=20.0, z_mm=30.0 - 7.0)  # press 7 mm
     g.advance(2.0)

@@ -24,7 +24,7 @@ from nodes.fibre_reader import FibreReader
 from nodes.map_aggregator import MapAggregator
 from nodes.pressure_controller import PressureController
 from nodes.robot_scanner import RobotScanner
-from nodes.stiffness_estimator import StiffnessEstimator
+from nodes.stiffness_estimator import AirfloatStiffnessEstimator
 from palpa.service import BadRequestError, RequestRefused
 from palpa.service_client import Future
 from palpa.testing import GraphHarness, NodeHarness
@@ -53,8 +53,8 @@ def probe_graph(phantom: str = PHANTOM, kpa: float = 36.0, z: float = 5.0) -> tu
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": kpa, "max_kpa": 60.0,
                                "calibration": calibration()})
     g.add(FibreReader, {"phantom": phantom})
-    g.add(StiffnessEstimator, {"geometry": phantom.replace("phantoms/", "phantoms/measured/"),
-                               "calibration": calibration()})
+    g.add(AirfloatStiffnessEstimator, {"geometry": phantom.replace("phantoms/", "phantoms/measured/"),
+                                       "calibration": calibration()})
     g.add(RobotScanner, {"autostart": False, "home_mm": [28.0, 28.0, 40.0], "watchdog_s": 0.5,
                          "speed_mm_s": 20.0, "contact_z_mm": z})
     op = g.add(palpa.Node, name="operator")

@@ -57,6 +57,6 @@ def test_the_rig_file_with_simulated_probe_drivers_gives_the_phantom_to_them_onl
 def test_the_check_sees_a_phantom_under_any_name(tmp_path: Path) -> None:
     """The check itself can fail: an estimator handed the phantom as its 'geometry' is caught."""
     f = tmp_path / "bad.yaml"
-    f.write_text(f"nodes:\n  - name: estimator\n    node: nodes.stiffness_estimator:StiffnessEstimator\n"
+    f.write_text(f"nodes:\n  - name: estimator\n    node: nodes.stiffness_estimator:AirfloatStiffnessEstimator\n"
                  f"    params: {{geometry: {PHANTOMS / 'flat_26k.yaml'}}}\n")
-    assert given_a_phantom(f, {}) == {"estimator": ("nodes.stiffness_estimator:StiffnessEstimator", None)}
+    assert given_a_phantom(f, {}) == {"estimator": ("nodes.stiffness_estimator:AirfloatStiffnessEstimator", None)}

@@ -253,8 +253,8 @@ def test_replay_takes_the_geometry_from_the_recording(tmp_path: Path) -> None:
 
     geo = REPO / "phantoms" / "measured" / "flat_26k.yaml"
     scanned = tmp_path / "scan.resolved.yaml"
-    scanned.write_text("nodes:\n  - name: estimator\n    node: nodes.stiffness_estimator:StiffnessEstimator\n"
-                       f"    params: {{model: airfloat, geometry: {geo}, calibration: ''}}\n")
+    scanned.write_text("nodes:\n  - name: estimator\n    node: nodes.stiffness_estimator:AirfloatStiffnessEstimator\n"
+                       f"    params: {{geometry: {geo}, calibration: ''}}\n")
     bag = tmp_path / "run" / "recording.mcap"
     bag.parent.mkdir()
     NodeHarness(Recorder, {"output": str(bag), "launch_file": str(scanned)}).close()

@@ -77,7 +77,8 @@ SMOKE: dict[str, Smoke] = {
     "talker_listener.yaml": Smoke(args=["rate:=20.0"], topics=["chatter", "chatter_len"], timeout=30),
     "airfloat_sim.yaml": Smoke(topics=["robot/pose", "pressure/state", "probe/heights", "probe/status",
                                        "stiffness/sample"], timeout=40),
-    "scan_sim.yaml": Smoke(args=["region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "time_scale:=1.0"],
+    # touch-off is tested in tests/test_touchoff*.py: the smokes plan at the phantom's known height
+    "scan_sim.yaml": Smoke(args=["region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "touchoff:=off"],
                            topics=["robot/pose", "robot/plan", "robot/scan_status", "probe/heights", "pressure/state",
                                    "stiffness/sample", "map/stiffness", "map/inclusions"], timeout=60),
     # the rig's file: --check as is; the run with every driver simulated (never the default robot address)
@@ -86,15 +87,15 @@ SMOKE: dict[str, Smoke] = {
                                 "region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "speed_mm_s:=20.0"],
                           topics=["robot/pose", "probe/heights", "pressure/state", "stiffness/sample",
                                   "robot/scan_status"], timeout=60),
-    "scan_camera_sim.yaml": Smoke(args=["region_mm:=[14.0, 14.0, 18.0, 18.0]", "time_scale:=2.0"],
+    "scan_camera_sim.yaml": Smoke(args=["region_mm:=[14.0, 14.0, 18.0, 18.0]", "touchoff:=off"],
                                   topics=["robot/pose", "robot/plan", "camera/indenters", "stiffness/sample",
                                           "map/stiffness", "robot/scan_status"], timeout=60),
     "scan_adaptive_sim.yaml": Smoke(args=["region_mm:=[36.0, 33.0, 48.0, 45.0]", "initial:=2", "max_probes:=5",
-                                          "time_scale:=2.0"],
+                                          "touchoff:=off"],
                                     topics=["robot/pose", "probe/heights", "stiffness/sample", "planner/mean",
                                             "planner/std"], timeout=90),
     "scan_adaptive_camera_sim.yaml": Smoke(args=["region_mm:=[12.0, 12.0, 20.0, 20.0]", "seed_spacing_mm:=0",
-                                                 "initial:=2", "max_probes:=4", "touchoff:=off", "time_scale:=2.0"],
+                                                 "initial:=2", "max_probes:=4", "touchoff:=off"],
                                            topics=["robot/pose", "camera/indenters", "stiffness/sample",
                                                    "planner/mean", "planner/std"], timeout=90),
     # the rig's file with the sim arm (the ur_rtde driver against the emulator: tests/test_adaptive_camera_ur.py)

@@ -3,10 +3,18 @@ answer: a distorted per-marker scale, friction and filter lag that flip with the
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from models.camera_calibration import CalibrationError, ProbeCalibration, fit_scale, fit_springs
+from models.camera_calibration import (
+    CalibrationError,
+    ProbeCalibration,
+    fit_scale,
+    fit_springs,
+    load_probe_calibration,
+)
 
 
 def ramp(top: float = 9.0, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
@@ -42,5 +50,17 @@ def test_a_press_without_release_is_refused() -> None:
     t = np.linspace(0, 9, 300)
     with pytest.raises(CalibrationError, match="marker 1"):
         fit_scale(t, np.repeat(t[:, None] * 12.7, 4, 1), np.ones_like(t))
-    with pytest.raises(CalibrationError, match="unknown keys"):
+    with pytest.raises(CalibrationError, match=r"^cal.yaml: unknown key .spring. in the calibration file"):
         ProbeCalibration.from_dict({"scale_poly": [[0.08]], "k_n_per_mm": [0.05], "spring": 1}, "cal.yaml")
+
+
+def test_the_file_loads_through_yamlstruct_with_lines(tmp_path: Path) -> None:
+    good = load_probe_calibration("tests/data/camera_probe6.yaml")
+    assert len(good.k_n_per_mm) == 4 and good.direction == 1.0
+    f = tmp_path / "cal.yaml"
+    f.write_text("scale_poly: [[0.08], [0.08]]\nk_n_per_mm: [0.05, -0.2]\n")
+    with pytest.raises(CalibrationError, match=r"cal.yaml:2:13: spring constants must be finite and > 0"):
+        load_probe_calibration(f)
+    f.write_text("scale_poly: [[0.08]]\nk_n_per_mm: [0.05]\ndirection: yes\n")  # YAML 1.2: a string, not true
+    with pytest.raises(CalibrationError, match=r"cal.yaml:3:12: direction: expected `float`, got `str`"):
+        load_probe_calibration(f)

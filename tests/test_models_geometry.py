@@ -25,16 +25,29 @@ def test_constant_and_map_thickness() -> None:
 
 
 @pytest.mark.parametrize(("data", "match"), [
-    ({"thickness_mm": -1}, "thickness_mm: expected a finite number > 0"),
-    ({"thickness": 2}, r"unknown key\(s\) \['thickness'\]"),
-    ({"error_mm": 0.1}, "thickness_mm: required key missing"),
-    ({"thickness_mm": {"x_mm": [0, 1], "y_mm": [0, 1], "values": [[1, 1]]}}, r"expected 2 rows .* got shape \(1, 2\)"),
-    ({"thickness_mm": {"x_mm": [1, 0], "y_mm": [0, 1], "values": [[1, 1], [1, 1]]}}, "x_mm: expected >= 2"),
-    ({"thickness_mm": {"x_mm": [0, 1], "y_mm": [0, 1], "values": [[1, 0], [1, 1]]}}, "every value must be"),
+    ({"thickness_mm": -1}, r"^g.yaml: thickness_mm: expected `float` > 0.0, got -1$"),
+    ({"thickness": 2}, r"^g.yaml: unknown key 'thickness' in the geometry file \(did you mean 'thickness_mm'\?\)"),
+    ({"error_mm": 0.1}, "^g.yaml: the geometry file is missing the required key 'thickness_mm'$"),
+    ({"thickness_mm": {"x_mm": [0, 1], "y_mm": [0, 1], "values": [[1, 1]]}},
+     r"thickness_mm.values: expected 2 rows \(one per y_mm\) of 2 values \(one per x_mm\), got 1 rows of lengths "
+     r"\[2\]$"),
+    ({"thickness_mm": {"x_mm": [1, 0], "y_mm": [0, 1], "values": [[1, 1], [1, 1]]}},
+     "thickness_mm.x_mm: expected strictly ascending numbers"),
+    ({"thickness_mm": {"x_mm": [0, 1], "y_mm": [0, 1], "values": [[1, 0], [1, 1]]}},
+     r"thickness_mm.values\[0\]\[1\]: expected `float` > 0.0, got 0$"),
+    ({"thickness_mm": 2, "footprint_mm": [0, 0, -1, 3]}, "footprint_mm: expected .* with x0 < x1"),
+    ({"thickness_mm": 2, "error_mm": -1}, r"error_mm: expected a number >= 0 \(mm\), got -1"),
 ])
 def test_bad_geometry_names_the_key(data: dict[str, object], match: str) -> None:
     with pytest.raises(GeometryError, match=match):
         parse_geometry(data, "g.yaml")
+
+
+def test_a_bad_file_names_its_line(tmp_path: Path) -> None:
+    f = tmp_path / "g.yaml"
+    f.write_text("thickness_mm:\n  x_mm: [0, 10]\n  y_mm: [0, 10]\n  values: [[2, 2], [2, .nan]]\n")
+    with pytest.raises(GeometryError, match=r"g.yaml:4:24: thickness_mm.values\[1\]\[1\]: expected `float` > 0.0, got nan"):
+        load_geometry(f)
 
 
 def test_measure_is_seeded_and_its_error_is_what_it_states() -> None:

@@ -1,15 +1,25 @@
 """A node's lifecycle edges: resources registered with ``Node.closing`` are closed when ``setup()`` raises and at
-shutdown (the refused-plan case of the robot scanner, with the sim driver and through the UR emulator), and
-``Timer.cancel``."""
+shutdown (the refused-plan case of the robot scanner, with the sim driver and through the UR emulator; a setup
+refused after the serial, camera and regulator drivers opened), and ``Timer.cancel``."""
 
 from __future__ import annotations
 
+import threading
+from pathlib import Path
 from typing import Any
 
+import cv2
+import numpy as np
 import pytest
 
 import palpa
+from emulators.alicat import AlicatEmulator
+from emulators.fibre_daq import FibreDaqEmulator, source_from_heights
+from models.fibre_calibration import load_calibration
+from nodes.camera_tracker import CameraTracker
 from nodes.drivers.robot import PathPoint, RobotDriver, RobotDriverError
+from nodes.fibre_reader import FibreReader
+from nodes.pressure_controller import PressureController
 from nodes.robot_scanner import RobotScanner
 from palpa.clock import MockClock
 from palpa.testing import MemoryBus, NodeHarness
@@ -72,6 +82,67 @@ def test_refused_plan_disconnects_from_the_ur_emulator() -> None:
             RobotScanner(params=params, transport=MemoryBus().transport(), clock=MockClock(), heartbeat_s=0)
         assert emu.command("program")["source"]  # the driver did connect and upload its control script
         emu.wait_state(lambda st: st["clients"] == 0, timeout_s=10.0)
+
+
+class _RefusesAfterOpening(palpa.Node):
+    """Mixed in before a driver node: its setup() opens the driver, then this refuses to go on (as a plan check
+    would); the driver is kept for the test in ``made``."""
+
+    made: list[Any] = []
+
+    def setup(self) -> None:
+        super().setup()
+        _RefusesAfterOpening.made.append(getattr(self, "driver"))  # noqa: B009 - each driver node has its own
+        raise palpa.ParamError("refused after opening the driver")
+
+
+class _RefusingFibre(_RefusesAfterOpening, FibreReader):
+    pass
+
+
+class _RefusingRegulator(_RefusesAfterOpening, PressureController):
+    pass
+
+
+class _RefusingCamera(_RefusesAfterOpening, CameraTracker):
+    pass
+
+
+def _refused(cls: type[palpa.Node], params: dict[str, Any]) -> Any:
+    _RefusesAfterOpening.made.clear()
+    transport = MemoryBus().transport()
+    with pytest.raises(palpa.ParamError, match="refused after opening the driver"):
+        cls(params=params, transport=transport, clock=MockClock(), heartbeat_s=0)
+    assert transport.closed
+    (driver,) = _RefusesAfterOpening.made
+    return driver
+
+
+def _threads_named(name: str) -> list[str]:
+    return [t.name for t in threading.enumerate() if t.name == name and t.is_alive()]
+
+
+def test_a_refused_setup_closes_the_serial_fibre_driver() -> None:
+    cal = "tests/data/fibre_calibration.yaml"
+    with FibreDaqEmulator(source_from_heights(load_calibration(cal), lambda t: (1.5, 1.5, 1.5, 3.5))) as emu:
+        driver = _refused(_RefusingFibre, {"driver": "serial", "port": emu.port, "calibration": cal})
+        assert not driver.status().connected  # connected at open(), then closed by the refusal
+        assert _threads_named(f"fibre:{emu.port}") == []  # its acquisition thread is gone too
+
+
+def test_a_refused_setup_closes_the_alicat_regulator_port() -> None:
+    with AlicatEmulator() as emu:
+        driver = _refused(_RefusingRegulator, {"driver": "alicat", "port": emu.port, "max_kpa": 30.0})
+        assert not driver.status().connected
+
+
+def test_a_refused_setup_stops_the_opencv_capture(tmp_path: Path) -> None:
+    for i in range(3):
+        cv2.imwrite(str(tmp_path / f"f_{i:02d}.png"), np.zeros((48, 64, 3), np.uint8))
+    device = str(tmp_path / "f_%02d.png")
+    driver = _refused(_RefusingCamera, {"driver": "opencv", "device": device, "pacing": "every"})
+    assert driver.info().kind == "sequence"
+    assert _threads_named(f"camera {device}") == []  # the capture thread (waiting for a reader) was stopped
 
 
 def test_closing_releases_in_reverse_order_at_shutdown_even_if_one_fails() -> None:

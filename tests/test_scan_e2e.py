@@ -110,15 +110,15 @@ def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path, calibratio
     from nodes.map_aggregator import MapAggregator
     from nodes.pressure_controller import PressureController
     from nodes.robot_scanner import RobotScanner
-    from nodes.stiffness_estimator import StiffnessEstimator
+    from nodes.stiffness_estimator import AirfloatStiffnessEstimator
     from palpa.testing import GraphHarness
 
     path = str(REPO / "phantoms" / phantom)
     g = GraphHarness()
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": 34.0, "calibration": str(calibration)})
     g.add(FibreReader, {"phantom": path})
-    g.add(StiffnessEstimator, {"geometry": str(REPO / "phantoms" / "measured" / phantom),
-                               "calibration": str(calibration)})
+    g.add(AirfloatStiffnessEstimator, {"geometry": str(REPO / "phantoms" / "measured" / phantom),
+                                       "calibration": str(calibration)})
     g.add(MapAggregator, {"output_dir": str(tmp_path)})
     scanner = g.add(RobotScanner, {"region_mm": [10, 10, 50, 50], "spacing_mm": 5.0, "speed_mm_s": 40.0,
                                    "contact_z_mm": 21.0, "home_mm": [10, 10, 30]})
@@ -134,14 +134,18 @@ def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path, calibratio
 
 
 def test_camera_probe_indent_scan_finds_the_tumours(procs: ProcessGroup, tmp_path: Path) -> None:
-    """launch/scan_camera_sim.yaml (defaults): the camera probe's indentation scan of flat_26k_tumours finds every
-    inclusion of radius >= 4 mm and ratio >= 2 within 1.5 mm, with at most one false positive."""
+    """launch/scan_camera_sim.yaml: the camera probe's indentation scan of flat_26k_tumours finds every inclusion
+    of radius >= 4 mm and ratio >= 2 in its region within 1.5 mm, with at most one false positive."""
     run = tmp_path / "cam"
-    run_launch(procs, run, "launch/scan_camera_sim.yaml", "--in-process", timeout=400)
+    # the half of the phantom holding the strongest (r 6, x5) and the weakest (r 4, x2) tumour keeps the suite
+    # short; bench/specimens.py scans whole phantoms
+    run_launch(procs, run, "launch/scan_camera_sim.yaml", "--in-process", "region_mm:=[8.0, 8.0, 32.0, 52.0]",
+               timeout=400)
     phantom = load_phantom(REPO / "phantoms" / "flat_26k_tumours.yaml")
     found = inclusions(run)
-    must = [i for i in phantom.inclusions if i.radius_mm >= 4 and i.youngs_modulus_kpa / 26.4 >= 2]
-    assert len(must) == 3
+    must = [i for i in phantom.inclusions if i.radius_mm >= 4 and i.youngs_modulus_kpa / 26.4 >= 2
+            and i.center_mm[0] < 32]
+    assert len(must) == 2
     for inc in must:
         assert min(math.dist((f["x_mm"], f["y_mm"]), inc.center_mm) for f in found) <= 1.5, (inc, found)
     assert len(match(found, [i.center_mm for i in phantom.inclusions])) - sum(

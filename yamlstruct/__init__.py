@@ -1,7 +1,6 @@
 """YAML files as msgspec Structs, with ``file:line:col`` in every error: the one YAML loader of the project.
 
-Launch files, parameter files and calibrations are read through it (the phantom loader in models/phantom.py moves
-onto it once the in-flight issue-14/15 branches that edit it have landed). It is a package of its own, importing only
+Launch files, parameter files, phantoms and fibre calibrations are read through it. It is a package of its own, importing only
 PyYAML and msgspec, so that ``models/`` (pure, no runtime) and ``palpa/`` can both use it without ``models``
 importing palpa's runtime (ZeroMQ, the node loop) through ``palpa/__init__``.
 """

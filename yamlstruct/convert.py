@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import difflib
 import re
+import sys
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -12,7 +13,7 @@ import msgspec
 
 from yamlstruct.source import Path_, Source
 
-__all__ = ["convert", "did_you_mean", "kind", "load", "lower_first"]
+__all__ = ["convert", "did_you_mean", "kind", "label", "load", "lower_first"]
 
 T = TypeVar("T")
 
@@ -46,24 +47,28 @@ def _validation_error(src: Source, base: Path_, text: str, root: Any, root_path:
         elif part.group(2) is not None:
             path = (*path, int(part.group(2)))
         else:  # a value inside a dict: msgspec does not say which key, so find the first of the wrong kind
-            got = re.search(r"got `(\w+)`", what)
+            wrong = re.search(r"got `(\w+)`", what)
             container = src.get(path)
-            if isinstance(container, dict) and got:
+            if isinstance(container, dict) and wrong:
                 for k, v in container.items():
-                    if _kind_name(v) == got.group(1):
+                    if _kind_name(v) == wrong.group(1):
                         path = (*path, k)
                         break
-    label = _label(path, src.document)
+    named = label(path, src.document)
     unknown = re.match(r"Object contains unknown field `([^`]+)`", what)
     if unknown:
         key = unknown.group(1)
         allowed = _allowed_keys(root, path[len(root_path):])
-        return src.error((*path, key), f"unknown key {key!r} in {label}{did_you_mean(key, allowed)}; expected "
+        return src.error((*path, key), f"unknown key {key!r} in {named}{did_you_mean(key, allowed)}; expected "
                                        f"one of: {', '.join(allowed)}", key=True)
     missing = re.match(r"Object missing required field `([^`]+)`", what)
     if missing:
-        return src.error(path, f"{label} is missing the required key {missing.group(1)!r}")
-    return src.error(path, f"{label}: {lower_first(what)}")
+        return src.error(path, f"{named} is missing the required key {missing.group(1)!r}")
+    for bound in (f" <= {sys.float_info.max!r}", f" >= {-sys.float_info.max!r}"):  # the bound that means finite
+        what = what.replace(f"`float`{bound}", "a finite `float`")
+    value = src.get(path)
+    shown = f", got {value!r}" if " got " not in what and value is not None else ""  # a bound: show the value
+    return src.error(path, f"{named}: {lower_first(what)}{shown}")
 
 
 def _allowed_keys(root: Any, path: Path_) -> list[str]:
@@ -91,7 +96,8 @@ def _struct_in(t: Any) -> Any:
     return _struct_in(origin) if origin is not None and origin is not t else None
 
 
-def _label(path: Path_, document: str) -> str:
+def label(path: Path_, document: str) -> str:
+    """How the value at ``path`` is named in messages (``nodes[2].params.rate_hz``); ``document`` for the root."""
     if not path:
         return document
     text = str(path[0])

@@ -152,8 +152,10 @@ class Source:
         return self.value_marks.get((), Mark(self.name, 1, 1))
 
     def error(self, path: Path_, message: str, *, key: bool = False) -> Exception:
-        """An :attr:`error_type` reading ``file:line:col: message`` for the value (or key) at ``path``."""
-        return self.error_type(f"{self.mark(path, key=key)}: {message}")
+        """An :attr:`error_type` reading ``file:line:col: message`` for the value (or key) at ``path`` (only
+        ``name: message`` for data that came from no text, such as a mapping a program built)."""
+        where = self.mark(path, key=key) if self.value_marks else self.name
+        return self.error_type(f"{where}: {message}")
 
     def get(self, path: Path_) -> Any:
         """The raw value at ``path`` (None if absent)."""

@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import Any
 
 import msgspec
-import yaml
 
 from palpa import env as palpa_env
 from palpa.address import BusAddress
@@ -21,6 +20,7 @@ from palpa.launch.validate import did_you_mean
 from palpa.message import Message, lookup
 from palpa.node import Node
 from palpa.runner import run_node_code
+from yamlstruct import Source, YamlError
 
 __all__ = ["add_bus_arg", "bus_address", "bus_and_source", "import_message_modules", "message_from_yaml",
            "run_with_params"]
@@ -58,8 +58,8 @@ def message_from_yaml(type_name: str, text: str, what: str = "data", *, stamp: b
     import_message_modules()
     cls = lookup(type_name)
     try:
-        fields = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
+        fields = Source.from_text(text, what).data  # the one YAML reader: YAML 1.2 scalars, as in launch files
+    except YamlError as exc:
         raise PalpaError(f"{what} is not valid YAML: {exc}") from None
     if fields is None:
         fields = {}

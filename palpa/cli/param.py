@@ -14,7 +14,7 @@ from palpa.cli.service import call_service
 from palpa.cli.topic import _tool_node
 from palpa.errors import PalpaError
 from palpa.message import Message
-from palpa.params import read_params_file
+from palpa.params import parse_param_value, read_params_file
 from palpa.params_runtime import ParamGet, ParamSet, ParamValues, param_service
 
 __all__ = ["register"]
@@ -72,10 +72,7 @@ def run_get(args: argparse.Namespace) -> int:
 
 
 def run_set(args: argparse.Namespace) -> int:
-    try:
-        value = yaml.safe_load(args.value) if args.value else ""
-    except yaml.YAMLError as exc:
-        raise PalpaError(f"value is not valid YAML: {exc}") from None
+    value = parse_param_value(args.value, "value")
     got = _ask(args, "set", ParamSet(values={args.name: value}))
     print(f"{args.node}: {args.name} = {got.values[args.name]!r}")
     return 0

@@ -288,7 +288,7 @@ def _validate_nodes(col: _Collected) -> None:
             try:
                 params = convert_params(cls.Params, spec.params, where=f"node {spec.name!r}")
             except ParamError as exc:
-                raise _param_error(src, (*where, "params"), spec, str(exc), col) from None
+                raise _param_error(src, (*where, "params"), spec, exc, col) from None
             for name, value in input_paths(params).items():
                 # a file in the run directory is made by the run itself (a prepare step) before the node starts
                 made_by_run = Path(value).resolve().is_relative_to(col.plan.run_dir.resolve())
@@ -356,19 +356,14 @@ def _arg_note(col: _Collected, src: Source, path: Path_) -> str:
     return f"; from {'; '.join(notes)}" if notes else ""
 
 
-def _param_error(src: Source, where: Path_, spec: NodeSpec, text: str, col: _Collected) -> LaunchError:
-    text = text.removeprefix(f"node {spec.name!r}: ")
-    unknown = re.search(r"unknown field `([^`]+)`", text)
-    if unknown:
-        name = unknown.group(1)
-        declared = re.search(r"\(declared parameters: (.*)\)$", text)
-        names = declared.group(1).split(", ") if declared else []
+def _param_error(src: Source, where: Path_, spec: NodeSpec, exc: ParamError, col: _Collected) -> LaunchError:
+    """The launch file's error for a parameter the node refused, at the parameter's key or value."""
+    name, declared = exc.param, exc.declared
+    if exc.unknown:
         return src.error((*where, name), f"node {spec.name!r} ({spec.target}) has no parameter {name!r}"
-                                         f"{did_you_mean(name, names)}; declared: {', '.join(names) or 'none'}",
+                                         f"{did_you_mean(name, declared)}; declared: {', '.join(declared) or 'none'}",
                          key=True)
-    bad = re.match(r"parameter '([^'.\[]+)[^']*': (.*)$", text, re.S)
-    if bad:
-        return src.error((*where, bad.group(1)), f"param {bad.group(1)!r} of node {spec.name!r}: "
-                                                 f"{lower_first(bad.group(2))}"
-                                                 f"{_arg_note(col, src, (*where, bad.group(1)))}")
-    return src.error(where, f"params of node {spec.name!r}: {text}")
+    if name:
+        return src.error((*where, name), f"param {name!r} of node {spec.name!r}: {lower_first(exc.reason)}"
+                                         f"{_arg_note(col, src, (*where, name))}")
+    return src.error(where, f"params of node {spec.name!r}: {exc.reason or exc}")

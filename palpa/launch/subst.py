@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+from palpa.errors import LaunchError
 from palpa.launch.source import Path_, Source
 from palpa.launch.validate import did_you_mean
 
@@ -86,8 +87,6 @@ def _evaluate(src: Source, path: Path_, expr: str, args: Mapping[str, Any], run_
 
 def _recorded(src: Source, path: Path_, arg: str, node: str, param: str, args: Mapping[str, Any]) -> Any:
     """The value ``param`` had for ``node`` in the launch file attached to the recording named by arg ``arg``."""
-    import yaml
-
     from palpa.record.format import BagError
     from palpa.record.reader import launch_text_of
 
@@ -102,10 +101,11 @@ def _recorded(src: Source, path: Path_, arg: str, node: str, param: str, args: M
         raise src.error(path, f"$(recorded {arg} {node} {param}): {bag} carries no launch file (it was not "
                               f"recorded by a launch); {how}")
     try:
-        nodes = (yaml.safe_load(text) or {}).get("nodes") or []
+        # read as the launch read it (YAML 1.2 scalars: a recorded `yes` is the string it was then)
+        nodes = (Source.from_text(text, str(bag)).data or {}).get("nodes") or []
         entry = next(n for n in nodes if isinstance(n, dict) and n.get("name") == node)
         return entry["params"][param]
-    except (yaml.YAMLError, AttributeError, StopIteration, KeyError, TypeError):
+    except (LaunchError, AttributeError, StopIteration, KeyError, TypeError):
         raise src.error(path, f"$(recorded {arg} {node} {param}): the launch that made {bag} gave node {node!r} "
                               f"no param {param!r}; {how}") from None
 

@@ -80,6 +80,7 @@ class Player(Node):
     """Plays a recording (a file, several files, a split set's base name, or a run directory) onto the bus."""
 
     Params = PlayerParams
+    params: PlayerParams
 
     def __init__(self, name: str | None = None, params: Mapping[str, Any] | PlayerParams | None = None,
                  **kwargs: Any) -> None:

@@ -105,6 +105,7 @@ class Recorder(Node):
     """Writes bus traffic to ``output`` (MCAP). See the module docstring for what is recorded."""
 
     Params = RecorderParams
+    params: RecorderParams
 
     def __init__(self, name: str | None = None, params: Mapping[str, Any] | RecorderParams | None = None,
                  **kwargs: Any) -> None:

@@ -65,6 +65,7 @@ class Bridge(Node):
     """Serves the bus to Foxglove over its WebSocket protocol (see the module docstring)."""
 
     Params = BridgeParams
+    params: BridgeParams
 
     def __init__(self, name: str | None = None, params: Mapping[str, Any] | BridgeParams | None = None,
                  **kwargs: Any) -> None:
