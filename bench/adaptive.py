@@ -12,14 +12,17 @@ every map with ``models.scoring`` against its phantom, and compares per phantom:
   same 6 mm of tissue swept in both; also path length (all motion), valid samples and simulated time;
 * found / missed inclusions, centroid error, cell sensitivity, specificity and IoU against the inclusion mask.
 
-Writes ``compare.csv`` and ``error_vs_probes.png`` (the adaptive planner's belief after every probe, read from its
-recording, scored as the final map is; the raster's final score at its probe equivalents) into OUT. The last line
-is JSON: ``probe_ratio`` (probes the adaptive belief needed to find, from then on, at least as many inclusions as
-the raster's final map, over the raster's probe equivalents, summed over the phantoms where the adaptive run's
-final map found every inclusion the raster found; read from the recorded belief, so with hindsight: the planner
-itself does not know that moment), ``probe_ratio_at_stop`` (the same with the probes the stop rule spent),
-``found_adaptive``, ``found_raster`` (inclusions found over all phantoms), ``phantoms``, ``complete`` (phantoms
-where the adaptive map found every inclusion the raster's found).
+Writes ``compare.csv`` and ``error_vs_probes.png`` (error and inclusions found against probes spent: the adaptive
+planner's belief after every probe and the raster's map as it grows, both read from their recordings and scored as
+a final map is) into OUT. The last line is JSON: ``probe_ratio`` (the probes the planner spent until its own stop
+rule stopped it, over the raster's probe equivalents, summed over the phantoms where the adaptive map found every
+inclusion the raster's found: adaptive over raster probes at equal or better detection), ``probe_ratio_all`` (the
+same over every phantom, whatever was missed), ``probe_ratio_localise`` (the probes after which the recorded belief
+finds, from then on, at least as many inclusions as the raster's final map: hindsight, the planner itself does not
+know that moment), ``found_adaptive``, ``found_raster`` (true inclusions found over all phantoms),
+``missed_vs_raster`` (inclusions the raster found and the adaptive map did not), ``phantoms``, ``complete``
+(phantoms where the adaptive map found every inclusion the raster's found), and with ``--determinism``
+``deterministic`` (the first phantom's adaptive run made again gives the same points, inclusions and map).
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ from yamlstruct import Source  # noqa: E402
 RASTER = REPO / "launch" / "scan_sim.yaml"
 ADAPTIVE = REPO / "launch" / "scan_adaptive_sim.yaml"
 SPACING_MM = 3.0
+MARGIN_MM = 6.0
 LENGTH_MM = 6.0
 
 
@@ -58,9 +62,10 @@ def raster_probe_equivalents(spec: RunSpec) -> float:
     return lines * (y1 - y0) / LENGTH_MM
 
 
-def belief_curve(spec: RunSpec) -> list[tuple[int, float, int]]:
-    """(probes, mean centroid error of found inclusions, inclusions found) after every probe of an adaptive run,
-    from its recorded ``planner/mean``, detected and scored as the final map is."""
+def map_curve(spec: RunSpec, topic: str) -> list[tuple[float, float, int]]:
+    """(samples, mean centroid error of found inclusions, inclusions found) for every map a run recorded on
+    ``topic`` (the planner's ``planner/mean`` after each probe, the raster aggregator's ``map/stiffness`` as it
+    grows), detected and scored as a final map is."""
     import msgspec
 
     from messages import StiffnessMap
@@ -71,7 +76,7 @@ def belief_curve(spec: RunSpec) -> list[tuple[int, float, int]]:
     ph = load_phantom(spec.phantom)
     out = []
     for m in iter_bag(resolve_bag_paths(str(spec.run_dir / "recording.mcap"))):
-        if m.topic != "planner/mean":
+        if m.topic != topic:
             continue
         b = msgspec.msgpack.decode(m.payload, type=StiffnessMap)
         xs, ys = np.array(b.x_mm), np.array(b.y_mm)
@@ -85,29 +90,49 @@ def belief_curve(spec: RunSpec) -> list[tuple[int, float, int]]:
         dets = [{"x_mm": i.x_mm, "y_mm": i.y_mm, "radius_mm": i.radius_mm, "contrast": i.contrast} for i in found]
         s = score_scan(ph, dets, {"stiffness": grid, "x_mm": xs, "y_mm": ys, "count": np.array(b.count).reshape(grid.shape)})
         errs = [x.centroid_error_mm for x in s.inclusions if x.found]
-        out.append((b.samples, float(np.mean(errs)) if errs else math.nan, s.found))
+        out.append((float(b.samples), float(np.mean(errs)) if errs else math.nan, s.found))
     return out
+
+
+def _localised(curve: list[tuple[float, float, int]], target: int) -> float:
+    """The first x of ``curve`` from which on it finds at least ``target`` inclusions (nan: never for good)."""
+    return next((n for i, (n, _, _) in enumerate(curve) if all(f >= target for _, _, f in curve[i:])), math.nan)
+
+
+def raster_curve(spec: RunSpec, equivalents: float) -> list[tuple[float, float, int]]:
+    """The raster's growing map against probes spent: its valid samples so far over its final count, times its
+    probe equivalents (samples come at a steady rate while the probe sweeps)."""
+    curve = map_curve(spec, "map/stiffness")
+    total = max((n for n, _, _ in curve), default=0.0)
+    return [(n / total * equivalents, e, f) for n, e, f in curve] if total > 0 else []
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("-o", "--out", type=Path, default=Path("runs/bench_adaptive"))
     ap.add_argument("--generate", type=int, default=20)
+    ap.add_argument("--first-seed", type=int, default=0, help="seed of the first generated phantom (a set to tune "
+                    "settings on must not be the set they are judged on)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--rerun", action="store_true", help="run again even where a run's outputs exist")
     ap.add_argument("--adaptive-arg", action="append", default=[], metavar="NAME=VALUE",
                     help="an arg of the adaptive launch file (repeatable), e.g. epsilon=0.2")
     ap.add_argument("--no-run", action="store_true", help="only score and compare the runs already made")
+    ap.add_argument("--only", nargs="+", default=[RASTER.stem, ADAPTIVE.stem], choices=[RASTER.stem, ADAPTIVE.stem],
+                    help="run only these launch files (the others' runs are scored if present)")
     ap.add_argument("--timeout", type=float, default=900.0)
+    ap.add_argument("--determinism", action="store_true",
+                    help="run the first phantom's adaptive launch again and compare (JSON 'deterministic')")
     opts = ap.parse_args(argv)
     out: Path = opts.out
     (out / "phantoms").mkdir(parents=True, exist_ok=True)
     phantoms = [REPO / "phantoms" / "airfloat_tumours.yaml"]
-    for seed in range(opts.generate):
+    for seed in range(opts.first_seed, opts.first_seed + opts.generate):
         path = out / "phantoms" / f"random_{seed}.yaml"
         path.write_text(yaml.safe_dump(random_phantom(seed, PhantomRanges()), sort_keys=False), encoding="utf-8")
         phantoms.append(path)
-    specs = {name: plan_runs(launch, phantoms, [0], {}, out / name, margin_mm=2.0, geometry_error_mm=0.2)
+    # both methods on the same region: the raster's own edge margin (the SPS ring stays on the specimen)
+    specs = {name: plan_runs(launch, phantoms, [0], {}, out / name, margin_mm=MARGIN_MM, geometry_error_mm=0.2)
              for name, launch in (("raster", RASTER), ("adaptive", ADAPTIVE))}
     for item in opts.adaptive_arg:
         name, _, value = item.partition("=")
@@ -116,15 +141,18 @@ def main(argv: list[str] | None = None) -> int:
     # phantom by phantom, both methods: a bench cut short still compares what it ran
     todo = [(launch, s) for pair in zip(specs["raster"], specs["adaptive"], strict=True)
             for launch, s in zip((RASTER, ADAPTIVE), pair, strict=True)
-            if not opts.no_run and (opts.rerun or not (s.run_dir / "map" / "inclusions.json").exists())]
+            if not opts.no_run and launch.stem in opts.only
+            and (opts.rerun or not (s.run_dir / "map" / "inclusions.json").exists())]
     t0 = time.monotonic()
     with ThreadPoolExecutor(max(1, opts.jobs)) as pool:
         for (launch, spec), ran in zip(todo, pool.map(
                 lambda job: launch_one(job[0], job[1], in_process=True, timeout_s=opts.timeout), todo), strict=True):
             print(f"{launch.stem} {spec.id}: exit {ran['exit_code']}, {ran['wall_s']:.0f} s", file=sys.stderr)
     wall = time.monotonic() - t0
+    deterministic = _same_again(specs["adaptive"][0], opts.timeout) if opts.determinism else None
     rows: list[dict[str, Any]] = []
-    curves: dict[str, list[tuple[int, float, int]]] = {}
+    curves: dict[str, list[tuple[float, float, int]]] = {}
+    raster_curves: dict[str, list[tuple[float, float, int]]] = {}
     for r_spec, a_spec in zip(specs["raster"], specs["adaptive"], strict=True):
         ph = load_phantom(r_spec.phantom)
         try:
@@ -149,41 +177,68 @@ def main(argv: list[str] | None = None) -> int:
             "iou_raster": r["iou"], "iou_adaptive": a["iou"], "stop": plan["stop"],
         })
         try:
-            curve = curves[r_spec.phantom.stem] = belief_curve(a_spec)
+            curve = curves[r_spec.phantom.stem] = map_curve(a_spec, "planner/mean")
+            raster_curves[r_spec.phantom.stem] = raster_curve(r_spec, eq)
         except (OSError, ValueError) as exc:
             print(f"{a_spec.id}: no belief curve ({exc})", file=sys.stderr)
             curve = []
         # localised: from this probe on, the belief finds at least as many inclusions as the raster's final map
-        n_loc = next((n for i, (n, _, _) in enumerate(curve) if all(f >= r["found"] for _, _, f in curve[i:])),
-                     None)
-        rows[-1]["probes_to_localise"] = n_loc if n_loc is not None else math.nan
-        rows[-1]["localise_ratio"] = n_loc / eq if n_loc is not None else math.nan
+        n_loc = _localised(curve, r["found"])
+        r_loc = _localised(raster_curves.get(r_spec.phantom.stem, []), r["found"])
+        rows[-1]["probes_to_localise"] = n_loc
+        rows[-1]["localise_ratio"] = n_loc / eq
+        rows[-1]["raster_probes_to_localise"] = r_loc
+        # in simulated seconds, pro rata: the planner's probes take about equal time, the raster samples steadily
+        rows[-1]["localise_s_adaptive"] = plan["sim_s"] * n_loc / max(plan["probes"], 1)
+        rows[-1]["localise_s_raster"] = r["scan_s"] * r_loc / eq
     if rows:
         with (out / "compare.csv").open("w", newline="") as f:
             w = csv.DictWriter(f, fieldnames=list(rows[0]))
             w.writeheader()
             w.writerows(rows)
-        _plot(out / "error_vs_probes.png", rows, curves)
-    for k in ("probe_ratio", "localise_ratio", "probes_to_localise", "path_ratio", "samples_ratio", "err_raster_mm",
+        _plot(out / "error_vs_probes.png", rows, curves, raster_curves)
+    for k in ("probe_ratio", "localise_ratio", "probes_to_localise", "raster_probes_to_localise",
+              "localise_s_adaptive", "localise_s_raster", "fp_raster", "fp_adaptive", "path_ratio", "samples_ratio", "err_raster_mm",
               "err_adaptive_mm", "sens_raster",
               "sens_adaptive", "spec_raster", "spec_adaptive", "iou_raster", "iou_adaptive", "time_raster_s",
               "time_adaptive_s"):
         vals = [float(r[k]) for r in rows if isinstance(r[k], int | float) and math.isfinite(r[k])]
         print(f"{k:18s} mean {np.mean(vals):8.3f}  median {np.median(vals):8.3f}" if vals else f"{k}: -")
     complete = [r for r in rows if r["missed_vs_raster"] == 0 and math.isfinite(r["probes_to_localise"])]
-    ratio = (sum(r["probes_to_localise"] for r in complete) / sum(r["probes_raster_eq"] for r in complete)
-             if complete else None)
-    stop_ratio = (sum(r["probes_adaptive"] for r in complete) / sum(r["probes_raster_eq"] for r in complete)
-                  if complete else None)
+    def pooled(key: str, over: list[dict[str, Any]]) -> float | None:
+        return sum(r[key] for r in over) / sum(r["probes_raster_eq"] for r in over) if over else None
+
     print(f"{len(rows)} phantoms scored, runs took {wall:.0f} s wall ({len(todo)} launches)")
-    print(json.dumps({"probe_ratio": ratio, "probe_ratio_at_stop": stop_ratio,
+    print(json.dumps({"probe_ratio": pooled("probes_adaptive", complete),
+                      "probe_ratio_all": pooled("probes_adaptive", rows),
+                      "probe_ratio_localise": pooled("probes_to_localise", complete),
+                      "missed_vs_raster": sum(r["missed_vs_raster"] for r in rows),
                       "found_adaptive": sum(r["found_adaptive"] for r in rows),
                       "found_raster": sum(r["found_raster"] for r in rows), "phantoms": len(rows),
-                      "complete": len(complete), "inclusions": sum(r["inclusions"] for r in rows)}))
+                      "complete": len(complete), "inclusions": sum(r["inclusions"] for r in rows),
+                      "deterministic": deterministic}))
     return 0
 
 
-def _plot(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[int, float, int]]]) -> None:
+def _same_again(spec: RunSpec, timeout_s: float) -> bool:
+    """Run ``spec``'s adaptive launch once more in a sibling directory: the same probe points, the same inclusions
+    and the same map (the runs are deterministic for a seed, lockstep simulated clock and all)."""
+    again = RunSpec(spec.id, spec.phantom, spec.seed, spec.args, spec.overrides, spec.run_dir.with_name(spec.id + "-again"))
+    ran = launch_one(ADAPTIVE, again, in_process=True, timeout_s=timeout_s)
+    if ran["exit_code"] != 0:
+        return False
+    a, b = spec.run_dir / "map", again.run_dir / "map"
+    same_points = json.loads((a / "planner.json").read_text())["points"] == \
+        json.loads((b / "planner.json").read_text())["points"]
+    same_found = (a / "inclusions.json").read_text() == (b / "inclusions.json").read_text()
+    with np.load(a / "map.npz") as ga, np.load(b / "map.npz") as gb:
+        same_map = bool(np.array_equal(ga["stiffness"], gb["stiffness"], equal_nan=True))
+    print(f"determinism ({spec.id}): points {same_points}, inclusions {same_found}, map {same_map}", file=sys.stderr)
+    return same_points and same_found and same_map
+
+
+def _plot(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[float, float, int]]],
+          raster_curves: dict[str, list[tuple[float, float, int]]]) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -191,21 +246,24 @@ def _plot(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[i
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5), dpi=100)
     for i, row in enumerate(rows):
-        curve = curves.get(row["phantom"])
-        if curve:
-            n, err, found = zip(*curve, strict=True)
-            ax1.plot(n, err, color="tab:blue", alpha=0.4, label="adaptive (belief after each probe)" if i == 0 else None)
-            ax2.plot(n, np.array(found) / max(row["inclusions"], 1), color="tab:blue", alpha=0.4,
-                     label="adaptive" if i == 0 else None)
+        for curve_set, colour, label in ((raster_curves, "tab:red", "raster (its map as it grows)"),
+                                         (curves, "tab:blue", "adaptive (belief after each probe)")):
+            curve = curve_set.get(row["phantom"])
+            if curve:
+                n, err, found = zip(*curve, strict=True)
+                ax1.plot(n, err, color=colour, alpha=0.35, lw=1, label=label if i == 0 else None)
+                ax2.plot(n, np.array(found) / max(row["inclusions"], 1), color=colour, alpha=0.35, lw=1,
+                         label=label if i == 0 else None)
+    ax1.scatter([r["probes_adaptive"] for r in rows], [r["err_adaptive_mm"] for r in rows], color="tab:blue",
+                marker="o", s=18, zorder=3, label="adaptive, where its stop rule stopped")
     ax1.scatter([r["probes_raster_eq"] for r in rows], [r["err_raster_mm"] for r in rows], color="tab:red",
-                marker="s", label="raster (final map)")
-    ax2.scatter([r["probes_raster_eq"] for r in rows], [r["found_raster"] / max(r["inclusions"], 1) for r in rows],
-                color="tab:red", marker="s", label="raster")
-    ax1.set(xlabel="probes spent (6 mm sweeps; raster: swept length / 6 mm)", ylabel="mean centroid error (mm)")
+                marker="s", s=18, zorder=3, label="raster, final map")
+    ax1.set(xlabel="probes spent (6 mm sweeps; raster: swept length / 6 mm)", ylabel="mean centroid error (mm)",
+            ylim=(0, 6))
     ax2.set(xlabel="probes spent", ylabel="fraction of true inclusions found")
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
-        ax.legend()
+        ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path)
     plt.close(fig)

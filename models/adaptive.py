@@ -30,10 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["Belief", "PlannerConfig", "acquisition", "ambiguous", "fit_belief", "initial_design", "level",
-           "next_probe", "should_stop"]
+__all__ = ["Belief", "PlannerConfig", "acquisition", "ambiguous", "fit_belief", "footprint_cells", "footprint_score",
+           "initial_design", "level", "next_probe", "should_stop", "unresolved"]
 
 FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
 
 
 @dataclass(frozen=True)
@@ -45,7 +46,10 @@ class PlannerConfig:
     resolution_mm: float = 2.0
     """Cell size of the belief grid (and of the written map)."""
     initial: int = 4
-    """An ``initial x initial`` grid of probes before the acquisition takes over."""
+    """An ``initial x initial`` grid of probes before the acquisition takes over (unless ``seed_spacing_mm``)."""
+    seed_spacing_mm: float = 0.0
+    """When > 0, the initial grid has points about this far apart instead (at least 2 per axis): a small specimen
+    gets a smaller seed, a large one a larger."""
     beta: float = 2.0
     """Width of the confidence band, in posterior standard deviations (LSE's beta^1/2)."""
     implicit_fraction: float = 0.0
@@ -66,6 +70,9 @@ class PlannerConfig:
     a flat first grid vouch for tissue it never touched)."""
     min_separation_mm: float = 1.0
     """A point this close to an earlier probe is not chosen again (a repeat teaches the GP little)."""
+    sweep_mm: float = 0.0
+    """Length of one probe's sweep along y (0: a press at the point). The acquisition scores the whole footprint a
+    probe will touch, and keeps the sweep inside the region."""
 
     def __post_init__(self) -> None:
         x0, y0, x1, y1 = self.region_mm
@@ -73,6 +80,9 @@ class PlannerConfig:
             raise ValueError(f"PlannerConfig.region_mm: expected x0 < x1 and y0 < y1, got {self.region_mm}")
         if not self.resolution_mm > 0 or self.initial < 2 or self.max_probes < 1 or not self.beta > 0:
             raise ValueError("PlannerConfig: resolution_mm > 0, initial >= 2, max_probes >= 1 and beta > 0 needed")
+        if not 0 <= self.sweep_mm < y1 - y0:
+            raise ValueError(f"PlannerConfig.sweep_mm: expected 0 <= sweep < the region's height {y1 - y0:g}, "
+                             f"got {self.sweep_mm}")
 
     def grid(self) -> tuple[FloatArray, FloatArray]:
         """Cell centres (x, y) of the belief grid over the region."""
@@ -98,11 +108,15 @@ class Belief:
 
 
 def initial_design(cfg: PlannerConfig) -> list[tuple[float, float]]:
-    """A regular ``initial x initial`` grid of probe points, cell-centred in the region, in serpentine order."""
+    """A regular grid of probe points (``initial x initial``, or ``seed_spacing_mm`` apart), cell-centred in the
+    region, in serpentine order."""
     x0, y0, x1, y1 = cfg.region_mm
-    n = cfg.initial
-    xs = [x0 + (i + 0.5) * (x1 - x0) / n for i in range(n)]
-    ys = [y0 + (j + 0.5) * (y1 - y0) / n for j in range(n)]
+    if cfg.seed_spacing_mm > 0:
+        nx, ny = (max(2, round(span / cfg.seed_spacing_mm)) for span in (x1 - x0, y1 - y0))
+    else:
+        nx = ny = cfg.initial
+    xs = [x0 + (i + 0.5) * (x1 - x0) / nx for i in range(nx)]
+    ys = [y0 + (j + 0.5) * (y1 - y0) / ny for j in range(ny)]
     return [(x, y) for j, y in enumerate(ys) for x in (xs if j % 2 == 0 else xs[::-1])]
 
 
@@ -166,25 +180,74 @@ def ambiguous(belief: Belief, beta: float, epsilon: float = 0.0) -> npt.NDArray[
     return np.abs(belief.mean - belief.level) + epsilon * belief.baseline < beta * belief.std
 
 
-def next_probe(belief: Belief, probed: Sequence[tuple[float, float]], cfg: PlannerConfig) -> tuple[float, float]:
-    """The grid cell with the highest acquisition, skipping cells within ``min_separation_mm`` of a probe already
-    made (ties: the first in row-major order, so the choice is deterministic)."""
-    score = acquisition(belief, cfg.beta).copy()
+def footprint_cells(cfg: PlannerConfig) -> int:
+    """How many grid cells (along y) one probe's sweep touches: ``sweep_mm / resolution_mm``, at least one."""
+    return max(1, round(cfg.sweep_mm / cfg.resolution_mm))
+
+
+def unresolved(belief: Belief, cfg: PlannerConfig, observed: BoolArray | None = None) -> FloatArray:
+    """How far each cell's band still reaches past the level beyond LSE's accuracy,
+    ``max(0, beta * sigma - |mu - h| - epsilon * baseline)`` (> 0: ambiguous), and 0 on ``observed`` cells (a cell
+    the probe has measured is known to the map's resolution: when it still straddles the level it is a boundary
+    cell, and probing it again would only hammer the boundary the map cannot draw finer than a cell)."""
+    excess = np.maximum(0.0, acquisition(belief, cfg.beta) - cfg.epsilon * belief.baseline)
+    if observed is not None:
+        excess[observed] = 0.0
+    return excess
+
+
+def footprint_score(belief: Belief, cfg: PlannerConfig, observed: BoolArray | None = None) -> FloatArray:
+    """For every possible probe (a cell the footprint can be centred on), the ambiguity it would touch: the sum, over
+    the cells its sweep crosses, of how far each cell's band still reaches past the level beyond LSE's accuracy,
+    ``max(0, beta * sigma - |mu - h| - epsilon * baseline)``. That is the quantity the stop rule waits to see
+    vanish, so the planner spends each probe where it removes most of it (a straddle score at one point would send a
+    6 mm sweep to resolve one cell and ignore what the other two teach). Cells where the footprint would leave the
+    region are -inf."""
+    excess = unresolved(belief, cfg, observed)
+    k = footprint_cells(cfg)
+    ny = excess.shape[0]
+    score = np.full_like(excess, -np.inf)
+    if k > ny:
+        return score
+    c = np.vstack([np.zeros((1, excess.shape[1])), np.cumsum(excess, axis=0)])
+    lo = k // 2
+    # window of k cells whose centre row is j: rows j - lo .. j - lo + k - 1
+    score[lo:ny - (k - 1 - lo)] = c[k:] - c[:-k]
+    return score
+
+
+def next_probe(belief: Belief, probed: Sequence[tuple[float, float]], cfg: PlannerConfig,
+               observed: BoolArray | None = None) -> tuple[float, float]:
+    """The probe that touches the most ambiguity (:func:`footprint_score`); among probes that touch none, the
+    highest straddle score at the point. Skips points within ``min_separation_mm`` of a probe already made (ties:
+    the first in row-major order, so the choice is deterministic). For an even footprint the point sits on the
+    boundary between its two middle cells."""
+    k = footprint_cells(cfg)
+    score = footprint_score(belief, cfg, observed)
+    straddle = acquisition(belief, cfg.beta)
     gx, gy = np.meshgrid(belief.x_mm, belief.y_mm)
+    py_of = gy - (0.5 * cfg.resolution_mm if k % 2 == 0 else 0.0)
     for px, py in probed:
-        score[(gx - px) ** 2 + (gy - py) ** 2 < cfg.min_separation_mm**2] = -np.inf
+        near = (gx - px) ** 2 + (py_of - py) ** 2 < cfg.min_separation_mm**2
+        score[near] = -np.inf
+        straddle[near] = -np.inf
+    if not np.isfinite(score).any() or float(np.max(score)) <= 0.0:
+        score = np.where(np.isfinite(score), straddle, -np.inf)
     i = int(np.argmax(score))
-    return float(gx.flat[i]), float(gy.flat[i])
+    return float(gx.flat[i]), float(py_of.flat[i])
 
 
-def should_stop(belief: Belief, probes: int, cfg: PlannerConfig) -> tuple[bool, str]:
-    """LSE's stop rule: the ambiguous area is below ``stop_area_mm2``, or the budget is spent. Never before the
-    initial design is done. Returns (stop, why)."""
+def should_stop(belief: Belief, probes: int, cfg: PlannerConfig,
+                observed: BoolArray | None = None) -> tuple[bool, str]:
+    """LSE's stop rule: the ambiguous area (:func:`unresolved` > 0, so with ``observed`` cells counted as
+    resolved) is below ``stop_area_mm2``, or the budget is spent. Never before the initial design is done.
+    Returns (stop, why)."""
     if probes >= cfg.max_probes:
         return True, f"probe budget spent ({probes} probes)"
-    if probes < cfg.initial**2:
-        return False, f"initial design: {probes} of {cfg.initial**2} probes"
-    area = float(np.count_nonzero(ambiguous(belief, cfg.beta, cfg.epsilon))) * cfg.resolution_mm**2
+    seeds = len(initial_design(cfg))
+    if probes < seeds:
+        return False, f"initial design: {probes} of {seeds} probes"
+    area = float(np.count_nonzero(unresolved(belief, cfg, observed) > 0)) * cfg.resolution_mm**2
     if area < cfg.stop_area_mm2:
         return True, f"map classified: {area:.0f} mm^2 ambiguous < {cfg.stop_area_mm2:g} mm^2 after {probes} probes"
     return False, f"{area:.0f} mm^2 still ambiguous after {probes} probes"

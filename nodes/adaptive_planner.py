@@ -32,6 +32,7 @@ from messages import (
     Inclusions,
     ProbeAt,
     ProbeResult,
+    ScanStatus,
     StiffnessMap,
     StiffnessSample,
 )
@@ -43,7 +44,9 @@ from models.adaptive import (
     next_probe,
     should_stop,
 )
+from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import MapSnapshot, StiffnessGrid, detect_inclusions
+from models.surface import region_in_footprint
 from nodes.map_output import write_outputs
 from palpa.service import ServiceError
 from palpa.service_client import Future
@@ -55,11 +58,19 @@ class AdaptivePlanner(palpa.Node):
     """Picks probe points from a GP belief of stiffness and sends them to the scanner (module doc)."""
 
     class Params(palpa.Params):
-        region_mm: tuple[float, float, float, float] = (2.0, 2.0, 58.0, 58.0)
-        """x0, y0, x1, y1 the planner probes in (the scanner refuses what is outside its own box)."""
+        region_mm: list[float] = []
+        """x0, y0, x1, y1 the planner probes in (the scanner refuses what is outside its own box); empty: the
+        measured footprint (``geometry``) less ``edge_margin_mm``."""
+        geometry: str = ""
+        """Measured-geometry file (models.geometry), for the footprint when no region is given."""
+        edge_margin_mm: float = 6.0
         resolution_mm: float = 2.0
         initial: int = 4
-        """An initial x initial grid of probes first."""
+        """An initial x initial grid of probes first (unless seed_spacing_mm)."""
+        seed_spacing_mm: float = 0.0
+        """> 0: the initial grid's points about this far apart instead (a seed that scales with the specimen)."""
+        max_length_scale_mm: float = 3.0
+        """Upper bound of the GP kernel's length scale (models.adaptive.PlannerConfig.length_scale_mm)."""
         beta: float = 2.0
         implicit_fraction: float = 0.0
         rel_threshold: float = 0.2
@@ -89,13 +100,16 @@ class AdaptivePlanner(palpa.Node):
         if p.mode not in ("sweep", "indent"):
             raise palpa.ParamError(f"{self.name}: mode must be sweep or indent, got {p.mode!r}")
         try:
-            self.cfg = PlannerConfig(p.region_mm, resolution_mm=p.resolution_mm, initial=p.initial,
+            region = self._region()
+            self.cfg = PlannerConfig(region, resolution_mm=p.resolution_mm, initial=p.initial,
                                      beta=p.beta, implicit_fraction=p.implicit_fraction, epsilon=p.epsilon,
                                      rel_threshold=p.rel_threshold, stop_area_mm2=p.stop_area_mm2,
-                                     max_probes=p.max_probes)
-        except ValueError as exc:
+                                     max_probes=p.max_probes, seed_spacing_mm=p.seed_spacing_mm,
+                                     length_scale_mm=(1.0, p.max_length_scale_mm),
+                                     sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
+        except (ValueError, GeometryError) as exc:
             raise palpa.ParamError(f"{self.name}: {exc}") from None
-        x0, y0, x1, y1 = p.region_mm
+        x0, y0, x1, y1 = region
         self.grid = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
         self.pending: list[tuple[float, float, float]] = []
         self.unit = ""
@@ -114,8 +128,25 @@ class AdaptivePlanner(palpa.Node):
         self.mean_pub = self.publisher("planner/mean", StiffnessMap, latched=True)
         self.std_pub = self.publisher("planner/std", StiffnessMap, latched=True)
         self.inc_pub = self.publisher("map/inclusions", Inclusions, latched=True)
+        self.scanner_state = ""
         self.subscribe("stiffness/sample", StiffnessSample, self.on_sample)
+        self.subscribe("robot/scan_status", ScanStatus, self.on_status)
         self.timer(0.05, self.step)
+
+    def _region(self) -> tuple[float, float, float, float]:
+        p = self.params
+        if p.region_mm:
+            if len(p.region_mm) != 4:
+                raise ValueError(f"region_mm needs x0, y0, x1, y1, got {p.region_mm}")
+            x0, y0, x1, y1 = (float(v) for v in p.region_mm)
+            return x0, y0, x1, y1
+        footprint = load_geometry(p.geometry).footprint_mm() if p.geometry else None
+        if footprint is None:
+            raise ValueError("no region: give region_mm, or a geometry file with the specimen's footprint")
+        return region_in_footprint(footprint, p.edge_margin_mm)
+
+    def on_status(self, s: ScanStatus) -> None:
+        self.scanner_state = s.state
 
     def on_sample(self, s: StiffnessSample) -> None:
         if s.valid:
@@ -127,10 +158,14 @@ class AdaptivePlanner(palpa.Node):
         """Send the next request when none is in flight and the scanner is there."""
         if self.done or self.inflight is not None or self.clock.now_ns() < self.retry_at_ns:
             return
-        if not self.probe_at.ready():
+        # the scanner may first be finding the surface (touch-off): a request would only be refused
+        if not self.probe_at.ready() or self.scanner_state not in ("idle", "done"):
             return
         if self.started_ns is None:
             self.started_ns = self.clock.now_ns()
+        if len(self.probed) >= self.cfg.max_probes:   # the initial design too stays within the budget
+            self.finish(f"probe budget spent ({len(self.probed)} probes)")
+            return
         if not self.queue:
             stop, why = self._decide()
             if stop:
@@ -193,9 +228,10 @@ class AdaptivePlanner(palpa.Node):
             return True, f"{len(self.given_up)} points refused by the scanner"
         if b is None:
             return True, "no stiffness estimate from the initial probes"
-        stop, why = should_stop(b, len(self.probed), self.cfg)
+        observed = self.grid.snapshot().count >= self.params.min_count
+        stop, why = should_stop(b, len(self.probed), self.cfg, observed)
         if not stop:
-            self.queue.append(next_probe(b, self.probed + self.given_up, self.cfg))
+            self.queue.append(next_probe(b, self.probed + self.given_up, self.cfg, observed))
         return stop, why
 
     # -- output ------------------------------------------------------------------------------------

@@ -8,7 +8,9 @@ at once. The arm's pose is published on ``robot/pose``; the plan, latched, on ``
 
 Services (nodes.scan_control): ``scanner/probe_at`` probes one point and answers with the stiffness found there;
 ``scanner/pause``, ``scanner/resume`` and ``scanner/abort`` control a scan or a probe. With ``autostart: false``
-the scanner does not scan but waits, idle, for probe requests.
+the scanner does not scan but waits, idle, for probe requests; with a touch-off set it finds the surface first,
+and probes then follow the found surface as a scan's lines would (sweep: the working offset; indent: the press depth
+below it).
 """
 
 from __future__ import annotations
@@ -173,7 +175,9 @@ class RobotScanner(palpa.Node):
             self.subscribe("camera/indenters", IndenterDisplacements, self.on_probe)
         self.subscribe("pressure/state", self.on_pressure)
         self.subscribe("robot/estop", self.on_estop)
-        if p.autostart:
+        # serving probe_at too, the scanner is idle only once it could probe: the probe's data flows and the
+        # surface is found (a request before that would only be refused)
+        if p.autostart or self.specimen.touch is not None or p.watch_topic:
             self.set_state("waiting", f"waiting for probe data on {p.watch_topic}" if p.watch_topic else "")
         else:
             self.set_state("idle", "waiting for scanner/probe_at requests")
@@ -339,6 +343,8 @@ class RobotScanner(palpa.Node):
             if (self.last_probe_ns is not None or not p.watch_topic) and self.specimen.touch is not None:
                 self.set_state("touching", "finding the specimen's surface")
                 self.specimen.touch.start()
+            elif (self.last_probe_ns is not None or not p.watch_topic) and not p.autostart:
+                self.set_state("idle", "waiting for scanner/probe_at requests")
             elif self.last_probe_ns is not None or not p.watch_topic:
                 self.set_state("scanning")
                 self._start_segment()
@@ -402,6 +408,14 @@ class RobotScanner(palpa.Node):
         if touch.failed:
             self.halt("fault", touch.error)
         elif touch.done:
+            if not self.params.autostart:
+                try:
+                    self.log.info("%s", self.specimen.finish_touch())
+                except ValueError as exc:
+                    self.halt("fault", f"no surface from the touch-off: {exc}")
+                    return
+                self.set_state("idle", "surface found: waiting for scanner/probe_at requests")
+                return
             try:
                 self.log.info("%s", self.specimen.finish_touch())
                 plan = self._plan()

@@ -53,10 +53,12 @@ class ScanControl:
     # -- probe_at --------------------------------------------------------------------------------
     def on_probe_at(self, req: ProbeAt) -> Responder[ProbeResult]:
         node = self.node
-        if node.state not in ("idle", "done"):
-            raise RequestRefused(f"the scanner is {node.state}, not idle (abort first, or wait)")
         p = node.params
         last = node.last_probe_ns
+        if node.state == "waiting" and p.watch_topic and last is None:
+            raise RequestRefused(f"no fresh probe data on {p.watch_topic}: is the probe's reader running?")
+        if node.state not in ("idle", "done"):
+            raise RequestRefused(f"the scanner is {node.state}, not idle (abort first, or wait)")
         if p.watch_topic and (last is None or (node.clock.now_ns() - last) / 1e9 > p.watchdog_s):
             raise RequestRefused(f"no fresh probe data on {p.watch_topic}: is the probe's reader running?")
         if not (req.length_mm > 0 and req.radius_mm > 0):
@@ -81,12 +83,17 @@ class ScanControl:
         common: dict[str, Any] = dict(spacing_mm=p.spacing_mm, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
                       approach_clearance_mm=p.approach_clearance_mm, retract_clearance_mm=p.retract_clearance_mm,
                       transit_speed_mm_s=p.transit_speed_mm_s)
+        # over the surface the touch-off found (when one ran), as the scan's own lines would be (SpecimenPlanner.
+        # plan_heights: a sweep at the working offset above it, a press from it); flat contact_z_mm otherwise
+        spec = self.node.specimen
+        surface = spec.surface if req.mode == p.mode else None
         if req.mode == "sweep":
-            return sweep_raster(*ends, contact_z_mm=p.contact_z_mm, speed_mm_s=p.speed_mm_s,
-                                approach_speed_mm_s=p.approach_speed_mm_s, **common)
-        return indent_raster(req.x_mm, req.y_mm, req.x_mm, req.y_mm, contact_z_mm=p.contact_z_mm,
-                             depth_mm=p.indent_depth_mm, hold_s=p.hold_s, press_speed_mm_s=p.speed_mm_s,
-                             **common)
+            return sweep_raster(*ends, contact_z_mm=p.working_offset_mm if surface else p.contact_z_mm,
+                                surface=surface, speed_mm_s=p.speed_mm_s, approach_speed_mm_s=p.approach_speed_mm_s,
+                                **common)
+        return indent_raster(req.x_mm, req.y_mm, req.x_mm, req.y_mm, contact_z_mm=0.0 if surface else p.contact_z_mm,
+                             surface=surface, depth_mm=spec.press_depth_mm(), hold_s=p.hold_s,
+                             press_speed_mm_s=p.speed_mm_s, **common)
 
     def on_sample(self, s: StiffnessSample) -> None:
         req = self.request

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from messages import StiffnessMap
+from messages import RobotPose, ScanStatus, StiffnessMap
 from palpa.clock import MockClock
 from palpa.compose import Composition
 from palpa.launch import load_launch, parse_overrides
@@ -16,12 +16,14 @@ from palpa.launch.compose import compose_plan
 from palpa.node import Node
 from tests.procs import REPO
 
-SMALL = ["region_mm:=[36.0, 33.0, 54.0, 51.0]", "initial:=2", "max_probes:=8"]
+# contact_z_mm is the flat height a probe would sweep at without a touch-off: far above the dome (3-4 mm thick here)
+SMALL = ["region_mm:=[36.0, 33.0, 54.0, 51.0]", "initial:=2", "seed_spacing_mm:=0", "max_probes:=8", "contact_z_mm:=8.0",
+         f"geometry:={REPO / 'phantoms' / 'measured' / 'airfloat_tumours.yaml'}"]
 BOX_X_MAX = 46.0
 """The scanner's workspace ends here in these tests: the planner's points at x = 49.5 mm lie outside it."""
 
 
-def _adaptive(tmp: Path) -> tuple[dict[str, Any], list[dict[str, float]], list[StiffnessMap]]:
+def _adaptive(tmp: Path) -> tuple[dict[str, Any], list[dict[str, float]], list[StiffnessMap], list[float]]:
     from palpa.cli.run import load_node_class
 
     plan = compose_plan(load_launch(REPO / "launch" / "scan_adaptive_sim.yaml", parse_overrides(SMALL),
@@ -37,23 +39,29 @@ def _adaptive(tmp: Path) -> tuple[dict[str, Any], list[dict[str, float]], list[S
     beliefs: list[StiffnessMap] = []
     watcher = comp.adopt(Node(name="watcher", transport=comp.transport(), clock=clock, heartbeat_s=0))
     watcher.subscribe("planner/mean", StiffnessMap, beliefs.append)
+    state = [""]
+    probing_z: list[float] = []
+    watcher.subscribe("robot/scan_status", ScanStatus, lambda m: state.__setitem__(0, m.state))
+    watcher.subscribe("robot/pose", RobotPose, lambda m: probing_z.append(m.z_mm) if state[0] == "probing" else None)
     assert comp.run(max_sim_s=300.0) == 0
     out = tmp / "map"
     assert (out / "map.npz").exists()
     return (json.loads((out / "planner.json").read_text()), json.loads((out / "inclusions.json").read_text()),
-            beliefs)
+            beliefs, probing_z)
 
 
 def test_planner_probes_through_the_scanner_carries_on_after_refusals_and_is_deterministic(tmp_path: Path) -> None:
     """Requests outside the scanner's box are refused by the scanner (the planner never checks the box itself);
     the planner gives those points up and spends its budget on the rest; it publishes its belief after each
     probe and writes the map; the same seed gives the same probe sequence and the same inclusions."""
-    a, inc_a, beliefs = _adaptive(tmp_path / "a")
+    a, inc_a, beliefs, probing_z = _adaptive(tmp_path / "a")
     assert a["refused"] >= 3                                    # (49.5, y) refused, retried twice, given up
     assert a["probes"] >= 3                                     # and it carried on
     assert all(p[0] < BOX_X_MAX for p in a["points"]) and len(a["points"]) == a["probes"]
     assert [49.5, 37.5] in a["given_up"]
     assert beliefs and beliefs[-1].final and len(beliefs[-1].stiffness) == 9 * 9
     assert np.all(np.isfinite(beliefs[-1].stiffness))
-    b, inc_b, _ = _adaptive(tmp_path / "b")
+    # the scanner touched off first: its sweeps follow the surface it found (1 mm working offset), not contact_z_mm
+    assert probing_z and min(probing_z) < 6.0
+    b, inc_b, _, _ = _adaptive(tmp_path / "b")
     assert a["points"] == b["points"] and inc_a == inc_b

@@ -13,10 +13,13 @@ from models.adaptive import (
     acquisition,
     ambiguous,
     fit_belief,
+    footprint_cells,
+    footprint_score,
     initial_design,
     level,
     next_probe,
     should_stop,
+    unresolved,
 )
 from models.stiffness_map import MapSnapshot, detect_inclusions
 
@@ -141,3 +144,43 @@ def test_belief_grid_has_the_map_grids_cells_when_the_region_is_not_a_whole_numb
     xs, ys = cfg.grid()
     g = StiffnessGrid(2.0, 2.0, 45.0, 40.0, 2.0).snapshot()
     assert np.array_equal(xs, g.x_mm) and np.array_equal(ys, g.y_mm)
+
+
+SWEEP = PlannerConfig((0.0, 0.0, 40.0, 40.0), initial=3, sweep_mm=6.0)
+
+
+def test_footprint_score_sums_the_ambiguity_a_sweep_would_cross_and_keeps_the_sweep_in_the_region() -> None:
+    """A 6 mm sweep crosses 3 cells of 2 mm along y: the score of a centre is the sum of its 3 cells' excess
+    ``beta * sigma - |mu - h| - epsilon * baseline`` (here 2 - 0 - 1 = 1 per ambiguous cell); the first and last
+    rows cannot be centres (the sweep would leave the region)."""
+    mean = np.full((20, 20), 10.0)
+    mean[4:7, 3] = 12.0          # three ambiguous cells in one column: on the level, band 2 sigma = 2
+    mean[10, 8] = 12.0           # one alone
+    b = Belief(*SWEEP.grid(), mean, np.full((20, 20), 1.0), 10.0, 12.0)
+    s = footprint_score(b, SWEEP)
+    assert footprint_cells(SWEEP) == 3
+    assert s[5, 3] == pytest.approx(3.0) and s[4, 3] == pytest.approx(2.0) and s[10, 8] == pytest.approx(1.0)
+    assert np.isneginf(s[0]).all() and np.isneginf(s[-1]).all() and np.isfinite(s[1:-1]).all()
+    assert next_probe(b, [], SWEEP) == (7.0, 11.0)   # the column of three, centred on its middle cell
+
+
+def test_observed_cells_count_as_resolved_for_the_stop_rule_and_the_acquisition() -> None:
+    mean = np.full((20, 20), 10.0)
+    mean[0, :5] = 12.0                                   # 5 ambiguous cells = 20 mm^2 >= 16
+    b = Belief(*CFG.grid(), mean, np.full((20, 20), 1.0), 10.0, 12.0)
+    observed = np.zeros((20, 20), dtype=bool)
+    assert not should_stop(b, 20, CFG, observed)[0]
+    observed[0, :2] = True                               # two of them measured: 12 mm^2 left
+    assert unresolved(b, CFG, observed)[0, :5].tolist() == [0.0, 0.0, 1.0, 1.0, 1.0]
+    assert should_stop(b, 20, CFG, observed)[0]
+    assert next_probe(b, [], CFG, observed) == (5.0, 1.0)   # the first unmeasured ambiguous cell
+
+
+def test_seed_spacing_scales_the_initial_grid_with_the_region() -> None:
+    assert len(initial_design(PlannerConfig((0.0, 0.0, 56.0, 56.0), seed_spacing_mm=14.0))) == 16
+    assert len(initial_design(PlannerConfig((0.0, 0.0, 28.0, 56.0), seed_spacing_mm=14.0))) == 2 * 4
+    assert len(initial_design(PlannerConfig((0.0, 0.0, 10.0, 10.0), seed_spacing_mm=14.0))) == 4   # at least 2 x 2
+    small = PlannerConfig((0.0, 0.0, 28.0, 28.0), seed_spacing_mm=14.0)
+    flat = Belief(*small.grid(), np.full((14, 14), 10.0), np.full((14, 14), 0.1), 10.0, 12.0)
+    assert should_stop(flat, 4, small) == (True, "map classified: 0 mm^2 ambiguous < 16 mm^2 after 4 probes")
+    assert not should_stop(flat, 3, small)[0]
