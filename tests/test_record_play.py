@@ -138,3 +138,20 @@ def test_bad_parameters_and_missing_files(tmp_path: Path) -> None:
         Player(params={"file": str(tmp_path / "nope.mcap")}, transport=bus.transport(), heartbeat_s=0)
     with pytest.raises(ParamError, match="file"):
         Player(params={}, transport=bus.transport(), heartbeat_s=0)
+
+
+def test_timeline_publish_paces_by_the_publishers_stamps(tmp_path: Path) -> None:
+    """A composed sim run is logged at CPU speed (here 1 ms apart) while its stamps are simulated time (10 ms
+    apart): ``timeline: publish`` replays the simulated pace, ``log`` the recorder's."""
+    msgs = [Rec("chatter", T0 + i * MS, _text(f"c{i}"), i + 1, publish_time=T0 + i * 10 * MS) for i in range(20)]
+    bag = write_bag(tmp_path / "sim.mcap", msgs)
+    spans = {}
+    for timeline in ("publish", "log"):
+        player, got = _play({"file": str(bag), "timeline": timeline})
+        stamps = [r.header.stamp for r in got if r.topic == "chatter"]
+        assert len(stamps) == 20
+        spans[timeline] = ((stamps[-1] - stamps[0]) / MS, 3.0 + 1e3 * player.late_max_s)
+    span, slack = spans["publish"]
+    assert span == pytest.approx(190.0, abs=slack)
+    span, slack = spans["log"]
+    assert span == pytest.approx(19.0, abs=slack)

@@ -3,8 +3,10 @@
 ``palpa play FILE`` and the launch-file node ``palpa.record.player:Player`` are the same class, so a launch file
 can replace live sources with a recording while the downstream nodes run live (docs/recording.md).
 
-Timing: message i is sent at ``t0 + (log_time_i - start) / rate`` where ``start`` is the first recorded log time
-plus ``start_offset_s``. The loop polls the node's sockets (heartbeats, timers) while a message is more than 3 ms
+Timing: message i is sent at ``t0 + (t_i - start) / rate`` where ``t_i`` is its recorded log time (``timeline:
+log``) or its publisher's stamp (``timeline: publish``, never going back: a sim-clock graph's recorder logs on the
+wall clock, so a run composed in one process at CPU speed is recorded compressed; its stamps are simulated time)
+and ``start`` is the first message's time plus ``start_offset_s``. The loop polls the node's sockets (heartbeats, timers) while a message is more than 3 ms
 away, then sleeps with microsecond resolution and spins only the last 0.3 ms, so the send-time error stays well
 under 2 ms at 1 kHz even on a loaded machine (see ``_wait_until`` for why it does not spin longer). Each envelope keeps the
 recorded type, sequence number and publisher name; its ``stamp`` is the new publish time. Latched messages are
@@ -20,7 +22,7 @@ import os
 import time
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import palpa
 from palpa.errors import ParamError
@@ -53,6 +55,9 @@ class PlayerParams(palpa.Params):
     """Recorded topic -> topic to publish on."""
     start_offset_s: float = 0.0
     """Skip this many seconds from the start (latched messages before it are still published first)."""
+    timeline: Literal["log", "publish"] = "log"
+    """Pace by the recorder's log times, or by the publishers' stamps (simulated time for a sim-clock graph; see
+    the module doc)."""
     clock: bool = False
     """Publish the recording's time on _palpa/clock (ClockTick)."""
     clock_hz: float = 1000.0
@@ -157,9 +162,12 @@ class Player(Node):
         self.played += 1
 
     def _first_log_time(self) -> int:
-        """Where playback starts in recorded time (the first message's log time plus the start offset)."""
+        """Where playback starts in recorded time (the first message's time on the timeline, plus the offset)."""
         for m in iter_bag(self.paths, on_damage=lambda text: None):
-            return m.log_time + int(self.params.start_offset_s * 1e9)
+            if self.params.timeline == "log":
+                return m.log_time + int(self.params.start_offset_s * 1e9)
+            if self._filter(m.topic):
+                return m.publish_time + int(self.params.start_offset_s * 1e9)
         return time.time_ns()
 
     def _tick_clock(self, sim_ns: int) -> None:
@@ -207,11 +215,16 @@ class Player(Node):
         selected = 0
         held: dict[tuple[str, str], BagMessage] = {}  # latched messages before the start offset
         last_latched: dict[tuple[str, str], int] = {}
+        by_stamp = self.params.timeline == "publish"
+        last_t = 0
         for m in iter_bag(self.paths, on_damage=self.log.warning):
-            if start_ns is None:
-                start_ns = m.log_time + offset_ns
             wanted = self._filter(m.topic)
-            if m.log_time < start_ns:
+            if by_stamp and not wanted:
+                continue  # other publishers' stamps may be on another clock (the wall's, in a sim graph)
+            t = last_t = max(last_t, m.publish_time) if by_stamp else m.log_time
+            if start_ns is None:
+                start_ns = t + offset_ns
+            if t < start_ns:
                 if wanted and m.latched:
                     held[(m.topic, m.node)] = m
                 continue
@@ -231,7 +244,7 @@ class Player(Node):
                 if last_latched.get(key) == m.seq:
                     continue  # the copy that opens the next piece of a split recording
                 last_latched[key] = m.seq
-            due = t0 + (m.log_time - start_ns) / 1e9 / rate
+            due = t0 + (t - start_ns) / 1e9 / rate
             if not self._wait_until(due, t0, start_ns):
                 return False
             self._send(m)
