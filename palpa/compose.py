@@ -202,9 +202,13 @@ class Composition:
             return False
         self.clock.set(max(due, self.clock.now_ns()))
         now = self.clock.now_ns()
-        for d, node in dues:
-            if d <= now:
-                node.spin_once(0)
+        ready = [node for d, node in dues if d <= now]
+        # every timer due now runs before any message sent at this instant is handled, as a node of the lockstep
+        # clock does (palpa.simclock): the order of nodes in the composition then does not matter
+        for node in ready:
+            node.run_timers()
+        for node in ready:
+            node.spin_once(0)
         self.settle()
         self._reap()
         return True

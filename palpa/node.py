@@ -75,7 +75,9 @@ __all__ = ["DEFAULT_BATCH", "MsgInfo", "Node", "Publisher", "RawMessage", "Subsc
 M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
-_ACK_PERIOD_NS = 10_000_000  # half the clock source's default max_lead_s: fewer acks, same lockstep bound
+_RUNTIME = "_palpa/"
+_TIMER_PASSES = 100
+"""Timer passes at one instant at most (a callback may start a timer due at once; a burst of them is a bug)."""
 _SIM_CLOCK_TIMEOUT_S = 30.0
 """Wall seconds without a clock tick after which a sim-clock node stops (PALPA_SIM_CLOCK_TIMEOUT_S; 0: never)."""
 _EXIT_CLOCK_LOST = 3
@@ -188,9 +190,14 @@ class Node:
         # node waiting for simulated time (or a paused replay) is still alive
         self._hb_period_ns = int(heartbeat_s * 1e9) if heartbeat_s > 0 else 0
         self._hb_due_ns = time.monotonic_ns()
+        self._time_held = False
+        self._set_up = False
+        self._raw_sent: dict[str, int] = {}
+        """Messages published with :meth:`publish_raw` per topic (service requests and replies among them)."""
         if self._topic_clock is not None:
             self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1)
             self._last_ack_ns = 0
+            self._acked: tuple[int, int, int, int] | None = None
             self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
             self._await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0 if serve_params is None else serve_params:
@@ -201,6 +208,7 @@ class Node:
             # a refused plan must not leave a robot connection or a serial port open behind it
             self._release(linger_ms=0)
             raise
+        self._set_up = True
 
     @property
     def transport(self) -> Transport:
@@ -296,6 +304,8 @@ class Node:
         """Send an already-encoded payload with a caller-made header (the player keeps recorded sequence numbers,
         types and publisher names). ``topic`` is used as given (no remapping); nothing is validated."""
         self._transport.send([topic.encode(), encode_header(header), payload, *blobs], latched)
+        if not topic.startswith(_RUNTIME):
+            self._raw_sent[topic] = self._raw_sent.get(topic, 0) + 1
 
     def subscribe(
         self,
@@ -389,9 +399,32 @@ class Node:
             self.log.error("simulated time stopped: no tick on %s for %.1f s of wall time (did the clock node "
                            "die?); stopping", CLOCK_TOPIC, self._clock_timeout_ns / 1e9)
             self.request_shutdown(_EXIT_CLOCK_LOST)
-        if clock is not None and clock.started and clock.now_ns() - self._last_ack_ns >= _ACK_PERIOD_NS:
-            self._last_ack_ns = clock.now_ns()
-            self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns))
+        if clock is not None and clock.started and self._set_up and not self.dispatch.depth and not self._closed:
+            self._lockstep_ack()
+
+    def _lockstep_ack(self) -> None:
+        """Tell the lockstep clock (palpa.simclock) what this node has done at the current simulated time, when
+        that changed: its next timer, and the messages it sent and took in (the clock moves on once every message
+        sent has been taken in). Not from inside a callback: a node waiting in a service call is not done."""
+        self.flush()
+        due = self.next_timer_due_ns() or 0
+        pubs = [p for p in self._pubs.values() if p.seq and not p.topic.startswith(_RUNTIME)]
+        stats = [(t, s) for t, s in self.counters().items() if not t.startswith(_RUNTIME)]
+        sent_total = sum(p.seq for p in pubs) + sum(self._raw_sent.values())
+        recv_total = sum(s.received + s.decode_errors for _, s in stats)
+        state = (due, sent_total, recv_total, len(self._rx.subs) + len(self._rx.raw))
+        if state == self._acked:
+            return
+        self._acked = state
+        sent = {p.topic: p.seq for p in pubs}
+        for topic, n in self._raw_sent.items():
+            sent[topic] = sent.get(topic, 0) + n
+        subs = [s.topic for s in self._rx.subs.values() if not s.topic.startswith(_RUNTIME)]
+        subs += [r.prefix.decode(errors="replace") + "*" for r in self._rx.raw
+                 if not r.prefix.startswith(_RUNTIME.encode())]
+        self._last_ack_ns = self.clock.now_ns()
+        self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns, next_ns=due, sent=sent,
+                                       recv={t: s.received + s.decode_errors for t, s in stats}, subs=subs))
 
     def spin(self) -> None:
         """Run until :meth:`request_shutdown` (or a signal, under :func:`palpa.run_node`)."""
@@ -450,12 +483,27 @@ class Node:
                 t.due_ns += tick.sim_ns
         clock.update(tick.sim_ns)
         self._last_tick_wall_ns = time.monotonic_ns()
+        self._time_held = tick.hold
+        # the timers due now run before any message that follows the tick is handled, as in a composition
+        # (palpa.compose): what another node published at this time, in reaction to the same tick, comes after
+        self._run_timers()
 
     # -- internals ---------------------------------------------------------------------------------
+    def run_timers(self) -> None:
+        """Run the timers due at the current time (an executor's step, see palpa.compose), again while a callback
+        started one due at once: afterwards none is due."""
+        self._run_timers()
+
     def _run_timers(self) -> None:
-        if self._shutdown or (self._topic_clock is not None and not self._topic_clock.started):
+        if self._shutdown or self._time_held or (self._topic_clock is not None and not self._topic_clock.started):
             return
         now = self.clock.now_ns()
+        for _ in range(_TIMER_PASSES):
+            self._timer_pass(now)
+            if self._shutdown or not any(t.due_ns <= now and not t.cancelled and not t.running for t in self._timers):
+                return
+
+    def _timer_pass(self, now: int) -> None:
         for t in list(self._timers):
             if t.cancelled:
                 if t in self._timers:  # a nested run (inside a service call's wait) may have removed it

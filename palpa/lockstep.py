@@ -1,0 +1,120 @@
+"""The bookkeeping of the event lockstep: when may simulated time move on, and to when.
+
+A composition (:mod:`palpa.compose`) runs its nodes' timers due at an instant, lets every message published in
+reaction be handled (and every message those published...), and only then jumps to the next timer deadline. The
+lockstep clock (:mod:`palpa.simclock`) gives processes the same timeline, from what each sim-clock node reports
+in its :class:`~palpa.runtime_msgs.ClockAck`: its next timer deadline, and per topic the messages it has sent and
+taken in. Time moves from ``now`` only when
+
+* no node has a timer due at or before ``now`` that it has not run (its ack names a later deadline), and
+* nothing is in flight: for every topic, each subscriber has taken in at least as many messages as its
+  publishers sent since the subscriber's accounting started (its join, or the start of time: messages published
+  before a subscriber was there never reach it);
+
+and then to the earliest deadline any node reported. The order in which messages of one instant arrive is then the
+only thing that can differ from a composed run; no node reads the wall clock for what it computes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from palpa.runtime_msgs import ClockAck
+
+__all__ = ["EventLockstep", "InFlight"]
+
+
+@dataclass
+class _Member:
+    ack: ClockAck
+    exact: frozenset[str] = frozenset()
+    prefixes: tuple[str, ...] = ()
+    base_recv: dict[str, int] = field(default_factory=dict)
+    """Its ``recv`` when its accounting started."""
+    base_sent: dict[str, dict[str, int]] = field(default_factory=dict)
+    """Publisher -> that publisher's ``sent`` when this member's accounting of it started."""
+
+    def takes(self, topic: str) -> bool:
+        return topic in self.exact or any(topic.startswith(p) for p in self.prefixes)
+
+
+@dataclass(frozen=True)
+class InFlight:
+    """Messages sent on ``topic`` that ``subscriber`` has not taken in (yet): ``missing`` of them."""
+
+    topic: str
+    subscriber: str
+    missing: int
+
+
+class EventLockstep:
+    """The participants' latest reports (event acks only: ``next_ns >= 0``) and the rules above."""
+
+    def __init__(self) -> None:
+        self.members: dict[str, _Member] = {}
+
+    def __contains__(self, node: str) -> bool:
+        return node in self.members
+
+    def report(self, ack: ClockAck) -> bool:
+        """Take a node's latest report; True when it is a new participant (its accounting starts now)."""
+        member = self.members.get(ack.node)
+        if member is not None:
+            if ack.subs != member.ack.subs:
+                member.exact, member.prefixes = _split(ack.subs)
+            member.ack = ack
+            return False
+        exact, prefixes = _split(ack.subs)
+        member = self.members[ack.node] = _Member(ack, exact, prefixes)
+        self._start(member)
+        for other in self.members.values():
+            other.base_sent[ack.node] = dict(ack.sent)  # what it sent before joining reached no one we count
+        return True
+
+    def restart_accounting(self) -> None:
+        """Count from now for everyone (when time starts: what was published while setting up is not waited for)."""
+        for member in self.members.values():
+            self._start(member)
+
+    def leave(self, node: str) -> None:
+        """``node`` no longer takes part: neither its timers nor its messages are waited for."""
+        self.members.pop(node, None)
+        for member in self.members.values():
+            member.base_sent.pop(node, None)
+
+    def due(self, now_ns: int) -> list[str]:
+        """Participants with a timer due at or before ``now_ns`` that they have not reported running."""
+        return [name for name, m in self.members.items() if 0 < m.ack.next_ns <= now_ns]
+
+    def next_event_ns(self) -> int | None:
+        """The earliest timer deadline any participant reported (None: no participant has a timer)."""
+        dues = [m.ack.next_ns for m in self.members.values() if m.ack.next_ns > 0]
+        return min(dues) if dues else None
+
+    def in_flight(self) -> InFlight | None:
+        """A topic on which some subscriber has not taken in everything sent to it (None: nothing in flight)."""
+        members = self.members
+        for sub_name, sub in members.items():
+            if not sub.exact and not sub.prefixes:
+                continue
+            expected: dict[str, int] = {}
+            for pub_name, pub in members.items():
+                base = sub.base_sent.get(pub_name, {})
+                for topic, n in pub.ack.sent.items():
+                    if n != base.get(topic, 0) and sub.takes(topic):
+                        expected[topic] = expected.get(topic, 0) + n - base.get(topic, 0)
+            recv, base_recv = sub.ack.recv, sub.base_recv
+            for topic, n in expected.items():
+                got = recv.get(topic, 0) - base_recv.get(topic, 0)
+                if got < n:
+                    return InFlight(topic, sub_name, n - got)
+        return None
+
+    def _start(self, member: _Member) -> None:
+        member.base_recv = dict(member.ack.recv)
+        member.base_sent = {name: dict(m.ack.sent) for name, m in self.members.items()}
+
+
+def _split(subs: list[str]) -> tuple[frozenset[str], tuple[str, ...]]:
+    return (frozenset(s for s in subs if not s.endswith("*")),
+            tuple(s[:-1] for s in subs if s.endswith("*")))
