@@ -69,6 +69,7 @@ def test_processes_see_timers_at_their_deadlines_and_messages_at_the_instant_sen
                    wait_for_clock_s=0)
 
     talker = sim(Talker, "talker", rate_hz=10.0)
+    assert isinstance(talker, Talker)
     nodes: list[palpa.Node] = [talker, clock]
     deadline = time.monotonic() + 0.3
     while time.monotonic() < deadline:
