@@ -64,8 +64,9 @@ class RunSpec:
 
 
 def scan_facts(recording: Path) -> dict[str, float]:
-    """From a run's recording: simulated span (first to last message), scan time (first 'scanning' to 'done'
-    status), path length of the TCP while scanning (mm) and the number of valid probe (stiffness) samples."""
+    """From a run's recording: simulated span (first to last message), simulated time to the scan's end (first
+    message to the 'done' status: what a simulation had to compute, whatever ran on after it), scan time (first
+    'scanning' to 'done' status), path length of the TCP while scanning (mm) and the number of valid probe (stiffness) samples."""
     from palpa.record.reader import iter_bag, resolve_bag_paths
 
     first = last = None
@@ -99,6 +100,7 @@ def scan_facts(recording: Path) -> dict[str, float]:
     return {
         "sim_s": (last - first) / 1e9 if first is not None and last is not None else math.nan,
         "scan_s": (scan_end - scan_start) / 1e9 if scan_start is not None and scan_end is not None else math.nan,
+        "to_done_s": (scan_end - first) / 1e9 if first is not None and scan_end is not None else math.nan,
         "path_mm": path,
         "probes": probes,
     }
