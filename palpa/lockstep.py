@@ -29,13 +29,25 @@ class _Member:
     ack: ClockAck
     exact: frozenset[str] = frozenset()
     prefixes: tuple[str, ...] = ()
+    takes: dict[str, bool] = field(default_factory=dict)
+    """Topic -> whether this member subscribes to it (a cache of ``exact``/``prefixes``)."""
     base_recv: dict[str, int] = field(default_factory=dict)
     """Its ``recv`` when its accounting started."""
     base_sent: dict[str, dict[str, int]] = field(default_factory=dict)
     """Publisher -> that publisher's ``sent`` when this member's accounting of it started."""
+    base: dict[str, int] = field(default_factory=dict)
+    """Per topic, the sum of ``base_sent`` over the publishers."""
 
-    def takes(self, topic: str) -> bool:
-        return topic in self.exact or any(topic.startswith(p) for p in self.prefixes)
+    def subscribe(self, subs: list[str]) -> None:
+        self.exact = frozenset(s for s in subs if not s.endswith("*"))
+        self.prefixes = tuple(s[:-1] for s in subs if s.endswith("*"))
+        self.takes = {}
+
+    def wants(self, topic: str) -> bool:
+        hit = self.takes.get(topic)
+        if hit is None:
+            hit = self.takes[topic] = topic in self.exact or any(topic.startswith(p) for p in self.prefixes)
+        return hit
 
 
 @dataclass(frozen=True)
@@ -52,6 +64,8 @@ class EventLockstep:
 
     def __init__(self) -> None:
         self.members: dict[str, _Member] = {}
+        self._sent: dict[str, int] = {}
+        """Per topic, the messages the participants sent (their latest reports summed)."""
 
     def __contains__(self, node: str) -> bool:
         return node in self.members
@@ -61,14 +75,19 @@ class EventLockstep:
         member = self.members.get(ack.node)
         if member is not None:
             if ack.subs != member.ack.subs:
-                member.exact, member.prefixes = _split(ack.subs)
+                member.subscribe(ack.subs)
+            self._add_sent(member.ack.sent, -1)
+            self._add_sent(ack.sent, 1)
             member.ack = ack
             return False
-        exact, prefixes = _split(ack.subs)
-        member = self.members[ack.node] = _Member(ack, exact, prefixes)
-        self._start(member)
+        member = self.members[ack.node] = _Member(ack)
+        member.subscribe(ack.subs)
+        self._add_sent(ack.sent, 1)
         for other in self.members.values():
-            other.base_sent[ack.node] = dict(ack.sent)  # what it sent before joining reached no one we count
+            if other is not member:  # what it sent before joining reached no one we count
+                other.base_sent[ack.node] = dict(ack.sent)
+                _add(other.base, ack.sent, 1)
+        self._start(member)
         return True
 
     def restart_accounting(self) -> None:
@@ -78,9 +97,12 @@ class EventLockstep:
 
     def leave(self, node: str) -> None:
         """``node`` no longer takes part: neither its timers nor its messages are waited for."""
-        self.members.pop(node, None)
+        gone = self.members.pop(node, None)
+        if gone is None:
+            return
+        self._add_sent(gone.ack.sent, -1)
         for member in self.members.values():
-            member.base_sent.pop(node, None)
+            _add(member.base, member.base_sent.pop(node, {}), -1)
 
     def due(self, now_ns: int) -> list[str]:
         """Participants with a timer due at or before ``now_ns`` that they have not reported running."""
@@ -93,28 +115,30 @@ class EventLockstep:
 
     def in_flight(self) -> InFlight | None:
         """A topic on which some subscriber has not taken in everything sent to it (None: nothing in flight)."""
-        members = self.members
-        for sub_name, sub in members.items():
+        sent = self._sent
+        for name, sub in self.members.items():
             if not sub.exact and not sub.prefixes:
                 continue
-            expected: dict[str, int] = {}
-            for pub_name, pub in members.items():
-                base = sub.base_sent.get(pub_name, {})
-                for topic, n in pub.ack.sent.items():
-                    if n != base.get(topic, 0) and sub.takes(topic):
-                        expected[topic] = expected.get(topic, 0) + n - base.get(topic, 0)
-            recv, base_recv = sub.ack.recv, sub.base_recv
-            for topic, n in expected.items():
-                got = recv.get(topic, 0) - base_recv.get(topic, 0)
-                if got < n:
-                    return InFlight(topic, sub_name, n - got)
+            base, recv, base_recv = sub.base, sub.ack.recv, sub.base_recv
+            for topic, n in sent.items():
+                expected = n - base.get(topic, 0)
+                if expected > 0 and sub.wants(topic):
+                    got = recv.get(topic, 0) - base_recv.get(topic, 0)
+                    if got < expected:
+                        return InFlight(topic, name, expected - got)
         return None
+
+    def _add_sent(self, sent: dict[str, int], sign: int) -> None:
+        _add(self._sent, sent, sign)
 
     def _start(self, member: _Member) -> None:
         member.base_recv = dict(member.ack.recv)
         member.base_sent = {name: dict(m.ack.sent) for name, m in self.members.items()}
+        member.base = dict(self._sent)
 
 
-def _split(subs: list[str]) -> tuple[frozenset[str], tuple[str, ...]]:
-    return (frozenset(s for s in subs if not s.endswith("*")),
-            tuple(s[:-1] for s in subs if s.endswith("*")))
+def _add(into: dict[str, int], counts: dict[str, int], sign: int) -> None:
+    for topic, n in counts.items():
+        into[topic] = into.get(topic, 0) + sign * n
+
+

@@ -197,7 +197,11 @@ class Node:
         if self._topic_clock is not None:
             self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1)
             self._last_ack_ns = 0
-            self._acked: tuple[int, int, int, int] | None = None
+            self._acked: tuple[int, int, int, tuple[int, ...]] | None = None
+            self._ack_shape: tuple[int, ...] = ()
+            self._ack_pubs: list[Publisher[Any]] = []
+            self._ack_stats: list[tuple[str, TopicStats]] = []
+            self._ack_subs: list[str] = []
             self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
             self._await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0 if serve_params is None else serve_params:
@@ -407,24 +411,29 @@ class Node:
         that changed: its next timer, and the messages it sent and took in (the clock moves on once every message
         sent has been taken in). Not from inside a callback: a node waiting in a service call is not done."""
         self.flush()
+        rx = self._rx
+        shape = (len(self._pubs), len(rx.subs), len(rx.raw), len(rx.raw_stats))
+        if shape != self._ack_shape:  # what is counted changes rarely: list it once per change
+            self._ack_shape = shape
+            self._ack_pubs = [p for p in self._pubs.values() if not p.topic.startswith(_RUNTIME)]
+            self._ack_stats = [(t, st) for t, st in rx.counters().items() if not t.startswith(_RUNTIME)]
+            self._ack_subs = [s.topic for s in rx.subs.values() if not s.topic.startswith(_RUNTIME)]
+            self._ack_subs += [r.prefix.decode(errors="replace") + "*" for r in rx.raw
+                               if not r.prefix.startswith(_RUNTIME.encode())]
         due = self.next_timer_due_ns() or 0
-        pubs = [p for p in self._pubs.values() if p.seq and not p.topic.startswith(_RUNTIME)]
-        stats = [(t, s) for t, s in self.counters().items() if not t.startswith(_RUNTIME)]
-        sent_total = sum(p.seq for p in pubs) + sum(self._raw_sent.values())
-        recv_total = sum(s.received + s.decode_errors for _, s in stats)
-        state = (due, sent_total, recv_total, len(self._rx.subs) + len(self._rx.raw))
+        sent_total = sum(p.seq for p in self._ack_pubs) + sum(self._raw_sent.values())
+        recv_total = sum(st.received + st.decode_errors for _, st in self._ack_stats)
+        state = (due, sent_total, recv_total, shape)
         if state == self._acked:
             return
         self._acked = state
-        sent = {p.topic: p.seq for p in pubs}
+        sent = {p.topic: p.seq for p in self._ack_pubs if p.seq}
         for topic, n in self._raw_sent.items():
             sent[topic] = sent.get(topic, 0) + n
-        subs = [s.topic for s in self._rx.subs.values() if not s.topic.startswith(_RUNTIME)]
-        subs += [r.prefix.decode(errors="replace") + "*" for r in self._rx.raw
-                 if not r.prefix.startswith(_RUNTIME.encode())]
         self._last_ack_ns = self.clock.now_ns()
         self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns, next_ns=due, sent=sent,
-                                       recv={t: s.received + s.decode_errors for t, s in stats}, subs=subs))
+                                       recv={t: st.received + st.decode_errors for t, st in self._ack_stats},
+                                       subs=self._ack_subs))
 
     def spin(self) -> None:
         """Run until :meth:`request_shutdown` (or a signal, under :func:`palpa.run_node`)."""
