@@ -34,8 +34,14 @@ def test_time_waits_for_due_timers_and_for_every_message_in_flight() -> None:
     ls.report(_ack("c", 0, recv={"srv/request": 1}, subs=["srv/request*"]))
     assert ls.in_flight() is None and ls.next_event_ns() == 200
     ls.report(_ack("a", 300, sent={"x": 6, "srv/request": 1}))
-    ls.leave("b")  # gone: not waited for, neither its timers nor what it should have taken in
-    assert ls.in_flight() is None and ls.next_event_ns() == 300
+    ls.report(_ack("d", 400))  # another publisher on x
+    ls.leave("a")  # gone: neither its timers nor what it sent are waited for
+    assert ls.in_flight() is None and ls.next_event_ns() == 250
+    ls.report(_ack("d", 500, sent={"x": 1}))
+    flying = ls.in_flight()
+    assert flying is not None and flying.subscriber == "b" and flying.missing == 1
+    ls.leave("b")
+    assert ls.in_flight() is None
 
 
 class _Echo(palpa.Node):
