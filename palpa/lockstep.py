@@ -33,10 +33,9 @@ class _Member:
     """Topic -> whether this member subscribes to it (a cache of ``exact``/``prefixes``)."""
     base_recv: dict[str, int] = field(default_factory=dict)
     """Its ``recv`` when its accounting started."""
-    base_sent: dict[str, dict[str, int]] = field(default_factory=dict)
-    """Publisher -> that publisher's ``sent`` when this member's accounting of it started."""
     base: dict[str, int] = field(default_factory=dict)
-    """Per topic, the sum of ``base_sent`` over the publishers."""
+    """Per topic, the messages sent that this member is not expected to take in (sent before its accounting
+    started, or by a publisher before that one joined)."""
 
     def subscribe(self, subs: list[str]) -> None:
         self.exact = frozenset(s for s in subs if not s.endswith("*"))
@@ -65,7 +64,8 @@ class EventLockstep:
     def __init__(self) -> None:
         self.members: dict[str, _Member] = {}
         self._sent: dict[str, int] = {}
-        """Per topic, the messages the participants sent (their latest reports summed)."""
+        """Per topic, the messages the participants sent (their latest reports summed, those who left included:
+        what a node sent before it left is still on its way)."""
 
     def __contains__(self, node: str) -> bool:
         return node in self.members
@@ -84,8 +84,7 @@ class EventLockstep:
         member.subscribe(ack.subs)
         self._add_sent(ack.sent, 1)
         for other in self.members.values():
-            if other is not member:  # what it sent before joining reached no one we count
-                other.base_sent[ack.node] = dict(ack.sent)
+            if other is not member:  # what it sent before joining (or rejoining) reached no one we count
                 _add(other.base, ack.sent, 1)
         self._start(member)
         return True
@@ -96,13 +95,10 @@ class EventLockstep:
             self._start(member)
 
     def leave(self, node: str) -> None:
-        """``node`` no longer takes part: neither its timers nor its messages are waited for."""
-        gone = self.members.pop(node, None)
-        if gone is None:
-            return
-        self._add_sent(gone.ack.sent, -1)
-        for member in self.members.values():
-            _add(member.base, member.base_sent.pop(node, {}), -1)
+        """``node`` no longer takes part: its timers and what it should take in are no longer waited for (what it
+        sent still is: a node leaving in order flushed it; one whose process died may have lost it, and the
+        clock's stall timeout covers that)."""
+        self.members.pop(node, None)
 
     def due(self, now_ns: int) -> list[str]:
         """Participants with a timer due at or before ``now_ns`` that they have not reported running."""
@@ -133,7 +129,6 @@ class EventLockstep:
 
     def _start(self, member: _Member) -> None:
         member.base_recv = dict(member.ack.recv)
-        member.base_sent = {name: dict(m.ack.sent) for name, m in self.members.items()}
         member.base = dict(self._sent)
 
 

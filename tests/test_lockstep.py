@@ -7,7 +7,7 @@ import time
 import palpa
 from messages import Text
 from nodes.demo import Talker
-from palpa.lockstep import EventLockstep
+from palpa.lockstep import EventLockstep, InFlight
 from palpa.runtime_msgs import ClockAck
 from palpa.simclock import ClockSource
 from palpa.testing import MemoryBus
@@ -35,12 +35,15 @@ def test_time_waits_for_due_timers_and_for_every_message_in_flight() -> None:
     assert ls.in_flight() is None and ls.next_event_ns() == 200
     ls.report(_ack("a", 300, sent={"x": 6, "srv/request": 1}))
     ls.report(_ack("d", 400))  # another publisher on x
-    ls.leave("a")  # gone: neither its timers nor what it sent are waited for
-    assert ls.in_flight() is None and ls.next_event_ns() == 250
+    ls.leave("a")  # its timers are no longer waited for; what it sent before leaving still is
+    assert ls.next_event_ns() == 250 and ls.in_flight() == InFlight("x", "b", 1)
+    ls.report(_ack("b", 250, recv={"x": 3}, subs=["x"]))
+    assert ls.in_flight() is None
     ls.report(_ack("d", 500, sent={"x": 1}))
-    flying = ls.in_flight()
-    assert flying is not None and flying.subscriber == "b" and flying.missing == 1
-    ls.leave("b")
+    assert ls.in_flight() == InFlight("x", "b", 1)
+    ls.report(_ack("a", 600, sent={"x": 2}))  # back, restarted: counts anew
+    assert ls.in_flight() == InFlight("x", "b", 1)
+    ls.leave("b")  # the subscriber gone: nothing is waited for
     assert ls.in_flight() is None
 
 
