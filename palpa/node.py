@@ -384,12 +384,11 @@ class Node:
             self._rx.dispatch(delivery)
         self._run_timers()
         self._beat()
-        due = self.next_timer_due_ns()
-        if due is not None and self.clock.is_real() and self._topic_clock is None:
+        if not self.clock.is_real():
+            timeout_s = 0.0 if self._timers else timeout_s
+        elif self._topic_clock is None and (due := self.next_timer_due_ns()) is not None:
             # (simulated time moves only when a tick arrives: a sim-clock node just waits for input)
             timeout_s = max(0.0, min(timeout_s, (due - self.clock.now_ns()) / 1e9))
-        elif not self.clock.is_real():
-            timeout_s = 0.0 if self._timers else timeout_s
         if self._hb_period_ns:
             timeout_s = max(0.0, min(timeout_s, (self._hb_due_ns - time.monotonic_ns()) / 1e9))
         if timeout_s > 0:
@@ -508,11 +507,13 @@ class Node:
             return
         now = self.clock.now_ns()
         for _ in range(_TIMER_PASSES):
-            self._timer_pass(now)
-            if self._shutdown or not any(t.due_ns <= now and not t.cancelled and not t.running for t in self._timers):
+            if not self._timer_pass(now) or self._shutdown or \
+                    not any(t.due_ns <= now and not t.cancelled and not t.running for t in self._timers):
                 return
 
-    def _timer_pass(self, now: int) -> None:
+    def _timer_pass(self, now: int) -> bool:
+        """Run the timers due at ``now`` once each; whether any ran."""
+        ran = False
         for t in list(self._timers):
             if t.cancelled:
                 if t in self._timers:  # a nested run (inside a service call's wait) may have removed it
@@ -527,6 +528,8 @@ class Node:
                 t.running = True
                 self.dispatch.call(t.callback)  # never raises
                 t.running = False
+                ran = True
+        return ran
 
     def flush(self) -> None:
         """Send every batched message still pending."""
