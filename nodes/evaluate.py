@@ -8,7 +8,8 @@ Each run is ``palpa launch FILE --in-process`` in its own run directory (``--mul
 node), ``--jobs`` at a time (default: one per core), with a progress bar. The runner gives the launch file the
 phantom (``phantom:=``), a simulated thickness measurement of it (``geometry:=``, made with the sim's measurer,
 ``models.geometry.measure_phantom``), the seed (``seed:=``), and, unless set with ``--arg``, a raster region
-inside the phantom (``region_mm:=``, ``--margin`` from its edges) and a probe height above its top
+inside the phantom (``region_mm:=``, ``--margin`` from its true edges; without ``--margin`` the launch file's own
+region) and a probe height above its top
 (``contact_z_mm:=``, 1 mm above the thickest point): each only if the launch file declares that arg.
 
 ``--generate N`` makes N random phantoms (``models.phantom_gen``, seeds ``--phantom-seed``..+N-1) into
@@ -135,7 +136,7 @@ def _declared_args(launch: Path) -> set[str]:
 
 
 def plan_runs(launch: Path, phantoms: Sequence[Path], seeds: Sequence[int], grid: dict[str, list[Any]],
-              out: Path, *, margin_mm: float, geometry_error_mm: float) -> list[RunSpec]:
+              out: Path, *, margin_mm: float | None, geometry_error_mm: float) -> list[RunSpec]:
     """Every phantom x seed x arg combination, with the overrides the launch file can take (module doc)."""
     declared = _declared_args(launch)
     unknown = sorted(set(grid) - declared)
@@ -157,7 +158,7 @@ def plan_runs(launch: Path, phantoms: Sequence[Path], seeds: Sequence[int], grid
                 base["geometry"] = str(geo.resolve())
             if "seed" in declared:
                 base["seed"] = seed
-            if "region_mm" in declared:
+            if "region_mm" in declared and margin_mm is not None:
                 w, h = ph.size_mm
                 base["region_mm"] = [margin_mm, margin_mm, round(w - margin_mm, 3), round(h - margin_mm, 3)]
             if "contact_z_mm" in declared:
@@ -252,7 +253,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="vary a launch arg over these values (repeatable: the runs take every combination)")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="launches at a time (default: cores)")
     ap.add_argument("--multi-process", action="store_true", help="one process per node instead of --in-process")
-    ap.add_argument("--margin", type=float, default=2.0, help="raster margin inside the phantom's edges (mm)")
+    ap.add_argument("--margin", type=float, default=None,
+                    help="raster margin inside the phantom's true edges (mm); default: the launch file's own region "
+                         "(scan_sim.yaml: the measured footprint less its edge margin, which keeps the SPS ring on "
+                         "the specimen)")
     ap.add_argument("--geometry-error", type=float, default=0.2, help="simulated thickness measurement σ (mm)")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds before a run is killed")
     opts = ap.parse_args(argv)
