@@ -4,6 +4,7 @@ process per node, in the same run; and whether both find the same inclusions.
     python bench/sim.py                      # the whole demo scan (about 86 s simulated)
     python bench/sim.py --region 2,2,58,20   # a third of it
     python bench/sim.py --time-scale 20      # the multi-process clock's ceiling (default 20: not the limit)
+    python bench/sim.py --lockstep lead      # the multi-process clock's lead mode (faster; runs differ)
 
 Wall time is the whole ``palpa launch`` (start-up, imports and shutdown included), as a user waits for it; CPU
 time is every process of the launch (user + system), which a busy shared machine moves much less.
@@ -70,12 +71,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--region", help="x0,y0,x1,y1 of the raster (default: the demo's)")
     ap.add_argument("--time-scale", type=float, default=20.0, help="multi-process clock ceiling (default 20)")
+    ap.add_argument("--lockstep", choices=["events", "lead"], default="events",
+                    help="the multi-process clock's lockstep (scan_sim.yaml's lockstep arg; default events)")
     ap.add_argument("--keep", type=Path, help="keep the run directories here")
     opts = ap.parse_args()
     extra = [f"region_mm:=[{opts.region}]"] if opts.region else []
     base = opts.keep or Path(tempfile.mkdtemp(prefix="palpa-bench-sim-"))
     results = {}
-    for mode, args in (("in_process", extra), ("multi_process", [*extra, f"time_scale:={opts.time_scale:g}"])):
+    for mode, args in (("in_process", extra), ("multi_process", [*extra, f"time_scale:={opts.time_scale:g}",
+                                                                       f"lockstep:={opts.lockstep}"])):
         r = results[mode] = run(mode, base / mode, args)
         print(f"{mode:14s} {r['sim_s']:6.1f} s simulated in {r['wall_s']:6.1f} s wall = {r['speedup']:5.2f}x "
               f"real time; {r['cpu_s']:6.1f} CPU-s; load {r['load_before']:.2f} -> {r['load_after']:.2f}; "
@@ -93,6 +97,7 @@ def main() -> None:
         "load_max": round(max(max(r["load_before"], r["load_after"]) for r in results.values()), 2),
         "steal_s": round(sum(r["steal_s"] for r in results.values()), 1),
         "inclusion_gap_mm": None if math.isinf(gap) else round(gap, 3),
+        "lockstep": opts.lockstep,
         "cores": os.cpu_count(),
     }))
 

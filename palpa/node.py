@@ -77,6 +77,7 @@ Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
 _RUNTIME = "_palpa/"
 _TIMER_PASSES = 100
+_LEAD_ACK_NS = 10_000_000  # half a lead-mode clock's default max_lead_s: fewer acks, same bound
 """Timer passes at one instant at most (a callback may start a timer due at once; a burst of them is a bug)."""
 _SIM_CLOCK_TIMEOUT_S = 30.0
 """Wall seconds without a clock tick after which a sim-clock node stops (PALPA_SIM_CLOCK_TIMEOUT_S; 0: never)."""
@@ -191,6 +192,7 @@ class Node:
         self._hb_period_ns = int(heartbeat_s * 1e9) if heartbeat_s > 0 else 0
         self._hb_due_ns = time.monotonic_ns()
         self._time_held = False
+        self._lead_acks = False
         self._set_up = False
         self._raw_sent: dict[str, int] = {}
         """Messages published with :meth:`publish_raw` per topic (service requests and replies among them)."""
@@ -403,6 +405,8 @@ class Node:
                            "die?); stopping", CLOCK_TOPIC, self._clock_timeout_ns / 1e9)
             self.request_shutdown(_EXIT_CLOCK_LOST)
         if clock is not None and clock.started and self._set_up and not self.dispatch.depth and not self._closed:
+            if self._lead_acks and clock.now_ns() - self._last_ack_ns >= _LEAD_ACK_NS:
+                self._acked = None  # a lead-mode clock holds time within a lead of this ack: send one anyway
             self._lockstep_ack()
 
     def _lockstep_ack(self) -> None:
@@ -492,6 +496,7 @@ class Node:
         clock.update(tick.sim_ns)
         self._last_tick_wall_ns = time.monotonic_ns()
         self._time_held = tick.hold
+        self._lead_acks = tick.lead
         # the timers due now run before any message that follows the tick is handled, as in a composition
         # (palpa.compose): what another node published at this time, in reaction to the same tick, comes after
         self._run_timers()

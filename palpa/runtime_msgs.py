@@ -59,10 +59,12 @@ class ClockTick(Message, frozen=True, kw_only=True):
     """Simulation / replay time (topic ``_palpa/clock``), published by the launch's clock and ``palpa play --clock``.
 
     ``hold``: time exists but does not run yet: a node sets up (its timers count from ``sim_ns``) but runs no timer
-    until a tick without ``hold`` (the lockstep clock holds the start until every launched node has joined)."""
+    until a tick without ``hold`` (the lockstep clock holds the start until every launched node has joined).
+    ``lead``: the clock keeps time within a lead of the nodes' acks (not the event lockstep): ack every few ms."""
 
     sim_ns: int
     hold: bool = False
+    lead: bool = False
 
 
 class ClockAck(Message, frozen=True, kw_only=True):

@@ -34,7 +34,7 @@ import os
 import socket
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, Literal
 
 from palpa.clock import SystemClock
 from palpa.lockstep import EventLockstep
@@ -74,6 +74,10 @@ class ClockSource(Node):
         heartbeats) no longer holds the clock back. A live process on this host holds it however long it is silent."""
         check_after_s: Positive = 2.0
         """A node on this host silent for this long (wall clock) has its process checked: gone, it is dropped."""
+        lockstep: Literal["events", "lead"] = "events"
+        """``events``: the composition's timeline (module docstring). ``lead``: time runs at ``time_scale`` and only
+        stays within ``max_lead_s`` of the slowest node's ack, which costs far fewer exchanges (several times faster
+        on a busy machine) but lets sample phases and noise follow the machine's timing: runs differ."""
         participants: list[str] = []
         """Nodes time waits for before it starts (each joins with its first ack, after its setup)."""
         join_timeout_s: Positive = 120.0
@@ -126,9 +130,11 @@ class ClockSource(Node):
         self._acks[ack.node] = ack.sim_ns
         self._heard[ack.node] = time.monotonic_ns()
         self._held.discard(ack.node)
-        if ack.next_ns >= 0:
+        if ack.next_ns >= 0 and self.params.lockstep == "events":
             if self._events.report(ack) and self._released:
                 self.log.info("%s joined at %.3f s of simulated time", ack.node, ack.sim_ns / 1e9)
+            self._advance()
+        elif not self._released:
             self._advance()
 
     def _on_heartbeat(self, hb: Heartbeat) -> None:
@@ -186,14 +192,14 @@ class ClockSource(Node):
 
     def _publish(self, sim_ns: int, wall: int) -> None:
         self._last_pub_wall = wall
-        self._pub.publish(ClockTick(sim_ns=sim_ns, hold=not self._released))
+        self._pub.publish(ClockTick(sim_ns=sim_ns, hold=not self._released, lead=self.params.lockstep == "lead"))
 
     def _advance(self) -> None:
         """Event lockstep (module docstring): start time once the participants joined; then move it to the next
         deadline when nothing is due or in flight and the time_scale ceiling allows."""
         wall = time.monotonic_ns()
         if not self._released:
-            missing = [n for n in self.params.participants if n not in self._events]
+            missing = [n for n in self.params.participants if n not in self._events and n not in self._acks]
             if missing and (wall - self._started_wall) / 1e9 < self.params.join_timeout_s:
                 return
             if missing:
@@ -202,6 +208,7 @@ class ClockSource(Node):
             self._released = True
             self._events.restart_accounting()
             self._anchor = (wall, self._sim)
+            self._wall = wall  # a lead-mode clock counts from the start, not from its own setup
             self._publish(self._sim, wall)
             return
         if not self._events.members:

@@ -99,3 +99,20 @@ def test_processes_see_timers_at_their_deadlines_and_messages_at_the_instant_sen
     assert sink.heard[:10] == [(start + i * 100_000_000, start + i * 100_000_000) for i in range(10)]
     for n in [*nodes, spy]:
         n.close(0)
+
+
+def test_a_lead_mode_clock_gets_an_ack_every_10_ms_of_simulated_time() -> None:
+    """Under ``lockstep: lead`` the clock keeps time within a lead of the acks: an idle node acks anyway."""
+    bus = MemoryBus()
+    node = palpa.Node(name="idle", transport=bus.transport(), heartbeat_s=0, sim_clock=True, wait_for_clock_s=0)
+    clock = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
+    tick = clock.publisher("_palpa/clock", palpa.runtime_msgs.ClockTick)
+    acks: list[ClockAck] = []
+    clock.subscribe(palpa.runtime_msgs.CLOCK_ACK_TOPIC, ClockAck, acks.append)
+    for i in range(10):
+        tick.publish(palpa.runtime_msgs.ClockTick(sim_ns=1_000_000_000 + i * 4_000_000, lead=True))
+        node.spin_once(0)
+    clock.spin_once(0)
+    assert [a.sim_ns - 1_000_000_000 for a in acks] == [0, 12_000_000, 24_000_000, 36_000_000]
+    node.close(0)
+    clock.close(0)
