@@ -77,8 +77,8 @@ Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
 _RUNTIME = "_palpa/"
 _TIMER_PASSES = 100
-_LEAD_ACK_NS = 10_000_000  # half a lead-mode clock's default max_lead_s: fewer acks, same bound
 """Timer passes at one instant at most (a callback may start a timer due at once; a burst of them is a bug)."""
+_LEAD_ACK_NS = 10_000_000  # half a lead-mode clock's default max_lead_s: fewer acks, same bound
 _SIM_CLOCK_TIMEOUT_S = 30.0
 """Wall seconds without a clock tick after which a sim-clock node stops (PALPA_SIM_CLOCK_TIMEOUT_S; 0: never)."""
 _EXIT_CLOCK_LOST = 3
