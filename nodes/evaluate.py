@@ -67,7 +67,8 @@ class RunSpec:
 def scan_facts(recording: Path) -> dict[str, float]:
     """From a run's recording: simulated span (first to last message), simulated time to the scan's end (first
     message to the 'done' status: what a simulation had to compute, whatever ran on after it), scan time (first
-    'scanning' to 'done' status), path length of the TCP while scanning (mm) and the number of valid probe (stiffness) samples."""
+    'scanning' to 'done' status), path length of the TCP while scanning (mm) and the number of valid probe
+    (stiffness) samples."""
     from palpa.record.reader import iter_bag, resolve_bag_paths
 
     first = last = None
