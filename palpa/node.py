@@ -394,6 +394,7 @@ class Node:
         if self._hb_period_ns:
             timeout_s = max(0.0, min(timeout_s, (self._hb_due_ns - time.monotonic_ns()) / 1e9))
         if timeout_s > 0:
+            self._report_to_clock()  # before blocking: the clock may be waiting for what was just handled
             for delivery in self._transport.poll(timeout_s):
                 self._rx.dispatch(delivery)
             self._run_timers()
@@ -404,6 +405,10 @@ class Node:
             self.log.error("simulated time stopped: no tick on %s for %.1f s of wall time (did the clock node "
                            "die?); stopping", CLOCK_TOPIC, self._clock_timeout_ns / 1e9)
             self.request_shutdown(_EXIT_CLOCK_LOST)
+        self._report_to_clock()
+
+    def _report_to_clock(self) -> None:
+        clock = self._topic_clock
         if clock is not None and clock.started and self._set_up and not self.dispatch.depth and not self._closed:
             if self._lead_acks and clock.now_ns() - self._last_ack_ns >= _LEAD_ACK_NS:
                 self._acked = None  # a lead-mode clock holds time within a lead of this ack: send one anyway
