@@ -86,9 +86,7 @@ SMOKE: dict[str, Smoke] = {
                                 "region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "speed_mm_s:=20.0"],
                           topics=["robot/pose", "probe/heights", "pressure/state", "stiffness/sample",
                                   "robot/scan_status"], timeout=60),
-    # lead lockstep: the camera renders 30 frames a simulated second, and the event lockstep waits for each (0.35x
-    # real time at load 10: the topics would take minutes); events are tested on the air-float graphs
-    "scan_camera_sim.yaml": Smoke(args=["region_mm:=[14.0, 14.0, 18.0, 18.0]", "time_scale:=2.0", "lockstep:=lead"],
+    "scan_camera_sim.yaml": Smoke(args=["region_mm:=[14.0, 14.0, 18.0, 18.0]", "time_scale:=2.0"],
                                   topics=["robot/pose", "robot/plan", "camera/indenters", "stiffness/sample",
                                           "map/stiffness", "robot/scan_status"], timeout=60),
     "scan_adaptive_sim.yaml": Smoke(args=["region_mm:=[36.0, 33.0, 48.0, 45.0]", "initial:=2", "max_probes:=5",
