@@ -116,3 +116,37 @@ def test_a_lead_mode_clock_gets_an_ack_every_10_ms_of_simulated_time() -> None:
     assert [a.sim_ns - 1_000_000_000 for a in acks] == [0, 12_000_000, 24_000_000, 36_000_000]
     node.close(0)
     clock.close(0)
+
+
+def test_a_node_reports_what_it_handled_before_it_blocks_for_input() -> None:
+    """Input taken in by the non-blocking poll at the start of a spin is reported before the spin blocks: the clock
+    waits for that report (it once waited for the blocking poll's timeout at every simulated instant)."""
+    from palpa.testing import MemoryTransport
+    from palpa.transport import Delivery, SendFn
+
+    events: list[str] = []
+
+    class Watched(MemoryTransport):
+        def poll(self, timeout_s: float) -> list[Delivery]:
+            if timeout_s > 0:
+                events.append("block")
+            return super().poll(timeout_s)
+
+        def sender(self, topic: bytes, direct: bool | None) -> SendFn:
+            send = super().sender(topic, direct)
+
+            def sending(frames: list[bytes], latched: bool) -> None:
+                events.append(frames[0].decode())
+                send(frames, latched)
+            return sending  # type: ignore[return-value]
+
+    bus = MemoryBus()
+    t = Watched(bus)
+    bus._add(t)
+    node = palpa.Node(name="n", transport=t, heartbeat_s=0, sim_clock=True, wait_for_clock_s=0)
+    clock = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
+    clock.publisher("_palpa/clock", palpa.runtime_msgs.ClockTick).publish(palpa.runtime_msgs.ClockTick(sim_ns=5))
+    node.spin_once(0.01)
+    assert events[:2] == [palpa.runtime_msgs.CLOCK_ACK_TOPIC, "block"]
+    node.close(0)
+    clock.close(0)
