@@ -8,7 +8,8 @@ Each run is ``palpa launch FILE --in-process`` in its own run directory (``--mul
 node), ``--jobs`` at a time (default: one per core), with a progress bar. The runner gives the launch file the
 phantom (``phantom:=``), a simulated thickness measurement of it (``geometry:=``, made with the sim's measurer,
 ``models.geometry.measure_phantom``), the seed (``seed:=``), and, unless set with ``--arg``, a raster region
-inside the phantom (``region_mm:=``, ``--margin`` from its edges) and a probe height above its top
+inside the phantom (``region_mm:=``, ``--margin`` from its true edges; without ``--margin`` the launch file's own
+region) and a probe height above its top
 (``contact_z_mm:=``, 1 mm above the thickest point): each only if the launch file declares that arg.
 
 ``--generate N`` makes N random phantoms (``models.phantom_gen``, seeds ``--phantom-seed``..+N-1) into
@@ -65,8 +66,10 @@ class RunSpec:
 
 
 def scan_facts(recording: Path) -> dict[str, float]:
-    """From a run's recording: simulated span (first to last message), scan time (first 'scanning' to 'done'
-    status), path length of the TCP while scanning (mm) and the number of valid probe (stiffness) samples."""
+    """From a run's recording: simulated span (first to last message), simulated time to the scan's end (first
+    message to the 'done' status: what a simulation had to compute, whatever ran on after it), scan time (first
+    'scanning' to 'done' status), path length of the TCP while scanning (mm) and the number of valid probe
+    (stiffness) samples."""
     from palpa.record.reader import iter_bag, resolve_bag_paths
 
     first = last = None
@@ -100,6 +103,7 @@ def scan_facts(recording: Path) -> dict[str, float]:
     return {
         "sim_s": (last - first) / 1e9 if first is not None and last is not None else math.nan,
         "scan_s": (scan_end - scan_start) / 1e9 if scan_start is not None and scan_end is not None else math.nan,
+        "to_done_s": (scan_end - first) / 1e9 if first is not None and scan_end is not None else math.nan,
         "path_mm": path,
         "probes": probes,
     }
@@ -134,7 +138,7 @@ def _declared_args(launch: Path) -> set[str]:
 
 
 def plan_runs(launch: Path, phantoms: Sequence[Path], seeds: Sequence[int], grid: dict[str, list[Any]],
-              out: Path, *, margin_mm: float, geometry_error_mm: float) -> list[RunSpec]:
+              out: Path, *, margin_mm: float | None, geometry_error_mm: float) -> list[RunSpec]:
     """Every phantom x seed x arg combination, with the overrides the launch file can take (module doc)."""
     declared = _declared_args(launch)
     unknown = sorted(set(grid) - declared)
@@ -156,7 +160,7 @@ def plan_runs(launch: Path, phantoms: Sequence[Path], seeds: Sequence[int], grid
                 base["geometry"] = str(geo.resolve())
             if "seed" in declared:
                 base["seed"] = seed
-            if "region_mm" in declared:
+            if "region_mm" in declared and margin_mm is not None:
                 w, h = ph.size_mm
                 base["region_mm"] = [margin_mm, margin_mm, round(w - margin_mm, 3), round(h - margin_mm, 3)]
             if "contact_z_mm" in declared:
@@ -251,7 +255,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="vary a launch arg over these values (repeatable: the runs take every combination)")
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="launches at a time (default: cores)")
     ap.add_argument("--multi-process", action="store_true", help="one process per node instead of --in-process")
-    ap.add_argument("--margin", type=float, default=2.0, help="raster margin inside the phantom's edges (mm)")
+    ap.add_argument("--margin", type=float, default=None,
+                    help="raster margin inside the phantom's true edges (mm); default: the launch file's own region "
+                         "(scan_sim.yaml: the measured footprint less its edge margin, which keeps the SPS ring on "
+                         "the specimen)")
     ap.add_argument("--geometry-error", type=float, default=0.2, help="simulated thickness measurement σ (mm)")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds before a run is killed")
     opts = ap.parse_args(argv)

@@ -41,6 +41,9 @@ log = logging.getLogger("palpa.compose")
 
 _IDLE_WAIT_S = 0.05
 _MAX_ROUNDS = 100_000
+_OUTSIDE_POLL_NS = 2_000_000
+"""Wall ns between looks at the bridge for input from outside while the composition is busy (an idle one waits on
+the bridge)."""
 
 
 class _HubBus(MemoryBus):
@@ -153,6 +156,8 @@ class Composition:
         """(node name, exit code) of every node that ended by itself, in order."""
         self._names: list[bytes] = []
         self._stop = False
+        self._inbox_list: list[tuple[Node, MemoryTransport]] | None = None
+        self._outside_polled_ns = 0
         self.bus.pump = self._pump
 
     # -- building --------------------------------------------------------------------------------------
@@ -170,6 +175,7 @@ class Composition:
     def adopt(self, node: Node, *, required: bool = False) -> Node:
         """Run ``node`` (built on :meth:`transport` and :attr:`clock`) as part of the composition."""
         self.nodes.append(node)
+        self._inbox_list = None
         # the header map holds "node": <name> as msgpack: an envelope of ours, echoed back by the proxy, has it
         self._names.append(msgspec.msgpack.encode("node") + msgspec.msgpack.encode(node.name))
         if required:
@@ -202,9 +208,13 @@ class Composition:
             return False
         self.clock.set(max(due, self.clock.now_ns()))
         now = self.clock.now_ns()
-        for d, node in dues:
-            if d <= now:
-                node.spin_once(0)
+        ready = [node for d, node in dues if d <= now]
+        # every timer due now runs before any message sent at this instant is handled, as a node of the lockstep
+        # clock does (palpa.simclock): the order of nodes in the composition then does not matter
+        for node in ready:
+            node.run_timers()
+        for node in ready:
+            node.spin_once(0)
         self.settle()
         self._reap()
         return True
@@ -240,6 +250,7 @@ class Composition:
             node.request_shutdown()
         while self.nodes:
             node = self.nodes.pop(0)
+            self._inbox_list = None
             try:
                 node.close(0)
             except Exception:  # one node failing to close must not leave the others open
@@ -258,7 +269,9 @@ class Composition:
                 node.spin_once(0)
 
     def _inboxes(self) -> list[tuple[Node, MemoryTransport]]:
-        return [(n, n.transport) for n in self.nodes if isinstance(n.transport, MemoryTransport)]
+        if self._inbox_list is None:  # listed once per change of the node set (every step reads it)
+            self._inbox_list = [(n, n.transport) for n in self.nodes if isinstance(n.transport, MemoryTransport)]
+        return self._inbox_list
 
     def _next_due(self) -> int | None:
         dues = [d for n in self.nodes if (d := n.next_timer_due_ns()) is not None]
@@ -268,6 +281,7 @@ class Composition:
         """Nodes that asked to stop (a scanner that finished) are closed; a required one ends the composition."""
         for node in [n for n in self.nodes if n.is_shutdown]:
             self.nodes.remove(node)
+            self._inbox_list = None
             self.ended.append((node.name, node.exit_code))
             try:
                 node.close(0)
@@ -285,7 +299,10 @@ class Composition:
     def _take_outside(self) -> None:
         self.bus.sync_bridge()
         if self.bridge is not None:
-            self._route_outside(self.bridge.poll(0))
+            now = time.monotonic_ns()
+            if now - self._outside_polled_ns >= _OUTSIDE_POLL_NS:  # a syscall: not at each of ~300 steps a second
+                self._outside_polled_ns = now
+                self._route_outside(self.bridge.poll(0))
 
     def _wait_outside(self, timeout_s: float) -> None:
         if self.bridge is not None:

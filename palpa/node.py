@@ -75,7 +75,10 @@ __all__ = ["DEFAULT_BATCH", "MsgInfo", "Node", "Publisher", "RawMessage", "Subsc
 M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
-_ACK_PERIOD_NS = 10_000_000  # half the clock source's default max_lead_s: fewer acks, same lockstep bound
+_RUNTIME = "_palpa/"
+_TIMER_PASSES = 100
+"""Timer passes at one instant at most (a callback may start a timer due at once; a burst of them is a bug)."""
+_LEAD_ACK_NS = 10_000_000  # half a lead-mode clock's default max_lead_s: fewer acks, same bound
 _SIM_CLOCK_TIMEOUT_S = 30.0
 """Wall seconds without a clock tick after which a sim-clock node stops (PALPA_SIM_CLOCK_TIMEOUT_S; 0: never)."""
 _EXIT_CLOCK_LOST = 3
@@ -191,9 +194,19 @@ class Node:
         # node waiting for simulated time (or a paused replay) is still alive
         self._hb_period_ns = int(heartbeat_s * 1e9) if heartbeat_s > 0 else 0
         self._hb_due_ns = time.monotonic_ns()
+        self._time_held = False
+        self._lead_acks = False
+        self._set_up = False
+        self._raw_sent: dict[str, int] = {}
+        """Messages published with :meth:`publish_raw` per topic (service requests and replies among them)."""
         if self._topic_clock is not None:
             self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1)
             self._last_ack_ns = 0
+            self._acked: tuple[int, int, int, tuple[int, ...]] | None = None
+            self._ack_shape: tuple[int, ...] = ()
+            self._ack_pubs: list[Publisher[Any]] = []
+            self._ack_stats: list[tuple[str, TopicStats]] = []
+            self._ack_subs: list[str] = []
             self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
             self._await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0 if serve_params is None else serve_params:
@@ -204,6 +217,7 @@ class Node:
             # a refused plan must not leave a robot connection or a serial port open behind it
             self._release(linger_ms=0)
             raise
+        self._set_up = True
 
     @property
     def transport(self) -> Transport:
@@ -307,6 +321,8 @@ class Node:
         """Send an already-encoded payload with a caller-made header (the player keeps recorded sequence numbers,
         types and publisher names). ``topic`` is used as given (no remapping); nothing is validated."""
         self._transport.send([topic.encode(), encode_header(header), payload, *blobs], latched)
+        if not topic.startswith(_RUNTIME):
+            self._raw_sent[topic] = self._raw_sent.get(topic, 0) + 1
 
     def subscribe(
         self,
@@ -381,15 +397,15 @@ class Node:
             self._rx.dispatch(delivery)
         self._run_timers()
         self._beat()
-        due = self.next_timer_due_ns()
-        if due is not None and self.clock.is_real() and self._topic_clock is None:
+        if not self.clock.is_real():
+            timeout_s = 0.0 if self._timers else timeout_s
+        elif self._topic_clock is None and (due := self.next_timer_due_ns()) is not None:
             # (simulated time moves only when a tick arrives: a sim-clock node just waits for input)
             timeout_s = max(0.0, min(timeout_s, (due - self.clock.now_ns()) / 1e9))
-        elif not self.clock.is_real():
-            timeout_s = 0.0 if self._timers else timeout_s
         if self._hb_period_ns:
             timeout_s = max(0.0, min(timeout_s, (self._hb_due_ns - time.monotonic_ns()) / 1e9))
         if timeout_s > 0:
+            self._report_to_clock()  # before blocking: the clock may be waiting for what was just handled
             for delivery in self._transport.poll(timeout_s):
                 self._rx.dispatch(delivery)
             self._run_timers()
@@ -400,9 +416,43 @@ class Node:
             self.log.error("simulated time stopped: no tick on %s for %.1f s of wall time (did the clock node "
                            "die?); stopping", CLOCK_TOPIC, self._clock_timeout_ns / 1e9)
             self.request_shutdown(_EXIT_CLOCK_LOST)
-        if clock is not None and clock.started and clock.now_ns() - self._last_ack_ns >= _ACK_PERIOD_NS:
-            self._last_ack_ns = clock.now_ns()
-            self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns))
+        self._report_to_clock()
+
+    def _report_to_clock(self) -> None:
+        clock = self._topic_clock
+        if clock is not None and clock.started and self._set_up and not self.dispatch.depth and not self._closed:
+            if self._lead_acks and clock.now_ns() - self._last_ack_ns >= _LEAD_ACK_NS:
+                self._acked = None  # a lead-mode clock holds time within a lead of this ack: send one anyway
+            self._lockstep_ack()
+
+    def _lockstep_ack(self) -> None:
+        """Tell the lockstep clock (palpa.simclock) what this node has done at the current simulated time, when
+        that changed: its next timer, and the messages it sent and took in (the clock moves on once every message
+        sent has been taken in). Not from inside a callback: a node waiting in a service call is not done."""
+        self.flush()
+        rx = self._rx
+        shape = (len(self._pubs), len(rx.subs), len(rx.raw), len(rx.raw_stats))
+        if shape != self._ack_shape:  # what is counted changes rarely: list it once per change
+            self._ack_shape = shape
+            self._ack_pubs = [p for p in self._pubs.values() if not p.topic.startswith(_RUNTIME)]
+            self._ack_stats = [(t, st) for t, st in rx.counters().items() if not t.startswith(_RUNTIME)]
+            self._ack_subs = [s.topic for s in rx.subs.values() if not s.topic.startswith(_RUNTIME)]
+            self._ack_subs += [r.prefix.decode(errors="replace") + "*" for r in rx.raw
+                               if not r.prefix.startswith(_RUNTIME.encode())]
+        due = self.next_timer_due_ns() or 0
+        sent_total = sum(p.seq for p in self._ack_pubs) + sum(self._raw_sent.values())
+        recv_total = sum(st.received + st.decode_errors for _, st in self._ack_stats)
+        state = (due, sent_total, recv_total, shape)
+        if state == self._acked:
+            return
+        self._acked = state
+        sent = {p.topic: p.seq for p in self._ack_pubs if p.seq}
+        for topic, n in self._raw_sent.items():
+            sent[topic] = sent.get(topic, 0) + n
+        self._last_ack_ns = self.clock.now_ns()
+        self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns, next_ns=due, sent=sent,
+                                       recv={t: st.received + st.decode_errors for t, st in self._ack_stats},
+                                       subs=self._ack_subs))
 
     def spin(self) -> None:
         """Run until :meth:`request_shutdown` (or a signal, under :func:`palpa.run_node`)."""
@@ -461,12 +511,30 @@ class Node:
                 t.due_ns += tick.sim_ns
         clock.update(tick.sim_ns)
         self._last_tick_wall_ns = time.monotonic_ns()
+        self._time_held = tick.hold
+        self._lead_acks = tick.lead
+        # the timers due now run before any message that follows the tick is handled, as in a composition
+        # (palpa.compose): what another node published at this time, in reaction to the same tick, comes after
+        self._run_timers()
 
     # -- internals ---------------------------------------------------------------------------------
+    def run_timers(self) -> None:
+        """Run the timers due at the current time (an executor's step, see palpa.compose), again while a callback
+        started one due at once: afterwards none is due."""
+        self._run_timers()
+
     def _run_timers(self) -> None:
-        if self._shutdown or (self._topic_clock is not None and not self._topic_clock.started):
+        if self._shutdown or self._time_held or (self._topic_clock is not None and not self._topic_clock.started):
             return
         now = self.clock.now_ns()
+        for _ in range(_TIMER_PASSES):
+            if not self._timer_pass(now) or self._shutdown or \
+                    not any(t.due_ns <= now and not t.cancelled and not t.running for t in self._timers):
+                return
+
+    def _timer_pass(self, now: int) -> bool:
+        """Run the timers due at ``now`` once each; whether any ran."""
+        ran = False
         for t in list(self._timers):
             if t.cancelled:
                 if t in self._timers:  # a nested run (inside a service call's wait) may have removed it
@@ -481,6 +549,8 @@ class Node:
                 t.running = True
                 self.dispatch.call(t.callback)  # never raises
                 t.running = False
+                ran = True
+        return ran
 
     def flush(self) -> None:
         """Send every batched message still pending."""

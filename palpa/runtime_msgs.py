@@ -11,7 +11,8 @@ __all__ = ["CLOCK_ACK_TOPIC", "CLOCK_TOPIC", "HEARTBEAT_TOPIC", "LOG_TOPIC", "Cl
 HEARTBEAT_TOPIC = "_palpa/heartbeat"
 LOG_TOPIC = "_palpa/log"
 CLOCK_TOPIC = "_palpa/clock"
-CLOCK_ACK_TOPIC = "_palpa/clock_ack"
+CLOCK_ACK_TOPIC = "_palpa/lockstep"
+"""Not under ``_palpa/clock``: ZeroMQ matches by prefix, and every sim-clock node would wake for every ack."""
 
 
 class TopicCounters(msgspec.Struct, frozen=True, kw_only=True):
@@ -55,18 +56,32 @@ class LogRecord(Message, frozen=True, kw_only=True):
 
 
 class ClockTick(Message, frozen=True, kw_only=True):
-    """Simulation / replay time (topic ``_palpa/clock``), published by ``palpa play --clock``."""
+    """Simulation / replay time (topic ``_palpa/clock``), published by the launch's clock and ``palpa play --clock``.
+
+    ``hold``: time exists but does not run yet: a node sets up (its timers count from ``sim_ns``) but runs no timer
+    until a tick without ``hold`` (the lockstep clock holds the start until every launched node has joined).
+    ``lead``: the clock keeps time within a lead of the nodes' acks (not the event lockstep): ack every few ms."""
 
     sim_ns: int
+    hold: bool = False
+    lead: bool = False
 
 
 class ClockAck(Message, frozen=True, kw_only=True):
-    """A sim-clock node's report that it has handled everything up to ``sim_ns`` (topic ``_palpa/clock_ack``).
+    """A sim-clock node's report that it has handled everything up to ``sim_ns`` (topic ``_palpa/lockstep``).
 
-    The clock source never runs more than a small lead ahead of the slowest node, so an overloaded machine slows
-    simulated time down instead of starving nodes of data (lockstep, as in Gazebo). ``leaving``: the node's last
-    ack, sent as it closes: it no longer holds simulated time back."""
+    With ``next_ns`` (>= 0) the report is an event-lockstep one (palpa.simclock): the node has run its timers due
+    at ``sim_ns`` and handled every message it counted in ``recv``; its next timer is due at ``next_ns`` (0: none).
+    ``sent``/``recv`` count the messages it published / took in per topic since it started (runtime ``_palpa/``
+    topics excepted), ``subs`` names what it subscribes to (a prefix ends in ``*``): the clock moves on only when
+    every message sent at this time has been taken in by every subscriber. Without ``next_ns`` (-1, an older or
+    hand-written client) the clock only stays within a small lead of ``sim_ns``. ``leaving``: the node's last ack,
+    sent as it closes: it no longer holds simulated time back."""
 
     node: str
     sim_ns: int
     leaving: bool = False
+    next_ns: int = -1
+    sent: dict[str, int] = {}
+    recv: dict[str, int] = {}
+    subs: list[str] = []

@@ -4,10 +4,14 @@ Nodes started with ``--sim-clock`` (or ``PALPA_SIM_CLOCK=1`` in their environmen
 simulated graph can run ``time_scale`` times faster than real time and still stamp, time out and rate-limit
 consistently. ``palpa play --clock`` drives the same topic from a recording.
 
-Lockstep: every sim-clock node acknowledges the time it has handled (``_palpa/clock_ack``); the source never runs
-more than ``max_lead_s`` of simulated time ahead of the slowest participating node. On an overloaded machine
-simulated time therefore slows down — ``time_scale`` is a ceiling — instead of nodes falling behind and seeing
-each other's data go stale.
+Event lockstep: every sim-clock node reports on ``_palpa/lockstep`` its next timer deadline and the messages it
+has sent and taken in (:class:`~palpa.runtime_msgs.ClockAck`); the source moves time to the earliest deadline only
+once no timer is left due and no message is in flight (:mod:`palpa.lockstep`), so the graph sees the timeline a
+composition (:mod:`palpa.compose`) gives it: timers at their exact deadlines, every message handled at the
+instant it was sent. Time starts only when every node named in ``participants`` (the launcher fills in the
+file's sim-clock nodes) has set up: until then the source publishes the start time with ``hold``. Time never
+runs faster than ``time_scale`` (a ceiling); on an overloaded machine it slows down instead. A client that acks
+without a deadline (``next_ns`` -1) is kept within ``max_lead_s`` of the time it acked, as before events.
 
 Who participates: a node is in from its first ack until it *leaves*, never because it is slow. A CPU-starved node
 may not ack for seconds; dropping it then lets time run on without it, and its peers' sim-time watchdogs trip on
@@ -30,9 +34,10 @@ import os
 import socket
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, Literal
 
 from palpa.clock import SystemClock
+from palpa.lockstep import EventLockstep
 from palpa.node import Node
 from palpa.params import NonNegative, Positive
 from palpa.params import Params as ParamsBase
@@ -47,6 +52,11 @@ from palpa.runtime_msgs import (
 )
 
 __all__ = ["ClockSource"]
+
+_REPEAT_NS = 1_000_000_000
+"""Wall ns after which the current time is published again though it did not move (a held start, a slow node)."""
+_MAX_BURST_NS = 100_000_000
+"""Wall ns of lead the ceiling keeps when the graph is slower than it (no burst past time_scale afterwards)."""
 
 
 class ClockSource(Node):
@@ -64,6 +74,15 @@ class ClockSource(Node):
         heartbeats) no longer holds the clock back. A live process on this host holds it however long it is silent."""
         check_after_s: Positive = 2.0
         """A node on this host silent for this long (wall clock) has its process checked: gone, it is dropped."""
+        lockstep: Literal["events", "lead"] = "events"
+        """``events``: the composition's timeline (module docstring). ``lead``: time runs at ``time_scale`` and only
+        stays within ``max_lead_s`` of the slowest node's ack, which costs far fewer exchanges (several times faster
+        on a busy machine) but lets sample phases and noise follow the machine's timing: runs differ."""
+        participants: list[str] = []
+        """Nodes time waits for before it starts (each joins with its first ack, after its setup)."""
+        join_timeout_s: Positive = 120.0
+        """Wall seconds after which time starts without the participants that have not joined (a warning names
+        them)."""
 
     params: Params  # typed: mypy checks every self.params.<name>
 
@@ -89,6 +108,13 @@ class ClockSource(Node):
         self._pids: dict[str, int] = {}
         """participating node -> its pid, when its heartbeats say it runs on this host"""
         self._held: set[str] = set()
+        self._events = EventLockstep()
+        self._started_wall = self._wall
+        self._released = not self.params.participants
+        self._anchor = (self._wall, self._sim)
+        """(wall, simulated) ns the time_scale ceiling counts from."""
+        self._last_pub_wall = 0
+        self._stalled_since = 0
         if self.params.max_lead_s > 0:
             self.subscribe(CLOCK_ACK_TOPIC, self._on_ack)
             self.subscribe(HEARTBEAT_TOPIC, self._on_heartbeat)
@@ -96,12 +122,20 @@ class ClockSource(Node):
 
     def _on_ack(self, ack: ClockAck) -> None:
         if ack.leaving:
+            self._events.leave(ack.node)
             if self._acks.pop(ack.node, None) is not None:
                 self.log.info("%s left: it no longer holds simulated time back", ack.node)
+            self._advance()
             return
         self._acks[ack.node] = ack.sim_ns
         self._heard[ack.node] = time.monotonic_ns()
         self._held.discard(ack.node)
+        if ack.next_ns >= 0 and self.params.lockstep == "events":
+            if self._events.report(ack) and self._released:
+                self.log.info("%s joined at %.3f s of simulated time", ack.node, ack.sim_ns / 1e9)
+            self._advance()
+        elif not self._released:
+            self._advance()
 
     def _on_heartbeat(self, hb: Heartbeat) -> None:
         if hb.node in self._acks:  # only participants: every node heartbeats, few follow the clock
@@ -130,6 +164,7 @@ class ClockSource(Node):
         else:
             why = f"not heard for {self.params.participant_timeout_s:.1f} s (wall clock)"
         self._acks.pop(node)
+        self._events.leave(node)
         self.log.warning("%s %s: it no longer holds simulated time back", node, why)
         return False
 
@@ -147,7 +182,67 @@ class ClockSource(Node):
         return proposed
 
     def _tick(self) -> None:
-        self._pub.publish(ClockTick(sim_ns=self.sim_now_ns()))
+        if not self._released or self._events.members:
+            self._advance()
+            wall = time.monotonic_ns()
+            if wall - self._last_pub_wall > _REPEAT_NS:  # nodes guard against a dead clock on the wall clock
+                self._publish(self._sim, wall)
+            return
+        self._publish(self.sim_now_ns(), time.monotonic_ns())
+
+    def _publish(self, sim_ns: int, wall: int) -> None:
+        self._last_pub_wall = wall
+        self._pub.publish(ClockTick(sim_ns=sim_ns, hold=not self._released, lead=self.params.lockstep == "lead"))
+
+    def _advance(self) -> None:
+        """Event lockstep (module docstring): start time once the participants joined; then move it to the next
+        deadline when nothing is due or in flight and the time_scale ceiling allows."""
+        wall = time.monotonic_ns()
+        if not self._released:
+            missing = [n for n in self.params.participants if n not in self._events and n not in self._acks]
+            if missing and (wall - self._started_wall) / 1e9 < self.params.join_timeout_s:
+                return
+            if missing:
+                self.log.warning("%s not joined after %.0f s (wall clock): simulated time starts without them",
+                                 ", ".join(missing), self.params.join_timeout_s)
+            self._released = True
+            self._events.restart_accounting()
+            self._anchor = (wall, self._sim)
+            self._wall = wall  # a lead-mode clock counts from the start, not from its own setup
+            self._publish(self._sim, wall)
+            return
+        if not self._events.members:
+            return  # no event participant (yet, or any more): _tick runs time on the wall clock
+        for node in [n for n in self._events.members if n in self._acks]:
+            self._still_in(node, wall)
+        now = self._sim
+        if self._events.due(now):
+            return
+        flying = self._events.in_flight()
+        if flying is not None:
+            if not self._stalled_since:
+                self._stalled_since = wall
+            if (wall - self._stalled_since) / 1e9 < self.params.participant_timeout_s:
+                return
+            self.log.warning("%d message(s) on %s never reached %s in %.0f s (wall clock): time moves on",
+                             flying.missing, flying.topic, flying.subscriber, self.params.participant_timeout_s)
+        self._stalled_since = 0
+        target = self._events.next_event_ns()
+        anchor_wall, anchor_sim = self._anchor
+        ceiling = anchor_sim + int((wall - anchor_wall) * self.params.time_scale)
+        if ceiling - now > _MAX_BURST_NS * self.params.time_scale:  # slower than the ceiling: no catching up later
+            self._anchor = (wall - _MAX_BURST_NS, now)
+            ceiling = now + int(_MAX_BURST_NS * self.params.time_scale)
+        if target is None:
+            target = ceiling  # no timer anywhere: time runs at the ceiling
+        elif target > ceiling:
+            return  # the wall-clock tick comes back to it
+        legacy = [sim for node, sim in self._acks.items() if node not in self._events]
+        if legacy and self.params.max_lead_s > 0:
+            target = min(target, max(now, min(legacy) + int(self.params.max_lead_s * 1e9)))
+        if target > now:
+            self._sim = target
+            self._publish(target, wall)
 
 
 def _pid_alive(pid: int) -> bool:

@@ -203,13 +203,13 @@ def test_malformed_batch_is_counted() -> None:
 
 def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.MonkeyPatch,
                                                           caplog: pytest.LogCaptureFixture) -> None:
-    from palpa.runtime_msgs import ClockAck
+    from palpa.runtime_msgs import CLOCK_ACK_TOPIC, ClockAck
 
     wall, bus, src = _clock_source(monkeypatch)
     wall[0] = 100_000_000  # 0.1 s wall at 2x: free running, 0.2 s simulated
     assert src.sim_now_ns() == 1_200_000_000
     laggard = palpa.Node(name="slow", transport=bus.transport(), heartbeat_s=0)
-    ack = laggard.publisher("_palpa/clock_ack", ClockAck)
+    ack = laggard.publisher(CLOCK_ACK_TOPIC, ClockAck)
     ack.publish(ClockAck(node="slow", sim_ns=1_150_000_000))
     src.spin_once(0)
     wall[0] = 200_000_000
@@ -244,11 +244,11 @@ def _clock_source(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], MemoryBus
 def _lockstep(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], Any, Any, Any]:
     """A clock source and a participant 'slow' (pid 4242 on this host) that acked 1.1 s of simulated time:
     (wall, source, ack publisher, heartbeat publisher)."""
-    from palpa.runtime_msgs import ClockAck, Heartbeat
+    from palpa.runtime_msgs import CLOCK_ACK_TOPIC, ClockAck, Heartbeat
 
     wall, bus, src = _clock_source(monkeypatch)
     peer = palpa.Node(name="slow", transport=bus.transport(), heartbeat_s=0)
-    ack = peer.publisher("_palpa/clock_ack", ClockAck)
+    ack = peer.publisher(CLOCK_ACK_TOPIC, ClockAck)
     hb = peer.publisher("_palpa/heartbeat", Heartbeat)
     ack.publish(ClockAck(node="slow", sim_ns=1_100_000_000))
     hb.publish(Heartbeat(node="slow", pid=4242, host=socket.gethostname(), publishes={}, subscribes={}, counters={},
@@ -288,13 +288,13 @@ def test_lockstep_drops_a_node_whose_process_is_gone_or_that_left(monkeypatch: p
 
 def test_a_sim_clock_node_says_it_leaves_as_it_closes() -> None:
     """Its last clock ack carries 'leaving', so the lockstep clock stops waiting for it at once."""
-    from palpa.runtime_msgs import ClockAck
+    from palpa.runtime_msgs import CLOCK_ACK_TOPIC, ClockAck
 
     bus = MemoryBus()
     node = palpa.Node(name="sim", transport=bus.transport(), sim_clock=True, wait_for_clock_s=0, heartbeat_s=0)
     h = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
     acks: list[ClockAck] = []
-    h.subscribe("_palpa/clock_ack", ClockAck, acks.append)
+    h.subscribe(CLOCK_ACK_TOPIC, ClockAck, acks.append)
     node.close(0)
     h.spin_once(0)
     assert [a.leaving for a in acks] == [True] and acks[0].node == "sim"

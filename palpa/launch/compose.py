@@ -17,7 +17,7 @@ from palpa import env as palpa_env
 from palpa.errors import LaunchError
 from palpa.launch.plan import LaunchPlan, NodeSpec
 
-__all__ = ["CLOCK_TARGET", "COMPOSED_NAME", "compose_plan", "is_composable"]
+__all__ = ["CLOCK_TARGET", "COMPOSED_NAME", "compose_plan", "is_composable", "name_clock_participants"]
 
 CLOCK_TARGET = "palpa.simclock:ClockSource"
 COMPOSED_NAME = "sim"
@@ -27,6 +27,15 @@ _SIM_ENV = palpa_env.SIM_CLOCK
 def is_composable(spec: NodeSpec) -> bool:
     """A node class on the simulated clock (its entry sets ``PALPA_SIM_CLOCK``)."""
     return spec.target is not None and spec.env.get(_SIM_ENV, "") not in ("", "0")
+
+
+def name_clock_participants(plan: LaunchPlan) -> None:
+    """Tell the file's clock source (unless its entry names them) which nodes run on simulated time: it holds the
+    start of time until every one has set up, as a composition builds every node before its first step."""
+    names = [s.name for s in plan.nodes if is_composable(s)]
+    for spec in plan.nodes:
+        if spec.target == CLOCK_TARGET and "participants" not in spec.params:
+            spec.params["participants"] = names
 
 
 def compose_plan(plan: LaunchPlan) -> LaunchPlan:

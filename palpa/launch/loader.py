@@ -27,6 +27,7 @@ import msgspec
 
 from palpa.address import is_loopback_host
 from palpa.errors import BusError, LaunchError, ParamError
+from palpa.launch.compose import name_clock_participants
 from palpa.launch.hazards import check_hazards
 from palpa.launch.plan import RECORDER_NAME, RECORDER_TARGET, VIZ_NAME, LaunchPlan, NodeSpec
 from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, RecordDecl, VizDecl
@@ -109,6 +110,7 @@ def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
         plan.nodes.insert(0, viz)  # first, so that it hears every node's first messages
     _validate_nodes(col)
     check_hazards(plan, col.top, col.node_sources)
+    name_clock_participants(plan)
     return plan
 
 

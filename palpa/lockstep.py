@@ -1,0 +1,139 @@
+"""The bookkeeping of the event lockstep: when may simulated time move on, and to when.
+
+A composition (:mod:`palpa.compose`) runs its nodes' timers due at an instant, lets every message published in
+reaction be handled (and every message those published...), and only then jumps to the next timer deadline. The
+lockstep clock (:mod:`palpa.simclock`) gives processes the same timeline, from what each sim-clock node reports
+in its :class:`~palpa.runtime_msgs.ClockAck`: its next timer deadline, and per topic the messages it has sent and
+taken in. Time moves from ``now`` only when
+
+* no node has a timer due at or before ``now`` that it has not run (its ack names a later deadline), and
+* nothing is in flight: for every topic, each subscriber has taken in at least as many messages as its
+  publishers sent since the subscriber's accounting started (its join, or the start of time: messages published
+  before a subscriber was there never reach it);
+
+and then to the earliest deadline any node reported. The order in which messages of one instant arrive is then the
+only thing that can differ from a composed run; no node reads the wall clock for what it computes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from palpa.runtime_msgs import ClockAck
+
+__all__ = ["EventLockstep", "InFlight"]
+
+
+@dataclass
+class _Member:
+    ack: ClockAck
+    exact: frozenset[str] = frozenset()
+    prefixes: tuple[str, ...] = ()
+    takes: dict[str, bool] = field(default_factory=dict)
+    """Topic -> whether this member subscribes to it (a cache of ``exact``/``prefixes``)."""
+    base_recv: dict[str, int] = field(default_factory=dict)
+    """Its ``recv`` when its accounting started."""
+    base: dict[str, int] = field(default_factory=dict)
+    """Per topic, the messages sent that this member is not expected to take in (sent before its accounting
+    started, or by a publisher before that one joined)."""
+
+    def subscribe(self, subs: list[str]) -> None:
+        self.exact = frozenset(s for s in subs if not s.endswith("*"))
+        self.prefixes = tuple(s[:-1] for s in subs if s.endswith("*"))
+        self.takes = {}
+
+    def wants(self, topic: str) -> bool:
+        hit = self.takes.get(topic)
+        if hit is None:
+            hit = self.takes[topic] = topic in self.exact or any(topic.startswith(p) for p in self.prefixes)
+        return hit
+
+
+@dataclass(frozen=True)
+class InFlight:
+    """Messages sent on ``topic`` that ``subscriber`` has not taken in (yet): ``missing`` of them."""
+
+    topic: str
+    subscriber: str
+    missing: int
+
+
+class EventLockstep:
+    """The participants' latest reports (event acks only: ``next_ns >= 0``) and the rules above."""
+
+    def __init__(self) -> None:
+        self.members: dict[str, _Member] = {}
+        self._sent: dict[str, int] = {}
+        """Per topic, the messages the participants sent (their latest reports summed, those who left included:
+        what a node sent before it left is still on its way)."""
+
+    def __contains__(self, node: str) -> bool:
+        return node in self.members
+
+    def report(self, ack: ClockAck) -> bool:
+        """Take a node's latest report; True when it is a new participant (its accounting starts now)."""
+        member = self.members.get(ack.node)
+        if member is not None:
+            if ack.subs != member.ack.subs:
+                member.subscribe(ack.subs)
+            self._add_sent(member.ack.sent, -1)
+            self._add_sent(ack.sent, 1)
+            member.ack = ack
+            return False
+        member = self.members[ack.node] = _Member(ack)
+        member.subscribe(ack.subs)
+        self._add_sent(ack.sent, 1)
+        for other in self.members.values():
+            if other is not member:  # what it sent before joining (or rejoining) reached no one we count
+                _add(other.base, ack.sent, 1)
+        self._start(member)
+        return True
+
+    def restart_accounting(self) -> None:
+        """Count from now for everyone (when time starts: what was published while setting up is not waited for)."""
+        for member in self.members.values():
+            self._start(member)
+
+    def leave(self, node: str) -> None:
+        """``node`` no longer takes part: its timers and what it should take in are no longer waited for (what it
+        sent still is: a node leaving in order flushed it; one whose process died may have lost it, and the
+        clock's stall timeout covers that)."""
+        self.members.pop(node, None)
+
+    def due(self, now_ns: int) -> list[str]:
+        """Participants with a timer due at or before ``now_ns`` that they have not reported running."""
+        return [name for name, m in self.members.items() if 0 < m.ack.next_ns <= now_ns]
+
+    def next_event_ns(self) -> int | None:
+        """The earliest timer deadline any participant reported (None: no participant has a timer)."""
+        dues = [m.ack.next_ns for m in self.members.values() if m.ack.next_ns > 0]
+        return min(dues) if dues else None
+
+    def in_flight(self) -> InFlight | None:
+        """A topic on which some subscriber has not taken in everything sent to it (None: nothing in flight)."""
+        sent = self._sent
+        for name, sub in self.members.items():
+            if not sub.exact and not sub.prefixes:
+                continue
+            base, recv, base_recv = sub.base, sub.ack.recv, sub.base_recv
+            for topic, n in sent.items():
+                expected = n - base.get(topic, 0)
+                if expected > 0 and sub.wants(topic):
+                    got = recv.get(topic, 0) - base_recv.get(topic, 0)
+                    if got < expected:
+                        return InFlight(topic, name, expected - got)
+        return None
+
+    def _add_sent(self, sent: dict[str, int], sign: int) -> None:
+        _add(self._sent, sent, sign)
+
+    def _start(self, member: _Member) -> None:
+        member.base_recv = dict(member.ack.recv)
+        member.base = dict(self._sent)
+
+
+def _add(into: dict[str, int], counts: dict[str, int], sign: int) -> None:
+    for topic, n in counts.items():
+        into[topic] = into.get(topic, 0) + sign * n
+
+

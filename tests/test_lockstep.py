@@ -1,0 +1,152 @@
+"""The event lockstep (palpa.lockstep, palpa.simclock): processes get a composition's timeline."""
+
+from __future__ import annotations
+
+import time
+
+import palpa
+from messages import Text
+from nodes.demo import Talker
+from palpa.lockstep import EventLockstep, InFlight
+from palpa.runtime_msgs import ClockAck
+from palpa.simclock import ClockSource
+from palpa.testing import MemoryBus
+
+
+def _ack(node: str, next_ns: int, sent: dict[str, int] | None = None, recv: dict[str, int] | None = None,
+         subs: list[str] | None = None) -> ClockAck:
+    return ClockAck(node=node, sim_ns=0, next_ns=next_ns, sent=sent or {}, recv=recv or {}, subs=subs or [])
+
+
+def test_time_waits_for_due_timers_and_for_every_message_in_flight() -> None:
+    ls = EventLockstep()
+    ls.report(_ack("b", 250, subs=["x"]))
+    ls.report(_ack("c", 0, subs=["srv/request*"]))
+    ls.report(_ack("a", 100, sent={"x": 3}))  # sent 3 before it joined (before b could hear it): not waited for
+    assert ls.due(100) == ["a"] and ls.in_flight() is None and ls.next_event_ns() == 100
+    ls.report(_ack("a", 200, sent={"x": 5, "srv/request": 1}))  # ran its timer: 2 on x, a service request
+    assert ls.due(100) == []
+    flying = ls.in_flight()
+    assert flying is not None and flying.topic == "x" and flying.subscriber == "b" and flying.missing == 2
+    ls.report(_ack("b", 250, recv={"x": 2}, subs=["x"]))
+    flying = ls.in_flight()
+    assert flying is not None and flying.subscriber == "c" and flying.topic == "srv/request"  # by prefix
+    ls.report(_ack("c", 0, recv={"srv/request": 1}, subs=["srv/request*"]))
+    assert ls.in_flight() is None and ls.next_event_ns() == 200
+    ls.report(_ack("a", 300, sent={"x": 6, "srv/request": 1}))
+    ls.report(_ack("d", 400))  # another publisher on x
+    ls.leave("a")  # its timers are no longer waited for; what it sent before leaving still is
+    assert ls.next_event_ns() == 250 and ls.in_flight() == InFlight("x", "b", 1)
+    ls.report(_ack("b", 250, recv={"x": 3}, subs=["x"]))
+    assert ls.in_flight() is None
+    ls.report(_ack("d", 500, sent={"x": 1}))
+    assert ls.in_flight() == InFlight("x", "b", 1)
+    ls.report(_ack("a", 600, sent={"x": 2}))  # back, restarted: counts anew
+    assert ls.in_flight() == InFlight("x", "b", 1)
+    ls.leave("b")  # the subscriber gone: nothing is waited for
+    assert ls.in_flight() is None
+
+
+class _Echo(palpa.Node):
+    """Publishes, from its handler, what it hears on ``chatter`` (a reaction: the lockstep must wait for it)."""
+
+    def setup(self) -> None:
+        self.out = self.publisher("echo", Text)
+        self.subscribe("chatter", Text, lambda m: self.out.publish(Text(text=m.text, stamp_ns=self.clock.now_ns())))
+
+
+class _Sink(palpa.Node):
+    def setup(self) -> None:
+        self.heard: list[tuple[int, int]] = []
+        """(stamp, simulated time it was handled at) of every echo."""
+        self.subscribe("echo", Text, lambda m: self.heard.append((m.stamp_ns, self.clock.now_ns())))
+
+
+def test_processes_see_timers_at_their_deadlines_and_messages_at_the_instant_sent() -> None:
+    """A 10 Hz talker, a node echoing it from its handler, a sink: the clock holds the start until all three have
+    joined, ticks only at the talker's deadlines, and moves on only once the echo of each tick reached the sink,
+    although the sink is spun after the clock (on sockets: whichever process the machine runs first)."""
+    bus = MemoryBus()
+    clock = ClockSource(params={"time_scale": 1000.0, "rate_hz": 1000.0, "participants": ["talker", "echo", "sink"]},
+                        transport=bus.transport(), heartbeat_s=0)
+    ticks: list[palpa.runtime_msgs.ClockTick] = []
+    spy = palpa.Node(name="spy", transport=bus.transport(), heartbeat_s=0)
+    spy.subscribe("_palpa/clock", palpa.runtime_msgs.ClockTick, ticks.append)
+
+    def sim(cls: type[palpa.Node], name: str, **params: object) -> palpa.Node:
+        return cls(name=name, params=params, transport=bus.transport(), heartbeat_s=0, sim_clock=True,
+                   wait_for_clock_s=0)
+
+    talker = sim(Talker, "talker", rate_hz=10.0)
+    assert isinstance(talker, Talker)
+    nodes: list[palpa.Node] = [talker, clock]
+    deadline = time.monotonic() + 0.3
+    while time.monotonic() < deadline:
+        for n in nodes:
+            n.spin_once(0)
+    assert talker.out.seq == 0  # echo and sink not there yet: time has not started
+    echo, sink = sim(_Echo, "echo"), sim(_Sink, "sink")
+    assert isinstance(sink, _Sink)
+    nodes += [echo, sink]
+    deadline = time.monotonic() + 20
+    while len(sink.heard) < 10 and time.monotonic() < deadline:
+        for n in nodes:
+            n.spin_once(0)
+    spy.spin_once(0)
+    start = ticks[0].sim_ns
+    assert ticks[0].hold and not ticks[-1].hold  # held, then released (at the same instant)
+    assert sorted({t.sim_ns - start for t in ticks})[:10] == [i * 100_000_000 for i in range(10)]
+    assert sink.heard[:10] == [(start + i * 100_000_000, start + i * 100_000_000) for i in range(10)]
+    for n in [*nodes, spy]:
+        n.close(0)
+
+
+def test_a_lead_mode_clock_gets_an_ack_every_10_ms_of_simulated_time() -> None:
+    """Under ``lockstep: lead`` the clock keeps time within a lead of the acks: an idle node acks anyway."""
+    bus = MemoryBus()
+    node = palpa.Node(name="idle", transport=bus.transport(), heartbeat_s=0, sim_clock=True, wait_for_clock_s=0)
+    clock = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
+    tick = clock.publisher("_palpa/clock", palpa.runtime_msgs.ClockTick)
+    acks: list[ClockAck] = []
+    clock.subscribe(palpa.runtime_msgs.CLOCK_ACK_TOPIC, ClockAck, acks.append)
+    for i in range(10):
+        tick.publish(palpa.runtime_msgs.ClockTick(sim_ns=1_000_000_000 + i * 4_000_000, lead=True))
+        node.spin_once(0)
+    clock.spin_once(0)
+    assert [a.sim_ns - 1_000_000_000 for a in acks] == [0, 12_000_000, 24_000_000, 36_000_000]
+    node.close(0)
+    clock.close(0)
+
+
+def test_a_node_reports_what_it_handled_before_it_blocks_for_input() -> None:
+    """Input taken in by the non-blocking poll at the start of a spin is reported before the spin blocks: the clock
+    waits for that report (it once waited for the blocking poll's timeout at every simulated instant)."""
+    from palpa.testing import MemoryTransport
+    from palpa.transport import Delivery, SendFn
+
+    events: list[str] = []
+
+    class Watched(MemoryTransport):
+        def poll(self, timeout_s: float) -> list[Delivery]:
+            if timeout_s > 0:
+                events.append("block")
+            return super().poll(timeout_s)
+
+        def sender(self, topic: bytes, direct: bool | None) -> SendFn:
+            send = super().sender(topic, direct)
+
+            def sending(frames: list[bytes], latched: bool) -> None:
+                events.append(frames[0].decode())
+                send(frames, latched)
+            return sending  # type: ignore[return-value]
+
+    bus = MemoryBus()
+    t = Watched(bus)
+    bus._add(t)
+    node = palpa.Node(name="n", transport=t, heartbeat_s=0, sim_clock=True, wait_for_clock_s=0)
+    clock = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
+    clock.publisher("_palpa/clock", palpa.runtime_msgs.ClockTick).publish(palpa.runtime_msgs.ClockTick(sim_ns=5))
+    node.spin_once(0.01)
+    assert events[:2] == [palpa.runtime_msgs.CLOCK_ACK_TOPIC, "block"]
+    node.close(0)
+    clock.close(0)
