@@ -193,4 +193,6 @@ def test_a_simulated_scan_split_over_three_hosts_survives_a_link_going_down(
     drops = next(line for line in info.splitlines() if line.startswith("drops:"))
     assert _missing(report) == _missing(drops), (report, drops)
     grid = np.load(out_dir / "map.npz")
-    assert int(grid["count"].sum()) > 0 and np.isfinite(grid["stiffness"][grid["count"] > 0]).all()
+    # a cell counts from the map's min_count (3) samples on; below it the map leaves it NaN by design
+    counted = grid["count"] >= 3
+    assert counted.sum() > 0 and np.isfinite(grid["stiffness"][counted]).all()
