@@ -138,9 +138,13 @@ def test_service_call_probe_at_on_a_simulated_graph(procs: ProcessGroup, tmp_pat
         return all(f"{n}  pid" in listed for n in names)
 
     wait_until(all_up, 90, "the six nodes of launch/probe_sim.yaml")
-    # and the probe is reading (the scanner refuses a probe at once without fresh probe data, as it should)
-    assert main(["topic", "echo", "probe/heights", "-n", "3", "--timeout", "60", "--bus", bus]) == 0
-    capsys.readouterr()
+    # and the scanner says it is idle: it has touched off and the probe is reading (it refuses a probe while
+    # waiting, as it should)
+    def idle() -> bool:
+        main(["topic", "echo", "robot/scan_status", "-n", "1", "--timeout", "5", "--bus", bus])
+        return "state: idle" in capsys.readouterr().out
+
+    wait_until(idle, 90, "the scanner idle")
     code = main(["service", "call", "scanner/probe_at", "ProbeAt", "{x_mm: 30, y_mm: 36}", "--bus", bus,
                  "--wait", "60", "--timeout", "60", "--feedback", "robot/scan_status"])
     out = capsys.readouterr()
