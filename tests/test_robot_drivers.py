@@ -261,3 +261,20 @@ def test_ur_driver_unreachable_robot() -> None:
     with pytest.raises(RobotConnectionError, match="cannot reach the UR controller"):
         drv.connect()
     drv.close()
+
+
+def test_a_ur_rtde_command_that_never_returns_latches_a_fault_instead_of_hanging_the_node() -> None:
+    """ur_rtde's path upload waits without a deadline for the controller to run the new script (it hung a test
+    run for good under load): the driver waits command_timeout_s, then faults and refuses to move."""
+    import threading
+
+    drv = URRtdeDriver("127.0.0.1", command_timeout_s=0.2)
+    never = threading.Event()
+    with pytest.raises(RobotDriverError, match=r"moveL\(path\) did not return within 0.2 s"):
+        drv._bounded(lambda: never.wait(30), "moveL(path)")
+    progress = drv.progress()
+    assert progress.status == MotionStatus.FAULT and "reconnect before moving again" in progress.message
+    assert drv._bounded(lambda: True, "moveL(path)") is True  # a command that returns is passed through
+    with pytest.raises(RuntimeError, match="lost"):  # and its errors reach the caller as they were
+        drv._bounded(lambda: (_ for _ in ()).throw(RuntimeError("RTDE connection lost")), "moveL(path)")
+    never.set()

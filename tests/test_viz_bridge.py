@@ -217,10 +217,11 @@ def test_palpa_viz_serves_a_running_graph_and_survives_a_vanished_client(
 @pytest.mark.slow
 def test_a_viewer_joins_a_simulated_scan_midway(procs: ProcessGroup, tmp_path: Path) -> None:
     """launch/scan_sim.yaml viz:=true on a tiny raster: a client watching from the start, another joining once
-    the map exists, getting the latched plan and map, then vanishing; the scan ends normally."""
+    the map exists, getting the latched plan and map, then vanishing; the scan ends normally. At time_scale 1 the
+    scan outlasts the first map by seconds of wall time, so the late client joins a running graph even under load."""
     run_dir = tmp_path / "run"
     launch = procs.start(palpa_cmd("launch", str(REPO / "launch/scan_sim.yaml"), "viz:=true", "viz_port:=0",
-                                   "spacing_mm:=4.0", "region_mm:=[10.0, 14.0, 22.0, 22.0]", "time_scale:=3.0",
+                                   "spacing_mm:=4.0", "region_mm:=[10.0, 14.0, 22.0, 22.0]", "time_scale:=1.0",
                                    "--run-dir", str(run_dir), "--no-progress"), cwd=str(REPO))
     address = run_dir / "viz.address"
     wait_until(lambda: address.exists() and address.read_text().strip(), 60, "viz.address")

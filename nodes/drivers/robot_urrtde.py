@@ -62,7 +62,7 @@ class URRtdeDriver:
                  tool_rotvec: Sequence[float] = (0.0, math.pi, 0.0), frequency_hz: float = 500.0,
                  watchdog_hz: float | None = 2.0, max_speed_mm_s: float = 250.0,
                  max_accel_mm_s2: float = 2500.0, poll_s: float = 0.01, start_timeout_s: float = 2.0,
-                 clock: Callable[[], int] = time.time_ns) -> None:
+                 command_timeout_s: float = 10.0, clock: Callable[[], int] = time.time_ns) -> None:
         if len(frame_offset_mm) != 3 or len(tool_rotvec) != 3:
             raise ValueError(f"URRtdeDriver: frame_offset_mm and tool_rotvec need 3 numbers each, "
                              f"got {frame_offset_mm!r}, {tool_rotvec!r}")
@@ -73,7 +73,7 @@ class URRtdeDriver:
         self.tool_rotvec = (float(tool_rotvec[0]), float(tool_rotvec[1]), float(tool_rotvec[2]))
         self.frequency_hz, self.watchdog_hz = frequency_hz, watchdog_hz
         self.max_speed_mm_s, self.max_accel_mm_s2 = max_speed_mm_s, max_accel_mm_s2
-        self.poll_s, self.start_timeout_s = poll_s, start_timeout_s
+        self.poll_s, self.start_timeout_s, self.command_timeout_s = poll_s, start_timeout_s, command_timeout_s
         self._clock = clock
         self._lock = threading.RLock()  # serialises every ur_rtde call
         self._rc: Any = None  # rtde_control.RTDEControlInterface
@@ -173,7 +173,7 @@ class URRtdeDriver:
                 raise RobotDriverError(f"UR at {self.host}: not connected; call connect() first")
             if self._status in _LATCHED:
                 raise RobotDriverError(f"UR at {self.host}: cannot move: {self._status.value}: {self._message}")
-            ok = self._rc.moveL(ur_path, True)
+            ok = self._bounded(lambda: self._rc.moveL(ur_path, True), "moveL(path)")
             if not ok:
                 self._poll()
                 if self._status not in _LATCHED:
@@ -186,6 +186,33 @@ class URRtdeDriver:
             self._moving, self._started, self._stop_requested = True, False, False
             self._t_move = time.monotonic()
             self._status, self._message = MotionStatus.MOVING, ""
+
+    def _bounded(self, call: Callable[[], bool], what: str) -> bool:
+        """``call()`` (a blocking ur_rtde command), waited for at most ``command_timeout_s``: ur_rtde's path
+        upload waits without a deadline for the controller to run the new script, and has been seen to wait for
+        good (a loaded machine, the script upload racing the previous one). A command that does not come back
+        latches FAULT and raises; its thread is left behind (a C++ call cannot be interrupted) and the driver
+        refuses further motion until it is connected again."""
+        result: list[bool] = []
+        error: list[BaseException] = []
+
+        def run() -> None:
+            try:
+                result.append(bool(call()))
+            except BaseException as e:  # noqa: BLE001 - handed to the caller's thread as it was
+                error.append(e)
+
+        worker = threading.Thread(target=run, name=f"ur-{what}", daemon=True)
+        worker.start()
+        worker.join(self.command_timeout_s)
+        if error:
+            raise error[0]
+        if worker.is_alive():
+            reason = f"ur_rtde {what} did not return within {self.command_timeout_s:g} s"
+            self._latch(MotionStatus.FAULT, f"{reason}; the arm is stopped by the controller's watchdog: "
+                        "reconnect before moving again")
+            raise RobotDriverError(f"UR at {self.host}: {reason}")
+        return result[0]
 
     def stop(self, decel_mm_s2: float) -> None:
         decel = decel_mm_s2 if math.isfinite(decel_mm_s2) and decel_mm_s2 > 0 else self.max_accel_mm_s2
