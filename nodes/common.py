@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
+from typing import TypeVar
 
 from models.camera_calibration import CalibrationError, ProbeCalibration
 from models.camera_calibration import load_probe_calibration as read_probe_calibration
@@ -12,31 +14,33 @@ from palpa.errors import ParamError
 
 __all__ = ["load_probe_calibration", "phantom_from_param"]
 
+T = TypeVar("T")
+
 
 @lru_cache(maxsize=8)
 def _load(path: str) -> Phantom:
     return load_phantom(path)
 
 
+def _read_as_param(path: str, node: str, what: str, read: Callable[[str], T],
+                   errors: type[Exception]) -> T:
+    """``read(path)``, with a missing file or ``errors`` turned into a :class:`ParamError` naming the node
+    (one line from ``palpa run``, no traceback)."""
+    if not Path(path).is_file():
+        raise ParamError(f"{node}: {what} file {path!r} does not exist")
+    try:
+        return read(path)
+    except errors as exc:
+        raise ParamError(f"{node}: {exc}") from None
+
+
 def phantom_from_param(path: str, node: str) -> Phantom:
-    """Load the phantom named by a node's ``phantom`` parameter; a missing or invalid one is a
-    :class:`ParamError` (one line from ``palpa run``, no traceback)."""
+    """Load the phantom named by a node's ``phantom`` parameter (only simulated drivers have one)."""
     if not path:
         raise ParamError(f"{node}: the sim driver needs the 'phantom' parameter (a phantom YAML file)")
-    if not Path(path).is_file():
-        raise ParamError(f"{node}: phantom file {path!r} does not exist")
-    try:
-        return _load(path)
-    except PhantomError as exc:
-        raise ParamError(f"{node}: {exc}") from None
+    return _read_as_param(path, node, "phantom", _load, PhantomError)
 
 
 def load_probe_calibration(path: str, node: str) -> ProbeCalibration:
-    """Read a camera-probe calibration file (YAML, nodes/camera_calibrate.py writes it); a missing or invalid one
-    is a :class:`ParamError` naming the file."""
-    if not Path(path).is_file():
-        raise ParamError(f"{node}: calibration file {path!r} does not exist")
-    try:
-        return read_probe_calibration(path)
-    except CalibrationError as exc:
-        raise ParamError(f"{node}: {exc}") from None
+    """Read a camera-probe calibration file (YAML, nodes/camera_calibrate.py writes it)."""
+    return _read_as_param(path, node, "calibration", read_probe_calibration, CalibrationError)

@@ -147,7 +147,7 @@ class Player(Node):
                 # sim time: let the clock run at wall speed towards the recording's start (it cannot get there
                 # before ready_timeout_s), so they start and are heard; playback then jumps it forward
                 if self._hold_ns is None:
-                    self._hold_ns = self._first_log_time() - int(self.params.ready_timeout_s * 1e9) - 1
+                    self._hold_ns = self._first_time() - int(self.params.ready_timeout_s * 1e9) - 1
                     self._hold_wall = time.monotonic()
                 self._tick_clock(self._hold_ns + int((time.monotonic() - self._hold_wall) * 1e9))
             self.spin_once(0.02)
@@ -161,7 +161,7 @@ class Player(Node):
         self.publish_raw(self._topic(m.topic), header, m.payload, m.blobs, latched=m.latched)
         self.played += 1
 
-    def _first_log_time(self) -> int:
+    def _first_time(self) -> int:
         """Where playback starts in recorded time (the first message's time on the timeline, plus the offset)."""
         for m in iter_bag(self.paths, on_damage=lambda text: None):
             if self.params.timeline == "log":
