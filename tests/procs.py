@@ -12,7 +12,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from emulators.ur.process import UrEmulatorProcess
 from palpa.address import BusAddress
@@ -141,6 +141,14 @@ def wait_until(cond: Callable[[], T | None], timeout: float = 10.0, what: str = 
             step()
         else:
             time.sleep(0.01)
+
+
+def drain(sub: Any) -> list[Any]:
+    """Everything queued on a subscription (``palpa.Subscription``), oldest first; the queue is left empty."""
+    out = []
+    while sub.queue:
+        out.append(sub.queue.popleft())
+    return out
 
 
 @contextlib.contextmanager

@@ -172,6 +172,7 @@ def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path, calibration)
     """Issue 6 acceptance as processes: launch/airfloat_sim.yaml over the 10.8 kPa phantom, the simulated probe
     calibrated on the bench first (uncalibrated it reads about a third low: BENCHMARKS.md)."""
     from tests.launching import launched, spin_until
+    from tests.procs import drain
 
     with launched(procs, "launch/airfloat_sim.yaml", tmp_path / "run", "phantom:=phantoms/flat_10k.yaml",
                   "pressure_kpa:=33.5", f"calibration:={calibration}") as (proc, node):
@@ -179,10 +180,7 @@ def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path, calibration)
         got: list[StiffnessSample] = []
 
         def enough() -> bool:
-            while samples.queue:
-                m = samples.queue.popleft()
-                if m.valid:
-                    got.append(m)
+            got.extend(m for m in drain(samples) if m.valid)
             return len(got) >= 300
 
         spin_until(node, enough, 60, "300 valid samples", proc)

@@ -9,7 +9,6 @@ import signal
 import sys
 import threading
 import time
-from typing import Any
 
 import msgpack
 import pytest
@@ -19,7 +18,7 @@ import palpa
 from messages import Text
 from palpa.address import BusAddress
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
-from tests.procs import ProcessGroup, palpa_cmd, short_ipc_base, wait_until
+from tests.procs import ProcessGroup, drain, palpa_cmd, short_ipc_base, wait_until
 
 
 def heartbeats(node: palpa.Node) -> palpa.Subscription[Heartbeat]:
@@ -116,14 +115,6 @@ def test_bad_params_exit_with_one_line(ipc_bus: BusAddress, procs: ProcessGroup,
     assert p.wait(10) == 2
     out = p.output().strip().splitlines()
     assert out == ["nodes.demo:Talker: node 'talker': parameter 'rate_hz': Expected `float`, got `str`"]
-
-
-def drain(sub: Any) -> list[Any]:
-    """Everything queued on a subscription, oldest first."""
-    out = []
-    while sub.queue:
-        out.append(sub.queue.popleft())
-    return out
 
 
 def test_fuzz_frames_never_kill_a_node(ipc_bus: BusAddress, procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]

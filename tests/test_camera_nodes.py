@@ -238,6 +238,7 @@ def test_camera_sim_launch_measures_a_tilted_spring(procs: Any, tmp_path: Path) 
     """Issue 7 acceptance as processes: launch/camera_sim.yaml, the 0.62 N/mm sample inclined 15°, one press;
     the launch ends by itself (the stage is required) with exit 0."""
     from tests.launching import launched, spin_until
+    from tests.procs import drain
 
     got: list[StiffnessSample] = []
     with launched(procs, "launch/camera_sim.yaml", tmp_path / "run", "phantom:=phantoms/springs_062.yaml",
@@ -245,8 +246,7 @@ def test_camera_sim_launch_measures_a_tilted_spring(procs: Any, tmp_path: Path) 
         samples = node.subscribe("stiffness/sample", StiffnessSample)
 
         def ended() -> bool:
-            while samples.queue:
-                got.append(samples.queue.popleft())
+            got.extend(drain(samples))
             return proc.popen.poll() is not None
 
         spin_until(node, ended, 90, "the launch to finish its press", proc)
