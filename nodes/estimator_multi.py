@@ -7,7 +7,8 @@ import math
 from dataclasses import dataclass, field
 
 from messages import IndenterDisplacements, RobotPose, StiffnessSample
-from models.multi_indenter import ProbeGeometry, solve_exact, solve_lm
+from models.multi_indenter import ProbeGeometry
+from models.multi_indenter_solve import solve_exact, solve_lm
 from models.timeseries import StampedBuffer
 
 __all__ = ["MultiIndenterEstimator"]

@@ -133,6 +133,53 @@ def test_emulators_import_nothing_from_nodes() -> None:
     assert {m: t for m, t in offenders.items() if t} == {}
 
 
+# The simulated world (tissue mechanics, sensors and their errors) and the estimators (the papers' methods) share no
+# formula (docs/physics.md §7). The world may use the probes' geometry (models.multi_indenter's tip layout, the
+# air-float probe's radii and what its sensors read over a surface), never an inversion.
+WORLD = ("models.world", "models.airfloat_device", "models.camera_world", "models.camera_render",
+         "nodes.drivers.fibre_sim", "nodes.drivers.camera_sim", "nodes.drivers.pressure_sim",
+         "nodes.drivers.robot_sim", "emulators")
+# models.fibre_calibration is not among them: it is the DAQ's own counts <-> mm curve, which the emulated DAQ
+# encodes with as the real one does (fibre_sim's world adds the sensor's gain and bow errors on top)
+ESTIMATORS = {"models.contact", "models.multi_indenter_solve", "models.stiffness_map", "models.calibration_airfloat",
+              "models.camera_calibration", "models.tracker", "models.kalman",
+              "models.adaptive", "models.scoring", "nodes.stiffness_estimator", "nodes.estimator_multi",
+              "nodes.map_aggregator"}
+AIRFLOAT_GEOMETRY = {"DEFAULT_INDENTER_RADIUS_MM", "DEFAULT_SPS_RADIUS_MM", "heights_over_phantom"}
+
+
+def world_reaches_into_estimators(world: tuple[str, ...], estimators: set[str]) -> list[str]:
+    """Every import by a world module of an estimator module, or of a models.airfloat name that is not geometry."""
+    mods = _modules(("models", "nodes", "emulators"))
+    bad = []
+    for name, path in mods.items():
+        if not any(name == w or name.startswith(w + ".") for w in world):
+            continue
+        bad += [f"{name} -> {t}" for t in sorted(_imports(name, path, set(mods))) if t in estimators]
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom) and node.module == "models.airfloat":
+                bad += [f"{name} -> models.airfloat.{a.name}" for a in node.names if a.name not in AIRFLOAT_GEOMETRY]
+    return bad
+
+
+def test_the_simulated_world_imports_no_estimator() -> None:
+    assert world_reaches_into_estimators(WORLD, ESTIMATORS) == []
+
+
+def test_the_world_check_sees_an_estimator_import() -> None:
+    """The check is not vacuous: the camera sim reads the probe geometry, which counts once it is called an
+    estimator, and the fibre sim's airfloat import counts once heights are not geometry."""
+    assert "nodes.drivers.camera_sim -> models.multi_indenter" in world_reaches_into_estimators(
+        WORLD, ESTIMATORS | {"models.multi_indenter"})
+    global AIRFLOAT_GEOMETRY
+    saved, AIRFLOAT_GEOMETRY = AIRFLOAT_GEOMETRY, AIRFLOAT_GEOMETRY - {"heights_over_phantom"}
+    try:
+        assert "nodes.drivers.fibre_sim -> models.airfloat.heights_over_phantom" in world_reaches_into_estimators(
+            WORLD, ESTIMATORS)
+    finally:
+        AIRFLOAT_GEOMETRY = saved
+
+
 def test_the_checks_see_a_cycle_and_a_private_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The scans are not vacuous: a planted cycle and a planted private read are found."""
     pkg = tmp_path / "fakepkg"

@@ -11,11 +11,13 @@ from models.multi_indenter import (
     CENTROID_NOISE_PX,
     PAPER_GEOMETRY,
     PX_PER_MM,
-    REASONS,
     ProbeGeometry,
-    StiffnessSolution,
     advance_range_mm,
     forward,
+)
+from models.multi_indenter_solve import (
+    REASONS,
+    StiffnessSolution,
     solve_batch,
     solve_exact,
     solve_lm,

@@ -14,16 +14,21 @@ import subprocess
 import sys
 import time
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from emulators.ur import ControllerConfig, FaultPlan, UrController, UrEmulator
+from emulators.ur.controller import BACKING_N_PER_MM
 from emulators.ur.process import UrEmulatorProcess
 from emulators.ur.script import ScriptReceiver, parse_path
 from models.arm import ArmTarget
+from models.phantom import load_phantom
+from models.world import TissueWorld
 from tests.procs import ur_emulator, wait_until
 
+REPO = Path(__file__).resolve().parent.parent
 rtde_control = pytest.importorskip("rtde_control")
 rtde_receive = pytest.importorskip("rtde_receive")
 
@@ -300,33 +305,45 @@ def test_unlock_waits_for_the_configured_delay() -> None:
     assert ctl.unlock_protective_stop() == "Protective stop releasing" and not ctl.protective_stopped
 
 
-class FlatPhantom:
-    """A 10 mm thick slab of 26.4 kPa tissue (no models.phantom needed)."""
-
-    youngs_modulus_kpa = 26.4
-    poisson_ratio = 0.5
+class BareSurface:
+    """A plane 10 mm above the table with no tissue model: the emulator must treat it as rigid."""
 
     def surface_z(self, x_mm: float, y_mm: float) -> float:
         return 10.0
 
 
-def test_contact_force_follows_hertz_and_the_force_limit_protective_stops() -> None:
-    cfg = ControllerConfig(home_pose=(20.0, 20.0, 12.0, 0.0, DOWN, 0.0), force_limit_n=1.0)
-    ctl = UrController(cfg, phantom=FlatPhantom())
+def test_contact_force_is_the_tissue_world_s_and_the_force_limit_protective_stops() -> None:
+    """The emulated TCP force is models.world's FE-grounded force (no estimator formula); pressed past the world's
+    tables the specimen has bottomed out on the table, and the force limit trips the protective stop."""
+    phantom = load_phantom(REPO / "phantoms" / "flat_26k.yaml")  # 20 mm thick: the surface at z = 20
+    cfg = ControllerConfig(home_pose=(20.0, 20.0, 22.0, 0.0, DOWN, 0.0), force_limit_n=1.0)
+    ctl = UrController(cfg, phantom=phantom)
     ctl.tick()
     assert ctl.force[2] == 0.0  # 2 mm above the surface
-    ctl.arm.move_l((20.0, 20.0, 9.0, 0.0, DOWN, 0.0), 20.0, 400.0)  # 1 mm into the tissue
+    ctl.arm.move_l((20.0, 20.0, 19.0, 0.0, DOWN, 0.0), 20.0, 400.0)  # 1 mm into the tissue
     for _ in range(200):
         ctl.tick()
-    # eq. 6 solved for F: 8 E d sqrt(r d) / (6 (1 - nu^2)), E in N/mm^2
-    expected = 8 * 26.4e-3 * 1.0 * math.sqrt(3.5 * 1.0) / (6 * 0.75)
-    assert ctl.force[2] == pytest.approx(expected, rel=1e-6)
+    world = TissueWorld(phantom)
+    expected = float(world.force_n(20.0, 20.0, 1.0, indenter_radius_mm=cfg.tip_radius_mm))
+    assert 0.05 < expected < 1.0
+    assert ctl.force[2] == pytest.approx(expected, rel=1e-9)
     assert ctl.output("actual_TCP_force")[2] == pytest.approx(expected)  # type: ignore[index]
-    ctl.arm.move_l((20.0, 20.0, 0.0, 0.0, DOWN, 0.0), 20.0, 400.0)  # press on: the force limit trips
-    for _ in range(600):
+    ctl.arm.move_l((20.0, 20.0, 0.0, 0.0, DOWN, 0.0), 20.0, 400.0)  # press on: bottoms out, the force limit trips
+    for _ in range(1500):
         ctl.tick()
-    assert ctl.protective_stopped and ctl.arm.pose[2] > 3.0 and not ctl.arm.is_moving  # ~1 N at 4.4 mm
+    deepest = float(world.deepest_mm(20.0, 20.0, indenter_radius_mm=cfg.tip_radius_mm))
+    assert ctl.protective_stopped and not ctl.arm.is_moving
+    assert 20.0 - deepest - 0.5 < ctl.arm.pose[2] < 20.0 - deepest  # within half a mm of bottoming out
     assert any("exceeds the 1 N limit" in m for m in ctl.messages)
+
+
+def test_a_surface_without_tissue_is_rigid() -> None:
+    cfg = ControllerConfig(home_pose=(20.0, 20.0, 11.0, 0.0, DOWN, 0.0), force_limit_n=100.0)
+    ctl = UrController(cfg, phantom=BareSurface())
+    ctl.arm.move_l((20.0, 20.0, 9.99, 0.0, DOWN, 0.0), 20.0, 400.0)
+    for _ in range(200):
+        ctl.tick()
+    assert ctl.force[2] == pytest.approx(0.01 * BACKING_N_PER_MM, rel=1e-6)
 
 
 def test_fault_plan_fires_once_timed_from_the_first_motion() -> None:

@@ -19,6 +19,9 @@ from models.arm import TICK_S, ArmModel, ArmTarget, Pose
 
 RUNTIME_STOPPED, RUNTIME_PLAYING = 1, 2  # RTDE runtime_state (0, "stopping", is never reported here)
 ROBOT_MODE_RUNNING = 7
+# The rigid table under a specimen, felt once the tissue has bottomed out (pressed past the world's tables): steep,
+# so a touch-off or a press that goes too deep trips the force limit within a fraction of a millimetre.
+BACKING_N_PER_MM = 50.0
 SAFETY_MODE_NORMAL, SAFETY_MODE_PROTECTIVE_STOP = 1, 3
 SAFETY_BIT_NORMAL, SAFETY_BIT_PROTECTIVE_STOP, SAFETY_BIT_STOPPED_DUE_TO_SAFETY = 1 << 0, 1 << 2, 1 << 10
 ROBOT_BIT_POWER_ON, ROBOT_BIT_PROGRAM_RUNNING = 1 << 0, 1 << 1
@@ -26,9 +29,8 @@ ROBOT_BIT_POWER_ON, ROBOT_BIT_PROGRAM_RUNNING = 1 << 0, 1 << 1
 
 class SurfaceLike(Protocol):
     """What the contact model needs from a phantom (models.phantom.Phantom): the height (mm)
-    of the tissue surface above the table at (x, y) in the phantom frame (mm). If it also has
-    `effective_modulus(x, y, radius_mm, depth_mm)` (kPa) and `poisson_ratio`, the contact
-    force feels inclusions; otherwise 26.4 kPa (paper 1's phantom) is assumed."""
+    of the tissue surface above the table at (x, y) in the phantom frame (mm). A Phantom's tissue gives the
+    contact force through models.world's FE-grounded world; anything else is a rigid surface."""
 
     def surface_z(self, x_mm: Any, y_mm: Any, /) -> Any: ...
 
@@ -344,6 +346,33 @@ class UrController:
                 self._world = None
         return self._world
 
+    def _contact_force(self, x: float, y: float, depth: float, r: float) -> float:
+        """Force (N) on the tip pressed depth mm into the specimen at (x, y), from the simulated world only.
+
+        The FE-grounded tissue world (models.world) within its tables; past them (deeper than min(r, 0.75 t), or a
+        layer thinner than the tables) the tissue has bottomed out on the rigid table under it, which pushes back
+        at BACKING_N_PER_MM. A spring sample is its spring. Nothing here is an estimator's formula.
+        """
+        phantom = self.phantom
+        if getattr(phantom, "is_spring_sample", False):  # a reference spring sample: its spring, linear
+            return float(phantom.spring_constant(x, y, r, depth)) * depth  # type: ignore[union-attr]
+        world = self._tissue_world()
+        if world is None:  # a surface without tissue (a test's plane): rigid
+            return BACKING_N_PER_MM * depth
+        from models.world import WorldRangeError
+
+        try:
+            f = float(world.force_n(x, y, depth, indenter_radius_mm=r))
+            return f if math.isfinite(f) else 0.0  # nan: off the footprint
+        except WorldRangeError:
+            pass
+        try:
+            deepest = float(world.deepest_mm(x, y, indenter_radius_mm=r))
+            base = float(world.force_n(x, y, deepest, indenter_radius_mm=r))
+        except WorldRangeError:  # a layer thinner than the tables: the table is right under the tip
+            deepest, base = 0.0, 0.0
+        return base + BACKING_N_PER_MM * max(0.0, depth - deepest)
+
     def _update_force(self) -> None:
         if self.phantom is None:
             return
@@ -354,26 +383,8 @@ class UrController:
             surface = math.nan  # outside the phantom
         depth = surface - (p[2] - o[2]) if math.isfinite(surface) else 0.0
         fz = 0.0
-        world = self._tissue_world()
-        if depth > 0 and world is not None:
-            try:  # the FE-grounded world of models.world: shares no formula with the estimators
-                fz = float(world.force_n(p[0] - o[0], p[1] - o[1], depth, indenter_radius_mm=c.tip_radius_mm))
-            except ValueError:  # pressed beyond the world's tables: the Hertz law below takes over
-                fz = math.nan
-            if not math.isfinite(fz):
-                fz = 0.0 if depth < 1e-3 else math.nan
-        if depth > 0 and (world is None or math.isnan(fz)):
-            modulus = getattr(self.phantom, "effective_modulus", None)
-            try:
-                e_kpa = float(modulus(p[0] - o[0], p[1] - o[1], c.tip_radius_mm, depth)) if modulus else 26.4
-            except ValueError:  # e.g. a spring sample: no modulus to press into
-                e_kpa = math.nan
-            nu = float(getattr(self.phantom, "poisson_ratio", 0.5))
-            # Hertz contact of the spherical tip (paper 1, eq. 6 solved for F); imported here
-            # because models.contact pulls in scipy.optimize, which slows every emulator start
-            from models.contact import hertz_force
-
-            fz = float(hertz_force(e_kpa, depth, c.tip_radius_mm, nu)) if math.isfinite(e_kpa) else 0.0
+        if depth > 0:
+            fz = self._contact_force(p[0] - o[0], p[1] - o[1], depth, c.tip_radius_mm)
         self.force = [0.0, 0.0, fz, 0.0, 0.0, 0.0]
         if fz > c.force_limit_n:
             self.protective_stop(f"contact force {fz:.1f} N exceeds the {c.force_limit_n:g} N limit")

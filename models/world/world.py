@@ -212,6 +212,18 @@ class TissueWorld:
         out[~on] = np.nan
         return _out(out.reshape(shape), x_mm, y_mm, depth_mm)
 
+    def deepest_mm(
+        self, x_mm: ArrayLike, y_mm: ArrayLike, *, indenter_radius_mm: float = DEFAULT_INDENTER_RADIUS_MM
+    ) -> ArrayLike:
+        """The deepest press (mm) the tables cover at (x, y): min(r, 0.75 t); nan off the footprint.
+
+        Deeper than this the world has no answer; a driver decides what bottoming out means.
+        """
+        r = _check_radius(indenter_radius_mm)
+        t = np.asarray(self.phantom.thickness(_f64(x_mm), _f64(y_mm)), dtype=np.float64)
+        out = np.where(t > 0, np.minimum(MAX_DEPTH_OVER_RADIUS * r, MAX_DEPTH_OVER_THICKNESS * t), np.nan)
+        return _out(out, x_mm, y_mm)
+
     def depth_mm(
         self,
         x_mm: ArrayLike,
