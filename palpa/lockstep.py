@@ -7,6 +7,10 @@ in its :class:`~palpa.runtime_msgs.ClockAck`: its next timer deadline, and per t
 taken in. Time moves from ``now`` only when
 
 * no node has a timer due at or before ``now`` that it has not run (its ack names a later deadline), and
+* every participant is heard: a node whose subscriptions a readiness probe confirmed (palpa.node) counts as a
+  subscriber only once every other participant's publisher socket has heard that probe (ClockAck ``heard``), so
+  that no message is dropped on its way to it for want of a route; until then time waits, and its accounting
+  starts when the last one heard it;
 * nothing is in flight: for every topic, each subscriber has taken in at least as many messages as its
   publishers sent since the subscriber's accounting started (its join, or the start of time: messages published
   before a subscriber was there never reach it);
@@ -36,6 +40,8 @@ class _Member:
     base: dict[str, int] = field(default_factory=dict)
     """Per topic, the messages sent that this member is not expected to take in (sent before its accounting
     started, or by a publisher before that one joined)."""
+    heard: set[str] = field(default_factory=set)
+    """The readiness probes this member's publisher socket has heard (ClockAck ``heard``, accumulated)."""
 
     def subscribe(self, subs: list[str]) -> None:
         self.exact = frozenset(s for s in subs if not s.endswith("*"))
@@ -63,6 +69,8 @@ class EventLockstep:
 
     def __init__(self) -> None:
         self.members: dict[str, _Member] = {}
+        self._unheard: set[str] = set()
+        """Members whose probe some other member has not reported hearing yet."""
         self._sent: dict[str, int] = {}
         """Per topic, the messages the participants sent (their latest reports summed, those who left included:
         what a node sent before it left is still on its way)."""
@@ -79,15 +87,47 @@ class EventLockstep:
             self._add_sent(member.ack.sent, -1)
             self._add_sent(ack.sent, 1)
             member.ack = ack
+            if ack.heard:
+                member.heard.update(ack.heard)
+                self._confirm()
             return False
-        member = self.members[ack.node] = _Member(ack)
+        member = self.members[ack.node] = _Member(ack, heard=set(ack.heard))
         member.subscribe(ack.subs)
         self._add_sent(ack.sent, 1)
         for other in self.members.values():
             if other is not member:  # what it sent before joining (or rejoining) reached no one we count
                 _add(other.base, ack.sent, 1)
         self._start(member)
+        if ack.probe:
+            self._unheard.add(ack.node)
+        self._confirm()
         return True
+
+    def unheard(self) -> tuple[str, str] | None:
+        """A participant (first) whose probe another one (second) has not reported hearing; None: all heard."""
+        for name in self._unheard:
+            probe = self.members[name].ack.probe
+            for other, m in self.members.items():
+                if other != name and m.ack.probe and probe not in m.heard:
+                    return name, other
+        return None
+
+    def assume_heard(self) -> None:
+        """Stop waiting for the participants' probes to be heard (the clock's stall timeout)."""
+        for name in self._unheard:
+            self._start(self.members[name])
+        self._unheard.clear()
+
+    def _confirm(self) -> None:
+        """Start the accounting of every participant whose probe all others have now heard: what was sent to it
+        before may have found no route."""
+        if not self._unheard:
+            return
+        for name in list(self._unheard):
+            probe = self.members[name].ack.probe
+            if all(probe in m.heard for other, m in self.members.items() if other != name and m.ack.probe):
+                self._unheard.discard(name)
+                self._start(self.members[name])
 
     def restart_accounting(self) -> None:
         """Count from now for everyone (when time starts: what was published while setting up is not waited for)."""
@@ -99,6 +139,8 @@ class EventLockstep:
         sent still is: a node leaving in order flushed it; one whose process died may have lost it, and the
         clock's stall timeout covers that)."""
         self.members.pop(node, None)
+        self._unheard.discard(node)
+        self._confirm()
 
     def due(self, now_ns: int) -> list[str]:
         """Participants with a timer due at or before ``now_ns`` that they have not reported running."""

@@ -34,6 +34,7 @@ from typing import Any, ClassVar, Protocol, TypeVar, cast
 from palpa import env as palpa_env
 from palpa.address import BusAddress, from_env
 from palpa.clock import Clock, SystemClock, TopicClock
+from palpa.direct import JOIN_PROBE_PREFIX
 from palpa.dispatch import Dispatch
 from palpa.endpoints import (
     DEFAULT_BATCH,
@@ -82,6 +83,11 @@ _LEAD_ACK_NS = 10_000_000  # half a lead-mode clock's default max_lead_s: fewer 
 _SIM_CLOCK_TIMEOUT_S = 30.0
 """Wall seconds without a clock tick after which a sim-clock node stops (PALPA_SIM_CLOCK_TIMEOUT_S; 0: never)."""
 _EXIT_CLOCK_LOST = 3
+_JOIN_TIMEOUT_S = 10.0
+"""Wall seconds a node waits for the bus to confirm its subscriptions before it counts as ready anyway (warning)."""
+_PROBE_REPEAT_NS = 50_000_000
+"""Wall ns after which an unanswered readiness probe is sent again (a catch-all subscriber let the first one go
+out before the proxy had our own probe subscription)."""
 
 
 class _Closable(Protocol):
@@ -197,27 +203,73 @@ class Node:
         self._time_held = False
         self._lead_acks = False
         self._set_up = False
+        self._probe = ""
+        """This node's readiness probe once the bus echoed it (``<name>/<pid>.<incarnation>``; ClockAck.probe)."""
         self._raw_sent: dict[str, int] = {}
         """Messages published with :meth:`publish_raw` per topic (service requests and replies among them)."""
         if self._topic_clock is not None:
             self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1)
             self._last_ack_ns = 0
-            self._acked: tuple[int, int, int, tuple[int, ...]] | None = None
+            self._acked: tuple[int, int, int, tuple[int, ...], int] | None = None
             self._ack_shape: tuple[int, ...] = ()
             self._ack_pubs: list[Publisher[Any]] = []
             self._ack_stats: list[tuple[str, TopicStats]] = []
             self._ack_subs: list[str] = []
+            self._joins: dict[str, None] = transport.joins_heard if isinstance(transport, ZmqTransport) else {}
+            self._joins_acked = 0
             self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
             self._await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0 if serve_params is None else serve_params:
             ParamServer(self, lambda: self.params, self._change_params)
         try:
             self.setup()
+            self._confirm_subscriptions(_JOIN_TIMEOUT_S)
         except BaseException:
             # a refused plan must not leave a robot connection or a serial port open behind it
             self._release(linger_ms=0)
             raise
         self._set_up = True
+
+    def _confirm_subscriptions(self, timeout_s: float) -> None:
+        """Wait until the subscriptions made so far are live end to end, so that a node counts as ready (heartbeats,
+        its first lockstep ack) only once nothing published to it can be dropped for lack of a route.
+
+        ZeroMQ subscriptions travel asynchronously (SUB -> the proxy's XPUB -> its XSUB -> every publisher's XPUB),
+        and a message published before its subscription has arrived is dropped without a trace; under load that
+        took a lockstep run's first message on a topic (the clock then waited for it, 30 s). So: subscribe a
+        private probe topic last, wait until the proxy forwards it back to our own publisher socket (it forwards in
+        order: every earlier subscription of ours is then in the proxy's filter), and publish the probe until it
+        comes back through the bus. Every other publisher hears the probe subscription after all our earlier ones
+        too (one connection from the proxy delivers in order), so one that has heard it (``heard_join``) reaches
+        us: the lockstep clock waits for that (ClockAck ``probe``/``heard``), as the player does for ``wait_for``.
+        Only on a real bus (in memory, subscriptions are immediate) and while it is connected; topics received from
+        direct publishers (palpa.direct) are not covered."""
+        t = self._transport
+        if not isinstance(t, ZmqTransport) or not t.connected or timeout_s <= 0 or not (self._rx.subs or
+                                                                                       self._rx.raw):
+            return
+        key = JOIN_PROBE_PREFIX + f"{self.name}/{os.getpid()}.{self.incarnation:x}".encode()
+        echoed: list[RawMessage] = []
+        self._rx.add_raw(key, echoed.append)
+        t.subscribe_probe(key)
+        header = encode_header(Header(type="", seq=0, stamp=time.time_ns(), node=self.name))
+        start = time.monotonic_ns()
+        deadline, sent = start + int(timeout_s * 1e9), 0
+        try:
+            while not echoed and not self._shutdown:
+                now = time.monotonic_ns()
+                if now > deadline:
+                    self.log.warning("the bus did not confirm this node's subscriptions within %.0f s (wall "
+                                     "clock): the first messages published to it may be lost", timeout_s)
+                    return
+                if now - sent > _PROBE_REPEAT_NS and t.heard_subscription(key):
+                    sent = now
+                    t.send([key, header, b"\xc0"], False)
+                self.spin_once(0.005)
+            self._probe = key[len(JOIN_PROBE_PREFIX):].decode()
+        finally:
+            self._rx.remove_raw(key)
+            t.unsubscribe(key)
 
     @property
     def transport(self) -> Transport:
@@ -442,17 +494,20 @@ class Node:
         due = self.next_timer_due_ns() or 0
         sent_total = sum(p.seq for p in self._ack_pubs) + sum(self._raw_sent.values())
         recv_total = sum(st.received + st.decode_errors for _, st in self._ack_stats)
-        state = (due, sent_total, recv_total, shape)
+        heard = len(self._joins)
+        state = (due, sent_total, recv_total, shape, heard)
         if state == self._acked:
             return
         self._acked = state
+        new_joins = list(self._joins)[self._joins_acked:] if heard > self._joins_acked else []
+        self._joins_acked = heard
         sent = {p.topic: p.seq for p in self._ack_pubs if p.seq}
         for topic, n in self._raw_sent.items():
             sent[topic] = sent.get(topic, 0) + n
         self._last_ack_ns = self.clock.now_ns()
         self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns, next_ns=due, sent=sent,
                                        recv={t: st.received + st.decode_errors for t, st in self._ack_stats},
-                                       subs=self._ack_subs))
+                                       subs=self._ack_subs, probe=self._probe, heard=new_joins))
 
     def spin(self) -> None:
         """Run until :meth:`request_shutdown` (or a signal, under :func:`palpa.run_node`)."""
@@ -569,8 +624,8 @@ class Node:
 
     def _beat(self) -> None:
         """Send the heartbeat when it is due on the wall clock (before simulated time starts, too)."""
-        if not self._hb_period_ns or self._shutdown:
-            return
+        if not self._hb_period_ns or self._shutdown or not self._set_up:
+            return  # a heartbeat says "ready": set up, subscriptions confirmed (what a launcher waits for)
         now = time.monotonic_ns()
         if now >= self._hb_due_ns:
             self._hb_due_ns = now + self._hb_period_ns

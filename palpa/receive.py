@@ -83,6 +83,11 @@ class Receiver:
         self.raw.append(_RawSubscription(prefix, callback))
         self.routes.clear()
 
+    def remove_raw(self, prefix: bytes) -> None:
+        """Stop handing envelopes under ``prefix`` to the raw callbacks added for it."""
+        self.raw = [r for r in self.raw if r.prefix != prefix]
+        self.routes.clear()
+
     def count_error(self, topic: str, stats: TopicStats, text: str) -> None:
         """Count a bad message on ``topic``; log it, at most once per topic every five seconds."""
         stats.decode_errors = min(COUNTER_MAX, stats.decode_errors + 1)

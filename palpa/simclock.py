@@ -200,11 +200,15 @@ class ClockSource(Node):
         wall = time.monotonic_ns()
         if not self._released:
             missing = [n for n in self.params.participants if n not in self._events and n not in self._acks]
-            if missing and (wall - self._started_wall) / 1e9 < self.params.join_timeout_s:
+            unheard = self._events.unheard()
+            if (missing or unheard) and (wall - self._started_wall) / 1e9 < self.params.join_timeout_s:
                 return
             if missing:
                 self.log.warning("%s not joined after %.0f s (wall clock): simulated time starts without them",
                                  ", ".join(missing), self.params.join_timeout_s)
+            if unheard:
+                self.log.warning("%s's subscriptions not heard by %s after %.0f s (wall clock): simulated time "
+                                 "starts anyway", *unheard, self.params.join_timeout_s)
             self._released = True
             self._events.restart_accounting()
             self._anchor = (wall, self._sim)
@@ -218,11 +222,16 @@ class ClockSource(Node):
         now = self._sim
         if self._events.due(now):
             return
+        unheard = self._events.unheard()
+        if unheard is not None:
+            if self._stalled(wall):
+                return
+            self.log.warning("%s's subscriptions not heard by %s in %.0f s (wall clock): time moves on", *unheard,
+                             self.params.participant_timeout_s)
+            self._events.assume_heard()
         flying = self._events.in_flight()
         if flying is not None:
-            if not self._stalled_since:
-                self._stalled_since = wall
-            if (wall - self._stalled_since) / 1e9 < self.params.participant_timeout_s:
+            if self._stalled(wall):
                 return
             self.log.warning("%d message(s) on %s never reached %s in %.0f s (wall clock): time moves on",
                              flying.missing, flying.topic, flying.subscriber, self.params.participant_timeout_s)
@@ -243,6 +252,14 @@ class ClockSource(Node):
         if target > now:
             self._sim = target
             self._publish(target, wall)
+
+
+    def _stalled(self, wall: int) -> bool:
+        """Whether time still waits (for a message in flight, a participant not heard): True until it has waited
+        ``participant_timeout_s`` of wall time."""
+        if not self._stalled_since:
+            self._stalled_since = wall
+        return (wall - self._stalled_since) / 1e9 < self.params.participant_timeout_s
 
 
 def _pid_alive(pid: int) -> bool:

@@ -150,3 +150,50 @@ def test_a_node_reports_what_it_handled_before_it_blocks_for_input() -> None:
     assert events[:2] == [palpa.runtime_msgs.CLOCK_ACK_TOPIC, "block"]
     node.close(0)
     clock.close(0)
+
+
+def test_a_participant_counts_only_once_every_publisher_heard_its_probe() -> None:
+    """A node whose subscriptions a readiness probe confirmed is waited for until every other participant's
+    publisher socket has heard that probe; what was sent to it before then is not expected to reach it."""
+    ls = EventLockstep()
+    ls.report(ClockAck(node="pub", sim_ns=0, next_ns=100, probe="pub/1.1", heard=["pub/1.1"]))
+    ls.report(ClockAck(node="sub", sim_ns=0, next_ns=0, subs=["x"], probe="sub/2.1", heard=["sub/2.1"]))
+    assert ls.unheard() == ("sub", "pub")
+    ls.report(ClockAck(node="pub", sim_ns=0, next_ns=100, sent={"x": 2}, probe="pub/1.1"))  # maybe no route yet
+    assert ls.unheard() == ("sub", "pub")
+    ls.report(ClockAck(node="pub", sim_ns=0, next_ns=100, sent={"x": 2}, probe="pub/1.1", heard=["sub/2.1"]))
+    assert ls.unheard() is None and ls.in_flight() is None  # its accounting starts once it is heard
+    ls.report(ClockAck(node="pub", sim_ns=0, next_ns=200, sent={"x": 3}, probe="pub/1.1"))
+    assert ls.in_flight() == InFlight("x", "sub", 1)
+    ls.report(ClockAck(node="late", sim_ns=0, next_ns=0, probe="late/3.1"))
+    assert ls.unheard() == ("late", "pub")
+    ls.leave("pub")  # the only one that had to hear it
+    assert ls.unheard() == ("late", "sub")
+    ls.report(ClockAck(node="old", sim_ns=0, next_ns=0))  # no probe (a memory bus): nobody needs to hear it
+    ls.report(ClockAck(node="sub", sim_ns=0, next_ns=0, subs=["x"], probe="sub/2.1", heard=["late/3.1"]))
+    assert ls.unheard() is None
+
+
+def test_the_clock_starts_time_only_once_the_participants_heard_each_other() -> None:
+    bus = MemoryBus()
+    clock = ClockSource(params={"time_scale": 1000.0, "participants": ["a", "b"]}, transport=bus.transport(),
+                        heartbeat_s=0)
+    peer = palpa.Node(name="peer", transport=bus.transport(), heartbeat_s=0)
+    acks = peer.publisher(palpa.runtime_msgs.CLOCK_ACK_TOPIC, ClockAck)
+    ticks: list[palpa.runtime_msgs.ClockTick] = []
+    peer.subscribe(palpa.runtime_msgs.CLOCK_TOPIC, palpa.runtime_msgs.ClockTick, ticks.append)
+
+    def spin() -> None:
+        for _ in range(5):
+            clock.spin_once(0)
+            peer.spin_once(0)
+
+    acks.publish(ClockAck(node="a", sim_ns=0, next_ns=10, probe="a/1.1", heard=["a/1.1"]))
+    acks.publish(ClockAck(node="b", sim_ns=0, next_ns=10, probe="b/2.1", heard=["a/1.1", "b/2.1"]))
+    spin()
+    assert ticks and all(t.hold for t in ticks)  # a has not heard b: b might miss what a sends first
+    acks.publish(ClockAck(node="a", sim_ns=0, next_ns=10, probe="a/1.1", heard=["b/2.1"]))
+    spin()
+    assert not ticks[-1].hold
+    for n in (clock, peer):
+        n.close(0)
