@@ -404,10 +404,13 @@ class Node:
         self._transport.subscribe(key, request_latched=True)
         return sub
 
-    def subscribe_raw(self, prefix: str, callback: Callable[[RawMessage], object]) -> None:
-        """Every envelope whose topic starts with ``prefix`` (``""`` for all), undecoded."""
+    def subscribe_raw(self, prefix: str, callback: Callable[[RawMessage], object], *,
+                      topics: Callable[[str], bool] | None = None) -> None:
+        """Every envelope whose topic starts with ``prefix`` (``""`` for all), undecoded; with ``topics``, only
+        those on a topic it accepts (asked once per topic: the others are dropped before any decoding, unseen
+        and uncounted)."""
         key = prefix.encode()
-        self._rx.add_raw(key, callback)
+        self._rx.add_raw(key, callback, topics)
         self._transport.subscribe(key, request_latched=True)
 
     def timer(
@@ -445,18 +448,22 @@ class Node:
         """Dispatch what has arrived, run due timers, wait up to ``timeout_s`` (less if a timer is due sooner),
         dispatch and run timers again. Messages are handled before timers so that a timer which checks data
         freshness (a watchdog) never judges by a queue the node had no chance to read."""
-        for delivery in self._transport.poll(0):
-            self._rx.dispatch(delivery)
-        self._run_timers()
+        # a sim-clock node about to block skips this: its timers come due only with a tick, which the blocking poll
+        # below takes as soon as it is there (one poll per wake-up: thousands of them a simulated minute)
+        skipped = self._topic_clock is not None and timeout_s > 0
+        if not skipped:
+            for delivery in self._transport.poll(0):
+                self._rx.dispatch(delivery)
+            self._run_timers()
         self._beat()
         if not self.clock.is_real():
             timeout_s = 0.0 if self._timers else timeout_s
         elif self._topic_clock is None and (due := self.next_timer_due_ns()) is not None:
             # (simulated time moves only when a tick arrives: a sim-clock node just waits for input)
             timeout_s = max(0.0, min(timeout_s, (due - self.clock.now_ns()) / 1e9))
-        if self._hb_period_ns:
+        if self._hb_period_ns and self._set_up:
             timeout_s = max(0.0, min(timeout_s, (self._hb_due_ns - time.monotonic_ns()) / 1e9))
-        if timeout_s > 0:
+        if timeout_s > 0 or skipped:
             self._report_to_clock()  # before blocking: the clock may be waiting for what was just handled
             for delivery in self._transport.poll(timeout_s):
                 self._rx.dispatch(delivery)

@@ -41,6 +41,7 @@ _ROUTES_MAX = 4096  # topics remembered (ours or not); an attacker inventing top
 class _RawSubscription(NamedTuple):
     prefix: bytes
     callback: Callable[[RawMessage], object]
+    accept: Callable[[str], bool] | None = None
 
 
 class _Route(NamedTuple):
@@ -78,9 +79,11 @@ class Receiver:
         self.subs[key] = sub
         self.routes.clear()
 
-    def add_raw(self, prefix: bytes, callback: Callable[[RawMessage], object]) -> None:
-        """Hand every envelope whose topic starts with ``prefix`` to ``callback``, undecoded."""
-        self.raw.append(_RawSubscription(prefix, callback))
+    def add_raw(self, prefix: bytes, callback: Callable[[RawMessage], object],
+                accept: Callable[[str], bool] | None = None) -> None:
+        """Hand every envelope whose topic starts with ``prefix`` (and, with ``accept``, passes it) to
+        ``callback``, undecoded."""
+        self.raw.append(_RawSubscription(prefix, callback, accept))
         self.routes.clear()
 
     def remove_raw(self, prefix: bytes) -> None:
@@ -104,7 +107,8 @@ class Receiver:
             if len(topic_b) > MAX_TOPIC_BYTES:  # no subscription has such a name; parse_envelope refuses it
                 return None
             sub = self.subs.get(topic_b)
-            raws = tuple(r.callback for r in self.raw if topic_b.startswith(r.prefix))
+            raws = tuple(r.callback for r in self.raw if topic_b.startswith(r.prefix) and
+                         (r.accept is None or r.accept(topic_b.decode(errors="replace"))))
             if sub is None and not raws:
                 route = None
             else:

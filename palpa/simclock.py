@@ -55,6 +55,8 @@ __all__ = ["ClockSource"]
 
 _REPEAT_NS = 1_000_000_000
 """Wall ns after which the current time is published again though it did not move (a held start, a slow node)."""
+_CHECK_EVERY_NS = 50_000_000
+"""Wall ns between looks at the event participants' silence (check_after_s is whole seconds)."""
 _MAX_BURST_NS = 100_000_000
 """Wall ns of lead the ceiling keeps when the graph is slower than it (no burst past time_scale afterwards)."""
 
@@ -114,6 +116,7 @@ class ClockSource(Node):
         self._anchor = (self._wall, self._sim)
         """(wall, simulated) ns the time_scale ceiling counts from."""
         self._last_pub_wall = 0
+        self._checked_wall = 0
         self._stalled_since = 0
         if self.params.max_lead_s > 0:
             self.subscribe(CLOCK_ACK_TOPIC, self._on_ack)
@@ -217,8 +220,10 @@ class ClockSource(Node):
             return
         if not self._events.members:
             return  # no event participant (yet, or any more): _tick runs time on the wall clock
-        for node in [n for n in self._events.members if n in self._acks]:
-            self._still_in(node, wall)
+        if wall - self._checked_wall > _CHECK_EVERY_NS:  # silence is judged in seconds: not at every instant
+            self._checked_wall = wall
+            for node in [n for n in self._events.members if n in self._acks]:
+                self._still_in(node, wall)
         now = self._sim
         if self._events.due(now):
             return
