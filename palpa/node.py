@@ -61,6 +61,7 @@ from palpa.runtime_msgs import (
     Heartbeat,
     LogRecord,
     TopicCounters,
+    tick_topic,
 )
 from palpa.service import DEFAULT_TIMEOUT_S, Responder, Service
 from palpa.service_client import Client
@@ -218,6 +219,8 @@ class Node:
             self._joins: dict[str, None] = transport.joins_heard if isinstance(transport, ZmqTransport) else {}
             self._joins_acked = 0
             self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
+            self.subscribe(tick_topic(self.name), ClockTick, self._on_clock)  # the event lockstep's, to us alone
+            self._rx.on_instant = self._on_instant
             self._await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0 if serve_params is None else serve_params:
             ParamServer(self, lambda: self.params, self._change_params)
@@ -363,7 +366,7 @@ class Node:
                 raise TypeError(f"topic {resolved!r} already published as {existing.type.type_name}")
             return existing
         pub = Publisher(self._transport, self.clock, self.dispatch, self, (self.name, self.incarnation), resolved,
-                        msg_type, latched, batch, direct)
+                        msg_type, latched, batch, direct, self._topic_clock is not None and not resolved.startswith(_RUNTIME))
         self._pubs[resolved] = pub
         return pub
 
@@ -578,6 +581,22 @@ class Node:
         # the timers due now run before any message that follows the tick is handled, as in a composition
         # (palpa.compose): what another node published at this time, in reaction to the same tick, comes after
         self._run_timers()
+
+    def instant_ns(self) -> int:
+        """The simulated instant this node is at, for ``Header.at`` of what it sends (0: not on a simulation
+        clock)."""
+        return self._topic_clock.now_ns() if self._topic_clock is not None else 0
+
+    def _on_instant(self, at: int) -> None:
+        """A message sent at simulated instant ``at``: the event lockstep ticks a node only at its own timers'
+        deadlines (palpa.simclock), so it learns any other instant from the messages it handles there (timers due
+        by then run first, as at a tick). Not under a lead-mode clock, whose ticks every node gets."""
+        clock = self._topic_clock
+        if clock is not None and at > clock.now_ns() and clock.started and not self._time_held \
+                and not self._lead_acks:
+            clock.update(at)
+            self._last_tick_wall_ns = time.monotonic_ns()
+            self._run_timers()
 
     # -- internals ---------------------------------------------------------------------------------
     def run_timers(self) -> None:

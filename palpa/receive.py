@@ -71,6 +71,8 @@ class Receiver:
         self._raw_tracker = SequenceTracker()
         self._last_error_log: dict[str, int] = {}
         self.max_bytes: int = max_bytes or MAX_MSG_BYTES
+        self.on_instant: Callable[[int], object] | None = None
+        """Called with ``Header.at`` of every live (not cached) envelope that has one, before it is handled."""
         self.internal_errors = 0
         """Envelopes whose handling raised where nothing should (a receive-path bug): counted, logged, survived."""
 
@@ -150,6 +152,9 @@ class Receiver:
                 self.count_error(topic, stats, str(exc))
             return
         cached = delivery.from_cache
+        at = env.headers[0].at
+        if at and not cached and self.on_instant is not None:
+            self.on_instant(at)
         if items is not None and rstats is not None:
             tracker = self._raw_tracker
             for header, payload, blobs in items:

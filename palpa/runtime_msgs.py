@@ -6,13 +6,21 @@ import msgspec
 
 from palpa.message import Message
 
-__all__ = ["CLOCK_ACK_TOPIC", "CLOCK_TOPIC", "HEARTBEAT_TOPIC", "LOG_TOPIC", "ClockAck", "ClockTick", "Heartbeat", "LogRecord", "TopicCounters"]
+__all__ = ["CLOCK_ACK_TOPIC", "CLOCK_TOPIC", "HEARTBEAT_TOPIC", "LOG_TOPIC", "TICK_PREFIX", "ClockAck", "ClockTick",
+           "Heartbeat", "LogRecord", "TopicCounters", "tick_topic"]
 
 HEARTBEAT_TOPIC = "_palpa/heartbeat"
 LOG_TOPIC = "_palpa/log"
 CLOCK_TOPIC = "_palpa/clock"
 CLOCK_ACK_TOPIC = "_palpa/lockstep"
 """Not under ``_palpa/clock``: ZeroMQ matches by prefix, and every sim-clock node would wake for every ack."""
+TICK_PREFIX = "_palpa/tick/"
+
+
+def tick_topic(node: str) -> str:
+    """Where the event lockstep's clock sends ``node`` alone the instants of its timers' deadlines (the trailing
+    ``/``: ZeroMQ matches by prefix, and node ``map`` must not hear ``map2``'s)."""
+    return f"{TICK_PREFIX}{node}/"
 
 
 class TopicCounters(msgspec.Struct, frozen=True, kw_only=True):

@@ -38,7 +38,7 @@ from typing import Any, Literal
 
 from palpa.clock import SystemClock
 from palpa.lockstep import EventLockstep
-from palpa.node import Node
+from palpa.node import Node, Publisher
 from palpa.params import NonNegative, Positive
 from palpa.params import Params as ParamsBase
 from palpa.runner import run_node
@@ -49,6 +49,7 @@ from palpa.runtime_msgs import (
     ClockAck,
     ClockTick,
     Heartbeat,
+    tick_topic,
 )
 
 __all__ = ["ClockSource"]
@@ -116,6 +117,8 @@ class ClockSource(Node):
         self._anchor = (self._wall, self._sim)
         """(wall, simulated) ns the time_scale ceiling counts from."""
         self._last_pub_wall = 0
+        """Wall ns of the last broadcast on _palpa/clock."""
+        self._tick_pubs: dict[str, Publisher[ClockTick]] = {}
         self._checked_wall = 0
         self._stalled_since = 0
         if self.params.max_lead_s > 0:
@@ -256,7 +259,21 @@ class ClockSource(Node):
             target = min(target, max(now, min(legacy) + int(self.params.max_lead_s * 1e9)))
         if target > now:
             self._sim = target
-            self._publish(target, wall)
+            if legacy:
+                self._publish(target, wall)  # a client without deadlines follows the broadcast
+            else:
+                self._tick_due(target)
+
+    def _tick_due(self, sim_ns: int) -> None:
+        """Send the new instant to the participants with a timer due at it, each on its own topic: the others learn
+        it from the messages they handle at it (``Header.at``, palpa.node), so a node with nothing to do at an
+        instant is not woken (the broadcast every second keeps idle nodes' watchdogs fed)."""
+        tick = ClockTick(sim_ns=sim_ns)
+        for node in self._events.due(sim_ns):
+            pub = self._tick_pubs.get(node)
+            if pub is None:
+                pub = self._tick_pubs[node] = self.publisher(tick_topic(node), ClockTick, batch=1)
+            pub.publish(tick)
 
 
     def _stalled(self, wall: int) -> bool:

@@ -65,13 +65,18 @@ class _Sink(palpa.Node):
 def test_processes_see_timers_at_their_deadlines_and_messages_at_the_instant_sent() -> None:
     """A 10 Hz talker, a node echoing it from its handler, a sink: the clock holds the start until all three have
     joined, ticks only at the talker's deadlines, and moves on only once the echo of each tick reached the sink,
-    although the sink is spun after the clock (on sockets: whichever process the machine runs first)."""
+    although the sink is spun after the clock (on sockets: whichever process the machine runs first). After the
+    start only the talker gets ticks (on its own topic); the echo and the sink, which have no timers, take each
+    instant from the messages they handle at it."""
     bus = MemoryBus()
     clock = ClockSource(params={"time_scale": 1000.0, "rate_hz": 1000.0, "participants": ["talker", "echo", "sink"]},
                         transport=bus.transport(), heartbeat_s=0)
     ticks: list[palpa.runtime_msgs.ClockTick] = []
     spy = palpa.Node(name="spy", transport=bus.transport(), heartbeat_s=0)
     spy.subscribe("_palpa/clock", palpa.runtime_msgs.ClockTick, ticks.append)
+    addressed: dict[str, list[palpa.runtime_msgs.ClockTick]] = {n: [] for n in ("talker", "echo", "sink")}
+    for name, got in addressed.items():
+        spy.subscribe(palpa.runtime_msgs.tick_topic(name), palpa.runtime_msgs.ClockTick, got.append)
 
     def sim(cls: type[palpa.Node], name: str, **params: object) -> palpa.Node:
         return cls(name=name, params=params, transport=bus.transport(), heartbeat_s=0, sim_clock=True,
@@ -95,7 +100,8 @@ def test_processes_see_timers_at_their_deadlines_and_messages_at_the_instant_sen
     spy.spin_once(0)
     start = ticks[0].sim_ns
     assert ticks[0].hold and not ticks[-1].hold  # held, then released (at the same instant)
-    assert sorted({t.sim_ns - start for t in ticks})[:10] == [i * 100_000_000 for i in range(10)]
+    assert [t.sim_ns - start for t in addressed["talker"]][:9] == [i * 100_000_000 for i in range(1, 10)]
+    assert not addressed["echo"] and not addressed["sink"]
     assert sink.heard[:10] == [(start + i * 100_000_000, start + i * 100_000_000) for i in range(10)]
     for n in [*nodes, spy]:
         n.close(0)
