@@ -123,6 +123,10 @@ class EventLockstep:
         self._confirm()
         return True
 
+    def probe(self, node: str) -> str:
+        """The readiness probe ``node`` reported ("": none)."""
+        return self.members[node].ack.probe
+
     def unheard(self) -> tuple[str, str] | None:
         """A participant (first) whose probe another one (second) has not reported hearing; None: all heard."""
         for name in self._unheard:

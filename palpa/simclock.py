@@ -51,6 +51,7 @@ from palpa.runtime_msgs import (
     Heartbeat,
     tick_topic,
 )
+from palpa.transport import ZmqTransport
 
 __all__ = ["ClockSource"]
 
@@ -269,7 +270,14 @@ class ClockSource(Node):
         it from the messages they handle at it (``Header.at``, palpa.node), so a node with nothing to do at an
         instant is not woken (the broadcast every second keeps idle nodes' watchdogs fed)."""
         tick = ClockTick(sim_ns=sim_ns)
-        for node in self._events.due(sim_ns):
+        due = self._events.due(sim_ns)
+        t = self.transport
+        if isinstance(t, ZmqTransport) and any(self._events.probe(n) not in t.joins_heard for n in due):
+            # our publisher socket may not have that node's subscription to its own topic yet (palpa.node's
+            # readiness probe says when it has): a tick dropped there would hold time for good
+            self._publish(sim_ns, time.monotonic_ns())
+            return
+        for node in due:
             pub = self._tick_pubs.get(node)
             if pub is None:
                 pub = self._tick_pubs[node] = self.publisher(tick_topic(node), ClockTick, batch=1)
