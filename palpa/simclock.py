@@ -8,10 +8,13 @@ Event lockstep: every sim-clock node reports on ``_palpa/lockstep`` its next tim
 has sent and taken in (:class:`~palpa.runtime_msgs.ClockAck`); the source moves time to the earliest deadline only
 once no timer is left due and no message is in flight (:mod:`palpa.lockstep`), so the graph sees the timeline a
 composition (:mod:`palpa.compose`) gives it: timers at their exact deadlines, every message handled at the
-instant it was sent. Time starts only when every node named in ``participants`` (the launcher fills in the
-file's sim-clock nodes) has set up: until then the source publishes the start time with ``hold``. Time never
-runs faster than ``time_scale`` (a ceiling); on an overloaded machine it slows down instead. A client that acks
-without a deadline (``next_ns`` -1) is kept within ``max_lead_s`` of the time it acked, as before events.
+instant it was sent. Each instant goes only to the nodes with a timer due at it, each on its own topic
+(``_palpa/tick/<node>/``); the others take it from the messages they handle (``Header.at``), and ``_palpa/clock``
+carries the held start, the release and, once a wall second, the current time. Time starts only when every node
+named in ``participants`` (the launcher fills in the file's sim-clock nodes) has set up: until then the source
+publishes the start time with ``hold``. Time never runs faster than ``time_scale`` (a ceiling); on an overloaded
+machine it slows down instead. A client that acks without a deadline (``next_ns`` -1) is kept within
+``max_lead_s`` of the time it acked, as before events.
 
 Who participates: a node is in from its first ack until it *leaves*, never because it is slow. A CPU-starved node
 may not ack for seconds; dropping it then lets time run on without it, and its peers' sim-time watchdogs trip on
