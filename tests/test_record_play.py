@@ -39,7 +39,7 @@ def _play(params: dict[str, object]) -> tuple[Player, list[RawMessage]]:
     bus = MemoryBus()
     got: list[RawMessage] = []
     probe = Node(name="probe", transport=bus.transport(), heartbeat_s=0)
-    probe.subscribe_raw("", lambda r: got.append(r) if not r.topic.startswith("_palpa/player_ready") else None)
+    probe.subscribe_raw("", got.append)
     player = Player(name="player", params={"exit_delay_s": 0.0, **params}, transport=bus.transport(), heartbeat_s=0)
     try:
         player.spin()
