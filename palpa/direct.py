@@ -41,11 +41,14 @@ from palpa import env as palpa_env
 from palpa.address import BusAddress, is_loopback_host
 
 __all__ = [
-    "CLIENT_KEYS_TOPIC", "DIRECTORY_PREFIX", "DirectSocket", "SubscriberSet", "bind_candidates", "directory_entry",
-    "directory_key", "directory_value", "follow_directory",
+    "CLIENT_KEYS_TOPIC", "DIRECTORY_PREFIX", "JOIN_PROBE_PREFIX", "DirectSocket", "SubscriberSet", "bind_candidates",
+    "directory_entry", "directory_key", "directory_value", "follow_directory",
 ]
 
 DIRECTORY_PREFIX = b"_palpa/direct/"
+JOIN_PROBE_PREFIX = b"_palpa/join/"
+"""Readiness probes: a node subscribes ``_palpa/join/<node>/<id>`` after its setup (palpa.node)."""
+JOIN_PROBE_SUB = b"\x01" + JOIN_PROBE_PREFIX
 CLIENT_KEYS_TOPIC = b"_palpa/curve/clients"
 """The cache key under which a CURVE bus publishes its authorised client keys (Z85, one a line); only the bus
 writes under ``_palpa/curve/``."""
@@ -149,11 +152,18 @@ class SubscriberSet:
 
     def __init__(self) -> None:
         self.prefixes: set[bytes] = set()
+        self.joined: dict[str, None] = {}
+        """The readiness probes (``_palpa/join/<node>/<pid>.<incarnation>``, palpa.node; kept without the prefix)
+        this socket has heard subscribed:
+        it has every subscription those nodes made before they were ready (one connection delivers in order). In
+        the order heard (a dict: an ordered set)."""
 
     def note(self, message: bytes) -> None:
         """Record one subscription message read from the XPUB socket."""
         if message[:1] == b"\x01":
             self.prefixes.add(message[1:])
+            if message.startswith(JOIN_PROBE_SUB):
+                self.joined[message[len(JOIN_PROBE_SUB):].decode(errors="replace")] = None
         elif message[:1] == b"\x00":
             self.prefixes.discard(message[1:])
 

@@ -63,8 +63,10 @@ class Publisher(Generic[M]):
     def __init__(
         self, transport: Transport, clock: Clock, dispatch: Dispatch, spinner: Spinner, origin: tuple[str, int],
         topic: str, msg_type: type[M], latched: bool, batch: int | None, direct: bool | None,
+        instant: bool = False,
     ) -> None:
-        """``origin`` is the node's (name, incarnation) written into every header."""
+        """``origin`` is the node's (name, incarnation) written into every header; ``instant``: the clock is a
+        simulation's, and every header says which instant it was at (``Header.at``)."""
         self._transport = transport
         self._clock = clock
         self._dispatch = dispatch
@@ -77,7 +79,7 @@ class Publisher(Generic[M]):
         self._always_batch = batch is not None and self.batch > 1
         self._topic_b = topic.encode()
         self._type_name = msg_type.type_name
-        self._header = HeaderTemplate(self._type_name, origin[0], latched, origin[1])
+        self._header = HeaderTemplate(self._type_name, origin[0], latched, origin[1], instant)
         self._pending_headers: list[bytes] = []
         self._pending_payloads: list[bytes] = []
         self._send = transport.sender(self._topic_b, direct)
@@ -109,7 +111,8 @@ class Publisher(Generic[M]):
         # everything that can fail (an unencodable field, a bad stamp) fails before any state changes, so a
         # failed publish never leaves a header without its payload in the batch
         payload = _encoder.encode(msg)
-        header = self._header.pack(self.seq + 1, self._clock.now_ns() if stamp_ns is None else stamp_ns)
+        now = self._clock.now_ns()
+        header = self._header.pack(self.seq + 1, now if stamp_ns is None else stamp_ns, now)
         self.seq = seq = self.seq + 1
         if self.batch > 1 and (self._dispatch.depth or self._always_batch) and not blobs:
             if not self._pending_headers:

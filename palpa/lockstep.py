@@ -7,6 +7,10 @@ in its :class:`~palpa.runtime_msgs.ClockAck`: its next timer deadline, and per t
 taken in. Time moves from ``now`` only when
 
 * no node has a timer due at or before ``now`` that it has not run (its ack names a later deadline), and
+* every participant is heard: a node whose subscriptions a readiness probe confirmed (palpa.node) counts as a
+  subscriber only once every other participant's publisher socket has heard that probe (ClockAck ``heard``), so
+  that no message is dropped on its way to it for want of a route; until then time waits, and its accounting
+  starts when the last one heard it;
 * nothing is in flight: for every topic, each subscriber has taken in at least as many messages as its
   publishers sent since the subscriber's accounting started (its join, or the start of time: messages published
   before a subscriber was there never reach it);
@@ -36,6 +40,11 @@ class _Member:
     base: dict[str, int] = field(default_factory=dict)
     """Per topic, the messages sent that this member is not expected to take in (sent before its accounting
     started, or by a publisher before that one joined)."""
+    heard: set[str] = field(default_factory=set)
+    """The readiness probes this member's publisher socket has heard (ClockAck ``heard``, accumulated)."""
+    owed: dict[str, int] = field(default_factory=dict)
+    """Per topic it subscribes to, the messages sent to it that it has not taken in (yet): kept up to date report
+    by report, so that asking whether anything is in flight costs nothing at each of the thousands of instants."""
 
     def subscribe(self, subs: list[str]) -> None:
         self.exact = frozenset(s for s in subs if not s.endswith("*"))
@@ -63,9 +72,14 @@ class EventLockstep:
 
     def __init__(self) -> None:
         self.members: dict[str, _Member] = {}
+        self._unheard: set[str] = set()
+        """Members whose probe some other member has not reported hearing yet."""
         self._sent: dict[str, int] = {}
         """Per topic, the messages the participants sent (their latest reports summed, those who left included:
         what a node sent before it left is still on its way)."""
+        self._takers: dict[str, list[_Member]] = {}
+        self._short: dict[tuple[str, str], None] = {}
+        """(member, topic) pairs with messages in flight, oldest first (a dict: an ordered set)."""
 
     def __contains__(self, node: str) -> bool:
         return node in self.members
@@ -74,20 +88,70 @@ class EventLockstep:
         """Take a node's latest report; True when it is a new participant (its accounting starts now)."""
         member = self.members.get(ack.node)
         if member is not None:
-            if ack.subs != member.ack.subs:
-                member.subscribe(ack.subs)
-            self._add_sent(member.ack.sent, -1)
-            self._add_sent(ack.sent, 1)
+            old = member.ack
             member.ack = ack
+            resubscribed = ack.subs != old.subs
+            if resubscribed:
+                member.subscribe(ack.subs)
+                self._takers.clear()
+            if ack.sent != old.sent:
+                for topic, n in ack.sent.items():
+                    if d := n - old.sent.get(topic, 0):
+                        self._sent[topic] = self._sent.get(topic, 0) + d
+                        for taker in self._taking(topic):
+                            self._owe(taker, topic, d)
+            if resubscribed:
+                self._recount(member)
+            elif ack.recv != old.recv:
+                for topic, n in ack.recv.items():
+                    if (d := n - old.recv.get(topic, 0)) and member.wants(topic):
+                        self._owe(member, topic, -d)
+            if ack.heard:
+                member.heard.update(ack.heard)
+                self._confirm()
             return False
-        member = self.members[ack.node] = _Member(ack)
+        member = self.members[ack.node] = _Member(ack, heard=set(ack.heard))
         member.subscribe(ack.subs)
-        self._add_sent(ack.sent, 1)
+        self._takers.clear()
+        _add(self._sent, ack.sent)
         for other in self.members.values():
             if other is not member:  # what it sent before joining (or rejoining) reached no one we count
-                _add(other.base, ack.sent, 1)
+                _add(other.base, ack.sent)
         self._start(member)
+        if ack.probe:
+            self._unheard.add(ack.node)
+        self._confirm()
         return True
+
+    def probe(self, node: str) -> str:
+        """The readiness probe ``node`` reported ("": none)."""
+        return self.members[node].ack.probe
+
+    def unheard(self) -> tuple[str, str] | None:
+        """A participant (first) whose probe another one (second) has not reported hearing; None: all heard."""
+        for name in self._unheard:
+            probe = self.members[name].ack.probe
+            for other, m in self.members.items():
+                if other != name and m.ack.probe and probe not in m.heard:
+                    return name, other
+        return None
+
+    def assume_heard(self) -> None:
+        """Stop waiting for the participants' probes to be heard (the clock's stall timeout)."""
+        for name in self._unheard:
+            self._start(self.members[name])
+        self._unheard.clear()
+
+    def _confirm(self) -> None:
+        """Start the accounting of every participant whose probe all others have now heard: what was sent to it
+        before may have found no route."""
+        if not self._unheard:
+            return
+        for name in list(self._unheard):
+            probe = self.members[name].ack.probe
+            if all(probe in m.heard for other, m in self.members.items() if other != name and m.ack.probe):
+                self._unheard.discard(name)
+                self._start(self.members[name])
 
     def restart_accounting(self) -> None:
         """Count from now for everyone (when time starts: what was published while setting up is not waited for)."""
@@ -98,7 +162,12 @@ class EventLockstep:
         """``node`` no longer takes part: its timers and what it should take in are no longer waited for (what it
         sent still is: a node leaving in order flushed it; one whose process died may have lost it, and the
         clock's stall timeout covers that)."""
-        self.members.pop(node, None)
+        member = self.members.pop(node, None)
+        if member is not None:
+            self._clear_owed(member)
+            self._takers.clear()
+        self._unheard.discard(node)
+        self._confirm()
 
     def due(self, now_ns: int) -> list[str]:
         """Participants with a timer due at or before ``now_ns`` that they have not reported running."""
@@ -111,29 +180,43 @@ class EventLockstep:
 
     def in_flight(self) -> InFlight | None:
         """A topic on which some subscriber has not taken in everything sent to it (None: nothing in flight)."""
-        sent = self._sent
-        for name, sub in self.members.items():
-            if not sub.exact and not sub.prefixes:
-                continue
-            base, recv, base_recv = sub.base, sub.ack.recv, sub.base_recv
-            for topic, n in sent.items():
-                expected = n - base.get(topic, 0)
-                if expected > 0 and sub.wants(topic):
-                    got = recv.get(topic, 0) - base_recv.get(topic, 0)
-                    if got < expected:
-                        return InFlight(topic, name, expected - got)
+        for name, topic in self._short:
+            return InFlight(topic, name, self.members[name].owed[topic])
         return None
 
-    def _add_sent(self, sent: dict[str, int], sign: int) -> None:
-        _add(self._sent, sent, sign)
+    def _taking(self, topic: str) -> list[_Member]:
+        """The members subscribed to ``topic`` (cached until someone joins, leaves or subscribes anew)."""
+        takers = self._takers.get(topic)
+        if takers is None:
+            takers = self._takers[topic] = [m for m in self.members.values() if m.wants(topic)]
+        return takers
+
+    def _owe(self, member: _Member, topic: str, d: int) -> None:
+        owed = member.owed[topic] = member.owed.get(topic, 0) + d
+        if owed > 0:
+            self._short[(member.ack.node, topic)] = None
+        else:
+            self._short.pop((member.ack.node, topic), None)
+
+    def _clear_owed(self, member: _Member) -> None:
+        for topic in member.owed:
+            self._short.pop((member.ack.node, topic), None)
+        member.owed = {}
+
+    def _recount(self, member: _Member) -> None:
+        """Its debts from scratch (its subscriptions changed): sent since its start less taken in since."""
+        self._clear_owed(member)
+        base, recv, base_recv = member.base, member.ack.recv, member.base_recv
+        for topic, n in self._sent.items():
+            if member.wants(topic):
+                self._owe(member, topic, (n - base.get(topic, 0)) - (recv.get(topic, 0) - base_recv.get(topic, 0)))
 
     def _start(self, member: _Member) -> None:
         member.base_recv = dict(member.ack.recv)
         member.base = dict(self._sent)
+        self._clear_owed(member)
 
 
-def _add(into: dict[str, int], counts: dict[str, int], sign: int) -> None:
+def _add(into: dict[str, int], counts: dict[str, int]) -> None:
     for topic, n in counts.items():
-        into[topic] = into.get(topic, 0) + sign * n
-
-
+        into[topic] = into.get(topic, 0) + n

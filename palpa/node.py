@@ -34,6 +34,7 @@ from typing import Any, ClassVar, Protocol, TypeVar, cast
 from palpa import env as palpa_env
 from palpa.address import BusAddress, from_env
 from palpa.clock import Clock, SystemClock, TopicClock
+from palpa.direct import JOIN_PROBE_PREFIX
 from palpa.dispatch import Dispatch
 from palpa.endpoints import (
     DEFAULT_BATCH,
@@ -60,6 +61,7 @@ from palpa.runtime_msgs import (
     Heartbeat,
     LogRecord,
     TopicCounters,
+    tick_topic,
 )
 from palpa.service import DEFAULT_TIMEOUT_S, Responder, Service
 from palpa.service_client import Client
@@ -82,6 +84,11 @@ _LEAD_ACK_NS = 10_000_000  # half a lead-mode clock's default max_lead_s: fewer 
 _SIM_CLOCK_TIMEOUT_S = 30.0
 """Wall seconds without a clock tick after which a sim-clock node stops (PALPA_SIM_CLOCK_TIMEOUT_S; 0: never)."""
 _EXIT_CLOCK_LOST = 3
+_JOIN_TIMEOUT_S = 10.0
+"""Wall seconds a node waits for the bus to confirm its subscriptions before it counts as ready anyway (warning)."""
+_PROBE_REPEAT_NS = 50_000_000
+"""Wall ns after which an unanswered readiness probe is sent again (a catch-all subscriber let the first one go
+out before the proxy had our own probe subscription)."""
 
 
 class _Closable(Protocol):
@@ -197,27 +204,75 @@ class Node:
         self._time_held = False
         self._lead_acks = False
         self._set_up = False
+        self._probe = ""
+        """This node's readiness probe once the bus echoed it (``<name>/<pid>.<incarnation>``; ClockAck.probe)."""
         self._raw_sent: dict[str, int] = {}
         """Messages published with :meth:`publish_raw` per topic (service requests and replies among them)."""
         if self._topic_clock is not None:
             self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1)
             self._last_ack_ns = 0
-            self._acked: tuple[int, int, int, tuple[int, ...]] | None = None
+            self._acked: tuple[int, int, int, tuple[int, ...], int] | None = None
             self._ack_shape: tuple[int, ...] = ()
             self._ack_pubs: list[Publisher[Any]] = []
             self._ack_stats: list[tuple[str, TopicStats]] = []
             self._ack_subs: list[str] = []
+            self._joins: dict[str, None] = transport.joins_heard if isinstance(transport, ZmqTransport) else {}
+            self._joins_acked = 0
             self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
+            self.subscribe(tick_topic(self.name), ClockTick, self._on_clock)  # the event lockstep's, to us alone
+            self._rx.on_instant = self._on_instant
             self._await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0 if serve_params is None else serve_params:
             ParamServer(self, lambda: self.params, self._change_params)
         try:
             self.setup()
+            self._confirm_subscriptions(_JOIN_TIMEOUT_S)
         except BaseException:
             # a refused plan must not leave a robot connection or a serial port open behind it
             self._release(linger_ms=0)
             raise
         self._set_up = True
+
+    def _confirm_subscriptions(self, timeout_s: float) -> None:
+        """Wait until the subscriptions made so far are live end to end, so that a node counts as ready (heartbeats,
+        its first lockstep ack) only once nothing published to it can be dropped for lack of a route.
+
+        ZeroMQ subscriptions travel asynchronously (SUB -> the proxy's XPUB -> its XSUB -> every publisher's XPUB),
+        and a message published before its subscription has arrived is dropped without a trace; under load that
+        took a lockstep run's first message on a topic (the clock then waited for it, 30 s). So: subscribe a
+        private probe topic last, wait until the proxy forwards it back to our own publisher socket (it forwards in
+        order: every earlier subscription of ours is then in the proxy's filter), and publish the probe until it
+        comes back through the bus. Every other publisher hears the probe subscription after all our earlier ones
+        too (one connection from the proxy delivers in order), so one that has heard it (``heard_join``) reaches
+        us: the lockstep clock waits for that (ClockAck ``probe``/``heard``), as the player does for ``wait_for``.
+        Only on a real bus (in memory, subscriptions are immediate) and while it is connected; topics received from
+        direct publishers (palpa.direct) are not covered."""
+        t = self._transport
+        if not isinstance(t, ZmqTransport) or not t.connected or timeout_s <= 0 or not (self._rx.subs or
+                                                                                       self._rx.raw):
+            return
+        key = JOIN_PROBE_PREFIX + f"{self.name}/{os.getpid()}.{self.incarnation:x}".encode()
+        echoed: list[RawMessage] = []
+        self._rx.add_raw(key, echoed.append)
+        t.subscribe_probe(key)
+        header = encode_header(Header(type="", seq=0, stamp=time.time_ns(), node=self.name))
+        start = time.monotonic_ns()
+        deadline, sent = start + int(timeout_s * 1e9), 0
+        try:
+            while not echoed and not self._shutdown:
+                now = time.monotonic_ns()
+                if now > deadline:
+                    self.log.warning("the bus did not confirm this node's subscriptions within %.0f s (wall "
+                                     "clock): the first messages published to it may be lost", timeout_s)
+                    return
+                if now - sent > _PROBE_REPEAT_NS and t.heard_subscription(key):
+                    sent = now
+                    t.send([key, header, b"\xc0"], False)
+                self.spin_once(0.005)
+            self._probe = key[len(JOIN_PROBE_PREFIX):].decode()
+        finally:
+            self._rx.remove_raw(key)
+            t.unsubscribe(key)
 
     @property
     def transport(self) -> Transport:
@@ -311,7 +366,7 @@ class Node:
                 raise TypeError(f"topic {resolved!r} already published as {existing.type.type_name}")
             return existing
         pub = Publisher(self._transport, self.clock, self.dispatch, self, (self.name, self.incarnation), resolved,
-                        msg_type, latched, batch, direct)
+                        msg_type, latched, batch, direct, self._topic_clock is not None and not resolved.startswith(_RUNTIME))
         self._pubs[resolved] = pub
         return pub
 
@@ -352,10 +407,13 @@ class Node:
         self._transport.subscribe(key, request_latched=True)
         return sub
 
-    def subscribe_raw(self, prefix: str, callback: Callable[[RawMessage], object]) -> None:
-        """Every envelope whose topic starts with ``prefix`` (``""`` for all), undecoded."""
+    def subscribe_raw(self, prefix: str, callback: Callable[[RawMessage], object], *,
+                      topics: Callable[[str], bool] | None = None) -> None:
+        """Every envelope whose topic starts with ``prefix`` (``""`` for all), undecoded; with ``topics``, only
+        those on a topic it accepts (asked once per topic: the others are dropped before any decoding, unseen
+        and uncounted)."""
         key = prefix.encode()
-        self._rx.add_raw(key, callback)
+        self._rx.add_raw(key, callback, topics)
         self._transport.subscribe(key, request_latched=True)
 
     def timer(
@@ -393,18 +451,22 @@ class Node:
         """Dispatch what has arrived, run due timers, wait up to ``timeout_s`` (less if a timer is due sooner),
         dispatch and run timers again. Messages are handled before timers so that a timer which checks data
         freshness (a watchdog) never judges by a queue the node had no chance to read."""
-        for delivery in self._transport.poll(0):
-            self._rx.dispatch(delivery)
-        self._run_timers()
+        # a sim-clock node about to block skips this: its timers come due only with a tick, which the blocking poll
+        # below takes as soon as it is there (one poll per wake-up: thousands of them a simulated minute)
+        skipped = self._topic_clock is not None and timeout_s > 0
+        if not skipped:
+            for delivery in self._transport.poll(0):
+                self._rx.dispatch(delivery)
+            self._run_timers()
         self._beat()
         if not self.clock.is_real():
             timeout_s = 0.0 if self._timers else timeout_s
         elif self._topic_clock is None and (due := self.next_timer_due_ns()) is not None:
             # (simulated time moves only when a tick arrives: a sim-clock node just waits for input)
             timeout_s = max(0.0, min(timeout_s, (due - self.clock.now_ns()) / 1e9))
-        if self._hb_period_ns:
+        if self._hb_period_ns and self._set_up:
             timeout_s = max(0.0, min(timeout_s, (self._hb_due_ns - time.monotonic_ns()) / 1e9))
-        if timeout_s > 0:
+        if timeout_s > 0 or skipped:
             self._report_to_clock()  # before blocking: the clock may be waiting for what was just handled
             for delivery in self._transport.poll(timeout_s):
                 self._rx.dispatch(delivery)
@@ -442,17 +504,20 @@ class Node:
         due = self.next_timer_due_ns() or 0
         sent_total = sum(p.seq for p in self._ack_pubs) + sum(self._raw_sent.values())
         recv_total = sum(st.received + st.decode_errors for _, st in self._ack_stats)
-        state = (due, sent_total, recv_total, shape)
+        heard = len(self._joins)
+        state = (due, sent_total, recv_total, shape, heard)
         if state == self._acked:
             return
         self._acked = state
+        new_joins = list(self._joins)[self._joins_acked:] if heard > self._joins_acked else []
+        self._joins_acked = heard
         sent = {p.topic: p.seq for p in self._ack_pubs if p.seq}
         for topic, n in self._raw_sent.items():
             sent[topic] = sent.get(topic, 0) + n
         self._last_ack_ns = self.clock.now_ns()
         self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns, next_ns=due, sent=sent,
                                        recv={t: st.received + st.decode_errors for t, st in self._ack_stats},
-                                       subs=self._ack_subs))
+                                       subs=self._ack_subs, probe=self._probe, heard=new_joins))
 
     def spin(self) -> None:
         """Run until :meth:`request_shutdown` (or a signal, under :func:`palpa.run_node`)."""
@@ -517,6 +582,22 @@ class Node:
         # (palpa.compose): what another node published at this time, in reaction to the same tick, comes after
         self._run_timers()
 
+    def instant_ns(self) -> int:
+        """The simulated instant this node is at, for ``Header.at`` of what it sends (0: not on a simulation
+        clock)."""
+        return self._topic_clock.now_ns() if self._topic_clock is not None else 0
+
+    def _on_instant(self, at: int) -> None:
+        """A message sent at simulated instant ``at``: the event lockstep ticks a node only at its own timers'
+        deadlines (palpa.simclock), so it learns any other instant from the messages it handles there (timers due
+        by then run first, as at a tick). Not under a lead-mode clock, whose ticks every node gets."""
+        clock = self._topic_clock
+        if clock is not None and at > clock.now_ns() and clock.started and not self._time_held \
+                and not self._lead_acks:
+            clock.update(at)
+            self._last_tick_wall_ns = time.monotonic_ns()
+            self._run_timers()
+
     # -- internals ---------------------------------------------------------------------------------
     def run_timers(self) -> None:
         """Run the timers due at the current time (an executor's step, see palpa.compose), again while a callback
@@ -569,8 +650,8 @@ class Node:
 
     def _beat(self) -> None:
         """Send the heartbeat when it is due on the wall clock (before simulated time starts, too)."""
-        if not self._hb_period_ns or self._shutdown:
-            return
+        if not self._hb_period_ns or self._shutdown or not self._set_up:
+            return  # a heartbeat says "ready": set up, subscriptions confirmed (what a launcher waits for)
         now = time.monotonic_ns()
         if now >= self._hb_due_ns:
             self._hb_due_ns = now + self._hb_period_ns

@@ -41,6 +41,8 @@ class NodeApi(Protocol):
 
     def resolve(self, topic: str) -> str: ...
 
+    def instant_ns(self) -> int: ...
+
     def publisher(
         self, topic: str, msg_type: type[M], *, latched: bool = False, batch: int | None = None,
         direct: bool | None = None,

@@ -41,6 +41,7 @@ _ROUTES_MAX = 4096  # topics remembered (ours or not); an attacker inventing top
 class _RawSubscription(NamedTuple):
     prefix: bytes
     callback: Callable[[RawMessage], object]
+    accept: Callable[[str], bool] | None = None
 
 
 class _Route(NamedTuple):
@@ -70,6 +71,8 @@ class Receiver:
         self._raw_tracker = SequenceTracker()
         self._last_error_log: dict[str, int] = {}
         self.max_bytes: int = max_bytes or MAX_MSG_BYTES
+        self.on_instant: Callable[[int], object] | None = None
+        """Called with ``Header.at`` of every live (not cached) envelope that has one, before it is handled."""
         self.internal_errors = 0
         """Envelopes whose handling raised where nothing should (a receive-path bug): counted, logged, survived."""
 
@@ -78,9 +81,16 @@ class Receiver:
         self.subs[key] = sub
         self.routes.clear()
 
-    def add_raw(self, prefix: bytes, callback: Callable[[RawMessage], object]) -> None:
-        """Hand every envelope whose topic starts with ``prefix`` to ``callback``, undecoded."""
-        self.raw.append(_RawSubscription(prefix, callback))
+    def add_raw(self, prefix: bytes, callback: Callable[[RawMessage], object],
+                accept: Callable[[str], bool] | None = None) -> None:
+        """Hand every envelope whose topic starts with ``prefix`` (and, with ``accept``, passes it) to
+        ``callback``, undecoded."""
+        self.raw.append(_RawSubscription(prefix, callback, accept))
+        self.routes.clear()
+
+    def remove_raw(self, prefix: bytes) -> None:
+        """Stop handing envelopes under ``prefix`` to the raw callbacks added for it."""
+        self.raw = [r for r in self.raw if r.prefix != prefix]
         self.routes.clear()
 
     def count_error(self, topic: str, stats: TopicStats, text: str) -> None:
@@ -99,7 +109,8 @@ class Receiver:
             if len(topic_b) > MAX_TOPIC_BYTES:  # no subscription has such a name; parse_envelope refuses it
                 return None
             sub = self.subs.get(topic_b)
-            raws = tuple(r.callback for r in self.raw if topic_b.startswith(r.prefix))
+            raws = tuple(r.callback for r in self.raw if topic_b.startswith(r.prefix) and
+                         (r.accept is None or r.accept(topic_b.decode(errors="replace"))))
             if sub is None and not raws:
                 route = None
             else:
@@ -141,6 +152,9 @@ class Receiver:
                 self.count_error(topic, stats, str(exc))
             return
         cached = delivery.from_cache
+        at = env.headers[0].at
+        if at and not cached and self.on_instant is not None:
+            self.on_instant(at)
         if items is not None and rstats is not None:
             tracker = self._raw_tracker
             for header, payload, blobs in items:

@@ -6,13 +6,21 @@ import msgspec
 
 from palpa.message import Message
 
-__all__ = ["CLOCK_ACK_TOPIC", "CLOCK_TOPIC", "HEARTBEAT_TOPIC", "LOG_TOPIC", "ClockAck", "ClockTick", "Heartbeat", "LogRecord", "TopicCounters"]
+__all__ = ["CLOCK_ACK_TOPIC", "CLOCK_TOPIC", "HEARTBEAT_TOPIC", "LOG_TOPIC", "TICK_PREFIX", "ClockAck", "ClockTick",
+           "Heartbeat", "LogRecord", "TopicCounters", "tick_topic"]
 
 HEARTBEAT_TOPIC = "_palpa/heartbeat"
 LOG_TOPIC = "_palpa/log"
 CLOCK_TOPIC = "_palpa/clock"
 CLOCK_ACK_TOPIC = "_palpa/lockstep"
 """Not under ``_palpa/clock``: ZeroMQ matches by prefix, and every sim-clock node would wake for every ack."""
+TICK_PREFIX = "_palpa/tick/"
+
+
+def tick_topic(node: str) -> str:
+    """Where the event lockstep's clock sends ``node`` alone the instants of its timers' deadlines (the trailing
+    ``/``: ZeroMQ matches by prefix, and node ``map`` must not hear ``map2``'s)."""
+    return f"{TICK_PREFIX}{node}/"
 
 
 class TopicCounters(msgspec.Struct, frozen=True, kw_only=True):
@@ -76,7 +84,10 @@ class ClockAck(Message, frozen=True, kw_only=True):
     topics excepted), ``subs`` names what it subscribes to (a prefix ends in ``*``): the clock moves on only when
     every message sent at this time has been taken in by every subscriber. Without ``next_ns`` (-1, an older or
     hand-written client) the clock only stays within a small lead of ``sim_ns``. ``leaving``: the node's last ack,
-    sent as it closes: it no longer holds simulated time back."""
+    sent as it closes: it no longer holds simulated time back. ``probe``: the readiness probe that confirmed the
+    node's subscriptions through the bus (``<node>/<pid>.<incarnation>``, palpa.node; empty on a bus without
+    one); the other participants must say they have ``heard`` it (``heard``: the probes this node's publisher socket
+    heard since its previous ack) before the clock counts on them to reach it."""
 
     node: str
     sim_ns: int
@@ -85,3 +96,5 @@ class ClockAck(Message, frozen=True, kw_only=True):
     sent: dict[str, int] = {}
     recv: dict[str, int] = {}
     subs: list[str] = []
+    probe: str = ""
+    heard: list[str] = []

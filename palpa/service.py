@@ -157,7 +157,7 @@ class Responder(Generic[R]):
         node = self._service.node
         if node.closed:
             return
-        header = Header(type=type_name, seq=self.seq, stamp=node.clock.now_ns(), node=node.name)
+        header = Header(type=type_name, seq=self.seq, stamp=node.clock.now_ns(), node=node.name, at=node.instant_ns())
         node.publish_raw(reply_topic(self._service.name, self.client_id), header, payload)
 
 

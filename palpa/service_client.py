@@ -219,7 +219,8 @@ class Client(Generic[Q, R]):
             return
         node = self.node
         for seq, payload in sorted(self._unsent.items()):
-            header = Header(type=self.request_type.type_name, seq=seq, stamp=node.clock.now_ns(), node=self.id)
+            header = Header(type=self.request_type.type_name, seq=seq, stamp=node.clock.now_ns(), node=self.id,
+                            at=node.instant_ns())
             node.publish_raw(self._req_topic, header, payload)
         self._unsent.clear()
 

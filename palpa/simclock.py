@@ -8,10 +8,13 @@ Event lockstep: every sim-clock node reports on ``_palpa/lockstep`` its next tim
 has sent and taken in (:class:`~palpa.runtime_msgs.ClockAck`); the source moves time to the earliest deadline only
 once no timer is left due and no message is in flight (:mod:`palpa.lockstep`), so the graph sees the timeline a
 composition (:mod:`palpa.compose`) gives it: timers at their exact deadlines, every message handled at the
-instant it was sent. Time starts only when every node named in ``participants`` (the launcher fills in the
-file's sim-clock nodes) has set up: until then the source publishes the start time with ``hold``. Time never
-runs faster than ``time_scale`` (a ceiling); on an overloaded machine it slows down instead. A client that acks
-without a deadline (``next_ns`` -1) is kept within ``max_lead_s`` of the time it acked, as before events.
+instant it was sent. Each instant goes only to the nodes with a timer due at it, each on its own topic
+(``_palpa/tick/<node>/``); the others take it from the messages they handle (``Header.at``), and ``_palpa/clock``
+carries the held start, the release and, once a wall second, the current time. Time starts only when every node
+named in ``participants`` (the launcher fills in the file's sim-clock nodes) has set up: until then the source
+publishes the start time with ``hold``. Time never runs faster than ``time_scale`` (a ceiling); on an overloaded
+machine it slows down instead. A client that acks without a deadline (``next_ns`` -1) is kept within
+``max_lead_s`` of the time it acked, as before events.
 
 Who participates: a node is in from its first ack until it *leaves*, never because it is slow. A CPU-starved node
 may not ack for seconds; dropping it then lets time run on without it, and its peers' sim-time watchdogs trip on
@@ -38,7 +41,7 @@ from typing import Any, Literal
 
 from palpa.clock import SystemClock
 from palpa.lockstep import EventLockstep
-from palpa.node import Node
+from palpa.node import Node, Publisher
 from palpa.params import NonNegative, Positive
 from palpa.params import Params as ParamsBase
 from palpa.runner import run_node
@@ -49,12 +52,16 @@ from palpa.runtime_msgs import (
     ClockAck,
     ClockTick,
     Heartbeat,
+    tick_topic,
 )
+from palpa.transport import ZmqTransport
 
 __all__ = ["ClockSource"]
 
 _REPEAT_NS = 1_000_000_000
 """Wall ns after which the current time is published again though it did not move (a held start, a slow node)."""
+_CHECK_EVERY_NS = 50_000_000
+"""Wall ns between looks at the event participants' silence (check_after_s is whole seconds)."""
 _MAX_BURST_NS = 100_000_000
 """Wall ns of lead the ceiling keeps when the graph is slower than it (no burst past time_scale afterwards)."""
 
@@ -114,6 +121,9 @@ class ClockSource(Node):
         self._anchor = (self._wall, self._sim)
         """(wall, simulated) ns the time_scale ceiling counts from."""
         self._last_pub_wall = 0
+        """Wall ns of the last broadcast on _palpa/clock."""
+        self._tick_pubs: dict[str, Publisher[ClockTick]] = {}
+        self._checked_wall = 0
         self._stalled_since = 0
         if self.params.max_lead_s > 0:
             self.subscribe(CLOCK_ACK_TOPIC, self._on_ack)
@@ -200,11 +210,15 @@ class ClockSource(Node):
         wall = time.monotonic_ns()
         if not self._released:
             missing = [n for n in self.params.participants if n not in self._events and n not in self._acks]
-            if missing and (wall - self._started_wall) / 1e9 < self.params.join_timeout_s:
+            unheard = self._events.unheard()
+            if (missing or unheard) and (wall - self._started_wall) / 1e9 < self.params.join_timeout_s:
                 return
             if missing:
                 self.log.warning("%s not joined after %.0f s (wall clock): simulated time starts without them",
                                  ", ".join(missing), self.params.join_timeout_s)
+            if unheard:
+                self.log.warning("%s's subscriptions not heard by %s after %.0f s (wall clock): simulated time "
+                                 "starts anyway", *unheard, self.params.join_timeout_s)
             self._released = True
             self._events.restart_accounting()
             self._anchor = (wall, self._sim)
@@ -213,16 +227,23 @@ class ClockSource(Node):
             return
         if not self._events.members:
             return  # no event participant (yet, or any more): _tick runs time on the wall clock
-        for node in [n for n in self._events.members if n in self._acks]:
-            self._still_in(node, wall)
+        if wall - self._checked_wall > _CHECK_EVERY_NS:  # silence is judged in seconds: not at every instant
+            self._checked_wall = wall
+            for node in [n for n in self._events.members if n in self._acks]:
+                self._still_in(node, wall)
         now = self._sim
         if self._events.due(now):
             return
+        unheard = self._events.unheard()
+        if unheard is not None:
+            if self._stalled(wall):
+                return
+            self.log.warning("%s's subscriptions not heard by %s in %.0f s (wall clock): time moves on", *unheard,
+                             self.params.participant_timeout_s)
+            self._events.assume_heard()
         flying = self._events.in_flight()
         if flying is not None:
-            if not self._stalled_since:
-                self._stalled_since = wall
-            if (wall - self._stalled_since) / 1e9 < self.params.participant_timeout_s:
+            if self._stalled(wall):
                 return
             self.log.warning("%d message(s) on %s never reached %s in %.0f s (wall clock): time moves on",
                              flying.missing, flying.topic, flying.subscriber, self.params.participant_timeout_s)
@@ -242,7 +263,36 @@ class ClockSource(Node):
             target = min(target, max(now, min(legacy) + int(self.params.max_lead_s * 1e9)))
         if target > now:
             self._sim = target
-            self._publish(target, wall)
+            if legacy:
+                self._publish(target, wall)  # a client without deadlines follows the broadcast
+            else:
+                self._tick_due(target)
+
+    def _tick_due(self, sim_ns: int) -> None:
+        """Send the new instant to the participants with a timer due at it, each on its own topic: the others learn
+        it from the messages they handle at it (``Header.at``, palpa.node), so a node with nothing to do at an
+        instant is not woken (the broadcast every second keeps idle nodes' watchdogs fed)."""
+        tick = ClockTick(sim_ns=sim_ns)
+        due = self._events.due(sim_ns)
+        t = self.transport
+        if isinstance(t, ZmqTransport) and any(self._events.probe(n) not in t.joins_heard for n in due):
+            # our publisher socket may not have that node's subscription to its own topic yet (palpa.node's
+            # readiness probe says when it has): a tick dropped there would hold time for good
+            self._publish(sim_ns, time.monotonic_ns())
+            return
+        for node in due:
+            pub = self._tick_pubs.get(node)
+            if pub is None:
+                pub = self._tick_pubs[node] = self.publisher(tick_topic(node), ClockTick, batch=1)
+            pub.publish(tick)
+
+
+    def _stalled(self, wall: int) -> bool:
+        """Whether time still waits (for a message in flight, a participant not heard): True until it has waited
+        ``participant_timeout_s`` of wall time."""
+        if not self._stalled_since:
+            self._stalled_since = wall
+        return (wall - self._stalled_since) / 1e9 < self.params.participant_timeout_s
 
 
 def _pid_alive(pid: int) -> bool:

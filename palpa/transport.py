@@ -304,6 +304,27 @@ class ZmqTransport:
     def unsubscribe(self, prefix: bytes) -> None:
         self._sub.setsockopt(zmq.UNSUBSCRIBE, prefix)
 
+    def subscribe_probe(self, topic: bytes) -> None:
+        """Subscribe to ``topic`` on the bus only (no latched value, no directory): a readiness probe."""
+        self._sub.setsockopt(zmq.SUBSCRIBE, topic)
+
+    def heard_subscription(self, prefix: bytes) -> bool:
+        """Whether the proxy has forwarded a subscription to exactly ``prefix`` to this node's publisher socket.
+        The proxy forwards subscriptions in the order its XPUB took them in, and it took in each subscriber's in
+        the order they were made: when a node hears its own newest one, the proxy has all its earlier ones."""
+        return prefix in self._bus_listeners.prefixes
+
+    def heard_join(self, node: str) -> bool:
+        """Whether this node's publisher socket has heard ``node``'s readiness probe subscribed (palpa.node), and
+        so every subscription ``node`` made before it was ready: nothing published here now is lost to it."""
+        return any(probe.rpartition("/")[0] == node for probe in self._bus_listeners.joined)
+
+    @property
+    def joins_heard(self) -> dict[str, None]:
+        """Every readiness probe (``<node>/<pid>.<incarnation>``) this publisher socket has heard, in order (live:
+        it grows)."""
+        return self._bus_listeners.joined
+
     def poll(self, timeout_s: float, max_batch: int = 1000) -> list[Delivery]:
         out: list[Delivery] = []
         if self._watch_hs.monitor is not None:  # refused by the bus: retry (palpa.handshake)

@@ -75,6 +75,10 @@ class Header(msgspec.Struct, frozen=True, omit_defaults=True, gc=False):
     """The publisher's incarnation: a number drawn anew each time a node starts (0: not given, as from older
     publishers). A change means the publisher restarted, so its ``seq`` starting again at 1 is news, not a
     duplicate."""
+    at: _UINT64 = 0
+    """The simulated instant (ns) the publisher was at, from a node following a simulation clock (0: a node on the
+    wall clock, or not given). Under the event lockstep a node gets clock ticks only at its own timers' deadlines
+    and takes the time of any other instant from the messages it handles there (palpa.simclock)."""
 
 
 _header_encoder = msgspec.msgpack.Encoder()
@@ -100,21 +104,27 @@ class HeaderTemplate:
     """Fast header encoding for one publisher: the constant fields are packed once, ``seq`` and ``stamp`` per
     message (as msgpack uint64, valid for every msgpack reader)."""
 
-    def __init__(self, type_name: str, node: str, latched: bool, inc: int = 0) -> None:
+    def __init__(self, type_name: str, node: str, latched: bool, inc: int = 0, instant: bool = False) -> None:
         enc = msgspec.msgpack.encode
-        entries = 4 + bool(latched) + bool(inc)
+        entries = 4 + bool(latched) + bool(inc) + bool(instant)
         prefix = (
             bytes([0x80 | entries]) + enc("type") + enc(type_name) + enc("node") + enc(node)
             + (enc("latched") + enc(True) if latched else b"") + (enc("inc") + enc(inc) if inc else b"")
             + enc("seq") + b"\xcf"
         )
         mid = enc("stamp") + b"\xcf"
-        # the whole map in one struct: the constant parts as fixed-length byte strings, the two numbers as uint64
-        self._pack = functools.partial(struct.Struct(f">{len(prefix)}sQ{len(mid)}sQ").pack, prefix)
+        # the whole map in one struct: the constant parts as fixed-length byte strings, the numbers as uint64
+        fmt = f">{len(prefix)}sQ{len(mid)}sQ"
+        self._last = enc("at") + b"\xcf" if instant else b""
+        if instant:
+            fmt += f"{len(self._last)}sQ"
+        self._pack = functools.partial(struct.Struct(fmt).pack, prefix)
         self._mid = mid
 
-    def pack(self, seq: int, stamp_ns: int) -> bytes:
-        """The header map of one message."""
+    def pack(self, seq: int, stamp_ns: int, at_ns: int = 0) -> bytes:
+        """The header map of one message (``at_ns``: the publisher's simulated instant, with ``instant``)."""
+        if self._last:
+            return self._pack(seq, self._mid, stamp_ns, self._last, at_ns)
         return self._pack(seq, self._mid, stamp_ns)
 
 

@@ -232,7 +232,7 @@ def test_a_shipped_scan_can_be_included_with_one_more_node(tmp_path: Path) -> No
         """)
     plan = load_launch(top, run_dir=tmp_path / "run")
     assert plan.progress_topic == "robot/scan_status"
-    assert plan.record is not None and plan.record.exclude == ["_palpa/clock.*", "_palpa/lockstep"]
+    assert plan.record is not None and plan.record.exclude == ["_palpa/clock.*", "_palpa/tick/.*", "_palpa/lockstep"]
     assert [n.name for n in plan.nodes][-2:] == ["scanner", "listener"]
     assert plan.node_params["scanner"]["spacing_mm"] == 6.0
     own = write(tmp_path / "quiet.yaml", f"""\

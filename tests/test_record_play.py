@@ -17,7 +17,8 @@ from palpa.record.player import Player
 from palpa.record.recorder import Recorder
 from palpa.record.testing import Rec, write_bag
 from palpa.runtime_msgs import CLOCK_TOPIC, ClockTick
-from palpa.testing import MemoryBus, NodeHarness
+from palpa.testing import MemoryBus, MemoryTransport, NodeHarness
+from palpa.transport import Delivery
 
 T0 = 1_700_000_000_000_000_000
 MS = 1_000_000
@@ -38,7 +39,7 @@ def _play(params: dict[str, object]) -> tuple[Player, list[RawMessage]]:
     bus = MemoryBus()
     got: list[RawMessage] = []
     probe = Node(name="probe", transport=bus.transport(), heartbeat_s=0)
-    probe.subscribe_raw("", lambda r: got.append(r) if not r.topic.startswith("_palpa/player_ready") else None)
+    probe.subscribe_raw("", got.append)
     player = Player(name="player", params={"exit_delay_s": 0.0, **params}, transport=bus.transport(), heartbeat_s=0)
     try:
         player.spin()
@@ -155,3 +156,63 @@ def test_timeline_publish_paces_by_the_publishers_stamps(tmp_path: Path) -> None
     assert span == pytest.approx(190.0, abs=slack)
     span, slack = spans["log"]
     assert span == pytest.approx(19.0, abs=slack)
+
+
+class _SlowConsumer(MemoryTransport):
+    """A consumer slower than the replay: takes nothing in until the replay has ended, then one message a spin;
+    ``lose`` messages on chatter never arrive (dropped at a high-water mark)."""
+
+    def __init__(self, bus: MemoryBus, lose: set[int]) -> None:
+        super().__init__(bus)
+        self.go = False
+        self.lose = lose
+        self._chatter = 0
+
+    def poll(self, timeout_s: float) -> list[Delivery]:
+        while self.go and self.inbox:
+            d = self.inbox.popleft()
+            if d.frames[0] == b"chatter":
+                self._chatter += 1
+                if self._chatter in self.lose:
+                    continue
+            return [d]
+        return []
+
+
+def _play_to_slow_consumer(bag: Path, lose: set[int]) -> tuple[Player, Node]:
+    """Play ``bag`` to a slow ``sink`` named in wait_for (the player spins it: one thread)."""
+    bus = MemoryBus()
+    slow = _SlowConsumer(bus, lose)
+    bus._add(slow)
+    sink = Node(name="sink", transport=slow, heartbeat_s=0.01)
+    sink.subscribe("chatter", Text)
+
+    class Paired(Player):
+        def spin_once(self, timeout_s: float = 0.0) -> None:
+            super().spin_once(0.0)
+            slow.go = slow.go or self.played == 22  # every message of _bag played
+            sink.spin_once(0.0)
+
+    player = Paired(name="player", params={"file": str(bag), "exit_delay_s": 0.0, "drain_timeout_s": 0.5,
+                                            "wait_for": ["sink"]}, transport=bus.transport(), heartbeat_s=0)
+    try:
+        player.spin()
+    finally:
+        player.close(0)
+    return player, sink
+
+
+def test_the_replay_ends_once_a_slow_consumer_took_everything_in(tmp_path: Path) -> None:
+    player, sink = _play_to_slow_consumer(_bag(tmp_path / "b.mcap"), set())
+    assert player.exit_code == 0
+    assert sink.counters()["chatter"].received == 20  # when the player ended, not later
+    sink.close(0)
+
+
+def test_a_replay_that_lost_messages_downstream_does_not_end_clean(tmp_path: Path,
+                                                                   caplog: pytest.LogCaptureFixture) -> None:
+    player, sink = _play_to_slow_consumer(_bag(tmp_path / "b.mcap"), {3, 9, 17})
+    assert player.exit_code == 1
+    assert sink.counters()["chatter"].received == 17
+    assert "sink took in 17 of the 20 messages played on chatter: 3 lost" in caplog.text
+    sink.close(0)

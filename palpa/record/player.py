@@ -26,18 +26,18 @@ from typing import Any, Literal
 
 import palpa
 from palpa.errors import ParamError
-from palpa.node import Node, RawMessage
+from palpa.node import Node
 from palpa.params import convert_params
 from palpa.record.format import TopicFilter
 from palpa.record.reader import BagMessage, iter_bag, resolve_bag_paths
 from palpa.runtime_msgs import CLOCK_TOPIC, HEARTBEAT_TOPIC, ClockTick, Heartbeat
+from palpa.transport import ZmqTransport
 from palpa.wire import Header
 
 __all__ = ["PlayerParams", "Player"]
 
 _POLL_S = 0.003  # closer than this to a deadline, stop polling sockets (ms granularity) and sleep precisely
 _SPIN_S = 0.0002  # the last stretch before a deadline is spun, not slept (wake-up latency)
-_READY_TOPIC = "_palpa/player_ready/"
 
 
 class PlayerParams(palpa.Params):
@@ -66,9 +66,15 @@ class PlayerParams(palpa.Params):
     exit_when_done: bool = True
     """Stop the node (exit 0) after the last message; otherwise keep running until stopped."""
     exit_delay_s: float = 0.5
-    """With exit_when_done: keep the node up this long after the last message, so that in a launch file
-    (player ``required: true``) the live downstream nodes finish with the last messages before they are
-    stopped."""
+    """With exit_when_done, when no downstream node can be checked (see ``drain_timeout_s``): keep the node up this
+    long after the last message, so that in a launch file (player ``required: true``) the live downstream nodes
+    finish with the last messages before they are stopped."""
+    drain_timeout_s: float = 10.0
+    """With exit_when_done: after the last message, wait until every downstream node (the ``wait_for`` nodes, and
+    on a real bus every node whose readiness this player heard before it played) reports in its heartbeat that it
+    took in everything played on the topics it subscribes to. One that makes no progress for this long (wall
+    clock) lost messages: a warning says which and how many, and the player exits 1 (a replay that lost data
+    does not end clean)."""
     realtime: bool = False
     """Ask the OS for real-time scheduling (SCHED_FIFO, priority 10) while playing, so other busy processes do not
     delay sends by whole time slices (measured at 1 kHz on a loaded 2-core VM: p99 3.8 ms -> 0.002 ms). Needs
@@ -77,8 +83,9 @@ class PlayerParams(palpa.Params):
     """Node names to hear (heartbeats) before playing: the downstream nodes of a launch file, so they have
     subscribed when the first message goes out."""
     ready_timeout_s: float = 10.0
-    """Before playing, wait up to this long for ``wait_for`` and for the bus to echo a probe (so the first
-    messages are not lost to ZeroMQ's slow joiner); then play anyway, with a warning."""
+    """Before playing, wait up to this long for the ``wait_for`` nodes to be ready and their subscriptions to have
+    reached this node (so the first messages are not lost to ZeroMQ's slow joiner); then play anyway, with a
+    warning."""
 
 
 class Player(Node):
@@ -106,11 +113,11 @@ class Player(Node):
     def setup(self) -> None:
         p = self.params
         self._clock_pub = self.publisher(CLOCK_TOPIC, ClockTick) if p.clock else None
-        self._ready = False
-        self.subscribe_raw(_READY_TOPIC + self.name, self._on_ready)
         self._waiting = set(p.wait_for)
-        if self._waiting:
-            self.subscribe(HEARTBEAT_TOPIC, Heartbeat, self._on_heartbeat)
+        self._beats: dict[str, Heartbeat] = {}
+        """The latest heartbeat of every node heard (what it subscribes to, and what it has taken in)."""
+        self._downstream: set[str] = set()
+        self.subscribe(HEARTBEAT_TOPIC, Heartbeat, self._on_heartbeat)
         self.played = 0
         self.passes = 0
         self.late_max_s = 0.0
@@ -120,28 +127,25 @@ class Player(Node):
         self._hold_wall = 0.0
 
     # -- helpers -----------------------------------------------------------------------------------------
-    def _on_ready(self, raw: RawMessage) -> None:
-        if raw.header.node == self.name:
-            self._ready = True
-
     def _on_heartbeat(self, hb: Heartbeat) -> None:
         self._waiting.discard(hb.node)
+        self._beats[hb.node] = hb
+
+    def _not_ready(self) -> list[str]:
+        """The ``wait_for`` nodes not ready for the first message: not heard (a heartbeat: set up) or, on a real
+        bus, their subscriptions not yet heard by our publisher socket (their readiness probe, palpa.node)."""
+        t = self.transport
+        return sorted(n for n in self.params.wait_for
+                      if n in self._waiting or (isinstance(t, ZmqTransport) and not t.heard_join(n)))
 
     def _wait_ready(self) -> None:
-        """Wait for the ``wait_for`` nodes' heartbeats, and publish a probe until it comes back through the bus:
-        from then on our publisher has every subscription the proxy knows of, so nothing is dropped for lack of
-        a route."""
+        """Wait (bounded) until every ``wait_for`` node is ready: nothing played is dropped for lack of a route."""
         deadline = time.monotonic() + self.params.ready_timeout_s
-        seq = 0
-        while (self._waiting or not self._ready) and not self.is_shutdown:
+        while (missing := self._not_ready()) and not self.is_shutdown:
             if time.monotonic() > deadline:
-                missing = f"nodes {sorted(self._waiting)} not heard" if self._waiting else "no probe echo"
-                self.log.warning("not ready after %.1f s (%s); playing anyway", self.params.ready_timeout_s,
-                                 missing)
+                self.log.warning("not ready after %.1f s (nodes %s not heard); playing anyway",
+                                 self.params.ready_timeout_s, missing)
                 return
-            seq += 1
-            self.publish_raw(_READY_TOPIC + self.name, Header(type="", seq=seq, stamp=time.time_ns(),
-                                                               node=self.name), b"\xc0")
             if self._clock_pub is not None:
                 # sim-clock nodes wait for a first tick before they start, and their heartbeat timers run on
                 # sim time: let the clock run at wall speed towards the recording's start (it cannot get there
@@ -270,6 +274,10 @@ class Player(Node):
         if self.params.realtime:
             self._go_realtime()
         self._wait_ready()
+        t = self.transport
+        # the graph's nodes (they heartbeat: tools do not) whose subscriptions were live before the first message
+        ready = {probe.rpartition("/")[0] for probe in t.joins_heard} if isinstance(t, ZmqTransport) else set()
+        self._downstream = (set(self.params.wait_for) | (ready & self._beats.keys())) - {self.name}
         started = time.monotonic()
         while not self.is_shutdown:
             if not self._play_pass():
@@ -283,9 +291,56 @@ class Player(Node):
                       ", ".join(map(str, self.paths)), time.monotonic() - started, self.passes,
                       "" if self.passes == 1 else "es")
         if self.params.exit_when_done:
-            end = time.monotonic() + self.params.exit_delay_s
-            while not self.is_shutdown and (left := end - time.monotonic()) > 0:
-                self.spin_once(min(left, 0.1))
-            self.request_shutdown(0)
+            if not self._downstream:
+                end = time.monotonic() + self.params.exit_delay_s
+                while not self.is_shutdown and (left := end - time.monotonic()) > 0:
+                    self.spin_once(min(left, 0.1))
+            drained = self._drain()
+            if not self.is_shutdown:
+                self.request_shutdown(0 if drained else 1)
             return
         super().spin()
+
+    def _behind(self) -> dict[str, tuple[str, int, int]]:
+        """Downstream node -> (a topic, messages it took in, messages played there) where it has not taken in all
+        that was played on a topic it subscribes to (by its latest heartbeat; not heard at all: topic "")."""
+        out: dict[str, tuple[str, int, int]] = {}
+        for node in sorted(self._downstream):
+            hb = self._beats.get(node)
+            if hb is None:
+                out[node] = ("", 0, 0)
+                continue
+            exact = hb.subscribes.keys()
+            prefixes = [t[:-1] for t in exact if t.endswith("*")]
+            for topic, n in self._raw_sent.items():
+                if topic in exact or any(topic.startswith(p) for p in prefixes):
+                    c = hb.counters.get(topic)
+                    got = c.received + c.decode_errors if c is not None else 0
+                    if got < n:
+                        out[node] = (topic, got, n)
+                        break
+        return out
+
+    def _drain(self) -> bool:
+        """Wait until the downstream nodes have taken in what was played (their heartbeats' counters), while they
+        make progress; False (after a warning naming what was lost) when one stopped short of it."""
+        last: dict[str, tuple[str, int, int]] | None = None
+        deadline = 0.0
+        while not self.is_shutdown:
+            behind = self._behind()
+            if not behind:
+                return True
+            now = time.monotonic()
+            if behind != last:
+                last, deadline = behind, now + self.params.drain_timeout_s
+            elif now > deadline:
+                for node, (topic, got, n) in behind.items():
+                    if topic:
+                        self.log.warning("%s took in %d of the %d messages played on %s: %d lost", node, got, n,
+                                         topic, n - got)
+                    else:
+                        self.log.warning("%s not heard since the replay started: whether it got the replay is "
+                                         "unknown", node)
+                return False
+            self.spin_once(0.05)
+        return True
