@@ -126,8 +126,8 @@ def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path, calibratio
     g.add(AirfloatStiffnessEstimator, {"geometry": str(REPO / "phantoms" / "measured" / phantom),
                                        "calibration": str(calibration)})
     g.add(MapAggregator, {"output_dir": str(tmp_path)})
-    scanner = g.add(RobotScanner, {"region_mm": [10, 10, 50, 50], "spacing_mm": 5.0, "speed_mm_s": 40.0,
-                                   "contact_z_mm": 21.0, "home_mm": [10, 10, 30]})
+    scanner = g.add(RobotScanner, {"region_mm": [15, 15, 45, 45], "spacing_mm": 5.0, "speed_mm_s": 40.0,
+                                   "contact_z_mm": 21.0, "home_mm": [15, 15, 30]})
     while not scanner.is_shutdown:
         g.advance(1.0)
         g.clear()
