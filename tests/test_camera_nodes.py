@@ -5,7 +5,6 @@ bench/table_i.py; the launch file as processes: tests/test_launch_smoke.py)."""
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 
 import cv2
@@ -20,6 +19,7 @@ from nodes.linear_stage import LinearStage, StageProfile
 from nodes.static_pose import StaticPose
 from nodes.stiffness_estimator import MultiIndenterStiffnessEstimator
 from palpa.testing import GraphHarness, NodeHarness
+from tests.procs import wait_until
 
 SPRINGS = {0.29: "phantoms/springs_029.yaml", 0.37: "phantoms/springs_037.yaml",
            0.62: "phantoms/springs_062.yaml", 0.63: "phantoms/springs_063.yaml"}
@@ -144,10 +144,8 @@ def test_replay_a_recorded_video_through_the_node(tmp_path: Path) -> None:
     h = NodeHarness(CameraTracker, {"driver": "opencv", "device": str(path), "pacing": "every",
                                     "exit_at_end": True, "zero_frames": 1})
     try:
-        deadline = time.monotonic() + 20
-        while not h.node.is_shutdown:
-            assert time.monotonic() < deadline, "the node did not finish the file"
-            h.advance(0.005)  # the poll timer; the capture thread runs on its own
+        # the poll timer on each step; the capture thread runs on its own
+        wait_until(lambda: h.node.is_shutdown, 20, "the node to finish the file", step=lambda: h.advance(0.005))
         msgs = h.published("camera/indenters", IndenterDisplacements)
     finally:
         h.close()
