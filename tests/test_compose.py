@@ -22,8 +22,10 @@ from tests.procs import ProcessGroup
 from tests.test_launch_smoke import REPO, Smoke, smoke
 
 # around the r 5 x4 tumour at (45, 18); the measured geometry given as a user would (the in-memory composition
-# below runs no prepare step)
-SMALL = ["region_mm:=[30.0, 6.0, 54.0, 30.0]", "spacing_mm:=3.0",
+# below runs no prepare step). A coarse, fast raster after a 2 x 2 touch-off: two thirds of the simulated time of
+# the defaults, and the touch-off's decisions on the probe's heights keep the comparison sensitive to the timeline
+# (timers 1 ms late in the composition move the inclusion ~0.4 mm; without a touch-off, too little to see)
+SMALL = ["region_mm:=[30.0, 6.0, 54.0, 30.0]", "spacing_mm:=4.0", "speed_mm_s:=40.0", "touch_grid:=2",
          f"geometry:={REPO / 'phantoms' / 'measured' / 'airfloat_tumours.yaml'}"]
 
 
