@@ -3,6 +3,7 @@ clean shutdown, fuzzing a live node, a foreign (non-palpa) client, and CURVE."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import signal
@@ -39,12 +40,14 @@ def test_talker_to_listener_processes(bus: BusAddress, procs: ProcessGroup, env_
         wait_heartbeat(probe, "listener")
         lens = probe.subscribe("chatter_len", Text)
         talker = procs.start(palpa_cmd("run", "nodes.demo:Talker", "-p", "rate_hz=100", "-p", "count=300"), env=env)
-        got = []
-        deadline = time.monotonic() + 15
-        while len(got) < 50 and time.monotonic() < deadline:
-            msg = lens.next(0.2)
-            if msg is not None:
+        got: list[Text] = []
+
+        def take() -> None:
+            if (msg := lens.next(0.2)) is not None:
                 got.append(msg)
+
+        with contextlib.suppress(AssertionError):  # the check below shows the listener's output
+            wait_until(lambda: len(got) >= 50, 15, "50 messages on chatter_len", step=take)
         assert len(got) >= 50, listener.output()
         assert talker.wait(15) == 0  # exits 0 by itself after count messages
         assert lens.stats.gaps == 0
@@ -90,10 +93,11 @@ def test_prefix_subscriptions_do_not_leak(bus: BusAddress) -> None:
         exact = b.subscribe("a/b", Text)
         long_pub = a.publisher("a/bc", Text)
         pub = a.publisher("a/b", Text)
-        deadline = time.monotonic() + 5
-        while exact.next(0.05) is None and time.monotonic() < deadline:
+        def both() -> None:
             long_pub.publish(Text(text="leak"))
             pub.publish(Text(text="ok"))
+
+        wait_until(lambda: exact.next(0.05) is not None, 5, "a/b subscribed", step=both)
         for _ in range(20):
             long_pub.publish(Text(text="leak"))
         pub.publish(Text(text="last"))
@@ -172,15 +176,19 @@ def test_fuzz_frames_never_kill_a_node(ipc_bus: BusAddress, procs: ProcessGroup,
         seq += 1
         pub.send_multipart([b"chatter", good_header(seq), msgpack.packb({"text": "survivor"})])
         hb_sub = heartbeats(probe)
-        deadline = time.monotonic() + 20
-        counters = None
-        while time.monotonic() < deadline:
+        reported = []
+
+        def all_counted() -> bool:
             hb = hb_sub.next(0.5)
-            if hb is not None and hb.node == "listener":
-                counters = hb.counters["chatter"]
-                if counters.received >= warm + 10_000 // 500 + 1 and counters.decode_errors >= bad:
-                    break
-        assert counters is not None, node.output()
+            if hb is None or hb.node != "listener":
+                return False
+            reported.append(hb.counters["chatter"])
+            return reported[-1].received >= warm + 10_000 // 500 + 1 and reported[-1].decode_errors >= bad
+
+        with contextlib.suppress(AssertionError):  # the checks below say what the last heartbeat lacked
+            wait_until(all_counted, 20, "the listener's heartbeat to count every frame")
+        assert reported, node.output()
+        counters = reported[-1]
         assert counters.decode_errors == bad, node.output()
         # sequence numbers count valid messages only: the invalid ones that carried a seq are the gap before
         # the survivor, nothing more (the random frames cannot fake gaps)
@@ -204,21 +212,19 @@ def test_foreign_client_plain_pyzmq(bus: BusAddress) -> None:
         heard = native.subscribe("from_foreign", Text)
         talk = native.publisher("chatter", Text)
         seq = 0
-        got_native = None
-        deadline = time.monotonic() + 10
-        while got_native is None and time.monotonic() < deadline:
+
+        def send_foreign() -> None:
+            nonlocal seq
             seq += 1
             header = msgpack.packb({"type": "Text", "seq": seq, "stamp": time.time_ns(), "node": "foreign"})
             pub.send_multipart([b"from_foreign", header, msgpack.packb({"text": "hi from C", "stamp_ns": 0})])
-            got_native = heard.next(0.05)
+
+        send_foreign()
+        got_native = wait_until(lambda: heard.next(0.05), 10, "the foreign message", step=send_foreign)
         assert got_native == Text(text="hi from C")
-        deadline = time.monotonic() + 10
-        frames = None
-        while frames is None and time.monotonic() < deadline:
-            talk.publish(Text(text="hi from palpa"))
-            if sub.poll(50):
-                frames = sub.recv_multipart()
-        assert frames is not None and frames[0] == b"chatter"
+        frames = wait_until(lambda: sub.recv_multipart() if sub.poll(50) else None, 10, "palpa's message at the "
+                            "foreign client", step=lambda: talk.publish(Text(text="hi from palpa")))
+        assert frames[0] == b"chatter"
         header = msgpack.unpackb(frames[1])
         assert header["type"] == "Text" and header["node"] == "native" and header["seq"] >= 1
         assert msgpack.unpackb(frames[2])["text"] == "hi from palpa"
@@ -231,15 +237,17 @@ def test_foreign_client_plain_pyzmq(bus: BusAddress) -> None:
         native.timer(1.0, burst, oneshot=True, first_in_s=0.0)
         native.spin_once(0)
         texts: list[str] = []
-        deadline = time.monotonic() + 10
-        while len(texts) < 5 and time.monotonic() < deadline:
+
+        def take_batch() -> None:
             if sub.poll(50):
                 topic, head, payload, *rest = sub.recv_multipart()
                 h, p = msgpack.unpackb(head), msgpack.unpackb(payload)
                 if isinstance(h, list):
                     assert len(h) == len(p) == 5 and not rest
                     assert [x["seq"] for x in h] == list(range(h[0]["seq"], h[0]["seq"] + 5))
-                    texts += [x["text"] for x in p]
+                    texts.extend(x["text"] for x in p)
+
+        wait_until(lambda: len(texts) >= 5, 10, "the burst", step=take_batch)
         assert texts == [f"burst {i}" for i in range(5)]
     sub.close(0)
     pub.close(0)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
@@ -25,6 +25,7 @@ from nodes.drivers.camera import (
 )
 from nodes.drivers.camera_sim import SimCameraSource
 from palpa.clock import MockClock
+from tests.procs import wait_until
 
 N_FRAMES = 40
 
@@ -47,14 +48,6 @@ def write_video(path: Path, fourcc: str, n: int = N_FRAMES, fps: float = 30.0) -
         centres.append(renderer.last_centres_px.copy())
     writer.release()
     return np.asarray(centres)
-
-
-def wait_for(cond: Callable[[], bool], timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.005)
 
 
 @pytest.fixture
@@ -126,7 +119,7 @@ def test_fast_pacing_keeps_only_the_newest_frame(tmp_path: Path, sources: list[F
     src = OpenCVSource(str(path), pacing="fast")
     sources.append(src)
     src.open()
-    wait_for(lambda: src.info().ended, 20, "the end of the file")
+    wait_until(lambda: src.info().ended, 20, "the end of the file")
     f = src.read(0.0)
     assert f is not None and f.seq == 19  # the newest; the others were replaced before anyone read them
     info = src.info()
@@ -152,7 +145,7 @@ def test_close_stops_a_capture_thread_waiting_for_its_consumer(tmp_path: Path) -
     write_video(path, "FFV1", n=10)
     src = OpenCVSource(str(path), pacing="every")
     src.open()
-    wait_for(lambda: src.info().frames >= 1, 20, "the first frame")
+    wait_until(lambda: src.info().frames >= 1, 20, "the first frame")
     thread = src._thread
     src.close()
     assert thread is not None and not thread.is_alive()

@@ -7,7 +7,6 @@ import math
 import random
 import signal
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -38,11 +37,10 @@ REPO = Path(__file__).resolve().parents[1]
 def collect(drv: SerialFibreDriver, n: int, timeout_s: float = 5.0) -> list[FibreSample]:
     """Read until at least ``n`` samples arrived."""
     out: list[FibreSample] = []
-    deadline = time.monotonic() + timeout_s
-    while len(out) < n:
-        if time.monotonic() > deadline:
-            pytest.fail(f"got {len(out)} of {n} samples within {timeout_s} s; status {drv.status()}")
-        out += drv.read(0.1)
+    try:
+        wait_until(lambda: len(out) >= n, timeout_s, f"{n} samples", step=lambda: out.extend(drv.read(0.1)))
+    except AssertionError as exc:
+        pytest.fail(f"{exc}: got {len(out)}; status {drv.status()}")
     return out
 
 

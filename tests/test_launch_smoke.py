@@ -7,11 +7,10 @@ timeout. The test fails for a file without an entry.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import signal
-import subprocess
-import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,6 +18,7 @@ from pathlib import Path
 import pytest
 
 import palpa
+from palpa.cli.main import main as cli_main
 from palpa.node import RawMessage
 from tests.procs import ProcessGroup, palpa_cmd, wait_until
 
@@ -77,8 +77,10 @@ SMOKE: dict[str, Smoke] = {
     "talker_listener.yaml": Smoke(args=["rate:=20.0"], topics=["chatter", "chatter_len"], timeout=30),
     "airfloat_sim.yaml": Smoke(topics=["robot/pose", "pressure/state", "probe/heights", "probe/status",
                                        "stiffness/sample"], timeout=40),
-    # touch-off is tested in tests/test_touchoff*.py: the smokes plan at the phantom's known height
-    "scan_sim.yaml": Smoke(args=["region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "touchoff:=off"],
+    # touch-off is tested in tests/test_touchoff*.py: the smokes plan at the phantom's known height. time_scale is
+    # a ceiling (the lockstep clock runs at the slowest node's pace): on an idle machine, a smoke waits less
+    "scan_sim.yaml": Smoke(args=["region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "touchoff:=off",
+                                 "time_scale:=20.0"],
                            topics=["robot/pose", "robot/plan", "robot/scan_status", "probe/heights", "pressure/state",
                                    "stiffness/sample", "map/stiffness", "map/inclusions"], timeout=60),
     # the rig's file: --check as is; the run with every driver simulated (never the default robot address)
@@ -87,15 +89,16 @@ SMOKE: dict[str, Smoke] = {
                                 "region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "speed_mm_s:=20.0"],
                           topics=["robot/pose", "probe/heights", "pressure/state", "stiffness/sample",
                                   "robot/scan_status"], timeout=60),
-    "scan_camera_sim.yaml": Smoke(args=["region_mm:=[14.0, 14.0, 18.0, 18.0]", "touchoff:=off"],
+    "scan_camera_sim.yaml": Smoke(args=["region_mm:=[14.0, 14.0, 18.0, 18.0]", "touchoff:=off", "time_scale:=20.0"],
                                   topics=["robot/pose", "robot/plan", "camera/indenters", "stiffness/sample",
                                           "map/stiffness", "robot/scan_status"], timeout=60),
     "scan_adaptive_sim.yaml": Smoke(args=["region_mm:=[36.0, 33.0, 48.0, 45.0]", "initial:=2", "max_probes:=5",
-                                          "touchoff:=off"],
+                                          "touchoff:=off", "time_scale:=20.0"],
                                     topics=["robot/pose", "probe/heights", "stiffness/sample", "planner/mean",
                                             "planner/std"], timeout=90),
     "scan_adaptive_camera_sim.yaml": Smoke(args=["region_mm:=[12.0, 12.0, 20.0, 20.0]", "seed_spacing_mm:=0",
-                                                 "initial:=2", "max_probes:=4", "touchoff:=off"],
+                                                 "initial:=2", "max_probes:=4", "touchoff:=off",
+                                                 "time_scale:=20.0"],
                                            topics=["robot/pose", "camera/indenters", "stiffness/sample",
                                                    "planner/mean", "planner/std"], timeout=90),
     # the rig's file with the sim arm (the ur_rtde driver against the emulator: tests/test_adaptive_camera_ur.py)
@@ -143,12 +146,19 @@ def test_custom_node_example_launches(procs: ProcessGroup, tmp_path: Path, trans
     assert address.startswith("pub=tcp://127.0.0.1:" if transport == "tcp" else "pub=ipc:///tmp/palpa-")
 
 
+def check(file: Path, args: list[str], extra: list[str] | None = None) -> None:
+    """``palpa launch --check`` in this process (the command line's own entry point, from the repository as the
+    launch runs): validation and every node class imported, without another interpreter's start-up."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.chdir(REPO), contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = cli_main(["launch", "--check", str(file), *(extra or []), *args])
+    assert code == 0, err.getvalue()
+    assert "nodes:" in out.getvalue(), out.getvalue()
+
+
 def smoke(file: Path, entry: Smoke, procs: ProcessGroup, tmp_path: Path, extra: list[str] | None = None) -> None:
     """--check, launch, wait for a message on each topic (a node of our own on the run's bus), Ctrl-C."""
-    check = subprocess.run([sys.executable, "-m", "palpa.cli.main", "launch", "--check", str(file), *entry.args],
-                           capture_output=True, text=True, timeout=60, cwd=REPO)
-    assert check.returncode == 0, check.stderr
-
+    check(file, entry.args, [a for a in extra or [] if a == "--in-process"])
     run_dir = tmp_path / "run"
     proc = procs.start(palpa_cmd("launch", str(file), "--run-dir", str(run_dir), "--no-progress", *(extra or []),
                                  *entry.args), cwd=str(REPO))
@@ -163,9 +173,9 @@ def smoke(file: Path, entry: Smoke, procs: ProcessGroup, tmp_path: Path, extra: 
 
     with palpa.Node(name="smoke", bus=address_file.read_text().strip(), heartbeat_s=0) as probe:
         probe.subscribe_raw("", on_raw)
-        deadline = time.monotonic() + entry.timeout
-        while not set(entry.topics) <= seen and time.monotonic() < deadline and proc.popen.poll() is None:
-            probe.spin_once(0.1)
+        with contextlib.suppress(AssertionError):  # what is missing is named below, with the launch's output
+            wait_until(lambda: set(entry.topics) <= seen or proc.popen.poll() is not None, entry.timeout,
+                       f"a message on each of {entry.topics}", step=lambda: probe.spin_once(0.1))
     missing = sorted(set(entry.topics) - seen)
     assert not missing, f"no message on {missing} within {entry.timeout} s:\n{proc.output()}"
     proc.signal(signal.SIGINT)

@@ -13,6 +13,7 @@ from models.fibre_calibration import load_calibration
 from nodes.fibre_reader import FibreReader
 from nodes.pressure_controller import PressureController
 from palpa.testing import NodeHarness
+from tests.procs import wait_until
 
 CAL = "tests/data/fibre_calibration.yaml"
 
@@ -24,12 +25,11 @@ def last(h: NodeHarness, topic: str):  # type: ignore[no-untyped-def]
 
 def run_until(h: NodeHarness, cond: Callable[[], bool], timeout: float, what: str) -> None:
     """Drive the node's timers on the real clock (the drivers have real threads) until ``cond``."""
-    deadline = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
+    def step() -> None:
         h.advance(0.01)
-        time.sleep(0.005)  # let the driver's reader thread run; the wait itself is bounded above
+        time.sleep(0.005)  # let the driver's reader thread run; the wait itself is bounded by wait_until
+
+    wait_until(cond, timeout, what, step=step)
 
 
 def test_fibre_reader_serial_streams_and_recovers_from_unplug() -> None:

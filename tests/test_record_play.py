@@ -19,6 +19,7 @@ from palpa.record.testing import Rec, write_bag
 from palpa.runtime_msgs import CLOCK_TOPIC, ClockTick
 from palpa.testing import MemoryBus, MemoryTransport, NodeHarness
 from palpa.transport import Delivery
+from tests.procs import wait_until
 
 T0 = 1_700_000_000_000_000_000
 MS = 1_000_000
@@ -106,10 +107,8 @@ def test_loop_and_clock(tmp_path: Path) -> None:
     thread = threading.Thread(target=player.spin)
     thread.start()
     try:
-        deadline = 50
-        while player.passes < 2 and deadline and thread.is_alive():
-            thread.join(0.1)
-            deadline -= 1
+        wait_until(lambda: player.passes >= 2 or not thread.is_alive(), 5, "two passes of the loop",
+                   step=lambda: thread.join(0.1))
     finally:
         player.request_shutdown()
         thread.join(5)

@@ -14,6 +14,7 @@ import msgspec
 import pytest
 
 import messages  # noqa: F401
+import palpa
 from messages import EStop, Inclusions, ProbeHeights, RobotPose, ScanPlan, StiffnessMap
 from messages.robot import PlanWaypoint
 from nodes.foxglove_views import ScanViews
@@ -214,43 +215,67 @@ def test_palpa_viz_serves_a_running_graph_and_survives_a_vanished_client(
     assert viz.stop(10) == 0, viz.output()
 
 
-@pytest.mark.slow
-def test_a_viewer_joins_a_simulated_scan_midway(procs: ProcessGroup, tmp_path: Path) -> None:
-    """launch/scan_sim.yaml viz:=true on a tiny raster: a client watching from the start, another joining once
-    the map exists, getting the latched plan and map, then vanishing; the scan ends normally. At time_scale 1 the
-    scan outlasts the first map by seconds of wall time, so the late client joins a running graph even under load."""
-    run_dir = tmp_path / "run"
-    launch = procs.start(palpa_cmd("launch", str(REPO / "launch/scan_sim.yaml"), "viz:=true", "viz_port:=0",
-                                   "spacing_mm:=4.0", "region_mm:=[10.0, 14.0, 22.0, 22.0]", "time_scale:=1.0",
-                                   "--run-dir", str(run_dir), "--no-progress"), cwd=str(REPO))
-    address = run_dir / "viz.address"
-    wait_until(lambda: address.exists() and address.read_text().strip(), 60, "viz.address")
-    watcher = FoxgloveClient(address.read_text().strip()).open()
+def test_a_viewer_joins_a_simulated_scan_midway(tmp_path: Path) -> None:
+    """launch/scan_sim.yaml viz:=true on a tiny raster, its nodes (bridge and views as the file declares them)
+    composed in memory: a client watching from the start, another joining while the scan is held midway (the test
+    stops advancing simulated time once the first map is out, so the late client joins a graph that is still
+    running, however loaded the machine), getting the latched plan and map, then vanishing; the scan then ends
+    normally and the watcher still gets what came after."""
+    from palpa.cli.run import load_node_class
+    from palpa.clock import MockClock
+    from palpa.compose import Composition
+    from palpa.launch import load_launch, parse_overrides
+    from palpa.simclock import ClockSource
 
-    def watch() -> bool:
-        watcher.subscribe()
-        watcher.pump(0.05)
-        return bool(watcher.of("map/stiffness"))
+    plan = load_launch(REPO / "launch" / "scan_sim.yaml", parse_overrides([
+        "viz:=true", "viz_port:=0", "spacing_mm:=4.0", "region_mm:=[10.0, 14.0, 22.0, 22.0]",
+        f"geometry:={REPO / 'phantoms' / 'measured' / 'airfloat_tumours.yaml'}", f"output_dir:={tmp_path}"]),
+        run_dir=tmp_path)
+    comp = Composition(clock=MockClock(1_700_000_000_000_000_000), heartbeat_s=0)
+    watcher = late = None
+    try:
+        for spec in plan.nodes:
+            assert spec.target is not None
+            cls = load_node_class(spec.target)
+            if cls is not ClockSource:  # the composition is the clock
+                comp.add(cls, spec.name, spec.params, required=spec.required)
+        (bridge,) = [n for n in comp.nodes if isinstance(n, Bridge)]
+        maps: list[StiffnessMap] = []
+        probe = comp.adopt(palpa.Node(name="probe", transport=comp.transport(), clock=comp.clock, heartbeat_s=0))
+        probe.subscribe("map/stiffness", StiffnessMap, maps.append)
+        watcher = FoxgloveClient(bridge.url).open()
+        watcher.pump_until(lambda: watcher.server_info, 5, "serverInfo")
+        wait_until(lambda: maps, 60, "a first map in the composed scan", step=comp.step)
+        assert not comp.ended  # held midway: the scan goes on only when the test steps it again
 
-    wait_until(watch, 60, "a first map at the watching client")
-    late = FoxgloveClient(address.read_text().strip()).open()
+        def watch() -> bool:
+            watcher.subscribe()
+            watcher.pump(0.05)
+            return bool(watcher.of("map/stiffness"))
 
-    def join() -> bool:
-        late.subscribe()
-        late.pump(0.05)
-        return bool(late.of("map/stiffness") and late.of("robot/plan") and late.of("viz/plan"))
+        wait_until(watch, 10, "the first map at the watching client")
+        late = FoxgloveClient(bridge.url).open()
 
-    wait_until(join, 5, "the latched map and plan at the late client")
-    plan = late.of("robot/plan")[0].data
-    assert plan["region_mm"] == [10.0, 14.0, 22.0, 22.0] and plan["waypoints"]
-    late.close_abruptly()
-    poses_then = len(watcher.of("robot/pose"))
-    assert launch.wait(120) == 0, launch.output()[-4000:]
-    # what the watcher has not read yet is queued on its connection (it read nothing while the scan ran): read
-    # it all, up to the server's close, rather than for a fixed while
-    watcher.pump_until(lambda: len(watcher.of("robot/pose")) > poses_then and watcher.of("viz/tf")
-                       and watcher.of("viz/map"), 10, "poses after the late client vanished, viz/tf and viz/map")
-    watcher.close()
+        def join() -> bool:
+            late.subscribe()
+            late.pump(0.05)
+            return bool(late.of("map/stiffness") and late.of("robot/plan") and late.of("viz/plan"))
+
+        wait_until(join, 10, "the latched map and plan at the late client")
+        plan_msg = late.of("robot/plan")[0].data
+        assert plan_msg["region_mm"] == [10.0, 14.0, 22.0, 22.0] and plan_msg["waypoints"]
+        late.close_abruptly()
+        poses_then = len(watcher.of("robot/pose"))
+        wait_until(lambda: comp.ended, 60, "the scan to end", step=comp.step)
+        assert comp.ended == [("scanner", 0)], comp.ended
+        watcher.pump_until(lambda: len(watcher.of("robot/pose")) > poses_then and watcher.of("viz/tf")
+                           and watcher.of("viz/map"), 10, "poses after the late client vanished, viz/tf and viz/map")
+    finally:
+        for c in (watcher, late):
+            if c is not None:
+                c.close()
+        comp.close()
+    assert (tmp_path / "map.npz").stat().st_size > 0  # the map node, closed after the scan, wrote its files
 
 
 class _WithService(Bridge):
