@@ -142,9 +142,15 @@ def emu(request: pytest.FixtureRequest) -> Iterator[UrEmulatorProcess]:
         yield proc
 
 
+EMULATOR_START_S = 10.0
+"""How long the driver gives the emulator to start an uploaded path. A controller starts it within a few 2 ms cycles
+(the driver's 2 s default); the emulator is a Python process that two busy cores may not run for seconds, so its
+delay would be reported as a path that never started (the timeout itself: the last test of this file)."""
+
+
 @pytest.fixture
 def ur(emu: UrEmulatorProcess) -> Iterator[URRtdeDriver]:
-    drv = URRtdeDriver(emu.host, frame_offset_mm=OFFSET, watchdog_hz=5.0)
+    drv = URRtdeDriver(emu.host, frame_offset_mm=OFFSET, watchdog_hz=5.0, start_timeout_s=EMULATOR_START_S)
     try:
         yield drv
     finally:
@@ -278,3 +284,33 @@ def test_a_ur_rtde_command_that_never_returns_latches_a_fault_instead_of_hanging
     with pytest.raises(RuntimeError, match="lost"):  # and its errors reach the caller as they were
         drv._bounded(lambda: (_ for _ in ()).throw(RuntimeError("RTDE connection lost")), "moveL(path)")
     never.set()
+
+
+class _NeverStarts:
+    """What ur_rtde's control interface reports for a path the controller accepted but never ran: the async progress
+    register unchanged and nothing running, the script still up."""
+
+    def getAsyncOperationProgressEx(self) -> Any:  # noqa: N802 - ur_rtde's name
+        class Progress:
+            def isAsyncOperationRunning(self) -> bool:  # noqa: N802
+                return False
+
+            def value(self) -> int:
+                return -1
+
+        return Progress()
+
+    def isProgramRunning(self) -> bool:  # noqa: N802
+        return True
+
+
+def test_a_path_the_controller_never_starts_latches_a_fault_after_the_start_timeout() -> None:
+    drv = URRtdeDriver("127.0.0.1", start_timeout_s=2.0)
+    drv._status, drv._moving, drv._reg0, drv._count = MotionStatus.MOVING, True, -1, 3
+    drv._t_move = time.monotonic() - 1.9
+    drv._poll_path(_NeverStarts())
+    assert drv.progress().status is MotionStatus.MOVING  # not yet: 1.9 s < 2 s
+    drv._t_move = time.monotonic() - 2.1
+    drv._poll_path(_NeverStarts())
+    progress = drv.progress()
+    assert progress.status is MotionStatus.FAULT and "did not start within 2 s" in progress.message
