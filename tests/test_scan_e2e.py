@@ -66,6 +66,8 @@ def scan_in_harness(run_dir: Path, args: list[str], wall_clock: bool, timeout_s:
             g.advance(0.1)
         if scanner.state == "scanning":
             poses += g.published("robot/pose", RobotPose)
+        # stamped by the graph's clock, which the probe's samples are matched to, not by the wall's
+        assert all(q.stamp_ns <= g.clock.now_ns() for q in poses[-50:])
         g.clear()
     g.close()
     assert scanner.state == "done", (scanner.state, scanner.message)
