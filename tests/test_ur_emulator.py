@@ -22,6 +22,7 @@ import pytest
 from emulators.ur import ControllerConfig, FaultPlan, UrController, UrEmulator
 from emulators.ur.controller import BACKING_N_PER_MM
 from emulators.ur.process import UrEmulatorProcess
+from emulators.ur.rtde import RtdeSession
 from emulators.ur.script import ScriptReceiver, parse_path
 from models.arm import ArmTarget
 from models.phantom import load_phantom
@@ -264,10 +265,26 @@ def test_rtde_protocol_types_recipe_ids_and_500_hz_stream(inproc: UrEmulator) ->
                 values = struct.unpack(">BdI6dIi", body)
                 assert values[0] == 1 and values[2] == 1 and values[3:6] == pytest.approx((0.3, 0.0, 0.3))
                 stamps.append(values[1])
-        steps = [round((b - a) / 0.002) for a, b in zip(stamps, stamps[1:], strict=False)]
-        assert min(steps) >= 1 and steps.count(1) >= len(steps) // 2  # one package per 2 ms tick
+        # whole 2 ms ticks apart, in order (one per tick when the emulator keeps up: test_rtde_recipes_stream_...)
+        steps = [(b - a) / 0.002 for a, b in zip(stamps, stamps[1:], strict=False)]
+        assert all(s > 0.5 and abs(s - round(s)) < 1e-6 for s in steps), steps
     with inproc.controller.lock:
         assert inproc.controller.in_int[1] == 7 and inproc.controller.in_double[1] == 0.5
+
+
+def test_rtde_recipes_stream_one_package_per_period_of_controller_ticks() -> None:
+    """At 500 Hz an output recipe is due every 2 ms tick, at 250 Hz every other one, in the controller's own ticks
+    (a stalled emulator catching up sends what is due then, not a burst of stale packages)."""
+    session = RtdeSession((5, 11, 1, 0), lambda name: lambda: 0.0, lambda names, values: None, lambda m: None)
+    session.handle(ord("V"), struct.pack(">H", 2), 0)
+    ids = [session.handle(ord("O"), struct.pack(">d", hz) + b"timestamp,", 0)[0][3] for hz in (500.0, 250.0)]
+    assert ids == [1, 2]
+    assert session.due_packages(1) == []  # not started
+    session.handle(ord("S"), b"", 0)
+    due = [[p[3] for p in session.due_packages(tick)] for tick in range(1, 9)]
+    assert due == [[1, 2], [1], [1, 2], [1], [1, 2], [1], [1, 2], [1]]
+    assert [p[3] for p in session.due_packages(100)] == [1, 2]  # 92 ticks late: one of each, not 92
+    assert [[p[3] for p in session.due_packages(tick)] for tick in (101, 102, 103)] == [[1, 2], [1], [1, 2]]
 
 
 @pytest.mark.timeout(10)
