@@ -258,7 +258,7 @@ def test_rtde_protocol_types_recipe_ids_and_500_hz_stream(inproc: UrEmulator) ->
         assert ids == [1, 2, 3]
         s.sendall(struct.pack(">HB", 3 + 1 + 12, ord("U")) + struct.pack(">Bid", 2, 7, 0.5))  # writes reg 1
         assert rtde_call(s, b"S") == (b"S", b"\x01")
-        stamps = []
+        stamps: list[float] = []
         while len(stamps) < 20:
             kind, body = rtde_read(s)
             if kind == b"U":
