@@ -49,8 +49,8 @@ def launch_graph(file: str, run_dir: Path, args: list[str], extra: dict[str, dic
 
 
 def scan_in_harness(run_dir: Path, args: list[str], wall_clock: bool, timeout_s: float) -> list[RobotPose]:
-    """launch/scan_ur.yaml's graph in process until the scanner is done; returns the poses it published while
-    scanning. ``wall_clock``: the harness's clock follows the wall clock (a real-time arm: the UR emulator), else
+    """launch/scan_ur.yaml's graph in process until the scanner is done; returns the poses it published (at home, on
+    the way, scanning). ``wall_clock``: the harness's clock follows the wall clock (a real-time arm: the UR emulator), else
     mock time runs at CPU speed."""
     g, nodes = launch_graph("launch/scan_ur.yaml", run_dir, [*UR_SCAN, *args], {"scanner": UR_MOVES},
                             MockClock(time.time_ns()) if wall_clock else None)
@@ -64,8 +64,7 @@ def scan_in_harness(run_dir: Path, args: list[str], wall_clock: bool, timeout_s:
             g.advance(max(0.0, (time.time_ns() - g.clock.now_ns()) / 1e9))
         else:
             g.advance(0.1)
-        if scanner.state == "scanning":
-            poses += g.published("robot/pose", RobotPose)
+        poses += g.published("robot/pose", RobotPose)
         # stamped by the graph's clock, which the probe's samples are matched to, not by the wall's
         assert all(q.stamp_ns <= g.clock.now_ns() for q in poses[-50:])
         g.clear()
