@@ -378,6 +378,22 @@ def test_fault_plan_fires_once_timed_from_the_first_motion() -> None:
     assert ctl.protective_stopped and ctl.faults is not None and ctl.faults.fired == {"pause", "pstop_t"}
 
 
+def test_a_stop_command_left_for_the_replaced_program_does_not_stop_the_new_one() -> None:
+    """ur_rtde stops its script (command 255 in input register 0) and uploads the next one: the new program starts
+    with that command still in the register when the client's clear has not been read yet (the emulator's threads
+    on a busy machine). It must run, and stop on a stop command written for it."""
+    ctl = UrController(ControllerConfig(program_start_s=0.002))
+    ctl.write_inputs(["input_int_register_0"], [255])  # for the program being replaced
+    ctl.submit_program("def rtde_control():\n    global reg_offset_int = # int register offset\n0\nend\n")
+    for _ in range(10):
+        ctl.tick()
+    assert ctl.program is not None and ctl.out_int[0] == 1  # playing, ready for a command
+    ctl.write_inputs(["input_int_register_0"], [255])
+    for _ in range(2):
+        ctl.tick()
+    assert ctl.program is None and "rtde_control: received stop script" in ctl.messages[-2]
+
+
 def test_script_receiver_and_injected_path_parsing() -> None:
     rx = ScriptReceiver()
     text = ("def rtde_control():\n    global reg_offset_float = # float register offset\n24    global x = 1\n"
