@@ -194,8 +194,10 @@ class RobotScanner(palpa.Node):
             return SimRobotDriver(home_mm=tuple(p.home_mm), clock=self.clock.now_ns, time_scale=p.time_scale)
         from nodes.drivers.robot_urrtde import URRtdeDriver
 
+        # the poses it reads are stamped by the node's clock, like the sim arm's (the probe's samples are matched to
+        # them by stamp: a graph on another clock than the wall's, e.g. a test harness's, must not see a gap)
         return URRtdeDriver(p.robot_host, frame_offset_mm=tuple(p.frame_offset_mm),
-                            tool_rotvec=tuple(p.tool_rotvec))
+                            tool_rotvec=tuple(p.tool_rotvec), clock=self.clock.now_ns)
 
     def _plan(self) -> RasterPlan:
         p = self.params

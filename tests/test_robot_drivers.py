@@ -142,9 +142,15 @@ def emu(request: pytest.FixtureRequest) -> Iterator[UrEmulatorProcess]:
         yield proc
 
 
+EMULATOR_START_S = 10.0
+"""How long the driver gives the emulator to start an uploaded path. A controller starts it within a few 2 ms cycles
+(the driver's 2 s default); the emulator is a Python process that two busy cores may not run for seconds, so its
+delay would be reported as a path that never started (the timeout itself: the last test of this file)."""
+
+
 @pytest.fixture
 def ur(emu: UrEmulatorProcess) -> Iterator[URRtdeDriver]:
-    drv = URRtdeDriver(emu.host, frame_offset_mm=OFFSET, watchdog_hz=5.0)
+    drv = URRtdeDriver(emu.host, frame_offset_mm=OFFSET, watchdog_hz=5.0, start_timeout_s=EMULATOR_START_S)
     try:
         yield drv
     finally:
@@ -278,3 +284,75 @@ def test_a_ur_rtde_command_that_never_returns_latches_a_fault_instead_of_hanging
     with pytest.raises(RuntimeError, match="lost"):  # and its errors reach the caller as they were
         drv._bounded(lambda: (_ for _ in ()).throw(RuntimeError("RTDE connection lost")), "moveL(path)")
     never.set()
+
+
+class _Path:
+    """ur_rtde's async operation status: ``running`` at waypoint ``at``, or not running with the register at -1."""
+
+    def __init__(self, running: bool, at: int = 0) -> None:
+        self.running, self.at = running, at
+
+    def isAsyncOperationRunning(self) -> bool:  # noqa: N802 - ur_rtde's names
+        return self.running
+
+    def value(self) -> int:
+        return self.at if self.running else -1
+
+    def progress(self) -> int:
+        return self.at
+
+
+class _Control:
+    """What ur_rtde's control interface reports from its own RTDE stream."""
+
+    def __init__(self, path: _Path, program_running: bool = True) -> None:
+        self.path, self.program_running = path, program_running
+
+    def getAsyncOperationProgressEx(self) -> _Path:  # noqa: N802
+        return self.path
+
+    def isProgramRunning(self) -> bool:  # noqa: N802
+        return self.program_running
+
+
+class _Receive:
+    """The receive interface's stream: the controller's runtime state (2 playing, 1 stopped)."""
+
+    def __init__(self, runtime_state: int) -> None:
+        self.runtime_state = runtime_state
+
+    def getRuntimeState(self) -> int:  # noqa: N802
+        return self.runtime_state
+
+
+def moving_driver(**kwargs: float) -> URRtdeDriver:
+    """A driver as move_path leaves it (no robot: its status is driven through _poll_path by fake interfaces)."""
+    drv = URRtdeDriver("127.0.0.1", **kwargs)
+    drv._status, drv._moving, drv._reg0, drv._count = MotionStatus.MOVING, True, -1, 20
+    drv._t_move = time.monotonic()
+    return drv
+
+
+def test_a_path_the_controller_never_starts_latches_a_fault_after_the_start_timeout() -> None:
+    drv = moving_driver(start_timeout_s=2.0)
+    drv._t_move = time.monotonic() - 1.9
+    drv._poll_path(_Control(_Path(False)), _Receive(2))
+    assert drv.progress().status is MotionStatus.MOVING  # not yet: 1.9 s < 2 s
+    drv._t_move = time.monotonic() - 2.1
+    drv._poll_path(_Control(_Path(False)), _Receive(2))
+    progress = drv.progress()
+    assert progress.status is MotionStatus.FAULT and "did not start within 2 s" in progress.message
+
+
+def test_a_script_stop_is_reported_only_once_the_receive_stream_shows_it_too() -> None:
+    """The control stream shows the script gone mid-path before the receive stream, whose safety bits say why: the
+    driver waits for the receive stream (a protective stop must not be reported as a stopped script)."""
+    drv = moving_driver()
+    drv._poll_path(_Control(_Path(True, 4), program_running=False), _Receive(2))
+    assert drv.progress().status is MotionStatus.MOVING and drv._index == 4
+    drv._poll_path(_Control(_Path(True, 4), program_running=False), _Receive(1))
+    progress = drv.progress()
+    assert progress.status is MotionStatus.FAULT and "control script stopped" in progress.message
+    drv = moving_driver(command_timeout_s=0.0)  # a receive stream that never catches up: reported all the same
+    drv._poll_path(_Control(_Path(True, 4), program_running=False), _Receive(2))
+    assert drv.progress().status is MotionStatus.FAULT

@@ -20,7 +20,10 @@ from palpa.testing import GraphHarness
 from tests.procs import ur_emulator
 
 SMALL = "phantoms/specimens/small_40x30_8mm.yaml"  # 40 x 30 mm, 8 mm thick, at the origin of the phantom frame
-BOX = [-10.0, -10.0, 0.5, 50.0, 40.0, 16.0]  # 60 x 50 mm of table around it, searched from 16 mm down
+BOX = [-10.0, -6.0, 0.5, 50.0, 36.0, 16.0]  # 60 x 42 mm of table around it, searched from 16 mm down
+STEP = 14.0
+"""A 6 x 4 grid: x -10, 2, 14, 26, 38, 50 and y -6, 8, 22, 36. Four points have the whole ring 2 mm or more inside the
+edges, four (x 2 and 38) hang half over one (a miss by the SPS's own spread), the rest see only the table."""
 RING = 6.0  # the SPS ring's radius: a point counts only with the whole ring on the specimen
 
 
@@ -42,7 +45,7 @@ def search(driver: dict[str, Any], wall_clock: bool, timeout_s: float) -> RobotS
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": 36.0, "sim_tracking_kpa": 0.0})
     g.add(FibreReader, {"phantom": SMALL, "sim_errors": "ideal", "poll_hz": 100.0})
     scanner = g.add(RobotScanner, {
-        "search_box_mm": BOX, "search_step_mm": 10.0, "edge_margin_mm": 2.0, "touchoff": "heights",
+        "search_box_mm": BOX, "search_step_mm": STEP, "edge_margin_mm": 2.0, "touchoff": "heights",
         "search_speed_mm_s": 20.0, "transit_speed_mm_s": 45.0, "spacing_mm": 4.0, "home_mm": [0, 0, 16],
         "watchdog_s": 0.5, **driver})
     deadline = time.monotonic() + timeout_s
@@ -58,7 +61,7 @@ def search(driver: dict[str, Any], wall_clock: bool, timeout_s: float) -> RobotS
 
 def expected_region() -> tuple[float, float, float, float]:
     """The grid points with the whole SPS ring on the 40 x 30 mm specimen, their extent less the 2 mm margin."""
-    inside = [(x, y) for x, y in search_points((BOX[0], BOX[1], BOX[3], BOX[4]), 10.0)
+    inside = [(x, y) for x, y in search_points((BOX[0], BOX[1], BOX[3], BOX[4]), STEP)
               if RING <= x <= 40 - RING and RING <= y <= 30 - RING]
     xs, ys = [p[0] for p in inside], [p[1] for p in inside]
     return (min(xs) + 2, min(ys) + 2, max(xs) - 2, max(ys) - 2)
@@ -66,12 +69,14 @@ def expected_region() -> tuple[float, float, float, float]:
 
 def check_found(scanner: RobotScanner) -> None:
     assert scanner.state == "scanning", scanner.message
-    assert scanner.specimen.region == pytest.approx(expected_region())  # (2, 2, 28, 18): inside the specimen
+    assert scanner.specimen.region == pytest.approx(expected_region())  # (16, 10, 24, 20): inside the specimen
     touch = scanner.specimen.touch
-    assert touch is not None and len(touch.touches) + len(touch.misses) == len(touch.points) == 7 * 6
+    assert touch is not None and len(touch.touches) + len(touch.misses) == len(touch.points) == 6 * 4
+    assert len(touch.touches) == 4
     assert all(abs(z - 8.0) < 0.1 for _, _, z in touch.touches)
+    x0, y0, x1, y1 = expected_region()
     assert scanner.plan.waypoints and all(
-        2 - 1e-9 <= w.x_mm <= 28 + 1e-9 and 2 - 1e-9 <= w.y_mm <= 18 + 1e-9 for w in scanner.plan.waypoints)
+        x0 - 1e-9 <= w.x_mm <= x1 + 1e-9 and y0 - 1e-9 <= w.y_mm <= y1 + 1e-9 for w in scanner.plan.waypoints)
 
 
 @pytest.mark.timeout(120)

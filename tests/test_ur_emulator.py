@@ -22,6 +22,7 @@ import pytest
 from emulators.ur import ControllerConfig, FaultPlan, UrController, UrEmulator
 from emulators.ur.controller import BACKING_N_PER_MM
 from emulators.ur.process import UrEmulatorProcess
+from emulators.ur.rtde import RtdeSession
 from emulators.ur.script import ScriptReceiver, parse_path
 from models.arm import ArmTarget
 from models.phantom import load_phantom
@@ -257,17 +258,33 @@ def test_rtde_protocol_types_recipe_ids_and_500_hz_stream(inproc: UrEmulator) ->
         assert ids == [1, 2, 3]
         s.sendall(struct.pack(">HB", 3 + 1 + 12, ord("U")) + struct.pack(">Bid", 2, 7, 0.5))  # writes reg 1
         assert rtde_call(s, b"S") == (b"S", b"\x01")
-        stamps = []
+        stamps: list[float] = []
         while len(stamps) < 20:
             kind, body = rtde_read(s)
             if kind == b"U":
                 values = struct.unpack(">BdI6dIi", body)
                 assert values[0] == 1 and values[2] == 1 and values[3:6] == pytest.approx((0.3, 0.0, 0.3))
                 stamps.append(values[1])
-        steps = [round((b - a) / 0.002) for a, b in zip(stamps, stamps[1:], strict=False)]
-        assert min(steps) >= 1 and steps.count(1) >= len(steps) // 2  # one package per 2 ms tick
+        # whole 2 ms ticks apart, in order (one per tick when the emulator keeps up: test_rtde_recipes_stream_...)
+        steps = [(b - a) / 0.002 for a, b in zip(stamps, stamps[1:], strict=False)]
+        assert all(s > 0.5 and abs(s - round(s)) < 1e-6 for s in steps), steps
     with inproc.controller.lock:
         assert inproc.controller.in_int[1] == 7 and inproc.controller.in_double[1] == 0.5
+
+
+def test_rtde_recipes_stream_one_package_per_period_of_controller_ticks() -> None:
+    """At 500 Hz an output recipe is due every 2 ms tick, at 250 Hz every other one, in the controller's own ticks
+    (a stalled emulator catching up sends what is due then, not a burst of stale packages)."""
+    session = RtdeSession((5, 11, 1, 0), lambda name: lambda: 0.0, lambda names, values: None, lambda m: None)
+    session.handle(ord("V"), struct.pack(">H", 2), 0)
+    ids = [session.handle(ord("O"), struct.pack(">d", hz) + b"timestamp,", 0)[0][3] for hz in (500.0, 250.0)]
+    assert ids == [1, 2]
+    assert session.due_packages(1) == []  # not started
+    session.handle(ord("S"), b"", 0)
+    due = [[p[3] for p in session.due_packages(tick)] for tick in range(1, 9)]
+    assert due == [[1, 2], [1], [1, 2], [1], [1, 2], [1], [1, 2], [1]]
+    assert [p[3] for p in session.due_packages(100)] == [1, 2]  # 92 ticks late: one of each, not 92
+    assert [[p[3] for p in session.due_packages(tick)] for tick in (101, 102, 103)] == [[1, 2], [1], [1, 2]]
 
 
 @pytest.mark.timeout(10)
@@ -359,6 +376,22 @@ def test_fault_plan_fires_once_timed_from_the_first_motion() -> None:
     for _ in range(30):
         ctl.tick()
     assert ctl.protective_stopped and ctl.faults is not None and ctl.faults.fired == {"pause", "pstop_t"}
+
+
+def test_a_stop_command_left_for_the_replaced_program_does_not_stop_the_new_one() -> None:
+    """ur_rtde stops its script (command 255 in input register 0) and uploads the next one: the new program starts
+    with that command still in the register when the client's clear has not been read yet (the emulator's threads
+    on a busy machine). It must run, and stop on a stop command written for it."""
+    ctl = UrController(ControllerConfig(program_start_s=0.002))
+    ctl.write_inputs(["input_int_register_0"], [255])  # for the program being replaced
+    ctl.submit_program("def rtde_control():\n    global reg_offset_int = # int register offset\n0\nend\n")
+    for _ in range(10):
+        ctl.tick()
+    assert ctl.program is not None and ctl.out_int[0] == 1  # playing, ready for a command
+    ctl.write_inputs(["input_int_register_0"], [255])
+    for _ in range(2):
+        ctl.tick()
+    assert ctl.program is None and "rtde_control: received stop script" in ctl.messages[-2]
 
 
 def test_script_receiver_and_injected_path_parsing() -> None:

@@ -94,6 +94,8 @@ class UrController:
         self._force_offset = [0.0] * 6
         self._watchdog: tuple[str, int] | None = None
         self._input_tick: dict[str, int] = {}
+        self.input_writes = 0  # input data packages applied so far
+        self._input_write: dict[str, int] = {}  # input -> the package that last wrote it
         self.faults: FaultPlan | None = None
         self._fault_t0: int | None = None
         self.stream_paused_until = 0
@@ -230,12 +232,18 @@ class UrController:
 
     # ------------------------------------------------------------------ RTDE
     def write_inputs(self, names: Sequence[str], values: Sequence[object]) -> None:
+        self.input_writes += 1
         for name, value in zip(names, values, strict=True):
             self._input_tick[name] = self.ticks
+            self._input_write[name] = self.input_writes
             if name.startswith("input_int_register_"):
                 self.in_int[int(name.rsplit("_", 1)[1])] = int(value)  # type: ignore[call-overload]
             elif name.startswith("input_double_register_"):
                 self.in_double[int(name.rsplit("_", 1)[1])] = float(value)  # type: ignore[arg-type]
+
+    def written_since(self, name: str, writes: int) -> bool:
+        """Whether input ``name`` was written after the first ``writes`` input packages."""
+        return self._input_write.get(name, 0) > writes
 
     def output(self, name: str) -> object:
         """Current value of an RTDE output field, in UR's units (m, rad, N, s)."""

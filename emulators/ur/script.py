@@ -124,6 +124,11 @@ class ScriptHost(Protocol):
 
     def zero_ft_sensor(self) -> None: ...
 
+    @property
+    def input_writes(self) -> int: ...
+
+    def written_since(self, name: str, writes: int) -> bool: ...
+
 
 class RtdeControlProgram:
     """Native equivalent of ur_rtde's `rtde_control` script (main loop, move/stop threads)."""
@@ -138,6 +143,11 @@ class RtdeControlProgram:
         self.off_f = int(off_f.group(1)) if off_f else 0
         self.off_i = int(off_i.group(1)) if off_i else 0
         self.path = parse_path(source)
+        # a command written before this program arrived was for the one it replaces (ur_rtde's stop script): a
+        # controller takes long enough to start a program that the client has cleared it by then; this one starts
+        # within milliseconds and its threads may read the script before the clear, so it ignores such a command
+        self._cmd_register = f"input_int_register_{self.off_i}"
+        self._born = ctl.input_writes
         self.async_count = 0
         self.async_op = 0
         self.threads: dict[str, Tick] = {}
@@ -195,7 +205,7 @@ class RtdeControlProgram:
         self.out_int(0, 1)
         executing = False
         while True:
-            cmd = self.in_int(0)
+            cmd = self.in_int(0) if self.ctl.written_since(self._cmd_register, self._born) else 0
             if cmd in REALTIME_CMDS:
                 yield from self._process(cmd)
                 self.out_int(0, 1)

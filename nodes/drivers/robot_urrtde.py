@@ -48,6 +48,7 @@ _LATCHED = (MotionStatus.PROTECTIVE_STOP, MotionStatus.DISCONNECTED, MotionStatu
 _RECEIVE_FIELDS = ["timestamp", "actual_TCP_pose", "actual_TCP_speed", "actual_TCP_force", "robot_mode",
                    "safety_mode", "runtime_state", "robot_status_bits", "safety_status_bits"]
 _SAFETY_MODES_OK = (1, 2)  # NORMAL, REDUCED
+_RUNTIME_PLAYING = 2  # RTDE runtime_state
 
 
 def _vec6(values: Sequence[float]) -> Vec6:
@@ -84,6 +85,7 @@ class URRtdeDriver:
         self._count = 0
         self._moving = False
         self._started = False
+        self._script_gone: float | None = None  # when the control stream first showed the script stopped mid-path
         self._reg0 = 0
         self._t_move = 0.0
         self._stop_requested = False
@@ -183,7 +185,7 @@ class URRtdeDriver:
             self._reg0 = self._rc.getAsyncOperationProgressEx().value()
             self._set_watchdog()  # the path came with a freshly uploaded script
             self._count, self._index = len(path), 0
-            self._moving, self._started, self._stop_requested = True, False, False
+            self._moving, self._started, self._stop_requested, self._script_gone = True, False, False, None
             self._t_move = time.monotonic()
             self._status, self._message = MotionStatus.MOVING, ""
 
@@ -272,12 +274,12 @@ class URRtdeDriver:
                                                 "(emergency stop or safety fault)")
                 return
             if self._moving:
-                self._poll_path(rc)
+                self._poll_path(rc, rr)
             self._kick(rc)
         except RuntimeError as e:
             self._latch(MotionStatus.FAULT, f"ur_rtde error while polling the UR at {self.host}: {e}")
 
-    def _poll_path(self, rc: Any) -> None:
+    def _poll_path(self, rc: Any, rr: Any) -> None:
         st = rc.getAsyncOperationProgressEx()
         running = st.isAsyncOperationRunning()
         # the register may still show the previous operation right after moveL returned;
@@ -290,6 +292,12 @@ class URRtdeDriver:
         if running:
             self._index = max(0, min(st.progress(), self._count - 1))
             if not rc.isProgramRunning():
+                # the control and receive interfaces read two streams: until the receive one shows the program
+                # stopped too, its safety bits may not yet say why (a protective stop is checked before this)
+                now = time.monotonic()
+                self._script_gone = self._script_gone or now
+                if rr.getRuntimeState() == _RUNTIME_PLAYING and now - self._script_gone < self.command_timeout_s:
+                    return
                 self._latch(MotionStatus.FAULT, "the control script stopped on the controller while moving "
                                                 "(RTDE watchdog, or stopped from the pendant or dashboard)")
             return
