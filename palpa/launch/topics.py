@@ -22,6 +22,18 @@ _PUB = {"publisher"}
 _SUB = {"subscribe", "subscribe_raw"}
 
 
+def _runtime_topic_of(fn: object, n_args: int) -> str | None:
+    """What ``fn`` names with placeholder arguments, if that is a runtime topic (``_palpa/...``), else None: a topic
+    computed from a node's name or a parameter cannot be listed, but one the runtime computes is not the user's."""
+    if not callable(fn):
+        return None
+    try:
+        name = fn(*(["{arg}"] * n_args))
+    except Exception:  # noqa: BLE001  (any failure: just not a known runtime topic)
+        return None
+    return name if isinstance(name, str) and name.startswith("_palpa/") else None
+
+
 def declared_topics(cls: type[Node], namespace: str = "",
                     remap: Mapping[str, str] | None = None) -> dict[str, list[str]]:
     """``{"publishes": [...], "subscribes": [...]}`` as the node will name them on the bus (remapped and
@@ -46,6 +58,9 @@ def declared_topics(cls: type[Node], namespace: str = "",
             literal = arg.value if isinstance(arg, ast.Constant) else None
             if isinstance(arg, ast.Name):  # a module-level constant such as CLOCK_TOPIC
                 literal = vars(inspect.getmodule(klass)).get(arg.id)
+            elif isinstance(arg, ast.Call) and isinstance(arg.func, ast.Name) and not arg.keywords:
+                # a module-level topic function such as tick_topic(node): a runtime topic whatever its arguments?
+                literal = _runtime_topic_of(vars(inspect.getmodule(klass)).get(arg.func.id), len(arg.args))
             if isinstance(literal, str):
                 name = resolve_topic(literal, namespace, remap or {})
                 if call.func.attr == "subscribe_raw":
