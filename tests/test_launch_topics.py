@@ -7,6 +7,7 @@ import sys
 
 from nodes.demo import Listener, Talker
 from nodes.fibre_reader import FibreReader
+from palpa import Node
 from palpa.launch.topics import declared_topics
 from palpa.simclock import ClockSource
 from tests.test_launch_smoke import REPO
@@ -20,6 +21,22 @@ def test_declared_topics_with_namespace_and_remap() -> None:
     assert fibre["publishes"] == ["probe/heights", "probe/status", "sim/truth/fibre"]  # the last: the sim device
     assert fibre["subscribes"] == ["pressure/state", "robot/pose"]  # the sim driver's inputs
     assert declared_topics(ClockSource) == {"publishes": [], "subscribes": []}  # runtime topics are not listed
+
+
+def user_topic(name: str) -> str:
+    return f"out/{name}"
+
+
+class ComputedTopics(Node):
+    """A node whose topics are computed: a user's by a function, one from a parameter."""
+
+    def setup(self) -> None:
+        self.publisher(user_topic(self.name), bytes)
+        self.publisher(self.name + "/x", bytes)
+
+
+def test_a_computed_topic_is_said_to_be_computed() -> None:
+    assert declared_topics(ComputedTopics) == {"publishes": ["(computed)"], "subscribes": []}
 
 
 def test_check_prints_topics() -> None:
