@@ -5,6 +5,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
+from messages import Text
 from nodes.demo import Listener, Talker
 from nodes.fibre_reader import FibreReader
 from palpa import Node
@@ -31,8 +32,8 @@ class ComputedTopics(Node):
     """A node whose topics are computed: a user's by a function, one from a parameter."""
 
     def setup(self) -> None:
-        self.publisher(user_topic(self.name), bytes)
-        self.publisher(self.name + "/x", bytes)
+        self.publisher(user_topic(self.name), Text)
+        self.publisher(self.name + "/x", Text)
 
 
 def test_a_computed_topic_is_said_to_be_computed() -> None:
