@@ -177,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
             "iou_raster": r["iou"], "iou_adaptive": a["iou"], "stop": plan["stop"],
         })
         try:
-            curve = curves[r_spec.phantom.stem] = map_curve(a_spec, "planner/mean")
+            curve = curves[r_spec.phantom.stem] = map_curve(a_spec, "planner/map")
             raster_curves[r_spec.phantom.stem] = raster_curve(r_spec, eq)
         except (OSError, ValueError) as exc:
             print(f"{a_spec.id}: no belief curve ({exc})", file=sys.stderr)

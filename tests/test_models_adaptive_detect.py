@@ -1,0 +1,155 @@
+"""models.adaptive_detect: the detection stop rule (nothing of interest can hide, every candidate's boundary sampled),
+its coverage acquisition, the detection map and the stiffness-blind baseline."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from models.adaptive import Belief, PlannerConfig
+from models.adaptive_detect import (
+    coverage_gain,
+    decide,
+    detect_candidates,
+    detection_map,
+    hidden,
+    miss_probability,
+    open_sides,
+    reference,
+    sweep_stencil,
+)
+from models.stiffness_map import Inclusion, MapSnapshot, detect_inclusions
+
+REGION = (0.0, 0.0, 40.0, 40.0)   # 20 x 20 cells of 2 mm
+
+
+def _cfg(**kw: float) -> PlannerConfig:
+    return PlannerConfig(REGION, sweep_mm=6.0, seed_spacing_mm=40.0, **kw)   # seed: 2 x 2 points
+
+
+def _belief(cfg: PlannerConfig, value: float = 10.0) -> Belief:
+    xs, ys = cfg.grid()
+    shape = (len(ys), len(xs))
+    return Belief(xs, ys, np.full(shape, value), np.full(shape, 0.5), value, value * 1.2)
+
+
+def test_hidden_is_what_lies_farther_than_the_reach_from_every_measured_cell() -> None:
+    obs = np.zeros((20, 20), dtype=bool)
+    obs[:, 0] = True   # one measured column at x = 1 mm
+    h = hidden(obs, 2.0, 6.0)
+    # column i is 2 i mm from the measured column: hidden from 2 i > 6, i.e. columns 4.. (8 mm) on
+    assert not h[:, :4].any() and h[:, 4:].all()
+    assert miss_probability(obs, 2.0, 6.0) == 16 / 20
+    assert miss_probability(obs, 2.0, 8.0) == 15 / 20   # exactly at the reach is sensed
+    assert miss_probability(np.zeros((3, 3), dtype=bool), 2.0, 6.0) == 1.0
+
+
+def test_the_sweep_stencil_is_every_cell_within_the_reach_of_the_swept_segment() -> None:
+    st = sweep_stencil(3, 2.0, 4.0)   # rows -1..1 swept; 2 cells of reach
+    assert st.shape == (7, 5)
+    brute = np.array([[math.hypot(dx * 2.0, max(0, abs(dy) - 1) * 2.0) <= 4.0 for dx in range(-2, 3)]
+                      for dy in range(-3, 4)])
+    assert (st == brute).all()
+    assert st[3, 0] and st[0, 2] and not st[0, 0]
+
+
+def test_coverage_gain_counts_the_hidden_cells_one_sweep_would_reveal() -> None:
+    obs = np.zeros((20, 20), dtype=bool)
+    obs[:, :10] = True
+    gain = coverage_gain(obs, 2.0, 4.0, 3)
+    h = hidden(obs, 2.0, 4.0)
+    st = sweep_stencil(3, 2.0, 4.0)
+    for iy, ix in ((10, 15), (0, 19), (5, 12)):
+        brute = sum(h[iy + dy, ix + dx] for dy in range(-3, 4) for dx in range(-2, 3)
+                    if st[dy + 3, dx + 2] and 0 <= iy + dy < 20 and 0 <= ix + dx < 20)
+        assert gain[iy, ix] == brute
+    # 7 x 5 cells less the 12 whose distance to the segment is sqrt(4^2 + 2^2) or more (> 4 mm)
+    assert gain[10, 5] == 0 and gain[10, 15] == 7 * 5 - 12
+
+
+def test_detection_map_is_measured_where_measured_and_the_mean_only_near_it() -> None:
+    measured = np.full((1, 6), np.nan)
+    measured[0, 0] = 7.0
+    mean = np.full((1, 6), 3.0)
+    m = detection_map(measured, mean, 2.0, 4.0)
+    assert m[0, 0] == 7.0 and m[0, 1] == 3.0 and m[0, 2] == 3.0   # 2 and 4 mm away: the mean
+    assert np.isnan(m[0, 3:]).all()                                # farther: neither measured nor near
+
+
+def test_the_fair_reference_finds_an_inclusion_the_biased_median_hides() -> None:
+    # an adaptive planner measured half its cells on a 1.3x inclusion: their median is no background
+    grid = np.full((10, 10), 10.0)
+    grid[:, 5:] = 13.0
+    grid[:, 4] = 10.5
+    xs = np.arange(10) * 2.0 + 1.0
+    snap = MapSnapshot(grid, xs, xs, np.ones((10, 10), dtype=np.int64), np.zeros((10, 10)), 2.0)
+    assert detect_inclusions(snap) == []
+    fair = np.full((10, 10), np.nan)
+    fair[:, :4] = 10.0   # the stiffness-blind sweeps saw the background
+    fair[0, 0] = 10.4
+    ref = reference(fair)
+    assert ref is not None and ref[0] == 10.0
+    found = detect_inclusions(snap, reference=ref)
+    assert len(found) == 1 and abs(found[0].x_mm - 15.0) < 0.1
+    assert reference(fair[:1, :4]) is None   # too few cells to say
+
+
+def test_open_sides_are_the_unsampled_points_just_past_a_candidate() -> None:
+    xs = np.arange(20) * 2.0 + 1.0
+    obs = np.zeros((20, 20), dtype=bool)
+    c = Inclusion(x_mm=21.0, y_mm=21.0, radius_mm=3.0, contrast=2.0, peak=20.0, area_mm2=28.0, cells=7)
+    sides = open_sides([c], obs, xs, xs, REGION, 2.0)
+    assert sides == [(18.0, 21.0), (24.0, 21.0), (21.0, 18.0), (21.0, 24.0)]
+    obs[10, 8] = True   # the cell at (17, 21): within one cell of the left side
+    assert open_sides([c], obs, xs, xs, REGION, 2.0) == sides[1:]
+    edge = Inclusion(x_mm=1.0, y_mm=21.0, radius_mm=1.0, contrast=2.0, peak=20.0, area_mm2=4.0, cells=1)
+    assert (-1.0, 21.0) not in open_sides([edge], obs, xs, xs, REGION, 2.0)   # outside the region: no side
+
+
+def test_decide_covers_until_nothing_can_hide_then_stops() -> None:
+    cfg = _cfg(reach_mm=6.0, miss_probability=0.02)
+    b = _belief(cfg)
+    measured = np.full((20, 20), np.nan)
+    counts = np.zeros((20, 20), dtype=np.int64)
+    probed = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+    d = decide(b, measured, counts, probed, cfg, last=(30.0, 30.0))
+    assert not d.stop and d.blind and d.point is not None and d.miss == 1.0
+    measured[:, ::6] = 10.0   # columns every 12 mm: every cell within 6 mm of one
+    d = decide(b, measured, counts, probed, cfg)
+    assert d.miss == 0.0 and d.stop and d.why.startswith("found")
+    assert not decide(b, measured, counts, probed[:3], cfg).stop   # never before the seed grid is done
+    measured[:, 18:] = np.nan   # the last 4 columns now 8..14 mm from the column at x = 25
+    d = decide(b, measured, counts, probed, cfg)
+    assert not d.stop and d.point is not None and d.point[0] > 30.0
+    assert decide(b, measured, counts, probed * 15, cfg).why.startswith("probe budget")
+
+
+def test_decide_takes_the_nearest_of_the_near_best_coverage_sweeps() -> None:
+    cfg = _cfg(reach_mm=4.0, near_best=0.5)
+    b = _belief(cfg)
+    measured = np.full((20, 20), np.nan)
+    counts = np.zeros((20, 20), dtype=np.int64)
+    probed = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+    near = decide(b, measured, counts, probed, cfg, last=(39.0, 39.0)).point
+    far = decide(b, measured, counts, probed, cfg, last=(1.0, 1.0)).point
+    assert near is not None and far is not None
+    assert near[0] > 30 and near[1] > 30 and far[0] < 10 and far[1] < 10
+
+
+def test_decide_samples_a_candidates_boundary_before_stopping() -> None:
+    cfg = _cfg(reach_mm=40.0)   # coverage is no concern here
+    b = _belief(cfg)
+    measured = np.full((20, 20), 10.0)
+    measured[8:13, 10] = 20.0            # one sweep crossed a stiff strip at x = 21 mm
+    measured[:, 9] = measured[:, 11] = np.nan
+    measured[:, 8] = measured[:, 12] = np.nan
+    counts = np.ones((20, 20), dtype=np.int64)
+    probed = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+    _, found = detect_candidates(b, measured, counts, cfg, suspect=True)
+    assert len(found) == 1
+    d = decide(b, measured, counts, probed, cfg)
+    assert not d.stop and not d.blind and d.point is not None
+    assert d.point[1] == found[0].y_mm and abs(abs(d.point[0] - found[0].x_mm) - found[0].radius_mm) < 1e-9
+    measured[:, 8:13] = np.where(np.isnan(measured[:, 8:13]), 10.0, measured[:, 8:13])   # both sides measured
+    assert decide(b, measured, counts, probed, cfg).stop
