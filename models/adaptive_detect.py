@@ -179,14 +179,22 @@ class Decision:
 
 
 def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], probed: Sequence[tuple[float, float]],
-           cfg: PlannerConfig, last: tuple[float, float] | None = None, fair: FloatArray | None = None) -> Decision:
+           cfg: PlannerConfig, last: tuple[float, float] | None = None, fair: FloatArray | None = None,
+           given_up: Sequence[tuple[float, float]] = ()) -> Decision:
     """The detection stop rule and acquisition (module doc). ``measured``: the per-cell measured value (NaN where
     no sample landed), ``counts`` its sample counts, ``probed``: the points probed or given up so far, ``last``:
     where the probe is now (the nearest of the near-best coverage sweeps is taken), ``fair``: the cells measured by
-    stiffness-blind sweeps (:func:`reference`)."""
+    stiffness-blind sweeps (:func:`reference`), ``given_up``: points the scanner refused for good (also in
+    ``probed``): the cells their sweep would have crossed count as covered, or the planner would ask for the
+    unreachable tissue until its budget ran out."""
     n = len(probed)
     observed = np.isfinite(measured)
-    miss = miss_probability(observed, cfg.resolution_mm, cfg.reach_mm)
+    covered = observed.copy()
+    gx, gy = np.meshgrid(belief.x_mm, belief.y_mm)
+    half = 0.5 * max(cfg.sweep_mm, cfg.resolution_mm)
+    for ux, uy in given_up:
+        covered |= (np.abs(gx - ux) <= 0.5 * cfg.resolution_mm) & (np.abs(gy - uy) <= half)
+    miss = miss_probability(covered, cfg.resolution_mm, cfg.reach_mm)
     _, found = detect_candidates(belief, measured, counts, cfg, fair, suspect=True)
     sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm)
              if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
@@ -194,12 +202,12 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     if n >= cfg.max_probes:
         return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, len(sides))
     if n >= len(initial_design(cfg)) and miss < cfg.miss_probability and not sides:
-        return Decision(True, f"found: {state} after {n} probes", None, False, miss, len(sides))
+        return Decision(True, f"found: {state} after {n - len(given_up)} probes", None, False, miss, len(sides))
     if sides:
         return Decision(False, f"resolving a candidate ({state})", sides[0], False, miss, len(sides))
     px, py = probe_points(belief, cfg)
     near = near_probed(px, py, probed, cfg.min_separation_mm)
-    gain = coverage_gain(observed, cfg.resolution_mm, cfg.reach_mm, footprint_cells(cfg))
+    gain = coverage_gain(covered, cfg.resolution_mm, cfg.reach_mm, footprint_cells(cfg))
     gain[~np.isfinite(footprint_score(belief, cfg))] = 0.0   # a sweep that would leave the region
     gain[near] = 0.0
     best = float(np.max(gain))

@@ -174,11 +174,23 @@ class AdaptivePlanner(palpa.Node):
         self.scanner_state = s.state
 
     def on_sample(self, s: StiffnessSample) -> None:
-        # only what its own probes measured: the scanner's touch-off presses before the first probe give estimates
-        # of a press at a point (several times the tissue's stiffness), not of a sweep
-        if s.valid and (self.inflight is not None or self.probed):
+        # only what its probes measured where they were sent: the touch-off presses and the transit from the last
+        # of them still in contact read 3-20x the tissue's stiffness (a false inclusion at each touch point)
+        if s.valid and self._on_probe(s.x_mm, s.y_mm):
             self.unit = s.unit
             self.pending.append((s.x_mm, s.y_mm, s.value))
+
+    def _on_probe(self, x: float, y: float) -> bool:
+        """Whether (x, y) lies on the probe in flight or the last one made (its sweep's line, or the press's radius;
+        the estimates of a probe may arrive after its reply), within one belief cell."""
+        tol = self.params.resolution_mm
+        half = 0.5 * self.params.length_mm if self.params.mode == "sweep" else 0.0
+        reach = tol if self.params.mode == "sweep" else max(tol, self.params.radius_mm)
+        for px, py in filter(None, (self.inflight, self.probed[-1] if self.probed else None)):
+            dy = max(0.0, abs(y - py) - half)
+            if (x - px) ** 2 + dy**2 <= reach**2:
+                return True
+        return False
 
     # -- the loop ----------------------------------------------------------------------------------
     def step(self) -> None:
@@ -261,7 +273,7 @@ class AdaptivePlanner(palpa.Node):
         if self.cfg.stop_rule == "detect":
             last = self.probed[-1] if self.probed else None
             d = decide(b, snap.stiffness, snap.count, self.probed + self.given_up, self.cfg, last,
-                       self.fair.snapshot().stiffness)
+                       self.fair.snapshot().stiffness, self.given_up)
             if not d.stop and d.point is not None:
                 self.queue.append((d.point, d.blind))
             return d.stop, d.why

@@ -153,3 +153,45 @@ def test_decide_samples_a_candidates_boundary_before_stopping() -> None:
     assert d.point[1] == found[0].y_mm and abs(abs(d.point[0] - found[0].x_mm) - found[0].radius_mm) < 1e-9
     measured[:, 8:13] = np.where(np.isnan(measured[:, 8:13]), 10.0, measured[:, 8:13])   # both sides measured
     assert decide(b, measured, counts, probed, cfg).stop
+
+
+def test_a_weak_rise_is_a_suspect_to_resolve_but_not_a_detection() -> None:
+    cfg = _cfg(reach_mm=40.0, suspect=0.5)
+    b = _belief(cfg)
+    measured = np.full((20, 20), 10.0)
+    measured[8:13, 10] = 11.5   # 1.15x: under the detector's 20 %, over half of it
+    measured[:, [8, 9, 11, 12]] = np.nan   # its sides unmeasured
+    counts = np.ones((20, 20), dtype=np.int64)
+    assert detect_candidates(b, measured, counts, cfg)[1] == []
+    assert len(detect_candidates(b, measured, counts, cfg, suspect=True)[1]) == 1
+    probed = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+    assert not decide(b, measured, counts, probed, cfg).stop
+    assert decide(b, measured, counts, probed, _cfg(reach_mm=40.0, suspect=1.0)).stop
+
+
+def test_a_point_given_up_is_not_chosen_again_and_a_bad_baseline_is_no_reference() -> None:
+    cfg = _cfg(reach_mm=4.0, near_best=1.0, miss_probability=0.0)   # cover to the last cell
+    b = _belief(cfg)
+    measured = np.full((20, 20), 10.0)
+    measured[8:13, 8:13] = np.nan   # a 10 mm hole around (21, 21)
+    counts = np.ones((20, 20), dtype=np.int64)
+    seeds = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+    first = decide(b, measured, counts, seeds, cfg).point
+    assert first is not None and first[0] == 21.0   # a sweep over the hole's middle column
+    # the scanner refused it every time: the planner's probed list holds it, its cells unmeasured
+    again = decide(b, measured, counts, [*seeds, first], cfg).point
+    assert again is not None and math.dist(again, first) >= cfg.min_separation_mm
+    assert reference(np.zeros((4, 4))) is None
+
+
+def test_tissue_only_a_refused_point_reaches_counts_as_covered() -> None:
+    cfg = _cfg(reach_mm=2.0)
+    b = _belief(cfg)
+    measured = np.full((20, 20), 10.0)
+    measured[8:13, 17:20] = np.nan   # by the edge, where the scanner's box ends
+    counts = np.ones((20, 20), dtype=np.int64)
+    seeds = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+    assert decide(b, measured, counts, seeds, cfg).miss > 0
+    refused = (39.0, 21.0)
+    d = decide(b, measured, counts, [*seeds, refused], cfg, given_up=[refused])
+    assert d.miss == 0.0 and d.stop
