@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import numpy.typing as npt
 
 from models.adaptive import Belief, PlannerConfig
 from models.adaptive_detect import (
@@ -22,10 +23,16 @@ from models.adaptive_detect import (
 from models.stiffness_map import Inclusion, MapSnapshot, detect_inclusions
 
 REGION = (0.0, 0.0, 40.0, 40.0)   # 20 x 20 cells of 2 mm
+SEEDS = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+"""The seed grid of :func:`_cfg` (2 x 2): the points probed before the rule may stop."""
 
 
 def _cfg(**kw: float) -> PlannerConfig:
     return PlannerConfig(REGION, sweep_mm=6.0, seed_spacing_mm=40.0, **kw)   # seed: 2 x 2 points
+
+
+def _unmeasured() -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    return np.full((20, 20), np.nan), np.zeros((20, 20), dtype=np.int64)
 
 
 def _belief(cfg: PlannerConfig, value: float = 10.0) -> Belief:
@@ -110,9 +117,8 @@ def test_open_sides_are_the_unsampled_points_just_past_a_candidate() -> None:
 def test_decide_covers_until_nothing_can_hide_then_stops() -> None:
     cfg = _cfg(reach_mm=6.0, miss_probability=0.02)
     b = _belief(cfg)
-    measured = np.full((20, 20), np.nan)
-    counts = np.zeros((20, 20), dtype=np.int64)
-    probed = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+    measured, counts = _unmeasured()
+    probed = SEEDS
     d = decide(b, measured, counts, probed, cfg, last=(30.0, 30.0))
     assert not d.stop and d.blind and d.point is not None and d.miss == 1.0
     measured[:, ::6] = 10.0   # columns every 12 mm: every cell within 6 mm of one
@@ -128,9 +134,8 @@ def test_decide_covers_until_nothing_can_hide_then_stops() -> None:
 def test_decide_takes_the_nearest_of_the_near_best_coverage_sweeps() -> None:
     cfg = _cfg(reach_mm=4.0, near_best=0.5)
     b = _belief(cfg)
-    measured = np.full((20, 20), np.nan)
-    counts = np.zeros((20, 20), dtype=np.int64)
-    probed = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+    measured, counts = _unmeasured()
+    probed = SEEDS
     near = decide(b, measured, counts, probed, cfg, last=(39.0, 39.0)).point
     far = decide(b, measured, counts, probed, cfg, last=(1.0, 1.0)).point
     assert near is not None and far is not None
@@ -145,7 +150,7 @@ def test_decide_samples_a_candidates_boundary_before_stopping() -> None:
     measured[:, 9] = measured[:, 11] = np.nan
     measured[:, 8] = measured[:, 12] = np.nan
     counts = np.ones((20, 20), dtype=np.int64)
-    probed = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+    probed = SEEDS
     _, found = detect_candidates(b, measured, counts, cfg, suspect=True)
     assert len(found) == 1
     d = decide(b, measured, counts, probed, cfg)
@@ -164,7 +169,7 @@ def test_a_weak_rise_is_a_suspect_to_resolve_but_not_a_detection() -> None:
     counts = np.ones((20, 20), dtype=np.int64)
     assert detect_candidates(b, measured, counts, cfg)[1] == []
     assert len(detect_candidates(b, measured, counts, cfg, suspect=True)[1]) == 1
-    probed = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+    probed = SEEDS
     assert not decide(b, measured, counts, probed, cfg).stop
     assert decide(b, measured, counts, probed, _cfg(reach_mm=40.0, suspect=1.0)).stop
 
@@ -175,7 +180,7 @@ def test_a_point_given_up_is_not_chosen_again_and_a_bad_baseline_is_no_reference
     measured = np.full((20, 20), 10.0)
     measured[8:13, 8:13] = np.nan   # a 10 mm hole around (21, 21)
     counts = np.ones((20, 20), dtype=np.int64)
-    seeds = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+    seeds = SEEDS
     first = decide(b, measured, counts, seeds, cfg).point
     assert first is not None and first[0] == 21.0   # a sweep over the hole's middle column
     # the scanner refused it every time: the planner's probed list holds it, its cells unmeasured
@@ -190,7 +195,7 @@ def test_tissue_only_a_refused_point_reaches_counts_as_covered() -> None:
     measured = np.full((20, 20), 10.0)
     measured[8:13, 17:20] = np.nan   # by the edge, where the scanner's box ends
     counts = np.ones((20, 20), dtype=np.int64)
-    seeds = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+    seeds = SEEDS
     assert decide(b, measured, counts, seeds, cfg).miss > 0
     refused = (39.0, 21.0)
     d = decide(b, measured, counts, [*seeds, refused], cfg, given_up=[refused])
