@@ -205,14 +205,15 @@ def main(argv: list[str] | None = None) -> int:
               "time_adaptive_s"):
         vals = [float(r[k]) for r in rows if isinstance(r[k], int | float) and math.isfinite(r[k])]
         print(f"{k:18s} mean {np.mean(vals):8.3f}  median {np.median(vals):8.3f}" if vals else f"{k}: -")
-    complete = [r for r in rows if r["missed_vs_raster"] == 0 and math.isfinite(r["probes_to_localise"])]
+    complete = [r for r in rows if r["missed_vs_raster"] == 0]
+    localised = [r for r in complete if math.isfinite(r["probes_to_localise"])]
     def pooled(key: str, over: list[dict[str, Any]]) -> float | None:
         return sum(r[key] for r in over) / sum(r["probes_raster_eq"] for r in over) if over else None
 
     print(f"{len(rows)} phantoms scored, runs took {wall:.0f} s wall ({len(todo)} launches)")
     print(json.dumps({"probe_ratio": pooled("probes_adaptive", complete),
                       "probe_ratio_all": pooled("probes_adaptive", rows),
-                      "probe_ratio_localise": pooled("probes_to_localise", complete),
+                      "probe_ratio_localise": pooled("probes_to_localise", localised),
                       "missed_vs_raster": sum(r["missed_vs_raster"] for r in rows),
                       "found_adaptive": sum(r["found_adaptive"] for r in rows),
                       "found_raster": sum(r["found_raster"] for r in rows), "phantoms": len(rows),
