@@ -4,6 +4,7 @@ its coverage acquisition, the detection map and the stiffness-blind baseline."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -27,7 +28,7 @@ SEEDS = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
 """The seed grid of :func:`_cfg` (2 x 2): the points probed before the rule may stop."""
 
 
-def _cfg(**kw: float) -> PlannerConfig:
+def _cfg(**kw: Any) -> PlannerConfig:
     return PlannerConfig(REGION, sweep_mm=6.0, seed_spacing_mm=40.0, **kw)   # seed: 2 x 2 points
 
 
@@ -89,7 +90,7 @@ def test_the_fair_reference_finds_an_inclusion_the_biased_median_hides() -> None
     grid = np.full((10, 10), 10.0)
     grid[:, 5:] = 13.0
     grid[:, 4] = 10.5
-    xs = np.arange(10) * 2.0 + 1.0
+    xs = np.arange(10, dtype=np.float64) * 2.0 + 1.0
     snap = MapSnapshot(grid, xs, xs, np.ones((10, 10), dtype=np.int64), np.zeros((10, 10)), 2.0)
     assert detect_inclusions(snap) == []
     fair = np.full((10, 10), np.nan)
@@ -103,7 +104,7 @@ def test_the_fair_reference_finds_an_inclusion_the_biased_median_hides() -> None
 
 
 def test_open_sides_are_the_unsampled_points_just_past_a_candidate() -> None:
-    xs = np.arange(20) * 2.0 + 1.0
+    xs = np.arange(20, dtype=np.float64) * 2.0 + 1.0
     obs = np.zeros((20, 20), dtype=bool)
     c = Inclusion(x_mm=21.0, y_mm=21.0, radius_mm=3.0, contrast=2.0, peak=20.0, area_mm2=28.0, cells=7)
     sides = open_sides([c], obs, xs, xs, REGION, 2.0)
