@@ -82,10 +82,10 @@ class PlannerConfig:
     its centre (its radius plus the sensing reach past its edge)."""
     miss_probability: float = 0.02
     """detect: stop only when the chance that such an inclusion hides unsensed is below this."""
-    suspect: float = 1.0
+    suspect: float = 0.5
     """detect: candidates to resolve are regions above this fraction of the detector's thresholds (1: the
     detections themselves)."""
-    fill_mm: float = 2.0
+    fill_mm: float = 4.0
     """detect: the detection map takes the GP mean only this close to a measured cell."""
     near_best: float = 0.8
     """detect: among sweeps revealing at least this fraction of the best one's hidden area, the nearest is taken."""

@@ -47,7 +47,7 @@ from models.adaptive import (
     next_probe,
     should_stop,
 )
-from models.adaptive_detect import decide, detect_candidates
+from models.adaptive_detect import decide, detect_candidates, reference
 from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, detect_inclusions
 from models.surface import region_in_footprint
@@ -322,9 +322,10 @@ class AdaptivePlanner(palpa.Node):
             snap, found = self._publish_belief(final=True)
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
             write_outputs(out, snap, found, unit=self.unit or "?", title=title)
+        ref = reference(self.fair.snapshot().stiffness) if self.cfg.stop_rule == "detect" else None
         self.inc_pub.publish(Inclusions(
-            stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,
-            baseline=self.belief.baseline if self.belief is not None else float("nan"),
+            stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,   # the baseline the contrasts are against
+            baseline=ref[0] if ref else self.belief.baseline if self.belief is not None else float("nan"),
             inclusions=[DetectedInclusion(x_mm=i.x_mm, y_mm=i.y_mm, radius_mm=i.radius_mm, contrast=i.contrast)
                         for i in found]))
         out.mkdir(parents=True, exist_ok=True)

@@ -201,3 +201,13 @@ def test_tissue_only_a_refused_point_reaches_counts_as_covered() -> None:
     refused = (39.0, 21.0)
     d = decide(b, measured, counts, [*seeds, refused], cfg, given_up=[refused])
     assert d.miss == 0.0 and d.stop
+
+
+def test_a_covering_sweep_stays_inside_the_region() -> None:
+    cfg = _cfg(reach_mm=2.0, miss_probability=0.0)
+    measured = np.full((20, 20), 10.0)
+    measured[17:, :] = np.nan   # the top 6 mm unmeasured: its last row is hidden
+    counts = np.ones((20, 20), dtype=np.int64)
+    # from the top edge the nearest of the equal best sweeps would be centred on the last row, half outside
+    p = decide(_belief(cfg), measured, counts, SEEDS, cfg, last=(21.0, 40.0)).point
+    assert p is not None and p[1] + 0.5 * cfg.sweep_mm <= REGION[3]
