@@ -15,8 +15,9 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   with a length scale shorter than that reach cannot vouch for it, which is why the LSE rule costs coverage.)
 * **every candidate is resolved.** A candidate is a region of the detection map above ``suspect`` times the
   detector's thresholds (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
-  resolved when the points on the edge of its disc on all four sides (one cell out for a small one:
-  :func:`open_sides`) have been measured: its boundary is sampled, so its centroid and extent are the map's and not the kernel's guess; when a side is still
+  resolved when its centre and the points on the edge of its disc on all four sides (one cell out for a small one:
+  :func:`open_sides`) have been measured (an unmeasured centre is the GP's guess, which joins two inclusions
+  closer than its length scale into one blob; the sweep through the middle measures the dip between them): its boundary is sampled, so its centroid and extent are the map's and not the kernel's guess; when a side is still
   stiff the candidate grows and opens the next side out.
 
 The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then the sweep that
@@ -112,14 +113,31 @@ def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, 
     return np.where(ok, meas, np.where(near, np.asarray(mean, dtype=np.float64), np.nan))
 
 
-def reference(fair: FloatArray | None, min_cells: int = 9) -> tuple[float, float] | None:
+def reference(fair: FloatArray | None, min_cells: int = 9, clip: float = 0.1) -> tuple[float, float] | None:
     """The healthy baseline and its scale (models.stiffness_map.background) from the cells measured by
     stiffness-blind sweeps (the seed grid and the covering sweeps), None with fewer than ``min_cells`` of them. The
     resolving sweeps go where the map is stiff: a median over every measured cell would count the inclusions'
-    cells as background, raise the detector's threshold and lose a weak inclusion (tuning set)."""
-    if fair is None or np.count_nonzero(np.isfinite(fair)) < min_cells:
+    cells as background, raise the detector's threshold and lose a weak inclusion (tuning set).
+
+    A blind sample is fair in expectation only: on a small region with large inclusions a few blind sweeps can land
+    on them by chance (a third of the cells stiff, the median at the halo, the MAD the gap between the two modes:
+    the detector then lost a 6 mm inclusion twice the tissue's stiffness, tuning set). So the baseline is clipped
+    as a background is in a crowded field: cells stiffer than ``1 + clip`` times the baseline (the candidates'
+    floor, ``suspect * rel_threshold``) are not healthy tissue; drop them and take the median again, until none is
+    dropped (or fewer than ``min_cells`` would be left). Healthy tissue's own scatter (a few %) loses only its tail."""
+    if fair is None:
         return None
-    base, sigma = background(fair)
+    values = np.asarray(fair, dtype=np.float64)
+    values = values[np.isfinite(values)]
+    if values.size < min_cells:
+        return None
+    base, sigma = background(values)
+    while base > 0:
+        keep = values <= base * (1.0 + clip)
+        if keep.all() or np.count_nonzero(keep) < min_cells:
+            break
+        values = values[keep]
+        base, sigma = background(values)
     return (base, sigma) if base > 0 else None
 
 
@@ -136,7 +154,7 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     try:
         scale = cfg.suspect if suspect else 1.0
         found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0,
-                                  reference=reference(fair))
+                                  reference=reference(fair, clip=cfg.suspect * cfg.rel_threshold))
     except ValueError:   # no positive baseline yet: nothing to call stiff
         found = []
     return snap, found
@@ -144,9 +162,11 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
 
 def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray,
                region_mm: tuple[float, float, float, float], resolution_mm: float) -> list[tuple[float, float]]:
-    """Where a candidate's boundary is not yet sampled: for each candidate (its disc, centre and radius), the points
-    on its disc's edge (at least one cell from its centre) to the left, right, below and above, where no cell within
-    one cell of the point was measured and the point lies inside the region. A probe there tells where the stiff tissue ends (or, when it is
+    """Where a candidate is not yet sampled: for each candidate (its disc, centre and radius), its centre and the
+    points on its disc's edge (at least one cell from its centre) to the left, right, below and above, where no cell
+    within one cell of the point was measured and the point lies inside the region. The centre: where it was not
+    measured the map there is the GP's smoothed guess, which bridges two inclusions closer than its length scale
+    into one blob; a sweep through the middle measures the dip between them (or the peak of one). A probe there tells where the stiff tissue ends (or, when it is
     still stiff, grows the candidate and opens the next point out)."""
     x0, y0, x1, y1 = region_mm
     gx, gy = np.meshgrid(x_mm, y_mm)
@@ -154,7 +174,8 @@ def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: Float
     out = []
     for c in candidates:
         d = max(resolution_mm, c.radius_mm)
-        for px, py in ((c.x_mm - d, c.y_mm), (c.x_mm + d, c.y_mm), (c.x_mm, c.y_mm - d), (c.x_mm, c.y_mm + d)):
+        for px, py in ((c.x_mm, c.y_mm), (c.x_mm - d, c.y_mm), (c.x_mm + d, c.y_mm), (c.x_mm, c.y_mm - d),
+                       (c.x_mm, c.y_mm + d)):
             if not (x0 <= px <= x1 and y0 <= py <= y1):
                 continue
             if not np.any((mx - px) ** 2 + (my - py) ** 2 <= resolution_mm**2 + 1e-9):
