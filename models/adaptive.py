@@ -87,6 +87,13 @@ class PlannerConfig:
     detections themselves)."""
     fill_mm: float = 4.0
     """detect: the detection map takes the GP mean only this close to a measured cell."""
+    baseline_clip: bool = False
+    """detect: clip the blind sweeps' cells stiffer than the candidates' floor out of the detector's baseline
+    (models.adaptive_detect.reference). Off: on the tuning set it closed a miss, on the evaluation set it lowered the
+    baseline below the raster detector's calibration and merged neighbours (BENCHMARKS.md)."""
+    resolve_centre: bool = False
+    """detect: a candidate is resolved only once its centre is measured too (models.adaptive_detect.open_sides).
+    Off by default with ``baseline_clip`` (evaluated together, BENCHMARKS.md)."""
     near_best: float = 0.8
     """detect: among sweeps revealing at least this fraction of the best one's hidden area, the nearest is taken."""
 

@@ -15,9 +15,9 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   with a length scale shorter than that reach cannot vouch for it, which is why the LSE rule costs coverage.)
 * **every candidate is resolved.** A candidate is a region of the detection map above ``suspect`` times the
   detector's thresholds (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
-  resolved when its centre and the points on the edge of its disc on all four sides (one cell out for a small one:
-  :func:`open_sides`) have been measured (an unmeasured centre is the GP's guess, which joins two inclusions
-  closer than its length scale into one blob; the sweep through the middle measures the dip between them): its boundary is sampled, so its centroid and extent are the map's and not the kernel's guess; when a side is still
+  resolved when the points on the edge of its disc on all four sides (one cell out for a small one:
+  :func:`open_sides`), and with ``resolve_centre`` its centre, have been measured (an unmeasured centre is the GP's
+  guess, which can join two inclusions closer than its length scale into one blob): its boundary is sampled, so its centroid and extent are the map's and not the kernel's guess; when a side is still
   stiff the candidate grows and opens the next side out.
 
 The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then the sweep that
@@ -54,7 +54,7 @@ from models.adaptive import (
 )
 from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
 
-__all__ = ["Decision", "coverage_gain", "decide", "detect_candidates", "detection_map",
+__all__ = ["Decision", "clip_of", "coverage_gain", "decide", "detect_candidates", "detection_map",
            "distance_to_measured", "hidden", "miss_probability", "reference", "sweep_stencil"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -113,7 +113,7 @@ def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, 
     return np.where(ok, meas, np.where(near, np.asarray(mean, dtype=np.float64), np.nan))
 
 
-def reference(fair: FloatArray | None, min_cells: int = 9, clip: float = 0.1) -> tuple[float, float] | None:
+def reference(fair: FloatArray | None, min_cells: int = 9, clip: float | None = None) -> tuple[float, float] | None:
     """The healthy baseline and its scale (models.stiffness_map.background) from the cells measured by
     stiffness-blind sweeps (the seed grid and the covering sweeps), None with fewer than ``min_cells`` of them. The
     resolving sweeps go where the map is stiff: a median over every measured cell would count the inclusions'
@@ -124,7 +124,8 @@ def reference(fair: FloatArray | None, min_cells: int = 9, clip: float = 0.1) ->
     the detector then lost a 6 mm inclusion twice the tissue's stiffness, tuning set). So the baseline is clipped
     as a background is in a crowded field: cells stiffer than ``1 + clip`` times the baseline (the candidates'
     floor, ``suspect * rel_threshold``) are not healthy tissue; drop them and take the median again, until none is
-    dropped (or fewer than ``min_cells`` would be left). Healthy tissue's own scatter (a few %) loses only its tail."""
+    dropped (or fewer than ``min_cells`` would be left). Healthy tissue's own scatter (a few %) loses only its tail.
+    ``clip`` None: no clipping (the default, :func:`clip_of`)."""
     if fair is None:
         return None
     values = np.asarray(fair, dtype=np.float64)
@@ -132,13 +133,18 @@ def reference(fair: FloatArray | None, min_cells: int = 9, clip: float = 0.1) ->
     if values.size < min_cells:
         return None
     base, sigma = background(values)
-    while base > 0:
+    while clip is not None and base > 0:
         keep = values <= base * (1.0 + clip)
         if keep.all() or np.count_nonzero(keep) < min_cells:
             break
         values = values[keep]
         base, sigma = background(values)
     return (base, sigma) if base > 0 else None
+
+
+def clip_of(cfg: PlannerConfig) -> float | None:
+    """The baseline clip :func:`reference` takes under ``cfg``: the candidates' floor with ``baseline_clip``."""
+    return cfg.suspect * cfg.rel_threshold if cfg.baseline_clip else None
 
 
 def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], cfg: PlannerConfig,
@@ -154,28 +160,30 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     try:
         scale = cfg.suspect if suspect else 1.0
         found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0,
-                                  reference=reference(fair, clip=cfg.suspect * cfg.rel_threshold))
+                                  reference=reference(fair, clip=clip_of(cfg)))
     except ValueError:   # no positive baseline yet: nothing to call stiff
         found = []
     return snap, found
 
 
 def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray,
-               region_mm: tuple[float, float, float, float], resolution_mm: float) -> list[tuple[float, float]]:
+               region_mm: tuple[float, float, float, float], resolution_mm: float,
+               centre: bool = True) -> list[tuple[float, float]]:
     """Where a candidate is not yet sampled: for each candidate (its disc, centre and radius), its centre and the
     points on its disc's edge (at least one cell from its centre) to the left, right, below and above, where no cell
     within one cell of the point was measured and the point lies inside the region. The centre: where it was not
     measured the map there is the GP's smoothed guess, which bridges two inclusions closer than its length scale
-    into one blob; a sweep through the middle measures the dip between them (or the peak of one). A probe there tells where the stiff tissue ends (or, when it is
-    still stiff, grows the candidate and opens the next point out)."""
+    into one blob; a sweep through the middle measures the dip between them (or the peak of one); ``centre`` False
+    (PlannerConfig.resolve_centre off): the edge points only. A probe at an edge point tells where the stiff tissue
+    ends (or, when it is still stiff, grows the candidate and opens the next point out)."""
     x0, y0, x1, y1 = region_mm
     gx, gy = np.meshgrid(x_mm, y_mm)
     mx, my = gx[observed], gy[observed]
     out = []
     for c in candidates:
         d = max(resolution_mm, c.radius_mm)
-        for px, py in ((c.x_mm, c.y_mm), (c.x_mm - d, c.y_mm), (c.x_mm + d, c.y_mm), (c.x_mm, c.y_mm - d),
-                       (c.x_mm, c.y_mm + d)):
+        points = [(c.x_mm, c.y_mm)] if centre else []
+        for px, py in [*points, (c.x_mm - d, c.y_mm), (c.x_mm + d, c.y_mm), (c.x_mm, c.y_mm - d), (c.x_mm, c.y_mm + d)]:
             if not (x0 <= px <= x1 and y0 <= py <= y1):
                 continue
             if not np.any((mx - px) ** 2 + (my - py) ** 2 <= resolution_mm**2 + 1e-9):
@@ -217,7 +225,8 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
         covered |= (np.abs(gx - ux) <= 0.5 * cfg.resolution_mm) & (np.abs(gy - uy) <= half)
     miss = miss_probability(covered, cfg.resolution_mm, cfg.reach_mm)
     _, found = detect_candidates(belief, measured, counts, cfg, fair, suspect=True)
-    sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm)
+    sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm,
+                                   cfg.resolve_centre)
              if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
     state = f"miss probability {miss:.3f}, {len(found)} candidates, {len(sides)} boundary sides open"
     if n >= cfg.max_probes:

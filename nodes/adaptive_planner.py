@@ -47,7 +47,7 @@ from models.adaptive import (
     next_probe,
     should_stop,
 )
-from models.adaptive_detect import decide, detect_candidates, reference
+from models.adaptive_detect import clip_of, decide, detect_candidates, reference
 from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, detect_inclusions
 from models.surface import region_in_footprint
@@ -93,6 +93,10 @@ class AdaptivePlanner(palpa.Node):
         """detect: regions above this fraction of the detector's thresholds get their boundary sampled."""
         fill_mm: float = 4.0
         """detect: the detection map takes the GP mean only this close to a measured cell."""
+        baseline_clip: bool = False
+        """detect: clip the blind sweeps' stiff cells out of the detector's baseline (PlannerConfig)."""
+        resolve_centre: bool = False
+        """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
         near_best: float = 0.8
         """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
         mode: Literal["sweep", "indent"] = "sweep"
@@ -124,7 +128,8 @@ class AdaptivePlanner(palpa.Node):
                                      max_probes=p.max_probes, seed_spacing_mm=p.seed_spacing_mm,
                                      length_scale_mm=(1.0, p.max_length_scale_mm), stop_rule=p.stop_rule,
                                      reach_mm=p.reach_mm, miss_probability=p.miss_probability, fill_mm=p.fill_mm,
-                                     suspect=p.suspect,
+                                     suspect=p.suspect, baseline_clip=p.baseline_clip,
+                                     resolve_centre=p.resolve_centre,
                                      near_best=p.near_best,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
         except (ValueError, GeometryError) as exc:
@@ -322,7 +327,7 @@ class AdaptivePlanner(palpa.Node):
             snap, found = self._publish_belief(final=True)
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
             write_outputs(out, snap, found, unit=self.unit or "?", title=title)
-        ref = reference(self.fair.snapshot().stiffness, clip=self.cfg.suspect * self.cfg.rel_threshold) if self.cfg.stop_rule == "detect" else None
+        ref = reference(self.fair.snapshot().stiffness, clip=clip_of(self.cfg)) if self.cfg.stop_rule == "detect" else None
         self.inc_pub.publish(Inclusions(
             stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,   # the baseline the contrasts are against
             baseline=ref[0] if ref else self.belief.baseline if self.belief is not None else float("nan"),

@@ -117,13 +117,15 @@ def test_blind_sweeps_that_landed_on_inclusions_are_clipped_out_of_the_baseline(
     few = reference(np.array([10.0] * 5 + [20.0] * 5), clip=0.1)
     assert few is not None and few[0] == 15.0   # clipped, too few cells would be left: no clipping
     # a 1.6x inclusion the map detector misses against the halo's median and finds against the clipped one
-    cfg = _cfg(reach_mm=40.0)
+    assert reference(fair.reshape(10, 10)) == reference(fair.reshape(10, 10), clip=None)
+    cfg = _cfg(reach_mm=40.0, baseline_clip=True)
     measured = np.full((20, 20), 10.0)
     measured[8:13, 8:13] = 16.0
     counts = np.ones((20, 20), dtype=np.int64)
     grid = np.full((20, 20), np.nan)
     grid.flat[:100] = fair
     assert len(detect_candidates(_belief(cfg), measured, counts, cfg, grid)[1]) == 1
+    assert detect_candidates(_belief(cfg), measured, counts, _cfg(reach_mm=40.0), grid)[1] == []   # clip off
     assert detect_inclusions(MapSnapshot(measured, *cfg.grid(), counts, np.zeros((20, 20)), 2.0),
                              reference=(14.0, 4.0)) == []
 
@@ -132,6 +134,8 @@ def test_open_sides_are_the_unsampled_points_just_past_a_candidate() -> None:
     xs = np.arange(20, dtype=np.float64) * 2.0 + 1.0
     obs = np.zeros((20, 20), dtype=bool)
     c = Inclusion(x_mm=21.0, y_mm=21.0, radius_mm=3.0, contrast=2.0, peak=20.0, area_mm2=28.0, cells=7)
+    assert open_sides([c], obs, xs, xs, REGION, 2.0, centre=False) == [(18.0, 21.0), (24.0, 21.0), (21.0, 18.0),
+                                                                     (21.0, 24.0)]
     sides = open_sides([c], obs, xs, xs, REGION, 2.0)
     assert sides == [(21.0, 21.0), (18.0, 21.0), (24.0, 21.0), (21.0, 18.0), (21.0, 24.0)]
     obs[10, 8] = True   # the cell at (17, 21): within one cell of the left side
@@ -143,7 +147,7 @@ def test_open_sides_are_the_unsampled_points_just_past_a_candidate() -> None:
 
 
 def test_a_sweep_through_a_candidates_middle_splits_two_inclusions_the_mean_bridged() -> None:
-    cfg = _cfg(reach_mm=40.0, fill_mm=4.0)
+    cfg = _cfg(reach_mm=40.0, fill_mm=4.0, resolve_centre=True)
     b = _belief(cfg)
     b.mean[8:13, 6:15] = 20.0   # the GP's smoothed guess: one blob over x 13..29 mm
     measured = np.full((20, 20), 10.0)
@@ -154,6 +158,8 @@ def test_a_sweep_through_a_candidates_middle_splits_two_inclusions_the_mean_brid
     assert len(found) == 1 and abs(found[0].x_mm - 21.0) < 0.5
     d = decide(b, measured, counts, SEEDS, cfg)
     assert d.point is not None and abs(d.point[0] - found[0].x_mm) < 1e-9   # its middle first
+    edge = decide(b, measured, counts, SEEDS, _cfg(reach_mm=40.0, fill_mm=4.0)).point   # default: edges only
+    assert edge is not None and abs(edge[0] - found[0].x_mm) > 1.0
     measured[:, 10] = 10.0   # the sweep there: soft
     assert len(detect_candidates(b, measured, counts, cfg, suspect=True)[1]) == 2
 
