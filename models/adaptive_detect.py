@@ -17,8 +17,9 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   detector's thresholds (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
   resolved when the points on the edge of its disc on all four sides (one cell out for a small one:
   :func:`open_sides`), and with ``resolve_centre`` its centre, have been measured (an unmeasured centre is the GP's
-  guess, which can join two inclusions closer than its length scale into one blob): its boundary is sampled, so its centroid and extent are the map's and not the kernel's guess; when a side is still
-  stiff the candidate grows and opens the next side out.
+  guess, which can join two inclusions closer than its length scale into one blob): its boundary is sampled, so
+  its centroid and extent are the map's and not the kernel's guess; when a side is still stiff the candidate grows
+  and opens the next side out.
 
 The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then the sweep that
 leaves the least area where an inclusion could hide (:func:`coverage_gain`), the nearest of the near-best sweeps so

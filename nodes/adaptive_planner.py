@@ -327,7 +327,8 @@ class AdaptivePlanner(palpa.Node):
             snap, found = self._publish_belief(final=True)
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
             write_outputs(out, snap, found, unit=self.unit or "?", title=title)
-        ref = reference(self.fair.snapshot().stiffness, clip=clip_of(self.cfg)) if self.cfg.stop_rule == "detect" else None
+        detect = self.cfg.stop_rule == "detect"
+        ref = reference(self.fair.snapshot().stiffness, clip=clip_of(self.cfg)) if detect else None
         self.inc_pub.publish(Inclusions(
             stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,   # the baseline the contrasts are against
             baseline=ref[0] if ref else self.belief.baseline if self.belief is not None else float("nan"),
