@@ -13,11 +13,11 @@ every map with ``models.scoring`` against its phantom, and compares per phantom:
 * found / missed inclusions, centroid error, cell sensitivity, specificity and IoU against the inclusion mask.
 
 Writes ``compare.csv`` and ``error_vs_probes.png`` (error and inclusions found against probes spent: the adaptive
-planner's belief after every probe and the raster's map as it grows, both read from their recordings and scored as
+planner's detection map after every probe and the raster's map as it grows, both read from their recordings and scored as
 a final map is) into OUT. The last line is JSON: ``probe_ratio`` (the probes the planner spent until its own stop
 rule stopped it, over the raster's probe equivalents, summed over the phantoms where the adaptive map found every
 inclusion the raster's found: adaptive over raster probes at equal or better detection), ``probe_ratio_all`` (the
-same over every phantom, whatever was missed), ``probe_ratio_localise`` (the probes after which the recorded belief
+same over every phantom, whatever was missed), ``probe_ratio_localise`` (the probes after which the recorded detection map
 finds, from then on, at least as many inclusions as the raster's final map: hindsight, the planner itself does not
 know that moment), ``found_adaptive``, ``found_raster`` (true inclusions found over all phantoms),
 ``missed_vs_raster`` (inclusions the raster found and the adaptive map did not), ``phantoms``, ``complete``
@@ -64,8 +64,9 @@ def raster_probe_equivalents(spec: RunSpec) -> float:
 
 def map_curve(spec: RunSpec, topic: str) -> list[tuple[float, float, int]]:
     """(samples, mean centroid error of found inclusions, inclusions found) for every map a run recorded on
-    ``topic`` (the planner's ``planner/mean`` after each probe, the raster aggregator's ``map/stiffness`` as it
-    grows), detected and scored as a final map is."""
+    ``topic`` (the planner's ``planner/map`` after each probe, the raster aggregator's ``map/stiffness`` as it
+    grows), detected and scored as a final map is (with the map's own baseline: the planner's final detection takes
+    its stiffness-blind probes' baseline, so its curve's last point may differ from its final map's score)."""
     import msgspec
 
     from messages import StiffnessMap
@@ -177,12 +178,12 @@ def main(argv: list[str] | None = None) -> int:
             "iou_raster": r["iou"], "iou_adaptive": a["iou"], "stop": plan["stop"],
         })
         try:
-            curve = curves[r_spec.phantom.stem] = map_curve(a_spec, "planner/mean")
+            curve = curves[r_spec.phantom.stem] = map_curve(a_spec, "planner/map")
             raster_curves[r_spec.phantom.stem] = raster_curve(r_spec, eq)
         except (OSError, ValueError) as exc:
-            print(f"{a_spec.id}: no belief curve ({exc})", file=sys.stderr)
+            print(f"{a_spec.id}: no map curve ({exc})", file=sys.stderr)
             curve = []
-        # localised: from this probe on, the belief finds at least as many inclusions as the raster's final map
+        # localised: from this probe on, the planner's map finds at least as many inclusions as the raster's final map
         n_loc = _localised(curve, r["found"])
         r_loc = _localised(raster_curves.get(r_spec.phantom.stem, []), r["found"])
         rows[-1]["probes_to_localise"] = n_loc
@@ -204,14 +205,15 @@ def main(argv: list[str] | None = None) -> int:
               "time_adaptive_s"):
         vals = [float(r[k]) for r in rows if isinstance(r[k], int | float) and math.isfinite(r[k])]
         print(f"{k:18s} mean {np.mean(vals):8.3f}  median {np.median(vals):8.3f}" if vals else f"{k}: -")
-    complete = [r for r in rows if r["missed_vs_raster"] == 0 and math.isfinite(r["probes_to_localise"])]
+    complete = [r for r in rows if r["missed_vs_raster"] == 0]
+    localised = [r for r in complete if math.isfinite(r["probes_to_localise"])]
     def pooled(key: str, over: list[dict[str, Any]]) -> float | None:
         return sum(r[key] for r in over) / sum(r["probes_raster_eq"] for r in over) if over else None
 
     print(f"{len(rows)} phantoms scored, runs took {wall:.0f} s wall ({len(todo)} launches)")
     print(json.dumps({"probe_ratio": pooled("probes_adaptive", complete),
                       "probe_ratio_all": pooled("probes_adaptive", rows),
-                      "probe_ratio_localise": pooled("probes_to_localise", complete),
+                      "probe_ratio_localise": pooled("probes_to_localise", localised),
                       "missed_vs_raster": sum(r["missed_vs_raster"] for r in rows),
                       "found_adaptive": sum(r["found_adaptive"] for r in rows),
                       "found_raster": sum(r["found_raster"] for r in rows), "phantoms": len(rows),
@@ -247,7 +249,7 @@ def _plot(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[f
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.5), dpi=100)
     for i, row in enumerate(rows):
         for curve_set, colour, label in ((raster_curves, "tab:red", "raster (its map as it grows)"),
-                                         (curves, "tab:blue", "adaptive (belief after each probe)")):
+                                         (curves, "tab:blue", "adaptive (its map after each probe)")):
             curve = curve_set.get(row["phantom"])
             if curve:
                 n, err, found = zip(*curve, strict=True)

@@ -31,7 +31,8 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = ["Belief", "PlannerConfig", "acquisition", "ambiguous", "fit_belief", "footprint_cells", "footprint_score",
-           "initial_design", "level", "next_probe", "should_stop", "unresolved"]
+           "initial_design", "level", "near_probed", "next_probe", "probe_points", "should_stop",
+           "unresolved"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -73,6 +74,28 @@ class PlannerConfig:
     sweep_mm: float = 0.0
     """Length of one probe's sweep along y (0: a press at the point). The acquisition scores the whole footprint a
     probe will touch, and keeps the sweep inside the region."""
+    stop_rule: str = "detect"
+    """``detect`` (models.adaptive_detect: nothing of interest can hide, every candidate resolved) or ``lse`` (LSE's
+    ambiguous area over the whole region, :func:`should_stop`)."""
+    reach_mm: float = 6.0
+    """detect: an inclusion of the smallest radius of interest is sensed by a measurement within this distance of
+    its centre (its radius plus the sensing reach past its edge)."""
+    miss_probability: float = 0.02
+    """detect: stop only when the chance that such an inclusion hides unsensed is below this."""
+    suspect: float = 0.5
+    """detect: candidates to resolve are regions above this fraction of the detector's thresholds (1: the
+    detections themselves)."""
+    fill_mm: float = 4.0
+    """detect: the detection map takes the GP mean only this close to a measured cell."""
+    baseline_clip: bool = False
+    """detect: clip the blind sweeps' cells stiffer than the candidates' floor out of the detector's baseline
+    (models.adaptive_detect.reference). Off: on the tuning set it closed a miss, on the evaluation set it lowered the
+    baseline below the raster detector's calibration and merged neighbours (BENCHMARKS.md)."""
+    resolve_centre: bool = False
+    """detect: a candidate is resolved only once its centre is measured too (models.adaptive_detect.open_sides).
+    Off by default with ``baseline_clip`` (evaluated together, BENCHMARKS.md)."""
+    near_best: float = 0.8
+    """detect: among sweeps revealing at least this fraction of the best one's hidden area, the nearest is taken."""
 
     def __post_init__(self) -> None:
         x0, y0, x1, y1 = self.region_mm
@@ -80,6 +103,11 @@ class PlannerConfig:
             raise ValueError(f"PlannerConfig.region_mm: expected x0 < x1 and y0 < y1, got {self.region_mm}")
         if not self.resolution_mm > 0 or self.initial < 2 or self.max_probes < 1 or not self.beta > 0:
             raise ValueError("PlannerConfig: resolution_mm > 0, initial >= 2, max_probes >= 1 and beta > 0 needed")
+        if self.stop_rule not in ("detect", "lse") or not (self.reach_mm > 0 and 0 <= self.miss_probability < 1
+                                                            and 0 < self.near_best <= 1):
+            raise ValueError("PlannerConfig: stop_rule detect or lse, reach_mm > 0, 0 <= miss_probability < 1 and "
+                             f"0 < near_best <= 1 needed, got {self.stop_rule!r}, {self.reach_mm}, "
+                             f"{self.miss_probability}, {self.near_best}")
         if not 0 <= self.sweep_mm < y1 - y0:
             raise ValueError(f"PlannerConfig.sweep_mm: expected 0 <= sweep < the region's height {y1 - y0:g}, "
                              f"got {self.sweep_mm}")
@@ -216,21 +244,33 @@ def footprint_score(belief: Belief, cfg: PlannerConfig, observed: BoolArray | No
     return score
 
 
+def probe_points(belief: Belief, cfg: PlannerConfig) -> tuple[FloatArray, FloatArray]:
+    """The probe point (x, y) of a footprint centred on each grid cell: the cell centre, or for an even footprint
+    the boundary between its two middle cells."""
+    gx, gy = np.meshgrid(belief.x_mm, belief.y_mm)
+    return gx, gy - (0.5 * cfg.resolution_mm if footprint_cells(cfg) % 2 == 0 else 0.0)
+
+
+def near_probed(px: FloatArray, py: FloatArray, probed: Sequence[tuple[float, float]], within_mm: float) -> BoolArray:
+    """Which of the points (px, py) lie within ``within_mm`` of a probe already made."""
+    near = np.zeros(px.shape, dtype=bool)
+    for x, y in probed:
+        near |= (px - x) ** 2 + (py - y) ** 2 < within_mm**2
+    return near
+
+
 def next_probe(belief: Belief, probed: Sequence[tuple[float, float]], cfg: PlannerConfig,
                observed: BoolArray | None = None) -> tuple[float, float]:
     """The probe that touches the most ambiguity (:func:`footprint_score`); among probes that touch none, the
     highest straddle score at the point. Skips points within ``min_separation_mm`` of a probe already made (ties:
     the first in row-major order, so the choice is deterministic). For an even footprint the point sits on the
     boundary between its two middle cells."""
-    k = footprint_cells(cfg)
     score = footprint_score(belief, cfg, observed)
     straddle = acquisition(belief, cfg.beta)
-    gx, gy = np.meshgrid(belief.x_mm, belief.y_mm)
-    py_of = gy - (0.5 * cfg.resolution_mm if k % 2 == 0 else 0.0)
-    for px, py in probed:
-        near = (gx - px) ** 2 + (py_of - py) ** 2 < cfg.min_separation_mm**2
-        score[near] = -np.inf
-        straddle[near] = -np.inf
+    gx, py_of = probe_points(belief, cfg)
+    near = near_probed(gx, py_of, probed, cfg.min_separation_mm)
+    score[near] = -np.inf
+    straddle[near] = -np.inf
     if not np.isfinite(score).any() or float(np.max(score)) <= 0.0:
         score = np.where(np.isfinite(score), straddle, -np.inf)
     i = int(np.argmax(score))

@@ -215,6 +215,7 @@ def detect_inclusions(
     gap_fill: bool = True,
     smooth: bool = False,
     min_valid_cells: int = 9,
+    reference: tuple[float, float] | None = None,
 ) -> list[Inclusion]:
     """Regions of cells significantly stiffer than the healthy background, most contrasted first.
 
@@ -226,6 +227,8 @@ def detect_inclusions(
     (:func:`fill_gaps`) and ``smooth`` applies a 3x3 median filter over valid cells (off by
     default: it erases features under about 2x2 cells). Returns [] with fewer than
     ``min_valid_cells`` valid cells; raises ValueError if the baseline is not > 0.
+    ``reference``: (baseline, scale) to use instead of the map's own, when the map's cells are
+    not a fair sample of the tissue (an adaptive planner probes the stiff places more).
     """
     grid = np.array(snapshot.stiffness, dtype=np.float64)
     if gap_fill:
@@ -236,7 +239,7 @@ def detect_inclusions(
     valid = np.isfinite(grid)
     if valid.sum() < min_valid_cells:
         return []
-    base, sigma = background(grid)
+    base, sigma = background(grid) if reference is None else reference
     if not base > 0:
         raise ValueError(f"detect_inclusions: baseline stiffness must be > 0, got {base}")
     threshold = base + max(k_mad * sigma, rel_threshold * base)

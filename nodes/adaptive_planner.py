@@ -8,14 +8,17 @@ the planner carries on with the next best point.
 
 What it learns from: every valid ``stiffness/sample`` binned into the belief grid (the per-cell median, as the map
 aggregator's), so a sweep teaches it the cells it crossed, not one number. The belief is
-:func:`models.adaptive.fit_belief` (GP regression), the next point :func:`models.adaptive.next_probe` (straddle /
-ILS-UCB acquisition at the implicit level), the end :func:`models.adaptive.should_stop` (LSE's ambiguous area or the
-budget).
+:func:`models.adaptive.fit_belief` (GP regression). With ``stop_rule: detect`` (default) the next point and the end
+are :func:`models.adaptive_detect.decide`'s: cover the region until an inclusion of the smallest size of interest is
+unlikely to hide, sample every candidate's boundary, then stop; inclusions are detected on the measured cells (GP
+mean only near them) against the baseline of the stiffness-blind probes. With ``stop_rule: lse`` the straddle /
+ILS-UCB acquisition (:func:`models.adaptive.next_probe`) and LSE's ambiguous area (:func:`models.adaptive.should_stop`)
+on the GP mean.
 
-Publishes ``planner/mean`` and ``planner/std`` (StiffnessMap, latched) after every probe, and at the end writes the
-same files as a raster scan's map (``map.npz`` of the GP mean, ``map.png``, ``inclusions.json``: nodes.map_output)
-plus ``planner.json`` (probes, refusals, simulated time, why it stopped), publishes ``map/inclusions`` and exits 0:
-it is the launch's required node.
+Publishes ``planner/mean``, ``planner/std`` and ``planner/map`` (the map inclusions are detected on; StiffnessMap,
+latched) after every probe, and at the end writes the same files as a raster scan's map (``map.npz`` of that map,
+``map.png``, ``inclusions.json``: nodes.map_output) plus ``planner.json`` (probes, refusals, simulated time, why it
+stopped), publishes ``map/inclusions`` and exits 0: it is the launch's required node.
 """
 
 from __future__ import annotations
@@ -44,8 +47,9 @@ from models.adaptive import (
     next_probe,
     should_stop,
 )
+from models.adaptive_detect import clip_of, decide, detect_candidates, reference
 from models.geometry import GeometryError, load_geometry
-from models.stiffness_map import MapSnapshot, StiffnessGrid, detect_inclusions
+from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, detect_inclusions
 from models.surface import region_in_footprint
 from nodes.map_output import write_outputs
 from palpa.service import ServiceError
@@ -78,6 +82,23 @@ class AdaptivePlanner(palpa.Node):
         epsilon: float = 0.1
         """LSE's accuracy, a fraction of the baseline (models.adaptive.PlannerConfig)."""
         max_probes: int = 60
+        stop_rule: Literal["detect", "lse"] = "detect"
+        """detect: stop when an inclusion of the smallest size of interest is unlikely to hide and every candidate's
+        boundary is sampled (models.adaptive_detect); lse: LSE's ambiguous area over the whole region."""
+        reach_mm: float = 6.0
+        """detect: a measurement within this of an inclusion's centre senses it (smallest radius + sensing reach)."""
+        miss_probability: float = 0.02
+        """detect: the chance, below which the planner may stop, that such an inclusion hides unsensed."""
+        suspect: float = 0.5
+        """detect: regions above this fraction of the detector's thresholds get their boundary sampled."""
+        fill_mm: float = 4.0
+        """detect: the detection map takes the GP mean only this close to a measured cell."""
+        baseline_clip: bool = False
+        """detect: clip the blind sweeps' stiff cells out of the detector's baseline (PlannerConfig)."""
+        resolve_centre: bool = False
+        """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
+        near_best: float = 0.8
+        """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
         mode: Literal["sweep", "indent"] = "sweep"
         """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
         length_mm: float = 6.0
@@ -105,21 +126,29 @@ class AdaptivePlanner(palpa.Node):
                                      beta=p.beta, implicit_fraction=p.implicit_fraction, epsilon=p.epsilon,
                                      rel_threshold=p.rel_threshold, stop_area_mm2=p.stop_area_mm2,
                                      max_probes=p.max_probes, seed_spacing_mm=p.seed_spacing_mm,
-                                     length_scale_mm=(1.0, p.max_length_scale_mm),
+                                     length_scale_mm=(1.0, p.max_length_scale_mm), stop_rule=p.stop_rule,
+                                     reach_mm=p.reach_mm, miss_probability=p.miss_probability, fill_mm=p.fill_mm,
+                                     suspect=p.suspect, baseline_clip=p.baseline_clip,
+                                     resolve_centre=p.resolve_centre,
+                                     near_best=p.near_best,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
         except (ValueError, GeometryError) as exc:
             raise palpa.ParamError(f"{self.name}: {exc}") from None
         x0, y0, x1, y1 = region
         self.grid = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
+        self.fair = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
+        """The cells measured by stiffness-blind probes (seed grid, covering sweeps): the detector's baseline."""
         self.pending: list[tuple[float, float, float]] = []
         self.unit = ""
-        self.queue = initial_design(self.cfg)
+        self.queue = [(pt, True) for pt in initial_design(self.cfg)]
+        """(point, blind): the points to probe next; blind when chosen without looking at stiffness."""
         self.probed: list[tuple[float, float]] = []
         self.given_up: list[tuple[float, float]] = []
         """Points the scanner refused every time: never chosen again, not counted as probes."""
         self.tries: dict[tuple[float, float], int] = {}
         self.refused = 0
         self.inflight: tuple[float, float] | None = None
+        self.inflight_blind = False
         self.retry_at_ns = 0
         self.started_ns: int | None = None
         self.belief: Belief | None = None
@@ -127,6 +156,7 @@ class AdaptivePlanner(palpa.Node):
         self.probe_at = self.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=p.call_timeout_s)
         self.mean_pub = self.publisher("planner/mean", StiffnessMap, latched=True)
         self.std_pub = self.publisher("planner/std", StiffnessMap, latched=True)
+        self.map_pub = self.publisher("planner/map", StiffnessMap, latched=True)
         self.inc_pub = self.publisher("map/inclusions", Inclusions, latched=True)
         self.scanner_state = ""
         self.subscribe("stiffness/sample", StiffnessSample, self.on_sample)
@@ -149,9 +179,23 @@ class AdaptivePlanner(palpa.Node):
         self.scanner_state = s.state
 
     def on_sample(self, s: StiffnessSample) -> None:
-        if s.valid:
+        # only what its probes measured where they were sent: the touch-off presses and the transit from the last
+        # of them still in contact read 3-20x the tissue's stiffness (a false inclusion at each touch point)
+        if s.valid and self._on_probe(s.x_mm, s.y_mm):
             self.unit = s.unit
             self.pending.append((s.x_mm, s.y_mm, s.value))
+
+    def _on_probe(self, x: float, y: float) -> bool:
+        """Whether (x, y) lies on the probe in flight or the last one made (its sweep's line, or the press's radius;
+        the estimates of a probe may arrive after its reply), within one belief cell."""
+        tol = self.params.resolution_mm
+        half = 0.5 * self.params.length_mm if self.params.mode == "sweep" else 0.0
+        reach = tol if self.params.mode == "sweep" else max(tol, self.params.radius_mm)
+        for px, py in filter(None, (self.inflight, self.probed[-1] if self.probed else None)):
+            dy = max(0.0, abs(y - py) - half)
+            if (x - px) ** 2 + dy**2 <= reach**2:
+                return True
+        return False
 
     # -- the loop ----------------------------------------------------------------------------------
     def step(self) -> None:
@@ -171,7 +215,7 @@ class AdaptivePlanner(palpa.Node):
             if stop:
                 self.finish(why)
                 return
-        x, y = self.queue.pop(0)
+        (x, y), self.inflight_blind = self.queue.pop(0)
         self.inflight = (x, y)
         req = ProbeAt(x_mm=x, y_mm=y, mode=self.params.mode,
                       length_mm=self.params.length_mm, radius_mm=self.params.radius_mm)
@@ -195,7 +239,7 @@ class AdaptivePlanner(palpa.Node):
         n = self.tries[point] = self.tries.get(point, 0) + 1
         if n <= self.params.retries:
             self.log.warning("probe at (%.1f, %.1f) mm refused (%s): retrying", *point, err)
-            self.queue.insert(0, point)
+            self.queue.insert(0, (point, self.inflight_blind))
             self.retry_at_ns = self.clock.now_ns() + 500_000_000
         else:
             self.log.warning("probe at (%.1f, %.1f) mm refused %d times (%s): giving it up", *point, n, err)
@@ -203,8 +247,10 @@ class AdaptivePlanner(palpa.Node):
 
     def _observations(self) -> tuple[list[tuple[float, float]], list[float]]:
         if self.pending:
-            xs, ys, vs = zip(*self.pending, strict=True)
-            self.grid.add(np.array(xs), np.array(ys), np.array(vs))
+            xs, ys, vs = (np.array(v) for v in zip(*self.pending, strict=True))
+            self.grid.add(xs, ys, vs)
+            if self.inflight_blind:   # the samples since the last probe are this probe's
+                self.fair.add(xs, ys, vs)
             self.pending.clear()
         snap = self.grid.snapshot()
         ok = np.isfinite(snap.stiffness)
@@ -228,27 +274,47 @@ class AdaptivePlanner(palpa.Node):
             return True, f"{len(self.given_up)} points refused by the scanner"
         if b is None:
             return True, "no stiffness estimate from the initial probes"
-        observed = self.grid.snapshot().count >= self.params.min_count
+        snap = self.grid.snapshot()
+        if self.cfg.stop_rule == "detect":
+            last = self.probed[-1] if self.probed else None
+            d = decide(b, snap.stiffness, snap.count, self.probed + self.given_up, self.cfg, last,
+                       self.fair.snapshot().stiffness, self.given_up)
+            if not d.stop and d.point is not None:
+                self.queue.append((d.point, d.blind))
+            return d.stop, d.why
+        observed = snap.count >= self.params.min_count
         stop, why = should_stop(b, len(self.probed), self.cfg, observed)
         if not stop:
-            self.queue.append(next_probe(b, self.probed + self.given_up, self.cfg, observed))
+            self.queue.append((next_probe(b, self.probed + self.given_up, self.cfg, observed), False))
         return stop, why
 
     # -- output ------------------------------------------------------------------------------------
-    def _snapshot(self, b: Belief) -> MapSnapshot:
+    def _detection(self, b: Belief) -> tuple[MapSnapshot, list[Inclusion]]:
+        """The map the inclusions are detected on and what is detected: with the detect rule the measured cells
+        and the GP mean near them, against the stiffness-blind probes' baseline (models.adaptive_detect); with
+        lse the GP mean (the belief alone)."""
         counts = self.grid.snapshot().count
-        return MapSnapshot(stiffness=b.mean, x_mm=b.x_mm, y_mm=b.y_mm, count=counts, spread=b.std,
+        if self.cfg.stop_rule == "detect":
+            return detect_candidates(b, self.grid.snapshot().stiffness, counts, self.cfg,
+                                     self.fair.snapshot().stiffness)
+        snap = MapSnapshot(stiffness=b.mean, x_mm=b.x_mm, y_mm=b.y_mm, count=counts, spread=b.std,
                            resolution_mm=self.params.resolution_mm)
+        try:
+            return snap, detect_inclusions(snap, rel_threshold=self.params.rel_threshold)
+        except ValueError as exc:
+            self.log.warning("no inclusion detection: %s", exc)
+            return snap, []
 
-    def _publish_belief(self, final: bool) -> None:
+    def _publish_belief(self, final: bool) -> tuple[MapSnapshot, list[Inclusion]]:
         b = self.belief
         assert b is not None
-        snap = self._snapshot(b)
+        snap, found = self._detection(b)
         now = self.clock.now_ns()
-        for pub, grid in ((self.mean_pub, b.mean), (self.std_pub, b.std)):
+        for pub, grid in ((self.mean_pub, b.mean), (self.std_pub, b.std), (self.map_pub, snap.stiffness)):
             pub.publish(StiffnessMap(stamp_ns=now, unit=self.unit, x_mm=b.x_mm.tolist(), y_mm=b.y_mm.tolist(),
                                      stiffness=grid.ravel().tolist(), count=snap.count.ravel().tolist(),
                                      spread=b.std.ravel().tolist(), samples=len(self.probed), final=final))
+        return snap, found
 
     def finish(self, why: str) -> None:
         self.done = True
@@ -256,19 +322,16 @@ class AdaptivePlanner(palpa.Node):
         elapsed = (self.clock.now_ns() - (self.started_ns or 0)) / 1e9
         self.log.info("stopping: %s (%d probes, %d refusals, %.1f s)", why, len(self.probed), self.refused, elapsed)
         out = Path(p.output_dir)
-        found = []
+        found: list[Inclusion] = []
         if self.belief is not None:
-            self._publish_belief(final=True)
-            snap = self._snapshot(self.belief)
-            try:
-                found = detect_inclusions(snap, rel_threshold=p.rel_threshold)
-            except ValueError as exc:
-                self.log.warning("no inclusion detection: %s", exc)
-            title = (p.title or "adaptive palpation (GP mean)") + f"\n{len(self.probed)} probes, {len(found)} found"
+            snap, found = self._publish_belief(final=True)
+            title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
             write_outputs(out, snap, found, unit=self.unit or "?", title=title)
+        detect = self.cfg.stop_rule == "detect"
+        ref = reference(self.fair.snapshot().stiffness, clip=clip_of(self.cfg)) if detect else None
         self.inc_pub.publish(Inclusions(
-            stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,
-            baseline=self.belief.baseline if self.belief is not None else float("nan"),
+            stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,   # the baseline the contrasts are against
+            baseline=ref[0] if ref else self.belief.baseline if self.belief is not None else float("nan"),
             inclusions=[DetectedInclusion(x_mm=i.x_mm, y_mm=i.y_mm, radius_mm=i.radius_mm, contrast=i.contrast)
                         for i in found]))
         out.mkdir(parents=True, exist_ok=True)

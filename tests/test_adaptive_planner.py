@@ -17,7 +17,9 @@ from palpa.node import Node
 from tests.procs import REPO
 
 # contact_z_mm is the flat height a probe would sweep at without a touch-off: far above the dome (3-4 mm thick here)
+# reach_mm: 2 so that the detection rule has more than two sweeps' worth of tissue to cover in this small region
 SMALL = ["region_mm:=[36.0, 33.0, 54.0, 51.0]", "initial:=2", "seed_spacing_mm:=0", "max_probes:=8", "contact_z_mm:=8.0",
+         "reach_mm:=2.0",
          f"geometry:={REPO / 'phantoms' / 'measured' / 'airfloat_tumours.yaml'}"]
 BOX_X_MAX = 46.0
 """The scanner's workspace ends here in these tests: the planner's points at x = 49.5 mm lie outside it."""

@@ -1,0 +1,254 @@
+"""When has adaptive palpation *found* what there is to find: a stop rule on detection, not on classifying every cell.
+
+:func:`models.adaptive.should_stop` is LSE's: stop when no cell of the belief still straddles the level. On the
+honest world that is a coverage rule at the scale of the kernel's length (a few mm), so the planner spent about half
+the raster's probes making sure of tissue where nothing was. The question a palpation answers is narrower: *is there
+an inclusion, and where*. Two things must hold before that answer is good enough:
+
+* **nothing of interest can hide.** A sweep senses an inclusion only near it: the excess stiffness of an inclusion
+  reaches about a millimetre or two past its edge (the raster's measured maps, tuning set). An inclusion of the
+  smallest radius of interest ``r`` whose centre lies within ``reach_mm`` (= ``r`` plus that sensing reach) of a
+  measured cell raised that cell; one farther from every measured cell could be anywhere there unseen. With the
+  inclusion's centre uniform over the region (no prior on where tumours are), the probability that it hides is the
+  fraction of the region farther than ``reach_mm`` from every measured cell (:func:`miss_probability`). Stop only
+  when that is below ``miss_probability``. (Garg et al. 2016 and Gotovos et al. 2013 stop on the belief alone; a GP
+  with a length scale shorter than that reach cannot vouch for it, which is why the LSE rule costs coverage.)
+* **every candidate is resolved.** A candidate is a region of the detection map above ``suspect`` times the
+  detector's thresholds (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
+  resolved when the points on the edge of its disc on all four sides (one cell out for a small one:
+  :func:`open_sides`), and with ``resolve_centre`` its centre, have been measured (an unmeasured centre is the GP's
+  guess, which can join two inclusions closer than its length scale into one blob): its boundary is sampled, so
+  its centroid and extent are the map's and not the kernel's guess; when a side is still stiff the candidate grows
+  and opens the next side out.
+
+The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then the sweep that
+leaves the least area where an inclusion could hide (:func:`coverage_gain`), the nearest of the near-best sweeps so
+that consecutive sweeps batch into short transits (a greedy set cover with a travel tie-break). Seed grid and
+covering sweeps are chosen without looking at stiffness, so their cells are a fair sample of the tissue: the
+detector's baseline comes from them (:func:`reference`), not from every measured cell (the resolving sweeps go
+where it is stiff).
+
+Detection uses measured cells where they exist (the per-cell median of the sweeps' samples) and the GP mean only
+within ``fill_mm`` of a measured cell (:func:`detection_map`): the smoothed mean alone widens and merges blobs, and
+far from data it only repeats the prior. Our own code, written from the papers' ideas.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+
+from models.adaptive import (
+    Belief,
+    PlannerConfig,
+    footprint_cells,
+    footprint_score,
+    initial_design,
+    near_probed,
+    next_probe,
+    probe_points,
+)
+from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
+
+__all__ = ["Decision", "clip_of", "coverage_gain", "decide", "detect_candidates", "detection_map",
+           "distance_to_measured", "hidden", "miss_probability", "reference", "sweep_stencil"]
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+
+def distance_to_measured(observed: BoolArray, resolution_mm: float) -> FloatArray:
+    """Distance (mm) from every cell centre to the nearest measured cell's centre (inf with none measured)."""
+    obs = np.asarray(observed, dtype=bool)
+    if not obs.any():
+        return np.full(obs.shape, np.inf)
+    return np.asarray(ndimage.distance_transform_edt(~obs), dtype=np.float64) * resolution_mm
+
+
+def hidden(observed: BoolArray, resolution_mm: float, reach_mm: float) -> BoolArray:
+    """Cells where the centre of an inclusion of the smallest radius of interest could lie unseen: farther than
+    ``reach_mm`` from every measured cell."""
+    return np.asarray(distance_to_measured(observed, resolution_mm) > reach_mm, dtype=bool)
+
+
+def miss_probability(observed: BoolArray, resolution_mm: float, reach_mm: float) -> float:
+    """The probability that an inclusion of the smallest radius of interest, its centre uniform over the region,
+    lies where no measurement has sensed it: the fraction of :func:`hidden` cells."""
+    h = hidden(observed, resolution_mm, reach_mm)
+    return float(np.count_nonzero(h)) / max(1, h.size)
+
+
+def sweep_stencil(footprint: int, resolution_mm: float, reach_mm: float) -> BoolArray:
+    """The cells (relative to the sweep's centre cell, odd-sized array) within ``reach_mm`` of a sweep that measures
+    ``footprint`` consecutive cells along y (rows): what one sweep would no longer leave hidden."""
+    rx = math.floor(reach_mm / resolution_mm + 1e-9)
+    lo = footprint // 2
+    hi = footprint - 1 - lo
+    ry = rx + max(lo, hi)
+    yy, xx = np.mgrid[-ry:ry + 1, -rx:rx + 1].astype(np.float64)
+    # distance from each cell to the nearest cell of the sweep's segment (rows -lo..hi of column 0)
+    dy = np.where(yy < -lo, yy + lo, np.where(yy > hi, yy - hi, 0.0))
+    return np.asarray(np.hypot(xx, dy) * resolution_mm <= reach_mm + 1e-9, dtype=bool)
+
+
+def coverage_gain(observed: BoolArray, resolution_mm: float, reach_mm: float, footprint: int) -> FloatArray:
+    """For every sweep centre cell, how many hidden cells (:func:`hidden`) that sweep would reveal."""
+    h = hidden(observed, resolution_mm, reach_mm).astype(np.float64)
+    st = sweep_stencil(footprint, resolution_mm, reach_mm).astype(np.float64)
+    # the stencil is symmetric about its centre column; along y an even footprint is centred as in
+    # models.adaptive.footprint_score (rows j - lo .. j - lo + k - 1), which the stencil's asymmetric rows encode
+    return np.asarray(ndimage.correlate(h, st, mode="constant", cval=0.0), dtype=np.float64)
+
+
+def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, fill_mm: float) -> FloatArray:
+    """The map inclusions are detected on: the measured value where a cell was measured, the GP mean within
+    ``fill_mm`` of a measured cell, NaN farther (the prior there, not a measurement)."""
+    meas = np.asarray(measured, dtype=np.float64)
+    ok = np.isfinite(meas)
+    near = distance_to_measured(ok, resolution_mm) <= fill_mm
+    return np.where(ok, meas, np.where(near, np.asarray(mean, dtype=np.float64), np.nan))
+
+
+def reference(fair: FloatArray | None, min_cells: int = 9, clip: float | None = None) -> tuple[float, float] | None:
+    """The healthy baseline and its scale (models.stiffness_map.background) from the cells measured by
+    stiffness-blind sweeps (the seed grid and the covering sweeps), None with fewer than ``min_cells`` of them. The
+    resolving sweeps go where the map is stiff: a median over every measured cell would count the inclusions'
+    cells as background, raise the detector's threshold and lose a weak inclusion (tuning set).
+
+    A blind sample is fair in expectation only: on a small region with large inclusions a few blind sweeps can land
+    on them by chance (a third of the cells stiff, the median at the halo, the MAD the gap between the two modes:
+    the detector then lost a 6 mm inclusion twice the tissue's stiffness, tuning set). So the baseline is clipped
+    as a background is in a crowded field: cells stiffer than ``1 + clip`` times the baseline (the candidates'
+    floor, ``suspect * rel_threshold``) are not healthy tissue; drop them and take the median again, until none is
+    dropped (or fewer than ``min_cells`` would be left). Healthy tissue's own scatter (a few %) loses only its tail.
+    ``clip`` None: no clipping (the default, :func:`clip_of`)."""
+    if fair is None:
+        return None
+    values = np.asarray(fair, dtype=np.float64)
+    values = values[np.isfinite(values)]
+    if values.size < min_cells:
+        return None
+    base, sigma = background(values)
+    while clip is not None and base > 0:
+        keep = values <= base * (1.0 + clip)
+        if keep.all() or np.count_nonzero(keep) < min_cells:
+            break
+        values = values[keep]
+        base, sigma = background(values)
+    return (base, sigma) if base > 0 else None
+
+
+def clip_of(cfg: PlannerConfig) -> float | None:
+    """The baseline clip :func:`reference` takes under ``cfg``: the candidates' floor with ``baseline_clip``."""
+    return cfg.suspect * cfg.rel_threshold if cfg.baseline_clip else None
+
+
+def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], cfg: PlannerConfig,
+                      fair: FloatArray | None = None, suspect: bool = False) -> tuple[MapSnapshot, list[Inclusion]]:
+    """The detection map (:func:`detection_map`) as a map snapshot, and the inclusions the map detector
+    (models.stiffness_map.detect_inclusions, the raster's own) finds on it, its baseline from ``fair``
+    (:func:`reference`) when given. ``suspect``: with the detector's thresholds scaled by ``cfg.suspect``, the
+    regions worth a closer look (a weak inclusion seen from a sweep that passed its edge rises less than the
+    detector's threshold; resolving it samples nearer its centre)."""
+    grid = detection_map(measured, belief.mean, cfg.resolution_mm, cfg.fill_mm)
+    snap = MapSnapshot(stiffness=grid, x_mm=belief.x_mm, y_mm=belief.y_mm, count=counts, spread=belief.std,
+                       resolution_mm=cfg.resolution_mm)
+    try:
+        scale = cfg.suspect if suspect else 1.0
+        found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0,
+                                  reference=reference(fair, clip=clip_of(cfg)))
+    except ValueError:   # no positive baseline yet: nothing to call stiff
+        found = []
+    return snap, found
+
+
+def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray,
+               region_mm: tuple[float, float, float, float], resolution_mm: float,
+               centre: bool = True) -> list[tuple[float, float]]:
+    """Where a candidate is not yet sampled: for each candidate (its disc, centre and radius), its centre and the
+    points on its disc's edge (at least one cell from its centre) to the left, right, below and above, where no cell
+    within one cell of the point was measured and the point lies inside the region. The centre: where it was not
+    measured the map there is the GP's smoothed guess, which bridges two inclusions closer than its length scale
+    into one blob; a sweep through the middle measures the dip between them (or the peak of one); ``centre`` False
+    (PlannerConfig.resolve_centre off): the edge points only. A probe at an edge point tells where the stiff tissue
+    ends (or, when it is still stiff, grows the candidate and opens the next point out)."""
+    x0, y0, x1, y1 = region_mm
+    gx, gy = np.meshgrid(x_mm, y_mm)
+    mx, my = gx[observed], gy[observed]
+    out = []
+    for c in candidates:
+        d = max(resolution_mm, c.radius_mm)
+        points = [(c.x_mm, c.y_mm)] if centre else []
+        for px, py in [*points, (c.x_mm - d, c.y_mm), (c.x_mm + d, c.y_mm), (c.x_mm, c.y_mm - d), (c.x_mm, c.y_mm + d)]:
+            if not (x0 <= px <= x1 and y0 <= py <= y1):
+                continue
+            if not np.any((mx - px) ** 2 + (my - py) ** 2 <= resolution_mm**2 + 1e-9):
+                out.append((px, py))
+    return out
+
+
+@dataclass(frozen=True)
+class Decision:
+    """What the detection stop rule says after a probe: stop (and why), or the next probe point."""
+
+    stop: bool
+    why: str
+    point: tuple[float, float] | None
+    blind: bool
+    """The point was chosen without looking at stiffness (a covering sweep): its cells are a fair sample of the
+    tissue for the detector's baseline (:func:`reference`)."""
+    miss: float
+    """The probability that an inclusion of the smallest radius of interest hides (:func:`miss_probability`)."""
+    open_sides: int
+    """Sides of the candidates whose boundary is not yet sampled (:func:`open_sides`)."""
+
+
+def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], probed: Sequence[tuple[float, float]],
+           cfg: PlannerConfig, last: tuple[float, float] | None = None, fair: FloatArray | None = None,
+           given_up: Sequence[tuple[float, float]] = ()) -> Decision:
+    """The detection stop rule and acquisition (module doc). ``measured``: the per-cell measured value (NaN where
+    no sample landed), ``counts`` its sample counts, ``probed``: the points probed or given up so far, ``last``:
+    where the probe is now (the nearest of the near-best coverage sweeps is taken), ``fair``: the cells measured by
+    stiffness-blind sweeps (:func:`reference`), ``given_up``: points the scanner refused for good (also in
+    ``probed``): the cells their sweep would have crossed count as covered, or the planner would ask for the
+    unreachable tissue until its budget ran out."""
+    n = len(probed)
+    observed = np.isfinite(measured)
+    covered = observed.copy()
+    gx, gy = np.meshgrid(belief.x_mm, belief.y_mm)
+    half = 0.5 * max(cfg.sweep_mm, cfg.resolution_mm)
+    for ux, uy in given_up:
+        covered |= (np.abs(gx - ux) <= 0.5 * cfg.resolution_mm) & (np.abs(gy - uy) <= half)
+    miss = miss_probability(covered, cfg.resolution_mm, cfg.reach_mm)
+    _, found = detect_candidates(belief, measured, counts, cfg, fair, suspect=True)
+    sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm,
+                                   cfg.resolve_centre)
+             if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
+    state = f"miss probability {miss:.3f}, {len(found)} candidates, {len(sides)} boundary sides open"
+    if n >= cfg.max_probes:
+        return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, len(sides))
+    if n >= len(initial_design(cfg)) and miss < cfg.miss_probability and not sides:
+        return Decision(True, f"found: {state} after {n - len(given_up)} probes", None, False, miss, len(sides))
+    if sides:
+        return Decision(False, f"resolving a candidate ({state})", sides[0], False, miss, len(sides))
+    px, py = probe_points(belief, cfg)
+    near = near_probed(px, py, probed, cfg.min_separation_mm)
+    gain = coverage_gain(covered, cfg.resolution_mm, cfg.reach_mm, footprint_cells(cfg))
+    gain[~np.isfinite(footprint_score(belief, cfg))] = 0.0   # a sweep that would leave the region
+    gain[near] = 0.0
+    best = float(np.max(gain))
+    if best > 0:
+        ok = gain >= cfg.near_best * best
+        if last is not None:
+            d2 = np.where(ok, (px - last[0]) ** 2 + (py - last[1]) ** 2, np.inf)
+            i = int(np.argmin(d2))
+        else:
+            i = int(np.argmax(ok))
+        return Decision(False, f"covering ({state})", (float(px.flat[i]), float(py.flat[i])), True, miss, len(sides))
+    return Decision(False, f"no sweep reveals more ({state})", next_probe(belief, probed, cfg, observed), False,
+                    miss, len(sides))

@@ -1,0 +1,262 @@
+"""models.adaptive_detect: the detection stop rule (nothing of interest can hide, every candidate's boundary sampled),
+its coverage acquisition, the detection map and the stiffness-blind baseline."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from models.adaptive import Belief, PlannerConfig
+from models.adaptive_detect import (
+    coverage_gain,
+    decide,
+    detect_candidates,
+    detection_map,
+    hidden,
+    miss_probability,
+    open_sides,
+    reference,
+    sweep_stencil,
+)
+from models.stiffness_map import Inclusion, MapSnapshot, detect_inclusions
+
+REGION = (0.0, 0.0, 40.0, 40.0)   # 20 x 20 cells of 2 mm
+SEEDS = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
+"""The seed grid of :func:`_cfg` (2 x 2): the points probed before the rule may stop."""
+
+
+def _cfg(**kw: Any) -> PlannerConfig:
+    return PlannerConfig(REGION, sweep_mm=6.0, seed_spacing_mm=40.0, **kw)   # seed: 2 x 2 points
+
+
+def _unmeasured() -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    return np.full((20, 20), np.nan), np.zeros((20, 20), dtype=np.int64)
+
+
+def _belief(cfg: PlannerConfig, value: float = 10.0) -> Belief:
+    xs, ys = cfg.grid()
+    shape = (len(ys), len(xs))
+    return Belief(xs, ys, np.full(shape, value), np.full(shape, 0.5), value, value * 1.2)
+
+
+def test_hidden_is_what_lies_farther_than_the_reach_from_every_measured_cell() -> None:
+    obs = np.zeros((20, 20), dtype=bool)
+    obs[:, 0] = True   # one measured column at x = 1 mm
+    h = hidden(obs, 2.0, 6.0)
+    # column i is 2 i mm from the measured column: hidden from 2 i > 6, i.e. columns 4.. (8 mm) on
+    assert not h[:, :4].any() and h[:, 4:].all()
+    assert miss_probability(obs, 2.0, 6.0) == 16 / 20
+    assert miss_probability(obs, 2.0, 8.0) == 15 / 20   # exactly at the reach is sensed
+    assert miss_probability(np.zeros((3, 3), dtype=bool), 2.0, 6.0) == 1.0
+
+
+def test_the_sweep_stencil_is_every_cell_within_the_reach_of_the_swept_segment() -> None:
+    st = sweep_stencil(3, 2.0, 4.0)   # rows -1..1 swept; 2 cells of reach
+    assert st.shape == (7, 5)
+    brute = np.array([[math.hypot(dx * 2.0, max(0, abs(dy) - 1) * 2.0) <= 4.0 for dx in range(-2, 3)]
+                      for dy in range(-3, 4)])
+    assert (st == brute).all()
+    assert st[3, 0] and st[0, 2] and not st[0, 0]
+
+
+def test_coverage_gain_counts_the_hidden_cells_one_sweep_would_reveal() -> None:
+    obs = np.zeros((20, 20), dtype=bool)
+    obs[:, :10] = True
+    gain = coverage_gain(obs, 2.0, 4.0, 3)
+    h = hidden(obs, 2.0, 4.0)
+    st = sweep_stencil(3, 2.0, 4.0)
+    for iy, ix in ((10, 15), (0, 19), (5, 12)):
+        brute = sum(h[iy + dy, ix + dx] for dy in range(-3, 4) for dx in range(-2, 3)
+                    if st[dy + 3, dx + 2] and 0 <= iy + dy < 20 and 0 <= ix + dx < 20)
+        assert gain[iy, ix] == brute
+    # 7 x 5 cells less the 12 whose distance to the segment is sqrt(4^2 + 2^2) or more (> 4 mm)
+    assert gain[10, 5] == 0 and gain[10, 15] == 7 * 5 - 12
+
+
+def test_detection_map_is_measured_where_measured_and_the_mean_only_near_it() -> None:
+    measured = np.full((1, 6), np.nan)
+    measured[0, 0] = 7.0
+    mean = np.full((1, 6), 3.0)
+    m = detection_map(measured, mean, 2.0, 4.0)
+    assert m[0, 0] == 7.0 and m[0, 1] == 3.0 and m[0, 2] == 3.0   # 2 and 4 mm away: the mean
+    assert np.isnan(m[0, 3:]).all()                                # farther: neither measured nor near
+
+
+def test_the_fair_reference_finds_an_inclusion_the_biased_median_hides() -> None:
+    # an adaptive planner measured half its cells on a 1.3x inclusion: their median is no background
+    grid = np.full((10, 10), 10.0)
+    grid[:, 5:] = 13.0
+    grid[:, 4] = 10.5
+    xs = np.arange(10, dtype=np.float64) * 2.0 + 1.0
+    snap = MapSnapshot(grid, xs, xs, np.ones((10, 10), dtype=np.int64), np.zeros((10, 10)), 2.0)
+    assert detect_inclusions(snap) == []
+    fair = np.full((10, 10), np.nan)
+    fair[:, :4] = 10.0   # the stiffness-blind sweeps saw the background
+    fair[0, 0] = 10.4
+    ref = reference(fair)
+    assert ref is not None and ref[0] == 10.0
+    found = detect_inclusions(snap, reference=ref)
+    assert len(found) == 1 and abs(found[0].x_mm - 15.0) < 0.1
+    assert reference(fair[:1, :4]) is None   # too few cells to say
+
+
+def test_blind_sweeps_that_landed_on_inclusions_are_clipped_out_of_the_baseline() -> None:
+    # a small region, large inclusions: of the blind sweeps' cells 45 % healthy, 20 % halo, 35 % core
+    rng = np.random.default_rng(3)
+    fair = np.concatenate([10.0 * (1 + 0.02 * rng.standard_normal(45)), np.full(20, 14.0), np.full(35, 20.0)])
+    ref = reference(fair.reshape(10, 10), clip=0.1)
+    assert ref is not None and abs(ref[0] - 10.0) < 0.2 and ref[1] < 0.5   # the median alone: 14, MAD 4
+    healthy = 10.0 * (1 + 0.03 * rng.standard_normal(100))
+    only = reference(healthy.reshape(10, 10), clip=0.1)
+    assert only is not None and abs(only[0] - np.median(healthy)) < 0.05   # healthy scatter loses only its tail
+    wide = reference((10.0 * (1 + 0.1 * rng.standard_normal(100))).reshape(10, 10), clip=0.1)
+    assert wide is not None and abs(wide[0] - 10.0) < 0.5   # clipping the stiff tail, never the soft one
+    few = reference(np.array([10.0] * 5 + [20.0] * 5), clip=0.1)
+    assert few is not None and few[0] == 15.0   # clipped, too few cells would be left: no clipping
+    # a 1.6x inclusion the map detector misses against the halo's median and finds against the clipped one
+    assert reference(fair.reshape(10, 10)) == reference(fair.reshape(10, 10), clip=None)
+    cfg = _cfg(reach_mm=40.0, baseline_clip=True)
+    measured = np.full((20, 20), 10.0)
+    measured[8:13, 8:13] = 16.0
+    counts = np.ones((20, 20), dtype=np.int64)
+    grid = np.full((20, 20), np.nan)
+    grid.flat[:100] = fair
+    assert len(detect_candidates(_belief(cfg), measured, counts, cfg, grid)[1]) == 1
+    assert detect_candidates(_belief(cfg), measured, counts, _cfg(reach_mm=40.0), grid)[1] == []   # clip off
+    assert detect_inclusions(MapSnapshot(measured, *cfg.grid(), counts, np.zeros((20, 20)), 2.0),
+                             reference=(14.0, 4.0)) == []
+
+
+def test_open_sides_are_the_unsampled_points_just_past_a_candidate() -> None:
+    xs = np.arange(20, dtype=np.float64) * 2.0 + 1.0
+    obs = np.zeros((20, 20), dtype=bool)
+    c = Inclusion(x_mm=21.0, y_mm=21.0, radius_mm=3.0, contrast=2.0, peak=20.0, area_mm2=28.0, cells=7)
+    assert open_sides([c], obs, xs, xs, REGION, 2.0, centre=False) == [(18.0, 21.0), (24.0, 21.0), (21.0, 18.0),
+                                                                     (21.0, 24.0)]
+    sides = open_sides([c], obs, xs, xs, REGION, 2.0)
+    assert sides == [(21.0, 21.0), (18.0, 21.0), (24.0, 21.0), (21.0, 18.0), (21.0, 24.0)]
+    obs[10, 8] = True   # the cell at (17, 21): within one cell of the left side
+    assert open_sides([c], obs, xs, xs, REGION, 2.0) == [sides[0], *sides[2:]]
+    obs[10, 10] = True   # (21, 21): the centre measured
+    assert open_sides([c], obs, xs, xs, REGION, 2.0) == sides[2:]
+    edge = Inclusion(x_mm=1.0, y_mm=21.0, radius_mm=1.0, contrast=2.0, peak=20.0, area_mm2=4.0, cells=1)
+    assert (-1.0, 21.0) not in open_sides([edge], obs, xs, xs, REGION, 2.0)   # outside the region: no side
+
+
+def test_a_sweep_through_a_candidates_middle_splits_two_inclusions_the_mean_bridged() -> None:
+    cfg = _cfg(reach_mm=40.0, fill_mm=4.0, resolve_centre=True)
+    b = _belief(cfg)
+    b.mean[8:13, 6:15] = 20.0   # the GP's smoothed guess: one blob over x 13..29 mm
+    measured = np.full((20, 20), 10.0)
+    measured[:, 6:15] = np.nan
+    measured[8:13, 8] = measured[8:13, 12] = 20.0   # two sweeps, each through one inclusion
+    counts = np.ones((20, 20), dtype=np.int64)
+    _, found = detect_candidates(b, measured, counts, cfg, suspect=True)
+    assert len(found) == 1 and abs(found[0].x_mm - 21.0) < 0.5
+    d = decide(b, measured, counts, SEEDS, cfg)
+    assert d.point is not None and abs(d.point[0] - found[0].x_mm) < 1e-9   # its middle first
+    edge = decide(b, measured, counts, SEEDS, _cfg(reach_mm=40.0, fill_mm=4.0)).point   # default: edges only
+    assert edge is not None and abs(edge[0] - found[0].x_mm) > 1.0
+    measured[:, 10] = 10.0   # the sweep there: soft
+    assert len(detect_candidates(b, measured, counts, cfg, suspect=True)[1]) == 2
+
+
+def test_decide_covers_until_nothing_can_hide_then_stops() -> None:
+    cfg = _cfg(reach_mm=6.0, miss_probability=0.02)
+    b = _belief(cfg)
+    measured, counts = _unmeasured()
+    probed = SEEDS
+    d = decide(b, measured, counts, probed, cfg, last=(30.0, 30.0))
+    assert not d.stop and d.blind and d.point is not None and d.miss == 1.0
+    measured[:, ::6] = 10.0   # columns every 12 mm: every cell within 6 mm of one
+    d = decide(b, measured, counts, probed, cfg)
+    assert d.miss == 0.0 and d.stop and d.why.startswith("found")
+    assert not decide(b, measured, counts, probed[:3], cfg).stop   # never before the seed grid is done
+    measured[:, 18:] = np.nan   # the last 4 columns now 8..14 mm from the column at x = 25
+    d = decide(b, measured, counts, probed, cfg)
+    assert not d.stop and d.point is not None and d.point[0] > 30.0
+    assert decide(b, measured, counts, probed * 15, cfg).why.startswith("probe budget")
+
+
+def test_decide_takes_the_nearest_of_the_near_best_coverage_sweeps() -> None:
+    cfg = _cfg(reach_mm=4.0, near_best=0.5)
+    b = _belief(cfg)
+    measured, counts = _unmeasured()
+    probed = SEEDS
+    near = decide(b, measured, counts, probed, cfg, last=(39.0, 39.0)).point
+    far = decide(b, measured, counts, probed, cfg, last=(1.0, 1.0)).point
+    assert near is not None and far is not None
+    assert near[0] > 30 and near[1] > 30 and far[0] < 10 and far[1] < 10
+
+
+def test_decide_samples_a_candidates_boundary_before_stopping() -> None:
+    cfg = _cfg(reach_mm=40.0)   # coverage is no concern here
+    b = _belief(cfg)
+    measured = np.full((20, 20), 10.0)
+    measured[8:13, 10] = 20.0            # one sweep crossed a stiff strip at x = 21 mm
+    measured[:, 9] = measured[:, 11] = np.nan
+    measured[:, 8] = measured[:, 12] = np.nan
+    counts = np.ones((20, 20), dtype=np.int64)
+    probed = SEEDS
+    _, found = detect_candidates(b, measured, counts, cfg, suspect=True)
+    assert len(found) == 1
+    d = decide(b, measured, counts, probed, cfg)
+    assert not d.stop and not d.blind and d.point is not None
+    assert d.point[1] == found[0].y_mm and abs(abs(d.point[0] - found[0].x_mm) - found[0].radius_mm) < 1e-9
+    measured[:, 8:13] = np.where(np.isnan(measured[:, 8:13]), 10.0, measured[:, 8:13])   # both sides measured
+    assert decide(b, measured, counts, probed, cfg).stop
+
+
+def test_a_weak_rise_is_a_suspect_to_resolve_but_not_a_detection() -> None:
+    cfg = _cfg(reach_mm=40.0, suspect=0.5)
+    b = _belief(cfg)
+    measured = np.full((20, 20), 10.0)
+    measured[8:13, 10] = 11.5   # 1.15x: under the detector's 20 %, over half of it
+    measured[:, [8, 9, 11, 12]] = np.nan   # its sides unmeasured
+    counts = np.ones((20, 20), dtype=np.int64)
+    assert detect_candidates(b, measured, counts, cfg)[1] == []
+    assert len(detect_candidates(b, measured, counts, cfg, suspect=True)[1]) == 1
+    probed = SEEDS
+    assert not decide(b, measured, counts, probed, cfg).stop
+    assert decide(b, measured, counts, probed, _cfg(reach_mm=40.0, suspect=1.0)).stop
+
+
+def test_a_point_given_up_is_not_chosen_again_and_a_bad_baseline_is_no_reference() -> None:
+    cfg = _cfg(reach_mm=4.0, near_best=1.0, miss_probability=0.0)   # cover to the last cell
+    b = _belief(cfg)
+    measured = np.full((20, 20), 10.0)
+    measured[8:13, 8:13] = np.nan   # a 10 mm hole around (21, 21)
+    counts = np.ones((20, 20), dtype=np.int64)
+    seeds = SEEDS
+    first = decide(b, measured, counts, seeds, cfg).point
+    assert first is not None and first[0] == 21.0   # a sweep over the hole's middle column
+    # the scanner refused it every time: the planner's probed list holds it, its cells unmeasured
+    again = decide(b, measured, counts, [*seeds, first], cfg).point
+    assert again is not None and math.dist(again, first) >= cfg.min_separation_mm
+    assert reference(np.zeros((4, 4))) is None
+
+
+def test_tissue_only_a_refused_point_reaches_counts_as_covered() -> None:
+    cfg = _cfg(reach_mm=2.0)
+    b = _belief(cfg)
+    measured = np.full((20, 20), 10.0)
+    measured[8:13, 17:20] = np.nan   # by the edge, where the scanner's box ends
+    counts = np.ones((20, 20), dtype=np.int64)
+    seeds = SEEDS
+    assert decide(b, measured, counts, seeds, cfg).miss > 0
+    refused = (39.0, 21.0)
+    d = decide(b, measured, counts, [*seeds, refused], cfg, given_up=[refused])
+    assert d.miss == 0.0 and d.stop
+
+
+def test_a_covering_sweep_stays_inside_the_region() -> None:
+    cfg = _cfg(reach_mm=2.0, miss_probability=0.0)
+    measured = np.full((20, 20), 10.0)
+    measured[17:, :] = np.nan   # the top 6 mm unmeasured: its last row is hidden
+    counts = np.ones((20, 20), dtype=np.int64)
+    # from the top edge the nearest of the equal best sweeps would be centred on the last row, half outside
+    p = decide(_belief(cfg), measured, counts, SEEDS, cfg, last=(21.0, 40.0)).point
+    assert p is not None and p[1] + 0.5 * cfg.sweep_mm <= REGION[3]
