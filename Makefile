@@ -26,7 +26,7 @@ demo: $(STAMP)
 # `make test TEST_JOBS=2` is the gentler choice on a busy machine, `TEST_JOBS=0` runs serially.
 TEST_JOBS ?= 3
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n $(TEST_JOBS) --dist worksteal
+	$(BIN)/python -m pytest -q -n $(TEST_JOBS) --dist loadgroup
 
 lint: $(STAMP)
 	$(BIN)/ruff check palpa messages devices models nodes emulators tests

@@ -16,6 +16,9 @@ from palpa.record.reader import iter_bag, resolve_bag_paths
 from tests.procs import ProcessGroup, palpa_cmd
 from tests.test_launch_smoke import REPO
 
+# the UR emulator moves in real time: its tests run one at a time on one xdist worker (make test, --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("ur-emulator")
+
 SURFACE_Z = 10.0   # flat_26k_tumours is 10 mm thick (touchoff:=off: the rig's operator gives the surface height)
 DEPTH = 3.0
 REGION = (12.0, 12.0, 20.0, 20.0)   # over the 6 mm tumour at (16, 16)

@@ -72,6 +72,7 @@ def test_an_accepted_plan_keeps_the_driver_until_the_node_closes() -> None:
         driver.move_path(A_MOVE)
 
 
+@pytest.mark.xdist_group("ur-emulator")  # real-time emulator: one at a time (make test)
 @pytest.mark.slow
 def test_refused_plan_disconnects_from_the_ur_emulator() -> None:
     pytest.importorskip("rtde_control")

@@ -29,6 +29,9 @@ from tests.procs import ur_emulator
 pytest.importorskip("rtde_control")
 from nodes.drivers.robot_urrtde import URRtdeDriver  # noqa: E402
 
+# the UR emulator moves in real time: its tests run one at a time on one xdist worker (make test, --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("ur-emulator")
+
 OFFSET = (300.0, -40.0, 100.0)  # phantom origin in the robot base frame (mm)
 HOME = (0.0, 0.0, 40.0)  # phantom frame
 HOME_ARG = ",".join(str(h + o) for h, o in zip(HOME, OFFSET, strict=True)) + f",0,{math.pi},0"

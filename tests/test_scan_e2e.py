@@ -102,6 +102,7 @@ def match(found: list[dict[str, float]], truth: list[tuple[float, float]]) -> li
     return [min(math.dist((f["x_mm"], f["y_mm"]), t) for t in truth) for f in found]
 
 
+@pytest.mark.xdist_group("ur-emulator")  # real-time emulator: one at a time (make test)
 @pytest.mark.timeout(150)
 def test_ur_rtde_scan_through_emulator_matches_sim(tmp_path: Path) -> None:
     """launch/scan_ur.yaml's graph in process with the ur_rtde driver against the emulator (the phantom 300, -40,

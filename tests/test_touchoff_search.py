@@ -84,6 +84,7 @@ def test_the_scanner_finds_a_small_specimen_in_a_big_box_on_the_sim_arm() -> Non
     check_found(search({}, wall_clock=False, timeout_s=90))
 
 
+@pytest.mark.xdist_group("ur-emulator")  # real-time emulator: one at a time (make test)
 @pytest.mark.timeout(180)
 def test_the_scanner_finds_a_small_specimen_in_a_big_box_through_ur_rtde() -> None:
     with ur_emulator(["--unlock-delay", "0", "--home", f"0,0,16,0,{math.pi},0", "--phantom", SMALL]) as emu:

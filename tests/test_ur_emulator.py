@@ -29,6 +29,9 @@ from models.phantom import load_phantom
 from models.world import TissueWorld
 from tests.procs import ur_emulator, wait_until
 
+# the UR emulator moves in real time: its tests run one at a time on one xdist worker (make test, --dist loadgroup)
+pytestmark = pytest.mark.xdist_group("ur-emulator")
+
 REPO = Path(__file__).resolve().parent.parent
 rtde_control = pytest.importorskip("rtde_control")
 rtde_receive = pytest.importorskip("rtde_receive")
