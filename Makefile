@@ -20,10 +20,11 @@ demo: $(STAMP)
 	$(BIN)/palpa launch launch/scan_sim.yaml --run-dir $$run calibration:=$$run/calibration.yaml $(DEMO_ARGS) && \
 	$(BIN)/python -m nodes.scan_report $$run --phantom phantoms/airfloat_tumours.yaml
 
-# three workers (pytest-xdist): the process tests spend much of their time waiting on wall-clock motion (the UR
-# emulator moves at real speed); 3.3 min on two idle cores (two workers: 4.6). With both cores kept busy by two other
-# CPU-bound processes, three workers starve a UR wall-clock test now and then (BENCHMARKS.md, "The test suite");
-# `make test TEST_JOBS=2` is the gentler choice on a busy machine, `TEST_JOBS=0` runs serially.
+# three workers (pytest-xdist): the process tests spend much of their time waiting on wall-clock motion. The UR
+# emulator's tests (xdist_group "ur-emulator") run one at a time on one worker (--dist loadgroup): they move in real
+# time and starved each other under load. 3.2 min on two idle cores, and the suite passes with both cores kept busy
+# by two other CPU-bound processes; four workers take 2.9 min idle but starve the UR tests on a busy machine
+# (BENCHMARKS.md, "The test suite"). `make test TEST_JOBS=0` runs serially.
 TEST_JOBS ?= 3
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(TEST_JOBS) --dist loadgroup
