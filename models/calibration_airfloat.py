@@ -30,7 +30,6 @@ import msgspec
 import numpy as np
 import numpy.typing as npt
 import yaml
-from scipy.optimize import least_squares
 
 from models.airfloat import ForceCalibration
 from models.contact import corrected_force
@@ -104,6 +103,10 @@ def fit_references(line: ForceCalibration, ramps: list[ReferenceRamp], *, indent
 
     # absolute force residuals (N): near contact a few hundredths of a newton of hysteresis and regulator
     # wander would dominate relative ones
+    # imported here: scipy.optimize costs every estimator and pressure process 0.3 s at start-up, and only the
+    # calibration fit (python -m nodes.calibrate_airfloat) needs it
+    from scipy.optimize import least_squares
+
     sol = least_squares(residual, x0=[0.0, 0.0], bounds=([-0.5, -0.2], [0.5, 0.2]))
     forces = np.concatenate([f for _, f, _ in data])
     rel = float(np.sqrt(np.mean((sol.fun / np.maximum(forces + sol.x[1], 1e-3)) ** 2)))

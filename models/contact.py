@@ -19,7 +19,6 @@ from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import minimize_scalar
 
 from models._arrays import ArrayLike, FloatArray
 from models._arrays import as_f64 as _f64
@@ -292,6 +291,9 @@ def fit_force_depth(
     grid = np.linspace(*FUNG_B_BOUNDS, 61)
     i = int(np.argmin([fung_rms(float(b)) for b in grid]))
     lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+    # imported here: the fit is offline, and every estimator process imports this module
+    from scipy.optimize import minimize_scalar
+
     opt = minimize_scalar(fung_rms, bounds=(lo, hi), method="bounded", options={"xatol": 1e-7})
     b = float(opt.x)
     e_f, res_f = _ls_modulus(f, _fung_g(d, r, _f64(b), nu))
