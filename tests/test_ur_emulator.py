@@ -357,6 +357,18 @@ def test_contact_force_is_the_tissue_world_s_and_the_force_limit_protective_stop
     assert any("exceeds the 1 N limit" in m for m in ctl.messages)
 
 
+def test_a_spring_sample_pushes_back_as_its_spring() -> None:
+    phantom = load_phantom(REPO / "phantoms" / "ref_spring_010.yaml")
+    top = float(phantom.surface_z(20.0, 20.0))
+    cfg = ControllerConfig(home_pose=(20.0, 20.0, top + 1.0, 0.0, DOWN, 0.0), force_limit_n=100.0)
+    ctl = UrController(cfg, phantom=phantom)
+    ctl.arm.move_l((20.0, 20.0, top - 0.5, 0.0, DOWN, 0.0), 20.0, 400.0)
+    for _ in range(200):
+        ctl.tick()
+    k = float(phantom.spring_constant(20.0, 20.0, cfg.tip_radius_mm, 0.5))
+    assert 0 < k < BACKING_N_PER_MM and ctl.force[2] == pytest.approx(0.5 * k, rel=1e-6)
+
+
 def test_a_surface_without_tissue_is_rigid() -> None:
     cfg = ControllerConfig(home_pose=(20.0, 20.0, 11.0, 0.0, DOWN, 0.0), force_limit_n=100.0)
     ctl = UrController(cfg, phantom=BareSurface())

@@ -367,17 +367,16 @@ class UrController:
         world = self._tissue_world()
         if world is None:  # a surface without tissue (a test's plane): rigid
             return BACKING_N_PER_MM * depth
-        from models.world import WorldRangeError
-
+        # (models.world.WorldRangeError is a ValueError: caught as such, the module stays imported lazily)
         try:
             f = float(world.force_n(x, y, depth, indenter_radius_mm=r))
             return f if math.isfinite(f) else 0.0  # nan: off the footprint
-        except WorldRangeError:
+        except ValueError:
             pass
         try:
             deepest = float(world.deepest_mm(x, y, indenter_radius_mm=r))
             base = float(world.force_n(x, y, deepest, indenter_radius_mm=r))
-        except WorldRangeError:  # a layer thinner than the tables: the table is right under the tip
+        except ValueError:  # a layer thinner than the tables: the table is right under the tip
             deepest, base = 0.0, 0.0
         return base + BACKING_N_PER_MM * max(0.0, depth - deepest)
 

@@ -25,8 +25,8 @@ _SUB = {"subscribe", "subscribe_raw"}
 def _runtime_topic_of(fn: object, n_args: int) -> str | None:
     """What ``fn`` names with placeholder arguments, if that is a runtime topic (``_palpa/...``), else None: a topic
     computed from a node's name or a parameter cannot be listed, but one the runtime computes is not the user's."""
-    if not callable(fn):
-        return None
+    if not callable(fn) or not getattr(fn, "__module__", "").startswith("palpa."):
+        return None  # only the runtime's own pure name functions are called; a user's may do anything
     try:
         name = fn(*(["{arg}"] * n_args))
     except Exception:  # noqa: BLE001  (any failure: just not a known runtime topic)
