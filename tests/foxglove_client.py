@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import struct
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -120,5 +121,13 @@ class FoxgloveClient:
         return [m for m in self.messages if m.topic == topic]
 
     def close(self) -> None:
-        if self.ws is not None:
-            self.ws.close()
+        """The close handshake, reading meanwhile: websockets stops reading the socket while the receive queue of
+        a client that stopped reading is full, so the server's close frame would sit behind unread data until the
+        close timeout (10 s)."""
+        if self.ws is None:
+            return
+        closer = threading.Thread(target=self.ws.close, name="foxglove-client-close", daemon=True)
+        closer.start()
+        while closer.is_alive():
+            self.pump(0.05)
+            closer.join(0.01)
