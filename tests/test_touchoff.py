@@ -160,10 +160,13 @@ def test_the_camera_probe_presses_the_set_depth_below_the_surface_it_found(tmp_p
 
 @pytest.mark.heavy
 def test_the_launch_refuses_a_specimen_wider_than_the_box_before_any_motion(tmp_path: Path) -> None:
-    """The one process-level check: phantom:= alone, the sim measurer's footprint, the scanner's refusal naming the
-    box and the extent, exit 1, and no plan ever published (nothing moved)."""
+    """The one launch-level check: phantom:= alone, the sim measurer's footprint (the launch's prepare step), the
+    scanner's refusal naming the box and the extent, the launch's exit code 2, and no plan ever published (nothing
+    moved). Composed (`--in-process`): the refusal is the scanner's, however the nodes are run; a node process's
+    exit code 2 on a ParamError and the launcher ending with a required node's code are tested in
+    tests/test_transport_options.py and tests/test_launch_supervisor.py."""
     run = subprocess.run(
-        [sys.executable, "-m", "palpa.cli.main", "launch", str(REPO / "launch" / "scan_sim.yaml"),
+        [sys.executable, "-m", "palpa.cli.main", "launch", str(REPO / "launch" / "scan_sim.yaml"), "--in-process",
          f"phantom:={REPO / 'phantoms' / 'specimens' / 'too_wide_200x40.yaml'}", "--run-dir", str(tmp_path / "run"),
          "--no-progress"], capture_output=True, text=True, timeout=120, check=False)
     text = run.stdout + run.stderr
