@@ -18,6 +18,7 @@ from palpa.address import BusAddress
 from palpa.cli.main import main
 from palpa.params import convert_params
 from palpa.record.info import bag_info, format_info
+from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.service import RequestRefused
 from tests.procs import REPO, ProcessGroup, palpa_cmd, short_ipc_base, wait_until
 from tests.test_service import Adder, AddReply, AddRequest
@@ -99,12 +100,15 @@ def test_calls_and_param_changes_are_recorded(ipc_bus: BusAddress, adder: Adder,
                                               env_for: object, tmp_path: Path) -> None:
     bag = tmp_path / "calls.mcap"
     rec = procs.start(palpa_cmd("record", "-o", str(bag)), env=env_for(ipc_bus))  # type: ignore[operator]
-    rec.wait_for_output("recording to", 20)
     with palpa.Node(name="caller", bus=ipc_bus, heartbeat_s=0) as node:
+        beats: list[str] = []
+        node.subscribe(HEARTBEAT_TOPIC, Heartbeat, lambda hb: beats.append(hb.node))
         add = node.client("math/add", AddRequest, AddReply)
         assert add.wait_for_service(5)
-        # the recorder's subscriptions must have reached the bus before we call (it hears every topic)
-        wait_until(lambda: node.spin_once(0.01) or rec.output().count("recording to"), 5, "recorder")
+        # the recorder ready before we call and before the Ctrl-C below: its heartbeat (its subscriptions are live,
+        # it hears every topic, and it handles SIGINT). Its "recording to" line comes earlier, from its setup: a
+        # SIGINT then, on a loaded machine, ended it with 130 and an unfinished file
+        wait_until(lambda: node.spin_once(0.05) or "recorder" in beats, 20, "the recorder's heartbeat")
         assert add.call(AddRequest(a=1, b=2)).total == 3
         with pytest.raises(RequestRefused):
             add.call(AddRequest(a=-9, b=1))
