@@ -19,14 +19,6 @@ from tests.procs import ProcessGroup, bus_spec
 os.environ["PALPA_CURRENT"] = f"/tmp/pt-current-{os.getpid()}"
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The tests marked ``heavy`` first, the rest in collection order (a stable sort: every xdist worker computes
-    the same order, as xdist requires). `make test`'s scheduler hands tests out in this order, so a long test
-    started last no longer leaves the other workers idle at the end; the UR emulator's xdist_group is handed out
-    first whatever the order (xdist starts with the largest group)."""
-    items.sort(key=lambda item: item.get_closest_marker("heavy") is None)
-
-
 @pytest.fixture(params=["ipc", "tcp"])
 def transport(request: pytest.FixtureRequest) -> str:
     return str(request.param)

@@ -331,7 +331,6 @@ def test_cli_expected_failure_is_one_line(ipc_bus: BusAddress, procs: ProcessGro
     assert p.output().strip().splitlines() == ["palpa topic: nope: got 0 of 1 messages before the timeout"]
 
 
-@pytest.mark.heavy
 def test_topic_cli_tools(ipc_bus: BusAddress, procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]
     env = env_for(ipc_bus)
     procs.start(palpa_cmd("run", "nodes.demo:Talker", "-p", "rate_hz=200"), env=env)

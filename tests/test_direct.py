@@ -273,7 +273,6 @@ def test_has_subscribers_on_the_bus_and_in_memory(ipc_bus: BusAddress) -> None:
     assert out.has_subscribers
 
 
-@pytest.mark.heavy
 def test_topic_tools_follow_a_direct_topic(ipc_bus: BusAddress, procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]
     """`palpa topic echo/hz/list` and `node list` on a topic published past the proxy: they find it through the
     bus like any subscriber, and the listings say it is direct."""

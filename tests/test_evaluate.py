@@ -107,7 +107,6 @@ def test_a_run_is_scored_against_its_phantom_and_its_recording(tmp_path: Path) -
     assert lines[0].startswith("spacing_mm=3: 1 of 2 runs scored; inclusions found 1/1 (100 %); false positives 1")
 
 
-@pytest.mark.heavy
 @pytest.mark.timeout(300)
 def test_evaluate_runs_a_generated_phantom_end_to_end(tmp_path: Path) -> None:
     """`python -m nodes.evaluate` on one generated phantom, a small raster: tables and a summary."""

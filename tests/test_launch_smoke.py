@@ -124,7 +124,6 @@ def test_every_launch_file_has_a_smoke_entry() -> None:
     assert not stale, f"SMOKE names launch files that do not exist: {', '.join(stale)}"
 
 
-@pytest.mark.heavy
 @pytest.mark.parametrize("name", FILES)
 def test_launch_file_runs_and_produces_its_topics(name: str, procs: ProcessGroup, tmp_path: Path) -> None:
     entry = SMOKE.get(name)

@@ -73,7 +73,6 @@ class Graph:
         return out.stdout
 
 
-@pytest.mark.heavy
 def test_a_direct_topic_across_hosts_with_curve_survives_a_link_going_down(
         hosts: Hosts, procs: ProcessGroup, tmp_path: Path) -> None:
     """A talker on host 2 publishes ``chatter`` direct (its own CURVE socket on its own address, palpa.direct), a
@@ -129,7 +128,6 @@ def wait_for_listing(g: Graph, names: set[str], procs: list[Proc]) -> None:
                                         *(p.output()[-2000:] for p in procs)])) from None
 
 
-@pytest.mark.heavy
 def test_a_simulated_scan_split_over_three_hosts_survives_a_link_going_down(
         hosts: Hosts, procs: ProcessGroup, tmp_path: Path) -> None:
     """Bus, clock and recorder on host 1; the simulated probe drivers (pressure, fibre) on host 2; estimator, map

@@ -114,7 +114,6 @@ def test_replay_at_1khz_is_complete_in_order_and_never_early(graph: Graph, tmp_p
     assert worst[1] <= 50 * MS, f"message {worst[0] + 1} sent {worst[1] / MS:.3f} ms before its schedule"
 
 
-@pytest.mark.heavy
 def test_round_trip_is_byte_identical(graph: Graph, talker_bag: Path, tmp_path: Path) -> None:
     bag2 = tmp_path / "again.mcap"
     rec = graph.start("record", "-o", str(bag2), "chatter")

@@ -132,7 +132,6 @@ def test_ur_rtde_scan_through_emulator_matches_sim(tmp_path: Path) -> None:
     assert math.dist(ca, cb) < 1.0 and math.dist(cb, (45.0, 18.0)) < 1.5, (ca, cb)
 
 
-@pytest.mark.heavy
 def test_airfloat_scan_finds_the_tumours_and_its_recording_replays(procs: ProcessGroup, tmp_path: Path,
                                                                     calibration: Path) -> None:
     """`make demo`'s scan (launch/scan_sim.yaml, defaults, calibrated probe) over a 24 mm square around the r 5 x4
@@ -210,7 +209,6 @@ def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path, calibratio
     assert abs(np.nanmedian(grid) / truth - 1) < 0.06
 
 
-@pytest.mark.heavy
 def test_camera_probe_indent_scan_finds_the_tumours(procs: ProcessGroup, tmp_path: Path) -> None:
     """launch/scan_camera_sim.yaml: the camera probe's indentation scan of flat_26k_tumours finds every inclusion
     of radius >= 4 mm and ratio >= 2 in its region within 1.5 mm, with at most one false positive."""

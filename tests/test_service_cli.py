@@ -124,7 +124,6 @@ def test_calls_and_param_changes_are_recorded(ipc_bus: BusAddress, adder: Adder,
     assert info["topics"]["_palpa/params"]["messages"] == 1  # the accepted change, not the refused one
 
 
-@pytest.mark.heavy
 def test_service_call_probe_at_on_a_simulated_graph(procs: ProcessGroup, tmp_path: Path,
                                                     capsys: pytest.CaptureFixture[str]) -> None:
     """`palpa service call scanner/probe_at` on launch/probe_sim.yaml (six processes, simulated time): the

@@ -146,7 +146,6 @@ def check_following(followed: dict[str, Any]) -> None:
     assert all(0.3 < m.d_in_mm < 5.0 for m, _ in got)  # eqs. 1-3's indentation inside the estimator's range
 
 
-@pytest.mark.heavy
 @pytest.mark.timeout(240)
 def test_following_keeps_the_face_at_its_clearance_where_the_coarse_touch_off_is_a_millimetre_off(
         tmp_path: Path) -> None:

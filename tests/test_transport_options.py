@@ -135,7 +135,6 @@ def test_an_unbounded_receive_queue_loses_nothing() -> None:
     assert gaps == 0 and received == span > 40_000
 
 
-@pytest.mark.heavy
 def test_node_process_takes_flags_and_refuses_bad_values(ipc_bus: BusAddress, procs: ProcessGroup,
                                                           env_for) -> None:  # type: ignore[no-untyped-def]
     """`palpa run ... --rcvhwm N --busy-poll-us US` runs; a bad value is a one-line error and exit 2."""
