@@ -134,7 +134,7 @@ def test_service_call_probe_at_on_a_simulated_graph(procs: ProcessGroup, tmp_pat
     cal = airfloat_calibration()  # the simulated probe calibrated on the bench first, as on the rig
     bus = f"ipc://{short_ipc_base()}"
     procs.start(palpa_cmd("launch", "launch/probe_sim.yaml", "--bus-address", bus, "--run-dir",
-                          str(tmp_path / "run"), "--no-progress", f"calibration:={cal}"), cwd=str(REPO))
+                          str(tmp_path / "run"), "--no-progress", f"calibration:={cal}", "time_scale:=4.0"), cwd=str(REPO))
     names = ("clock", "pressure", "fibre", "estimator", "map", "scanner")
 
     def all_up() -> bool:  # as an operator would check before probing: every node of the graph is running
