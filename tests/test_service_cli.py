@@ -107,7 +107,7 @@ def test_calls_and_param_changes_are_recorded(ipc_bus: BusAddress, adder: Adder,
         assert add.wait_for_service(5)
         # the recorder ready before we call and before the Ctrl-C below: its heartbeat (its subscriptions are live,
         # it hears every topic, and it handles SIGINT). Its "recording to" line comes earlier, from its setup: a
-        # SIGINT then, on a loaded machine, ended it with 130 and an unfinished file
+        # SIGINT then (while it confirms its subscriptions) ends it with exit code 130, as seen on a loaded machine
         wait_until(lambda: node.spin_once(0.05) or "recorder" in beats, 20, "the recorder's heartbeat")
         assert add.call(AddRequest(a=1, b=2)).total == 3
         with pytest.raises(RequestRefused):
@@ -134,7 +134,8 @@ def test_service_call_probe_at_on_a_simulated_graph(procs: ProcessGroup, tmp_pat
     cal = airfloat_calibration()  # the simulated probe calibrated on the bench first, as on the rig
     bus = f"ipc://{short_ipc_base()}"
     procs.start(palpa_cmd("launch", "launch/probe_sim.yaml", "--bus-address", bus, "--run-dir",
-                          str(tmp_path / "run"), "--no-progress", f"calibration:={cal}", "time_scale:=4.0"), cwd=str(REPO))
+                          str(tmp_path / "run"), "--no-progress", f"calibration:={cal}", "time_scale:=4.0"),
+                cwd=str(REPO))
     names = ("clock", "pressure", "fibre", "estimator", "map", "scanner")
 
     def all_up() -> bool:  # as an operator would check before probing: every node of the graph is running
