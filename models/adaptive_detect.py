@@ -56,7 +56,7 @@ from models.adaptive import (
 from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
 
 __all__ = ["Decision", "clip_of", "coverage_gain", "decide", "detect_candidates", "detection_map",
-           "distance_to_measured", "hidden", "miss_probability", "reference", "sweep_stencil"]
+           "distance_to_measured", "hidden", "interior_gaps", "miss_probability", "reference", "sweep_stencil"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -76,11 +76,16 @@ def hidden(observed: BoolArray, resolution_mm: float, reach_mm: float) -> BoolAr
     return np.asarray(distance_to_measured(observed, resolution_mm) > reach_mm, dtype=bool)
 
 
-def miss_probability(observed: BoolArray, resolution_mm: float, reach_mm: float) -> float:
-    """The probability that an inclusion of the smallest radius of interest, its centre uniform over the region,
-    lies where no measurement has sensed it: the fraction of :func:`hidden` cells."""
-    h = hidden(observed, resolution_mm, reach_mm)
-    return float(np.count_nonzero(h)) / max(1, h.size)
+def _reaches(reach_mm: float | Sequence[float]) -> list[float]:
+    return [float(reach_mm)] if isinstance(reach_mm, int | float) else [float(r) for r in reach_mm]
+
+
+def miss_probability(observed: BoolArray, resolution_mm: float, reach_mm: float | Sequence[float]) -> float:
+    """The probability that an inclusion of interest, its centre uniform over the region, lies where no measurement
+    has sensed it: the fraction of :func:`hidden` cells, averaged over ``reach_mm`` when several (one per radius of
+    interest, equally likely: PlannerConfig.reaches)."""
+    d = distance_to_measured(observed, resolution_mm)
+    return float(np.mean([np.count_nonzero(d > r) / max(1, d.size) for r in _reaches(reach_mm)]))
 
 
 def sweep_stencil(footprint: int, resolution_mm: float, reach_mm: float) -> BoolArray:
@@ -96,13 +101,18 @@ def sweep_stencil(footprint: int, resolution_mm: float, reach_mm: float) -> Bool
     return np.asarray(np.hypot(xx, dy) * resolution_mm <= reach_mm + 1e-9, dtype=bool)
 
 
-def coverage_gain(observed: BoolArray, resolution_mm: float, reach_mm: float, footprint: int) -> FloatArray:
-    """For every sweep centre cell, how many hidden cells (:func:`hidden`) that sweep would reveal."""
-    h = hidden(observed, resolution_mm, reach_mm).astype(np.float64)
-    st = sweep_stencil(footprint, resolution_mm, reach_mm).astype(np.float64)
-    # the stencil is symmetric about its centre column; along y an even footprint is centred as in
-    # models.adaptive.footprint_score (rows j - lo .. j - lo + k - 1), which the stencil's asymmetric rows encode
-    return np.asarray(ndimage.correlate(h, st, mode="constant", cval=0.0), dtype=np.float64)
+def coverage_gain(observed: BoolArray, resolution_mm: float, reach_mm: float | Sequence[float],
+                  footprint: int) -> FloatArray:
+    """For every sweep centre cell, how many hidden cells (:func:`hidden`) that sweep would reveal (summed over the
+    reaches when several: the drop of :func:`miss_probability` it makes, times the cells and reaches)."""
+    gain = np.zeros(np.shape(observed), dtype=np.float64)
+    for r in _reaches(reach_mm):
+        h = hidden(observed, resolution_mm, r).astype(np.float64)
+        st = sweep_stencil(footprint, resolution_mm, r).astype(np.float64)
+        # the stencil is symmetric about its centre column; along y an even footprint is centred as in
+        # models.adaptive.footprint_score (rows j - lo .. j - lo + k - 1), which the stencil's asymmetric rows encode
+        gain += ndimage.correlate(h, st, mode="constant", cval=0.0)
+    return gain
 
 
 def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, fill_mm: float) -> FloatArray:
@@ -192,6 +202,29 @@ def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: Float
     return out
 
 
+def interior_gaps(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray,
+                  region_mm: tuple[float, float, float, float], resolution_mm: float, gap_mm: float,
+                  footprint: int) -> list[tuple[float, float]]:
+    """Where a detected inclusion's disc is not yet measured densely enough: for each candidate, the cell of its
+    disc (inside the region) farthest from every measured cell when that is more than ``gap_mm``, as the centre of
+    a sweep of ``footprint`` cells kept inside the region. Between two sweeps 12 mm apart the map cannot tell one
+    wide blob from two neighbours, nor a weak inclusion's dip from its halo; with columns ``2 * gap_mm`` apart over
+    it, the map there is measured about as densely as the raster's."""
+    x0, y0, x1, y1 = region_mm
+    gx, gy = np.meshgrid(x_mm, y_mm)
+    dist = distance_to_measured(observed, resolution_mm)
+    half = 0.5 * footprint * resolution_mm
+    out = []
+    for c in candidates:
+        inside = (gx - c.x_mm) ** 2 + (gy - c.y_mm) ** 2 <= max(c.radius_mm, resolution_mm) ** 2
+        gap = np.where(inside, dist, 0.0)
+        i = int(np.argmax(gap))
+        if gap.flat[i] > gap_mm + 1e-9:
+            y = min(max(float(gy.flat[i]), y0 + half), y1 - half) if y1 - y0 >= 2 * half else float(gy.flat[i])
+            out.append((min(max(float(gx.flat[i]), x0), x1), y))
+    return out
+
+
 @dataclass(frozen=True)
 class Decision:
     """What the detection stop rule says after a probe: stop (and why), or the next probe point."""
@@ -224,11 +257,16 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     half = 0.5 * max(cfg.sweep_mm, cfg.resolution_mm)
     for ux, uy in given_up:
         covered |= (np.abs(gx - ux) <= 0.5 * cfg.resolution_mm) & (np.abs(gy - uy) <= half)
-    miss = miss_probability(covered, cfg.resolution_mm, cfg.reach_mm)
+    miss = miss_probability(covered, cfg.resolution_mm, cfg.reaches())
     _, found = detect_candidates(belief, measured, counts, cfg, fair, suspect=True)
     sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm,
                                    cfg.resolve_centre)
              if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
+    if cfg.interior_gap_mm > 0:
+        _, detected = detect_candidates(belief, measured, counts, cfg, fair)
+        sides += [p for p in interior_gaps(detected, observed, belief.x_mm, belief.y_mm, cfg.region_mm,
+                                           cfg.resolution_mm, cfg.interior_gap_mm, footprint_cells(cfg))
+                  if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
     state = f"miss probability {miss:.3f}, {len(found)} candidates, {len(sides)} boundary sides open"
     if n >= cfg.max_probes:
         return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, len(sides))
@@ -238,7 +276,7 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
         return Decision(False, f"resolving a candidate ({state})", sides[0], False, miss, len(sides))
     px, py = probe_points(belief, cfg)
     near = near_probed(px, py, probed, cfg.min_separation_mm)
-    gain = coverage_gain(covered, cfg.resolution_mm, cfg.reach_mm, footprint_cells(cfg))
+    gain = coverage_gain(covered, cfg.resolution_mm, cfg.reaches(), footprint_cells(cfg))
     gain[~np.isfinite(footprint_score(belief, cfg))] = 0.0   # a sweep that would leave the region
     gain[near] = 0.0
     best = float(np.max(gain))

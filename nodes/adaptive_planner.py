@@ -85,8 +85,12 @@ class AdaptivePlanner(palpa.Node):
         stop_rule: Literal["detect", "lse"] = "detect"
         """detect: stop when an inclusion of the smallest size of interest is unlikely to hide and every candidate's
         boundary is sampled (models.adaptive_detect); lse: LSE's ambiguous area over the whole region."""
-        reach_mm: float = 6.0
+        reach_mm: float = 4.0
         """detect: a measurement within this of an inclusion's centre senses it (smallest radius + sensing reach)."""
+        radius_span_mm: float = 4.5
+        """detect: the radii of interest span this much above the smallest; the reach grows with them (PlannerConfig)."""
+        interior_gap_mm: float = 2.0
+        """detect: every cell of a detected inclusion's disc within this of a measured cell before stopping (0: off)."""
         miss_probability: float = 0.02
         """detect: the chance, below which the planner may stop, that such an inclusion hides unsensed."""
         suspect: float = 0.5
@@ -127,7 +131,9 @@ class AdaptivePlanner(palpa.Node):
                                      rel_threshold=p.rel_threshold, stop_area_mm2=p.stop_area_mm2,
                                      max_probes=p.max_probes, seed_spacing_mm=p.seed_spacing_mm,
                                      length_scale_mm=(1.0, p.max_length_scale_mm), stop_rule=p.stop_rule,
-                                     reach_mm=p.reach_mm, miss_probability=p.miss_probability, fill_mm=p.fill_mm,
+                                     reach_mm=p.reach_mm, radius_span_mm=p.radius_span_mm,
+                                     interior_gap_mm=p.interior_gap_mm,
+                                     miss_probability=p.miss_probability, fill_mm=p.fill_mm,
                                      suspect=p.suspect, baseline_clip=p.baseline_clip,
                                      resolve_centre=p.resolve_centre,
                                      near_best=p.near_best,
