@@ -205,9 +205,9 @@ def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: Float
 def interior_gaps(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray,
                   region_mm: tuple[float, float, float, float], resolution_mm: float, gap_mm: float,
                   footprint: int) -> list[tuple[float, float]]:
-    """Where a detected inclusion's disc is not yet measured densely enough: for each candidate, the cell of its
-    disc (inside the region) farthest from every measured cell when that is more than ``gap_mm``, as the centre of
-    a sweep of ``footprint`` cells kept inside the region. Between two sweeps 12 mm apart the map cannot tell one
+    """Where a detected inclusion's disc is not yet measured densely enough: for each candidate whose disc has cells
+    farther than ``gap_mm`` from every measured cell, the centre of the sweep of ``footprint`` cells (along y) that
+    crosses the most of them (nearest the candidate's centre of those), kept inside the region. Between two sweeps 12 mm apart the map cannot tell one
     wide blob from two neighbours, nor a weak inclusion's dip from its halo; with columns ``2 * gap_mm`` apart over
     it, the map there is measured about as densely as the raster's."""
     x0, y0, x1, y1 = region_mm
@@ -216,12 +216,16 @@ def interior_gaps(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: Fl
     half = 0.5 * footprint * resolution_mm
     out = []
     for c in candidates:
-        inside = (gx - c.x_mm) ** 2 + (gy - c.y_mm) ** 2 <= max(c.radius_mm, resolution_mm) ** 2
-        gap = np.where(inside, dist, 0.0)
-        i = int(np.argmax(gap))
-        if gap.flat[i] > gap_mm + 1e-9:
-            y = min(max(float(gy.flat[i]), y0 + half), y1 - half) if y1 - y0 >= 2 * half else float(gy.flat[i])
-            out.append((min(max(float(gx.flat[i]), x0), x1), y))
+        r2 = (gx - c.x_mm) ** 2 + (gy - c.y_mm) ** 2
+        gap = (r2 <= max(c.radius_mm, resolution_mm) ** 2) & (dist > gap_mm + 1e-9)
+        if not gap.any():
+            continue
+        # the sweep (along y) over the most gap cells, the one nearest the candidate's centre of those
+        hits = ndimage.correlate1d(gap.astype(np.float64), np.ones(footprint), axis=0, mode="constant")
+        hits[~gap] = 0.0
+        i = int(np.argmin(np.where(hits >= hits.max(), r2, np.inf)))
+        y = min(max(float(gy.flat[i]), y0 + half), y1 - half) if y1 - y0 >= 2 * half else float(gy.flat[i])
+        out.append((min(max(float(gx.flat[i]), x0), x1), y))
     return out
 
 
