@@ -252,14 +252,16 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     no sample landed), ``counts`` its sample counts, ``probed``: the points probed or given up so far, ``last``:
     where the probe is now (the nearest of the near-best coverage sweeps is taken), ``fair``: the cells measured by
     stiffness-blind sweeps (:func:`reference`), ``given_up``: points the scanner refused for good (also in
-    ``probed``): the cells their sweep would have crossed count as covered, or the planner would ask for the
-    unreachable tissue until its budget ran out."""
+    ``probed``): the cells their sweep would have crossed count as covered (as do those of every sweep made, its
+    samples or not), or the planner would ask for the unreachable tissue until its budget ran out."""
     n = len(probed)
     observed = np.isfinite(measured)
     covered = observed.copy()
     gx, gy = np.meshgrid(belief.x_mm, belief.y_mm)
     half = 0.5 * max(cfg.sweep_mm, cfg.resolution_mm)
-    for ux, uy in given_up:
+    # every sweep made counts for the cells it crossed, measured or not: one at the specimen's edge whose samples
+    # landed a cell inward would otherwise be asked for again 2 mm over and over (tuning seed 119: 5 sweeps)
+    for ux, uy in probed:
         covered |= (np.abs(gx - ux) <= 0.5 * cfg.resolution_mm) & (np.abs(gy - uy) <= half)
     miss = miss_probability(covered, cfg.resolution_mm, cfg.reaches())
     _, found = detect_candidates(belief, measured, counts, cfg, fair, suspect=True)

@@ -186,7 +186,8 @@ def test_decide_covers_until_nothing_can_hide_then_stops() -> None:
     measured, counts = _unmeasured()
     probed = SEEDS
     d = decide(b, measured, counts, probed, cfg, last=(30.0, 30.0))
-    assert not d.stop and d.blind and d.point is not None and d.miss == 1.0
+    # only the seed grid's four sweeps so far (3 cells each, no sample in them yet: they count all the same)
+    assert not d.stop and d.blind and d.point is not None and d.miss == 0.4
     measured[:, ::6] = 10.0   # columns every 12 mm: every cell within 6 mm of one
     d = decide(b, measured, counts, probed, cfg)
     assert d.miss == 0.0 and d.stop and d.why.startswith("found")
@@ -266,6 +267,8 @@ def test_tissue_only_a_refused_point_reaches_counts_as_covered() -> None:
     refused = (39.0, 21.0)
     d = decide(b, measured, counts, [*seeds, refused], cfg, given_up=[refused])
     assert d.miss == 0.0 and d.stop
+    # a sweep made there whose samples landed elsewhere (none in those cells) covers them too: not asked for again
+    assert decide(b, measured, counts, [*seeds, refused], cfg).stop
 
 
 def test_a_covering_sweep_stays_inside_the_region() -> None:
