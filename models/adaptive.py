@@ -99,11 +99,15 @@ class PlannerConfig:
     """detect: clip the blind sweeps' cells stiffer than the candidates' floor out of the detector's baseline
     (models.adaptive_detect.reference). Off: on the tuning set it closed a miss, on the evaluation set it lowered the
     baseline below the raster detector's calibration and merged neighbours (BENCHMARKS.md)."""
+    lower_spread: bool = True
+    """detect: the baseline's noise scale from the blind cells below their median, mirrored
+    (models.adaptive_detect.reference): inclusions only stiffen, so a few blind sweeps on them do not widen it."""
     resolve_centre: bool = False
     """detect: a candidate is resolved only once its centre is measured too (models.adaptive_detect.open_sides).
     Off by default with ``baseline_clip`` (evaluated together, BENCHMARKS.md)."""
-    near_best: float = 0.8
-    """detect: among sweeps revealing at least this fraction of the best one's hidden area, the nearest is taken."""
+    near_best: float = 1.0
+    """detect: among sweeps revealing at least this fraction of the best one's hidden area, the nearest is taken
+    (1: the best only, ties to the nearest; tuning seeds 100-119: 0.8 spent more sweeps than the transit it saved)."""
 
     def __post_init__(self) -> None:
         x0, y0, x1, y1 = self.region_mm

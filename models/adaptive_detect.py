@@ -124,7 +124,8 @@ def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, 
     return np.where(ok, meas, np.where(near, np.asarray(mean, dtype=np.float64), np.nan))
 
 
-def reference(fair: FloatArray | None, min_cells: int = 9, clip: float | None = None) -> tuple[float, float] | None:
+def reference(fair: FloatArray | None, min_cells: int = 9, clip: float | None = None,
+              lower: bool = False) -> tuple[float, float] | None:
     """The healthy baseline and its scale (models.stiffness_map.background) from the cells measured by
     stiffness-blind sweeps (the seed grid and the covering sweeps), None with fewer than ``min_cells`` of them. The
     resolving sweeps go where the map is stiff: a median over every measured cell would count the inclusions'
@@ -136,7 +137,12 @@ def reference(fair: FloatArray | None, min_cells: int = 9, clip: float | None = 
     as a background is in a crowded field: cells stiffer than ``1 + clip`` times the baseline (the candidates'
     floor, ``suspect * rel_threshold``) are not healthy tissue; drop them and take the median again, until none is
     dropped (or fewer than ``min_cells`` would be left). Healthy tissue's own scatter (a few %) loses only its tail.
-    ``clip`` None: no clipping (the default, :func:`clip_of`)."""
+    ``clip`` None: no clipping (the default, :func:`clip_of`).
+
+    ``lower``: the scale from the cells at or below the median only, mirrored about it (inclusions and their halos
+    only ever stiffen the tissue, so the lower half is healthy tissue's own scatter), the median itself unchanged:
+    a few blind sweeps on inclusions spread the MAD over the two modes and raised the detector's noise threshold
+    over a 2x inclusion (tuning seed 111), while the median stays where the raster detector's calibration has it."""
     if fair is None:
         return None
     values = np.asarray(fair, dtype=np.float64)
@@ -150,6 +156,9 @@ def reference(fair: FloatArray | None, min_cells: int = 9, clip: float | None = 
             break
         values = values[keep]
         base, sigma = background(values)
+    if lower and base > 0:
+        below = values[values <= base]
+        sigma = background(np.concatenate([below, 2.0 * base - below]))[1]
     return (base, sigma) if base > 0 else None
 
 
@@ -171,7 +180,7 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     try:
         scale = cfg.suspect if suspect else 1.0
         found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0,
-                                  reference=reference(fair, clip=clip_of(cfg)))
+                                  reference=reference(fair, clip=clip_of(cfg), lower=cfg.lower_spread))
     except ValueError:   # no positive baseline yet: nothing to call stiff
         found = []
     return snap, found

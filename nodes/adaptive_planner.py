@@ -99,9 +99,11 @@ class AdaptivePlanner(palpa.Node):
         """detect: the detection map takes the GP mean only this close to a measured cell."""
         baseline_clip: bool = False
         """detect: clip the blind sweeps' stiff cells out of the detector's baseline (PlannerConfig)."""
+        lower_spread: bool = True
+        """detect: the baseline's noise scale from the blind cells below their median (PlannerConfig)."""
         resolve_centre: bool = False
         """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
-        near_best: float = 0.8
+        near_best: float = 1.0
         """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
         mode: Literal["sweep", "indent"] = "sweep"
         """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
@@ -134,7 +136,7 @@ class AdaptivePlanner(palpa.Node):
                                      reach_mm=p.reach_mm, radius_span_mm=p.radius_span_mm,
                                      interior_gap_mm=p.interior_gap_mm,
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
-                                     suspect=p.suspect, baseline_clip=p.baseline_clip,
+                                     suspect=p.suspect, baseline_clip=p.baseline_clip, lower_spread=p.lower_spread,
                                      resolve_centre=p.resolve_centre,
                                      near_best=p.near_best,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
@@ -334,7 +336,8 @@ class AdaptivePlanner(palpa.Node):
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
             write_outputs(out, snap, found, unit=self.unit or "?", title=title)
         detect = self.cfg.stop_rule == "detect"
-        ref = reference(self.fair.snapshot().stiffness, clip=clip_of(self.cfg)) if detect else None
+        ref = (reference(self.fair.snapshot().stiffness, clip=clip_of(self.cfg), lower=self.cfg.lower_spread)
+               if detect else None)
         self.inc_pub.publish(Inclusions(
             stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,   # the baseline the contrasts are against
             baseline=ref[0] if ref else self.belief.baseline if self.belief is not None else float("nan"),

@@ -312,3 +312,25 @@ def test_decide_measures_a_detections_disc_densely_before_stopping() -> None:
     measured[7:14, 10] = 10.0   # measured there: soft (two inclusions), every disc cell within 2 mm of a measured one
     assert decide(b, measured, counts, SEEDS, cfg).stop
     assert len(detect_candidates(b, measured, counts, cfg)[1]) == 2
+
+
+def test_the_baseline_spread_is_read_below_the_median_where_inclusions_cannot_widen_it() -> None:
+    # of the blind sweeps' cells 45 % on inclusions and halos (1.3-2.1x): the MAD spans both modes
+    rng = np.random.default_rng(5)
+    fair = np.concatenate([10.0 * (1 + 0.03 * rng.standard_normal(55)), 10.0 * (1.3 + 0.8 * rng.random(45))])
+    full, low = reference(fair.reshape(10, 10)), reference(fair.reshape(10, 10), lower=True)
+    assert full is not None and low is not None
+    assert low[0] == full[0] and low[1] < 0.6 * full[1]   # the median kept, the spread healthy tissue's
+    healthy = 10.0 * (1 + 0.03 * rng.standard_normal(100)).reshape(10, 10)
+    h_full, h_low = reference(healthy), reference(healthy, lower=True)
+    assert h_full is not None and h_low is not None and abs(h_low[1] - h_full[1]) < 0.1 * h_full[1]
+    # a 1.3x inclusion under the two-mode spread's threshold (1.38x), over the healthy one's (the 20 % floor)
+    measured = np.full((20, 20), full[0])
+    measured[8:13, 8:13] = 1.3 * full[0]
+    counts = np.ones((20, 20), dtype=np.int64)
+    grid = np.full((20, 20), np.nan)
+    grid.flat[:100] = fair
+    cfg = _cfg(reach_mm=40.0)
+    assert len(detect_candidates(_belief(cfg), measured, counts, cfg, grid)[1]) == 1
+    off = _cfg(reach_mm=40.0, lower_spread=False)
+    assert detect_candidates(_belief(off), measured, counts, off, grid)[1] == []
