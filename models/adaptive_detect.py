@@ -6,12 +6,14 @@ the raster's probes making sure of tissue where nothing was. The question a palp
 an inclusion, and where*. Two things must hold before that answer is good enough:
 
 * **nothing of interest can hide.** A sweep senses an inclusion only near it: the excess stiffness of an inclusion
-  reaches about a millimetre or two past its edge (the raster's measured maps, tuning set). An inclusion of the
-  smallest radius of interest ``r`` whose centre lies within ``reach_mm`` (= ``r`` plus that sensing reach) of a
-  measured cell raised that cell; one farther from every measured cell could be anywhere there unseen. With the
-  inclusion's centre uniform over the region (no prior on where tumours are), the probability that it hides is the
-  fraction of the region farther than ``reach_mm`` from every measured cell (:func:`miss_probability`). Stop only
-  when that is below ``miss_probability``. (Garg et al. 2016 and Gotovos et al. 2013 stop on the belief alone; a GP
+  reaches about a millimetre or two past its edge (the raster's measured maps, tuning set). An inclusion of radius
+  ``r`` whose centre lies within ``r`` plus that sensing reach of a measured cell raised that cell; one farther from
+  every measured cell could be anywhere there unseen. ``reach_mm`` is that distance for the smallest radius of
+  interest (2.5 + 1.5 mm); it grows with the radius over ``radius_span_mm`` (to 7 mm: a large inclusion is sensed
+  from farther, a small deep one only from near; one reach for all, 6 mm, let small ones hide 4-6 mm from a sweep).
+  With the inclusion's centre uniform over the region (no prior on where tumours are) and its radius uniform over
+  the span, the probability that it hides is the fraction of the region farther than its reach from every measured
+  cell, averaged over the radii (:func:`miss_probability`). Stop only when that is below ``miss_probability``. (Garg et al. 2016 and Gotovos et al. 2013 stop on the belief alone; a GP
   with a length scale shorter than that reach cannot vouch for it, which is why the LSE rule costs coverage.)
 * **every candidate is resolved.** A candidate is a region of the detection map above ``suspect`` times the
   detector's thresholds (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
@@ -20,13 +22,17 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   guess, which can join two inclusions closer than its length scale into one blob): its boundary is sampled, so
   its centroid and extent are the map's and not the kernel's guess; when a side is still stiff the candidate grows
   and opens the next side out.
+  A *detected* inclusion is resolved only once its disc is measured about as densely as the raster measures it
+  (every cell within ``interior_gap_mm`` of a measured one, columns 4 mm apart: :func:`interior_gaps`): between
+  sparse sweeps the map is the GP's guess, which joins two neighbours into one blob and shows no dip it never
+  measured.
 
 The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then the sweep that
-leaves the least area where an inclusion could hide (:func:`coverage_gain`), the nearest of the near-best sweeps so
-that consecutive sweeps batch into short transits (a greedy set cover with a travel tie-break). Seed grid and
+leaves the least area where an inclusion could hide (:func:`coverage_gain`; a greedy set cover, ties to the nearest
+sweep, or with ``near_best`` < 1 the nearest of the near-best so that consecutive sweeps batch into short transits). Seed grid and
 covering sweeps are chosen without looking at stiffness, so their cells are a fair sample of the tissue: the
 detector's baseline comes from them (:func:`reference`), not from every measured cell (the resolving sweeps go
-where it is stiff).
+where it is stiff), its noise scale from the blind cells below their median (inclusions only stiffen).
 
 Detection uses measured cells where they exist (the per-cell median of the sweeps' samples) and the GP mean only
 within ``fill_mm`` of a measured cell (:func:`detection_map`): the smoothed mean alone widens and merges blobs, and
