@@ -13,8 +13,9 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   from farther, a small deep one only from near; one reach for all, 6 mm, let small ones hide 4-6 mm from a sweep).
   With the inclusion's centre uniform over the region (no prior on where tumours are) and its radius uniform over
   the span, the probability that it hides is the fraction of the region farther than its reach from every measured
-  cell, averaged over the radii (:func:`miss_probability`). Stop only when that is below ``miss_probability``. (Garg et al. 2016 and Gotovos et al. 2013 stop on the belief alone; a GP
-  with a length scale shorter than that reach cannot vouch for it, which is why the LSE rule costs coverage.)
+  cell, averaged over the radii (:func:`miss_probability`). Stop only when that is below ``miss_probability``.
+  (Garg et al. 2016 and Gotovos et al. 2013 stop on the belief alone; a GP with a length scale shorter than that
+  reach cannot vouch for it, which is why the LSE rule costs coverage.)
 * **every candidate is resolved.** A candidate is a region of the detection map above ``suspect`` times the
   detector's thresholds (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
   resolved when the points on the edge of its disc on all four sides (one cell out for a small one:
@@ -29,8 +30,8 @@ an inclusion, and where*. Two things must hold before that answer is good enough
 
 The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then the sweep that
 leaves the least area where an inclusion could hide (:func:`coverage_gain`; a greedy set cover, ties to the nearest
-sweep, or with ``near_best`` < 1 the nearest of the near-best so that consecutive sweeps batch into short transits). Seed grid and
-covering sweeps are chosen without looking at stiffness, so their cells are a fair sample of the tissue: the
+sweep, or with ``near_best`` < 1 the nearest of the near-best so that consecutive sweeps batch into short
+transits). Seed grid and covering sweeps are chosen without looking at stiffness, so their cells are a fair sample of the tissue: the
 detector's baseline comes from them (:func:`reference`), not from every measured cell (the resolving sweeps go
 where it is stiff), its noise scale from the blind cells below their median (inclusions only stiffen).
 
@@ -222,9 +223,9 @@ def interior_gaps(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: Fl
                   footprint: int) -> list[tuple[float, float]]:
     """Where a detected inclusion's disc is not yet measured densely enough: for each candidate whose disc has cells
     farther than ``gap_mm`` from every measured cell, the centre of the sweep of ``footprint`` cells (along y) that
-    crosses the most of them (nearest the candidate's centre of those), kept inside the region. Between two sweeps 12 mm apart the map cannot tell one
-    wide blob from two neighbours, nor a weak inclusion's dip from its halo; with columns ``2 * gap_mm`` apart over
-    it, the map there is measured about as densely as the raster's."""
+    crosses the most of them (nearest the candidate's centre of those), kept inside the region. Between two sweeps
+    12 mm apart the map cannot tell one wide blob from two neighbours, nor a weak inclusion's dip from its halo; with
+    columns ``2 * gap_mm`` apart over it, the map there is measured about as densely as the raster's."""
     x0, y0, x1, y1 = region_mm
     gx, gy = np.meshgrid(x_mm, y_mm)
     dist = distance_to_measured(observed, resolution_mm)
