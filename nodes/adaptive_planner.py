@@ -83,8 +83,8 @@ class AdaptivePlanner(palpa.Node):
         """LSE's accuracy, a fraction of the baseline (models.adaptive.PlannerConfig)."""
         max_probes: int = 60
         stop_rule: Literal["detect", "lse"] = "detect"
-        """detect: stop when an inclusion of the smallest size of interest is unlikely to hide and every candidate's
-        boundary is sampled (models.adaptive_detect); lse: LSE's ambiguous area over the whole region."""
+        """detect: stop when an inclusion of the sizes of interest is unlikely to hide, every candidate's boundary is
+        sampled and every detection's disc measured densely (models.adaptive_detect); lse: LSE's ambiguous area."""
         reach_mm: float = 4.0
         """detect: a measurement within this of an inclusion's centre senses it (smallest radius + sensing reach)."""
         radius_span_mm: float = 4.5
