@@ -77,11 +77,19 @@ class PlannerConfig:
     stop_rule: str = "detect"
     """``detect`` (models.adaptive_detect: nothing of interest can hide, every candidate resolved) or ``lse`` (LSE's
     ambiguous area over the whole region, :func:`should_stop`)."""
-    reach_mm: float = 6.0
+    reach_mm: float = 4.0
     """detect: an inclusion of the smallest radius of interest is sensed by a measurement within this distance of
-    its centre (its radius plus the sensing reach past its edge)."""
+    its centre (its radius, 2.5 mm, plus the sensing reach past its edge, 1.5 mm)."""
+    radius_span_mm: float = 4.5
+    """detect: the radii of interest run from the smallest to this much larger (2.5-7 mm), and an inclusion's reach
+    grows with its radius (``reach_mm`` + its radius above the smallest: the halo past its edge is the same); the
+    chance that one hides is averaged over radii uniform in that span. 0: the smallest radius only."""
     miss_probability: float = 0.02
     """detect: stop only when the chance that such an inclusion hides unsensed is below this."""
+    interior_gap_mm: float = 2.0
+    """detect: a detected inclusion is resolved only when every cell of its disc lies within this of a measured
+    cell (columns every 4 mm over it, about the raster's density there; 0: off): between the sparse sweeps the map
+    is the GP's guess, which joins two neighbours into one blob and cannot show a dip it never measured."""
     suspect: float = 0.5
     """detect: candidates to resolve are regions above this fraction of the detector's thresholds (1: the
     detections themselves)."""
@@ -91,11 +99,15 @@ class PlannerConfig:
     """detect: clip the blind sweeps' cells stiffer than the candidates' floor out of the detector's baseline
     (models.adaptive_detect.reference). Off: on the tuning set it closed a miss, on the evaluation set it lowered the
     baseline below the raster detector's calibration and merged neighbours (BENCHMARKS.md)."""
+    lower_spread: bool = True
+    """detect: the baseline's noise scale from the blind cells below their median, mirrored
+    (models.adaptive_detect.reference): inclusions only stiffen, so a few blind sweeps on them do not widen it."""
     resolve_centre: bool = False
     """detect: a candidate is resolved only once its centre is measured too (models.adaptive_detect.open_sides).
     Off by default with ``baseline_clip`` (evaluated together, BENCHMARKS.md)."""
-    near_best: float = 0.8
-    """detect: among sweeps revealing at least this fraction of the best one's hidden area, the nearest is taken."""
+    near_best: float = 1.0
+    """detect: among sweeps revealing at least this fraction of the best one's hidden area, the nearest is taken
+    (1: the best only, ties to the nearest; tuning seeds 100-119: 0.8 spent more sweeps than the transit it saved)."""
 
     def __post_init__(self) -> None:
         x0, y0, x1, y1 = self.region_mm
@@ -108,9 +120,18 @@ class PlannerConfig:
             raise ValueError("PlannerConfig: stop_rule detect or lse, reach_mm > 0, 0 <= miss_probability < 1 and "
                              f"0 < near_best <= 1 needed, got {self.stop_rule!r}, {self.reach_mm}, "
                              f"{self.miss_probability}, {self.near_best}")
+        if not (self.radius_span_mm >= 0 and self.interior_gap_mm >= 0):
+            raise ValueError(f"PlannerConfig: radius_span_mm >= 0 and interior_gap_mm >= 0 needed, got "
+                             f"{self.radius_span_mm}, {self.interior_gap_mm}")
         if not 0 <= self.sweep_mm < y1 - y0:
             raise ValueError(f"PlannerConfig.sweep_mm: expected 0 <= sweep < the region's height {y1 - y0:g}, "
                              f"got {self.sweep_mm}")
+
+    def reaches(self) -> list[float]:
+        """The reaches of the radii of interest (``reach_mm`` up to ``reach_mm + radius_span_mm``, 0.5 mm apart),
+        each equally likely."""
+        n = math.floor(self.radius_span_mm / 0.5 + 1e-9)
+        return [self.reach_mm + self.radius_span_mm * i / n for i in range(n + 1)] if n else [self.reach_mm]
 
     def grid(self) -> tuple[FloatArray, FloatArray]:
         """Cell centres (x, y) of the belief grid over the region."""

@@ -6,13 +6,16 @@ the raster's probes making sure of tissue where nothing was. The question a palp
 an inclusion, and where*. Two things must hold before that answer is good enough:
 
 * **nothing of interest can hide.** A sweep senses an inclusion only near it: the excess stiffness of an inclusion
-  reaches about a millimetre or two past its edge (the raster's measured maps, tuning set). An inclusion of the
-  smallest radius of interest ``r`` whose centre lies within ``reach_mm`` (= ``r`` plus that sensing reach) of a
-  measured cell raised that cell; one farther from every measured cell could be anywhere there unseen. With the
-  inclusion's centre uniform over the region (no prior on where tumours are), the probability that it hides is the
-  fraction of the region farther than ``reach_mm`` from every measured cell (:func:`miss_probability`). Stop only
-  when that is below ``miss_probability``. (Garg et al. 2016 and Gotovos et al. 2013 stop on the belief alone; a GP
-  with a length scale shorter than that reach cannot vouch for it, which is why the LSE rule costs coverage.)
+  reaches about a millimetre or two past its edge (the raster's measured maps, tuning set). An inclusion of radius
+  ``r`` whose centre lies within ``r`` plus that sensing reach of a measured cell raised that cell; one farther from
+  every measured cell could be anywhere there unseen. ``reach_mm`` is that distance for the smallest radius of
+  interest (2.5 + 1.5 mm); it grows with the radius over ``radius_span_mm`` (to 7 mm: a large inclusion is sensed
+  from farther, a small deep one only from near; one reach for all, 6 mm, let small ones hide 4-6 mm from a sweep).
+  With the inclusion's centre uniform over the region (no prior on where tumours are) and its radius uniform over
+  the span, the probability that it hides is the fraction of the region farther than its reach from every measured
+  cell, averaged over the radii (:func:`miss_probability`). Stop only when that is below ``miss_probability``.
+  (Garg et al. 2016 and Gotovos et al. 2013 stop on the belief alone; a GP with a length scale shorter than that
+  reach cannot vouch for it, which is why the LSE rule costs coverage.)
 * **every candidate is resolved.** A candidate is a region of the detection map above ``suspect`` times the
   detector's thresholds (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
   resolved when the points on the edge of its disc on all four sides (one cell out for a small one:
@@ -20,13 +23,17 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   guess, which can join two inclusions closer than its length scale into one blob): its boundary is sampled, so
   its centroid and extent are the map's and not the kernel's guess; when a side is still stiff the candidate grows
   and opens the next side out.
+  A *detected* inclusion is resolved only once its disc is measured about as densely as the raster measures it
+  (every cell within ``interior_gap_mm`` of a measured one, columns 4 mm apart: :func:`interior_gaps`): between
+  sparse sweeps the map is the GP's guess, which joins two neighbours into one blob and shows no dip it never
+  measured.
 
 The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then the sweep that
-leaves the least area where an inclusion could hide (:func:`coverage_gain`), the nearest of the near-best sweeps so
-that consecutive sweeps batch into short transits (a greedy set cover with a travel tie-break). Seed grid and
-covering sweeps are chosen without looking at stiffness, so their cells are a fair sample of the tissue: the
+leaves the least area where an inclusion could hide (:func:`coverage_gain`; a greedy set cover, ties to the nearest
+sweep, or with ``near_best`` < 1 the nearest of the near-best so that consecutive sweeps batch into short
+transits). Seed grid and covering sweeps are chosen without looking at stiffness, so their cells are a fair sample of the tissue: the
 detector's baseline comes from them (:func:`reference`), not from every measured cell (the resolving sweeps go
-where it is stiff).
+where it is stiff), its noise scale from the blind cells below their median (inclusions only stiffen).
 
 Detection uses measured cells where they exist (the per-cell median of the sweeps' samples) and the GP mean only
 within ``fill_mm`` of a measured cell (:func:`detection_map`): the smoothed mean alone widens and merges blobs, and
@@ -56,7 +63,7 @@ from models.adaptive import (
 from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
 
 __all__ = ["Decision", "clip_of", "coverage_gain", "decide", "detect_candidates", "detection_map",
-           "distance_to_measured", "hidden", "miss_probability", "reference", "sweep_stencil"]
+           "distance_to_measured", "hidden", "interior_gaps", "miss_probability", "reference", "sweep_stencil"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -76,11 +83,16 @@ def hidden(observed: BoolArray, resolution_mm: float, reach_mm: float) -> BoolAr
     return np.asarray(distance_to_measured(observed, resolution_mm) > reach_mm, dtype=bool)
 
 
-def miss_probability(observed: BoolArray, resolution_mm: float, reach_mm: float) -> float:
-    """The probability that an inclusion of the smallest radius of interest, its centre uniform over the region,
-    lies where no measurement has sensed it: the fraction of :func:`hidden` cells."""
-    h = hidden(observed, resolution_mm, reach_mm)
-    return float(np.count_nonzero(h)) / max(1, h.size)
+def _reaches(reach_mm: float | Sequence[float]) -> list[float]:
+    return [float(reach_mm)] if isinstance(reach_mm, int | float) else [float(r) for r in reach_mm]
+
+
+def miss_probability(observed: BoolArray, resolution_mm: float, reach_mm: float | Sequence[float]) -> float:
+    """The probability that an inclusion of interest, its centre uniform over the region, lies where no measurement
+    has sensed it: the fraction of :func:`hidden` cells, averaged over ``reach_mm`` when several (one per radius of
+    interest, equally likely: PlannerConfig.reaches)."""
+    d = distance_to_measured(observed, resolution_mm)
+    return float(np.mean([np.count_nonzero(d > r) / max(1, d.size) for r in _reaches(reach_mm)]))
 
 
 def sweep_stencil(footprint: int, resolution_mm: float, reach_mm: float) -> BoolArray:
@@ -96,13 +108,18 @@ def sweep_stencil(footprint: int, resolution_mm: float, reach_mm: float) -> Bool
     return np.asarray(np.hypot(xx, dy) * resolution_mm <= reach_mm + 1e-9, dtype=bool)
 
 
-def coverage_gain(observed: BoolArray, resolution_mm: float, reach_mm: float, footprint: int) -> FloatArray:
-    """For every sweep centre cell, how many hidden cells (:func:`hidden`) that sweep would reveal."""
-    h = hidden(observed, resolution_mm, reach_mm).astype(np.float64)
-    st = sweep_stencil(footprint, resolution_mm, reach_mm).astype(np.float64)
-    # the stencil is symmetric about its centre column; along y an even footprint is centred as in
-    # models.adaptive.footprint_score (rows j - lo .. j - lo + k - 1), which the stencil's asymmetric rows encode
-    return np.asarray(ndimage.correlate(h, st, mode="constant", cval=0.0), dtype=np.float64)
+def coverage_gain(observed: BoolArray, resolution_mm: float, reach_mm: float | Sequence[float],
+                  footprint: int) -> FloatArray:
+    """For every sweep centre cell, how many hidden cells (:func:`hidden`) that sweep would reveal (summed over the
+    reaches when several: the drop of :func:`miss_probability` it makes, times the cells and reaches)."""
+    gain = np.zeros(np.shape(observed), dtype=np.float64)
+    for r in _reaches(reach_mm):
+        h = hidden(observed, resolution_mm, r).astype(np.float64)
+        st = sweep_stencil(footprint, resolution_mm, r).astype(np.float64)
+        # the stencil is symmetric about its centre column; along y an even footprint is centred as in
+        # models.adaptive.footprint_score (rows j - lo .. j - lo + k - 1), which the stencil's asymmetric rows encode
+        gain += ndimage.correlate(h, st, mode="constant", cval=0.0)
+    return gain
 
 
 def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, fill_mm: float) -> FloatArray:
@@ -114,7 +131,8 @@ def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, 
     return np.where(ok, meas, np.where(near, np.asarray(mean, dtype=np.float64), np.nan))
 
 
-def reference(fair: FloatArray | None, min_cells: int = 9, clip: float | None = None) -> tuple[float, float] | None:
+def reference(fair: FloatArray | None, min_cells: int = 9, clip: float | None = None,
+              lower: bool = False) -> tuple[float, float] | None:
     """The healthy baseline and its scale (models.stiffness_map.background) from the cells measured by
     stiffness-blind sweeps (the seed grid and the covering sweeps), None with fewer than ``min_cells`` of them. The
     resolving sweeps go where the map is stiff: a median over every measured cell would count the inclusions'
@@ -126,7 +144,12 @@ def reference(fair: FloatArray | None, min_cells: int = 9, clip: float | None = 
     as a background is in a crowded field: cells stiffer than ``1 + clip`` times the baseline (the candidates'
     floor, ``suspect * rel_threshold``) are not healthy tissue; drop them and take the median again, until none is
     dropped (or fewer than ``min_cells`` would be left). Healthy tissue's own scatter (a few %) loses only its tail.
-    ``clip`` None: no clipping (the default, :func:`clip_of`)."""
+    ``clip`` None: no clipping (the default, :func:`clip_of`).
+
+    ``lower``: the scale from the cells at or below the median only, mirrored about it (inclusions and their halos
+    only ever stiffen the tissue, so the lower half is healthy tissue's own scatter), the median itself unchanged:
+    a few blind sweeps on inclusions spread the MAD over the two modes and raised the detector's noise threshold
+    over a 2x inclusion (tuning seed 111), while the median stays where the raster detector's calibration has it."""
     if fair is None:
         return None
     values = np.asarray(fair, dtype=np.float64)
@@ -140,6 +163,9 @@ def reference(fair: FloatArray | None, min_cells: int = 9, clip: float | None = 
             break
         values = values[keep]
         base, sigma = background(values)
+    if lower and base > 0:
+        below = values[values <= base]
+        sigma = background(np.concatenate([below, 2.0 * base - below]))[1]
     return (base, sigma) if base > 0 else None
 
 
@@ -161,7 +187,7 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     try:
         scale = cfg.suspect if suspect else 1.0
         found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0,
-                                  reference=reference(fair, clip=clip_of(cfg)))
+                                  reference=reference(fair, clip=clip_of(cfg), lower=cfg.lower_spread))
     except ValueError:   # no positive baseline yet: nothing to call stiff
         found = []
     return snap, found
@@ -192,6 +218,33 @@ def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: Float
     return out
 
 
+def interior_gaps(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray,
+                  region_mm: tuple[float, float, float, float], resolution_mm: float, gap_mm: float,
+                  footprint: int) -> list[tuple[float, float]]:
+    """Where a detected inclusion's disc is not yet measured densely enough: for each candidate whose disc has cells
+    farther than ``gap_mm`` from every measured cell, the centre of the sweep of ``footprint`` cells (along y) that
+    crosses the most of them (nearest the candidate's centre of those), kept inside the region. Between two sweeps
+    12 mm apart the map cannot tell one wide blob from two neighbours, nor a weak inclusion's dip from its halo; with
+    columns ``2 * gap_mm`` apart over it, the map there is measured about as densely as the raster's."""
+    x0, y0, x1, y1 = region_mm
+    gx, gy = np.meshgrid(x_mm, y_mm)
+    dist = distance_to_measured(observed, resolution_mm)
+    half = 0.5 * footprint * resolution_mm
+    out = []
+    for c in candidates:
+        r2 = (gx - c.x_mm) ** 2 + (gy - c.y_mm) ** 2
+        gap = (r2 <= max(c.radius_mm, resolution_mm) ** 2) & (dist > gap_mm + 1e-9)
+        if not gap.any():
+            continue
+        # the sweep (along y) over the most gap cells, the one nearest the candidate's centre of those
+        hits = ndimage.correlate1d(gap.astype(np.float64), np.ones(footprint), axis=0, mode="constant")
+        hits[~gap] = 0.0
+        i = int(np.argmin(np.where(hits >= hits.max(), r2, np.inf)))
+        y = min(max(float(gy.flat[i]), y0 + half), y1 - half) if y1 - y0 >= 2 * half else float(gy.flat[i])
+        out.append((min(max(float(gx.flat[i]), x0), x1), y))
+    return out
+
+
 @dataclass(frozen=True)
 class Decision:
     """What the detection stop rule says after a probe: stop (and why), or the next probe point."""
@@ -215,20 +268,27 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     no sample landed), ``counts`` its sample counts, ``probed``: the points probed or given up so far, ``last``:
     where the probe is now (the nearest of the near-best coverage sweeps is taken), ``fair``: the cells measured by
     stiffness-blind sweeps (:func:`reference`), ``given_up``: points the scanner refused for good (also in
-    ``probed``): the cells their sweep would have crossed count as covered, or the planner would ask for the
-    unreachable tissue until its budget ran out."""
+    ``probed``): the cells their sweep would have crossed count as covered (as do those of every sweep made, its
+    samples or not), or the planner would ask for the unreachable tissue until its budget ran out."""
     n = len(probed)
     observed = np.isfinite(measured)
     covered = observed.copy()
     gx, gy = np.meshgrid(belief.x_mm, belief.y_mm)
     half = 0.5 * max(cfg.sweep_mm, cfg.resolution_mm)
-    for ux, uy in given_up:
+    # every sweep made counts for the cells it crossed, measured or not: one at the specimen's edge whose samples
+    # landed a cell inward would otherwise be asked for again 2 mm over and over (tuning seed 119: 5 sweeps)
+    for ux, uy in probed:
         covered |= (np.abs(gx - ux) <= 0.5 * cfg.resolution_mm) & (np.abs(gy - uy) <= half)
-    miss = miss_probability(covered, cfg.resolution_mm, cfg.reach_mm)
+    miss = miss_probability(covered, cfg.resolution_mm, cfg.reaches())
     _, found = detect_candidates(belief, measured, counts, cfg, fair, suspect=True)
     sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm,
                                    cfg.resolve_centre)
              if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
+    if cfg.interior_gap_mm > 0:
+        _, detected = detect_candidates(belief, measured, counts, cfg, fair)
+        sides += [p for p in interior_gaps(detected, observed, belief.x_mm, belief.y_mm, cfg.region_mm,
+                                           cfg.resolution_mm, cfg.interior_gap_mm, footprint_cells(cfg))
+                  if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
     state = f"miss probability {miss:.3f}, {len(found)} candidates, {len(sides)} boundary sides open"
     if n >= cfg.max_probes:
         return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, len(sides))
@@ -238,7 +298,7 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
         return Decision(False, f"resolving a candidate ({state})", sides[0], False, miss, len(sides))
     px, py = probe_points(belief, cfg)
     near = near_probed(px, py, probed, cfg.min_separation_mm)
-    gain = coverage_gain(covered, cfg.resolution_mm, cfg.reach_mm, footprint_cells(cfg))
+    gain = coverage_gain(covered, cfg.resolution_mm, cfg.reaches(), footprint_cells(cfg))
     gain[~np.isfinite(footprint_score(belief, cfg))] = 0.0   # a sweep that would leave the region
     gain[near] = 0.0
     best = float(np.max(gain))

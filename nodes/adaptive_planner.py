@@ -83,10 +83,14 @@ class AdaptivePlanner(palpa.Node):
         """LSE's accuracy, a fraction of the baseline (models.adaptive.PlannerConfig)."""
         max_probes: int = 60
         stop_rule: Literal["detect", "lse"] = "detect"
-        """detect: stop when an inclusion of the smallest size of interest is unlikely to hide and every candidate's
-        boundary is sampled (models.adaptive_detect); lse: LSE's ambiguous area over the whole region."""
-        reach_mm: float = 6.0
+        """detect: stop when an inclusion of the sizes of interest is unlikely to hide, every candidate's boundary is
+        sampled and every detection's disc measured densely (models.adaptive_detect); lse: LSE's ambiguous area."""
+        reach_mm: float = 4.0
         """detect: a measurement within this of an inclusion's centre senses it (smallest radius + sensing reach)."""
+        radius_span_mm: float = 4.5
+        """detect: the radii of interest span this much above the smallest; the reach grows with them (PlannerConfig)."""
+        interior_gap_mm: float = 2.0
+        """detect: every cell of a detected inclusion's disc within this of a measured cell before stopping (0: off)."""
         miss_probability: float = 0.02
         """detect: the chance, below which the planner may stop, that such an inclusion hides unsensed."""
         suspect: float = 0.5
@@ -95,9 +99,11 @@ class AdaptivePlanner(palpa.Node):
         """detect: the detection map takes the GP mean only this close to a measured cell."""
         baseline_clip: bool = False
         """detect: clip the blind sweeps' stiff cells out of the detector's baseline (PlannerConfig)."""
+        lower_spread: bool = True
+        """detect: the baseline's noise scale from the blind cells below their median (PlannerConfig)."""
         resolve_centre: bool = False
         """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
-        near_best: float = 0.8
+        near_best: float = 1.0
         """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
         mode: Literal["sweep", "indent"] = "sweep"
         """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
@@ -127,8 +133,10 @@ class AdaptivePlanner(palpa.Node):
                                      rel_threshold=p.rel_threshold, stop_area_mm2=p.stop_area_mm2,
                                      max_probes=p.max_probes, seed_spacing_mm=p.seed_spacing_mm,
                                      length_scale_mm=(1.0, p.max_length_scale_mm), stop_rule=p.stop_rule,
-                                     reach_mm=p.reach_mm, miss_probability=p.miss_probability, fill_mm=p.fill_mm,
-                                     suspect=p.suspect, baseline_clip=p.baseline_clip,
+                                     reach_mm=p.reach_mm, radius_span_mm=p.radius_span_mm,
+                                     interior_gap_mm=p.interior_gap_mm,
+                                     miss_probability=p.miss_probability, fill_mm=p.fill_mm,
+                                     suspect=p.suspect, baseline_clip=p.baseline_clip, lower_spread=p.lower_spread,
                                      resolve_centre=p.resolve_centre,
                                      near_best=p.near_best,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
@@ -328,7 +336,8 @@ class AdaptivePlanner(palpa.Node):
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
             write_outputs(out, snap, found, unit=self.unit or "?", title=title)
         detect = self.cfg.stop_rule == "detect"
-        ref = reference(self.fair.snapshot().stiffness, clip=clip_of(self.cfg)) if detect else None
+        ref = (reference(self.fair.snapshot().stiffness, clip=clip_of(self.cfg), lower=self.cfg.lower_spread)
+               if detect else None)
         self.inc_pub.publish(Inclusions(
             stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,   # the baseline the contrasts are against
             baseline=ref[0] if ref else self.belief.baseline if self.belief is not None else float("nan"),

@@ -16,6 +16,7 @@ from models.adaptive_detect import (
     detect_candidates,
     detection_map,
     hidden,
+    interior_gaps,
     miss_probability,
     open_sides,
     reference,
@@ -29,6 +30,8 @@ SEEDS = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
 
 
 def _cfg(**kw: Any) -> PlannerConfig:
+    # one reach and no interior rule unless a test asks: each rule is tested on its own
+    kw = {"radius_span_mm": 0.0, "interior_gap_mm": 0.0, **kw}
     return PlannerConfig(REGION, sweep_mm=6.0, seed_spacing_mm=40.0, **kw)   # seed: 2 x 2 points
 
 
@@ -51,6 +54,19 @@ def test_hidden_is_what_lies_farther_than_the_reach_from_every_measured_cell() -
     assert miss_probability(obs, 2.0, 6.0) == 16 / 20
     assert miss_probability(obs, 2.0, 8.0) == 15 / 20   # exactly at the reach is sensed
     assert miss_probability(np.zeros((3, 3), dtype=bool), 2.0, 6.0) == 1.0
+
+
+def test_the_reach_grows_with_the_radius_and_the_miss_probability_averages_over_the_radii() -> None:
+    assert _cfg(reach_mm=4.0, radius_span_mm=4.5).reaches() == [4.0 + 0.5 * i for i in range(10)]
+    assert _cfg(reach_mm=4.0).reaches() == [4.0]
+    obs = np.zeros((20, 20), dtype=bool)
+    obs[:, 0] = True   # one measured column at x = 1 mm: column i is 2 i mm from it
+    # reach 4: columns 3.. hidden (17 of 20); reach 6: 4.. (16); reach 8: 5.. (15)
+    assert math.isclose(miss_probability(obs, 2.0, [4.0, 6.0, 8.0]), (17 + 16 + 15) / 60)
+    cfg = _cfg(reach_mm=4.0, radius_span_mm=4.0)
+    assert miss_probability(obs, 2.0, cfg.reaches()) < miss_probability(obs, 2.0, 4.0)   # a large one is seen farther
+    gain = coverage_gain(obs, 2.0, [4.0, 6.0], 3)
+    assert np.array_equal(gain, coverage_gain(obs, 2.0, 4.0, 3) + coverage_gain(obs, 2.0, 6.0, 3))
 
 
 def test_the_sweep_stencil_is_every_cell_within_the_reach_of_the_swept_segment() -> None:
@@ -170,7 +186,8 @@ def test_decide_covers_until_nothing_can_hide_then_stops() -> None:
     measured, counts = _unmeasured()
     probed = SEEDS
     d = decide(b, measured, counts, probed, cfg, last=(30.0, 30.0))
-    assert not d.stop and d.blind and d.point is not None and d.miss == 1.0
+    # only the seed grid's four sweeps so far (3 cells each, no sample in them yet: they count all the same)
+    assert not d.stop and d.blind and d.point is not None and d.miss == 0.4
     measured[:, ::6] = 10.0   # columns every 12 mm: every cell within 6 mm of one
     d = decide(b, measured, counts, probed, cfg)
     assert d.miss == 0.0 and d.stop and d.why.startswith("found")
@@ -250,6 +267,8 @@ def test_tissue_only_a_refused_point_reaches_counts_as_covered() -> None:
     refused = (39.0, 21.0)
     d = decide(b, measured, counts, [*seeds, refused], cfg, given_up=[refused])
     assert d.miss == 0.0 and d.stop
+    # a sweep made there whose samples landed elsewhere (none in those cells) covers them too: not asked for again
+    assert decide(b, measured, counts, [*seeds, refused], cfg).stop
 
 
 def test_a_covering_sweep_stays_inside_the_region() -> None:
@@ -260,3 +279,58 @@ def test_a_covering_sweep_stays_inside_the_region() -> None:
     # from the top edge the nearest of the equal best sweeps would be centred on the last row, half outside
     p = decide(_belief(cfg), measured, counts, SEEDS, cfg, last=(21.0, 40.0)).point
     assert p is not None and p[1] + 0.5 * cfg.sweep_mm <= REGION[3]
+
+
+def test_interior_gaps_ask_for_a_sweep_until_a_detection_is_measured_every_other_column() -> None:
+    xs = np.arange(20, dtype=np.float64) * 2.0 + 1.0
+    c = Inclusion(x_mm=21.0, y_mm=21.0, radius_mm=5.0, contrast=2.0, peak=20.0, area_mm2=78.0, cells=19)
+    obs = np.zeros((20, 20), dtype=bool)
+    obs[:, [6, 10, 14]] = True   # columns at x = 13, 21, 29 mm: 8 mm apart
+    gaps = interior_gaps([c], obs, xs, xs, REGION, 2.0, 2.0, 3)
+    assert gaps == [(17.0, 21.0)]   # in a gap between two columns, the sweep nearest the centre
+    obs[:, [8, 12]] = True   # every other column over the disc: each cell within 2 mm of a measured one
+    assert interior_gaps([c], obs, xs, xs, REGION, 2.0, 2.0, 3) == []
+    assert interior_gaps([c], obs, xs, xs, REGION, 2.0, 1.0, 3) != []   # a finer gap wants every column
+    corner = Inclusion(x_mm=1.0, y_mm=1.0, radius_mm=3.0, contrast=2.0, peak=20.0, area_mm2=28.0, cells=7)
+    y = interior_gaps([corner], np.zeros((20, 20), dtype=bool), xs, xs, REGION, 2.0, 2.0, 3)[0][1]
+    assert y == 3.0   # the sweep kept inside the region (3 cells: 6 mm)
+
+
+def test_decide_measures_a_detections_disc_densely_before_stopping() -> None:
+    cfg = _cfg(reach_mm=40.0, interior_gap_mm=2.0)   # coverage is no concern here
+    b = _belief(cfg)
+    measured = np.full((20, 20), 10.0)   # soft all round, its sides too
+    measured[7:14, 8] = measured[7:14, 12] = 20.0   # two sweeps 8 mm apart (x = 17, 25 mm), both stiff
+    measured[7:14, 9:12] = np.nan
+    b.mean[7:14, 9:12] = 20.0   # the GP's guess between them: one blob
+    counts = np.ones((20, 20), dtype=np.int64)
+    _, found = detect_candidates(b, measured, counts, cfg)
+    assert len(found) == 1
+    d = decide(b, measured, counts, SEEDS, cfg)
+    assert not d.stop and not d.blind and d.point == (21.0, 21.0)   # the unmeasured column between them, middle
+    assert decide(b, measured, counts, SEEDS, _cfg(reach_mm=40.0)).stop   # the rule off: its sides suffice
+    measured[7:14, 10] = 10.0   # measured there: soft (two inclusions), every disc cell within 2 mm of a measured one
+    assert decide(b, measured, counts, SEEDS, cfg).stop
+    assert len(detect_candidates(b, measured, counts, cfg)[1]) == 2
+
+
+def test_the_baseline_spread_is_read_below_the_median_where_inclusions_cannot_widen_it() -> None:
+    # of the blind sweeps' cells 45 % on inclusions and halos (1.3-2.1x): the MAD spans both modes
+    rng = np.random.default_rng(5)
+    fair = np.concatenate([10.0 * (1 + 0.03 * rng.standard_normal(55)), 10.0 * (1.3 + 0.8 * rng.random(45))])
+    full, low = reference(fair.reshape(10, 10)), reference(fair.reshape(10, 10), lower=True)
+    assert full is not None and low is not None
+    assert low[0] == full[0] and low[1] < 0.6 * full[1]   # the median kept, the spread healthy tissue's
+    healthy = 10.0 * (1 + 0.03 * rng.standard_normal(100)).reshape(10, 10)
+    h_full, h_low = reference(healthy), reference(healthy, lower=True)
+    assert h_full is not None and h_low is not None and abs(h_low[1] - h_full[1]) < 0.1 * h_full[1]
+    # a 1.3x inclusion under the two-mode spread's threshold (1.38x), over the healthy one's (the 20 % floor)
+    measured = np.full((20, 20), full[0])
+    measured[8:13, 8:13] = 1.3 * full[0]
+    counts = np.ones((20, 20), dtype=np.int64)
+    grid = np.full((20, 20), np.nan)
+    grid.flat[:100] = fair
+    cfg = _cfg(reach_mm=40.0)
+    assert len(detect_candidates(_belief(cfg), measured, counts, cfg, grid)[1]) == 1
+    off = _cfg(reach_mm=40.0, lower_spread=False)
+    assert detect_candidates(_belief(off), measured, counts, off, grid)[1] == []
