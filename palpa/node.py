@@ -408,13 +408,17 @@ class Node:
         return sub
 
     def subscribe_raw(self, prefix: str, callback: Callable[[RawMessage], object], *,
-                      topics: Callable[[str], bool] | None = None) -> None:
+                      topics: Callable[[str], bool] | None = None,
+                      bus_prefixes: Sequence[bytes] | None = None) -> None:
         """Every envelope whose topic starts with ``prefix`` (``""`` for all), undecoded; with ``topics``, only
         those on a topic it accepts (asked once per topic: the others are dropped before any decoding, unseen
-        and uncounted)."""
+        and uncounted). ``bus_prefixes`` (each under ``prefix``, covering every topic ``topics`` accepts) lets the
+        bus itself leave out the rest, so they cost this node nothing (``TopicFilter.bus_prefixes``)."""
         key = prefix.encode()
+        if bus_prefixes is not None and not all(p.startswith(key) for p in bus_prefixes):
+            raise ValueError(f"subscribe_raw({prefix!r}): every bus prefix must start with {prefix!r}")
         self._rx.add_raw(key, callback, topics)
-        self._transport.subscribe(key, request_latched=True)
+        self._transport.subscribe(key, request_latched=True, bus_prefixes=bus_prefixes)
 
     def timer(
         self, period_s: float, callback: Callable[[], object], *, oneshot: bool = False,

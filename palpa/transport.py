@@ -67,8 +67,10 @@ class Transport(Protocol):
         """True when some subscriber's subscription matches ``topic`` (as far as this transport has heard)."""
         ...
 
-    def subscribe(self, prefix: bytes, request_latched: bool) -> None:
-        """Receive envelopes whose topic starts with ``prefix``; optionally ask the cache for its last value."""
+    def subscribe(self, prefix: bytes, request_latched: bool, bus_prefixes: Sequence[bytes] | None = None) -> None:
+        """Receive envelopes whose topic starts with ``prefix``; optionally ask the cache for its last value. With
+        ``bus_prefixes`` (each starting with ``prefix``), the bus sends only topics under one of them (a transport
+        may deliver more)."""
         ...
 
     def unsubscribe(self, prefix: bytes) -> None: ...
@@ -167,6 +169,7 @@ class ZmqTransport:
         self._latch = self._ctx.socket(zmq.DEALER)
         self._pub.sndhwm = options.sndhwm
         self._sub.rcvhwm = options.rcvhwm
+        self._sub.sndhwm = 0  # it sends subscriptions only, never to be dropped: a recorder makes ~1800 at once
         if options.max_msg_bytes:
             self._sub.maxmsgsize = self._latch.maxmsgsize = options.max_msg_bytes
         self._sub.reconnect_ivl_max = _RECONNECT_MAX_MS  # withdrawn direct publishers stay connected (cheaply)
@@ -195,6 +198,8 @@ class ZmqTransport:
         self._prefixes: list[bytes] = []
         self._unsent_latched: dict[bytes, list[bytes]] = {}
         self._directory_prefixes: list[bytes] = []
+        self._narrowed: dict[bytes, list[bytes]] = {}
+        """Subscriptions the bus filters by other prefixes than their own (``subscribe``'s ``bus_prefixes``)."""
         self._watch_hs = HandshakeWatch(monitor, self._pub, address.pub, self._curve,
                                         [(self._pub, address.pub), (self._sub, address.sub),
                                          (self._latch, address.latch)], self._accepted)
@@ -292,8 +297,13 @@ class ZmqTransport:
             if latched_topic is not None:
                 self._unsent_latched[latched_topic] = list(frames)
 
-    def subscribe(self, prefix: bytes, request_latched: bool) -> None:
-        self._sub.setsockopt(zmq.SUBSCRIBE, prefix)
+    def subscribe(self, prefix: bytes, request_latched: bool, bus_prefixes: Sequence[bytes] | None = None) -> None:
+        if bus_prefixes is None:
+            self._sub.setsockopt(zmq.SUBSCRIBE, prefix)
+        else:
+            self._narrowed[prefix] = list(bus_prefixes)
+            for p in bus_prefixes:
+                self._sub.setsockopt(zmq.SUBSCRIBE, p)
         if request_latched:
             self._prefixes.append(prefix)
             self._to_cache([b"GET", prefix])  # asked again on acceptance when it cannot go now
@@ -302,7 +312,8 @@ class ZmqTransport:
         self._to_cache([b"GET", DIRECTORY_PREFIX + prefix])
 
     def unsubscribe(self, prefix: bytes) -> None:
-        self._sub.setsockopt(zmq.UNSUBSCRIBE, prefix)
+        for p in self._narrowed.pop(prefix, [prefix]):
+            self._sub.setsockopt(zmq.UNSUBSCRIBE, p)
 
     def subscribe_probe(self, topic: bytes) -> None:
         """Subscribe to ``topic`` on the bus only (no latched value, no directory): a readiness probe."""
