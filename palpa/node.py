@@ -455,9 +455,10 @@ class Node:
         """Dispatch what has arrived, run due timers, wait up to ``timeout_s`` (less if a timer is due sooner),
         dispatch and run timers again. Messages are handled before timers so that a timer which checks data
         freshness (a watchdog) never judges by a queue the node had no chance to read."""
-        # a sim-clock node about to block skips this: its timers come due only with a tick, which the blocking poll
-        # below takes as soon as it is there (one poll per wake-up: thousands of them a simulated minute)
-        skipped = self._topic_clock is not None and timeout_s > 0
+        # a node about to block skips this: the wait below returns at once with what is there, or when a timer is
+        # due (a sim-clock node's come due only with a tick), and then dispatches and runs timers in that order
+        # (one poll per wake-up: a lockstep clock and its nodes wake thousands of times a simulated minute)
+        skipped = timeout_s > 0
         if not skipped:
             for delivery in self._transport.poll(0):
                 self._rx.dispatch(delivery)

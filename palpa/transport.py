@@ -351,7 +351,10 @@ class ZmqTransport:
                 timeout_s = 0
         # whole ms, rounded down: the caller comes back for the rest (rounding up would make timers late and,
         # since each period starts from the last firing, drift; sub-ms waits go through _wait_fine)
-        events = dict(self._poller.poll(int(timeout_s * 1000)))
+        if timeout_s > 0:
+            events = dict(self._poller.poll(int(timeout_s * 1000)))
+        else:  # nothing to wait for: each socket's EVENTS (~1.6 us) is what zmq_poll would look at, without its cost
+            events = {s: zmq.POLLIN for s in self._socks if cast(int, _get(s, zmq.EVENTS)) & zmq.POLLIN}
         if self._pub in events:
             self._drain_subscriptions(self._pub, self._bus_listeners)
         if self._direct is not None and self._direct.sock in events:
