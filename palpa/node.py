@@ -78,6 +78,7 @@ M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
 _RUNTIME = "_palpa/"
+_CLOCK_ACK_TOPIC_B = CLOCK_ACK_TOPIC.encode()
 _TIMER_PASSES = 100
 """Timer passes at one instant at most (a callback may start a timer due at once; a burst of them is a bug)."""
 _LEAD_ACK_NS = 10_000_000  # half a lead-mode clock's default max_lead_s: fewer acks, same bound
@@ -209,7 +210,12 @@ class Node:
         self._raw_sent: dict[str, int] = {}
         """Messages published with :meth:`publish_raw` per topic (service requests and replies among them)."""
         if self._topic_clock is not None:
-            self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1)
+            # straight to the clock (palpa.direct): one ZeroMQ hop instead of two, at every instant of a lockstep
+            self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1,
+                                           direct=isinstance(transport, ZmqTransport))
+            self._ack_heard = not self._ack_pub.direct
+            """Whether acks reach the clock: a direct one only once the clock has connected and subscribed (what a
+            direct socket sends before that is lost, and the clock would wait for it for good)."""
             self._last_ack_ns = 0
             self._acked: tuple[int, int, int, tuple[int, ...], int] | None = None
             self._ack_shape: tuple[int, ...] = ()
@@ -408,17 +414,13 @@ class Node:
         return sub
 
     def subscribe_raw(self, prefix: str, callback: Callable[[RawMessage], object], *,
-                      topics: Callable[[str], bool] | None = None,
-                      bus_prefixes: Sequence[bytes] | None = None) -> None:
+                      topics: Callable[[str], bool] | None = None) -> None:
         """Every envelope whose topic starts with ``prefix`` (``""`` for all), undecoded; with ``topics``, only
         those on a topic it accepts (asked once per topic: the others are dropped before any decoding, unseen
-        and uncounted). ``bus_prefixes`` (each under ``prefix``, covering every topic ``topics`` accepts) lets the
-        bus itself leave out the rest, so they cost this node nothing (``TopicFilter.bus_prefixes``)."""
+        and uncounted, and no direct publisher of them is connected to)."""
         key = prefix.encode()
-        if bus_prefixes is not None and not all(p.startswith(key) for p in bus_prefixes):
-            raise ValueError(f"subscribe_raw({prefix!r}): every bus prefix must start with {prefix!r}")
         self._rx.add_raw(key, callback, topics)
-        self._transport.subscribe(key, request_latched=True, bus_prefixes=bus_prefixes)
+        self._transport.subscribe(key, request_latched=True, wants=topics)
 
     def timer(
         self, period_s: float, callback: Callable[[], object], *, oneshot: bool = False,
@@ -488,6 +490,11 @@ class Node:
     def _report_to_clock(self) -> None:
         clock = self._topic_clock
         if clock is not None and clock.started and self._set_up and not self.dispatch.depth and not self._closed:
+            if not self._ack_heard:
+                t = self._transport
+                if isinstance(t, ZmqTransport) and not t.subscribed_exactly(_CLOCK_ACK_TOPIC_B):
+                    return  # the clock's subscription arriving on the direct socket wakes this node's poll
+                self._ack_heard = True
             if self._lead_acks and clock.now_ns() - self._last_ack_ns >= _LEAD_ACK_NS:
                 self._acked = None  # a lead-mode clock holds time within a lead of this ack: send one anyway
             self._lockstep_ack()

@@ -87,8 +87,8 @@ class MemoryTransport:
     def has_subscribers(self, topic: bytes) -> bool:
         return bool(self.bus.listeners(topic))
 
-    def subscribe(self, prefix: bytes, request_latched: bool, bus_prefixes: Sequence[bytes] | None = None) -> None:
-        self.prefixes.append(prefix)  # (every topic under prefix: the receiver's filter drops the rest)
+    def subscribe(self, prefix: bytes, request_latched: bool, wants: Callable[[str], bool] | None = None) -> None:
+        self.prefixes.append(prefix)
         self.bus.changed()
         if request_latched:
             for topic, rest in self.bus._cache.items():

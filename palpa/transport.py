@@ -67,10 +67,10 @@ class Transport(Protocol):
         """True when some subscriber's subscription matches ``topic`` (as far as this transport has heard)."""
         ...
 
-    def subscribe(self, prefix: bytes, request_latched: bool, bus_prefixes: Sequence[bytes] | None = None) -> None:
-        """Receive envelopes whose topic starts with ``prefix``; optionally ask the cache for its last value. With
-        ``bus_prefixes`` (each starting with ``prefix``), the bus sends only topics under one of them (a transport
-        may deliver more)."""
+    def subscribe(self, prefix: bytes, request_latched: bool, wants: Callable[[str], bool] | None = None) -> None:
+        """Receive envelopes whose topic starts with ``prefix``; optionally ask the cache for its last value.
+        ``wants``: which of those topics are taken (the rest may still be delivered), so that no connection is made
+        to a direct publisher (palpa.direct) for a topic no one here takes."""
         ...
 
     def unsubscribe(self, prefix: bytes) -> None: ...
@@ -169,7 +169,6 @@ class ZmqTransport:
         self._latch = self._ctx.socket(zmq.DEALER)
         self._pub.sndhwm = options.sndhwm
         self._sub.rcvhwm = options.rcvhwm
-        self._sub.sndhwm = 0  # it sends subscriptions only, never to be dropped: a recorder makes ~1800 at once
         if options.max_msg_bytes:
             self._sub.maxmsgsize = self._latch.maxmsgsize = options.max_msg_bytes
         self._sub.reconnect_ivl_max = _RECONNECT_MAX_MS  # withdrawn direct publishers stay connected (cheaply)
@@ -198,8 +197,8 @@ class ZmqTransport:
         self._prefixes: list[bytes] = []
         self._unsent_latched: dict[bytes, list[bytes]] = {}
         self._directory_prefixes: list[bytes] = []
-        self._narrowed: dict[bytes, list[bytes]] = {}
-        """Subscriptions the bus filters by other prefixes than their own (``subscribe``'s ``bus_prefixes``)."""
+        self._directory_wants: dict[bytes, Callable[[str], bool]] = {}
+        """Subscription prefix -> which topics under it are taken (``subscribe``'s ``wants``)."""
         self._watch_hs = HandshakeWatch(monitor, self._pub, address.pub, self._curve,
                                         [(self._pub, address.pub), (self._sub, address.sub),
                                          (self._latch, address.latch)], self._accepted)
@@ -297,13 +296,10 @@ class ZmqTransport:
             if latched_topic is not None:
                 self._unsent_latched[latched_topic] = list(frames)
 
-    def subscribe(self, prefix: bytes, request_latched: bool, bus_prefixes: Sequence[bytes] | None = None) -> None:
-        if bus_prefixes is None:
-            self._sub.setsockopt(zmq.SUBSCRIBE, prefix)
-        else:
-            self._narrowed[prefix] = list(bus_prefixes)
-            for p in bus_prefixes:
-                self._sub.setsockopt(zmq.SUBSCRIBE, p)
+    def subscribe(self, prefix: bytes, request_latched: bool, wants: Callable[[str], bool] | None = None) -> None:
+        self._sub.setsockopt(zmq.SUBSCRIBE, prefix)
+        if wants is not None:
+            self._directory_wants[prefix] = wants
         if request_latched:
             self._prefixes.append(prefix)
             self._to_cache([b"GET", prefix])  # asked again on acceptance when it cannot go now
@@ -312,8 +308,7 @@ class ZmqTransport:
         self._to_cache([b"GET", DIRECTORY_PREFIX + prefix])
 
     def unsubscribe(self, prefix: bytes) -> None:
-        for p in self._narrowed.pop(prefix, [prefix]):
-            self._sub.setsockopt(zmq.UNSUBSCRIBE, p)
+        self._sub.setsockopt(zmq.UNSUBSCRIBE, prefix)
 
     def subscribe_probe(self, topic: bytes) -> None:
         """Subscribe to ``topic`` on the bus only (no latched value, no directory): a readiness probe."""
@@ -324,6 +319,13 @@ class ZmqTransport:
         The proxy forwards subscriptions in the order its XPUB took them in, and it took in each subscriber's in
         the order they were made: when a node hears its own newest one, the proxy has all its earlier ones."""
         return prefix in self._bus_listeners.prefixes
+
+    def subscribed_exactly(self, topic: bytes) -> bool:
+        """Whether a subscription to exactly ``topic`` (not a shorter prefix: someone taking everything is not the
+        one waited for) has reached the socket ``topic`` leaves from, direct or the bus's."""
+        direct = self._direct
+        return topic in (direct.listeners if direct is not None and direct.carries(topic) else
+                         self._bus_listeners).prefixes
 
     def heard_join(self, node: str) -> bool:
         """Whether this node's publisher socket has heard ``node``'s readiness probe subscribed (palpa.node), and
@@ -369,7 +371,8 @@ class ZmqTransport:
                     break
                 if frames and frames[0] == b"VAL" and len(frames) >= 4:
                     if frames[1].startswith(DIRECTORY_PREFIX):
-                        follow_directory(self._sub, self._peers, frames[1], frames[3], self._bus_server_key)
+                        if self._takes_direct(frames[1]):
+                            follow_directory(self._sub, self._peers, frames[1], frames[3], self._bus_server_key)
                     elif frames[1] == CLIENT_KEYS_TOPIC:
                         if self._direct is not None:
                             self._direct.allow(self._to_cache, frames[3])
@@ -379,6 +382,18 @@ class ZmqTransport:
                     log.warning("the bus's latch cache refused %r: %s", frames[1][:80],
                                 frames[2][:300].decode(errors="replace"))
         return out
+
+    def _takes_direct(self, key: bytes) -> bool:
+        """Whether a subscription here takes the topic of a direct publisher's announcement (``key``): a recorder
+        taking every topic but a lockstep's does not connect to the lockstep's direct sockets, whose ticks and
+        acks (most of a simulation's messages) it would only drop."""
+        topic = key[len(DIRECTORY_PREFIX):key.rfind(b"\0")]
+        for prefix in self._directory_prefixes:
+            if topic.startswith(prefix):
+                wants = self._directory_wants.get(prefix)
+                if wants is None or wants(topic.decode(errors="replace")):
+                    return True
+        return False
 
     def _read_sub(self, out: list[Delivery], max_batch: int) -> None:
         """Append up to ``max_batch`` envelopes waiting on the SUB socket (which has input).

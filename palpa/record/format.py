@@ -196,43 +196,6 @@ class TopicFilter:
             return topic in self.always or any(p.fullmatch(topic) for p in self._runtime_include)
         return not self.include or any(p.fullmatch(topic) for p in self.include)
 
-    def bus_prefixes(self) -> list[bytes]:
-        """Subscription prefixes under which every topic this filter takes arrives, and none of the runtime topics
-        it never takes: the bus (ZeroMQ filters by prefix, in the publishers and the proxy) then never sends a
-        lockstep's ticks and acks (``_palpa/tick/...``, ``_palpa/lockstep``: half a simulation's messages) to a
-        recorder that drops them. Runtime topics that an include pattern or ``always`` names still arrive; more
-        may arrive than the filter takes (it still decides). Topics that are a proper beginning of ``_palpa/``
-        (``_``, ``_p``, ... ``_palpa``) never do: a prefix subscription cannot take such a name without
-        everything that starts with it."""
-        runtime = RUNTIME_PREFIX.encode()
-        kept = {t.encode() for t in self.always if t.startswith(RUNTIME_PREFIX) and self(t)}
-        kept.update(_literal_prefix(p.pattern).encode() for p in self._runtime_include)
-        return prefixes_except(runtime) + sorted(kept)
-
-
-_REGEX_META = frozenset(".^$*+?{}[]\\|()")
-
-
-def _literal_prefix(pattern: str) -> str:
-    """The text every topic a (runtime) pattern matches starts with: its leading literal characters, short of one
-    that a quantifier makes optional; ``_palpa/`` when it has alternatives."""
-    if "|" in pattern:
-        return RUNTIME_PREFIX
-    body = pattern.lstrip("^")
-    n = 0
-    while n < len(body) and body[n] not in _REGEX_META:
-        n += 1
-    if n < len(body) and body[n] in "*?{":
-        n -= 1
-    return body[:max(n, 0)]
-
-
-def prefixes_except(excluded: bytes) -> list[bytes]:
-    """ZeroMQ subscription prefixes that together match every topic but those starting with ``excluded`` (and
-    those that are a proper beginning of it): at each byte of ``excluded``, the path so far plus every other byte
-    (255 prefixes a byte)."""
-    return [excluded[:i] + bytes((b,)) for i, skip in enumerate(excluded) for b in range(256) if b != skip]
-
 
 def dumps(obj: Any) -> str:
     """Compact, key-sorted JSON for metadata values."""

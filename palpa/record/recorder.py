@@ -153,8 +153,7 @@ class Recorder(Node):
         self._file_index = 0
         self._counter_base: dict[str, dict[str, int]] = {}
         self._writer = self._open_file()
-        # the bus leaves out the runtime topics the filter never takes (a lockstep's ticks and acks)
-        self.subscribe_raw("", self._on_raw, topics=self._filter, bus_prefixes=self._filter.bus_prefixes())
+        self.subscribe_raw("", self._on_raw, topics=self._filter)  # a lockstep's ticks cost nothing when excluded
         self.subscribe(HEARTBEAT_TOPIC, Heartbeat, self._on_heartbeat)
         self.timer(p.flush_period_s, self._tick)
         self.log.info("recording to %s", self._writer.path)
