@@ -454,8 +454,8 @@ class Node:
         return min(live) if live else None
 
     def spin_once(self, timeout_s: float = 0.0) -> None:
-        """Dispatch what has arrived, run due timers, wait up to ``timeout_s`` (less if a timer is due sooner),
-        dispatch and run timers again. Messages are handled before timers so that a timer which checks data
+        """Wait up to ``timeout_s`` for input (less if a timer is due sooner; not at all with 0), then dispatch what
+        has arrived and run the due timers. Messages are handled before timers so that a timer which checks data
         freshness (a watchdog) never judges by a queue the node had no chance to read."""
         # a node about to block skips this: the wait below returns at once with what is there, or when a timer is
         # due (a sim-clock node's come due only with a tick), and then dispatches and runs timers in that order

@@ -9,7 +9,8 @@ has sent and taken in (:class:`~palpa.runtime_msgs.ClockAck`); the source moves 
 once no timer is left due and no message is in flight (:mod:`palpa.lockstep`), so the graph sees the timeline a
 composition (:mod:`palpa.compose`) gives it: timers at their exact deadlines, every message handled at the
 instant it was sent. Each instant goes only to the nodes with a timer due at it, each on its own topic
-(``_palpa/tick/<node>/``); the others take it from the messages they handle (``Header.at``), and ``_palpa/clock``
+(``_palpa/tick/<node>/``; ticks and acks go straight between clock and node, palpa.direct, not through the
+proxy); the others take it from the messages they handle (``Header.at``), and ``_palpa/clock``
 carries the held start, the release and, once a wall second, the current time. Time starts only when every node
 named in ``participants`` (the launcher fills in the file's sim-clock nodes) has set up: until then the source
 publishes the start time with ``hold``. Time never runs faster than ``time_scale`` (a ceiling); on an overloaded
