@@ -106,7 +106,7 @@ class _HubTransport(MemoryTransport):
         bridge = self.bus.bridge
         return super().has_subscribers(topic) or (bridge is not None and bridge.has_subscribers(topic))
 
-    def subscribe(self, prefix: bytes, request_latched: bool) -> None:
+    def subscribe(self, prefix: bytes, request_latched: bool, wants: Callable[[str], bool] | None = None) -> None:
         super().subscribe(prefix, request_latched)
         self.bus.note(prefix, latched=request_latched)
 

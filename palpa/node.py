@@ -78,6 +78,7 @@ M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
 _RUNTIME = "_palpa/"
+_CLOCK_ACK_TOPIC_B = CLOCK_ACK_TOPIC.encode()
 _TIMER_PASSES = 100
 """Timer passes at one instant at most (a callback may start a timer due at once; a burst of them is a bug)."""
 _LEAD_ACK_NS = 10_000_000  # half a lead-mode clock's default max_lead_s: fewer acks, same bound
@@ -209,7 +210,12 @@ class Node:
         self._raw_sent: dict[str, int] = {}
         """Messages published with :meth:`publish_raw` per topic (service requests and replies among them)."""
         if self._topic_clock is not None:
-            self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1)
+            # straight to the clock (palpa.direct): one ZeroMQ hop instead of two, at every instant of a lockstep
+            self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1,
+                                           direct=isinstance(transport, ZmqTransport))
+            self._ack_heard = not self._ack_pub.direct
+            """Whether acks reach the clock: a direct one only once the clock has connected and subscribed (what a
+            direct socket sends before that is lost, and the clock would wait for it for good)."""
             self._last_ack_ns = 0
             self._acked: tuple[int, int, int, tuple[int, ...], int] | None = None
             self._ack_shape: tuple[int, ...] = ()
@@ -411,10 +417,10 @@ class Node:
                       topics: Callable[[str], bool] | None = None) -> None:
         """Every envelope whose topic starts with ``prefix`` (``""`` for all), undecoded; with ``topics``, only
         those on a topic it accepts (asked once per topic: the others are dropped before any decoding, unseen
-        and uncounted)."""
+        and uncounted, and no direct publisher of them is connected to)."""
         key = prefix.encode()
         self._rx.add_raw(key, callback, topics)
-        self._transport.subscribe(key, request_latched=True)
+        self._transport.subscribe(key, request_latched=True, wants=topics)
 
     def timer(
         self, period_s: float, callback: Callable[[], object], *, oneshot: bool = False,
@@ -448,12 +454,13 @@ class Node:
         return min(live) if live else None
 
     def spin_once(self, timeout_s: float = 0.0) -> None:
-        """Dispatch what has arrived, run due timers, wait up to ``timeout_s`` (less if a timer is due sooner),
-        dispatch and run timers again. Messages are handled before timers so that a timer which checks data
+        """Wait up to ``timeout_s`` for input (less if a timer is due sooner; not at all with 0), then dispatch what
+        has arrived and run the due timers. Messages are handled before timers so that a timer which checks data
         freshness (a watchdog) never judges by a queue the node had no chance to read."""
-        # a sim-clock node about to block skips this: its timers come due only with a tick, which the blocking poll
-        # below takes as soon as it is there (one poll per wake-up: thousands of them a simulated minute)
-        skipped = self._topic_clock is not None and timeout_s > 0
+        # a node about to block skips this: the wait below returns at once with what is there, or when a timer is
+        # due (a sim-clock node's come due only with a tick), and then dispatches and runs timers in that order
+        # (one poll per wake-up: a lockstep clock and its nodes wake thousands of times a simulated minute)
+        skipped = timeout_s > 0
         if not skipped:
             for delivery in self._transport.poll(0):
                 self._rx.dispatch(delivery)
@@ -483,6 +490,11 @@ class Node:
     def _report_to_clock(self) -> None:
         clock = self._topic_clock
         if clock is not None and clock.started and self._set_up and not self.dispatch.depth and not self._closed:
+            if not self._ack_heard:
+                t = self._transport
+                if isinstance(t, ZmqTransport) and not t.subscribed_exactly(_CLOCK_ACK_TOPIC_B):
+                    return  # the clock's subscription arriving on the direct socket wakes this node's poll
+                self._ack_heard = True
             if self._lead_acks and clock.now_ns() - self._last_ack_ns >= _LEAD_ACK_NS:
                 self._acked = None  # a lead-mode clock holds time within a lead of this ack: send one anyway
             self._lockstep_ack()

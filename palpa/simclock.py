@@ -9,7 +9,8 @@ has sent and taken in (:class:`~palpa.runtime_msgs.ClockAck`); the source moves 
 once no timer is left due and no message is in flight (:mod:`palpa.lockstep`), so the graph sees the timeline a
 composition (:mod:`palpa.compose`) gives it: timers at their exact deadlines, every message handled at the
 instant it was sent. Each instant goes only to the nodes with a timer due at it, each on its own topic
-(``_palpa/tick/<node>/``); the others take it from the messages they handle (``Header.at``), and ``_palpa/clock``
+(``_palpa/tick/<node>/``; ticks and acks go straight between clock and node, palpa.direct, not through the
+proxy); the others take it from the messages they handle (``Header.at``), and ``_palpa/clock``
 carries the held start, the release and, once a wall second, the current time. Time starts only when every node
 named in ``participants`` (the launcher fills in the file's sim-clock nodes) has set up: until then the source
 publishes the start time with ``hold``. Time never runs faster than ``time_scale`` (a ceiling); on an overloaded
@@ -141,8 +142,10 @@ class ClockSource(Node):
         self._heard[ack.node] = time.monotonic_ns()
         self._held.discard(ack.node)
         if ack.next_ns >= 0 and self.params.lockstep == "events":
-            if self._events.report(ack) and self._released:
-                self.log.info("%s joined at %.3f s of simulated time", ack.node, ack.sim_ns / 1e9)
+            if self._events.report(ack):
+                self._tick_pub(ack.node)  # announced now: the node connects before its first tick
+                if self._released:
+                    self.log.info("%s joined at %.3f s of simulated time", ack.node, ack.sim_ns / 1e9)
             self._advance()
         elif not self._released:
             self._advance()
@@ -272,19 +275,25 @@ class ClockSource(Node):
         """Send the new instant to the participants with a timer due at it, each on its own topic: the others learn
         it from the messages they handle at it (``Header.at``, palpa.node), so a node with nothing to do at an
         instant is not woken (the broadcast every second keeps idle nodes' watchdogs fed)."""
-        tick = ClockTick(sim_ns=sim_ns)
-        due = self._events.due(sim_ns)
+        pubs = [self._tick_pub(n) for n in self._events.due(sim_ns)]
         t = self.transport
-        if isinstance(t, ZmqTransport) and any(self._events.probe(n) not in t.joins_heard for n in due):
-            # our publisher socket may not have that node's subscription to its own topic yet (palpa.node's
-            # readiness probe says when it has): a tick dropped there would hold time for good
+        if isinstance(t, ZmqTransport) and not all(t.subscribed_exactly(p.topic.encode()) for p in pubs):
+            # that node's subscription to its own topic has not reached our (direct) socket yet: a tick sent there
+            # would be dropped and hold time for good; the broadcast goes through the bus, whose route to it the
+            # node's readiness probe confirmed
             self._publish(sim_ns, time.monotonic_ns())
             return
-        for node in due:
-            pub = self._tick_pubs.get(node)
-            if pub is None:
-                pub = self._tick_pubs[node] = self.publisher(tick_topic(node), ClockTick, batch=1)
+        tick = ClockTick(sim_ns=sim_ns)
+        for pub in pubs:
             pub.publish(tick)
+
+    def _tick_pub(self, node: str) -> Publisher[ClockTick]:
+        """The publisher of ``node``'s instants, straight to it (palpa.direct: one ZeroMQ hop instead of two)."""
+        pub = self._tick_pubs.get(node)
+        if pub is None:
+            pub = self._tick_pubs[node] = self.publisher(tick_topic(node), ClockTick, batch=1,
+                                                         direct=isinstance(self.transport, ZmqTransport))
+        return pub
 
 
     def _stalled(self, wall: int) -> bool:

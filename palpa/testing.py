@@ -87,7 +87,7 @@ class MemoryTransport:
     def has_subscribers(self, topic: bytes) -> bool:
         return bool(self.bus.listeners(topic))
 
-    def subscribe(self, prefix: bytes, request_latched: bool) -> None:
+    def subscribe(self, prefix: bytes, request_latched: bool, wants: Callable[[str], bool] | None = None) -> None:
         self.prefixes.append(prefix)
         self.bus.changed()
         if request_latched:

@@ -67,8 +67,10 @@ class Transport(Protocol):
         """True when some subscriber's subscription matches ``topic`` (as far as this transport has heard)."""
         ...
 
-    def subscribe(self, prefix: bytes, request_latched: bool) -> None:
-        """Receive envelopes whose topic starts with ``prefix``; optionally ask the cache for its last value."""
+    def subscribe(self, prefix: bytes, request_latched: bool, wants: Callable[[str], bool] | None = None) -> None:
+        """Receive envelopes whose topic starts with ``prefix``; optionally ask the cache for its last value.
+        ``wants``: which of those topics are taken (the rest may still be delivered), so that no connection is made
+        to a direct publisher (palpa.direct) for a topic no one here takes."""
         ...
 
     def unsubscribe(self, prefix: bytes) -> None: ...
@@ -195,6 +197,8 @@ class ZmqTransport:
         self._prefixes: list[bytes] = []
         self._unsent_latched: dict[bytes, list[bytes]] = {}
         self._directory_prefixes: list[bytes] = []
+        self._directory_wants: dict[bytes, Callable[[str], bool]] = {}
+        """Subscription prefix -> which topics under it are taken (``subscribe``'s ``wants``)."""
         self._watch_hs = HandshakeWatch(monitor, self._pub, address.pub, self._curve,
                                         [(self._pub, address.pub), (self._sub, address.sub),
                                          (self._latch, address.latch)], self._accepted)
@@ -292,8 +296,10 @@ class ZmqTransport:
             if latched_topic is not None:
                 self._unsent_latched[latched_topic] = list(frames)
 
-    def subscribe(self, prefix: bytes, request_latched: bool) -> None:
+    def subscribe(self, prefix: bytes, request_latched: bool, wants: Callable[[str], bool] | None = None) -> None:
         self._sub.setsockopt(zmq.SUBSCRIBE, prefix)
+        if wants is not None:
+            self._directory_wants[prefix] = wants
         if request_latched:
             self._prefixes.append(prefix)
             self._to_cache([b"GET", prefix])  # asked again on acceptance when it cannot go now
@@ -313,6 +319,13 @@ class ZmqTransport:
         The proxy forwards subscriptions in the order its XPUB took them in, and it took in each subscriber's in
         the order they were made: when a node hears its own newest one, the proxy has all its earlier ones."""
         return prefix in self._bus_listeners.prefixes
+
+    def subscribed_exactly(self, topic: bytes) -> bool:
+        """Whether a subscription to exactly ``topic`` (not a shorter prefix: someone taking everything is not the
+        one waited for) has reached the socket ``topic`` leaves from, direct or the bus's."""
+        direct = self._direct
+        return topic in (direct.listeners if direct is not None and direct.carries(topic) else
+                         self._bus_listeners).prefixes
 
     def heard_join(self, node: str) -> bool:
         """Whether this node's publisher socket has heard ``node``'s readiness probe subscribed (palpa.node), and
@@ -340,7 +353,10 @@ class ZmqTransport:
                 timeout_s = 0
         # whole ms, rounded down: the caller comes back for the rest (rounding up would make timers late and,
         # since each period starts from the last firing, drift; sub-ms waits go through _wait_fine)
-        events = dict(self._poller.poll(int(timeout_s * 1000)))
+        if timeout_s > 0:
+            events = dict(self._poller.poll(int(timeout_s * 1000)))
+        else:  # nothing to wait for: each socket's EVENTS (~1.6 us) is what zmq_poll would look at, without its cost
+            events = {s: zmq.POLLIN for s in self._socks if cast(int, _get(s, zmq.EVENTS)) & zmq.POLLIN}
         if self._pub in events:
             self._drain_subscriptions(self._pub, self._bus_listeners)
         if self._direct is not None and self._direct.sock in events:
@@ -355,7 +371,8 @@ class ZmqTransport:
                     break
                 if frames and frames[0] == b"VAL" and len(frames) >= 4:
                     if frames[1].startswith(DIRECTORY_PREFIX):
-                        follow_directory(self._sub, self._peers, frames[1], frames[3], self._bus_server_key)
+                        if self._takes_direct(frames[1]):
+                            follow_directory(self._sub, self._peers, frames[1], frames[3], self._bus_server_key)
                     elif frames[1] == CLIENT_KEYS_TOPIC:
                         if self._direct is not None:
                             self._direct.allow(self._to_cache, frames[3])
@@ -365,6 +382,18 @@ class ZmqTransport:
                     log.warning("the bus's latch cache refused %r: %s", frames[1][:80],
                                 frames[2][:300].decode(errors="replace"))
         return out
+
+    def _takes_direct(self, key: bytes) -> bool:
+        """Whether a subscription here takes the topic of a direct publisher's announcement (``key``): a recorder
+        taking every topic but a lockstep's does not connect to the lockstep's direct sockets, whose ticks and
+        acks (most of a simulation's messages) it would only drop."""
+        topic = key[len(DIRECTORY_PREFIX):key.rfind(b"\0")]
+        for prefix in self._directory_prefixes:
+            if topic.startswith(prefix):
+                wants = self._directory_wants.get(prefix)
+                if wants is None or wants(topic.decode(errors="replace")):
+                    return True
+        return False
 
     def _read_sub(self, out: list[Delivery], max_batch: int) -> None:
         """Append up to ``max_batch`` envelopes waiting on the SUB socket (which has input).

@@ -1,0 +1,128 @@
+"""A lockstep's own traffic (ticks to the nodes, acks to the clock) goes straight between the clock and its nodes
+(palpa.direct): not through the proxy, and not to a recorder that takes every topic but those."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+import palpa
+from messages import Text
+from palpa.address import BusAddress
+from palpa.bus import Bus
+from palpa.direct import DIRECTORY_PREFIX
+from palpa.record.reader import iter_bag
+from palpa.record.recorder import Recorder
+from palpa.runtime_msgs import CLOCK_ACK_TOPIC
+from palpa.simclock import ClockSource
+from palpa.transport import Delivery, ZmqTransport
+from tests.procs import short_ipc_base, wait_until
+
+LOCKSTEP_EXCLUDE = ["_palpa/clock.*", "_palpa/tick/.*", "_palpa/lockstep"]  # launch/scan_sim.yaml's record:
+
+
+class _Ticker(palpa.Node):
+    def setup(self) -> None:
+        self.out = self.publisher("chatter", Text)
+        self.ran: list[int] = []
+        self.timer(0.01, self.tick)
+
+    def tick(self) -> None:
+        self.ran.append(self.clock.now_ns())
+        self.out.publish(Text(text=str(len(self.ran)), stamp_ns=self.clock.now_ns()))
+
+
+class _Graph:
+    """A bus and in-process nodes on it, spun in turn; all closed at the end."""
+
+    def __init__(self) -> None:
+        self.bus = Bus(BusAddress.parse(f"ipc://{short_ipc_base()}"))
+        self.address = self.bus.start()
+        self.nodes: list[palpa.Node] = []
+
+    def clock(self) -> ClockSource:
+        clock = ClockSource("clock", {"time_scale": 1000.0, "participants": ["ticker"]}, bus=self.address,
+                            heartbeat_s=0)
+        self.nodes.append(clock)
+        return clock
+
+    def ticker(self) -> _Ticker:
+        ticker = _Ticker("ticker", bus=self.address, sim_clock=True, heartbeat_s=0, wait_for_clock_s=0)
+        self.nodes.append(ticker)
+        return ticker
+
+    def spin(self) -> None:
+        for n in self.nodes:
+            n.spin_once(0.001)
+
+    def close(self) -> None:
+        try:
+            for n in reversed(self.nodes):
+                n.close(0)
+        finally:
+            self.bus.stop()
+
+
+@pytest.fixture
+def graph() -> Iterator[_Graph]:
+    g = _Graph()
+    try:
+        yield g
+    finally:
+        g.close()
+
+
+def test_ticks_and_acks_go_past_the_proxy_and_the_recorder(graph: _Graph, tmp_path: Path) -> None:
+    out = tmp_path / "r.mcap"
+    rec = Recorder("recorder", {"output": str(out), "exclude": LOCKSTEP_EXCLUDE}, bus=graph.address, heartbeat_s=0)
+    graph.nodes.append(rec)
+    at_recorder: list[bytes] = []
+    poll = rec.transport.poll
+
+    def spy(timeout_s: float) -> list[Delivery]:
+        got = poll(timeout_s)
+        at_recorder.extend(d.frames[0] for d in got)
+        return got
+
+    rec.transport.poll = spy  # type: ignore[method-assign]
+    graph.clock()
+    ticker = graph.ticker()
+    wait_until(lambda: len(ticker.ran) >= 30, 30, "30 lockstep instants of the ticker's timer", step=graph.spin)
+    wait_until(lambda: at_recorder.count(b"chatter") >= 20, 10, "chatter at the recorder", step=graph.spin)
+    rec.close(0)  # the file finished
+    steps = [b - a for a, b in zip(ticker.ran, ticker.ran[1:], strict=False)]
+    assert set(steps) == {10_000_000}  # every 10 ms of simulated time, none skipped: the lockstep ran
+    lockstep = [t for t in at_recorder if t.startswith((b"_palpa/lockstep", b"_palpa/tick/"))]
+    assert not lockstep, lockstep[:5]
+    assert sum(m.topic == "chatter" for m in iter_bag([out])) >= 20
+
+
+def test_a_node_acks_only_once_the_clock_listens_on_its_direct_socket(graph: _Graph) -> None:
+    """An ack sent before the clock connected would be lost, and the clock wait for that node for good: with the
+    clock's connection to the node's direct socket held back, time starts only once it is made."""
+    t = graph.clock().transport
+    assert isinstance(t, ZmqTransport)
+    takes = t._takes_direct
+    held = [True]
+    t._takes_direct = lambda key: not held[0] and takes(key)  # type: ignore[method-assign]
+    ticker = graph.ticker()
+    clock_time = ticker._topic_clock
+    assert clock_time is not None
+    wait_until(lambda: clock_time.started, 10, "the clock's held start at the ticker", step=graph.spin)
+    for _ in range(50):
+        graph.spin()
+    assert not ticker.ran  # the clock has not heard the ticker: time has not started
+    held[0] = False
+    t._to_cache([b"GET", DIRECTORY_PREFIX + CLOCK_ACK_TOPIC.encode()])  # the announcement, again
+    wait_until(lambda: len(ticker.ran) >= 5, 10, "time to start and run the ticker's timer", step=graph.spin)
+
+
+def test_a_node_not_yet_connected_to_the_clock_gets_its_instants_through_the_bus(graph: _Graph) -> None:
+    """The clock sends an instant straight to a node only once the node's subscription has reached its direct
+    socket; until then (here: for good) the broadcast through the bus carries it, and time does not stall."""
+    graph.clock()
+    ticker = graph.ticker()
+    ticker.transport._takes_direct = lambda key: False  # type: ignore[attr-defined]
+    wait_until(lambda: len(ticker.ran) >= 10, 10, "the ticker's timer to run", step=graph.spin)
