@@ -137,12 +137,11 @@ def test_a_simulated_scan_split_over_three_hosts_survives_a_link_going_down(
     g = Graph(hosts, procs, tmp_path)
     rec_file, out_dir = tmp_path / "run.mcap", tmp_path / "map"
     recorder = g.start(1, "record", "-o", str(rec_file), "--exclude", "_palpa/clock.*")
-    # launch/scan_sim.yaml's own nodes and parameters, resolved by the launch loader, each started on its host. The
-    # lead lockstep (time_scale, held within 20 ms of the slowest node it hears) rather than the event lockstep,
-    # whose exchanges over CURVE between namespaces ran this scan at ~1.5x real time: the outage is the point here,
-    # not the composition's timeline (tests/test_compose.py). A 2 x 2 touch-off, for the same reason.
+    # launch/scan_sim.yaml's own nodes and parameters, resolved by the launch loader, each started on its host, under
+    # the default (event) lockstep, its ticks and acks straight between hosts; a 2 x 2 touch-off: the outage is the
+    # point here, not the touch-off
     plan = load_launch(REPO / "launch" / "scan_sim.yaml", parse_overrides([
-        "region_mm:=[38.0, 12.0, 52.0, 24.0]", "spacing_mm:=4.0", "time_scale:=4.0", "lockstep:=lead",
+        "region_mm:=[38.0, 12.0, 52.0, 24.0]", "spacing_mm:=4.0", "time_scale:=4.0",
         "touch_grid:=2", f"geometry:={GEOMETRY}", f"output_dir:={out_dir}"]), run_dir=tmp_path)
     placed = {spec.name: spec for spec in plan.nodes}
     assert set(placed) == set(HOST_OF), "scan_sim.yaml's nodes changed: place the new ones on a host"
