@@ -60,6 +60,7 @@ from models.adaptive import (
     next_probe,
     probe_points,
 )
+from models.adaptive_split import split_detections
 from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
 
 __all__ = ["Decision", "clip_of", "coverage_gain", "decide", "detect_candidates", "detection_map",
@@ -178,18 +179,22 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
                       fair: FloatArray | None = None, suspect: bool = False) -> tuple[MapSnapshot, list[Inclusion]]:
     """The detection map (:func:`detection_map`) as a map snapshot, and the inclusions the map detector
     (models.stiffness_map.detect_inclusions, the raster's own) finds on it, its baseline from ``fair``
-    (:func:`reference`) when given. ``suspect``: with the detector's thresholds scaled by ``cfg.suspect``, the
+    (:func:`reference`) when given, a detection whose measured cells show two maxima split in two
+    (``cfg.split_prominence``: models.adaptive_split). ``suspect``: with the detector's thresholds scaled by ``cfg.suspect``, the
     regions worth a closer look (a weak inclusion seen from a sweep that passed its edge rises less than the
     detector's threshold; resolving it samples nearer its centre)."""
     grid = detection_map(measured, belief.mean, cfg.resolution_mm, cfg.fill_mm)
     snap = MapSnapshot(stiffness=grid, x_mm=belief.x_mm, y_mm=belief.y_mm, count=counts, spread=belief.std,
                        resolution_mm=cfg.resolution_mm)
+    scale = cfg.suspect if suspect else 1.0
+    ref = reference(fair, clip=clip_of(cfg), lower=cfg.lower_spread)
     try:
-        scale = cfg.suspect if suspect else 1.0
-        found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0,
-                                  reference=reference(fair, clip=clip_of(cfg), lower=cfg.lower_spread))
+        found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0, reference=ref)
     except ValueError:   # no positive baseline yet: nothing to call stiff
-        found = []
+        return snap, []
+    if cfg.split_prominence > 0 and not suspect:
+        found = split_detections(snap, np.isfinite(measured), ref, found, rel_threshold=cfg.rel_threshold, k_mad=4.0,
+                                 prominence_k=cfg.split_prominence)
     return snap, found
 
 
