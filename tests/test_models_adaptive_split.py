@@ -106,3 +106,24 @@ def test_the_planner_splits_its_detections_but_not_its_suspects() -> None:
     off = PlannerConfig(region, sweep_mm=6.0, seed_spacing_mm=40.0, split_prominence=0.0)
     assert len(detect_candidates(b, grid, counts, off, fair)[1]) == 1
     assert len(detect_candidates(b, grid, counts, cfg, fair, suspect=True)[1]) == 1
+
+
+def test_a_maximum_only_the_gp_shows_is_no_second_inclusion() -> None:
+    grid = _pair()
+    measured = np.zeros(grid.shape, dtype=bool)
+    measured[:11, :] = True   # the lower inclusion and the dip measured; the upper one only the GP's guess
+    assert _split(grid, measured) == 1
+    measured[11:, :] = True
+    assert _split(grid, measured) == 2
+
+
+def test_a_one_cell_maximum_leaves_its_region_whole() -> None:
+    grid = BASE + _bump(21.0, 15.0, 14.0, 3.5)
+    grid[11, 10] = 30.0   # one stiff cell (a spike) 2 mm past the flank, joined to the blob by cells over the threshold
+    grid[10, 10] = 25.0
+    snap = _snap(grid)
+    found = detect_inclusions(snap, reference=REF)
+    assert len(found) == 1
+    split = split_detections(snap, np.ones(grid.shape, dtype=bool), REF, found, rel_threshold=0.2, k_mad=4.0,
+                             prominence_k=1.5)
+    assert split == found   # not a blob less its spike's cell
