@@ -37,7 +37,9 @@ where it is stiff), its noise scale from the blind cells below their median (inc
 
 Detection uses measured cells where they exist (the per-cell median of the sweeps' samples) and the GP mean only
 within ``fill_mm`` of a measured cell (:func:`detection_map`): the smoothed mean alone widens and merges blobs, and
-far from data it only repeats the prior. Our own code, written from the papers' ideas.
+far from data it only repeats the prior. A detection whose measured cells show two maxima with a measured dip between
+them is two inclusions (models.adaptive_split, ``split_prominence``): the lower-half noise scale's threshold can sit
+under the dip between two neighbours' halos. Our own code, written from the papers' ideas.
 """
 
 from __future__ import annotations
