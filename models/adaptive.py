@@ -106,6 +106,9 @@ class PlannerConfig:
     """detect: a detection whose measured cells show two maxima, each standing this many times the baseline's noise
     scale above the measured level joining them, is two inclusions (models.adaptive_split; 0: off). One inclusion
     gives one maximum; the lower noise scale's threshold lets two neighbours' halos join (tuning seeds 112, 124)."""
+    split_relative: bool = False
+    """detect: the split's prominence relative to the joining level (the noise of an estimate grows with the
+    stiffness: models.adaptive_split). Off: the absolute test is the one evaluated (BENCHMARKS.md)."""
     resolve_centre: bool = False
     """detect: a candidate is resolved only once its centre is measured too (models.adaptive_detect.open_sides).
     Off by default with ``baseline_clip`` (evaluated together, BENCHMARKS.md)."""

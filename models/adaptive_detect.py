@@ -196,7 +196,7 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
         return snap, []
     if cfg.split_prominence > 0 and not suspect:
         found = split_detections(snap, np.isfinite(measured), ref, found, rel_threshold=cfg.rel_threshold, k_mad=4.0,
-                                 prominence_k=cfg.split_prominence)
+                                 prominence_k=cfg.split_prominence, relative=cfg.split_relative)
     return snap, found
 
 

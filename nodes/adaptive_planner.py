@@ -104,6 +104,8 @@ class AdaptivePlanner(palpa.Node):
         split_prominence: float = 1.5
         """detect: split a detection whose measured cells show two maxima this many noise scales above the measured
         level joining them (PlannerConfig; 0: off)."""
+        split_relative: bool = False
+        """detect: the split's prominence relative to the joining level (PlannerConfig)."""
         resolve_centre: bool = False
         """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
         near_best: float = 1.0
@@ -141,6 +143,7 @@ class AdaptivePlanner(palpa.Node):
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
                                      suspect=p.suspect, baseline_clip=p.baseline_clip, lower_spread=p.lower_spread,
                                      resolve_centre=p.resolve_centre, split_prominence=p.split_prominence,
+                                     split_relative=p.split_relative,
                                      near_best=p.near_best,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
         except (ValueError, GeometryError) as exc:
