@@ -182,9 +182,10 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     """The detection map (:func:`detection_map`) as a map snapshot, and the inclusions the map detector
     (models.stiffness_map.detect_inclusions, the raster's own) finds on it, its baseline from ``fair``
     (:func:`reference`) when given, a detection whose measured cells show two maxima split in two
-    (``cfg.split_prominence``: models.adaptive_split). ``suspect``: with the detector's thresholds scaled by ``cfg.suspect``, the
-    regions worth a closer look (a weak inclusion seen from a sweep that passed its edge rises less than the
-    detector's threshold; resolving it samples nearer its centre)."""
+    (``cfg.split_prominence``: models.adaptive_split). ``suspect``: with the detector's thresholds scaled by
+    ``cfg.suspect``, the regions worth a closer look (a weak inclusion seen from a sweep that passed its edge rises
+    less than the detector's threshold; resolving it samples nearer its centre), never split (the split would only
+    add sides to sample)."""
     grid = detection_map(measured, belief.mean, cfg.resolution_mm, cfg.fill_mm)
     snap = MapSnapshot(stiffness=grid, x_mm=belief.x_mm, y_mm=belief.y_mm, count=counts, spread=belief.std,
                        resolution_mm=cfg.resolution_mm)

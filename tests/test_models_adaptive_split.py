@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import numpy.typing as npt
+import pytest
 
 from models.adaptive import Belief, PlannerConfig
 from models.adaptive_detect import detect_candidates
@@ -157,3 +158,8 @@ def test_relative_prominence_asks_more_of_a_stiff_plateau_than_of_the_halos() ->
     assert parts(grid, relative=False) == 2   # the absolute test cuts the plateau
     assert parts(grid, relative=True) == 1
     assert parts(_pair(), relative=True) == 2   # the halos' dip (27 under peaks of 34: 1.26x) still splits
+
+
+def test_a_negative_prominence_is_refused() -> None:
+    with pytest.raises(ValueError, match="split_prominence"):
+        PlannerConfig((0.0, 0.0, 40.0, 40.0), split_prominence=-1.0)
