@@ -102,6 +102,13 @@ class PlannerConfig:
     lower_spread: bool = True
     """detect: the baseline's noise scale from the blind cells below their median, mirrored
     (models.adaptive_detect.reference): inclusions only stiffen, so a few blind sweeps on them do not widen it."""
+    split_prominence: float = 1.5
+    """detect: a detection whose measured cells show two maxima, each standing this many times the baseline's noise
+    scale above the measured level joining them, is two inclusions (models.adaptive_split; 0: off). One inclusion
+    gives one maximum; the lower noise scale's threshold lets two neighbours' halos join (tuning seeds 112, 124)."""
+    split_relative: bool = False
+    """detect: the split's prominence relative to the joining level (the noise of an estimate grows with the
+    stiffness: models.adaptive_split). Off: the absolute test is the one evaluated (BENCHMARKS.md)."""
     resolve_centre: bool = False
     """detect: a candidate is resolved only once its centre is measured too (models.adaptive_detect.open_sides).
     Off by default with ``baseline_clip`` (evaluated together, BENCHMARKS.md)."""
@@ -120,9 +127,9 @@ class PlannerConfig:
             raise ValueError("PlannerConfig: stop_rule detect or lse, reach_mm > 0, 0 <= miss_probability < 1 and "
                              f"0 < near_best <= 1 needed, got {self.stop_rule!r}, {self.reach_mm}, "
                              f"{self.miss_probability}, {self.near_best}")
-        if not (self.radius_span_mm >= 0 and self.interior_gap_mm >= 0):
-            raise ValueError(f"PlannerConfig: radius_span_mm >= 0 and interior_gap_mm >= 0 needed, got "
-                             f"{self.radius_span_mm}, {self.interior_gap_mm}")
+        if not (self.radius_span_mm >= 0 and self.interior_gap_mm >= 0 and self.split_prominence >= 0):
+            raise ValueError(f"PlannerConfig: radius_span_mm, interior_gap_mm and split_prominence >= 0 needed, got "
+                             f"{self.radius_span_mm}, {self.interior_gap_mm}, {self.split_prominence}")
         if not 0 <= self.sweep_mm < y1 - y0:
             raise ValueError(f"PlannerConfig.sweep_mm: expected 0 <= sweep < the region's height {y1 - y0:g}, "
                              f"got {self.sweep_mm}")

@@ -37,7 +37,9 @@ where it is stiff), its noise scale from the blind cells below their median (inc
 
 Detection uses measured cells where they exist (the per-cell median of the sweeps' samples) and the GP mean only
 within ``fill_mm`` of a measured cell (:func:`detection_map`): the smoothed mean alone widens and merges blobs, and
-far from data it only repeats the prior. Our own code, written from the papers' ideas.
+far from data it only repeats the prior. A detection whose measured cells show two maxima with a measured dip between
+them is two inclusions (models.adaptive_split, ``split_prominence``): the lower-half noise scale's threshold can sit
+under the dip between two neighbours' halos. Our own code, written from the papers' ideas.
 """
 
 from __future__ import annotations
@@ -60,6 +62,7 @@ from models.adaptive import (
     next_probe,
     probe_points,
 )
+from models.adaptive_split import split_detections
 from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
 
 __all__ = ["Decision", "clip_of", "coverage_gain", "decide", "detect_candidates", "detection_map",
@@ -178,18 +181,23 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
                       fair: FloatArray | None = None, suspect: bool = False) -> tuple[MapSnapshot, list[Inclusion]]:
     """The detection map (:func:`detection_map`) as a map snapshot, and the inclusions the map detector
     (models.stiffness_map.detect_inclusions, the raster's own) finds on it, its baseline from ``fair``
-    (:func:`reference`) when given. ``suspect``: with the detector's thresholds scaled by ``cfg.suspect``, the
-    regions worth a closer look (a weak inclusion seen from a sweep that passed its edge rises less than the
-    detector's threshold; resolving it samples nearer its centre)."""
+    (:func:`reference`) when given, a detection whose measured cells show two maxima split in two
+    (``cfg.split_prominence``: models.adaptive_split). ``suspect``: with the detector's thresholds scaled by
+    ``cfg.suspect``, the regions worth a closer look (a weak inclusion seen from a sweep that passed its edge rises
+    less than the detector's threshold; resolving it samples nearer its centre), never split (the split would only
+    add sides to sample)."""
     grid = detection_map(measured, belief.mean, cfg.resolution_mm, cfg.fill_mm)
     snap = MapSnapshot(stiffness=grid, x_mm=belief.x_mm, y_mm=belief.y_mm, count=counts, spread=belief.std,
                        resolution_mm=cfg.resolution_mm)
+    scale = cfg.suspect if suspect else 1.0
+    ref = reference(fair, clip=clip_of(cfg), lower=cfg.lower_spread)
     try:
-        scale = cfg.suspect if suspect else 1.0
-        found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0,
-                                  reference=reference(fair, clip=clip_of(cfg), lower=cfg.lower_spread))
+        found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0, reference=ref)
     except ValueError:   # no positive baseline yet: nothing to call stiff
-        found = []
+        return snap, []
+    if cfg.split_prominence > 0 and not suspect:
+        found = split_detections(snap, np.isfinite(measured), ref, found, rel_threshold=cfg.rel_threshold, k_mad=4.0,
+                                 prominence_k=cfg.split_prominence, relative=cfg.split_relative)
     return snap, found
 
 

@@ -101,6 +101,11 @@ class AdaptivePlanner(palpa.Node):
         """detect: clip the blind sweeps' stiff cells out of the detector's baseline (PlannerConfig)."""
         lower_spread: bool = True
         """detect: the baseline's noise scale from the blind cells below their median (PlannerConfig)."""
+        split_prominence: float = 1.5
+        """detect: split a detection whose measured cells show two maxima this many noise scales above the measured
+        level joining them (PlannerConfig; 0: off)."""
+        split_relative: bool = False
+        """detect: the split's prominence relative to the joining level (PlannerConfig)."""
         resolve_centre: bool = False
         """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
         near_best: float = 1.0
@@ -137,7 +142,8 @@ class AdaptivePlanner(palpa.Node):
                                      interior_gap_mm=p.interior_gap_mm,
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
                                      suspect=p.suspect, baseline_clip=p.baseline_clip, lower_spread=p.lower_spread,
-                                     resolve_centre=p.resolve_centre,
+                                     resolve_centre=p.resolve_centre, split_prominence=p.split_prominence,
+                                     split_relative=p.split_relative,
                                      near_best=p.near_best,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
         except (ValueError, GeometryError) as exc:
