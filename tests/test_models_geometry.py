@@ -71,3 +71,20 @@ def test_shipped_measurements_are_what_the_cli_writes(name: str, tmp_path: Path)
     shipped = load_geometry(REPO / "phantoms" / "measured" / f"{name}.yaml")
     fresh = load_geometry(out)
     assert np.array_equal(shipped.values, fresh.values) and shipped.error_mm == 0.2
+
+
+def test_a_map_is_bilinear_between_its_points_as_scipy_computes_it_and_nan_off_its_grid() -> None:
+    """The numpy bilinear (models.geometry keeps scipy.interpolate out of every node's start-up) against scipy's
+    RegularGridInterpolator on an uneven grid: inside, on its edges and corners, and outside (nan)."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    rng = np.random.default_rng(4)
+    gx, gy = np.array([0.0, 3.0, 4.0, 10.0, 17.5]), np.array([-2.0, 1.0, 6.0, 8.0])
+    values = rng.uniform(2.0, 9.0, (gy.size, gx.size))
+    g = parse_geometry({"thickness_mm": {"x_mm": gx.tolist(), "y_mm": gy.tolist(), "values": values.tolist()}})
+    x = np.concatenate([rng.uniform(-1.0, 18.5, 400), gx, [0.0, 17.5, 0.0, 17.5, 5.0]])
+    y = np.concatenate([rng.uniform(-3.0, 9.0, 400), np.full(gx.size, 8.0), [-2.0, -2.0, 8.0, 8.0, 8.0 + 1e-9]])
+    want = RegularGridInterpolator((gy, gx), values, bounds_error=False, fill_value=np.nan)(np.stack([y, x], -1))
+    got = np.asarray(g.thickness(x, y))
+    assert np.array_equal(np.isnan(got), np.isnan(want)) and np.isnan(want).sum() > 50
+    assert np.allclose(got[~np.isnan(want)], want[~np.isnan(want)], rtol=0, atol=1e-12)
