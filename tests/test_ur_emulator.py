@@ -33,6 +33,17 @@ from tests.procs import ur_emulator, wait_until
 pytestmark = pytest.mark.xdist_group("ur-emulator")
 
 REPO = Path(__file__).resolve().parent.parent
+
+
+def test_the_group_is_in_effect_under_loadgroup(request: pytest.FixtureRequest) -> None:
+    """Under ``--dist loadgroup`` (make test) xdist marks a grouped test's id with its group, and schedules by
+    that: a pytest that no longer takes the mark (pytest 9.2 with xdist 3.8 did so silently) fails here instead of
+    letting the UR tests starve each other on three workers."""
+    if not getattr(request.config.option, "loadgroup", False):  # set in an xdist worker under --dist loadgroup
+        pytest.skip("not in a pytest-xdist worker under --dist loadgroup")
+    assert request.node.nodeid.endswith("@ur-emulator"), request.node.nodeid
+
+
 rtde_control = pytest.importorskip("rtde_control")
 rtde_receive = pytest.importorskip("rtde_receive")
 
