@@ -21,10 +21,10 @@ demo: $(STAMP)
 	$(BIN)/python -m nodes.scan_report $$run --phantom phantoms/airfloat_tumours.yaml
 
 # three workers (pytest-xdist): the process tests spend much of their time waiting on wall-clock motion. The UR
-# emulator's tests (xdist_group "ur-emulator") run one at a time on one worker (--dist loadgroup): they move in real
-# time and starved each other under load. 3.2 min on two idle cores, and the suite passes with both cores kept busy
-# by two other CPU-bound processes; four workers take 2.9 min idle but starve the UR tests on a busy machine
-# (BENCHMARKS.md, "The test suite"). `make test TEST_JOBS=0` runs serially.
+# emulator's tests (xdist_group "ur-emulator") run one at a time on one worker (--dist loadgroup; pytest < 9.2, see
+# pyproject.toml): they move in real time and starve each other under load. 2.7 min on two idle cores, 3.5 min with
+# both cores kept busy by two other CPU-bound processes (BENCHMARKS.md, "The test suite"). `make test TEST_JOBS=0`
+# runs serially.
 TEST_JOBS ?= 3
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(TEST_JOBS) --dist loadgroup
