@@ -61,23 +61,17 @@ class MeasuredGeometry:
         self.error_mm = error_mm
         self.source = source
         self.footprint_given = footprint_mm
-        self._gridded = False
         if thickness_mm is None:
             if x_mm is None or y_mm is None or values is None:
                 raise GeometryError("measured geometry: give a constant thickness or x_mm, y_mm and values")
+            # (a grid as parse_geometry checks it: two or more strictly ascending x_mm and y_mm, values[iy][ix])
             self.x_mm, self.y_mm, self.values = _f64(x_mm), _f64(y_mm), _f64(values)
-            if not (self.x_mm.size >= 2 and self.y_mm.size >= 2 and self.values.shape == (self.y_mm.size,
-                                                                                         self.x_mm.size)
-                    and np.all(np.diff(self.x_mm) > 0) and np.all(np.diff(self.y_mm) > 0)):
-                raise GeometryError("measured geometry: x_mm and y_mm strictly ascending (two or more each), values "
-                                    "one row per y_mm of one value per x_mm")
-            self._gridded = True
 
     def thickness(self, x: ArrayLike, y: ArrayLike) -> ArrayLike:
         """Measured thickness (mm) at (x, y); nan off a measured map."""
         xa, ya = np.broadcast_arrays(_f64(x), _f64(y))
-        if not self._gridded:
-            return _out(np.full(xa.shape, float(self.constant or 0.0)), x, y)
+        if self.constant is not None:
+            return _out(np.full(xa.shape, float(self.constant)), x, y)
         return _out(_bilinear(self.x_mm, self.y_mm, self.values, xa, ya), x, y)
 
     def footprint_mm(self) -> tuple[float, float, float, float] | None:
@@ -85,19 +79,19 @@ class MeasuredGeometry:
         else None (a constant thickness says nothing of where the specimen lies)."""
         if self.footprint_given is not None:
             return self.footprint_given
-        if not self._gridded:
+        if self.constant is not None:
             return None
         return (float(self.x_mm[0]), float(self.y_mm[0]), float(self.x_mm[-1]), float(self.y_mm[-1]))
 
     def top_mm(self) -> float:
         """The thickest measured point (mm): how high the specimen's surface may reach."""
-        return float(self.constant or 0.0) if not self._gridded else float(np.max(self.values))
+        return float(self.constant) if self.constant is not None else float(np.max(self.values))
 
     def to_yaml_data(self) -> dict[str, Any]:
         """The file's mapping (``load_geometry`` reads it back)."""
         data: dict[str, Any]
-        if not self._gridded:
-            data = {"thickness_mm": float(self.constant or 0.0)}
+        if self.constant is not None:
+            data = {"thickness_mm": float(self.constant)}
         else:
             data = {"thickness_mm": {"x_mm": self.x_mm.tolist(), "y_mm": self.y_mm.tolist(),
                                      "values": [[round(v, 4) for v in row] for row in self.values.tolist()]}}

@@ -33,6 +33,8 @@ def test_constant_and_map_thickness() -> None:
      r"\[2\]$"),
     ({"thickness_mm": {"x_mm": [1, 0], "y_mm": [0, 1], "values": [[1, 1], [1, 1]]}},
      "thickness_mm.x_mm: expected strictly ascending numbers"),
+    ({"thickness_mm": {"x_mm": [0, 1], "y_mm": [3], "values": [[1, 1]]}},
+     r"thickness_mm.y_mm: expected `array` of length >= 2, got \[3\]$"),
     ({"thickness_mm": {"x_mm": [0, 1], "y_mm": [0, 1], "values": [[1, 0], [1, 1]]}},
      r"thickness_mm.values\[0\]\[1\]: expected `float` > 0.0, got 0$"),
     ({"thickness_mm": 2, "footprint_mm": [0, 0, -1, 3]}, "footprint_mm: expected .* with x0 < x1"),
