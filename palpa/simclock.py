@@ -123,7 +123,7 @@ class ClockSource(Node):
         """(wall, simulated) ns the time_scale ceiling counts from."""
         self._last_pub_wall = 0
         """Wall ns of the last broadcast on _palpa/clock."""
-        self._tick_pubs: dict[str, Publisher[ClockTick]] = {}
+        self._tick_pubs: dict[str, tuple[Publisher[ClockTick], bytes]] = {}
         self._checked_wall = 0
         self._stalled_since = 0
         if self.params.max_lead_s > 0:
@@ -277,24 +277,24 @@ class ClockSource(Node):
         instant is not woken (the broadcast every second keeps idle nodes' watchdogs fed)."""
         pubs = [self._tick_pub(n) for n in self._events.due(sim_ns)]
         t = self.transport
-        if isinstance(t, ZmqTransport) and not all(t.subscribed_exactly(p.topic.encode()) for p in pubs):
+        if isinstance(t, ZmqTransport) and not all(t.subscribed_exactly(key) for _, key in pubs):
             # that node's subscription to its own topic has not reached our (direct) socket yet: a tick sent there
             # would be dropped and hold time for good; the broadcast goes through the bus, whose route to it the
             # node's readiness probe confirmed
             self._publish(sim_ns, time.monotonic_ns())
             return
         tick = ClockTick(sim_ns=sim_ns)
-        for pub in pubs:
+        for pub, _ in pubs:
             pub.publish(tick)
 
-    def _tick_pub(self, node: str) -> Publisher[ClockTick]:
-        """The publisher of ``node``'s instants, straight to it (palpa.direct: one ZeroMQ hop instead of two)."""
-        pub = self._tick_pubs.get(node)
-        if pub is None:
-            pub = self._tick_pubs[node] = self.publisher(tick_topic(node), ClockTick, batch=1,
-                                                         direct=isinstance(self.transport, ZmqTransport))
-        return pub
-
+    def _tick_pub(self, node: str) -> tuple[Publisher[ClockTick], bytes]:
+        """The publisher of ``node``'s instants, straight to it (palpa.direct: one ZeroMQ hop instead of two), and
+        its topic as the wire has it (looked up at every instant)."""
+        entry = self._tick_pubs.get(node)
+        if entry is None:
+            pub = self.publisher(tick_topic(node), ClockTick, batch=1, direct=isinstance(self.transport, ZmqTransport))
+            entry = self._tick_pubs[node] = (pub, pub.topic.encode())
+        return entry
 
     def _stalled(self, wall: int) -> bool:
         """Whether time still waits (for a message in flight, a participant not heard): True until it has waited
