@@ -128,6 +128,9 @@ class FoxgloveClient:
             return
         closer = threading.Thread(target=self.ws.close, name="foxglove-client-close", daemon=True)
         closer.start()
+        end = time.monotonic() + 20.0  # websockets' own close_timeout (10 s) ends it sooner
         while closer.is_alive():
+            if time.monotonic() > end:
+                raise AssertionError("the Foxglove client's close handshake did not end within 20 s")
             self.pump(0.05)
             closer.join(0.01)
