@@ -115,6 +115,12 @@ class PlannerConfig:
     near_best: float = 1.0
     """detect: among sweeps revealing at least this fraction of the best one's hidden area, the nearest is taken
     (1: the best only, ties to the nearest; tuning seeds 100-119: 0.8 spent more sweeps than the transit it saved)."""
+    cover_column_mm: float = 8.0
+    """detect: the covering sweeps lie on a staggered lattice, columns this far apart (models.adaptive_cover; 0: off,
+    the greedy cover alone). Chosen with ``cover_period_mm`` on the tuning seeds' regions by the miss probability
+    alone: 14 % fewer sweeps than the greedy cover for the same guarantee."""
+    cover_period_mm: float = 14.0
+    """detect: along a lattice column a sweep every this far (its neighbours half a period along)."""
 
     def __post_init__(self) -> None:
         x0, y0, x1, y1 = self.region_mm
@@ -127,6 +133,9 @@ class PlannerConfig:
             raise ValueError("PlannerConfig: stop_rule detect or lse, reach_mm > 0, 0 <= miss_probability < 1 and "
                              f"0 < near_best <= 1 needed, got {self.stop_rule!r}, {self.reach_mm}, "
                              f"{self.miss_probability}, {self.near_best}")
+        if not (self.cover_column_mm >= 0 and self.cover_period_mm >= 0):
+            raise ValueError(f"PlannerConfig: cover_column_mm and cover_period_mm >= 0 needed, got "
+                             f"{self.cover_column_mm}, {self.cover_period_mm}")
         if not (self.radius_span_mm >= 0 and self.interior_gap_mm >= 0 and self.split_prominence >= 0):
             raise ValueError(f"PlannerConfig: radius_span_mm, interior_gap_mm and split_prominence >= 0 needed, got "
                              f"{self.radius_span_mm}, {self.interior_gap_mm}, {self.split_prominence}")
@@ -272,10 +281,10 @@ def footprint_score(belief: Belief, cfg: PlannerConfig, observed: BoolArray | No
     return score
 
 
-def probe_points(belief: Belief, cfg: PlannerConfig) -> tuple[FloatArray, FloatArray]:
-    """The probe point (x, y) of a footprint centred on each grid cell: the cell centre, or for an even footprint
-    the boundary between its two middle cells."""
-    gx, gy = np.meshgrid(belief.x_mm, belief.y_mm)
+def probe_points(belief: Belief | None, cfg: PlannerConfig) -> tuple[FloatArray, FloatArray]:
+    """The probe point (x, y) of a footprint centred on each grid cell of the belief (None: of ``cfg``'s grid):
+    the cell centre, or for an even footprint the boundary between its two middle cells."""
+    gx, gy = np.meshgrid(*(cfg.grid() if belief is None else (belief.x_mm, belief.y_mm)))
     return gx, gy - (0.5 * cfg.resolution_mm if footprint_cells(cfg) % 2 == 0 else 0.0)
 
 

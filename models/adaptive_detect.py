@@ -44,7 +44,6 @@ under the dip between two neighbours' halos. Our own code, written from the pape
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -57,10 +56,18 @@ from models.adaptive import (
     PlannerConfig,
     footprint_cells,
     footprint_score,
-    initial_design,
     near_probed,
     next_probe,
     probe_points,
+)
+from models.adaptive_cover import (
+    cover_lattice,
+    coverage_gain,
+    distance_to_measured,
+    hidden,
+    miss_probability,
+    seed_design,
+    sweep_stencil,
 )
 from models.adaptive_split import split_detections
 from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
@@ -70,59 +77,6 @@ __all__ = ["Decision", "clip_of", "coverage_gain", "decide", "detect_candidates"
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
-
-
-def distance_to_measured(observed: BoolArray, resolution_mm: float) -> FloatArray:
-    """Distance (mm) from every cell centre to the nearest measured cell's centre (inf with none measured)."""
-    obs = np.asarray(observed, dtype=bool)
-    if not obs.any():
-        return np.full(obs.shape, np.inf)
-    return np.asarray(ndimage.distance_transform_edt(~obs), dtype=np.float64) * resolution_mm
-
-
-def hidden(observed: BoolArray, resolution_mm: float, reach_mm: float) -> BoolArray:
-    """Cells where the centre of an inclusion of the smallest radius of interest could lie unseen: farther than
-    ``reach_mm`` from every measured cell."""
-    return np.asarray(distance_to_measured(observed, resolution_mm) > reach_mm, dtype=bool)
-
-
-def _reaches(reach_mm: float | Sequence[float]) -> list[float]:
-    return [float(reach_mm)] if isinstance(reach_mm, int | float) else [float(r) for r in reach_mm]
-
-
-def miss_probability(observed: BoolArray, resolution_mm: float, reach_mm: float | Sequence[float]) -> float:
-    """The probability that an inclusion of interest, its centre uniform over the region, lies where no measurement
-    has sensed it: the fraction of :func:`hidden` cells, averaged over ``reach_mm`` when several (one per radius of
-    interest, equally likely: PlannerConfig.reaches)."""
-    d = distance_to_measured(observed, resolution_mm)
-    return float(np.mean([np.count_nonzero(d > r) / max(1, d.size) for r in _reaches(reach_mm)]))
-
-
-def sweep_stencil(footprint: int, resolution_mm: float, reach_mm: float) -> BoolArray:
-    """The cells (relative to the sweep's centre cell, odd-sized array) within ``reach_mm`` of a sweep that measures
-    ``footprint`` consecutive cells along y (rows): what one sweep would no longer leave hidden."""
-    rx = math.floor(reach_mm / resolution_mm + 1e-9)
-    lo = footprint // 2
-    hi = footprint - 1 - lo
-    ry = rx + max(lo, hi)
-    yy, xx = np.mgrid[-ry:ry + 1, -rx:rx + 1].astype(np.float64)
-    # distance from each cell to the nearest cell of the sweep's segment (rows -lo..hi of column 0)
-    dy = np.where(yy < -lo, yy + lo, np.where(yy > hi, yy - hi, 0.0))
-    return np.asarray(np.hypot(xx, dy) * resolution_mm <= reach_mm + 1e-9, dtype=bool)
-
-
-def coverage_gain(observed: BoolArray, resolution_mm: float, reach_mm: float | Sequence[float],
-                  footprint: int) -> FloatArray:
-    """For every sweep centre cell, how many hidden cells (:func:`hidden`) that sweep would reveal (summed over the
-    reaches when several: the drop of :func:`miss_probability` it makes, times the cells and reaches)."""
-    gain = np.zeros(np.shape(observed), dtype=np.float64)
-    for r in _reaches(reach_mm):
-        h = hidden(observed, resolution_mm, r).astype(np.float64)
-        st = sweep_stencil(footprint, resolution_mm, r).astype(np.float64)
-        # the stencil is symmetric about its centre column; along y an even footprint is centred as in
-        # models.adaptive.footprint_score (rows j - lo .. j - lo + k - 1), which the stencil's asymmetric rows encode
-        gain += ndimage.correlate(h, st, mode="constant", cval=0.0)
-    return gain
 
 
 def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, fill_mm: float) -> FloatArray:
@@ -300,7 +254,7 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     state = f"miss probability {miss:.3f}, {len(found)} candidates, {len(sides)} boundary sides open"
     if n >= cfg.max_probes:
         return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, len(sides))
-    if n >= len(initial_design(cfg)) and miss < cfg.miss_probability and not sides:
+    if n >= len(seed_design(cfg)) and miss < cfg.miss_probability and not sides:
         return Decision(True, f"found: {state} after {n - len(given_up)} probes", None, False, miss, len(sides))
     if sides:
         return Decision(False, f"resolving a candidate ({state})", sides[0], False, miss, len(sides))
@@ -309,6 +263,13 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     gain = coverage_gain(covered, cfg.resolution_mm, cfg.reaches(), footprint_cells(cfg))
     gain[~np.isfinite(footprint_score(belief, cfg))] = 0.0   # a sweep that would leave the region
     gain[near] = 0.0
+    # the covering lattice's sweeps first (models.adaptive_cover), those that still reveal something; the greedy
+    # choice over every sweep only once none does (the lattice's edges, or tissue a refused sweep left)
+    lattice = np.zeros(gain.shape, dtype=bool)
+    for iy, ix in cover_lattice(cfg):
+        lattice[iy, ix] = True
+    if np.any(gain[lattice] > 0):
+        gain = np.where(lattice, gain, 0.0)
     best = float(np.max(gain))
     if best > 0:
         ok = gain >= cfg.near_best * best

@@ -47,6 +47,7 @@ from models.adaptive import (
     next_probe,
     should_stop,
 )
+from models.adaptive_cover import seed_design
 from models.adaptive_detect import clip_of, decide, detect_candidates, reference
 from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, detect_inclusions
@@ -110,6 +111,10 @@ class AdaptivePlanner(palpa.Node):
         """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
         near_best: float = 1.0
         """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
+        cover_column_mm: float = 8.0
+        """detect: the covering sweeps on a staggered lattice with columns this far apart (PlannerConfig; 0: off)."""
+        cover_period_mm: float = 14.0
+        """detect: along a lattice column a sweep every this far, the next column's half a period along."""
         mode: Literal["sweep", "indent"] = "sweep"
         """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
         length_mm: float = 6.0
@@ -144,7 +149,8 @@ class AdaptivePlanner(palpa.Node):
                                      suspect=p.suspect, baseline_clip=p.baseline_clip, lower_spread=p.lower_spread,
                                      resolve_centre=p.resolve_centre, split_prominence=p.split_prominence,
                                      split_relative=p.split_relative,
-                                     near_best=p.near_best,
+                                     near_best=p.near_best, cover_column_mm=p.cover_column_mm,
+                                     cover_period_mm=p.cover_period_mm,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
         except (ValueError, GeometryError) as exc:
             raise palpa.ParamError(f"{self.name}: {exc}") from None
@@ -154,7 +160,8 @@ class AdaptivePlanner(palpa.Node):
         """The cells measured by stiffness-blind probes (seed grid, covering sweeps): the detector's baseline."""
         self.pending: list[tuple[float, float, float]] = []
         self.unit = ""
-        self.queue = [(pt, True) for pt in initial_design(self.cfg)]
+        seeds = seed_design(self.cfg) if self.cfg.stop_rule == "detect" else initial_design(self.cfg)
+        self.queue = [(pt, True) for pt in seeds]
         """(point, blind): the points to probe next; blind when chosen without looking at stiffness."""
         self.probed: list[tuple[float, float]] = []
         self.given_up: list[tuple[float, float]] = []
