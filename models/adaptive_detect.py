@@ -246,18 +246,22 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm,
                                    cfg.resolve_centre)
              if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
+    interior: list[tuple[float, float]] = []
     if cfg.interior_gap_mm > 0:
         _, detected = detect_candidates(belief, measured, counts, cfg, fair)
-        sides += [p for p in interior_gaps(detected, observed, belief.x_mm, belief.y_mm, cfg.region_mm,
-                                           cfg.resolution_mm, cfg.interior_gap_mm, footprint_cells(cfg))
-                  if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
-    state = f"miss probability {miss:.3f}, {len(found)} candidates, {len(sides)} boundary sides open"
+        interior = [p for p in interior_gaps(detected, observed, belief.x_mm, belief.y_mm, cfg.region_mm,
+                                             cfg.resolution_mm, cfg.interior_gap_mm, footprint_cells(cfg))
+                    if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
+    n_open = len(sides) + len(interior)
+    state = f"miss probability {miss:.3f}, {len(found)} candidates, {n_open} boundary sides open"
     if n >= cfg.max_probes:
-        return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, len(sides))
-    if n >= len(seed_design(cfg)) and miss < cfg.miss_probability and not sides:
-        return Decision(True, f"found: {state} after {n - len(given_up)} probes", None, False, miss, len(sides))
+        return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, n_open)
+    if n >= len(seed_design(cfg)) and miss < cfg.miss_probability and not n_open:
+        return Decision(True, f"found: {state} after {n - len(given_up)} probes", None, False, miss, n_open)
     if sides:
-        return Decision(False, f"resolving a candidate ({state})", sides[0], False, miss, len(sides))
+        return Decision(False, f"resolving a candidate ({state})", sides[0], False, miss, n_open)
+    if interior:
+        return Decision(False, f"measuring a detection's disc ({state})", interior[0], False, miss, n_open)
     px, py = probe_points(belief, cfg)
     near = near_probed(px, py, probed, cfg.min_separation_mm)
     gain = coverage_gain(covered, cfg.resolution_mm, cfg.reaches(), footprint_cells(cfg))
@@ -268,7 +272,8 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     lattice = np.zeros(gain.shape, dtype=bool)
     for iy, ix in cover_lattice(cfg):
         lattice[iy, ix] = True
-    if np.any(gain[lattice] > 0):
+    on_lattice = bool(np.any(gain[lattice] > 0))
+    if on_lattice:
         gain = np.where(lattice, gain, 0.0)
     best = float(np.max(gain))
     if best > 0:
@@ -278,6 +283,7 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
             i = int(np.argmin(d2))
         else:
             i = int(np.argmax(ok))
-        return Decision(False, f"covering ({state})", (float(px.flat[i]), float(py.flat[i])), True, miss, len(sides))
+        how = "covering, lattice" if on_lattice else "covering"
+        return Decision(False, f"{how} ({state})", (float(px.flat[i]), float(py.flat[i])), True, miss, n_open)
     return Decision(False, f"no sweep reveals more ({state})", next_probe(belief, probed, cfg, observed), False,
-                    miss, len(sides))
+                    miss, n_open)

@@ -161,8 +161,11 @@ class AdaptivePlanner(palpa.Node):
         self.pending: list[tuple[float, float, float]] = []
         self.unit = ""
         seeds = seed_design(self.cfg) if self.cfg.stop_rule == "detect" else initial_design(self.cfg)
-        self.queue = [(pt, True) for pt in seeds]
-        """(point, blind): the points to probe next; blind when chosen without looking at stiffness."""
+        self.queue = [(pt, True, "seed") for pt in seeds]
+        """(point, blind, why): the points to probe next; blind when chosen without looking at stiffness; why: what
+        the acquisition meant it for (seed, covering, resolving a candidate, ...)."""
+        self.why: list[str] = []
+        """For every probe made, why it was chosen (planner.json)."""
         self.probed: list[tuple[float, float]] = []
         self.given_up: list[tuple[float, float]] = []
         """Points the scanner refused every time: never chosen again, not counted as probes."""
@@ -170,6 +173,7 @@ class AdaptivePlanner(palpa.Node):
         self.refused = 0
         self.inflight: tuple[float, float] | None = None
         self.inflight_blind = False
+        self.inflight_why = ""
         self.retry_at_ns = 0
         self.started_ns: int | None = None
         self.belief: Belief | None = None
@@ -236,7 +240,7 @@ class AdaptivePlanner(palpa.Node):
             if stop:
                 self.finish(why)
                 return
-        (x, y), self.inflight_blind = self.queue.pop(0)
+        (x, y), self.inflight_blind, self.inflight_why = self.queue.pop(0)
         self.inflight = (x, y)
         req = ProbeAt(x_mm=x, y_mm=y, mode=self.params.mode,
                       length_mm=self.params.length_mm, radius_mm=self.params.radius_mm)
@@ -249,8 +253,9 @@ class AdaptivePlanner(palpa.Node):
         if err is None:
             r = fut.result()
             self.probed.append(point)
-            self.log.info("probe %d at (%.1f, %.1f) mm: %.2f %s from %d estimates", len(self.probed), *point,
-                          r.value, r.unit, r.samples)
+            self.why.append(self.inflight_why)
+            self.log.info("probe %d at (%.1f, %.1f) mm (%s): %.2f %s from %d estimates", len(self.probed), *point,
+                          self.inflight_why, r.value, r.unit, r.samples)
             self._update_belief()
             return
         self._refused(point, err)
@@ -260,7 +265,7 @@ class AdaptivePlanner(palpa.Node):
         n = self.tries[point] = self.tries.get(point, 0) + 1
         if n <= self.params.retries:
             self.log.warning("probe at (%.1f, %.1f) mm refused (%s): retrying", *point, err)
-            self.queue.insert(0, (point, self.inflight_blind))
+            self.queue.insert(0, (point, self.inflight_blind, self.inflight_why))
             self.retry_at_ns = self.clock.now_ns() + 500_000_000
         else:
             self.log.warning("probe at (%.1f, %.1f) mm refused %d times (%s): giving it up", *point, n, err)
@@ -301,12 +306,12 @@ class AdaptivePlanner(palpa.Node):
             d = decide(b, snap.stiffness, snap.count, self.probed + self.given_up, self.cfg, last,
                        self.fair.snapshot().stiffness, self.given_up)
             if not d.stop and d.point is not None:
-                self.queue.append((d.point, d.blind))
+                self.queue.append((d.point, d.blind, d.why.split(" (")[0]))
             return d.stop, d.why
         observed = snap.count >= self.params.min_count
         stop, why = should_stop(b, len(self.probed), self.cfg, observed)
         if not stop:
-            self.queue.append((next_probe(b, self.probed + self.given_up, self.cfg, observed), False))
+            self.queue.append((next_probe(b, self.probed + self.given_up, self.cfg, observed), False, "straddle"))
         return stop, why
 
     # -- output ------------------------------------------------------------------------------------
@@ -359,5 +364,5 @@ class AdaptivePlanner(palpa.Node):
         out.mkdir(parents=True, exist_ok=True)
         (out / "planner.json").write_text(json.dumps({
             "probes": len(self.probed), "refused": self.refused, "sim_s": elapsed, "stop": why,
-            "points": self.probed, "given_up": self.given_up}, indent=1) + "\n")
+            "points": self.probed, "why": self.why, "given_up": self.given_up}, indent=1) + "\n")
         self.timer(0.2, lambda: self.request_shutdown(0), oneshot=True)
