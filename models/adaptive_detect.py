@@ -28,10 +28,12 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   sparse sweeps the map is the GP's guess, which joins two neighbours into one blob and shows no dip it never
   measured.
 
-The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then the sweep that
-leaves the least area where an inclusion could hide (:func:`coverage_gain`; a greedy set cover, ties to the nearest
-sweep, or with ``near_best`` < 1 the nearest of the near-best so that consecutive sweeps batch into short
-transits). Seed grid and covering sweeps are chosen without looking at stiffness, so their cells are a fair sample of the tissue: the
+The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then cover: a sweep
+of the staggered covering lattice that still reveals hidden area (models.adaptive_cover: the coverage functions live
+there), the most of it, ties to the nearest, and once none does, the sweep anywhere that leaves the least area where
+an inclusion could hide (:func:`coverage_gain`, a greedy set cover; with ``near_best`` < 1 the nearest of the
+near-best). Seed grid and covering sweeps are chosen without looking at stiffness, so their cells are a fair sample
+of the tissue: the
 detector's baseline comes from them (:func:`reference`), not from every measured cell (the resolving sweeps go
 where it is stiff), its noise scale from the blind cells below their median (inclusions only stiffen).
 
