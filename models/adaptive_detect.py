@@ -141,8 +141,10 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     (``cfg.split_prominence``: models.adaptive_split). ``suspect``: with the detector's thresholds scaled by
     ``cfg.suspect``, the regions worth a closer look (a weak inclusion seen from a sweep that passed its edge rises
     less than the detector's threshold; resolving it samples nearer its centre), never split (the split would only
-    add sides to sample)."""
-    grid = detection_map(measured, belief.mean, cfg.resolution_mm, cfg.fill_mm)
+    add sides to sample), and with ``cfg.suspect_measured`` found on the measured cells alone (the GP mean's
+    overshoot around one stiffer cell is no region of two)."""
+    fill = 0.0 if suspect and cfg.suspect_measured else cfg.fill_mm
+    grid = detection_map(measured, belief.mean, cfg.resolution_mm, fill)
     snap = MapSnapshot(stiffness=grid, x_mm=belief.x_mm, y_mm=belief.y_mm, count=counts, spread=belief.std,
                        resolution_mm=cfg.resolution_mm)
     scale = cfg.suspect if suspect else 1.0

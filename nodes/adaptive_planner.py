@@ -98,6 +98,8 @@ class AdaptivePlanner(palpa.Node):
         """detect: regions above this fraction of the detector's thresholds get their boundary sampled."""
         fill_mm: float = 4.0
         """detect: the detection map takes the GP mean only this close to a measured cell."""
+        suspect_measured: bool = False
+        """detect: suspects are found on the measured cells alone (PlannerConfig)."""
         baseline_clip: bool = False
         """detect: clip the blind sweeps' stiff cells out of the detector's baseline (PlannerConfig)."""
         lower_spread: bool = True
@@ -146,6 +148,7 @@ class AdaptivePlanner(palpa.Node):
                                      reach_mm=p.reach_mm, radius_span_mm=p.radius_span_mm,
                                      interior_gap_mm=p.interior_gap_mm,
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
+                                     suspect_measured=p.suspect_measured,
                                      suspect=p.suspect, baseline_clip=p.baseline_clip, lower_spread=p.lower_spread,
                                      resolve_centre=p.resolve_centre, split_prominence=p.split_prominence,
                                      split_relative=p.split_relative,
