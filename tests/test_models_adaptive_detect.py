@@ -241,6 +241,24 @@ def test_a_weak_rise_is_a_suspect_to_resolve_but_not_a_detection() -> None:
     assert decide(b, measured, counts, probed, _cfg(reach_mm=40.0, suspect=1.0)).stop
 
 
+def test_a_suspect_on_measured_cells_alone_is_not_made_of_the_gp_means_overshoot() -> None:
+    cfg = _cfg(reach_mm=40.0, suspect=0.5, suspect_measured=True)
+    b = _belief(cfg)
+    b.mean[8:11, 9:12] = 11.5      # the GP's bump around one stiffer measured cell
+    measured = np.full((20, 20), 10.0)
+    measured[:, 8:13] = np.nan
+    measured[9, 10] = 11.5         # that cell, alone in a gap of five columns
+    counts = np.ones((20, 20), dtype=np.int64)
+    assert len(detect_candidates(b, measured, counts, _cfg(reach_mm=40.0, suspect=0.5), suspect=True)[1]) == 1
+    assert detect_candidates(b, measured, counts, cfg, suspect=True)[1] == []   # one cell: no region
+    measured[10, 10] = 11.5        # two measured cells, along a sweep: a suspect either way
+    assert len(detect_candidates(b, measured, counts, cfg, suspect=True)[1]) == 1
+    # the detections themselves keep the GP mean near measured cells: one measured cell and its bump is one
+    b.mean[8:11, 9:12] = 13.0
+    measured[9, 10], measured[10, 10] = 13.0, np.nan
+    assert len(detect_candidates(b, measured, counts, cfg)[1]) == 1
+
+
 def test_a_point_given_up_is_not_chosen_again_and_a_bad_baseline_is_no_reference() -> None:
     cfg = _cfg(reach_mm=4.0, near_best=1.0, miss_probability=0.0)   # cover to the last cell
     b = _belief(cfg)
