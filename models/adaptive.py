@@ -97,6 +97,8 @@ class PlannerConfig:
     """detect: the detection map takes the GP mean only this close to a measured cell."""
     suspect_measured: bool = False
     """detect: suspects are found on the measured cells alone, without the GP mean near them (``fill_mm``)."""
+    suspect_local_mm: float = 0.0
+    """detect: a suspect must also stand out from the tissue measured up to this far past its disc (0: off)."""
     baseline_clip: bool = False
     """detect: clip the blind sweeps' cells stiffer than the candidates' floor out of the detector's baseline
     (models.adaptive_detect.reference). Off: on the tuning set it closed a miss, on the evaluation set it lowered the

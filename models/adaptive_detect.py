@@ -153,10 +153,30 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
         found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0, reference=ref)
     except ValueError:   # no positive baseline yet: nothing to call stiff
         return snap, []
+    if suspect and cfg.suspect_local_mm > 0 and ref is not None:
+        found = [c for c in found if _stands_out_locally(c, measured, belief.x_mm, belief.y_mm, cfg, ref[1])]
     if cfg.split_prominence > 0 and not suspect:
         found = split_detections(snap, np.isfinite(measured), ref, found, rel_threshold=cfg.rel_threshold, k_mad=4.0,
                                  prominence_k=cfg.split_prominence, relative=cfg.split_relative)
     return snap, found
+
+
+def _stands_out_locally(c: Inclusion, measured: FloatArray, x_mm: FloatArray, y_mm: FloatArray, cfg: PlannerConfig,
+                        scale: float) -> bool:
+    """Whether a suspect's highest measured cell stands above the tissue measured around it (the cells from one cell
+    past its disc to ``suspect_local_mm`` past it, their median) by the suspect's thresholds, as it does above the
+    whole specimen's baseline. An inclusion stiffens the tissue locally; a gentle trend of the healthy tissue (or of
+    the estimate's bias over the specimen) raises a stretch and its surroundings alike. With fewer than three
+    measured cells around, or none inside, nothing to compare: it stays a suspect."""
+    gx, gy = np.meshgrid(x_mm, y_mm)
+    ok = np.isfinite(measured)
+    d2 = (gx - c.x_mm) ** 2 + (gy - c.y_mm) ** 2
+    inside = ok & (d2 <= max(c.radius_mm, cfg.resolution_mm) ** 2)
+    ring = ok & (d2 > (c.radius_mm + cfg.resolution_mm) ** 2) & (d2 <= (c.radius_mm + cfg.suspect_local_mm) ** 2)
+    if np.count_nonzero(ring) < 3 or not inside.any():
+        return True
+    local = float(np.median(measured[ring]))
+    return float(np.max(measured[inside])) > local + cfg.suspect * max(4.0 * scale, cfg.rel_threshold * local)
 
 
 def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray,

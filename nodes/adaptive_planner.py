@@ -100,6 +100,8 @@ class AdaptivePlanner(palpa.Node):
         """detect: the detection map takes the GP mean only this close to a measured cell."""
         suspect_measured: bool = False
         """detect: suspects are found on the measured cells alone (PlannerConfig)."""
+        suspect_local_mm: float = 0.0
+        """detect: a suspect must also stand out from the tissue measured this far past it (PlannerConfig; 0: off)."""
         baseline_clip: bool = False
         """detect: clip the blind sweeps' stiff cells out of the detector's baseline (PlannerConfig)."""
         lower_spread: bool = True
@@ -148,7 +150,7 @@ class AdaptivePlanner(palpa.Node):
                                      reach_mm=p.reach_mm, radius_span_mm=p.radius_span_mm,
                                      interior_gap_mm=p.interior_gap_mm,
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
-                                     suspect_measured=p.suspect_measured,
+                                     suspect_measured=p.suspect_measured, suspect_local_mm=p.suspect_local_mm,
                                      suspect=p.suspect, baseline_clip=p.baseline_clip, lower_spread=p.lower_spread,
                                      resolve_centre=p.resolve_centre, split_prominence=p.split_prominence,
                                      split_relative=p.split_relative,
