@@ -259,6 +259,32 @@ def test_a_suspect_on_measured_cells_alone_is_not_made_of_the_gp_means_overshoot
     assert len(detect_candidates(b, measured, counts, cfg)[1]) == 1
 
 
+def test_a_suspect_must_stand_out_from_the_tissue_around_it_not_only_from_the_whole_specimen() -> None:
+    cfg = _cfg(reach_mm=40.0, suspect=0.5, suspect_local_mm=8.0)
+    b = _belief(cfg, 10.0)
+    counts = np.ones((20, 20), dtype=np.int64)
+    fair = np.full((20, 20), 10.0)
+    fair[::2, ::2] = 9.8                 # healthy tissue's own scatter: the baseline's scale
+    # a broad gentle swell of the healthy tissue (or of the estimate's bias), 14 % at its top, 16 mm wide: its top
+    # passes the suspects' threshold, and so does the tissue around it nearly
+    iy, ix = np.mgrid[0:20, 0:20]
+    swell = 10.0 + 1.4 * np.exp(-((ix - 10.0) ** 2 + (iy - 10.0) ** 2) / (2 * 4.0**2))
+    assert len(detect_candidates(b, swell, counts, _cfg(reach_mm=40.0, suspect=0.5), fair, suspect=True)[1]) == 1
+    assert detect_candidates(b, swell, counts, cfg, fair, suspect=True)[1] == []
+    # a weak bump as high on flat tissue stands out locally: still a suspect
+    bump = np.full((20, 20), 10.0)
+    bump[9:11, 9:11] = 11.4
+    assert len(detect_candidates(b, bump, counts, cfg, fair, suspect=True)[1]) == 1
+    # with nothing measured around it there is nothing to compare: it stays a suspect
+    alone = np.full((20, 20), np.nan)
+    alone[9:11, 9:11] = 11.4
+    alone[0, :] = 10.0
+    assert len(detect_candidates(b, alone, counts, cfg, fair, suspect=True)[1]) == 1
+    # the detections themselves are not filtered
+    strong = 10.0 + 3.0 * (swell - 10.0) / 1.4
+    assert len(detect_candidates(b, strong, counts, cfg, fair)[1]) == 1
+
+
 def test_a_point_given_up_is_not_chosen_again_and_a_bad_baseline_is_no_reference() -> None:
     cfg = _cfg(reach_mm=4.0, near_best=1.0, miss_probability=0.0)   # cover to the last cell
     b = _belief(cfg)
