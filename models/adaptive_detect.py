@@ -24,7 +24,7 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   its centroid and extent are the map's and not the kernel's guess; when a side is still stiff the candidate grows
   and opens the next side out.
   A *detected* inclusion is resolved only once its disc is measured about as densely as the raster measures it
-  (every cell within ``interior_gap_mm`` of a measured one, columns 4 mm apart: :func:`interior_gaps`): between
+  (every cell within ``interior_gap_mm`` of a measured one, columns 6 mm apart by default: :func:`interior_gaps`): between
   sparse sweeps the map is the GP's guess, which joins two neighbours into one blob and shows no dip it never
   measured.
 

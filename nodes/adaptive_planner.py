@@ -90,11 +90,11 @@ class AdaptivePlanner(palpa.Node):
         """detect: a measurement within this of an inclusion's centre senses it (smallest radius + sensing reach)."""
         radius_span_mm: float = 4.5
         """detect: the radii of interest span this much above the smallest; the reach grows with them (PlannerConfig)."""
-        interior_gap_mm: float = 2.0
+        interior_gap_mm: float = 3.0
         """detect: every cell of a detected inclusion's disc within this of a measured cell before stopping (0: off)."""
-        miss_probability: float = 0.02
+        miss_probability: float = 0.01
         """detect: the chance, below which the planner may stop, that such an inclusion hides unsensed."""
-        suspect: float = 0.5
+        suspect: float = 0.6
         """detect: regions above this fraction of the detector's thresholds get their boundary sampled."""
         fill_mm: float = 4.0
         """detect: the detection map takes the GP mean only this close to a measured cell."""
@@ -117,7 +117,7 @@ class AdaptivePlanner(palpa.Node):
         """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
         cover_column_mm: float = 8.0
         """detect: the covering sweeps on a staggered lattice with columns this far apart (PlannerConfig; 0: off)."""
-        cover_period_mm: float = 14.0
+        cover_period_mm: float = 12.0
         """detect: along a lattice column a sweep every this far, the next column's half a period along."""
         mode: Literal["sweep", "indent"] = "sweep"
         """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
