@@ -23,19 +23,18 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   guess, which can join two inclusions closer than its length scale into one blob): its boundary is sampled, so
   its centroid and extent are the map's and not the kernel's guess; when a side is still stiff the candidate grows
   and opens the next side out.
-  A *detected* inclusion is resolved only once its disc is measured about as densely as the raster measures it
-  (every cell within ``interior_gap_mm`` of a measured one, columns 6 mm apart by default: :func:`interior_gaps`): between
-  sparse sweeps the map is the GP's guess, which joins two neighbours into one blob and shows no dip it never
-  measured.
+  A *detected* inclusion is resolved only once its disc is measured densely (every cell within ``interior_gap_mm``
+  of a measured one, columns 6 mm apart by default: :func:`interior_gaps`): between sparse sweeps the map is the
+  GP's guess, which joins two neighbours into one blob and shows no dip it never measured.
 
 The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then cover: a sweep
 of the staggered covering lattice that still reveals hidden area (models.adaptive_cover: the coverage functions live
 there), the most of it, ties to the nearest, and once none does, the sweep anywhere that leaves the least area where
 an inclusion could hide (:func:`coverage_gain`, a greedy set cover; with ``near_best`` < 1 the nearest of the
 near-best). Seed grid and covering sweeps are chosen without looking at stiffness, so their cells are a fair sample
-of the tissue: the
-detector's baseline comes from them (:func:`reference`), not from every measured cell (the resolving sweeps go
-where it is stiff), its noise scale from the blind cells below their median (inclusions only stiffen).
+of the tissue: the detector's baseline comes from them (:func:`reference`), not from every measured cell (the
+resolving sweeps go where it is stiff), its noise scale from the blind cells below their median (inclusions only
+stiffen).
 
 Detection uses measured cells where they exist (the per-cell median of the sweeps' samples) and the GP mean only
 within ``fill_mm`` of a measured cell (:func:`detection_map`): the smoothed mean alone widens and merges blobs, and
@@ -66,16 +65,14 @@ from models.adaptive_cover import (
     cover_lattice,
     coverage_gain,
     distance_to_measured,
-    hidden,
     miss_probability,
     seed_design,
-    sweep_stencil,
 )
 from models.adaptive_split import split_detections
 from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
 
-__all__ = ["Decision", "clip_of", "coverage_gain", "decide", "detect_candidates", "detection_map",
-           "distance_to_measured", "hidden", "interior_gaps", "miss_probability", "reference", "sweep_stencil"]
+__all__ = ["Decision", "clip_of", "decide", "detect_candidates", "detection_map", "interior_gaps", "open_sides",
+           "reference"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]

@@ -10,17 +10,14 @@ import numpy as np
 import numpy.typing as npt
 
 from models.adaptive import Belief, PlannerConfig
+from models.adaptive_cover import coverage_gain, hidden, miss_probability, sweep_stencil
 from models.adaptive_detect import (
-    coverage_gain,
     decide,
     detect_candidates,
     detection_map,
-    hidden,
     interior_gaps,
-    miss_probability,
     open_sides,
     reference,
-    sweep_stencil,
 )
 from models.stiffness_map import Inclusion, MapSnapshot, detect_inclusions
 
