@@ -23,17 +23,18 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   guess, which can join two inclusions closer than its length scale into one blob): its boundary is sampled, so
   its centroid and extent are the map's and not the kernel's guess; when a side is still stiff the candidate grows
   and opens the next side out.
-  A *detected* inclusion is resolved only once its disc is measured about as densely as the raster measures it
-  (every cell within ``interior_gap_mm`` of a measured one, columns 4 mm apart: :func:`interior_gaps`): between
-  sparse sweeps the map is the GP's guess, which joins two neighbours into one blob and shows no dip it never
-  measured.
+  A *detected* inclusion is resolved only once its disc is measured densely (every cell within ``interior_gap_mm``
+  of a measured one, columns 6 mm apart by default: :func:`interior_gaps`): between sparse sweeps the map is the
+  GP's guess, which joins two neighbours into one blob and shows no dip it never measured.
 
-The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then the sweep that
-leaves the least area where an inclusion could hide (:func:`coverage_gain`; a greedy set cover, ties to the nearest
-sweep, or with ``near_best`` < 1 the nearest of the near-best so that consecutive sweeps batch into short
-transits). Seed grid and covering sweeps are chosen without looking at stiffness, so their cells are a fair sample of the tissue: the
-detector's baseline comes from them (:func:`reference`), not from every measured cell (the resolving sweeps go
-where it is stiff), its noise scale from the blind cells below their median (inclusions only stiffen).
+The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then cover: a sweep
+of the staggered covering lattice that still reveals hidden area (models.adaptive_cover: the coverage functions live
+there), the most of it, ties to the nearest, and once none does, the sweep anywhere that leaves the least area where
+an inclusion could hide (:func:`coverage_gain`, a greedy set cover; with ``near_best`` < 1 the nearest of the
+near-best). Seed grid and covering sweeps are chosen without looking at stiffness, so their cells are a fair sample
+of the tissue: the detector's baseline comes from them (:func:`reference`), not from every measured cell (the
+resolving sweeps go where it is stiff), its noise scale from the blind cells below their median (inclusions only
+stiffen).
 
 Detection uses measured cells where they exist (the per-cell median of the sweeps' samples) and the GP mean only
 within ``fill_mm`` of a measured cell (:func:`detection_map`): the smoothed mean alone widens and merges blobs, and
@@ -44,7 +45,6 @@ under the dip between two neighbours' halos. Our own code, written from the pape
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -57,72 +57,25 @@ from models.adaptive import (
     PlannerConfig,
     footprint_cells,
     footprint_score,
-    initial_design,
     near_probed,
     next_probe,
     probe_points,
 )
+from models.adaptive_cover import (
+    cover_lattice,
+    coverage_gain,
+    distance_to_measured,
+    miss_probability,
+    seed_design,
+)
 from models.adaptive_split import split_detections
 from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
 
-__all__ = ["Decision", "clip_of", "coverage_gain", "decide", "detect_candidates", "detection_map",
-           "distance_to_measured", "hidden", "interior_gaps", "miss_probability", "reference", "sweep_stencil"]
+__all__ = ["Decision", "clip_of", "decide", "detect_candidates", "detection_map", "interior_gaps", "open_sides",
+           "reference"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
-
-
-def distance_to_measured(observed: BoolArray, resolution_mm: float) -> FloatArray:
-    """Distance (mm) from every cell centre to the nearest measured cell's centre (inf with none measured)."""
-    obs = np.asarray(observed, dtype=bool)
-    if not obs.any():
-        return np.full(obs.shape, np.inf)
-    return np.asarray(ndimage.distance_transform_edt(~obs), dtype=np.float64) * resolution_mm
-
-
-def hidden(observed: BoolArray, resolution_mm: float, reach_mm: float) -> BoolArray:
-    """Cells where the centre of an inclusion of the smallest radius of interest could lie unseen: farther than
-    ``reach_mm`` from every measured cell."""
-    return np.asarray(distance_to_measured(observed, resolution_mm) > reach_mm, dtype=bool)
-
-
-def _reaches(reach_mm: float | Sequence[float]) -> list[float]:
-    return [float(reach_mm)] if isinstance(reach_mm, int | float) else [float(r) for r in reach_mm]
-
-
-def miss_probability(observed: BoolArray, resolution_mm: float, reach_mm: float | Sequence[float]) -> float:
-    """The probability that an inclusion of interest, its centre uniform over the region, lies where no measurement
-    has sensed it: the fraction of :func:`hidden` cells, averaged over ``reach_mm`` when several (one per radius of
-    interest, equally likely: PlannerConfig.reaches)."""
-    d = distance_to_measured(observed, resolution_mm)
-    return float(np.mean([np.count_nonzero(d > r) / max(1, d.size) for r in _reaches(reach_mm)]))
-
-
-def sweep_stencil(footprint: int, resolution_mm: float, reach_mm: float) -> BoolArray:
-    """The cells (relative to the sweep's centre cell, odd-sized array) within ``reach_mm`` of a sweep that measures
-    ``footprint`` consecutive cells along y (rows): what one sweep would no longer leave hidden."""
-    rx = math.floor(reach_mm / resolution_mm + 1e-9)
-    lo = footprint // 2
-    hi = footprint - 1 - lo
-    ry = rx + max(lo, hi)
-    yy, xx = np.mgrid[-ry:ry + 1, -rx:rx + 1].astype(np.float64)
-    # distance from each cell to the nearest cell of the sweep's segment (rows -lo..hi of column 0)
-    dy = np.where(yy < -lo, yy + lo, np.where(yy > hi, yy - hi, 0.0))
-    return np.asarray(np.hypot(xx, dy) * resolution_mm <= reach_mm + 1e-9, dtype=bool)
-
-
-def coverage_gain(observed: BoolArray, resolution_mm: float, reach_mm: float | Sequence[float],
-                  footprint: int) -> FloatArray:
-    """For every sweep centre cell, how many hidden cells (:func:`hidden`) that sweep would reveal (summed over the
-    reaches when several: the drop of :func:`miss_probability` it makes, times the cells and reaches)."""
-    gain = np.zeros(np.shape(observed), dtype=np.float64)
-    for r in _reaches(reach_mm):
-        h = hidden(observed, resolution_mm, r).astype(np.float64)
-        st = sweep_stencil(footprint, resolution_mm, r).astype(np.float64)
-        # the stencil is symmetric about its centre column; along y an even footprint is centred as in
-        # models.adaptive.footprint_score (rows j - lo .. j - lo + k - 1), which the stencil's asymmetric rows encode
-        gain += ndimage.correlate(h, st, mode="constant", cval=0.0)
-    return gain
 
 
 def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, fill_mm: float) -> FloatArray:
@@ -185,8 +138,10 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     (``cfg.split_prominence``: models.adaptive_split). ``suspect``: with the detector's thresholds scaled by
     ``cfg.suspect``, the regions worth a closer look (a weak inclusion seen from a sweep that passed its edge rises
     less than the detector's threshold; resolving it samples nearer its centre), never split (the split would only
-    add sides to sample)."""
-    grid = detection_map(measured, belief.mean, cfg.resolution_mm, cfg.fill_mm)
+    add sides to sample), and with ``cfg.suspect_measured`` found on the measured cells alone (the GP mean's
+    overshoot around one stiffer cell is no region of two)."""
+    fill = 0.0 if suspect and cfg.suspect_measured else cfg.fill_mm
+    grid = detection_map(measured, belief.mean, cfg.resolution_mm, fill)
     snap = MapSnapshot(stiffness=grid, x_mm=belief.x_mm, y_mm=belief.y_mm, count=counts, spread=belief.std,
                        resolution_mm=cfg.resolution_mm)
     scale = cfg.suspect if suspect else 1.0
@@ -195,10 +150,30 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
         found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0, reference=ref)
     except ValueError:   # no positive baseline yet: nothing to call stiff
         return snap, []
+    if suspect and cfg.suspect_local_mm > 0 and ref is not None:
+        found = [c for c in found if _stands_out_locally(c, measured, belief.x_mm, belief.y_mm, cfg, ref[1])]
     if cfg.split_prominence > 0 and not suspect:
         found = split_detections(snap, np.isfinite(measured), ref, found, rel_threshold=cfg.rel_threshold, k_mad=4.0,
                                  prominence_k=cfg.split_prominence, relative=cfg.split_relative)
     return snap, found
+
+
+def _stands_out_locally(c: Inclusion, measured: FloatArray, x_mm: FloatArray, y_mm: FloatArray, cfg: PlannerConfig,
+                        scale: float) -> bool:
+    """Whether a suspect's highest measured cell stands above the tissue measured around it (the cells from one cell
+    past its disc to ``suspect_local_mm`` past it, their median) by the suspect's thresholds, as it does above the
+    whole specimen's baseline. An inclusion stiffens the tissue locally; a gentle trend of the healthy tissue (or of
+    the estimate's bias over the specimen) raises a stretch and its surroundings alike. With fewer than three
+    measured cells around, or none inside, nothing to compare: it stays a suspect."""
+    gx, gy = np.meshgrid(x_mm, y_mm)
+    ok = np.isfinite(measured)
+    d2 = (gx - c.x_mm) ** 2 + (gy - c.y_mm) ** 2
+    inside = ok & (d2 <= max(c.radius_mm, cfg.resolution_mm) ** 2)
+    ring = ok & (d2 > (c.radius_mm + cfg.resolution_mm) ** 2) & (d2 <= (c.radius_mm + cfg.suspect_local_mm) ** 2)
+    if np.count_nonzero(ring) < 3 or not inside.any():
+        return True
+    local = float(np.median(measured[ring]))
+    return float(np.max(measured[inside])) > local + cfg.suspect * max(4.0 * scale, cfg.rel_threshold * local)
 
 
 def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray,
@@ -292,23 +267,35 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm,
                                    cfg.resolve_centre)
              if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
+    interior: list[tuple[float, float]] = []
     if cfg.interior_gap_mm > 0:
         _, detected = detect_candidates(belief, measured, counts, cfg, fair)
-        sides += [p for p in interior_gaps(detected, observed, belief.x_mm, belief.y_mm, cfg.region_mm,
-                                           cfg.resolution_mm, cfg.interior_gap_mm, footprint_cells(cfg))
-                  if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
-    state = f"miss probability {miss:.3f}, {len(found)} candidates, {len(sides)} boundary sides open"
+        interior = [p for p in interior_gaps(detected, observed, belief.x_mm, belief.y_mm, cfg.region_mm,
+                                             cfg.resolution_mm, cfg.interior_gap_mm, footprint_cells(cfg))
+                    if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
+    n_open = len(sides) + len(interior)
+    state = f"miss probability {miss:.3f}, {len(found)} candidates, {n_open} boundary sides open"
     if n >= cfg.max_probes:
-        return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, len(sides))
-    if n >= len(initial_design(cfg)) and miss < cfg.miss_probability and not sides:
-        return Decision(True, f"found: {state} after {n - len(given_up)} probes", None, False, miss, len(sides))
+        return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, n_open)
+    if n >= len(seed_design(cfg)) and miss < cfg.miss_probability and not n_open:
+        return Decision(True, f"found: {state} after {n - len(given_up)} probes", None, False, miss, n_open)
     if sides:
-        return Decision(False, f"resolving a candidate ({state})", sides[0], False, miss, len(sides))
+        return Decision(False, f"resolving a candidate ({state})", sides[0], False, miss, n_open)
+    if interior:
+        return Decision(False, f"measuring a detection's disc ({state})", interior[0], False, miss, n_open)
     px, py = probe_points(belief, cfg)
     near = near_probed(px, py, probed, cfg.min_separation_mm)
     gain = coverage_gain(covered, cfg.resolution_mm, cfg.reaches(), footprint_cells(cfg))
     gain[~np.isfinite(footprint_score(belief, cfg))] = 0.0   # a sweep that would leave the region
     gain[near] = 0.0
+    # the covering lattice's sweeps first (models.adaptive_cover), those that still reveal something; the greedy
+    # choice over every sweep only once none does (the lattice's edges, or tissue a refused sweep left)
+    lattice = np.zeros(gain.shape, dtype=bool)
+    for iy, ix in cover_lattice(cfg):
+        lattice[iy, ix] = True
+    on_lattice = bool(np.any(gain[lattice] > 0))
+    if on_lattice:
+        gain = np.where(lattice, gain, 0.0)
     best = float(np.max(gain))
     if best > 0:
         ok = gain >= cfg.near_best * best
@@ -317,6 +304,7 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
             i = int(np.argmin(d2))
         else:
             i = int(np.argmax(ok))
-        return Decision(False, f"covering ({state})", (float(px.flat[i]), float(py.flat[i])), True, miss, len(sides))
+        how = "covering, lattice" if on_lattice else "covering"
+        return Decision(False, f"{how} ({state})", (float(px.flat[i]), float(py.flat[i])), True, miss, n_open)
     return Decision(False, f"no sweep reveals more ({state})", next_probe(belief, probed, cfg, observed), False,
-                    miss, len(sides))
+                    miss, n_open)

@@ -47,6 +47,7 @@ from models.adaptive import (
     next_probe,
     should_stop,
 )
+from models.adaptive_cover import seed_design
 from models.adaptive_detect import clip_of, decide, detect_candidates, reference
 from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, detect_inclusions
@@ -89,14 +90,18 @@ class AdaptivePlanner(palpa.Node):
         """detect: a measurement within this of an inclusion's centre senses it (smallest radius + sensing reach)."""
         radius_span_mm: float = 4.5
         """detect: the radii of interest span this much above the smallest; the reach grows with them (PlannerConfig)."""
-        interior_gap_mm: float = 2.0
+        interior_gap_mm: float = 3.0
         """detect: every cell of a detected inclusion's disc within this of a measured cell before stopping (0: off)."""
-        miss_probability: float = 0.02
+        miss_probability: float = 0.01
         """detect: the chance, below which the planner may stop, that such an inclusion hides unsensed."""
-        suspect: float = 0.5
+        suspect: float = 0.6
         """detect: regions above this fraction of the detector's thresholds get their boundary sampled."""
         fill_mm: float = 4.0
         """detect: the detection map takes the GP mean only this close to a measured cell."""
+        suspect_measured: bool = False
+        """detect: suspects are found on the measured cells alone (PlannerConfig)."""
+        suspect_local_mm: float = 0.0
+        """detect: a suspect must also stand out from the tissue measured this far past it (PlannerConfig; 0: off)."""
         baseline_clip: bool = False
         """detect: clip the blind sweeps' stiff cells out of the detector's baseline (PlannerConfig)."""
         lower_spread: bool = True
@@ -110,6 +115,10 @@ class AdaptivePlanner(palpa.Node):
         """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
         near_best: float = 1.0
         """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
+        cover_column_mm: float = 8.0
+        """detect: the covering sweeps on a staggered lattice with columns this far apart (PlannerConfig; 0: off)."""
+        cover_period_mm: float = 12.0
+        """detect: along a lattice column a sweep every this far, the next column's half a period along."""
         mode: Literal["sweep", "indent"] = "sweep"
         """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
         length_mm: float = 6.0
@@ -141,10 +150,12 @@ class AdaptivePlanner(palpa.Node):
                                      reach_mm=p.reach_mm, radius_span_mm=p.radius_span_mm,
                                      interior_gap_mm=p.interior_gap_mm,
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
+                                     suspect_measured=p.suspect_measured, suspect_local_mm=p.suspect_local_mm,
                                      suspect=p.suspect, baseline_clip=p.baseline_clip, lower_spread=p.lower_spread,
                                      resolve_centre=p.resolve_centre, split_prominence=p.split_prominence,
                                      split_relative=p.split_relative,
-                                     near_best=p.near_best,
+                                     near_best=p.near_best, cover_column_mm=p.cover_column_mm,
+                                     cover_period_mm=p.cover_period_mm,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
         except (ValueError, GeometryError) as exc:
             raise palpa.ParamError(f"{self.name}: {exc}") from None
@@ -154,8 +165,12 @@ class AdaptivePlanner(palpa.Node):
         """The cells measured by stiffness-blind probes (seed grid, covering sweeps): the detector's baseline."""
         self.pending: list[tuple[float, float, float]] = []
         self.unit = ""
-        self.queue = [(pt, True) for pt in initial_design(self.cfg)]
-        """(point, blind): the points to probe next; blind when chosen without looking at stiffness."""
+        seeds = seed_design(self.cfg) if self.cfg.stop_rule == "detect" else initial_design(self.cfg)
+        self.queue = [(pt, True, "seed") for pt in seeds]
+        """(point, blind, why): the points to probe next; blind when chosen without looking at stiffness; why: what
+        the acquisition meant it for (seed, covering, resolving a candidate, ...)."""
+        self.why: list[str] = []
+        """For every probe made, why it was chosen (planner.json)."""
         self.probed: list[tuple[float, float]] = []
         self.given_up: list[tuple[float, float]] = []
         """Points the scanner refused every time: never chosen again, not counted as probes."""
@@ -163,6 +178,7 @@ class AdaptivePlanner(palpa.Node):
         self.refused = 0
         self.inflight: tuple[float, float] | None = None
         self.inflight_blind = False
+        self.inflight_why = ""
         self.retry_at_ns = 0
         self.started_ns: int | None = None
         self.belief: Belief | None = None
@@ -229,7 +245,7 @@ class AdaptivePlanner(palpa.Node):
             if stop:
                 self.finish(why)
                 return
-        (x, y), self.inflight_blind = self.queue.pop(0)
+        (x, y), self.inflight_blind, self.inflight_why = self.queue.pop(0)
         self.inflight = (x, y)
         req = ProbeAt(x_mm=x, y_mm=y, mode=self.params.mode,
                       length_mm=self.params.length_mm, radius_mm=self.params.radius_mm)
@@ -242,8 +258,9 @@ class AdaptivePlanner(palpa.Node):
         if err is None:
             r = fut.result()
             self.probed.append(point)
-            self.log.info("probe %d at (%.1f, %.1f) mm: %.2f %s from %d estimates", len(self.probed), *point,
-                          r.value, r.unit, r.samples)
+            self.why.append(self.inflight_why)
+            self.log.info("probe %d at (%.1f, %.1f) mm (%s): %.2f %s from %d estimates", len(self.probed), *point,
+                          self.inflight_why, r.value, r.unit, r.samples)
             self._update_belief()
             return
         self._refused(point, err)
@@ -253,7 +270,7 @@ class AdaptivePlanner(palpa.Node):
         n = self.tries[point] = self.tries.get(point, 0) + 1
         if n <= self.params.retries:
             self.log.warning("probe at (%.1f, %.1f) mm refused (%s): retrying", *point, err)
-            self.queue.insert(0, (point, self.inflight_blind))
+            self.queue.insert(0, (point, self.inflight_blind, self.inflight_why))
             self.retry_at_ns = self.clock.now_ns() + 500_000_000
         else:
             self.log.warning("probe at (%.1f, %.1f) mm refused %d times (%s): giving it up", *point, n, err)
@@ -294,12 +311,12 @@ class AdaptivePlanner(palpa.Node):
             d = decide(b, snap.stiffness, snap.count, self.probed + self.given_up, self.cfg, last,
                        self.fair.snapshot().stiffness, self.given_up)
             if not d.stop and d.point is not None:
-                self.queue.append((d.point, d.blind))
+                self.queue.append((d.point, d.blind, d.why.split(" (")[0]))
             return d.stop, d.why
         observed = snap.count >= self.params.min_count
         stop, why = should_stop(b, len(self.probed), self.cfg, observed)
         if not stop:
-            self.queue.append((next_probe(b, self.probed + self.given_up, self.cfg, observed), False))
+            self.queue.append((next_probe(b, self.probed + self.given_up, self.cfg, observed), False, "straddle"))
         return stop, why
 
     # -- output ------------------------------------------------------------------------------------
@@ -352,5 +369,5 @@ class AdaptivePlanner(palpa.Node):
         out.mkdir(parents=True, exist_ok=True)
         (out / "planner.json").write_text(json.dumps({
             "probes": len(self.probed), "refused": self.refused, "sim_s": elapsed, "stop": why,
-            "points": self.probed, "given_up": self.given_up}, indent=1) + "\n")
+            "points": self.probed, "why": self.why, "given_up": self.given_up}, indent=1) + "\n")
         self.timer(0.2, lambda: self.request_shutdown(0), oneshot=True)

@@ -57,10 +57,15 @@ def test_planner_probes_through_the_scanner_carries_on_after_refusals_and_is_det
     the planner gives those points up and spends its budget on the rest; it publishes its belief after each
     probe and writes the map; the same seed gives the same probe sequence and the same inclusions."""
     a, inc_a, beliefs, probing_z = _adaptive(tmp_path / "a")
-    assert a["refused"] >= 3                                    # (49.5, y) refused, retried twice, given up
+    assert a["refused"] >= 3                                    # a point past x = 46 refused, retried twice, given up
     assert a["probes"] >= 3                                     # and it carried on
     assert all(p[0] < BOX_X_MAX for p in a["points"]) and len(a["points"]) == a["probes"]
-    assert [49.5, 37.5] in a["given_up"]
+    assert a["given_up"] and all(p[0] > BOX_X_MAX for p in a["given_up"])
+    assert a["refused"] == 3 * len(a["given_up"])               # each given up after exactly its retries
+    # every probe says why it was made: the seed grid first, then what the acquisition chose it for
+    assert len(a["why"]) == a["probes"] and a["why"][0] == "seed"
+    assert set(a["why"]) <= {"seed", "covering, lattice", "covering", "resolving a candidate",
+                             "measuring a detection's disc", "no sweep reveals more"}
     assert beliefs and beliefs[-1].final and len(beliefs[-1].stiffness) == 9 * 9
     assert np.all(np.isfinite(beliefs[-1].stiffness))
     # the scanner touched off first: its sweeps follow the surface it found (1 mm working offset), not contact_z_mm

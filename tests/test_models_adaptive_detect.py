@@ -10,17 +10,14 @@ import numpy as np
 import numpy.typing as npt
 
 from models.adaptive import Belief, PlannerConfig
+from models.adaptive_cover import coverage_gain, hidden, miss_probability, sweep_stencil
 from models.adaptive_detect import (
-    coverage_gain,
     decide,
     detect_candidates,
     detection_map,
-    hidden,
     interior_gaps,
-    miss_probability,
     open_sides,
     reference,
-    sweep_stencil,
 )
 from models.stiffness_map import Inclusion, MapSnapshot, detect_inclusions
 
@@ -30,8 +27,8 @@ SEEDS = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
 
 
 def _cfg(**kw: Any) -> PlannerConfig:
-    # one reach and no interior rule unless a test asks: each rule is tested on its own
-    kw = {"radius_span_mm": 0.0, "interior_gap_mm": 0.0, **kw}
+    # one reach, no interior rule and the greedy cover alone unless a test asks: each rule is tested on its own
+    kw = {"radius_span_mm": 0.0, "interior_gap_mm": 0.0, "cover_column_mm": 0.0, **kw}
     return PlannerConfig(REGION, sweep_mm=6.0, seed_spacing_mm=40.0, **kw)   # seed: 2 x 2 points
 
 
@@ -239,6 +236,50 @@ def test_a_weak_rise_is_a_suspect_to_resolve_but_not_a_detection() -> None:
     probed = SEEDS
     assert not decide(b, measured, counts, probed, cfg).stop
     assert decide(b, measured, counts, probed, _cfg(reach_mm=40.0, suspect=1.0)).stop
+
+
+def test_a_suspect_on_measured_cells_alone_is_not_made_of_the_gp_means_overshoot() -> None:
+    cfg = _cfg(reach_mm=40.0, suspect=0.5, suspect_measured=True)
+    b = _belief(cfg)
+    b.mean[8:11, 9:12] = 11.5      # the GP's bump around one stiffer measured cell
+    measured = np.full((20, 20), 10.0)
+    measured[:, 8:13] = np.nan
+    measured[9, 10] = 11.5         # that cell, alone in a gap of five columns
+    counts = np.ones((20, 20), dtype=np.int64)
+    assert len(detect_candidates(b, measured, counts, _cfg(reach_mm=40.0, suspect=0.5), suspect=True)[1]) == 1
+    assert detect_candidates(b, measured, counts, cfg, suspect=True)[1] == []   # one cell: no region
+    measured[10, 10] = 11.5        # two measured cells, along a sweep: a suspect either way
+    assert len(detect_candidates(b, measured, counts, cfg, suspect=True)[1]) == 1
+    # the detections themselves keep the GP mean near measured cells: one measured cell and its bump is one
+    b.mean[8:11, 9:12] = 13.0
+    measured[9, 10], measured[10, 10] = 13.0, np.nan
+    assert len(detect_candidates(b, measured, counts, cfg)[1]) == 1
+
+
+def test_a_suspect_must_stand_out_from_the_tissue_around_it_not_only_from_the_whole_specimen() -> None:
+    cfg = _cfg(reach_mm=40.0, suspect=0.5, suspect_local_mm=8.0)
+    b = _belief(cfg, 10.0)
+    counts = np.ones((20, 20), dtype=np.int64)
+    fair = np.full((20, 20), 10.0)
+    fair[::2, ::2] = 9.8                 # healthy tissue's own scatter: the baseline's scale
+    # a broad gentle swell of the healthy tissue (or of the estimate's bias), 14 % at its top, 16 mm wide: its top
+    # passes the suspects' threshold, and so does the tissue around it nearly
+    iy, ix = np.mgrid[0:20, 0:20]
+    swell = 10.0 + 1.4 * np.exp(-((ix - 10.0) ** 2 + (iy - 10.0) ** 2) / (2 * 4.0**2))
+    assert len(detect_candidates(b, swell, counts, _cfg(reach_mm=40.0, suspect=0.5), fair, suspect=True)[1]) == 1
+    assert detect_candidates(b, swell, counts, cfg, fair, suspect=True)[1] == []
+    # a weak bump as high on flat tissue stands out locally: still a suspect
+    bump = np.full((20, 20), 10.0)
+    bump[9:11, 9:11] = 11.4
+    assert len(detect_candidates(b, bump, counts, cfg, fair, suspect=True)[1]) == 1
+    # with nothing measured around it there is nothing to compare: it stays a suspect
+    alone = np.full((20, 20), np.nan)
+    alone[9:11, 9:11] = 11.4
+    alone[0, :] = 10.0
+    assert len(detect_candidates(b, alone, counts, cfg, fair, suspect=True)[1]) == 1
+    # the detections themselves are not filtered: a broad one 22 % high that would not stand out locally
+    strong = 10.0 + 2.2 * (swell - 10.0) / 1.4
+    assert len(detect_candidates(b, strong, counts, cfg, fair)[1]) == 1
 
 
 def test_a_point_given_up_is_not_chosen_again_and_a_bad_baseline_is_no_reference() -> None:
