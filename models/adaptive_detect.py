@@ -242,6 +242,9 @@ class Decision:
     """The probability that an inclusion of the smallest radius of interest hides (:func:`miss_probability`)."""
     open_sides: int
     """Sides of the candidates whose boundary is not yet sampled (:func:`open_sides`)."""
+    kind: str = ""
+    """What the point is for: ``resolving a candidate``, ``measuring a detection's disc``, ``covering, lattice``,
+    ``covering`` or ``no sweep reveals more`` (the start of ``why``; empty when stopping)."""
 
 
 def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], probed: Sequence[tuple[float, float]],
@@ -280,9 +283,11 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     if n >= len(seed_design(cfg)) and miss < cfg.miss_probability and not n_open:
         return Decision(True, f"found: {state} after {n - len(given_up)} probes", None, False, miss, n_open)
     if sides:
-        return Decision(False, f"resolving a candidate ({state})", sides[0], False, miss, n_open)
+        kind = "resolving a candidate"
+        return Decision(False, f"{kind} ({state})", sides[0], False, miss, n_open, kind)
     if interior:
-        return Decision(False, f"measuring a detection's disc ({state})", interior[0], False, miss, n_open)
+        kind = "measuring a detection's disc"
+        return Decision(False, f"{kind} ({state})", interior[0], False, miss, n_open, kind)
     px, py = probe_points(belief, cfg)
     near = near_probed(px, py, probed, cfg.min_separation_mm)
     gain = coverage_gain(covered, cfg.resolution_mm, cfg.reaches(), footprint_cells(cfg))
@@ -304,7 +309,7 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
             i = int(np.argmin(d2))
         else:
             i = int(np.argmax(ok))
-        how = "covering, lattice" if on_lattice else "covering"
-        return Decision(False, f"{how} ({state})", (float(px.flat[i]), float(py.flat[i])), True, miss, n_open)
-    return Decision(False, f"no sweep reveals more ({state})", next_probe(belief, probed, cfg, observed), False,
-                    miss, n_open)
+        kind = "covering, lattice" if on_lattice else "covering"
+        return Decision(False, f"{kind} ({state})", (float(px.flat[i]), float(py.flat[i])), True, miss, n_open, kind)
+    kind = "no sweep reveals more"
+    return Decision(False, f"{kind} ({state})", next_probe(belief, probed, cfg, observed), False, miss, n_open, kind)

@@ -311,7 +311,7 @@ class AdaptivePlanner(palpa.Node):
             d = decide(b, snap.stiffness, snap.count, self.probed + self.given_up, self.cfg, last,
                        self.fair.snapshot().stiffness, self.given_up)
             if not d.stop and d.point is not None:
-                self.queue.append((d.point, d.blind, d.why.split(" (")[0]))
+                self.queue.append((d.point, d.blind, d.kind))
             return d.stop, d.why
         observed = snap.count >= self.params.min_count
         stop, why = should_stop(b, len(self.probed), self.cfg, observed)

@@ -29,14 +29,15 @@ def _cfg(**kw: Any) -> PlannerConfig:
     return PlannerConfig(kw.pop("region", REGION), sweep_mm=6.0, seed_spacing_mm=14.0, **kw)
 
 
-def _flat_run(cfg: PlannerConfig) -> tuple[list[tuple[float, float]], npt.NDArray[np.bool_]]:
+def _flat_run(cfg: PlannerConfig) -> tuple[list[tuple[float, float]], npt.NDArray[np.bool_], list[str]]:
     """decide() on tissue with nothing in it, every sweep measuring the cells it crosses, until it stops: the
-    covering alone (its probes, and the cells they measured)."""
+    covering alone (its probes, the cells they measured, and what decide() said each was for after the seed)."""
     xs, ys = cfg.grid()
     gx, gy = np.meshgrid(xs, ys)
     measured = np.full(gx.shape, np.nan)
     belief = Belief(xs, ys, np.full(gx.shape, 10.0), np.full(gx.shape, 0.5), 10.0, 12.0)
     probed: list[tuple[float, float]] = []
+    kinds: list[str] = []
 
     def sweep(p: tuple[float, float]) -> None:
         measured[(np.abs(gx - p[0]) <= 1.0) & (np.abs(gy - p[1]) <= 3.0)] = 10.0
@@ -48,8 +49,9 @@ def _flat_run(cfg: PlannerConfig) -> tuple[list[tuple[float, float]], npt.NDArra
         d = decide(belief, measured, np.isfinite(measured).astype(np.int64), probed, cfg, probed[-1], measured)
         if d.stop:
             assert d.why.startswith("found")
-            return probed, np.isfinite(measured)
+            return probed, np.isfinite(measured), kinds
         assert d.point is not None and d.blind
+        kinds.append(d.kind)
         sweep(d.point)
 
 
@@ -78,15 +80,15 @@ def test_a_sweep_past_the_edge_is_moved_in_only_when_it_still_crosses_the_grid()
 def test_the_lattice_covers_with_fewer_sweeps_than_the_greedy_cover_for_the_same_guarantee() -> None:
     big = (6.0, 6.0, 60.0, 56.0)   # 27 x 25 cells, a large generated phantom's region
     lattice, greedy = _cfg(region=big), _cfg(region=big, cover_column_mm=0.0)
-    a, measured_a = _flat_run(lattice)
-    b, measured_b = _flat_run(greedy)
+    a, measured_a, _ = _flat_run(lattice)
+    b, measured_b, _ = _flat_run(greedy)
     for cfg, measured in ((lattice, measured_a), (greedy, measured_b)):
         assert miss_probability(measured, 2.0, cfg.reaches()) < cfg.miss_probability
     # the greedy cover needs 36 sweeps, the brick lattice 28
     assert len(a) <= 28 < 34 <= len(b)
     # and at the defaults (1 %, a 12 mm period): 31 against 41
-    c, _ = _flat_run(PlannerConfig(big, sweep_mm=6.0, seed_spacing_mm=14.0))
-    d, _ = _flat_run(PlannerConfig(big, sweep_mm=6.0, seed_spacing_mm=14.0, cover_column_mm=0.0))
+    c, _, _ = _flat_run(PlannerConfig(big, sweep_mm=6.0, seed_spacing_mm=14.0))
+    d, _, _ = _flat_run(PlannerConfig(big, sweep_mm=6.0, seed_spacing_mm=14.0, cover_column_mm=0.0))
     assert len(c) <= 31 < 38 <= len(d)
     # the covering is a brick wall: 1 % of the cells (corners) lie farther than 4.5 mm from a measured one, none
     # farther than 6 mm (the greedy cover's leaves 2 %, up to 6.3 mm: it is not the lattice that leaves more room)
@@ -130,10 +132,12 @@ def test_the_seed_grid_is_snapped_onto_the_lattice() -> None:
 
 def test_decide_takes_lattice_sweeps_while_one_reveals_something_then_the_greedy_one() -> None:
     cfg = _cfg()
-    probed, _ = _flat_run(cfg)
+    probed, _, kinds = _flat_run(cfg)
     px, py = probe_points(None, cfg)
     on_lattice = {(float(px[iy, ix]), float(py[iy, ix])) for iy, ix in cover_lattice(cfg)}
-    flags = [p in on_lattice for p in probed]
+    after_seed = probed[len(seed_design(cfg)):]
     # lattice sweeps first, then (at most) a few greedy ones patching what it left at the edges
-    assert all(flags[:flags.index(False)] if False in flags else flags)
-    assert sum(flags) >= len(probed) - 2 and not any(flags[flags.index(False):] if False in flags else [])
+    n = sum(p in on_lattice for p in after_seed)
+    assert n >= 5 and [p in on_lattice for p in after_seed] == [True] * n + [False] * (len(after_seed) - n)
+    assert len(after_seed) - n <= 2
+    assert kinds == ["covering, lattice"] * n + ["covering"] * (len(after_seed) - n)
