@@ -116,11 +116,6 @@ class PlannerConfig:
     split_relative: bool = False
     """detect: the split's prominence relative to the joining level (the noise of an estimate grows with the
     stiffness: models.adaptive_split). Off: the absolute test is the one evaluated (BENCHMARKS.md)."""
-    resolve_extent: bool = False
-    """detect: a candidate's sides are sampled one cell past its outermost cells, not at its equivalent disc's edge
-    (models.adaptive_detect.open_sides): a weak inclusion whose rise joined a strong neighbour's halo stretches the
-    region toward itself, past the disc (tuning seed 124: missed in 2 of 3 noise draws, its neighbour's sides all
-    sampled)."""
     resolve_centre: bool = False
     """detect: a candidate is resolved only once its centre is measured too (models.adaptive_detect.open_sides).
     Off by default with ``baseline_clip`` (evaluated together, BENCHMARKS.md)."""

@@ -178,37 +178,25 @@ def _stands_out_locally(c: Inclusion, measured: FloatArray, x_mm: FloatArray, y_
 
 def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray,
                region_mm: tuple[float, float, float, float], resolution_mm: float,
-               centre: bool = True, extent: bool = False) -> list[tuple[float, float]]:
+               centre: bool = True) -> list[tuple[float, float]]:
     """Where a candidate is not yet sampled: for each candidate (its disc, centre and radius), its centre and the
     points on its disc's edge (at least one cell from its centre) to the left, right, below and above, where no cell
     within one cell of the point was measured and the point lies inside the region. The centre: where it was not
     measured the map there is the GP's smoothed guess, which bridges two inclusions closer than its length scale
     into one blob; a sweep through the middle measures the dip between them (or the peak of one); ``centre`` False
     (PlannerConfig.resolve_centre off): the edge points only. A probe at an edge point tells where the stiff tissue
-    ends (or, when it is still stiff, grows the candidate and opens the next point out). ``extent``
-    (PlannerConfig.resolve_extent): the points one cell past the candidate's outermost cells instead
-    (Inclusion.extremes; its disc's when not known): a weak inclusion's rise that joined a strong neighbour's halo
-    makes the region reach past the disc of their joint area, toward the weak one, which the disc's sides never
-    look at."""
+    ends (or, when it is still stiff, grows the candidate and opens the next point out)."""
     x0, y0, x1, y1 = region_mm
     gx, gy = np.meshgrid(x_mm, y_mm)
     mx, my = gx[observed], gy[observed]
     out = []
     for c in candidates:
-        d, r = max(resolution_mm, c.radius_mm), resolution_mm
-        # a point of the disc is sampled by a measured cell within one cell of it; one cell past the region's
-        # outermost cell, only by that cell itself (its neighbour inward is the region's own)
-        points = [(c.x_mm, c.y_mm, r)] if centre else []
-        if extent and len(c.extremes) == 4:
-            (lx, ly), (rx, ry), (bx, by), (tx, ty) = c.extremes
-            points += [(lx - r, ly, r / 2), (rx + r, ry, r / 2), (bx, by - r, r / 2), (tx, ty + r, r / 2)]
-        else:
-            points += [(c.x_mm - d, c.y_mm, r), (c.x_mm + d, c.y_mm, r), (c.x_mm, c.y_mm - d, r),
-                       (c.x_mm, c.y_mm + d, r)]
-        for px, py, near in points:
+        d = max(resolution_mm, c.radius_mm)
+        points = [(c.x_mm, c.y_mm)] if centre else []
+        for px, py in [*points, (c.x_mm - d, c.y_mm), (c.x_mm + d, c.y_mm), (c.x_mm, c.y_mm - d), (c.x_mm, c.y_mm + d)]:
             if not (x0 <= px <= x1 and y0 <= py <= y1):
                 continue
-            if not np.any((mx - px) ** 2 + (my - py) ** 2 <= near**2 + 1e-9):
+            if not np.any((mx - px) ** 2 + (my - py) ** 2 <= resolution_mm**2 + 1e-9):
                 out.append((px, py))
     return out
 
@@ -280,7 +268,7 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     miss = miss_probability(covered, cfg.resolution_mm, cfg.reaches())
     _, found = detect_candidates(belief, measured, counts, cfg, fair, suspect=True)
     sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm,
-                                   cfg.resolve_centre, cfg.resolve_extent)
+                                   cfg.resolve_centre)
              if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
     interior: list[tuple[float, float]] = []
     if cfg.interior_gap_mm > 0:

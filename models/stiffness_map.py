@@ -195,9 +195,7 @@ def background(stiffness: npt.ArrayLike) -> tuple[float, float]:
 @dataclass(frozen=True, slots=True)
 class Inclusion:
     """A region stiffer than the background: excess-weighted centroid (mm), equivalent radius
-    sqrt(area/pi) (mm), contrast = peak / baseline, peak value, area (mm^2), cell count, and the
-    centres (x, y) of its outermost cells: leftmost, rightmost, lowest, highest (each the one
-    nearest the centroid across; empty when not known)."""
+    sqrt(area/pi) (mm), contrast = peak / baseline, peak value, area (mm^2), cell count."""
 
     x_mm: float
     y_mm: float
@@ -206,7 +204,6 @@ class Inclusion:
     peak: float
     area_mm2: float
     cells: int
-    extremes: tuple[tuple[float, float], ...] = ()
 
 
 def detect_inclusions(
@@ -274,25 +271,10 @@ def detect_inclusions(
                 peak=float(peak[i]),
                 area_mm2=area,
                 cells=int(cells[i]),
-                extremes=_extremes(xx[stiff][lab == i], yy[stiff][lab == i],
-                                   float(cx[i] / weight[i]), float(cy[i] / weight[i])),
             )
         )
     found.sort(key=lambda inc: -inc.contrast)
     return found
-
-
-def _extremes(xs: npt.NDArray[np.float64], ys: npt.NDArray[np.float64], cx: float,
-              cy: float) -> tuple[tuple[float, float], ...]:
-    """The leftmost, rightmost, lowest and highest of the cells (xs, ys), each the one nearest
-    (cx, cy) across (on the line through the centroid, or as close to it as the region reaches)."""
-    out = []
-    for along, across, c, pick in ((xs, ys, cy, np.min), (xs, ys, cy, np.max),
-                                   (ys, xs, cx, np.min), (ys, xs, cx, np.max)):
-        edge = along == pick(along)
-        i = int(np.flatnonzero(edge)[np.argmin(np.abs(across[edge] - c))])
-        out.append((float(xs[i]), float(ys[i])))
-    return tuple(out)
 
 
 def to_inclusions_json(inclusions: Sequence[Inclusion]) -> list[dict[str, float]]:

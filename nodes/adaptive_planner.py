@@ -113,8 +113,6 @@ class AdaptivePlanner(palpa.Node):
         """detect: the split's prominence relative to the joining level (PlannerConfig)."""
         resolve_centre: bool = False
         """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
-        resolve_extent: bool = False
-        """detect: sample one cell past a candidate's outermost cells instead of its disc's edge (PlannerConfig)."""
         near_best: float = 1.0
         """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
         cover_column_mm: float = 8.0
@@ -154,8 +152,7 @@ class AdaptivePlanner(palpa.Node):
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
                                      suspect_measured=p.suspect_measured, suspect_local_mm=p.suspect_local_mm,
                                      suspect=p.suspect, baseline_clip=p.baseline_clip, lower_spread=p.lower_spread,
-                                     resolve_centre=p.resolve_centre, resolve_extent=p.resolve_extent,
-                                     split_prominence=p.split_prominence,
+                                     resolve_centre=p.resolve_centre, split_prominence=p.split_prominence,
                                      split_relative=p.split_relative,
                                      near_best=p.near_best, cover_column_mm=p.cover_column_mm,
                                      cover_period_mm=p.cover_period_mm,

@@ -159,36 +159,6 @@ def test_open_sides_are_the_unsampled_points_just_past_a_candidate() -> None:
     assert (-1.0, 21.0) not in open_sides([edge], obs, xs, xs, REGION, 2.0)   # outside the region: no side
 
 
-def test_extent_sides_look_past_a_candidates_outermost_cells_where_its_disc_does_not_reach() -> None:
-    xs = np.arange(20, dtype=np.float64) * 2.0 + 1.0
-    grid = np.full((20, 20), 10.0)
-    grid[6:13, 4:11] = 20.0   # a strong inclusion, 7 x 7 cells around (15, 19)
-    grid[10:12, 11:15] = 14.0   # and a tail to the right, in its halo, toward a weak one past x = 29
-    snap = MapSnapshot(grid, xs, xs, np.ones((20, 20), dtype=np.int64), np.zeros((20, 20)), 2.0)
-    (c,) = detect_inclusions(snap, reference=(10.0, 0.5))
-    assert (round(c.x_mm, 2), round(c.y_mm, 2)) == (15.67, 19.18)
-    assert c.extremes == ((9.0, 19.0), (29.0, 21.0), (15.0, 13.0), (15.0, 25.0))   # left, right, low, high
-    obs = np.zeros((20, 20), dtype=bool)
-    disc = open_sides([c], obs, xs, xs, REGION, 2.0, centre=False)
-    assert max(x for x, _ in disc) < 27.0   # the disc of the joint area stops short of the tail's end
-    sides = open_sides([c], obs, xs, xs, REGION, 2.0, centre=False, extent=True)
-    assert sides == [(7.0, 19.0), (31.0, 21.0), (15.0, 11.0), (15.0, 27.0)]   # one cell past each outermost cell
-    obs[10, 15] = True   # (31, 21) measured: that side is sampled
-    obs[12, 7] = True   # (15, 25), the region's own top cell: the point past it is not
-    assert open_sides([c], obs, xs, xs, REGION, 2.0, centre=False, extent=True) == [sides[0], *sides[2:]]
-    bare = Inclusion(x_mm=21.0, y_mm=21.0, radius_mm=3.0, contrast=2.0, peak=20.0, area_mm2=28.0, cells=7)
-    assert open_sides([bare], obs, xs, xs, REGION, 2.0, centre=False, extent=True) == \
-        open_sides([bare], obs, xs, xs, REGION, 2.0, centre=False)   # extremes unknown: the disc's sides
-    cfg = _cfg(reach_mm=40.0, resolve_extent=True)
-    b = _belief(cfg)
-    counts = np.ones((20, 20), dtype=np.int64)
-    measured = grid.copy()
-    measured[:, 15:] = np.nan   # nothing measured right of x = 29
-    d = decide(b, measured, counts, SEEDS, cfg, fair=np.full((20, 20), 10.0))
-    assert not d.stop and d.point == (31.0, 21.0)
-    assert decide(b, measured, counts, SEEDS, _cfg(reach_mm=40.0), fair=np.full((20, 20), 10.0)).stop   # off
-
-
 def test_a_sweep_through_a_candidates_middle_splits_two_inclusions_the_mean_bridged() -> None:
     cfg = _cfg(reach_mm=40.0, fill_mm=4.0, resolve_centre=True)
     b = _belief(cfg)
