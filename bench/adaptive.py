@@ -136,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--determinism", action="store_true",
                     help="run the first phantom's adaptive launch again and compare (JSON 'deterministic')")
     opts = ap.parse_args(argv)
+    if opts.noise_seeds < 1:
+        ap.error(f"--noise-seeds: at least 1 draw, got {opts.noise_seeds}")
     out: Path = opts.out
     (out / "phantoms").mkdir(parents=True, exist_ok=True)
     phantoms = [REPO / "phantoms" / "airfloat_tumours.yaml"]
@@ -144,7 +146,8 @@ def main(argv: list[str] | None = None) -> int:
         path.write_text(yaml.safe_dump(random_phantom(seed, PhantomRanges()), sort_keys=False), encoding="utf-8")
         phantoms.append(path)
     # both methods on the same region: the raster's own edge margin (the SPS ring stays on the specimen)
-    specs = {name: plan_runs(launch, phantoms, list(range(max(1, opts.noise_seeds))), {}, out / name, margin_mm=MARGIN_MM, geometry_error_mm=0.2)
+    seeds = list(range(opts.noise_seeds))
+    specs = {name: plan_runs(launch, phantoms, seeds, {}, out / name, margin_mm=MARGIN_MM, geometry_error_mm=0.2)
              for name, launch in (("raster", RASTER), ("adaptive", ADAPTIVE))}
     for item in opts.adaptive_arg:
         name, _, value = item.partition("=")
@@ -243,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
                       "found_raster": sum(r["found_raster"] for r in rows),
                       "phantoms": len({r["phantom"] for r in rows}), "runs": len(rows),
                       "complete": len(complete), "inclusions": sum(r["inclusions"] for r in rows),
-                      "noise_seeds": max(1, opts.noise_seeds),
+                      "noise_seeds": opts.noise_seeds,
                       "sure_raster": sum(1 for v in rates.values() if v["raster"] == v["runs"]),
                       "sure_missed": sum(1 for v in rates.values() if v["raster"] == v["runs"] > v["adaptive"]),
                       "rate_below_raster": sum(1 for v in rates.values() if v["adaptive"] < v["raster"]),
