@@ -20,9 +20,18 @@ inclusion the raster's found: adaptive over raster probes at equal or better det
 same over every phantom, whatever was missed), ``probe_ratio_localise`` (the probes after which the recorded detection map
 finds, from then on, at least as many inclusions as the raster's final map: hindsight, the planner itself does not
 know that moment), ``found_adaptive``, ``found_raster`` (true inclusions found over all phantoms),
-``missed_vs_raster`` (inclusions the raster found and the adaptive map did not), ``phantoms``, ``complete``
-(phantoms where the adaptive map found every inclusion the raster's found), and with ``--determinism``
+``missed_vs_raster`` (inclusions the raster found and the adaptive map did not), ``phantoms``, ``runs`` (phantoms
+times noise seeds; the sums above are over runs), ``complete`` (runs where the adaptive map found every inclusion the
+raster's found), ``inclusions`` (true inclusions over all runs), and with ``--determinism``
 ``deterministic`` (the first phantom's adaptive run made again gives the same points, inclusions and map).
+
+With ``--noise-seeds K`` every phantom runs K times per method, sensor noise seeds 0..K-1 (``seed:=``): a weak
+inclusion near the detector's threshold is found by the raster itself in some noise draws and not in others, so one
+draw's "missed" says little about it. The rows are then (phantom, seed) pairs (``missed_vs_raster`` compares the
+two methods on the same draw), ``inclusion_rates.csv`` has each true inclusion's detections out of K for both, and
+the JSON adds ``noise_seeds``, ``sure_raster`` (inclusions the raster found in every draw), ``sure_missed`` (of
+those, the ones the adaptive map missed in at least one), ``rate_below_raster`` / ``rate_above_raster``
+(inclusions the adaptive map found in fewer / more draws than the raster's).
 """
 
 from __future__ import annotations
@@ -122,9 +131,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", nargs="+", default=[RASTER.stem, ADAPTIVE.stem], choices=[RASTER.stem, ADAPTIVE.stem],
                     help="run only these launch files (the others' runs are scored if present)")
     ap.add_argument("--timeout", type=float, default=900.0)
+    ap.add_argument("--noise-seeds", type=int, default=1, metavar="K",
+                    help="run every phantom with sensor noise seeds 0..K-1 (per-inclusion detection rates)")
     ap.add_argument("--determinism", action="store_true",
                     help="run the first phantom's adaptive launch again and compare (JSON 'deterministic')")
     opts = ap.parse_args(argv)
+    if opts.noise_seeds < 1:
+        ap.error(f"--noise-seeds: at least 1 draw, got {opts.noise_seeds}")
     out: Path = opts.out
     (out / "phantoms").mkdir(parents=True, exist_ok=True)
     phantoms = [REPO / "phantoms" / "airfloat_tumours.yaml"]
@@ -133,7 +146,8 @@ def main(argv: list[str] | None = None) -> int:
         path.write_text(yaml.safe_dump(random_phantom(seed, PhantomRanges()), sort_keys=False), encoding="utf-8")
         phantoms.append(path)
     # both methods on the same region: the raster's own edge margin (the SPS ring stays on the specimen)
-    specs = {name: plan_runs(launch, phantoms, [0], {}, out / name, margin_mm=MARGIN_MM, geometry_error_mm=0.2)
+    seeds = list(range(opts.noise_seeds))
+    specs = {name: plan_runs(launch, phantoms, seeds, {}, out / name, margin_mm=MARGIN_MM, geometry_error_mm=0.2)
              for name, launch in (("raster", RASTER), ("adaptive", ADAPTIVE))}
     for item in opts.adaptive_arg:
         name, _, value = item.partition("=")
@@ -152,6 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     wall = time.monotonic() - t0
     deterministic = _same_again(specs["adaptive"][0], opts.timeout) if opts.determinism else None
     rows: list[dict[str, Any]] = []
+    rates: dict[tuple[str, int], dict[str, Any]] = {}
     curves: dict[str, list[tuple[float, float, int]]] = {}
     raster_curves: dict[str, list[tuple[float, float, int]]] = {}
     for r_spec, a_spec in zip(specs["raster"], specs["adaptive"], strict=True):
@@ -164,9 +179,16 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{r_spec.id}: not scored ({exc})", file=sys.stderr)
             continue
         missed = sum(1 for x, y in zip(r_inc, a_inc, strict=True) if x["found"] and not y["found"])
+        for x, y in zip(r_inc, a_inc, strict=True):
+            rate = rates.setdefault((r_spec.phantom.stem, x["inclusion"]), {
+                "phantom": r_spec.phantom.stem, "inclusion": x["inclusion"], "radius_mm": x["radius_mm"],
+                "ratio": round(x["ratio"], 3), "depth_mm": x["depth_mm"], "runs": 0, "raster": 0, "adaptive": 0})
+            rate["runs"] += 1
+            rate["raster"] += int(x["found"])
+            rate["adaptive"] += int(y["found"])
         eq = raster_probe_equivalents(r_spec)
         rows.append({
-            "phantom": r_spec.phantom.stem, "inclusions": r["true_inclusions"],
+            "run": r_spec.id, "phantom": r_spec.phantom.stem, "seed": r_spec.seed, "inclusions": r["true_inclusions"],
             "found_raster": r["found"], "found_adaptive": a["found"], "missed_vs_raster": missed,
             "probes_raster_eq": round(eq, 1), "probes_adaptive": plan["probes"], "probe_ratio": plan["probes"] / eq,
             "path_ratio": a["path_mm"] / r["path_mm"], "samples_ratio": a["probes"] / max(r["probes"], 1),
@@ -178,14 +200,14 @@ def main(argv: list[str] | None = None) -> int:
             "iou_raster": r["iou"], "iou_adaptive": a["iou"], "stop": plan["stop"],
         })
         try:
-            curve = curves[r_spec.phantom.stem] = map_curve(a_spec, "planner/map")
-            raster_curves[r_spec.phantom.stem] = raster_curve(r_spec, eq)
+            curve = curves[r_spec.id] = map_curve(a_spec, "planner/map")
+            raster_curves[r_spec.id] = raster_curve(r_spec, eq)
         except (OSError, ValueError) as exc:
             print(f"{a_spec.id}: no map curve ({exc})", file=sys.stderr)
             curve = []
         # localised: from this probe on, the planner's map finds at least as many inclusions as the raster's final map
         n_loc = _localised(curve, r["found"])
-        r_loc = _localised(raster_curves.get(r_spec.phantom.stem, []), r["found"])
+        r_loc = _localised(raster_curves.get(r_spec.id, []), r["found"])
         rows[-1]["probes_to_localise"] = n_loc
         rows[-1]["localise_ratio"] = n_loc / eq
         rows[-1]["raster_probes_to_localise"] = r_loc
@@ -198,6 +220,11 @@ def main(argv: list[str] | None = None) -> int:
             w.writeheader()
             w.writerows(rows)
         _plot(out / "error_vs_probes.png", rows, curves, raster_curves)
+    if rates:
+        with (out / "inclusion_rates.csv").open("w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(next(iter(rates.values()))))
+            w.writeheader()
+            w.writerows(rates.values())
     for k in ("probe_ratio", "localise_ratio", "probes_to_localise", "raster_probes_to_localise",
               "localise_s_adaptive", "localise_s_raster", "fp_raster", "fp_adaptive", "path_ratio", "samples_ratio", "err_raster_mm",
               "err_adaptive_mm", "sens_raster",
@@ -210,14 +237,20 @@ def main(argv: list[str] | None = None) -> int:
     def pooled(key: str, over: list[dict[str, Any]]) -> float | None:
         return sum(r[key] for r in over) / sum(r["probes_raster_eq"] for r in over) if over else None
 
-    print(f"{len(rows)} phantoms scored, runs took {wall:.0f} s wall ({len(todo)} launches)")
+    print(f"{len(rows)} runs scored, runs took {wall:.0f} s wall ({len(todo)} launches)")
     print(json.dumps({"probe_ratio": pooled("probes_adaptive", complete),
                       "probe_ratio_all": pooled("probes_adaptive", rows),
                       "probe_ratio_localise": pooled("probes_to_localise", localised),
                       "missed_vs_raster": sum(r["missed_vs_raster"] for r in rows),
                       "found_adaptive": sum(r["found_adaptive"] for r in rows),
-                      "found_raster": sum(r["found_raster"] for r in rows), "phantoms": len(rows),
+                      "found_raster": sum(r["found_raster"] for r in rows),
+                      "phantoms": len({r["phantom"] for r in rows}), "runs": len(rows),
                       "complete": len(complete), "inclusions": sum(r["inclusions"] for r in rows),
+                      "noise_seeds": opts.noise_seeds,
+                      "sure_raster": sum(1 for v in rates.values() if v["raster"] == v["runs"]),
+                      "sure_missed": sum(1 for v in rates.values() if v["raster"] == v["runs"] > v["adaptive"]),
+                      "rate_below_raster": sum(1 for v in rates.values() if v["adaptive"] < v["raster"]),
+                      "rate_above_raster": sum(1 for v in rates.values() if v["adaptive"] > v["raster"]),
                       "deterministic": deterministic}))
     return 0
 
@@ -250,7 +283,7 @@ def _plot(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[f
     for i, row in enumerate(rows):
         for curve_set, colour, label in ((raster_curves, "tab:red", "raster (its map as it grows)"),
                                          (curves, "tab:blue", "adaptive (its map after each probe)")):
-            curve = curve_set.get(row["phantom"])
+            curve = curve_set.get(row["run"])
             if curve:
                 n, err, found = zip(*curve, strict=True)
                 ax1.plot(n, err, color=colour, alpha=0.35, lw=1, label=label if i == 0 else None)
