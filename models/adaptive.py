@@ -116,11 +116,13 @@ class PlannerConfig:
     split_relative: bool = False
     """detect: the split's prominence relative to the joining level (the noise of an estimate grows with the
     stiffness: models.adaptive_split). Off: the absolute test is the one evaluated (BENCHMARKS.md)."""
-    near_miss: float = 0.0
+    near_miss: float = 0.8
     """detect: a suspect that is no detection but whose highest cell came this fraction of the way from the baseline
     to the detector's threshold has its disc measured at the raster's density (``near_miss_gap_mm``; 0: off).
     Whether a weak inclusion's map crosses the threshold turns on how many of its cells were measured near its
-    middle: the raster's lines measure most, the planner's sweeps a few."""
+    middle: the raster's lines measure most, the planner's sweeps a few. (Tuning seeds 100-139, three noise draws
+    each: 37 such sweeps in 126 runs, 1 % more probes; 171 inclusions found against 168, 5 of the raster's missed
+    against 6. At the detection's own 3 mm gap it never asked for a sweep.)"""
     near_miss_gap_mm: float = 1.5
     """detect: a near miss's disc is measured until every cell lies within this of a measured one (1.5: every
     column of the 2 mm grid)."""

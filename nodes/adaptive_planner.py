@@ -113,7 +113,7 @@ class AdaptivePlanner(palpa.Node):
         """detect: the split's prominence relative to the joining level (PlannerConfig)."""
         resolve_centre: bool = False
         """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
-        near_miss: float = 0.0
+        near_miss: float = 0.8
         """detect, > 0: a suspect whose peak came this fraction of the way to the detector's threshold gets its disc
         measured at the raster's density (PlannerConfig)."""
         near_miss_gap_mm: float = 1.5

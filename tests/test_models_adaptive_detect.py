@@ -30,8 +30,8 @@ SEEDS = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
 
 
 def _cfg(**kw: Any) -> PlannerConfig:
-    # one reach, no interior rule and the greedy cover alone unless a test asks: each rule is tested on its own
-    kw = {"radius_span_mm": 0.0, "interior_gap_mm": 0.0, "cover_column_mm": 0.0, **kw}
+    # one reach, no interior or near-miss rule and the greedy cover alone unless a test asks: each rule on its own
+    kw = {"radius_span_mm": 0.0, "interior_gap_mm": 0.0, "cover_column_mm": 0.0, "near_miss": 0.0, **kw}
     return PlannerConfig(REGION, sweep_mm=6.0, seed_spacing_mm=40.0, **kw)   # seed: 2 x 2 points
 
 
