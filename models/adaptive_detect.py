@@ -71,8 +71,8 @@ from models.adaptive_cover import (
 from models.adaptive_split import split_detections
 from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
 
-__all__ = ["Decision", "clip_of", "decide", "detect_candidates", "detection_map", "interior_gaps", "open_sides",
-           "reference"]
+__all__ = ["Decision", "clip_of", "decide", "detect_candidates", "detection_map", "interior_gaps", "near_misses",
+           "open_sides", "reference"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -176,6 +176,20 @@ def _stands_out_locally(c: Inclusion, measured: FloatArray, x_mm: FloatArray, y_
     return float(np.max(measured[inside])) > local + cfg.suspect * max(4.0 * scale, cfg.rel_threshold * local)
 
 
+def near_misses(suspects: Sequence[Inclusion], detected: Sequence[Inclusion], fair: FloatArray | None,
+                cfg: PlannerConfig) -> list[Inclusion]:
+    """The suspects that are no detection but came close (``cfg.near_miss``): their peak at least that fraction of
+    the way from the baseline to the detector's threshold (against the stiffness-blind cells' :func:`reference`),
+    and no detection's centre inside their disc (a detection's halo is no inclusion of its own)."""
+    ref = reference(fair, clip=clip_of(cfg), lower=cfg.lower_spread)
+    if ref is None or cfg.near_miss <= 0:
+        return []
+    base, scale = ref
+    bar = base + cfg.near_miss * max(4.0 * scale, cfg.rel_threshold * base)
+    return [c for c in suspects if c.peak >= bar
+            and not any((d.x_mm - c.x_mm) ** 2 + (d.y_mm - c.y_mm) ** 2 <= c.radius_mm**2 for d in detected)]
+
+
 def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray,
                region_mm: tuple[float, float, float, float], resolution_mm: float,
                centre: bool = True) -> list[tuple[float, float]]:
@@ -243,8 +257,9 @@ class Decision:
     open_sides: int
     """Sides of the candidates whose boundary is not yet sampled (:func:`open_sides`)."""
     kind: str = ""
-    """What the point is for: ``resolving a candidate``, ``measuring a detection's disc``, ``covering, lattice``,
-    ``covering`` or ``no sweep reveals more`` (the start of ``why``; empty when stopping)."""
+    """What the point is for: ``resolving a candidate``, ``measuring a detection's disc``, ``measuring a near miss's
+    disc``, ``covering, lattice``, ``covering`` or ``no sweep reveals more`` (the start of ``why``; empty when
+    stopping)."""
 
 
 def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], probed: Sequence[tuple[float, float]],
@@ -271,12 +286,15 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
                                    cfg.resolve_centre)
              if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
     interior: list[tuple[float, float]] = []
+    second: list[tuple[float, float]] = []
     if cfg.interior_gap_mm > 0:
         _, detected = detect_candidates(belief, measured, counts, cfg, fair)
-        interior = [p for p in interior_gaps(detected, observed, belief.x_mm, belief.y_mm, cfg.region_mm,
-                                             cfg.resolution_mm, cfg.interior_gap_mm, footprint_cells(cfg))
-                    if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
-    n_open = len(sides) + len(interior)
+        interior, second = ([p for p in interior_gaps(discs, observed, belief.x_mm, belief.y_mm, cfg.region_mm,
+                                                      cfg.resolution_mm, gap, footprint_cells(cfg))
+                             if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
+                            for discs, gap in ((detected, cfg.interior_gap_mm),
+                                               (near_misses(found, detected, fair, cfg), cfg.near_miss_gap_mm)))
+    n_open = len(sides) + len(interior) + len(second)
     state = f"miss probability {miss:.3f}, {len(found)} candidates, {n_open} boundary sides open"
     if n >= cfg.max_probes:
         return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, n_open)
@@ -288,6 +306,9 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     if interior:
         kind = "measuring a detection's disc"
         return Decision(False, f"{kind} ({state})", interior[0], False, miss, n_open, kind)
+    if second:
+        kind = "measuring a near miss's disc"
+        return Decision(False, f"{kind} ({state})", second[0], False, miss, n_open, kind)
     px, py = probe_points(belief, cfg)
     near = near_probed(px, py, probed, cfg.min_separation_mm)
     gain = coverage_gain(covered, cfg.resolution_mm, cfg.reaches(), footprint_cells(cfg))

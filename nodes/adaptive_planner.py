@@ -113,6 +113,11 @@ class AdaptivePlanner(palpa.Node):
         """detect: the split's prominence relative to the joining level (PlannerConfig)."""
         resolve_centre: bool = False
         """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
+        near_miss: float = 0.8
+        """detect, > 0: a suspect whose peak came this fraction of the way to the detector's threshold gets its disc
+        measured at the raster's density (PlannerConfig)."""
+        near_miss_gap_mm: float = 1.5
+        """detect: a near miss's disc is measured until every cell is within this of a measured one (PlannerConfig)."""
         near_best: float = 1.0
         """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
         cover_column_mm: float = 8.0
@@ -152,7 +157,9 @@ class AdaptivePlanner(palpa.Node):
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
                                      suspect_measured=p.suspect_measured, suspect_local_mm=p.suspect_local_mm,
                                      suspect=p.suspect, baseline_clip=p.baseline_clip, lower_spread=p.lower_spread,
-                                     resolve_centre=p.resolve_centre, split_prominence=p.split_prominence,
+                                     resolve_centre=p.resolve_centre, near_miss=p.near_miss,
+                                     near_miss_gap_mm=p.near_miss_gap_mm,
+                                     split_prominence=p.split_prominence,
                                      split_relative=p.split_relative,
                                      near_best=p.near_best, cover_column_mm=p.cover_column_mm,
                                      cover_period_mm=p.cover_period_mm,

@@ -4,10 +4,12 @@ its coverage acquisition, the detection map and the stiffness-blind baseline."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+import pytest
 
 from models.adaptive import Belief, PlannerConfig
 from models.adaptive_cover import coverage_gain, hidden, miss_probability, sweep_stencil
@@ -16,6 +18,7 @@ from models.adaptive_detect import (
     detect_candidates,
     detection_map,
     interior_gaps,
+    near_misses,
     open_sides,
     reference,
 )
@@ -27,8 +30,8 @@ SEEDS = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
 
 
 def _cfg(**kw: Any) -> PlannerConfig:
-    # one reach, no interior rule and the greedy cover alone unless a test asks: each rule is tested on its own
-    kw = {"radius_span_mm": 0.0, "interior_gap_mm": 0.0, "cover_column_mm": 0.0, **kw}
+    # one reach, no interior or near-miss rule and the greedy cover alone unless a test asks: each rule on its own
+    kw = {"radius_span_mm": 0.0, "interior_gap_mm": 0.0, "cover_column_mm": 0.0, "near_miss": 0.0, **kw}
     return PlannerConfig(REGION, sweep_mm=6.0, seed_spacing_mm=40.0, **kw)   # seed: 2 x 2 points
 
 
@@ -353,6 +356,34 @@ def test_decide_measures_a_detections_disc_densely_before_stopping() -> None:
     measured[7:14, 10] = 10.0   # measured there: soft (two inclusions), every disc cell within 2 mm of a measured one
     assert decide(b, measured, counts, SEEDS, cfg).stop
     assert len(detect_candidates(b, measured, counts, cfg)[1]) == 2
+
+
+def test_a_near_miss_gets_its_disc_measured_as_a_detections_is() -> None:
+    cfg = _cfg(reach_mm=40.0, interior_gap_mm=2.0, near_miss=0.8, near_miss_gap_mm=2.0)   # coverage: no concern
+    b = _belief(cfg)
+    measured = np.full((20, 20), 10.0)
+    fair = measured.copy()   # the blind cells: 10, no spread, so the detector's threshold is 10 * 1.2 = 12
+    measured[7:14, 8] = measured[7:14, 12] = 11.8   # two sweeps 8 mm apart past a weak rise: 0.9 of the way to 12
+    measured[7:14, 9:12] = np.nan
+    b.mean[7:14, 9:12] = 11.8
+    counts = np.ones((20, 20), dtype=np.int64)
+    assert detect_candidates(b, measured, counts, cfg, fair)[1] == []   # no detection
+    d = decide(b, measured, counts, SEEDS, cfg, fair=fair)
+    assert not d.stop and d.point == (21.0, 21.0) and d.kind == "measuring a near miss's disc"
+    assert decide(b, measured, counts, SEEDS, _cfg(reach_mm=40.0, interior_gap_mm=2.0), fair=fair).stop   # off
+    assert decide(b, measured, counts, SEEDS, replace(cfg, near_miss=0.95), fair=fair).stop   # not close enough
+    measured[7:14, 10] = 11.8   # its middle measured: still under the threshold, and nothing left unmeasured
+    assert decide(b, measured, counts, SEEDS, cfg, fair=fair).stop
+    finer = decide(b, measured, counts, SEEDS, replace(cfg, near_miss_gap_mm=1.5), fair=fair)
+    assert not finer.stop and finer.point is not None and finer.point[0] in (19.0, 23.0)   # every column, as a raster
+    assert decide(b, measured, counts, SEEDS, replace(cfg, near_miss=0.0, near_miss_gap_mm=1.5), fair=fair).stop
+    _, suspects = detect_candidates(b, measured, counts, cfg, fair, suspect=True)
+    assert len(near_misses(suspects, [], fair, cfg)) == 1
+    assert near_misses(suspects, suspects, fair, cfg) == []   # a detection's own halo is no near miss
+    assert near_misses(suspects, [], None, cfg) == []   # no baseline yet: nothing to come near to
+    for bad in ({"near_miss": -0.1}, {"near_miss": 1.0}, {"near_miss_gap_mm": 0.0}):   # 1: the detections themselves
+        with pytest.raises(ValueError, match="near_miss"):
+            _cfg(**bad)
 
 
 def test_the_baseline_spread_is_read_below_the_median_where_inclusions_cannot_widen_it() -> None:
