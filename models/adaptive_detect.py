@@ -26,6 +26,9 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   A *detected* inclusion is resolved only once its disc is measured densely (every cell within ``interior_gap_mm``
   of a measured one, columns 6 mm apart by default: :func:`interior_gaps`): between sparse sweeps the map is the
   GP's guess, which joins two neighbours into one blob and shows no dip it never measured.
+  A *near miss* (a suspect whose peak came ``near_miss`` of the way to the detector's threshold, no detection:
+  :func:`near_misses`) is resolved only once its disc is measured at the raster's density (``near_miss_gap_mm``):
+  whether a weak inclusion crosses the threshold turns on whether a cell near its middle was measured.
 
 The acquisition follows the same two needs: resolve candidates first (a sweep at an open side), then cover: a sweep
 of the staggered covering lattice that still reveals hidden area (models.adaptive_cover: the coverage functions live
@@ -285,15 +288,14 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm,
                                    cfg.resolve_centre)
              if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
-    interior: list[tuple[float, float]] = []
-    second: list[tuple[float, float]] = []
-    if cfg.interior_gap_mm > 0:
-        _, detected = detect_candidates(belief, measured, counts, cfg, fair)
-        interior, second = ([p for p in interior_gaps(discs, observed, belief.x_mm, belief.y_mm, cfg.region_mm,
-                                                      cfg.resolution_mm, gap, footprint_cells(cfg))
-                             if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
-                            for discs, gap in ((detected, cfg.interior_gap_mm),
-                                               (near_misses(found, detected, fair, cfg), cfg.near_miss_gap_mm)))
+    _, detected = detect_candidates(belief, measured, counts, cfg, fair)
+    # a detection's disc measured every interior_gap_mm (0: off), a near miss's at the raster's density (near_miss 0:
+    # none); both the sweep over the most unmeasured cells of the disc
+    interior, second = ([p for p in interior_gaps(discs, observed, belief.x_mm, belief.y_mm, cfg.region_mm,
+                                                  cfg.resolution_mm, gap, footprint_cells(cfg))
+                         if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
+                        for discs, gap in ((detected if cfg.interior_gap_mm > 0 else [], cfg.interior_gap_mm),
+                                           (near_misses(found, detected, fair, cfg), cfg.near_miss_gap_mm)))
     n_open = len(sides) + len(interior) + len(second)
     state = f"miss probability {miss:.3f}, {len(found)} candidates, {n_open} boundary sides open"
     if n >= cfg.max_probes:

@@ -370,6 +370,7 @@ def test_a_near_miss_gets_its_disc_measured_as_a_detections_is() -> None:
     assert detect_candidates(b, measured, counts, cfg, fair)[1] == []   # no detection
     d = decide(b, measured, counts, SEEDS, cfg, fair=fair)
     assert not d.stop and d.point == (21.0, 21.0) and d.kind == "measuring a near miss's disc"
+    assert decide(b, measured, counts, SEEDS, replace(cfg, interior_gap_mm=0.0), fair=fair).point == d.point   # on its own
     assert decide(b, measured, counts, SEEDS, _cfg(reach_mm=40.0, interior_gap_mm=2.0), fair=fair).stop   # off
     assert decide(b, measured, counts, SEEDS, replace(cfg, near_miss=0.95), fair=fair).stop   # not close enough
     measured[7:14, 10] = 11.8   # its middle measured: still under the threshold, and nothing left unmeasured
