@@ -170,7 +170,8 @@ class AdaptivePlanner(palpa.Node):
         self.grid = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
         self.fair = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
         """The cells measured by stiffness-blind probes (seed grid, covering sweeps): the detector's baseline."""
-        self.pending: list[tuple[float, float, float]] = []
+        self.pending: list[tuple[float, float, float, bool]] = []
+        """Samples not yet in the grids: (x, y, value, measured by a stiffness-blind probe)."""
         self.unit = ""
         seeds = seed_design(self.cfg) if self.cfg.stop_rule == "detect" else initial_design(self.cfg)
         self.queue = [(pt, True, "seed") for pt in seeds]
@@ -179,6 +180,8 @@ class AdaptivePlanner(palpa.Node):
         self.why: list[str] = []
         """For every probe made, why it was chosen (planner.json)."""
         self.probed: list[tuple[float, float]] = []
+        self.blind: list[bool] = []
+        """For every probe made, whether it was stiffness-blind (its samples go to the baseline's grid)."""
         self.given_up: list[tuple[float, float]] = []
         """Points the scanner refused every time: never chosen again, not counted as probes."""
         self.tries: dict[tuple[float, float], int] = {}
@@ -186,6 +189,7 @@ class AdaptivePlanner(palpa.Node):
         self.inflight: tuple[float, float] | None = None
         self.inflight_blind = False
         self.inflight_why = ""
+        self.inflight_since_ns = 0
         self.retry_at_ns = 0
         self.started_ns: int | None = None
         self.belief: Belief | None = None
@@ -218,21 +222,33 @@ class AdaptivePlanner(palpa.Node):
     def on_sample(self, s: StiffnessSample) -> None:
         # only what its probes measured where they were sent: the touch-off presses and the transit from the last
         # of them still in contact read 3-20x the tissue's stiffness (a false inclusion at each touch point)
-        if s.valid and self._on_probe(s.x_mm, s.y_mm):
+        if not s.valid:
+            return
+        blind = self._measured_by(s)
+        if blind is not None:
             self.unit = s.unit
-            self.pending.append((s.x_mm, s.y_mm, s.value))
+            self.pending.append((s.x_mm, s.y_mm, s.value, blind))
 
-    def _on_probe(self, x: float, y: float) -> bool:
-        """Whether (x, y) lies on the probe in flight or the last one made (its sweep's line, or the press's radius;
-        the estimates of a probe may arrive after its reply), within one belief cell."""
+    def _measured_by(self, s: StiffnessSample) -> bool | None:
+        """Whether the probe that measured ``s`` was stiffness-blind; None when ``s`` lies on neither the probe in
+        flight (measured since its request) nor the last one made (its sweep's line, or the press's radius, within
+        one belief cell). By where and when it was measured, not when it arrived: the scanner answers a while after
+        the path ends and the probe rests on the tissue meanwhile, so estimates of the last probe keep arriving after
+        the next one was asked for; counted as the next probe's, a resolving sweep's stiff end went into the blind
+        baseline whenever a covering sweep followed, raised the detector's threshold and lost a weak inclusion
+        (fresh seed 5019, draw 2)."""
+        if self.inflight is not None and s.stamp_ns >= self.inflight_since_ns and self._on(self.inflight, s):
+            return self.inflight_blind
+        if self.probed and self._on(self.probed[-1], s):
+            return self.blind[-1]
+        return None
+
+    def _on(self, probe: tuple[float, float], s: StiffnessSample) -> bool:
         tol = self.params.resolution_mm
         half = 0.5 * self.params.length_mm if self.params.mode == "sweep" else 0.0
         reach = tol if self.params.mode == "sweep" else max(tol, self.params.radius_mm)
-        for px, py in filter(None, (self.inflight, self.probed[-1] if self.probed else None)):
-            dy = max(0.0, abs(y - py) - half)
-            if (x - px) ** 2 + dy**2 <= reach**2:
-                return True
-        return False
+        dy = max(0.0, abs(s.y_mm - probe[1]) - half)
+        return (s.x_mm - probe[0]) ** 2 + dy**2 <= reach**2
 
     # -- the loop ----------------------------------------------------------------------------------
     def step(self) -> None:
@@ -253,7 +269,7 @@ class AdaptivePlanner(palpa.Node):
                 self.finish(why)
                 return
         (x, y), self.inflight_blind, self.inflight_why = self.queue.pop(0)
-        self.inflight = (x, y)
+        self.inflight, self.inflight_since_ns = (x, y), self.clock.now_ns()
         req = ProbeAt(x_mm=x, y_mm=y, mode=self.params.mode,
                       length_mm=self.params.length_mm, radius_mm=self.params.radius_mm)
         self.probe_at.call_async(req).add_done_callback(self.on_result)
@@ -265,6 +281,7 @@ class AdaptivePlanner(palpa.Node):
         if err is None:
             r = fut.result()
             self.probed.append(point)
+            self.blind.append(self.inflight_blind)
             self.why.append(self.inflight_why)
             self.log.info("probe %d at (%.1f, %.1f) mm (%s): %.2f %s from %d estimates", len(self.probed), *point,
                           self.inflight_why, r.value, r.unit, r.samples)
@@ -285,10 +302,10 @@ class AdaptivePlanner(palpa.Node):
 
     def _observations(self) -> tuple[list[tuple[float, float]], list[float]]:
         if self.pending:
-            xs, ys, vs = (np.array(v) for v in zip(*self.pending, strict=True))
+            xs, ys, vs, blind = (np.array(v) for v in zip(*self.pending, strict=True))
             self.grid.add(xs, ys, vs)
-            if self.inflight_blind:   # the samples since the last probe are this probe's
-                self.fair.add(xs, ys, vs)
+            if blind.any():
+                self.fair.add(xs[blind], ys[blind], vs[blind])
             self.pending.clear()
         snap = self.grid.snapshot()
         ok = np.isfinite(snap.stiffness)
