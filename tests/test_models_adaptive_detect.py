@@ -358,7 +358,7 @@ def test_decide_measures_a_detections_disc_densely_before_stopping() -> None:
     assert len(detect_candidates(b, measured, counts, cfg)[1]) == 2
 
 
-def test_a_near_miss_gets_its_disc_measured_as_a_detections_is() -> None:
+def test_a_near_miss_gets_its_disc_measured_at_its_own_gap_whether_or_not_detections_are() -> None:
     cfg = _cfg(reach_mm=40.0, interior_gap_mm=2.0, near_miss=0.8, near_miss_gap_mm=2.0)   # coverage: no concern
     b = _belief(cfg)
     measured = np.full((20, 20), 10.0)
