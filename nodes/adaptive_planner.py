@@ -48,7 +48,7 @@ from models.adaptive import (
     should_stop,
 )
 from models.adaptive_cover import seed_design
-from models.adaptive_detect import clip_of, decide, detect_candidates, reference
+from models.adaptive_detect import decide, detect_candidates, reference
 from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, detect_inclusions
 from models.surface import region_in_footprint
@@ -98,21 +98,11 @@ class AdaptivePlanner(palpa.Node):
         """detect: regions above this fraction of the detector's thresholds get their boundary sampled."""
         fill_mm: float = 4.0
         """detect: the detection map takes the GP mean only this close to a measured cell."""
-        suspect_measured: bool = False
-        """detect: suspects are found on the measured cells alone (PlannerConfig)."""
-        suspect_local_mm: float = 0.0
-        """detect: a suspect must also stand out from the tissue measured this far past it (PlannerConfig; 0: off)."""
-        baseline_clip: bool = False
-        """detect: clip the blind sweeps' stiff cells out of the detector's baseline (PlannerConfig)."""
         lower_spread: bool = True
         """detect: the baseline's noise scale from the blind cells below their median (PlannerConfig)."""
         split_prominence: float = 1.5
         """detect: split a detection whose measured cells show two maxima this many noise scales above the measured
         level joining them (PlannerConfig; 0: off)."""
-        split_relative: bool = False
-        """detect: the split's prominence relative to the joining level (PlannerConfig)."""
-        resolve_centre: bool = False
-        """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
         near_miss: float = 0.8
         """detect, > 0: a suspect whose peak came this fraction of the way to the detector's threshold gets its disc
         measured at the raster's density (PlannerConfig)."""
@@ -155,12 +145,8 @@ class AdaptivePlanner(palpa.Node):
                                      reach_mm=p.reach_mm, radius_span_mm=p.radius_span_mm,
                                      interior_gap_mm=p.interior_gap_mm,
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
-                                     suspect_measured=p.suspect_measured, suspect_local_mm=p.suspect_local_mm,
-                                     suspect=p.suspect, baseline_clip=p.baseline_clip, lower_spread=p.lower_spread,
-                                     resolve_centre=p.resolve_centre, near_miss=p.near_miss,
-                                     near_miss_gap_mm=p.near_miss_gap_mm,
-                                     split_prominence=p.split_prominence,
-                                     split_relative=p.split_relative,
+                                     suspect=p.suspect, lower_spread=p.lower_spread, near_miss=p.near_miss,
+                                     near_miss_gap_mm=p.near_miss_gap_mm, split_prominence=p.split_prominence,
                                      near_best=p.near_best, cover_column_mm=p.cover_column_mm,
                                      cover_period_mm=p.cover_period_mm,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
@@ -383,7 +369,7 @@ class AdaptivePlanner(palpa.Node):
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
             write_outputs(out, snap, found, unit=self.unit or "?", title=title)
         detect = self.cfg.stop_rule == "detect"
-        ref = (reference(self.fair.snapshot().stiffness, clip=clip_of(self.cfg), lower=self.cfg.lower_spread)
+        ref = (reference(self.fair.snapshot().stiffness, lower=self.cfg.lower_spread)
                if detect else None)
         self.inc_pub.publish(Inclusions(
             stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,   # the baseline the contrasts are against
