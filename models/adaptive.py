@@ -98,14 +98,6 @@ class PlannerConfig:
     them, as many on phantoms without an inclusion as with one); 0.7 lost weak ones (tuning seeds 121, 134)."""
     fill_mm: float = 4.0
     """detect: the detection map takes the GP mean only this close to a measured cell."""
-    suspect_measured: bool = False
-    """detect: suspects are found on the measured cells alone, without the GP mean near them (``fill_mm``)."""
-    suspect_local_mm: float = 0.0
-    """detect: a suspect must also stand out from the tissue measured up to this far past its disc (0: off)."""
-    baseline_clip: bool = False
-    """detect: clip the blind sweeps' cells stiffer than the candidates' floor out of the detector's baseline
-    (models.adaptive_detect.reference). Off: on the tuning set it closed a miss, on the evaluation set it lowered the
-    baseline below the raster detector's calibration and merged neighbours (BENCHMARKS.md)."""
     lower_spread: bool = True
     """detect: the baseline's noise scale from the blind cells below their median, mirrored
     (models.adaptive_detect.reference): inclusions only stiffen, so a few blind sweeps on them do not widen it."""
@@ -113,9 +105,6 @@ class PlannerConfig:
     """detect: a detection whose measured cells show two maxima, each standing this many times the baseline's noise
     scale above the measured level joining them, is two inclusions (models.adaptive_split; 0: off). One inclusion
     gives one maximum; the lower noise scale's threshold lets two neighbours' halos join (tuning seeds 112, 124)."""
-    split_relative: bool = False
-    """detect: the split's prominence relative to the joining level (the noise of an estimate grows with the
-    stiffness: models.adaptive_split). Off: the absolute test is the one evaluated (BENCHMARKS.md)."""
     near_miss: float = 0.8
     """detect: a suspect that is no detection but whose highest cell came this fraction of the way from the baseline
     to the detector's threshold has its disc measured at the raster's density (``near_miss_gap_mm``; 0: off).
@@ -126,9 +115,6 @@ class PlannerConfig:
     near_miss_gap_mm: float = 1.5
     """detect: a near miss's disc is measured until every cell lies within this of a measured one (1.5: every
     column of the 2 mm grid)."""
-    resolve_centre: bool = False
-    """detect: a candidate is resolved only once its centre is measured too (models.adaptive_detect.open_sides).
-    Off by default with ``baseline_clip`` (evaluated together, BENCHMARKS.md)."""
     near_best: float = 1.0
     """detect: among sweeps revealing at least this fraction of the best one's hidden area, the nearest is taken
     (1: the best only, ties to the nearest; tuning seeds 100-119: 0.8 spent more sweeps than the transit it saved)."""

@@ -19,9 +19,8 @@ an inclusion, and where*. Two things must hold before that answer is good enough
 * **every candidate is resolved.** A candidate is a region of the detection map above ``suspect`` times the
   detector's thresholds (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
   resolved when the points on the edge of its disc on all four sides (one cell out for a small one:
-  :func:`open_sides`), and with ``resolve_centre`` its centre, have been measured (an unmeasured centre is the GP's
-  guess, which can join two inclusions closer than its length scale into one blob): its boundary is sampled, so
-  its centroid and extent are the map's and not the kernel's guess; when a side is still stiff the candidate grows
+  :func:`open_sides`) have been measured: its boundary is sampled, so its centroid and extent are the map's and
+  not the kernel's guess; when a side is still stiff the candidate grows
   and opens the next side out.
   A *detected* inclusion is resolved only once its disc is measured densely (every cell within ``interior_gap_mm``
   of a measured one, columns 6 mm apart by default: :func:`interior_gaps`): between sparse sweeps the map is the
@@ -74,7 +73,7 @@ from models.adaptive_cover import (
 from models.adaptive_split import split_detections
 from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
 
-__all__ = ["Decision", "clip_of", "decide", "detect_candidates", "detection_map", "interior_gaps", "near_misses",
+__all__ = ["Decision", "decide", "detect_candidates", "detection_map", "interior_gaps", "near_misses",
            "open_sides", "reference"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -90,20 +89,11 @@ def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, 
     return np.where(ok, meas, np.where(near, np.asarray(mean, dtype=np.float64), np.nan))
 
 
-def reference(fair: FloatArray | None, min_cells: int = 9, clip: float | None = None,
-              lower: bool = False) -> tuple[float, float] | None:
+def reference(fair: FloatArray | None, min_cells: int = 9, lower: bool = False) -> tuple[float, float] | None:
     """The healthy baseline and its scale (models.stiffness_map.background) from the cells measured by
     stiffness-blind sweeps (the seed grid and the covering sweeps), None with fewer than ``min_cells`` of them. The
     resolving sweeps go where the map is stiff: a median over every measured cell would count the inclusions'
     cells as background, raise the detector's threshold and lose a weak inclusion (tuning set).
-
-    A blind sample is fair in expectation only: on a small region with large inclusions a few blind sweeps can land
-    on them by chance (a third of the cells stiff, the median at the halo, the MAD the gap between the two modes:
-    the detector then lost a 6 mm inclusion twice the tissue's stiffness, tuning set). So the baseline is clipped
-    as a background is in a crowded field: cells stiffer than ``1 + clip`` times the baseline (the candidates'
-    floor, ``suspect * rel_threshold``) are not healthy tissue; drop them and take the median again, until none is
-    dropped (or fewer than ``min_cells`` would be left). Healthy tissue's own scatter (a few %) loses only its tail.
-    ``clip`` None: no clipping (the default, :func:`clip_of`).
 
     ``lower``: the scale from the cells at or below the median only, mirrored about it (inclusions and their halos
     only ever stiffen the tissue, so the lower half is healthy tissue's own scatter), the median itself unchanged:
@@ -116,21 +106,10 @@ def reference(fair: FloatArray | None, min_cells: int = 9, clip: float | None = 
     if values.size < min_cells:
         return None
     base, sigma = background(values)
-    while clip is not None and base > 0:
-        keep = values <= base * (1.0 + clip)
-        if keep.all() or np.count_nonzero(keep) < min_cells:
-            break
-        values = values[keep]
-        base, sigma = background(values)
     if lower and base > 0:
         below = values[values <= base]
         sigma = background(np.concatenate([below, 2.0 * base - below]))[1]
     return (base, sigma) if base > 0 else None
-
-
-def clip_of(cfg: PlannerConfig) -> float | None:
-    """The baseline clip :func:`reference` takes under ``cfg``: the candidates' floor with ``baseline_clip``."""
-    return cfg.suspect * cfg.rel_threshold if cfg.baseline_clip else None
 
 
 def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], cfg: PlannerConfig,
@@ -141,42 +120,20 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     (``cfg.split_prominence``: models.adaptive_split). ``suspect``: with the detector's thresholds scaled by
     ``cfg.suspect``, the regions worth a closer look (a weak inclusion seen from a sweep that passed its edge rises
     less than the detector's threshold; resolving it samples nearer its centre), never split (the split would only
-    add sides to sample), and with ``cfg.suspect_measured`` found on the measured cells alone (the GP mean's
-    overshoot around one stiffer cell is no region of two)."""
-    fill = 0.0 if suspect and cfg.suspect_measured else cfg.fill_mm
-    grid = detection_map(measured, belief.mean, cfg.resolution_mm, fill)
+    add sides to sample)."""
+    grid = detection_map(measured, belief.mean, cfg.resolution_mm, cfg.fill_mm)
     snap = MapSnapshot(stiffness=grid, x_mm=belief.x_mm, y_mm=belief.y_mm, count=counts, spread=belief.std,
                        resolution_mm=cfg.resolution_mm)
     scale = cfg.suspect if suspect else 1.0
-    ref = reference(fair, clip=clip_of(cfg), lower=cfg.lower_spread)
+    ref = reference(fair, lower=cfg.lower_spread)
     try:
         found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0, reference=ref)
     except ValueError:   # no positive baseline yet: nothing to call stiff
         return snap, []
-    if suspect and cfg.suspect_local_mm > 0 and ref is not None:
-        found = [c for c in found if _stands_out_locally(c, measured, belief.x_mm, belief.y_mm, cfg, ref[1])]
     if cfg.split_prominence > 0 and not suspect:
         found = split_detections(snap, np.isfinite(measured), ref, found, rel_threshold=cfg.rel_threshold, k_mad=4.0,
-                                 prominence_k=cfg.split_prominence, relative=cfg.split_relative)
+                                 prominence_k=cfg.split_prominence)
     return snap, found
-
-
-def _stands_out_locally(c: Inclusion, measured: FloatArray, x_mm: FloatArray, y_mm: FloatArray, cfg: PlannerConfig,
-                        scale: float) -> bool:
-    """Whether a suspect's highest measured cell stands above the tissue measured around it (the cells from one cell
-    past its disc to ``suspect_local_mm`` past it, their median) by the suspect's thresholds, as it does above the
-    whole specimen's baseline. An inclusion stiffens the tissue locally; a gentle trend of the healthy tissue (or of
-    the estimate's bias over the specimen) raises a stretch and its surroundings alike. With fewer than three
-    measured cells around, or none inside, nothing to compare: it stays a suspect."""
-    gx, gy = np.meshgrid(x_mm, y_mm)
-    ok = np.isfinite(measured)
-    d2 = (gx - c.x_mm) ** 2 + (gy - c.y_mm) ** 2
-    inside = ok & (d2 <= max(c.radius_mm, cfg.resolution_mm) ** 2)
-    ring = ok & (d2 > (c.radius_mm + cfg.resolution_mm) ** 2) & (d2 <= (c.radius_mm + cfg.suspect_local_mm) ** 2)
-    if np.count_nonzero(ring) < 3 or not inside.any():
-        return True
-    local = float(np.median(measured[ring]))
-    return float(np.max(measured[inside])) > local + cfg.suspect * max(4.0 * scale, cfg.rel_threshold * local)
 
 
 def near_misses(suspects: Sequence[Inclusion], detected: Sequence[Inclusion], fair: FloatArray | None,
@@ -184,7 +141,7 @@ def near_misses(suspects: Sequence[Inclusion], detected: Sequence[Inclusion], fa
     """The suspects that are no detection but came close (``cfg.near_miss``): their peak at least that fraction of
     the way from the baseline to the detector's threshold (against the stiffness-blind cells' :func:`reference`),
     and no detection's centre inside their disc (a detection's halo is no inclusion of its own)."""
-    ref = reference(fair, clip=clip_of(cfg), lower=cfg.lower_spread)
+    ref = reference(fair, lower=cfg.lower_spread)
     if ref is None or cfg.near_miss <= 0:
         return []
     base, scale = ref
@@ -194,23 +151,18 @@ def near_misses(suspects: Sequence[Inclusion], detected: Sequence[Inclusion], fa
 
 
 def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray,
-               region_mm: tuple[float, float, float, float], resolution_mm: float,
-               centre: bool = True) -> list[tuple[float, float]]:
-    """Where a candidate is not yet sampled: for each candidate (its disc, centre and radius), its centre and the
-    points on its disc's edge (at least one cell from its centre) to the left, right, below and above, where no cell
-    within one cell of the point was measured and the point lies inside the region. The centre: where it was not
-    measured the map there is the GP's smoothed guess, which bridges two inclusions closer than its length scale
-    into one blob; a sweep through the middle measures the dip between them (or the peak of one); ``centre`` False
-    (PlannerConfig.resolve_centre off): the edge points only. A probe at an edge point tells where the stiff tissue
-    ends (or, when it is still stiff, grows the candidate and opens the next point out)."""
+               region_mm: tuple[float, float, float, float], resolution_mm: float) -> list[tuple[float, float]]:
+    """Where a candidate is not yet sampled: for each candidate (its disc, centre and radius), the points on its
+    disc's edge (at least one cell from its centre) to the left, right, below and above, where no cell within one
+    cell of the point was measured and the point lies inside the region. A probe at an edge point tells where the
+    stiff tissue ends (or, when it is still stiff, grows the candidate and opens the next point out)."""
     x0, y0, x1, y1 = region_mm
     gx, gy = np.meshgrid(x_mm, y_mm)
     mx, my = gx[observed], gy[observed]
     out = []
     for c in candidates:
         d = max(resolution_mm, c.radius_mm)
-        points = [(c.x_mm, c.y_mm)] if centre else []
-        for px, py in [*points, (c.x_mm - d, c.y_mm), (c.x_mm + d, c.y_mm), (c.x_mm, c.y_mm - d), (c.x_mm, c.y_mm + d)]:
+        for px, py in [(c.x_mm - d, c.y_mm), (c.x_mm + d, c.y_mm), (c.x_mm, c.y_mm - d), (c.x_mm, c.y_mm + d)]:
             if not (x0 <= px <= x1 and y0 <= py <= y1):
                 continue
             if not np.any((mx - px) ** 2 + (my - py) ** 2 <= resolution_mm**2 + 1e-9):
@@ -285,8 +237,7 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
         covered |= (np.abs(gx - ux) <= 0.5 * cfg.resolution_mm) & (np.abs(gy - uy) <= half)
     miss = miss_probability(covered, cfg.resolution_mm, cfg.reaches())
     _, found = detect_candidates(belief, measured, counts, cfg, fair, suspect=True)
-    sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm,
-                                   cfg.resolve_centre)
+    sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm)
              if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
     _, detected = detect_candidates(belief, measured, counts, cfg, fair)
     # a detection's disc measured every interior_gap_mm (0: off), a near miss's at the raster's density (near_miss 0:

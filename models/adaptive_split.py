@@ -95,15 +95,13 @@ def peak_parts(level: FloatArray, region: BoolArray, peaks: BoolArray, prominenc
 
 def split_detections(snap: MapSnapshot, measured: BoolArray, reference: tuple[float, float] | None,
                      found: list[Inclusion], *, rel_threshold: float, k_mad: float,
-                     prominence_k: float, relative: bool = False) -> list[Inclusion]:
+                     prominence_k: float) -> list[Inclusion]:
     """``found`` (detect_inclusions on ``snap`` with these thresholds and ``reference``) with every region whose
     measured cells show two or more maxima standing ``prominence_k`` times the baseline's noise scale above the
     level joining them (:func:`peak_parts` over :func:`bridge_levels`) replaced by one inclusion per part, each
     measured exactly as the detector measures a region (it is handed the part alone); a part under the detector's
-    two cells leaves its region whole. ``relative``: the noise scale grows with the stiffness (an estimate's error
-    is a fraction of it), so a maximum counts when its ratio to the joining level is ``1 + prominence_k * sigma /
-    base`` or more (the same test on the logarithm of the levels): on a stiff inclusion's plateau the cells scatter
-    more than on healthy tissue, and the absolute test cut a 2.4x plateau (seen seeds 0 and 15, BENCHMARKS.md). Most contrasted first, as the detector's; ``found`` itself when nothing splits."""
+    two cells leaves its region whole. Most contrasted first, as the detector's; ``found`` itself when nothing
+    splits."""
     grid = fill_gaps(np.asarray(snap.stiffness, dtype=np.float64))
     valid = np.isfinite(grid)
     if not found or valid.sum() < 9:
@@ -115,8 +113,6 @@ def split_detections(snap: MapSnapshot, measured: BoolArray, reference: tuple[fl
     labels, n = ndimage.label(valid & (grid > threshold), structure=_EIGHT)
     level = bridge_levels(grid, measured)
     step = prominence_k * sigma
-    if relative:   # region levels are over the threshold (> 0); a measured neighbour's may not be
-        level, step = np.log(np.maximum(level, 1e-9 * base)), math.log1p(prominence_k * sigma / base)
     pieces: list[list[BoolArray]] = []
     for k in range(1, n + 1):
         region = labels == k

@@ -48,7 +48,7 @@ from models.adaptive import (
     should_stop,
 )
 from models.adaptive_cover import seed_design
-from models.adaptive_detect import clip_of, decide, detect_candidates, reference
+from models.adaptive_detect import decide, detect_candidates, reference
 from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, detect_inclusions
 from models.surface import region_in_footprint
@@ -98,21 +98,11 @@ class AdaptivePlanner(palpa.Node):
         """detect: regions above this fraction of the detector's thresholds get their boundary sampled."""
         fill_mm: float = 4.0
         """detect: the detection map takes the GP mean only this close to a measured cell."""
-        suspect_measured: bool = False
-        """detect: suspects are found on the measured cells alone (PlannerConfig)."""
-        suspect_local_mm: float = 0.0
-        """detect: a suspect must also stand out from the tissue measured this far past it (PlannerConfig; 0: off)."""
-        baseline_clip: bool = False
-        """detect: clip the blind sweeps' stiff cells out of the detector's baseline (PlannerConfig)."""
         lower_spread: bool = True
         """detect: the baseline's noise scale from the blind cells below their median (PlannerConfig)."""
         split_prominence: float = 1.5
         """detect: split a detection whose measured cells show two maxima this many noise scales above the measured
         level joining them (PlannerConfig; 0: off)."""
-        split_relative: bool = False
-        """detect: the split's prominence relative to the joining level (PlannerConfig)."""
-        resolve_centre: bool = False
-        """detect: sample every candidate's centre too before stopping (PlannerConfig)."""
         near_miss: float = 0.8
         """detect, > 0: a suspect whose peak came this fraction of the way to the detector's threshold gets its disc
         measured at the raster's density (PlannerConfig)."""
@@ -155,12 +145,8 @@ class AdaptivePlanner(palpa.Node):
                                      reach_mm=p.reach_mm, radius_span_mm=p.radius_span_mm,
                                      interior_gap_mm=p.interior_gap_mm,
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
-                                     suspect_measured=p.suspect_measured, suspect_local_mm=p.suspect_local_mm,
-                                     suspect=p.suspect, baseline_clip=p.baseline_clip, lower_spread=p.lower_spread,
-                                     resolve_centre=p.resolve_centre, near_miss=p.near_miss,
-                                     near_miss_gap_mm=p.near_miss_gap_mm,
-                                     split_prominence=p.split_prominence,
-                                     split_relative=p.split_relative,
+                                     suspect=p.suspect, lower_spread=p.lower_spread, near_miss=p.near_miss,
+                                     near_miss_gap_mm=p.near_miss_gap_mm, split_prominence=p.split_prominence,
                                      near_best=p.near_best, cover_column_mm=p.cover_column_mm,
                                      cover_period_mm=p.cover_period_mm,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
@@ -170,7 +156,8 @@ class AdaptivePlanner(palpa.Node):
         self.grid = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
         self.fair = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
         """The cells measured by stiffness-blind probes (seed grid, covering sweeps): the detector's baseline."""
-        self.pending: list[tuple[float, float, float]] = []
+        self.pending: list[tuple[float, float, float, bool]] = []
+        """Samples not yet in the grids: (x, y, value, measured by a stiffness-blind probe)."""
         self.unit = ""
         seeds = seed_design(self.cfg) if self.cfg.stop_rule == "detect" else initial_design(self.cfg)
         self.queue = [(pt, True, "seed") for pt in seeds]
@@ -179,6 +166,8 @@ class AdaptivePlanner(palpa.Node):
         self.why: list[str] = []
         """For every probe made, why it was chosen (planner.json)."""
         self.probed: list[tuple[float, float]] = []
+        self.blind: list[bool] = []
+        """For every probe made, whether it was stiffness-blind (its samples go to the baseline's grid)."""
         self.given_up: list[tuple[float, float]] = []
         """Points the scanner refused every time: never chosen again, not counted as probes."""
         self.tries: dict[tuple[float, float], int] = {}
@@ -186,6 +175,7 @@ class AdaptivePlanner(palpa.Node):
         self.inflight: tuple[float, float] | None = None
         self.inflight_blind = False
         self.inflight_why = ""
+        self.inflight_since_ns = 0
         self.retry_at_ns = 0
         self.started_ns: int | None = None
         self.belief: Belief | None = None
@@ -218,21 +208,33 @@ class AdaptivePlanner(palpa.Node):
     def on_sample(self, s: StiffnessSample) -> None:
         # only what its probes measured where they were sent: the touch-off presses and the transit from the last
         # of them still in contact read 3-20x the tissue's stiffness (a false inclusion at each touch point)
-        if s.valid and self._on_probe(s.x_mm, s.y_mm):
+        if not s.valid:
+            return
+        blind = self._measured_by(s)
+        if blind is not None:
             self.unit = s.unit
-            self.pending.append((s.x_mm, s.y_mm, s.value))
+            self.pending.append((s.x_mm, s.y_mm, s.value, blind))
 
-    def _on_probe(self, x: float, y: float) -> bool:
-        """Whether (x, y) lies on the probe in flight or the last one made (its sweep's line, or the press's radius;
-        the estimates of a probe may arrive after its reply), within one belief cell."""
+    def _measured_by(self, s: StiffnessSample) -> bool | None:
+        """Whether the probe that measured ``s`` was stiffness-blind; None when ``s`` lies on neither the probe in
+        flight (measured since its request) nor the last one made (its sweep's line, or the press's radius, within
+        one belief cell). By where and when it was measured, not when it arrived: the scanner answers a while after
+        the path ends and the probe rests on the tissue meanwhile, so estimates of the last probe keep arriving after
+        the next one was asked for; counted as the next probe's, a resolving sweep's stiff end went into the blind
+        baseline whenever a covering sweep followed, raised the detector's threshold and lost a weak inclusion
+        (fresh seed 5019, draw 2)."""
+        if self.inflight is not None and s.stamp_ns >= self.inflight_since_ns and self._on(self.inflight, s):
+            return self.inflight_blind
+        if self.probed and self._on(self.probed[-1], s):
+            return self.blind[-1]
+        return None
+
+    def _on(self, probe: tuple[float, float], s: StiffnessSample) -> bool:
         tol = self.params.resolution_mm
         half = 0.5 * self.params.length_mm if self.params.mode == "sweep" else 0.0
         reach = tol if self.params.mode == "sweep" else max(tol, self.params.radius_mm)
-        for px, py in filter(None, (self.inflight, self.probed[-1] if self.probed else None)):
-            dy = max(0.0, abs(y - py) - half)
-            if (x - px) ** 2 + dy**2 <= reach**2:
-                return True
-        return False
+        dy = max(0.0, abs(s.y_mm - probe[1]) - half)
+        return (s.x_mm - probe[0]) ** 2 + dy**2 <= reach**2
 
     # -- the loop ----------------------------------------------------------------------------------
     def step(self) -> None:
@@ -253,7 +255,7 @@ class AdaptivePlanner(palpa.Node):
                 self.finish(why)
                 return
         (x, y), self.inflight_blind, self.inflight_why = self.queue.pop(0)
-        self.inflight = (x, y)
+        self.inflight, self.inflight_since_ns = (x, y), self.clock.now_ns()
         req = ProbeAt(x_mm=x, y_mm=y, mode=self.params.mode,
                       length_mm=self.params.length_mm, radius_mm=self.params.radius_mm)
         self.probe_at.call_async(req).add_done_callback(self.on_result)
@@ -265,6 +267,7 @@ class AdaptivePlanner(palpa.Node):
         if err is None:
             r = fut.result()
             self.probed.append(point)
+            self.blind.append(self.inflight_blind)
             self.why.append(self.inflight_why)
             self.log.info("probe %d at (%.1f, %.1f) mm (%s): %.2f %s from %d estimates", len(self.probed), *point,
                           self.inflight_why, r.value, r.unit, r.samples)
@@ -285,10 +288,10 @@ class AdaptivePlanner(palpa.Node):
 
     def _observations(self) -> tuple[list[tuple[float, float]], list[float]]:
         if self.pending:
-            xs, ys, vs = (np.array(v) for v in zip(*self.pending, strict=True))
+            xs, ys, vs, blind = (np.array(v) for v in zip(*self.pending, strict=True))
             self.grid.add(xs, ys, vs)
-            if self.inflight_blind:   # the samples since the last probe are this probe's
-                self.fair.add(xs, ys, vs)
+            if blind.any():
+                self.fair.add(xs[blind], ys[blind], vs[blind])
             self.pending.clear()
         snap = self.grid.snapshot()
         ok = np.isfinite(snap.stiffness)
@@ -366,7 +369,7 @@ class AdaptivePlanner(palpa.Node):
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
             write_outputs(out, snap, found, unit=self.unit or "?", title=title)
         detect = self.cfg.stop_rule == "detect"
-        ref = (reference(self.fair.snapshot().stiffness, clip=clip_of(self.cfg), lower=self.cfg.lower_spread)
+        ref = (reference(self.fair.snapshot().stiffness, lower=self.cfg.lower_spread)
                if detect else None)
         self.inc_pub.publish(Inclusions(
             stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,   # the baseline the contrasts are against

@@ -147,6 +147,9 @@ class RobotScanner(palpa.Node):
         """Phantom frame origin in the robot base frame (mm)."""
         tool_rotvec: tuple[float, float, float] = (0.0, math.pi, 0.0)
         """Fixed tool orientation (rotation vector, rad): probe pointing down."""
+        rtde_watchdog_hz: palpa.NonNegative = 2.0
+        """ur_rtde: the controller stops the program (and the arm) when this process has not kicked its RTDE
+        watchdog for 1/rtde_watchdog_hz s (a stalled PC or a cut cable); 0: no watchdog."""
         autostart: bool = True
         """Run the raster at start-up (and exit when it is done); false: stay idle and serve probe_at requests."""
 
@@ -211,7 +214,8 @@ class RobotScanner(palpa.Node):
         # the poses it reads are stamped by the node's clock, like the sim arm's (the probe's samples are matched to
         # them by stamp: a graph on another clock than the wall's, e.g. a test harness's, must not see a gap)
         return URRtdeDriver(p.robot_host, frame_offset_mm=tuple(p.frame_offset_mm),
-                            tool_rotvec=tuple(p.tool_rotvec), clock=self.clock.now_ns)
+                            tool_rotvec=tuple(p.tool_rotvec), watchdog_hz=p.rtde_watchdog_hz or None,
+                            clock=self.clock.now_ns)
 
     def _plan(self) -> RasterPlan:
         p = self.params

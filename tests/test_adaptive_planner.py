@@ -91,3 +91,93 @@ def test_the_planners_knobs_default_alike_in_the_model_the_node_and_the_launch_f
         assert getattr(node, name) == getattr(model, name), name
         if name in args and name != "seed_spacing_mm":   # the air-float launch's own seed: 14 mm, not the 4 x 4 grid
             assert args[name] == getattr(model, name), name
+
+
+def test_a_probes_late_estimates_count_as_that_probes_not_the_next_ones(tmp_path: Path) -> None:
+    """The scanner answers a while after a path ends, the probe resting on the tissue meanwhile: estimates of that
+    probe arrive after its answer and after the next request. They belong to the probe that measured them: a
+    resolving sweep's stiff end in the stiffness-blind baseline (when a covering sweep followed) raised the
+    detector's threshold and lost a weak inclusion. Here a scanner played by the test answers each sweep with its
+    line's estimates, then publishes the resting probe's estimates at the sweep's end; the tissue is stiff around
+    one point, so the planner resolves it, then covers the rest blind."""
+    import palpa
+    from messages import ProbeAt, ProbeResult, StiffnessSample
+    from nodes.adaptive_planner import AdaptivePlanner
+    from palpa.service import Responder
+    from palpa.testing import GraphHarness
+
+    g = GraphHarness()
+    planner = g.add(AdaptivePlanner, {"region_mm": [0.0, 0.0, 30.0, 30.0], "seed_spacing_mm": 14.0,
+                                      "max_probes": 30, "output_dir": str(tmp_path)}, name="planner")
+    scanner = g.add(palpa.Node, name="scanner")
+    status = scanner.publisher("robot/scan_status", ScanStatus, latched=True)
+    status.publish(ScanStatus(stamp_ns=g.clock.now_ns(), state="idle", line=0, lines=0, progress=0.0, eta_s=0.0))
+    samples = scanner.publisher("stiffness/sample", StiffnessSample)
+
+    def stiffness(x: float, y: float) -> float:
+        return 10.0 + 8.0 * float(np.exp(-((x - 15.0) ** 2 + (y - 16.0) ** 2) / 8.0))
+
+    def sample(x: float, y: float, stamp_ns: int) -> None:
+        samples.publish(StiffnessSample(stamp_ns=stamp_ns, model="airfloat", x_mm=x, y_mm=y, z_mm=1.0,
+                                        value=stiffness(x, y), unit="kPa", valid=True))
+
+    def answer(req: ProbeAt, responder: Responder[ProbeResult]) -> None:
+        responder.reply(ProbeResult(x_mm=req.x_mm, y_mm=req.y_mm, value=stiffness(req.x_mm, req.y_mm), unit="kPa",
+                                    samples=25, mad=0.0, duration_s=1.0))
+        # measured resting at the line's end until now, delivered by the estimator 0.2 s later (the planner has
+        # asked for its next probe by then)
+        now = g.clock.now_ns()
+        scanner.timer(0.2, lambda: [sample(req.x_mm, req.y_mm + 3.0, now - 10_000_000 * i) for i in range(40)],
+                      oneshot=True)
+
+    def probe_at(req: ProbeAt) -> Responder[ProbeResult]:
+        for i in range(25):
+            sample(req.x_mm, req.y_mm - 3.0 + 0.25 * i, g.clock.now_ns())
+        responder = srv.defer()
+        scanner.timer(0.5, lambda: answer(req, responder), oneshot=True)
+        return responder
+
+    srv = scanner.service("scanner/probe_at", ProbeAt, ProbeResult, probe_at)
+    for _ in range(4000):
+        if planner.done:
+            break
+        g.advance(0.05)
+    assert planner.done
+    blind = planner.blind
+    assert any(not a and b for a, b in zip(blind, blind[1:], strict=False))   # a blind sweep after a resolving one
+    assert any(a and not b for a, b in zip(blind, blind[1:], strict=False))   # and the other way round
+    # every cell of the baseline's grid lies on a blind probe's line, and every blind line's end is in it
+    fair = planner.fair.snapshot()
+    gx, gy = np.meshgrid(fair.x_mm, fair.y_mm)
+    on_blind = np.zeros(gx.shape, dtype=bool)
+    for (px, py), b in zip(planner.probed, blind, strict=True):
+        if b:
+            on_blind |= (np.abs(gx - px) <= 1.0) & (np.abs(gy - py) <= 4.0)
+    assert np.all(on_blind[np.isfinite(fair.stiffness)])
+    ends = [(px, py + 3.0) for (px, py), b in zip(planner.probed[:-1], blind, strict=False) if b]
+    for x, y in ends:
+        i, j = int(np.argmin(np.abs(fair.y_mm - y))), int(np.argmin(np.abs(fair.x_mm - x)))
+        assert np.isfinite(fair.stiffness[i, j]), (x, y)
+    g.close()
+
+
+def test_where_two_probes_lines_overlap_a_sample_is_the_one_measuring_at_its_stamp(tmp_path: Path) -> None:
+    """An estimate on both the last sweep's line and the one in flight is the one in flight's only when measured
+    after it was asked for (the resting probe's estimates of the last sweep arrive late)."""
+    from messages import StiffnessSample
+    from nodes.adaptive_planner import AdaptivePlanner
+    from palpa.testing import NodeHarness
+
+    h = NodeHarness(AdaptivePlanner, {"region_mm": [0.0, 0.0, 30.0, 30.0], "output_dir": str(tmp_path)})
+    p, now = h.node, h.clock.now_ns()
+    p.probed, p.blind = [(10.0, 10.0)], [False]
+    p.inflight, p.inflight_blind, p.inflight_since_ns = (10.0, 12.0), True, now
+
+    def at(stamp_ns: int, y: float = 13.0) -> StiffnessSample:
+        return StiffnessSample(stamp_ns=stamp_ns, model="airfloat", x_mm=10.0, y_mm=y, z_mm=1.0, value=12.0,
+                               unit="kPa", valid=True)
+
+    assert p._measured_by(at(now - 1)) is False and p._measured_by(at(now)) is True
+    assert p._measured_by(at(now - 1, y=16.0)) is None     # on the sweep in flight only, measured before it
+    assert p._measured_by(at(now, y=16.0)) is True and p._measured_by(at(now, y=20.0)) is None
+    h.close()
