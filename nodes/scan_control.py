@@ -29,9 +29,7 @@ __all__ = ["MOVING", "ScanControl"]
 
 MOVING = ("scanning", "probing")
 _SETTLE_S = 0.6
-"""After a probe's path: the longest wait for the estimator's last estimates (its max_wait_s is 0.25 s). The answer
-comes sooner when an estimate measured after the path's end arrives: the estimator publishes in measurement order,
-so every estimate of the path is in by then."""
+"""After a probe's path: time for the estimator to publish the last estimates (its max_wait_s is 0.25 s)."""
 
 
 class ScanControl:
@@ -45,7 +43,6 @@ class ScanControl:
         self.unit = ""
         self.started_ns = 0
         self.settle_until_ns: int | None = None
-        self.path_end_ns = 0
         self.paused_from: ScanState = "scanning"  # set by on_pause before anything reads it
         self.probe = node.service("scanner/probe_at", ProbeAt, ProbeResult, self.on_probe_at)
         node.service("scanner/pause", Trigger, TriggerResult, self.on_pause)
@@ -100,20 +97,14 @@ class ScanControl:
 
     def on_sample(self, s: StiffnessSample) -> None:
         req = self.request
-        if req is None:
+        if req is None or not s.valid or math.dist((s.x_mm, s.y_mm), (req.x_mm, req.y_mm)) > req.radius_mm:
             return
-        if s.valid and math.dist((s.x_mm, s.y_mm), (req.x_mm, req.y_mm)) <= req.radius_mm:
-            self.values.append(s.value)
-            self.unit = s.unit
-        if self.settle_until_ns is not None and s.stamp_ns >= self.path_end_ns:   # valid or not, it is past the path
-            self.settle_until_ns = None
-            self._answer()
+        self.values.append(s.value)
+        self.unit = s.unit
 
     def path_done(self) -> None:
-        """The probe's path is complete: answer once an estimate measured after its end arrives (the estimator has
-        published all of the path's), or after ``_SETTLE_S`` without one."""
-        self.path_end_ns = self.node.clock.now_ns()
-        self.settle_until_ns = self.path_end_ns + int(_SETTLE_S * 1e9)
+        """The probe's path is complete: answer after the estimator's last estimates had time to arrive."""
+        self.settle_until_ns = self.node.clock.now_ns() + int(_SETTLE_S * 1e9)
 
     def supervise(self, now_ns: int) -> None:
         if self.settle_until_ns is not None and now_ns >= self.settle_until_ns:

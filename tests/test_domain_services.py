@@ -114,33 +114,6 @@ def test_probe_takes_the_estimates_near_the_point_only() -> None:
     g.close()
 
 
-@pytest.mark.parametrize("after_the_end", [True, False])
-def test_a_probe_is_answered_once_the_estimator_is_past_its_paths_end(after_the_end: bool) -> None:
-    """The estimator is played by the test, 0.2 s behind the probe: the answer waits for an estimate measured after
-    the path's end (every estimate of the path is in then), and no longer; without one, 0.6 s after the end."""
-    g = GraphHarness()
-    scanner = g.add(RobotScanner, {"autostart": False, "home_mm": [28.0, 28.0, 40.0], "watch_topic": ""})
-    op = g.add(palpa.Node, name="operator")
-    fut = op.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=60).call_async(ProbeAt(x_mm=30, y_mm=30))
-    lag_ns, stamps = 200_000_000, []
-    while not fut.done() and len(stamps) < 400:
-        end = scanner.control.path_end_ns if scanner.control.settle_until_ns is not None else None
-        stamp = g.clock.now_ns() - lag_ns
-        if scanner.control.request is not None and (after_the_end or end is None or stamp < end):
-            stamps.append(stamp)
-            g.publish("stiffness/sample", StiffnessSample(stamp_ns=stamp, model="airfloat", x_mm=30.0, y_mm=30.5,
-                                                          z_mm=5.0, value=30.0, unit="kPa", valid=True))
-        g.advance(0.05)
-    r, end = fut.result(), scanner.control.path_end_ns
-    answered_ns = g.clock.now_ns()
-    assert r.samples == len([t for t in stamps if t < end]) + after_the_end   # the whole path, and one past it
-    if after_the_end:
-        assert lag_ns <= answered_ns - end <= lag_ns + 100_000_000
-    else:
-        assert answered_ns - end >= 600_000_000
-    g.close()
-
-
 def test_probe_refusals_outside_the_box_and_while_busy() -> None:
     g = GraphHarness()
     g.add(RobotScanner, {"autostart": False, "home_mm": [28.0, 28.0, 40.0]})
