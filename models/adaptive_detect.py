@@ -20,8 +20,7 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   detector's thresholds (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
   resolved when the points on the edge of its disc on all four sides (one cell out for a small one:
   :func:`open_sides`) have been measured: its boundary is sampled, so its centroid and extent are the map's and
-  not the kernel's guess; when a side is still stiff the candidate grows
-  and opens the next side out.
+  not the kernel's guess; when a side is still stiff the candidate grows and opens the next side out.
   A *detected* inclusion is resolved only once its disc is measured densely (every cell within ``interior_gap_mm``
   of a measured one, columns 6 mm apart by default: :func:`interior_gaps`): between sparse sweeps the map is the
   GP's guess, which joins two neighbours into one blob and shows no dip it never measured.
@@ -237,16 +236,20 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
         covered |= (np.abs(gx - ux) <= 0.5 * cfg.resolution_mm) & (np.abs(gy - uy) <= half)
     miss = miss_probability(covered, cfg.resolution_mm, cfg.reaches())
     _, found = detect_candidates(belief, measured, counts, cfg, fair, suspect=True)
-    sides = [p for p in open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm)
-             if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
+
+    def unprobed(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        return [p for p in points
+                if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
+
+    def disc_gaps(discs: Sequence[Inclusion], gap_mm: float) -> list[tuple[float, float]]:
+        """The sweeps over the most unmeasured cells of each disc, until every cell is within ``gap_mm``."""
+        return unprobed(interior_gaps(discs, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm,
+                                      gap_mm, footprint_cells(cfg)))
+
+    sides = unprobed(open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm))
     _, detected = detect_candidates(belief, measured, counts, cfg, fair)
-    # a detection's disc measured every interior_gap_mm (0: off), a near miss's at the raster's density (near_miss 0:
-    # none); both the sweep over the most unmeasured cells of the disc
-    interior, second = ([p for p in interior_gaps(discs, observed, belief.x_mm, belief.y_mm, cfg.region_mm,
-                                                  cfg.resolution_mm, gap, footprint_cells(cfg))
-                         if not near_probed(np.array([p[0]]), np.array([p[1]]), probed, cfg.min_separation_mm)[0]]
-                        for discs, gap in ((detected if cfg.interior_gap_mm > 0 else [], cfg.interior_gap_mm),
-                                           (near_misses(found, detected, fair, cfg), cfg.near_miss_gap_mm)))
+    interior = disc_gaps(detected, cfg.interior_gap_mm) if cfg.interior_gap_mm > 0 else []
+    second = disc_gaps(near_misses(found, detected, fair, cfg), cfg.near_miss_gap_mm)   # near_miss 0: none
     n_open = len(sides) + len(interior) + len(second)
     state = f"miss probability {miss:.3f}, {len(found)} candidates, {n_open} boundary sides open"
     if n >= cfg.max_probes:

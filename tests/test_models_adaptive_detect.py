@@ -127,8 +127,6 @@ def test_open_sides_are_the_unsampled_points_just_past_a_candidate() -> None:
     assert sides == [(18.0, 21.0), (24.0, 21.0), (21.0, 18.0), (21.0, 24.0)]
     obs[10, 8] = True   # the cell at (17, 21): within one cell of the left side
     assert open_sides([c], obs, xs, xs, REGION, 2.0) == sides[1:]
-    obs[10, 10] = True   # (21, 21): the centre measured, no side
-    assert open_sides([c], obs, xs, xs, REGION, 2.0) == sides[1:]
     edge = Inclusion(x_mm=1.0, y_mm=21.0, radius_mm=1.0, contrast=2.0, peak=20.0, area_mm2=4.0, cells=1)
     assert (-1.0, 21.0) not in open_sides([edge], obs, xs, xs, REGION, 2.0)   # outside the region: no side
 
