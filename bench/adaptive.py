@@ -31,7 +31,10 @@ draw's "missed" says little about it. The rows are then (phantom, seed) pairs (`
 two methods on the same draw), ``inclusion_rates.csv`` has each true inclusion's detections out of K for both, and
 the JSON adds ``noise_seeds``, ``sure_raster`` (inclusions the raster found in every draw), ``sure_missed`` (of
 those, the ones the adaptive map missed in at least one), ``rate_below_raster`` / ``rate_above_raster``
-(inclusions the adaptive map found in fewer / more draws than the raster's).
+(inclusions the adaptive map found in fewer / more draws than the raster's), ``raster_redraw_missed`` /
+``adaptive_redraw_missed`` (the inclusions each method would lose against its own runs made again with another
+noise draw, expected over the other draws: ``models.scoring.redraw_misses``; the raster's is what
+``missed_vs_raster`` would be for a second raster).
 """
 
 from __future__ import annotations
@@ -54,6 +57,7 @@ sys.path.insert(0, str(REPO))
 
 from models.phantom import load_phantom  # noqa: E402
 from models.phantom_gen import PhantomRanges, random_phantom  # noqa: E402
+from models.scoring import redraw_misses  # noqa: E402
 from nodes.evaluate import RunSpec, launch_one, plan_runs, score_run  # noqa: E402
 from yamlstruct import Source  # noqa: E402
 
@@ -237,6 +241,12 @@ def main(argv: list[str] | None = None) -> int:
     def pooled(key: str, over: list[dict[str, Any]]) -> float | None:
         return sum(r[key] for r in over) / sum(r["probes_raster_eq"] for r in over) if over else None
 
+    def redraw(over: dict[tuple[str, int], dict[str, Any]], method: str) -> float | None:
+        if opts.noise_seeds < 2:
+            return None
+        return round(redraw_misses([v[method] for v in over.values() if v["runs"] == opts.noise_seeds],
+                                   opts.noise_seeds), 1)
+
     print(f"{len(rows)} runs scored, runs took {wall:.0f} s wall ({len(todo)} launches)")
     print(json.dumps({"probe_ratio": pooled("probes_adaptive", complete),
                       "probe_ratio_all": pooled("probes_adaptive", rows),
@@ -251,6 +261,8 @@ def main(argv: list[str] | None = None) -> int:
                       "sure_missed": sum(1 for v in rates.values() if v["raster"] == v["runs"] > v["adaptive"]),
                       "rate_below_raster": sum(1 for v in rates.values() if v["adaptive"] < v["raster"]),
                       "rate_above_raster": sum(1 for v in rates.values() if v["adaptive"] > v["raster"]),
+                      "raster_redraw_missed": redraw(rates, "raster"),
+                      "adaptive_redraw_missed": redraw(rates, "adaptive"),
                       "deterministic": deterministic}))
     return 0
 
