@@ -20,7 +20,10 @@ inclusion the raster's found: adaptive over raster probes at equal or better det
 same over every phantom, whatever was missed), ``probe_ratio_localise`` (the probes after which the recorded detection map
 finds, from then on, at least as many inclusions as the raster's final map: hindsight, the planner itself does not
 know that moment), ``found_adaptive``, ``found_raster`` (true inclusions found over all phantoms),
-``missed_vs_raster`` (inclusions the raster found and the adaptive map did not), ``phantoms``, ``runs`` (phantoms
+``missed_vs_raster`` (inclusions the raster found and the adaptive map did not), ``missed_unsensed`` (of those,
+the ones whose centre lay where the planner's map said at its stop that an inclusion of the smallest size of
+interest could hide unseen, ``map.npz``'s ``unsensed``: the rest lay where its reach model said it had sensed them;
+null for maps without that grid), ``phantoms``, ``runs`` (phantoms
 times noise seeds; the sums above are over runs), ``complete`` (runs where the adaptive map found every inclusion the
 raster's found), ``inclusions`` (true inclusions over all runs), and with ``--determinism``
 ``deterministic`` (the first phantom's adaptive run made again gives the same points, inclusions and map).
@@ -108,6 +111,16 @@ def map_curve(spec: RunSpec, topic: str) -> list[tuple[float, float, int]]:
     return out
 
 
+def unsensed_at(spec: RunSpec, centres: list[tuple[float, float]]) -> list[bool] | None:
+    """For each point, whether it lies in a cell the planner's map marks ``unsensed`` (where it said an inclusion of
+    the smallest size of interest could lie unseen when it stopped); None for a map without that grid."""
+    grid = np.load(spec.run_dir / "map" / "map.npz")
+    if "unsensed" not in grid:
+        return None
+    mask, xs, ys = grid["unsensed"], grid["x_mm"], grid["y_mm"]
+    return [bool(mask[int(np.argmin(np.abs(ys - y))), int(np.argmin(np.abs(xs - x)))]) for x, y in centres]
+
+
 def _localised(curve: list[tuple[float, float, int]], target: int) -> float:
     """The first x of ``curve`` from which on it finds at least ``target`` inclusions (nan: never for good)."""
     return next((n for i, (n, _, _) in enumerate(curve) if all(f >= target for _, _, f in curve[i:])), math.nan)
@@ -182,7 +195,9 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError, KeyError) as exc:
             print(f"{r_spec.id}: not scored ({exc})", file=sys.stderr)
             continue
-        missed = sum(1 for x, y in zip(r_inc, a_inc, strict=True) if x["found"] and not y["found"])
+        lost = [x["inclusion"] for x, y in zip(r_inc, a_inc, strict=True) if x["found"] and not y["found"]]
+        missed = len(lost)
+        hid = unsensed_at(a_spec, [ph.inclusions[i].center_mm for i in lost])
         for x, y in zip(r_inc, a_inc, strict=True):
             rate = rates.setdefault((r_spec.phantom.stem, x["inclusion"]), {
                 "phantom": r_spec.phantom.stem, "inclusion": x["inclusion"], "radius_mm": x["radius_mm"],
@@ -202,6 +217,7 @@ def main(argv: list[str] | None = None) -> int:
             "sens_raster": r["sensitivity"], "sens_adaptive": a["sensitivity"],
             "spec_raster": r["specificity"], "spec_adaptive": a["specificity"],
             "iou_raster": r["iou"], "iou_adaptive": a["iou"], "stop": plan["stop"],
+            "missed_unsensed": "" if hid is None else sum(hid),
         })
         try:
             curve = curves[r_spec.id] = map_curve(a_spec, "planner/map")
@@ -252,6 +268,8 @@ def main(argv: list[str] | None = None) -> int:
                       "probe_ratio_all": pooled("probes_adaptive", rows),
                       "probe_ratio_localise": pooled("probes_to_localise", localised),
                       "missed_vs_raster": sum(r["missed_vs_raster"] for r in rows),
+                      "missed_unsensed": (sum(r["missed_unsensed"] for r in rows)
+                                          if all(r["missed_unsensed"] != "" for r in rows) else None),
                       "found_adaptive": sum(r["found_adaptive"] for r in rows),
                       "found_raster": sum(r["found_raster"] for r in rows),
                       "phantoms": len({r["phantom"] for r in rows}), "runs": len(rows),
