@@ -136,10 +136,14 @@ def test_a_request_arriving_again_after_a_later_one_is_not_run_twice() -> None:
         call("foreign1.ab", 1, 1.0)    # request 1 again, after 2
         call("foreign1.ab", 3, 3.0)
         call("foreign2.cd", 1, 5.0)    # another client's first call: its own numbers
-        assert [r.header.seq for r in replies] == [1, 2, 3]
-        assert [msgspec.msgpack.decode(r.payload, type=AddReply).total for r in replies] == [2.0, 3.0, 4.0]
+        c.publish_raw(request_topic("math/add"),       # foreign1 restarted (a new incarnation): its call 1 is new
+                      Header(type="AddRequest", seq=1, stamp=0, node="foreign1.ab", inc=7),
+                      msgspec.msgpack.encode({"a": 6.0, "b": 1.0}))
+        g.spin()
+        assert [r.header.seq for r in replies] == [1, 2, 3, 1]
+        assert [msgspec.msgpack.decode(r.payload, type=AddReply).total for r in replies] == [2.0, 3.0, 4.0, 7.0]
         adder = next(n for n in g.nodes if isinstance(n, Adder))
-        assert adder.srv.calls == 4 and adder.srv.repeats == 1
+        assert adder.srv.calls == 5 and adder.srv.repeats == 1
 
 
 def test_no_server_is_its_own_error_after_the_deadline() -> None:
