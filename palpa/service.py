@@ -62,9 +62,9 @@ Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
 
 DEFAULT_TIMEOUT_S = 5.0
+"""How long a call waits for its reply unless told otherwise (a call never waits forever)."""
 _CLIENTS_REMEMBERED = 4096
 """Clients whose last call number a server keeps (one invented id per garbage request cannot grow it without end)."""
-"""How long a call waits for its reply unless told otherwise (a call never waits forever)."""
 SERVICE_INFO_PREFIX = "_palpa/srv/"
 
 
