@@ -113,7 +113,8 @@ def map_curve(spec: RunSpec, topic: str) -> list[tuple[float, float, int]]:
 
 def unsensed_at(spec: RunSpec, centres: list[tuple[float, float]]) -> list[bool] | None:
     """For each point, whether it lies in a cell the planner's map marks ``unsensed`` (where it said an inclusion of
-    the smallest size of interest could lie unseen when it stopped); None for a map without that grid."""
+    the smallest size of interest could lie unseen when it stopped; a point off the map: its nearest cell); None for
+    a map without that grid."""
     grid = np.load(spec.run_dir / "map" / "map.npz")
     if "unsensed" not in grid:
         return None
