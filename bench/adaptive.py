@@ -20,7 +20,10 @@ inclusion the raster's found: adaptive over raster probes at equal or better det
 same over every phantom, whatever was missed), ``probe_ratio_localise`` (the probes after which the recorded detection map
 finds, from then on, at least as many inclusions as the raster's final map: hindsight, the planner itself does not
 know that moment), ``found_adaptive``, ``found_raster`` (true inclusions found over all phantoms),
-``missed_vs_raster`` (inclusions the raster found and the adaptive map did not), ``phantoms``, ``runs`` (phantoms
+``missed_vs_raster`` (inclusions the raster found and the adaptive map did not), ``missed_unsensed`` (of those,
+the ones whose centre lay where the planner's map said at its stop that an inclusion of the smallest size of
+interest could hide unseen, ``map.npz``'s ``unsensed``: the rest lay where its reach model said it had sensed them;
+null for maps without that grid), ``phantoms``, ``runs`` (phantoms
 times noise seeds; the sums above are over runs), ``complete`` (runs where the adaptive map found every inclusion the
 raster's found), ``inclusions`` (true inclusions over all runs), and with ``--determinism``
 ``deterministic`` (the first phantom's adaptive run made again gives the same points, inclusions and map).
@@ -31,7 +34,10 @@ draw's "missed" says little about it. The rows are then (phantom, seed) pairs (`
 two methods on the same draw), ``inclusion_rates.csv`` has each true inclusion's detections out of K for both, and
 the JSON adds ``noise_seeds``, ``sure_raster`` (inclusions the raster found in every draw), ``sure_missed`` (of
 those, the ones the adaptive map missed in at least one), ``rate_below_raster`` / ``rate_above_raster``
-(inclusions the adaptive map found in fewer / more draws than the raster's).
+(inclusions the adaptive map found in fewer / more draws than the raster's), ``raster_redraw_missed`` /
+``adaptive_redraw_missed`` (the inclusions each method would lose against its own runs made again with another
+noise draw, expected over the other draws: ``models.scoring.redraw_misses``; the raster's is what
+``missed_vs_raster`` would be for a second raster).
 """
 
 from __future__ import annotations
@@ -54,6 +60,7 @@ sys.path.insert(0, str(REPO))
 
 from models.phantom import load_phantom  # noqa: E402
 from models.phantom_gen import PhantomRanges, random_phantom  # noqa: E402
+from models.scoring import redraw_misses  # noqa: E402
 from nodes.evaluate import RunSpec, launch_one, plan_runs, score_run  # noqa: E402
 from yamlstruct import Source  # noqa: E402
 
@@ -102,6 +109,17 @@ def map_curve(spec: RunSpec, topic: str) -> list[tuple[float, float, int]]:
         errs = [x.centroid_error_mm for x in s.inclusions if x.found]
         out.append((float(b.samples), float(np.mean(errs)) if errs else math.nan, s.found))
     return out
+
+
+def unsensed_at(spec: RunSpec, centres: list[tuple[float, float]]) -> list[bool] | None:
+    """For each point, whether it lies in a cell the planner's map marks ``unsensed`` (where it said an inclusion of
+    the smallest size of interest could lie unseen when it stopped; a point off the map: its nearest cell); None for
+    a map without that grid."""
+    grid = np.load(spec.run_dir / "map" / "map.npz")
+    if "unsensed" not in grid:
+        return None
+    mask, xs, ys = grid["unsensed"], grid["x_mm"], grid["y_mm"]
+    return [bool(mask[int(np.argmin(np.abs(ys - y))), int(np.argmin(np.abs(xs - x)))]) for x, y in centres]
 
 
 def _localised(curve: list[tuple[float, float, int]], target: int) -> float:
@@ -178,7 +196,9 @@ def main(argv: list[str] | None = None) -> int:
         except (OSError, ValueError, KeyError) as exc:
             print(f"{r_spec.id}: not scored ({exc})", file=sys.stderr)
             continue
-        missed = sum(1 for x, y in zip(r_inc, a_inc, strict=True) if x["found"] and not y["found"])
+        lost = [x["inclusion"] for x, y in zip(r_inc, a_inc, strict=True) if x["found"] and not y["found"]]
+        missed = len(lost)
+        hid = unsensed_at(a_spec, [ph.inclusions[i].center_mm for i in lost])
         for x, y in zip(r_inc, a_inc, strict=True):
             rate = rates.setdefault((r_spec.phantom.stem, x["inclusion"]), {
                 "phantom": r_spec.phantom.stem, "inclusion": x["inclusion"], "radius_mm": x["radius_mm"],
@@ -198,6 +218,7 @@ def main(argv: list[str] | None = None) -> int:
             "sens_raster": r["sensitivity"], "sens_adaptive": a["sensitivity"],
             "spec_raster": r["specificity"], "spec_adaptive": a["specificity"],
             "iou_raster": r["iou"], "iou_adaptive": a["iou"], "stop": plan["stop"],
+            "missed_unsensed": "" if hid is None else sum(hid),
         })
         try:
             curve = curves[r_spec.id] = map_curve(a_spec, "planner/map")
@@ -237,11 +258,19 @@ def main(argv: list[str] | None = None) -> int:
     def pooled(key: str, over: list[dict[str, Any]]) -> float | None:
         return sum(r[key] for r in over) / sum(r["probes_raster_eq"] for r in over) if over else None
 
+    def redraw(over: dict[tuple[str, int], dict[str, Any]], method: str) -> float | None:
+        if opts.noise_seeds < 2:
+            return None
+        return round(redraw_misses([v[method] for v in over.values() if v["runs"] == opts.noise_seeds],
+                                   opts.noise_seeds), 1)
+
     print(f"{len(rows)} runs scored, runs took {wall:.0f} s wall ({len(todo)} launches)")
     print(json.dumps({"probe_ratio": pooled("probes_adaptive", complete),
                       "probe_ratio_all": pooled("probes_adaptive", rows),
                       "probe_ratio_localise": pooled("probes_to_localise", localised),
                       "missed_vs_raster": sum(r["missed_vs_raster"] for r in rows),
+                      "missed_unsensed": (sum(r["missed_unsensed"] for r in rows)
+                                          if all(r["missed_unsensed"] != "" for r in rows) else None),
                       "found_adaptive": sum(r["found_adaptive"] for r in rows),
                       "found_raster": sum(r["found_raster"] for r in rows),
                       "phantoms": len({r["phantom"] for r in rows}), "runs": len(rows),
@@ -251,6 +280,8 @@ def main(argv: list[str] | None = None) -> int:
                       "sure_missed": sum(1 for v in rates.values() if v["raster"] == v["runs"] > v["adaptive"]),
                       "rate_below_raster": sum(1 for v in rates.values() if v["adaptive"] < v["raster"]),
                       "rate_above_raster": sum(1 for v in rates.values() if v["adaptive"] > v["raster"]),
+                      "raster_redraw_missed": redraw(rates, "raster"),
+                      "adaptive_redraw_missed": redraw(rates, "adaptive"),
                       "deterministic": deterministic}))
     return 0
 

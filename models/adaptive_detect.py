@@ -73,7 +73,7 @@ from models.adaptive_split import split_detections
 from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
 
 __all__ = ["Decision", "decide", "detect_candidates", "detection_map", "interior_gaps", "near_misses",
-           "open_sides", "reference"]
+           "open_sides", "reference", "swept_cells", "unsensed"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -196,6 +196,33 @@ def interior_gaps(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: Fl
     return out
 
 
+def swept_cells(observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray, probed: Sequence[tuple[float, float]],
+                cfg: PlannerConfig) -> BoolArray:
+    """The cells that count as sensed: those measured, and those every sweep made (or given up) crossed, its samples
+    or not: one at the specimen's edge whose samples landed a cell inward would otherwise be asked for again 2 mm
+    over and over (tuning seed 119: 5 sweeps)."""
+    covered = np.array(observed, dtype=bool)
+    gx, gy = np.meshgrid(x_mm, y_mm)
+    half = 0.5 * max(cfg.sweep_mm, cfg.resolution_mm)
+    for ux, uy in probed:
+        covered |= (np.abs(gx - ux) <= 0.5 * cfg.resolution_mm) & (np.abs(gy - uy) <= half)
+    return covered
+
+
+def unsensed(observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray, probed: Sequence[tuple[float, float]],
+             cfg: PlannerConfig) -> tuple[list[tuple[float, float]], BoolArray]:
+    """What the planner could not have sensed when it stops: for each reach of interest (``cfg.reaches()``, the
+    smallest radius's first), the fraction of the region farther than it from every sensed cell
+    (:func:`swept_cells`), where an inclusion of that size could lie unseen; and the cells where one of the
+    smallest could (its centre there). Their mean is :func:`models.adaptive_cover.miss_probability`, the number the
+    stop rule holds under ``cfg.miss_probability``: small, not nothing, and the reach is a model (a small inclusion
+    deep in the tissue is sensed from nearer than it says: BENCHMARKS.md)."""
+    covered = swept_cells(observed, x_mm, y_mm, probed, cfg)
+    dist = distance_to_measured(covered, cfg.resolution_mm)
+    fractions = [(r, float(np.count_nonzero(dist > r)) / max(1, dist.size)) for r in cfg.reaches()]
+    return fractions, np.asarray(dist > cfg.reaches()[0], dtype=bool)
+
+
 @dataclass(frozen=True)
 class Decision:
     """What the detection stop rule says after a probe: stop (and why), or the next probe point."""
@@ -227,13 +254,7 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     samples or not), or the planner would ask for the unreachable tissue until its budget ran out."""
     n = len(probed)
     observed = np.isfinite(measured)
-    covered = observed.copy()
-    gx, gy = np.meshgrid(belief.x_mm, belief.y_mm)
-    half = 0.5 * max(cfg.sweep_mm, cfg.resolution_mm)
-    # every sweep made counts for the cells it crossed, measured or not: one at the specimen's edge whose samples
-    # landed a cell inward would otherwise be asked for again 2 mm over and over (tuning seed 119: 5 sweeps)
-    for ux, uy in probed:
-        covered |= (np.abs(gx - ux) <= 0.5 * cfg.resolution_mm) & (np.abs(gy - uy) <= half)
+    covered = swept_cells(observed, belief.x_mm, belief.y_mm, probed, cfg)
     miss = miss_probability(covered, cfg.resolution_mm, cfg.reaches())
     _, found = detect_candidates(belief, measured, counts, cfg, fair, suspect=True)
 

@@ -31,7 +31,7 @@ from scipy.optimize import linear_sum_assignment
 
 from models.phantom import Phantom
 
-__all__ = ["Detection", "InclusionScore", "MapGrid", "ScanScore", "disc_iou", "score_scan"]
+__all__ = ["Detection", "InclusionScore", "MapGrid", "ScanScore", "disc_iou", "redraw_misses", "score_scan"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -176,6 +176,22 @@ def disc_iou(c1: tuple[float, float], r1: float, c2: tuple[float, float], r2: fl
         k = (-d + r1 + r2) * (d + r1 - r2) * (d - r1 + r2) * (d + r1 + r2)
         inter = r1 * r1 * math.acos(u) + r2 * r2 * math.acos(v) - 0.5 * math.sqrt(max(k, 0.0))
     return inter / (a1 + a2 - inter)
+
+
+def redraw_misses(found_in: Sequence[int], draws: int) -> float:
+    """How many of a method's own detections it would lose if each run were made again with another noise draw:
+    the expected count, summed over runs, of inclusions found in a run's draw and missed in another draw picked at
+    random among the other ``draws - 1`` of the same phantom. ``found_in``: per inclusion, in how many of the
+    ``draws`` draws the method found it.
+
+    The yardstick for "finds every inclusion the raster finds" on the same draw: an inclusion the raster finds in
+    ``k`` draws of ``K`` is lost to the raster itself, redrawn, ``k (K - k) / (K - 1)`` times over its ``K`` runs,
+    so a second method can only be held to the raster's own redraw losses, not to zero."""
+    if draws < 2:
+        raise ValueError(f"draws: need at least 2 noise draws to redraw, got {draws}")
+    if any(not 0 <= k <= draws for k in found_in):
+        raise ValueError(f"found_in: each count must lie in 0..{draws}, got {list(found_in)}")
+    return sum(k * (draws - k) for k in found_in) / (draws - 1)
 
 
 def _match(phantom: Phantom, found: Sequence[Detection], tol: float) -> dict[int, int]:

@@ -18,7 +18,9 @@ on the GP mean.
 Publishes ``planner/mean``, ``planner/std`` and ``planner/map`` (the map inclusions are detected on; StiffnessMap,
 latched) after every probe, and at the end writes the same files as a raster scan's map (``map.npz`` of that map,
 ``map.png``, ``inclusions.json``: nodes.map_output) plus ``planner.json`` (probes, refusals, simulated time, why it
-stopped), publishes ``map/inclusions`` and exits 0: it is the launch's required node.
+stopped, and with the detect rule ``unsensed``: per reach of interest the fraction of the region where an inclusion
+sensed from that far could still lie unseen; the smallest's cells are ``map.npz``'s ``unsensed`` and ``map.png``'s
+grey), publishes ``map/inclusions`` and exits 0: it is the launch's required node.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+import numpy.typing as npt
 
 import palpa
 from messages import (
@@ -48,7 +51,7 @@ from models.adaptive import (
     should_stop,
 )
 from models.adaptive_cover import seed_design
-from models.adaptive_detect import decide, detect_candidates, reference
+from models.adaptive_detect import decide, detect_candidates, reference, unsensed
 from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, detect_inclusions
 from models.surface import region_in_footprint
@@ -357,6 +360,19 @@ class AdaptivePlanner(palpa.Node):
                                      spread=b.std.ravel().tolist(), samples=len(self.probed), final=final))
         return snap, found
 
+    def _unsensed(self) -> tuple[list[tuple[float, float]], npt.NDArray[np.bool_]]:
+        """Where an inclusion of the sizes of interest could still lie unseen (models.adaptive_detect.unsensed),
+        said in the log: the stop rule bounds it, a user should still see where it is."""
+        snap = self.grid.snapshot()
+        hiding, mask = unsensed(np.isfinite(snap.stiffness), snap.x_mm, snap.y_mm, self.probed + self.given_up,
+                                self.cfg)
+        (r0, f0), (r1, f1) = hiding[0], hiding[-1]
+        self.log.info("unsensed: an inclusion sensed from at most %.1f mm away (the smallest of interest) could lie "
+                      "unseen in %.1f %% of the region, one sensed from %.1f mm (the largest) in %.1f %% (map.png's "
+                      "grey; the reach is a model: a small deep inclusion is sensed only from nearer)",
+                      r0, 100 * f0, r1, 100 * f1)
+        return hiding, mask
+
     def finish(self, why: str) -> None:
         self.done = True
         p = self.params
@@ -364,11 +380,12 @@ class AdaptivePlanner(palpa.Node):
         self.log.info("stopping: %s (%d probes, %d refusals, %.1f s)", why, len(self.probed), self.refused, elapsed)
         out = Path(p.output_dir)
         found: list[Inclusion] = []
+        detect = self.cfg.stop_rule == "detect"
+        hiding, mask = self._unsensed() if detect else ([], None)
         if self.belief is not None:
             snap, found = self._publish_belief(final=True)
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
-            write_outputs(out, snap, found, unit=self.unit or "?", title=title)
-        detect = self.cfg.stop_rule == "detect"
+            write_outputs(out, snap, found, unit=self.unit or "?", title=title, unsensed=mask)
         ref = (reference(self.fair.snapshot().stiffness, lower=self.cfg.lower_spread)
                if detect else None)
         self.inc_pub.publish(Inclusions(
@@ -379,5 +396,6 @@ class AdaptivePlanner(palpa.Node):
         out.mkdir(parents=True, exist_ok=True)
         (out / "planner.json").write_text(json.dumps({
             "probes": len(self.probed), "refused": self.refused, "sim_s": elapsed, "stop": why,
-            "points": self.probed, "why": self.why, "given_up": self.given_up}, indent=1) + "\n")
+            "points": self.probed, "why": self.why, "given_up": self.given_up,
+            "unsensed": [{"reach_mm": r, "fraction": round(f, 4)} for r, f in hiding]}, indent=1) + "\n")
         self.timer(0.2, lambda: self.request_shutdown(0), oneshot=True)

@@ -5,6 +5,10 @@
 * ``map.png``: heat map with axes in mm, detected inclusions circled, a title naming the run (cells between
   raster lines are shown as their neighbours' median; ``map.npz`` keeps them NaN).
 * ``inclusions.json``: a list of ``{x_mm, y_mm, radius_mm, contrast}``.
+
+An adaptive scan also passes ``unsensed`` (the cells where an inclusion of the smallest size of interest could lie
+unseen when it stopped: models.adaptive_detect.unsensed): ``map.npz`` keeps it as a bool grid of that name and
+``map.png`` greys those cells over the map.
 """
 
 from __future__ import annotations
@@ -13,8 +17,10 @@ import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, to_inclusions_json
 
@@ -28,22 +34,30 @@ def _atomic_write(path: Path, data: bytes) -> None:
 
 
 def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str,
-                  title: str) -> list[Path]:
-    """Write the three files (each atomically: a reader never sees half a file); returns their paths."""
+                  title: str, unsensed: npt.NDArray[np.bool_] | None = None) -> list[Path]:
+    """Write the three files (each atomically: a reader never sees half a file); returns their paths.
+    ``unsensed``: a bool grid of the map's shape, kept in ``map.npz`` and greyed in ``map.png`` (module doc)."""
+    if unsensed is not None and np.shape(unsensed) != np.shape(snap.stiffness):
+        raise ValueError(f"unsensed: shape {np.shape(unsensed)} is not the map's {np.shape(snap.stiffness)}")
     out_dir.mkdir(parents=True, exist_ok=True)
     npz = out_dir / "map.npz"
     tmp = out_dir / "map.tmp.npz"
-    np.savez_compressed(tmp, stiffness=snap.stiffness, x_mm=snap.x_mm, y_mm=snap.y_mm, count=snap.count,
-                        spread=snap.spread, unit=np.array(unit))
+    arrays: dict[str, Any] = {
+        "stiffness": snap.stiffness, "x_mm": snap.x_mm, "y_mm": snap.y_mm, "count": snap.count,
+        "spread": snap.spread, "unit": np.array(unit)}
+    if unsensed is not None:
+        arrays["unsensed"] = np.asarray(unsensed, dtype=bool)
+    np.savez_compressed(tmp, **arrays)
     os.replace(tmp, npz)
     js = out_dir / "inclusions.json"
     _atomic_write(js, (json.dumps(to_inclusions_json(inclusions), indent=2) + "\n").encode())
     png = out_dir / "map.png"
-    _atomic_write(png, _render_png(snap, inclusions, unit=unit, title=title))
+    _atomic_write(png, _render_png(snap, inclusions, unit=unit, title=title, unsensed=unsensed))
     return [npz, png, js]
 
 
-def _render_png(snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str, title: str) -> bytes:
+def _render_png(snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str, title: str,
+                unsensed: npt.NDArray[np.bool_] | None = None) -> bytes:
     import io
 
     import matplotlib
@@ -60,6 +74,12 @@ def _render_png(snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str
     data = np.ma.masked_invalid(fill_gaps(np.asarray(snap.stiffness, dtype=float)))
     im = ax.imshow(data, origin="lower", extent=extent, cmap="viridis", interpolation="nearest")
     fig.colorbar(im, ax=ax, label=f"stiffness ({unit})")
+    if unsensed is not None and np.any(unsensed):
+        grey = np.zeros((*np.shape(unsensed), 4))
+        grey[np.asarray(unsensed, dtype=bool)] = (0.55, 0.55, 0.55, 0.75)
+        ax.imshow(grey, origin="lower", extent=extent, interpolation="nearest")
+        title += (f"\ngrey ({100 * np.mean(unsensed):.1f} % of the map): an inclusion of the smallest size of "
+                  "interest could lie there unsensed")
     for i, inc in enumerate(inclusions, 1):
         ax.add_patch(Circle((inc.x_mm, inc.y_mm), inc.radius_mm, fill=False, color="red", lw=1.5))
         ax.annotate(f"{i}: ×{inc.contrast:.1f}", (inc.x_mm, inc.y_mm + inc.radius_mm + 0.8), color="red",

@@ -30,10 +30,11 @@ import msgspec
 
 from palpa.address import from_env
 from palpa.clock import MockClock
-from palpa.errors import PalpaError
+from palpa.errors import DecodeError, PalpaError
 from palpa.node import Node
 from palpa.testing import MemoryBus, MemoryTransport
 from palpa.transport import Delivery, SendFn, Transport, TransportOptions, ZmqTransport
+from palpa.wire import parse_envelope
 
 __all__ = ["Composition", "ComposedNode", "GraphSpec", "main"]
 
@@ -155,6 +156,7 @@ class Composition:
         self.ended: list[tuple[str, int]] = []
         """(node name, exit code) of every node that ended by itself, in order."""
         self._names: list[bytes] = []
+        self._name_set: set[str] = set()
         self._stop = False
         self._inbox_list: list[tuple[Node, MemoryTransport]] | None = None
         self._outside_polled_ns = 0
@@ -178,6 +180,7 @@ class Composition:
         self._inbox_list = None
         # the header map holds "node": <name> as msgpack: an envelope of ours, echoed back by the proxy, has it
         self._names.append(msgspec.msgpack.encode("node") + msgspec.msgpack.encode(node.name))
+        self._name_set.add(node.name)
         if required:
             self.required.add(node.name)
         self.settle()
@@ -308,11 +311,26 @@ class Composition:
         if self.bridge is not None:
             self._route_outside(self.bridge.poll(timeout_s))
 
+    def _ours(self, frames: list[bytes]) -> bool:
+        """Whether an envelope from the bridge is one a composed node sent, back from the proxy: its header names
+        one of them, or one of their service clients (``<node>.<id>``, palpa.service_client). An echo of a
+        request taken in again after the client's next call reads to the server as a publisher's restart, and the
+        server would run it twice (a robot sent back to a point it had left: fresh seed 8007 under load)."""
+        if len(frames) < 2:
+            return False
+        if any(n in frames[1] for n in self._names):
+            return True
+        try:
+            headers = parse_envelope(frames).headers
+        except DecodeError:
+            return False   # not ours: the receiver counts what is wrong with it
+        ours = self._name_set
+        return any(h.node in ours or h.node.rpartition(".")[0] in ours for h in headers)
+
     def _route_outside(self, deliveries: list[Delivery]) -> None:
-        names = self._names
         for d in deliveries:
             frames = d.frames
-            if len(frames) > 1 and any(n in frames[1] for n in names):
+            if self._ours(frames):
                 continue  # one of ours, back from the proxy
             topic = frames[0]
             for t in self.bus.listeners(topic):

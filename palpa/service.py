@@ -63,6 +63,8 @@ R = TypeVar("R", bound=Message)
 
 DEFAULT_TIMEOUT_S = 5.0
 """How long a call waits for its reply unless told otherwise (a call never waits forever)."""
+_CLIENTS_REMEMBERED = 4096
+"""Clients whose last call number a server keeps (one invented id per garbage request cannot grow it without end)."""
 SERVICE_INFO_PREFIX = "_palpa/srv/"
 
 
@@ -174,6 +176,9 @@ class Service(Generic[Q, R]):
         self.handler = handler
         self.calls = 0
         self.faults = 0
+        self.repeats = 0
+        """Requests not run because their client's sequence number was not past the last one run (at most once)."""
+        self._last_seq: dict[tuple[str, int], int] = {}
         self._decoder = msgspec.msgpack.Decoder(request_type)
         self._topic = request_topic(self.name)
         self._current: Responder[R] | None = None
@@ -206,6 +211,20 @@ class Service(Generic[Q, R]):
     def _on_request(self, raw: RawMessage) -> None:
         if raw.topic != self._topic or raw.from_cache:
             return
+        # at most once: a client numbers its calls 1, 2, 3 ... under an id of its own (docs/wire.md), so a request
+        # numbered at or below the last one run from that client is a copy (an echo of it, late, through a bridge
+        # to another bus), never a new call; run again it would move a robot twice. A foreign client that keeps
+        # its id across restarts tells them apart by its header's incarnation.
+        client, seq = (raw.header.node, raw.header.inc), raw.header.seq
+        last = self._last_seq.get(client)
+        if last is not None and seq <= last:
+            self.repeats += 1
+            self.node.log.warning("service %r: request %d from %s again after %d: not run twice", self.name, seq,
+                                  client[0], last)
+            return
+        if last is None and len(self._last_seq) >= _CLIENTS_REMEMBERED:
+            del self._last_seq[next(iter(self._last_seq))]   # the longest-known client: ids are never reused
+        self._last_seq[client] = seq
         self.calls += 1
         responder: Responder[R] = Responder(self, raw.header.node, raw.header.seq)
         if raw.header.type != self.request_type.type_name:

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pytest
 
 from messages import RobotPose, ScanStatus, StiffnessMap
 from palpa.clock import MockClock
@@ -70,6 +71,17 @@ def test_planner_probes_through_the_scanner_carries_on_after_refusals_and_is_det
     assert np.all(np.isfinite(beliefs[-1].stiffness))
     # the scanner touched off first: its sweeps follow the surface it found (1 mm working offset), not contact_z_mm
     assert probing_z and min(probing_z) < 6.0
+    # where an inclusion could still hide, per size: what the stop rule's miss probability averages, and map.npz's
+    # grid is the smallest size's (reach_mm 2 here, up to 6.5 mm for the largest radius)
+    hiding = a["unsensed"]
+    reaches, fractions = [h["reach_mm"] for h in hiding], [h["fraction"] for h in hiding]
+    assert reaches[0] == 2.0 and reaches == sorted(reaches) and len(reaches) == 10
+    assert fractions == sorted(fractions, reverse=True) and 0.0 < fractions[0] < 1.0
+    miss = float(a["stop"].split("miss probability ")[1].split(",")[0])
+    assert np.mean(fractions) == pytest.approx(miss, abs=6e-4)
+    grid = np.load(tmp_path / "a" / "map" / "map.npz")
+    assert grid["unsensed"].shape == grid["stiffness"].shape
+    assert grid["unsensed"].mean() == pytest.approx(fractions[0], abs=1e-4)
     b, inc_b, _, _ = _adaptive(tmp_path / "b")
     assert a["points"] == b["points"] and inc_a == inc_b
 

@@ -18,6 +18,7 @@ from palpa.errors import LaunchError
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
 from palpa.node import Node
+from palpa.transport import Delivery
 from tests.procs import ProcessGroup
 from tests.test_launch_smoke import REPO, Smoke, smoke
 
@@ -131,3 +132,61 @@ def test_in_process_and_multi_process_find_the_same_inclusions(procs: ProcessGro
     for x in a:
         gap = min(math.dist((x["x_mm"], x["y_mm"]), (y["x_mm"], y["y_mm"])) for y in b)
         assert gap <= 0.05, (gap, a, b, warnings)
+
+
+class _LateEchoBus:
+    """The composition's bridge to the real bus, reduced to what matters here: the proxy hands back to the bridge's
+    subscriptions everything the composition sent, but only when :meth:`release` says (a proxy slowed by load)."""
+
+    def __init__(self) -> None:
+        self.subscribed: set[bytes] = set()
+        self.held: list[list[bytes]] = []
+        self.back: list[Delivery] = []
+
+    def subscribe(self, topic: bytes, request_latched: bool) -> None:
+        self.subscribed.add(topic)
+
+    def unsubscribe(self, topic: bytes) -> None:
+        self.subscribed.discard(topic)
+
+    def send(self, frames: list[bytes], latched: bool) -> None:
+        self.held.append(list(frames))
+
+    def has_subscribers(self, topic: bytes) -> bool:
+        return False
+
+    def release(self) -> None:
+        self.back += [Delivery(f, False) for f in self.held if any(f[0].startswith(t) for t in self.subscribed)]
+        self.held = []
+
+    def poll(self, timeout_s: float) -> list[Delivery]:
+        back, self.back = self.back, []
+        return back
+
+    def close(self, linger_ms: int) -> None:
+        pass
+
+
+def test_a_service_call_echoed_back_late_through_the_bridge_is_not_run_again() -> None:
+    """A request a composed client sent comes back from the real bus's proxy after the client's next call: the
+    composition knows it for its own (the header names the client, ``<node>.<id>``) and drops it; the server never
+    sees it (and, at most once, would not run it again if it did)."""
+    from tests.test_service import Adder, AddReply, AddRequest
+
+    bridge = _LateEchoBus()
+    comp = Composition(bridge=bridge, clock=MockClock(0), heartbeat_s=0)  # type: ignore[arg-type]
+    server = comp.add(Adder, "math")
+    caller = comp.adopt(Node(name="caller", transport=comp.transport(), clock=comp.clock, heartbeat_s=0))
+    add = caller.client("math/add", AddRequest, AddReply)
+    comp.settle()
+    first = add.call_async(AddRequest(a=1.0, b=1.0))
+    comp.settle()
+    second = add.call_async(AddRequest(a=2.0, b=2.0))
+    comp.settle()
+    assert first.result().total == 2.0 and second.result().total == 4.0
+    assert b"math/add/request" in bridge.subscribed   # a service's requests may come from outside too
+    bridge.release()    # both requests (and replies) come back now, the first after the second was served
+    comp._wait_outside(0.0)
+    comp.settle()
+    assert server.srv.calls == 2 and server.srv.repeats == 0
+    comp.close()

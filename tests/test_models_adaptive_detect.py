@@ -21,6 +21,7 @@ from models.adaptive_detect import (
     near_misses,
     open_sides,
     reference,
+    unsensed,
 )
 from models.stiffness_map import Inclusion, MapSnapshot, detect_inclusions
 
@@ -236,6 +237,27 @@ def test_tissue_only_a_refused_point_reaches_counts_as_covered() -> None:
     assert d.miss == 0.0 and d.stop
     # a sweep made there whose samples landed elsewhere (none in those cells) covers them too: not asked for again
     assert decide(b, measured, counts, [*seeds, refused], cfg).stop
+
+
+def test_unsensed_is_per_size_what_no_sweep_reached_and_averages_to_the_stop_rules_miss_probability() -> None:
+    cfg = _cfg(reach_mm=4.0, radius_span_mm=2.0)   # reaches 4, 4.5, .., 6 mm
+    xs, ys = cfg.grid()
+    observed = np.zeros((20, 20), dtype=bool)
+    observed[:, 0] = True   # one measured column at x = 1 mm: column i lies 2 i mm from it
+    fractions, mask = unsensed(observed, xs, ys, [], cfg)
+    assert [r for r, _ in fractions] == [4.0, 4.5, 5.0, 5.5, 6.0]
+    # farther than 4 mm: columns 3.. (17 of 20); than 4.5 / 5 / 5.5: columns 3.. too; than 6: columns 4..
+    assert [f for _, f in fractions] == [17 / 20, 17 / 20, 17 / 20, 17 / 20, 16 / 20]
+    assert not mask[:, :3].any() and mask[:, 3:].all()   # the smallest's cells
+    assert np.mean([f for _, f in fractions]) == pytest.approx(
+        decide(_belief(cfg), np.where(observed, 10.0, np.nan), np.ones((20, 20), dtype=np.int64), [], cfg).miss)
+    # a sweep made counts for the cells it crossed even with no sample in them (as the stop rule counts it)
+    fractions, mask = unsensed(observed, xs, ys, [(39.0, 21.0)], cfg)
+    # x = 39 mm is column 19, y 18..24 mm rows 9..11: within 4 mm of those cells are 3 x 3 of them, 2 more in rows
+    # 8 and 12, 1 more in rows 7 and 13 (exactly 4 mm is sensed, 4.5 mm is not)
+    assert not mask[9:12, 17:20].any() and not mask[8:13, 18:20].any() and not mask[7:14, 19].any()
+    assert mask[8, 17] and mask[12, 17] and mask[7, 18] and mask[6, 19]
+    assert fractions[0][1] == (17 * 20 - 15) / 400
 
 
 def test_a_covering_sweep_stays_inside_the_region() -> None:

@@ -108,3 +108,21 @@ def test_scan_report_scores_a_run_against_its_phantom(tmp_path, capsys) -> None:
     out = capsys.readouterr().out
     assert "1 of 1 found, 1 false positive(s)" in out
     assert "centroid error 0.50 mm" in out and "false positive at (25.0, 5.0)" in out
+
+
+def test_redraw_misses_counts_a_coin_flip_inclusion_lost_to_its_own_redraw() -> None:
+    from models.scoring import redraw_misses
+
+    # found in every draw or in none: a redraw loses nothing
+    assert redraw_misses([3, 0, 3], 3) == 0.0
+    # found in 1 draw of 3: that run, redrawn, misses it with probability 1 (both other draws miss it)
+    assert redraw_misses([1], 3) == pytest.approx(1.0)
+    # found in 2 of 3: each of those two runs misses it in one of its two other draws: 2 x 1/2
+    assert redraw_misses([2], 3) == pytest.approx(1.0)
+    # two draws, found in one: that run's redraw is the other draw, which missed it
+    assert redraw_misses([1, 2, 1], 2) == pytest.approx(2.0)
+    assert redraw_misses([2, 3], 4) == pytest.approx((2 * 2 + 3 * 1) / 3)
+    with pytest.raises(ValueError, match="at least 2"):
+        redraw_misses([1], 1)
+    with pytest.raises(ValueError, match=r"0\.\.3"):
+        redraw_misses([4], 3)

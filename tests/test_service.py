@@ -118,6 +118,34 @@ def test_bad_payload_names_the_field() -> None:
         assert fault.kind == "bad_request" and "$.a" in fault.message
 
 
+def test_a_request_arriving_again_after_a_later_one_is_not_run_twice() -> None:
+    """At most once: a copy of a request that comes back late (an echo through a bridge to another bus, after the
+    client's next call) passes the receiver as a publisher's restart; the server must not run it again."""
+    with GraphHarness([(Adder, None)]) as g:
+        c = g.add(palpa.Node, name="client")
+        replies: list[RawMessage] = []
+        c.subscribe_raw(reply_topic("math/add", "foreign1.ab"), replies.append)
+
+        def call(client: str, seq: int, a: float) -> None:
+            c.publish_raw(request_topic("math/add"), Header(type="AddRequest", seq=seq, stamp=0, node=client),
+                          msgspec.msgpack.encode({"a": a, "b": 1.0}))
+            g.spin()
+
+        call("foreign1.ab", 1, 1.0)
+        call("foreign1.ab", 2, 2.0)
+        call("foreign1.ab", 1, 1.0)    # request 1 again, after 2
+        call("foreign1.ab", 3, 3.0)
+        call("foreign2.cd", 1, 5.0)    # another client's first call: its own numbers
+        c.publish_raw(request_topic("math/add"),       # foreign1 restarted (a new incarnation): its call 1 is new
+                      Header(type="AddRequest", seq=1, stamp=0, node="foreign1.ab", inc=7),
+                      msgspec.msgpack.encode({"a": 6.0, "b": 1.0}))
+        g.spin()
+        assert [r.header.seq for r in replies] == [1, 2, 3, 1]
+        assert [msgspec.msgpack.decode(r.payload, type=AddReply).total for r in replies] == [2.0, 3.0, 4.0, 7.0]
+        adder = next(n for n in g.nodes if isinstance(n, Adder))
+        assert adder.srv.calls == 5 and adder.srv.repeats == 1
+
+
 def test_no_server_is_its_own_error_after_the_deadline() -> None:
     with GraphHarness() as g:
         c = g.add(palpa.Node, name="client")
