@@ -26,7 +26,9 @@ interest could hide unseen, ``map.npz``'s ``unsensed``: the rest lay where its r
 null for maps without that grid), ``phantoms``, ``runs`` (phantoms
 times noise seeds; the sums above are over runs), ``complete`` (runs where the adaptive map found every inclusion the
 raster's found), ``inclusions`` (true inclusions over all runs), and with ``--determinism``
-``deterministic`` (the first phantom's adaptive run made again gives the same points, inclusions and map).
+``deterministic`` (the first phantom's adaptive run made again gives the same points, inclusions and map), and
+with ``--same-as DIR`` ``same_as`` (every adaptive run against the same run under DIR, another output of this
+script for the same seeds: ``runs`` compared, ``same``, and the ids that ``differ``).
 
 With ``--noise-seeds K`` every phantom runs K times per method, sensor noise seeds 0..K-1 (``seed:=``): a weak
 inclusion near the detector's threshold is found by the raster itself in some noise draws and not in others, so one
@@ -153,6 +155,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="run every phantom with sensor noise seeds 0..K-1 (per-inclusion detection rates)")
     ap.add_argument("--determinism", action="store_true",
                     help="run the first phantom's adaptive launch again and compare (JSON 'deterministic')")
+    ap.add_argument("--same-as", type=Path, metavar="DIR", help="compare every adaptive run with the same run "
+                    "under DIR (this script's output for the same seeds, made at another time or under load): JSON "
+                    "'same_as'")
     opts = ap.parse_args(argv)
     if opts.noise_seeds < 1:
         ap.error(f"--noise-seeds: at least 1 draw, got {opts.noise_seeds}")
@@ -183,6 +188,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{launch.stem} {spec.id}: exit {ran['exit_code']}, {ran['wall_s']:.0f} s", file=sys.stderr)
     wall = time.monotonic() - t0
     deterministic = _same_again(specs["adaptive"][0], opts.timeout) if opts.determinism else None
+    same_as = _same_as(specs["adaptive"], opts.same_as) if opts.same_as else None
     rows: list[dict[str, Any]] = []
     rates: dict[tuple[str, int], dict[str, Any]] = {}
     curves: dict[str, list[tuple[float, float, int]]] = {}
@@ -282,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
                       "rate_above_raster": sum(1 for v in rates.values() if v["adaptive"] > v["raster"]),
                       "raster_redraw_missed": redraw(rates, "raster"),
                       "adaptive_redraw_missed": redraw(rates, "adaptive"),
-                      "deterministic": deterministic}))
+                      "deterministic": deterministic, "same_as": same_as}))
     return 0
 
 
@@ -293,14 +299,35 @@ def _same_again(spec: RunSpec, timeout_s: float) -> bool:
     ran = launch_one(ADAPTIVE, again, in_process=True, timeout_s=timeout_s)
     if ran["exit_code"] != 0:
         return False
-    a, b = spec.run_dir / "map", again.run_dir / "map"
+    same_points, same_found, same_map = _same_outputs(spec.run_dir, again.run_dir)
+    print(f"determinism ({spec.id}): points {same_points}, inclusions {same_found}, map {same_map}", file=sys.stderr)
+    return same_points and same_found and same_map
+
+
+def _same_outputs(run_a: Path, run_b: Path) -> tuple[bool, bool, bool]:
+    """Whether two adaptive runs' outputs agree: their probe points, their inclusions, their maps."""
+    a, b = run_a / "map", run_b / "map"
     same_points = json.loads((a / "planner.json").read_text())["points"] == \
         json.loads((b / "planner.json").read_text())["points"]
     same_found = (a / "inclusions.json").read_text() == (b / "inclusions.json").read_text()
     with np.load(a / "map.npz") as ga, np.load(b / "map.npz") as gb:
         same_map = bool(np.array_equal(ga["stiffness"], gb["stiffness"], equal_nan=True))
-    print(f"determinism ({spec.id}): points {same_points}, inclusions {same_found}, map {same_map}", file=sys.stderr)
-    return same_points and same_found and same_map
+    return same_points, same_found, same_map
+
+
+def _same_as(specs: list[RunSpec], other: Path) -> dict[str, Any]:
+    """Every adaptive run here against the run of the same phantom and draw under ``other`` (another output
+    directory of this script over the same seeds, made at another time or under other load): how many agree in
+    points, inclusions and map, and which do not."""
+    runs, differ = 0, []
+    for spec in specs:
+        there = other / "adaptive" / "runs" / spec.id
+        if not (spec.run_dir / "map" / "planner.json").exists() or not (there / "map" / "planner.json").exists():
+            continue
+        runs += 1
+        if not all(_same_outputs(spec.run_dir, there)):
+            differ.append(spec.id)
+    return {"runs": runs, "same": runs - len(differ), "differ": differ}
 
 
 def _plot(path: Path, rows: list[dict[str, Any]], curves: dict[str, list[tuple[float, float, int]]],
