@@ -490,7 +490,7 @@ class RobotScanner(palpa.Node):
         st = self.driver.state()
         x, y, z, rx, ry, rz = st.pose
         if self.specimen.touch is not None:
-            self.specimen.touch.note_pose(st.stamp_ns, z)
+            self.specimen.touch.note_pose(st.stamp_ns, x, y, z)
         if self.follower is not None:
             self.follower.note_pose(st.stamp_ns, x, y, z)
         sx, sy, sz = st.speed_mm_s[:3]

@@ -93,7 +93,7 @@ class TouchOff:
         self.index = 0
         self.phase: Literal["idle", "searching", "stopping", "lifting", "done", "failed"] = "idle"
         self.error = ""
-        self._z = StampedBuffer(max_gap_ns=200_000_000)
+        self._pose = StampedBuffer(max_gap_ns=200_000_000)
         self._found: list[float] = []
         self._rising: list[tuple[float, float]] = []  # (z, signal) since the contact signal began to rise
         self._tare: tuple[float, ...] | None = None  # indenters: their displacements when the search here began
@@ -111,13 +111,13 @@ class TouchOff:
         self._go(0)
 
     # -- probe data ------------------------------------------------------------------------------
-    def note_pose(self, stamp_ns: int, z_mm: float) -> None:
-        """The arm's height at a time (the scanner's pose stream): probe samples are matched to it by stamp."""
-        self._z.add(stamp_ns, (z_mm,))
+    def note_pose(self, stamp_ns: int, x_mm: float, y_mm: float, z_mm: float) -> None:
+        """The arm's position at a time (the scanner's pose stream): probe samples are matched to it by stamp."""
+        self._pose.add(stamp_ns, (x_mm, y_mm, z_mm))
 
     def on_heights(self, stamp_ns: int, h_mm: Sequence[float], valid: bool = True) -> None:
         """Air-float probe sample: SPS1..3 extensions (mm) below the face."""
-        if self.cfg.signal != "heights" or not valid or not self._searching_here():
+        if self.cfg.signal != "heights" or not valid or not self._searched_here_at(stamp_ns):
             return
         sps = statistics.fmean(h_mm[:3])
         if max(h_mm[:3]) - min(h_mm[:3]) > self.cfg.max_spread_mm or max(h_mm[:3]) >= self.cfg.stroke_mm - 0.05:
@@ -136,7 +136,7 @@ class TouchOff:
 
     def on_indenters(self, stamp_ns: int, displacement_mm: Sequence[float], valid: Sequence[bool]) -> None:
         """Camera probe sample: indenter displacements (mm)."""
-        if self.cfg.signal != "indenters" or not self._searching_here():
+        if self.cfg.signal != "indenters" or not self._searched_here_at(stamp_ns):
             return
         z = self._z_at(stamp_ns)
         if z is None:
@@ -209,8 +209,21 @@ class TouchOff:
         return mz - mg / slope if slope < 0 else z_now
 
     def _z_at(self, stamp_ns: int) -> float | None:
-        v = self._z.at(stamp_ns, max_extrapolate_ns=50_000_000)
-        return None if v is None else float(v[0])
+        v = self._pose.at(stamp_ns, max_extrapolate_ns=50_000_000)
+        return None if v is None else float(v[2])
+
+    def _searched_here_at(self, stamp_ns: int) -> bool:
+        """Whether a probe sample stamped ``stamp_ns`` was measured over the point being searched: where the arm
+        was then, not where it is when the sample is handled. On the wall clock a sample can be handled after
+        the arm arrived though it was measured on the way, over the specimen, and a point whose ring hangs over
+        the edge was taken for a touch (the search test through ur_rtde, once in a CI run)."""
+        if self.phase != "searching":
+            return False
+        at = self._pose.at(stamp_ns, max_extrapolate_ns=50_000_000)
+        if at is None:
+            return False
+        x, y = self.points[self.index]
+        return math.hypot(at[0] - x, at[1] - y) < _NEAR_MM
 
     def _searching_here(self) -> bool:
         if self.phase != "searching":

@@ -103,3 +103,35 @@ def test_a_search_box_outside_the_workspace_or_without_a_contact_signal_is_refus
         NodeHarness(RobotScanner, {"search_box_mm": [-10, -10, 0.5, 50, 40, 80], "touchoff": "heights"})
     with pytest.raises(palpa.ParamError, match="needs a contact signal"):
         NodeHarness(RobotScanner, {"search_box_mm": BOX})
+
+
+def test_a_probe_sample_counts_for_the_point_it_was_measured_over_not_where_the_arm_is_when_it_is_handled() -> None:
+    """On the wall clock a heights sample can be handled after the arm reached the next point though it was measured
+    on the way there, over the specimen: it must not make that point a touch (the ur_rtde search once took a point
+    whose ring hangs over the specimen's edge for one, its region 12 mm too wide)."""
+    from nodes.drivers.robot_sim import SimRobotDriver
+    from nodes.touchoff import TouchOff, TouchOffConfig
+
+    clock = MockClock(0)
+    arm = SimRobotDriver(home_mm=(26.0, 8.0, 16.0), clock=clock.now_ns)
+    arm.connect()
+    touch = TouchOff(arm, [(38.0, 8.0)], TouchOffConfig(signal="heights", start_z_mm=16.0, floor_z_mm=0.5,
+                                                        search=True, samples=3))
+    touch.start()
+    on_the_way: list[int] = []
+    for _ in range(2000):   # to the point at the start height, then down until the arm is near the table
+        clock.advance(0.002)
+        x, y, z = arm.state().pose[:3]
+        touch.note_pose(clock.now_ns(), x, y, z)
+        if x < 34.0:
+            on_the_way.append(clock.now_ns())   # over the specimen (8 mm thick, to x = 40) with the whole ring
+        if z < 12.0:
+            break
+    assert abs(arm.state().pose[0] - 38.0) < 1e-6 and touch.phase == "searching"
+    for stamp in on_the_way[-3:]:   # measured over the specimen on the way: 8 mm below the face, all alike
+        touch.on_heights(stamp, (8.0, 8.0, 8.0, 8.0))
+    assert touch.touches == [] and touch.phase == "searching"
+    now = clock.now_ns()
+    for k in range(3):   # measured over the point: the ring half over the edge, one SPS at the end of its stroke
+        touch.on_heights(now - 2_000_000 * k, (4.0, 4.0, 10.0, 10.0))
+    assert touch.touches == [] and touch.misses == [(38.0, 8.0)]
