@@ -34,8 +34,8 @@ from scipy import ndimage
 
 from models.adaptive import PlannerConfig, footprint_cells, initial_design, probe_points
 
-__all__ = ["cover_cost", "cover_lattice", "coverage_gain", "distance_to_measured", "hidden", "lattice_cells", "miss_probability",
-           "seed_design", "sweep_stencil", "valid_rows"]
+__all__ = ["cover_cost", "cover_lattice", "coverage_gain", "distance_to_measured", "hidden", "hidden_fractions",
+           "lattice_cells", "miss_probability", "seed_design", "sweep_stencil", "valid_rows"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -59,12 +59,17 @@ def _reaches(reach_mm: float | Sequence[float]) -> list[float]:
     return [float(reach_mm)] if isinstance(reach_mm, int | float) else [float(r) for r in reach_mm]
 
 
+def hidden_fractions(observed: BoolArray, resolution_mm: float, reach_mm: float | Sequence[float]) -> list[float]:
+    """For each of ``reach_mm``, the fraction of the region's cells that are :func:`hidden` at that reach."""
+    d = distance_to_measured(observed, resolution_mm)
+    return [np.count_nonzero(d > r) / max(1, d.size) for r in _reaches(reach_mm)]
+
+
 def miss_probability(observed: BoolArray, resolution_mm: float, reach_mm: float | Sequence[float]) -> float:
     """The probability that an inclusion of interest, its centre uniform over the region, lies where no measurement
     has sensed it: the fraction of :func:`hidden` cells, averaged over ``reach_mm`` when several (one per radius of
     interest, equally likely: PlannerConfig.reaches)."""
-    d = distance_to_measured(observed, resolution_mm)
-    return float(np.mean([np.count_nonzero(d > r) / max(1, d.size) for r in _reaches(reach_mm)]))
+    return float(np.mean(hidden_fractions(observed, resolution_mm, reach_mm)))
 
 
 def sweep_stencil(footprint: int, resolution_mm: float, reach_mm: float) -> BoolArray:

@@ -66,6 +66,8 @@ from models.adaptive_cover import (
     cover_lattice,
     coverage_gain,
     distance_to_measured,
+    hidden,
+    hidden_fractions,
     miss_probability,
     seed_design,
 )
@@ -218,9 +220,9 @@ def unsensed(observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray, probed: Se
     stop rule holds under ``cfg.miss_probability``: small, not nothing, and the reach is a model (a small inclusion
     deep in the tissue is sensed from nearer than it says: BENCHMARKS.md)."""
     covered = swept_cells(observed, x_mm, y_mm, probed, cfg)
-    dist = distance_to_measured(covered, cfg.resolution_mm)
-    fractions = [(r, float(np.count_nonzero(dist > r)) / max(1, dist.size)) for r in cfg.reaches()]
-    return fractions, np.asarray(dist > cfg.reaches()[0], dtype=bool)
+    reaches = cfg.reaches()
+    fractions = list(zip(reaches, hidden_fractions(covered, cfg.resolution_mm, reaches), strict=True))
+    return fractions, hidden(covered, cfg.resolution_mm, reaches[0])
 
 
 @dataclass(frozen=True)

@@ -117,7 +117,8 @@ class TouchOff:
 
     def on_heights(self, stamp_ns: int, h_mm: Sequence[float], valid: bool = True) -> None:
         """Air-float probe sample: SPS1..3 extensions (mm) below the face."""
-        if self.cfg.signal != "heights" or not valid or not self._searched_here_at(stamp_ns):
+        at = self._over_point_at(stamp_ns) if self.cfg.signal == "heights" and valid else None
+        if at is None:
             return
         sps = statistics.fmean(h_mm[:3])
         if max(h_mm[:3]) - min(h_mm[:3]) > self.cfg.max_spread_mm or max(h_mm[:3]) >= self.cfg.stroke_mm - 0.05:
@@ -130,17 +131,14 @@ class TouchOff:
                     self._miss()
             return
         if sps < self.cfg.threshold:
-            z = self._z_at(stamp_ns)
-            if z is not None:
-                self._contact(z - sps)
+            self._contact(at[2] - sps)
 
     def on_indenters(self, stamp_ns: int, displacement_mm: Sequence[float], valid: Sequence[bool]) -> None:
         """Camera probe sample: indenter displacements (mm)."""
-        if self.cfg.signal != "indenters" or not self._searched_here_at(stamp_ns):
+        at = self._over_point_at(stamp_ns) if self.cfg.signal == "indenters" else None
+        if at is None:
             return
-        z = self._z_at(stamp_ns)
-        if z is None:
-            return
+        z = at[2]
         if self._tare is None:
             # tared on the first sample over the point (above the surface): the guides' friction can hold an
             # indenter a fraction of a millimetre in after the last press, and that offset is not contact here
@@ -170,7 +168,7 @@ class TouchOff:
             self._fail(f"robot {prog.status.name.lower()} during the touch-off: {prog.message}")
             return
         if self.phase == "searching":
-            if self.cfg.signal == "force" and self._searching_here():
+            if self.cfg.signal == "force" and self._over_point(st.pose[0], st.pose[1]):
                 self._on_force(st.pose[2], abs(st.force_n[2]))
             if self.phase == "searching" and prog.status == MotionStatus.DONE:
                 if self.cfg.search:
@@ -208,29 +206,21 @@ class TouchOff:
         slope = sum((z - mz) * (g - mg) for z, g in zip(zs, gs, strict=True)) / szz
         return mz - mg / slope if slope < 0 else z_now
 
-    def _z_at(self, stamp_ns: int) -> float | None:
-        v = self._pose.at(stamp_ns, max_extrapolate_ns=50_000_000)
-        return None if v is None else float(v[2])
-
-    def _searched_here_at(self, stamp_ns: int) -> bool:
-        """Whether a probe sample stamped ``stamp_ns`` was measured over the point being searched: where the arm
-        was then, not where it is when the sample is handled. On the wall clock a sample can be handled after
-        the arm arrived though it was measured on the way, over the specimen, and a point whose ring hangs over
-        the edge was taken for a touch (the search test through ur_rtde, once in a CI run)."""
-        if self.phase != "searching":
-            return False
+    def _over_point_at(self, stamp_ns: int) -> tuple[float, ...] | None:
+        """The arm's (x, y, z) when a probe sample stamped ``stamp_ns`` was measured, if it was then over the point
+        being searched; else None. Where the arm was then, not where it is when the sample is handled: on the wall
+        clock a sample can be handled after the arm arrived though it was measured on the way, over the specimen,
+        and a point whose ring hangs over the edge was taken for a touch (the search test through ur_rtde, once in
+        a CI run)."""
         at = self._pose.at(stamp_ns, max_extrapolate_ns=50_000_000)
-        if at is None:
-            return False
-        x, y = self.points[self.index]
-        return math.hypot(at[0] - x, at[1] - y) < _NEAR_MM
+        return at if at is not None and self._over_point(at[0], at[1]) else None
 
-    def _searching_here(self) -> bool:
+    def _over_point(self, x_mm: float, y_mm: float) -> bool:
+        """Searching, and (x, y) within _NEAR_MM of the point being searched."""
         if self.phase != "searching":
             return False
         x, y = self.points[self.index]
-        pose = self.driver.state().pose
-        return math.hypot(pose[0] - x, pose[1] - y) < _NEAR_MM
+        return math.hypot(x_mm - x, y_mm - y) < _NEAR_MM
 
     def _contact(self, z_surface: float) -> None:
         self._found.append(z_surface)

@@ -155,8 +155,9 @@ class Composition:
         self.exit_code = 0
         self.ended: list[tuple[str, int]] = []
         """(node name, exit code) of every node that ended by itself, in order."""
-        self._names: list[bytes] = []
-        self._name_set: set[str] = set()
+        self._names: set[str] = set()
+        """The composed nodes' names: what comes back from the proxy under one of them (or a client id of one) is
+        an echo of our own."""
         self._stop = False
         self._inbox_list: list[tuple[Node, MemoryTransport]] | None = None
         self._outside_polled_ns = 0
@@ -178,9 +179,7 @@ class Composition:
         """Run ``node`` (built on :meth:`transport` and :attr:`clock`) as part of the composition."""
         self.nodes.append(node)
         self._inbox_list = None
-        # the header map holds "node": <name> as msgpack: an envelope of ours, echoed back by the proxy, has it
-        self._names.append(msgspec.msgpack.encode("node") + msgspec.msgpack.encode(node.name))
-        self._name_set.add(node.name)
+        self._names.add(node.name)
         if required:
             self.required.add(node.name)
         self.settle()
@@ -316,15 +315,11 @@ class Composition:
         one of them, or one of their service clients (``<node>.<id>``, palpa.service_client). An echo of a
         request taken in again after the client's next call reads to the server as a publisher's restart, and the
         server would run it twice (a robot sent back to a point it had left: fresh seed 8007 under load)."""
-        if len(frames) < 2:
-            return False
-        if any(n in frames[1] for n in self._names):
-            return True
         try:
             headers = parse_envelope(frames).headers
         except DecodeError:
             return False   # not ours: the receiver counts what is wrong with it
-        ours = self._name_set
+        ours = self._names
         return any(h.node in ours or h.node.rpartition(".")[0] in ours for h in headers)
 
     def _route_outside(self, deliveries: list[Delivery]) -> None:
