@@ -3,7 +3,10 @@
 ``scanner/probe_at`` (:class:`ProbeAt` -> :class:`ProbeResult`) drives a short path at the point (a sweep line or
 an indentation, checked against the same workspace box and caps as a scan), collects the estimator's valid
 ``stiffness/sample`` estimates within a radius of the point while it moves, and answers with their median once
-the arm is back up and the estimator has caught up. The reply is deferred: the scanner keeps running (watchdog,
+the probe has rested at the path's end (its estimates there are part of the measurement) and the estimator has
+caught up with the path (an estimate measured at or after its end has arrived: on a busy machine the estimates of a
+wall-clock rig come late, and an answer made without them would be a refusal or the median of the path's first
+part). The reply is deferred: the scanner keeps running (watchdog,
 pose, status) meanwhile, and progress shows on ``robot/scan_status`` (state ``probing``) like a scan's.
 ``scanner/pause`` stops the arm where it is, ``scanner/resume`` goes on from the waypoint it was heading for,
 ``scanner/abort`` stops for good: a scan ends as ``stopped`` (the node exits 2), a probe is answered with a
@@ -29,7 +32,11 @@ __all__ = ["MOVING", "ScanControl"]
 
 MOVING = ("scanning", "probing")
 _SETTLE_S = 0.6
-"""After a probe's path: time for the estimator to publish the last estimates (its max_wait_s is 0.25 s)."""
+"""After a probe's path: the rest at its end, and time for the estimator to publish the last estimates (its
+max_wait_s is 0.25 s); the earliest answer."""
+_CATCH_UP_S = 10.0
+"""After the rest: the longest an answer waits for an estimate measured at or after the path's end (an estimator that
+sends nothing, dead or unplugged, gets the refusal after this)."""
 
 
 class ScanControl:
@@ -43,6 +50,9 @@ class ScanControl:
         self.unit = ""
         self.started_ns = 0
         self.settle_until_ns: int | None = None
+        self.path_end_ns = 0
+        self.latest_ns: int | None = None
+        """The latest measurement stamp of any estimate (valid or not, anywhere) heard during the probe."""
         self.paused_from: ScanState = "scanning"  # set by on_pause before anything reads it
         self.probe = node.service("scanner/probe_at", ProbeAt, ProbeResult, self.on_probe_at)
         node.service("scanner/pause", Trigger, TriggerResult, self.on_pause)
@@ -68,7 +78,7 @@ class ScanControl:
             node.check_path(plan.waypoints)
         except (ValueError, palpa.ParamError) as exc:
             raise RequestRefused(f"cannot probe at ({req.x_mm:g}, {req.y_mm:g}) mm: {exc}") from None
-        self.request, self.values, self.started_ns = req, [], node.clock.now_ns()
+        self.request, self.values, self.started_ns, self.latest_ns = req, [], node.clock.now_ns(), None
         self.responder = self.probe.defer()
         node.log.info("probing (%.1f, %.1f) mm: %s, %d waypoints", req.x_mm, req.y_mm, req.mode,
                       len(plan.waypoints))
@@ -97,17 +107,25 @@ class ScanControl:
 
     def on_sample(self, s: StiffnessSample) -> None:
         req = self.request
-        if req is None or not s.valid or math.dist((s.x_mm, s.y_mm), (req.x_mm, req.y_mm)) > req.radius_mm:
+        if req is None:
+            return
+        self.latest_ns = s.stamp_ns if self.latest_ns is None else max(self.latest_ns, s.stamp_ns)
+        if not s.valid or math.dist((s.x_mm, s.y_mm), (req.x_mm, req.y_mm)) > req.radius_mm:
             return
         self.values.append(s.value)
         self.unit = s.unit
 
     def path_done(self) -> None:
-        """The probe's path is complete: answer after the estimator's last estimates had time to arrive."""
-        self.settle_until_ns = self.node.clock.now_ns() + int(_SETTLE_S * 1e9)
+        """The probe's path is complete: answer after the rest, once the estimator has caught up (module doc)."""
+        self.path_end_ns = self.node.clock.now_ns()
+        self.settle_until_ns = self.path_end_ns + int(_SETTLE_S * 1e9)
 
     def supervise(self, now_ns: int) -> None:
-        if self.settle_until_ns is not None and now_ns >= self.settle_until_ns:
+        until = self.settle_until_ns
+        if until is None or now_ns < until:
+            return
+        caught_up = self.latest_ns is not None and self.latest_ns >= self.path_end_ns
+        if caught_up or now_ns >= until + int(_CATCH_UP_S * 1e9):
             self.settle_until_ns = None
             self._answer()
 
@@ -118,9 +136,12 @@ class ScanControl:
         if req is None or responder is None:
             return
         if not self.values:
+            latest = self.latest_ns
+            heard = ("no estimate at all came: is the estimator running?" if latest is None else
+                     f"the estimator lags: its latest estimate was measured {(self.path_end_ns - latest) / 1e9:.1f} s "
+                     "before the path's end" if latest < self.path_end_ns else "none of its estimates was")
             responder.refuse(f"no valid stiffness estimate within {req.radius_mm:g} mm of ({req.x_mm:g}, "
-                             f"{req.y_mm:g}) mm (is the estimator running? probe data on "
-                             f"{node.params.watch_topic or 'no topic'}?)")
+                             f"{req.y_mm:g}) mm ({heard}; probe data on {node.params.watch_topic or 'no topic'}?)")
             return
         median = statistics.median(self.values)
         mad = statistics.median(abs(v - median) for v in self.values)

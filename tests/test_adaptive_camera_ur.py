@@ -51,15 +51,14 @@ def test_camera_presses_planned_adaptively_run_on_the_ur_emulator_inside_the_box
     plan = json.loads((run / "map" / "planner.json").read_text())
     logs = "\n".join(f"--- {n}\n" + (run / n).read_text()[-3000:] for n in ("planner.log", "scanner.log")
                      if (run / n).exists())
-    # every press asked for was run; a request refused because the wall clock of a busy machine made the probe's
-    # data late (the camera's frames: the scanner's watchdog; the estimator's estimates of a press: none by the
-    # time the scanner answers) was retried and run, never given up
+    # every press asked for was run; a request refused because the wall clock of a busy machine made the camera's
+    # frames late (the scanner's watchdog) was retried and run, never given up. Late estimates refuse nothing: the
+    # scanner's answer waits for the estimator to catch up with the press (nodes/scan_control.py)
     assert plan["probes"] == 3 and not plan["given_up"], f"{plan}\n{logs}"
     planner_log = (run / "planner.log").read_text() if (run / "planner.log").exists() else ""
     refusals = [line for line in planner_log.splitlines() if " refused" in line]
-    late = ("no fresh probe data", "no valid stiffness estimate")
-    assert len(refusals) == plan["refused"] and all(any(w in r for w in late) and "retrying" in r for r in refusals), (
-        f"{plan}\n{logs}")
+    assert len(refusals) == plan["refused"] and all("no fresh probe data" in r and "retrying" in r
+                                                    for r in refusals), f"{plan}\n{logs}"
     assert all(REGION[0] <= x <= REGION[2] and REGION[1] <= y <= REGION[3] for x, y in plan["points"])
     assert (run / "map" / "map.npz").exists()
     poses, samples = [], []

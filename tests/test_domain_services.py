@@ -3,6 +3,7 @@ pause/resume/abort of a scan, a pressure set-point never above the cap, tare, sa
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -111,6 +112,60 @@ def test_probe_takes_the_estimates_near_the_point_only() -> None:
         t += 0.05
     r = fut.result()
     assert r.value == 30.0 and r.mad == 0.0 and r.samples > 10
+    g.close()
+
+
+def _lagging_estimator(g: GraphHarness, fut: Future[Any], lag_s: float, limit_s: float) -> None:
+    """Play an estimator ``lag_s`` behind the arm (a busy machine's wall clock) until ``fut`` is answered: every
+    50 ms an estimate measured ``lag_s`` ago where the arm was then, valid (30 kPa) where the probe was down at the
+    contact height (5 mm), "no_contact" elsewhere."""
+    t = 0.0
+    while not fut.done() and t < limit_s:
+        stamp = g.clock.now_ns() - int(lag_s * 1e9)
+        poses = [q for q in g.published("robot/pose") if q.stamp_ns <= stamp]
+        if poses:
+            q = poses[-1]
+            down = abs(q.z_mm - 5.0) < 0.1
+            g.publish("stiffness/sample", StiffnessSample(
+                stamp_ns=stamp, model="airfloat", x_mm=q.x_mm, y_mm=q.y_mm, z_mm=q.z_mm,
+                value=30.0 if down else math.nan, unit="kPa", valid=down, reason="" if down else "no_contact"))
+        g.advance(0.05)
+        t += 0.05
+
+
+def test_a_probe_waits_for_an_estimator_running_late_and_answers_with_the_whole_sweep() -> None:
+    """The estimates of a 0.6 s sweep come 2 s late, after the 0.6 s rest at the path's end: the answer waits for
+    the first estimate measured at or after the path's end and takes every estimate of the sweep, where answering
+    after the rest alone would refuse (none yet)."""
+    results = {}
+    for lag in (0.0, 2.0):
+        g = GraphHarness()
+        g.add(RobotScanner, {"autostart": False, "home_mm": [30.0, 26.0, 8.0], "watch_topic": "",
+                             "contact_z_mm": 5.0, "speed_mm_s": 10.0})
+        op = g.add(palpa.Node, name="operator")
+        fut = op.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=60).call_async(
+            ProbeAt(x_mm=30.0, y_mm=30.0, radius_mm=4.0))
+        _lagging_estimator(g, fut, lag, 30.0)
+        results[lag] = fut.result()
+        g.close()
+    prompt, late = results[0.0], results[2.0]
+    assert prompt.value == late.value == 30.0 and late.samples >= 10, results
+    # the late answer holds every estimate of the sweep, as the prompt one does (the stand-in's probe is up, "no
+    # contact", after the path's retract: the rest adds nothing here)
+    assert late.samples == prompt.samples, results
+    assert late.duration_s >= prompt.duration_s + 1.0, results
+
+
+def test_a_probe_with_no_estimator_is_refused_once_its_wait_for_one_is_over() -> None:
+    g = GraphHarness()
+    g.add(RobotScanner, {"autostart": False, "home_mm": [28.0, 28.0, 40.0], "watch_topic": ""})
+    op = g.add(palpa.Node, name="operator")
+    fut = op.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=120).call_async(ProbeAt(x_mm=30, y_mm=30))
+    until_done(g, fut, 60.0)
+    with pytest.raises(RequestRefused, match="no valid stiffness estimate.*no estimate at all came"):
+        fut.result()
+    statuses = g.published("robot/scan_status")
+    assert statuses[-1].state == "idle"
     g.close()
 
 

@@ -164,7 +164,9 @@ def test_resolved_file_loads_back_to_the_same_graph(tmp_path: Path) -> None:
 def test_bus_section_and_overrides(tmp_path: Path) -> None:
     default = load_launch(REPO / "launch" / "talker_listener.yaml").bus_request()
     assert default.pub.startswith("ipc:///tmp/palpa-") and len(default.latch) < 100
-    assert load_launch(REPO / "launch" / "talker_listener.yaml").bus_request() != default  # fresh per run
+    plan = load_launch(REPO / "launch" / "talker_listener.yaml")
+    # fresh per run, never twice the same in one process (1 000 draws of 4 hex digits alone would collide)
+    assert len({plan.bus_request().pub for _ in range(1000)} | {default.pub}) == 1001
     tcp = load_launch(write(tmp_path / "t.yaml", "bus: {transport: tcp, latched: [a/b], hwm: 50}\nnodes: []\n"))
     assert tcp.bus.latched == ["a/b"] and tcp.bus.hwm == 50
     assert tcp.bus_request() == BusAddress("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")

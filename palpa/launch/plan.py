@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import secrets
@@ -19,6 +20,9 @@ from palpa.launch.schema import BusDecl, RecordDecl, VizDecl
 from palpa.options import TransportOptions
 
 __all__ = ["RECORDER_NAME", "RECORDER_TARGET", "VIZ_NAME", "VIZ_TARGET", "LaunchPlan", "NodeSpec"]
+
+_FRESH = itertools.count()
+"""Numbers this process's fresh bus paths (LaunchPlan.bus_request)."""
 
 RECORDER_NAME = "recorder"
 RECORDER_TARGET = "palpa.record.recorder:Recorder"
@@ -161,7 +165,8 @@ class LaunchPlan:
 
     def bus_request(self, override: str | None = None) -> BusAddress:
         """The endpoints the launcher binds: ``override`` (``--bus-address``), else the ``bus`` section, else a
-        fresh ipc path ``<private dir>/<pid>-<4 hex>`` (palpa.address.private_dir)."""
+        fresh ipc path ``<private dir>/<pid>-<n>-<4 hex>`` (palpa.address.private_dir; n counts the process's
+        requests, so two are never the same in one process, and the hex part keeps a reused pid's apart)."""
         if override:
             return _tcp_any(override) if _is_host_only(override) else BusAddress.parse(override)
         endpoint = self.bus.endpoint
@@ -172,7 +177,7 @@ class LaunchPlan:
                 endpoint = "tcp://" + endpoint
             return _tcp_any(endpoint) if _is_host_only(endpoint) else BusAddress.parse(endpoint)
         if endpoint is None:
-            return BusAddress.parse(f"ipc://{private_dir()}/{os.getpid()}-{secrets.token_hex(2)}")
+            return BusAddress.parse(f"ipc://{private_dir()}/{os.getpid()}-{next(_FRESH)}-{secrets.token_hex(2)}")
         if endpoint.startswith("tcp://"):
             raise BusError(f"bus endpoint {endpoint!r} is tcp but transport is ipc")
         return BusAddress.parse(endpoint if endpoint.startswith("ipc://") else f"ipc://{endpoint}")
