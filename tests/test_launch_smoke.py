@@ -107,6 +107,8 @@ SMOKE: dict[str, Smoke] = {
     # the rig's file, launched as processes with the ur_rtde driver against the UR emulator there
     "scan_adaptive_camera_ur.yaml": Smoke(topics=["robot/pose", "camera/indenters", "stiffness/sample",
                                                   "planner/mean"], launched_by="tests/test_adaptive_camera_ur.py"),
+    "scan_adaptive_ur.yaml": Smoke(topics=["robot/pose", "probe/heights", "stiffness/sample", "planner/mean"],
+                                   launched_by="tests/test_adaptive_airfloat_ur.py"),
     "replay_scan.yaml": Smoke(prepare=synthetic_scan_bag, topics=["probe/heights", "stiffness/sample", "map/stiffness"],
                               timeout=60),
     # idle until asked: a probe_at is exercised by tests/test_service_cli.py
