@@ -8,6 +8,9 @@
 
 SIGINT and SIGTERM ask the node to stop; it finishes its current callback, runs ``on_shutdown`` and closes its
 sockets with a bounded linger. The process exits with ``node.exit_code`` (0 unless the node set it).
+Either signal during start-up (a ``setup()`` still connecting to a robot, say) interrupts it: what setup opened
+with ``Node.closing`` is closed, one line says so, and the process exits 128 + the signal's number (130, 143),
+with no traceback.
 """
 
 from __future__ import annotations
@@ -89,6 +92,15 @@ def parse_remaps(items: Sequence[str]) -> dict[str, str]:
     return out
 
 
+class _Interrupted(BaseException):
+    """SIGINT or SIGTERM while the node is being made (BaseException: no ``except Exception`` in a setup() may
+    swallow it)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
 def run_node(cls: type[Node], argv: Sequence[str] | None = None, *, prog: str | None = None) -> None:
     """Parse the command line, run the node until it stops or a signal arrives, and exit with its code."""
     sys.exit(run_node_code(cls, argv, prog=prog))
@@ -106,8 +118,19 @@ def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: s
         format="%(levelname)s %(name)s: %(message)s",
         stream=sys.stderr,
     )
+
+    made: list[Node] = []
+
+    def interrupt(signum: int, frame: FrameType | None) -> None:
+        raise _Interrupted(signum)
+
+    def stop(signum: int, frame: FrameType | None) -> None:
+        made[0].request_shutdown()
+
+    signal.signal(signal.SIGINT, interrupt)
+    signal.signal(signal.SIGTERM, interrupt)
     try:
-        node = cls(
+        made.append(cls(
             name=args.name,
             params=params_from_args(args, cls.Params),
             namespace=args.namespace,
@@ -117,18 +140,23 @@ def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: s
             transport_options=TransportOptions.from_env(
                 sndhwm=args.sndhwm, rcvhwm=args.rcvhwm, busy_poll_us=args.busy_poll_us,
                 direct=tuple(args.direct) if args.direct else None),
-        )
+        ))
+        signal.signal(signal.SIGINT, stop)
+        signal.signal(signal.SIGTERM, stop)
     except PalpaError as exc:
         if args.debug:
             raise
         print(f"{prog or cls.__name__}: {exc}", file=sys.stderr)
         return 2
-
-    def stop(signum: int, frame: FrameType | None) -> None:
-        node.request_shutdown()
-
-    signal.signal(signal.SIGINT, stop)
-    signal.signal(signal.SIGTERM, stop)
+    except _Interrupted as exc:
+        # Node.__init__ closed what setup() opened (it releases on any exception); a node made just before the
+        # signal is closed here
+        for done in made:
+            done.close()
+        print(f"{prog or cls.__name__}: {signal.Signals(exc.signum).name} during start-up: stopped before running",
+              file=sys.stderr)
+        return 128 + exc.signum
+    node = made[0]
     try:
         node.spin()
     finally:

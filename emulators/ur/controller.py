@@ -367,16 +367,18 @@ class UrController:
         world = self._tissue_world()
         if world is None:  # a surface without tissue (a test's plane): rigid
             return BACKING_N_PER_MM * depth
-        # (models.world.WorldRangeError is a ValueError: caught as such, the module stays imported lazily)
+        # past the tables only (any other error is a bug and is raised); imported lazily, as in _tissue_world
+        from models.world import WorldRangeError
+
         try:
             f = float(world.force_n(x, y, depth, indenter_radius_mm=r))
             return f if math.isfinite(f) else 0.0  # nan: off the footprint
-        except ValueError:
+        except WorldRangeError:
             pass
         try:
             deepest = float(world.deepest_mm(x, y, indenter_radius_mm=r))
             base = float(world.force_n(x, y, deepest, indenter_radius_mm=r))
-        except ValueError:  # a layer thinner than the tables: the table is right under the tip
+        except WorldRangeError:  # a layer thinner than the tables: the table is right under the tip
             deepest, base = 0.0, 0.0
         return base + BACKING_N_PER_MM * max(0.0, depth - deepest)
 
