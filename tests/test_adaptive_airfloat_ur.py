@@ -4,18 +4,13 @@ air-float paper's phantom, three sweeps, wall-clock time."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
-import msgspec
 import pytest
 
-from emulators.ur.process import UrEmulatorProcess
-from messages import RobotPose, StiffnessSample
-from palpa.record.reader import iter_bag, resolve_bag_paths
-from tests.procs import ProcessGroup, palpa_cmd
-from tests.test_launch_smoke import REPO
+from tests.adaptive_ur import run_adaptive_on_ur_emulator
+from tests.procs import ProcessGroup
 
 # the UR emulator moves in real time: its tests run one at a time on one xdist worker (make test, --dist loadgroup)
 pytestmark = pytest.mark.xdist_group("ur-emulator")
@@ -35,39 +30,11 @@ def test_airfloat_sweeps_planned_adaptively_run_on_the_ur_emulator_inside_the_bo
     """Every sweep the planner asks for is run by the ur_rtde driver at the contact height, inside the workspace box
     and under the speed cap; the simulated probe reads it, the estimator turns it into stiffness the planner learns
     from, and the run ends with its map and planner.json."""
-    emu = UrEmulatorProcess.on_random_loopback(["--home", f"30,30,20,0,{math.pi},0"])
-    emu.start()
-    run = tmp_path / "ur"
-    try:
-        p = procs.start(palpa_cmd(
-            "launch", str(REPO / "launch" / "scan_adaptive_ur.yaml"), "--run-dir", str(run), "--no-progress",
-            f"robot_host:={emu.host}", "fibre_driver:=sim", "pressure_driver:=sim",
-            "phantom:=phantoms/airfloat_tumours.yaml", f"region_mm:={list(REGION)}", f"contact_z_mm:={CONTACT_Z}",
-            "max_probes:=3", f"workspace_mm:={list(BOX)}", f"watchdog_s:={WATCHDOG_S}"), cwd=str(REPO))
-        code = p.wait(180)
-        assert code == 0, p.output()[-6000:]
-    finally:
-        assert emu.stop() == 0, emu.log()[-3000:]
-    plan = json.loads((run / "map" / "planner.json").read_text())
-    logs = "\n".join(f"--- {n}\n" + (run / n).read_text()[-3000:] for n in ("planner.log", "scanner.log")
-                     if (run / n).exists())
-    # every sweep asked for was run; a request refused because the wall clock of a busy machine made the probe's
-    # heights late (the scanner's watchdog) was retried and run, never given up
-    assert plan["probes"] == 3 and not plan["given_up"], f"{plan}\n{logs}"
-    planner_log = (run / "planner.log").read_text() if (run / "planner.log").exists() else ""
-    refusals = [line for line in planner_log.splitlines() if " refused" in line]
-    assert len(refusals) == plan["refused"] and all("no fresh probe data" in r and "retrying" in r
-                                                    for r in refusals), f"{plan}\n{logs}"
-    assert all(REGION[0] <= x <= REGION[2] and REGION[1] <= y <= REGION[3] for x, y in plan["points"])
-    assert (run / "map" / "map.npz").exists() and (run / "map" / "inclusions.json").exists()
-    poses, samples = [], []
-    topics: set[str] = set()
-    for m in iter_bag(resolve_bag_paths(str(run / "recording.mcap"))):
-        topics.add(m.topic)
-        if m.topic == "robot/pose":
-            poses.append(msgspec.msgpack.decode(m.payload, type=RobotPose))
-        elif m.topic == "stiffness/sample":
-            samples.append(msgspec.msgpack.decode(m.payload, type=StiffnessSample))
+    r = run_adaptive_on_ur_emulator(
+        procs, tmp_path / "ur", "scan_adaptive_ur.yaml", (30.0, 30.0, 20.0), REGION, 3,
+        ["fibre_driver:=sim", "pressure_driver:=sim", "phantom:=phantoms/airfloat_tumours.yaml",
+         f"contact_z_mm:={CONTACT_Z}", f"workspace_mm:={list(BOX)}", f"watchdog_s:={WATCHDOG_S}"])
+    plan, poses, samples, topics = r.plan, r.poses, r.samples, r.topics
     # what the launch smoke would check (tests/test_launch_smoke.py leaves this file's launch to this test)
     assert {"robot/pose", "probe/heights", "pressure/state", "stiffness/sample", "planner/mean"} <= topics, \
         sorted(topics)

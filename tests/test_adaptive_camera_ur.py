@@ -3,18 +3,13 @@ small: launch/scan_adaptive_camera_ur.yaml over one tumour of flat_26k_tumours, 
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
-import msgspec
 import pytest
 
-from emulators.ur.process import UrEmulatorProcess
-from messages import RobotPose, StiffnessSample
-from palpa.record.reader import iter_bag, resolve_bag_paths
-from tests.procs import ProcessGroup, palpa_cmd
-from tests.test_launch_smoke import REPO
+from tests.adaptive_ur import run_adaptive_on_ur_emulator
+from tests.procs import ProcessGroup
 
 # the UR emulator moves in real time: its tests run one at a time on one xdist worker (make test, --dist loadgroup)
 pytestmark = pytest.mark.xdist_group("ur-emulator")
@@ -34,41 +29,12 @@ def test_camera_presses_planned_adaptively_run_on_the_ur_emulator_inside_the_box
     """Every press the planner asks for is run by the ur_rtde driver (the arm goes down to the press depth below the
     surface and no further, and stays inside the workspace box), the camera sees it, the estimator turns it into
     stiffness samples the planner learns from, and the run ends with its map and planner.json."""
-    emu = UrEmulatorProcess.on_random_loopback(["--home", f"16,16,20,0,{math.pi},0"])
-    emu.start()
-    run = tmp_path / "ur"
-    try:
-        p = procs.start(palpa_cmd(
-            "launch", str(REPO / "launch" / "scan_adaptive_camera_ur.yaml"), "--run-dir", str(run), "--no-progress",
-            f"robot_host:={emu.host}", "phantom:=phantoms/flat_26k_tumours.yaml", f"region_mm:={list(REGION)}",
-            "touchoff:=off", f"surface_z_mm:={SURFACE_Z}", f"depth_mm:={DEPTH}", "seed_spacing_mm:=0", "initial:=2",
-            "max_probes:=3", "workspace_mm:=[0.0, 0.0, 5.0, 40.0, 40.0, 30.0]", f"watchdog_s:={WATCHDOG_S}"),
-            cwd=str(REPO))
-        code = p.wait(180)
-        assert code == 0, p.output()[-6000:]
-    finally:
-        assert emu.stop() == 0, emu.log()[-3000:]
-    plan = json.loads((run / "map" / "planner.json").read_text())
-    logs = "\n".join(f"--- {n}\n" + (run / n).read_text()[-3000:] for n in ("planner.log", "scanner.log")
-                     if (run / n).exists())
-    # every press asked for was run; a request refused because the wall clock of a busy machine made the camera's
-    # frames late (the scanner's watchdog) was retried and run, never given up. Late estimates refuse nothing: the
-    # scanner's answer waits for the estimator to catch up with the press (nodes/scan_control.py)
-    assert plan["probes"] == 3 and not plan["given_up"], f"{plan}\n{logs}"
-    planner_log = (run / "planner.log").read_text() if (run / "planner.log").exists() else ""
-    refusals = [line for line in planner_log.splitlines() if " refused" in line]
-    assert len(refusals) == plan["refused"] and all("no fresh probe data" in r and "retrying" in r
-                                                    for r in refusals), f"{plan}\n{logs}"
-    assert all(REGION[0] <= x <= REGION[2] and REGION[1] <= y <= REGION[3] for x, y in plan["points"])
-    assert (run / "map" / "map.npz").exists()
-    poses, samples = [], []
-    topics: set[str] = set()
-    for m in iter_bag(resolve_bag_paths(str(run / "recording.mcap"))):
-        topics.add(m.topic)
-        if m.topic == "robot/pose":
-            poses.append(msgspec.msgpack.decode(m.payload, type=RobotPose))
-        elif m.topic == "stiffness/sample":
-            samples.append(msgspec.msgpack.decode(m.payload, type=StiffnessSample))
+    r = run_adaptive_on_ur_emulator(
+        procs, tmp_path / "ur", "scan_adaptive_camera_ur.yaml", (16.0, 16.0, 20.0), REGION, 3,
+        ["phantom:=phantoms/flat_26k_tumours.yaml", "touchoff:=off", f"surface_z_mm:={SURFACE_Z}",
+         f"depth_mm:={DEPTH}", "seed_spacing_mm:=0", "initial:=2", "workspace_mm:=[0.0, 0.0, 5.0, 40.0, 40.0, 30.0]",
+         f"watchdog_s:={WATCHDOG_S}"])
+    poses, samples, topics = r.poses, r.samples, r.topics
     # what the launch smoke would check (tests/test_launch_smoke.py leaves this file's launch to this test)
     assert {"robot/pose", "camera/indenters", "stiffness/sample", "planner/mean"} <= topics, sorted(topics)
     lowest = min(q.z_mm for q in poses)
