@@ -6,8 +6,8 @@ an indentation, checked against the same workspace box and caps as a scan), coll
 the probe has rested at the path's end (its estimates there are part of the measurement) and the estimator has
 caught up with the path (an estimate measured at or after its end has arrived: on a busy machine the estimates of a
 wall-clock rig come late, and an answer made without them would be a refusal or the median of the path's first
-part). The reply is deferred: the scanner keeps running (watchdog,
-pose, status) meanwhile, and progress shows on ``robot/scan_status`` (state ``probing``) like a scan's.
+part). The reply is deferred: the scanner keeps running (watchdog, pose, status) meanwhile, and progress shows on
+``robot/scan_status`` (state ``probing``) like a scan's.
 ``scanner/pause`` stops the arm where it is, ``scanner/resume`` goes on from the waypoint it was heading for,
 ``scanner/abort`` stops for good: a scan ends as ``stopped`` (the node exits 2), a probe is answered with a
 refusal and the scanner waits for the next request.

@@ -150,7 +150,9 @@ def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: s
         return 2
     except _Interrupted as exc:
         # Node.__init__ closed what setup() opened (it releases on any exception); a node made just before the
-        # signal is closed here
+        # signal is closed here. Meanwhile a second SIGINT is ignored and a SIGTERM ends the process at once.
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
         for done in made:
             done.close()
         print(f"{prog or cls.__name__}: {signal.Signals(exc.signum).name} during start-up: stopped before running",
