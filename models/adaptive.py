@@ -101,6 +101,10 @@ class PlannerConfig:
     lower_spread: bool = True
     """detect: the baseline's noise scale from the blind cells below their median, mirrored
     (models.adaptive_detect.reference): inclusions only stiffen, so a few blind sweeps on them do not widen it."""
+    neighbour_cap: float = 4.0
+    """detect: the baseline's noise scale is at most this many times that of the differences between neighbouring
+    blind cells along a sweep (models.adaptive_detect.reference; 0: off): a crowded specimen's blind cells are
+    mostly raised, and their lower half is no longer healthy tissue's scatter."""
     split_prominence: float = 1.5
     """detect: a detection whose measured cells show two maxima, each standing this many times the baseline's noise
     scale above the measured level joining them, is two inclusions (models.adaptive_split; 0: off). One inclusion

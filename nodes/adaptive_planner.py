@@ -103,6 +103,9 @@ class AdaptivePlanner(palpa.Node):
         """detect: the detection map takes the GP mean only this close to a measured cell."""
         lower_spread: bool = True
         """detect: the baseline's noise scale from the blind cells below their median (PlannerConfig)."""
+        neighbour_cap: float = 4.0
+        """detect: the baseline's noise scale at most this many times that of neighbouring blind cells' differences
+        along a sweep (PlannerConfig; 0: off)."""
         split_prominence: float = 1.5
         """detect: split a detection whose measured cells show two maxima this many noise scales above the measured
         level joining them (PlannerConfig; 0: off)."""
@@ -148,7 +151,8 @@ class AdaptivePlanner(palpa.Node):
                                      reach_mm=p.reach_mm, radius_span_mm=p.radius_span_mm,
                                      interior_gap_mm=p.interior_gap_mm,
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
-                                     suspect=p.suspect, lower_spread=p.lower_spread, near_miss=p.near_miss,
+                                     suspect=p.suspect, lower_spread=p.lower_spread,
+                                     neighbour_cap=p.neighbour_cap, near_miss=p.near_miss,
                                      near_miss_gap_mm=p.near_miss_gap_mm, split_prominence=p.split_prominence,
                                      near_best=p.near_best, cover_column_mm=p.cover_column_mm,
                                      cover_period_mm=p.cover_period_mm,
@@ -386,7 +390,8 @@ class AdaptivePlanner(palpa.Node):
             snap, found = self._publish_belief(final=True)
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
             write_outputs(out, snap, found, unit=self.unit or "?", title=title, unsensed=mask)
-        ref = (reference(self.fair.snapshot().stiffness, lower=self.cfg.lower_spread)
+        ref = (reference(self.fair.snapshot().stiffness, lower=self.cfg.lower_spread,
+                          neighbour_cap=self.cfg.neighbour_cap)
                if detect else None)
         self.inc_pub.publish(Inclusions(
             stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,   # the baseline the contrasts are against

@@ -332,6 +332,36 @@ def test_a_near_miss_gets_its_disc_measured_at_its_own_gap_whether_or_not_detect
             _cfg(**bad)
 
 
+def _crowded_sweeps(rng: np.random.Generator) -> npt.NDArray[np.float64]:
+    """Ten blind sweeps (columns, 10 cells along y) on a crowded specimen: 40 % of the cells healthy (10, 3 %
+    scatter), then along each sweep a halo cell (1.2x) and five cells over an inclusion (1.3-2x, one level per
+    sweep): 60 % raised, the median among them."""
+    grid = 10.0 * (1 + 0.03 * rng.standard_normal((10, 10)))
+    grid[4, :] *= 1.2
+    grid[5:, :] *= np.linspace(1.3, 2.0, 10)[None, :]
+    return grid
+
+
+def test_the_spread_of_a_crowded_specimens_blind_cells_is_capped_by_their_neighbours_differences() -> None:
+    rng = np.random.default_rng(7)
+    fair = _crowded_sweeps(rng)
+    low = reference(fair, lower=True)
+    capped = reference(fair, lower=True, neighbour_cap=4.0)
+    assert low is not None and capped is not None and capped[0] == low[0]   # the median as it was
+    # the lower half spans healthy tissue and halo: its spread is far over healthy tissue's 3 %, and the detector's
+    # threshold (4 spreads, at least 20 %) over a 2.2x inclusion's reading; the neighbours' differences know better
+    assert capped[1] < 0.5 * low[1]
+    assert low[0] + max(4 * low[1], 0.2 * low[0]) > 22.0 > capped[0] + max(4 * capped[1], 0.2 * capped[0])
+    # healthy tissue alone, or the cells of one blind sweep each (no neighbours along a sweep): no cap
+    healthy = 10.0 * (1 + 0.03 * rng.standard_normal((10, 10)))
+    assert reference(healthy, lower=True, neighbour_cap=4.0) == reference(healthy, lower=True)
+    sparse = np.full((10, 10), np.nan)
+    sparse[::2, :] = fair[::2, :]
+    assert reference(sparse, lower=True, neighbour_cap=4.0) == reference(sparse, lower=True)
+    sparse[1, :4] = fair[1, :4]   # 8 differences, fewer than the 9 cells a reference needs: too few to say
+    assert reference(sparse, lower=True, neighbour_cap=4.0) == reference(sparse, lower=True)
+
+
 def test_the_baseline_spread_is_read_below_the_median_where_inclusions_cannot_widen_it() -> None:
     # of the blind sweeps' cells 45 % on inclusions and halos (1.3-2.1x): the MAD spans both modes
     rng = np.random.default_rng(5)
