@@ -122,8 +122,9 @@ def reference(fair: FloatArray | None, min_cells: int = 9, lower: bool = False,
     if neighbour_cap > 0 and grid.ndim == 2:
         steps = np.diff(grid, axis=0)
         steps = steps[np.isfinite(steps)]
-        if steps.size >= min_cells:
-            sigma = min(sigma, neighbour_cap * 1.4826 * float(np.median(np.abs(steps))) / np.sqrt(2.0))
+        step_scale = 1.4826 * float(np.median(np.abs(steps))) / np.sqrt(2.0) if steps.size >= min_cells else 0.0
+        if step_scale > 0:   # 0: most neighbours read alike (a synthetic or quantised grid), which says nothing
+            sigma = min(sigma, neighbour_cap * step_scale)
     return (base, sigma) if base > 0 else None
 
 

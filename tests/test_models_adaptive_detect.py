@@ -360,6 +360,8 @@ def test_the_spread_of_a_crowded_specimens_blind_cells_is_capped_by_their_neighb
     assert reference(sparse, lower=True, neighbour_cap=4.0) == reference(sparse, lower=True)
     sparse[1, :4] = fair[1, :4]   # 8 differences, fewer than the 9 cells a reference needs: too few to say
     assert reference(sparse, lower=True, neighbour_cap=4.0) == reference(sparse, lower=True)
+    alike = np.repeat(fair[:1, :], 10, axis=0)   # every sweep reads one value all along: no scatter to go by
+    assert reference(alike, lower=True, neighbour_cap=4.0) == reference(alike, lower=True)
 
 
 def test_the_baseline_spread_is_read_below_the_median_where_inclusions_cannot_widen_it() -> None:
