@@ -47,6 +47,7 @@ from palpa.endpoints import (
 )
 from palpa.errors import PalpaError
 from palpa.message import Message
+from palpa.naming import RUNTIME_PREFIX, default_node_name, resolve_topic
 from palpa.params import Params as ParamsBase
 from palpa.params import convert_params
 from palpa.params_runtime import ParamServer
@@ -77,7 +78,6 @@ __all__ = ["DEFAULT_BATCH", "MsgInfo", "Node", "Publisher", "RawMessage", "Subsc
 M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
-_RUNTIME = "_palpa/"
 _CLOCK_ACK_TOPIC_B = CLOCK_ACK_TOPIC.encode()
 _TIMER_PASSES = 100
 """Timer passes at one instant at most (a callback may start a timer due at once; a burst of them is a bug)."""
@@ -158,7 +158,7 @@ class Node:
         sim_clock_timeout_s: float | None = None,
         serve_params: bool | None = None,
     ) -> None:
-        self.name = name or _snake(type(self).__name__)
+        self.name = name or default_node_name(type(self).__name__)
         self.incarnation = int.from_bytes(os.urandom(4), "big") | 1
         """Drawn anew at every start and sent in every header (``inc``): receivers tell a restart from a repeat."""
         if sim_clock is None:
@@ -371,8 +371,9 @@ class Node:
             if existing.type is not msg_type:
                 raise TypeError(f"topic {resolved!r} already published as {existing.type.type_name}")
             return existing
+        instant = self._topic_clock is not None and not resolved.startswith(RUNTIME_PREFIX)
         pub = Publisher(self._transport, self.clock, self.dispatch, self, (self.name, self.incarnation), resolved,
-                        msg_type, latched, batch, direct, self._topic_clock is not None and not resolved.startswith(_RUNTIME))
+                        msg_type, latched, batch, direct, instant)
         self._pubs[resolved] = pub
         return pub
 
@@ -382,7 +383,7 @@ class Node:
         """Send an already-encoded payload with a caller-made header (the player keeps recorded sequence numbers,
         types and publisher names). ``topic`` is used as given (no remapping); nothing is validated."""
         self._transport.send([topic.encode(), encode_header(header), payload, *blobs], latched)
-        if not topic.startswith(_RUNTIME):
+        if not topic.startswith(RUNTIME_PREFIX):
             self._raw_sent[topic] = self._raw_sent.get(topic, 0) + 1
 
     def subscribe(
@@ -508,11 +509,11 @@ class Node:
         shape = (len(self._pubs), len(rx.subs), len(rx.raw), len(rx.raw_stats))
         if shape != self._ack_shape:  # what is counted changes rarely: list it once per change
             self._ack_shape = shape
-            self._ack_pubs = [p for p in self._pubs.values() if not p.topic.startswith(_RUNTIME)]
-            self._ack_stats = [(t, st) for t, st in rx.counters().items() if not t.startswith(_RUNTIME)]
-            self._ack_subs = [s.topic for s in rx.subs.values() if not s.topic.startswith(_RUNTIME)]
+            self._ack_pubs = [p for p in self._pubs.values() if not p.topic.startswith(RUNTIME_PREFIX)]
+            self._ack_stats = [(t, st) for t, st in rx.counters().items() if not t.startswith(RUNTIME_PREFIX)]
+            self._ack_subs = [s.topic for s in rx.subs.values() if not s.topic.startswith(RUNTIME_PREFIX)]
             self._ack_subs += [r.prefix.decode(errors="replace") + "*" for r in rx.raw
-                               if not r.prefix.startswith(_RUNTIME.encode())]
+                               if not r.prefix.startswith(RUNTIME_PREFIX.encode())]
         due = self.next_timer_due_ns() or 0
         sent_total = sum(p.seq for p in self._ack_pubs) + sum(self._raw_sent.values())
         recv_total = sum(st.received + st.decode_errors for _, st in self._ack_stats)
@@ -686,26 +687,4 @@ class Node:
                 services={name: srv.types for name, srv in self._services.items()},
             )
         )
-
-
-def resolve_topic(topic: str, namespace: str, remap: Mapping[str, str]) -> str:
-    """A topic as written in a node -> its name on the bus: remapped, then prefixed by the namespace unless absolute
-    (``/x``) or a runtime topic (``_palpa/...``); a remap of the namespaced name applies last."""
-    topic = remap.get(topic, topic)
-    if topic.startswith("/"):
-        return topic[1:]
-    namespace = namespace.strip("/")
-    if topic.startswith("_palpa/") or not namespace:
-        return topic
-    resolved = f"{namespace}/{topic}"
-    return remap.get(resolved, resolved)
-
-
-def _snake(name: str) -> str:
-    out = []
-    for i, ch in enumerate(name):
-        if ch.isupper() and i and not name[i - 1].isupper():
-            out.append("_")
-        out.append(ch.lower())
-    return "".join(out)
 

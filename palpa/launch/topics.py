@@ -14,7 +14,8 @@ import inspect
 import textwrap
 from collections.abc import Mapping
 
-from palpa.node import Node, resolve_topic
+from palpa.naming import resolve_topic
+from palpa.node import Node
 
 __all__ = ["declared_topics"]
 
