@@ -45,24 +45,19 @@ from palpa.endpoints import (
     Timer,
     handler_type,
 )
-from palpa.errors import PalpaError
 from palpa.message import Message
 from palpa.naming import RUNTIME_PREFIX, default_node_name, resolve_topic
+from palpa.node_time import SimTime, Timers, clock_timeout_ns
 from palpa.params import Params as ParamsBase
 from palpa.params import convert_params
 from palpa.params_runtime import ParamServer
 from palpa.receive import Receiver
 from palpa.runtime_msgs import (
-    CLOCK_ACK_TOPIC,
-    CLOCK_TOPIC,
     HEARTBEAT_TOPIC,
     LOG_TOPIC,
-    ClockAck,
-    ClockTick,
     Heartbeat,
     LogRecord,
     TopicCounters,
-    tick_topic,
 )
 from palpa.service import DEFAULT_TIMEOUT_S, Responder, Service
 from palpa.service_client import Client
@@ -78,13 +73,6 @@ __all__ = ["DEFAULT_BATCH", "MsgInfo", "Node", "Publisher", "RawMessage", "Subsc
 M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
-_CLOCK_ACK_TOPIC_B = CLOCK_ACK_TOPIC.encode()
-_TIMER_PASSES = 100
-"""Timer passes at one instant at most (a callback may start a timer due at once; a burst of them is a bug)."""
-_LEAD_ACK_NS = 10_000_000  # half a lead-mode clock's default max_lead_s: fewer acks, same bound
-_SIM_CLOCK_TIMEOUT_S = 30.0
-"""Wall seconds without a clock tick after which a sim-clock node stops (PALPA_SIM_CLOCK_TIMEOUT_S; 0: never)."""
-_EXIT_CLOCK_LOST = 3
 _JOIN_TIMEOUT_S = 10.0
 """Wall seconds a node waits for the bus to confirm its subscriptions before it counts as ready anyway (warning)."""
 _PROBE_REPEAT_NS = 50_000_000
@@ -165,14 +153,7 @@ class Node:
             sim_clock = palpa_env.flag(palpa_env.SIM_CLOCK)
         self.params = convert_params(type(self).Params, params, where=f"node {self.name!r}")
         self._topic_clock = TopicClock() if sim_clock and clock is None else None
-        if sim_clock_timeout_s is None:
-            text = palpa_env.get(palpa_env.SIM_CLOCK_TIMEOUT_S)
-            try:
-                sim_clock_timeout_s = float(text) if text else _SIM_CLOCK_TIMEOUT_S
-            except ValueError:
-                raise PalpaError(f"{palpa_env.SIM_CLOCK_TIMEOUT_S}={text!r}: expected seconds") from None
-        self._clock_timeout_ns = int(sim_clock_timeout_s * 1e9)
-        self._last_tick_wall_ns = 0
+        timeout_ns = clock_timeout_ns(sim_clock_timeout_s)
         self.clock: Clock = clock or self._topic_clock or SystemClock()
         self.namespace = namespace.strip("/")
         self.remap = dict(remap or {})
@@ -187,7 +168,7 @@ class Node:
         options = getattr(transport, "options", None)
         self._rx = Receiver(self.dispatch, self.log, getattr(options, "max_msg_bytes", 0))
         self._pubs: dict[str, Publisher[Any]] = {}
-        self._timers: list[Timer] = []
+        self._timers = Timers(self)
         self._services: dict[str, Service[Any, Any]] = {}
         self._shutdown = False
         self._closed = False
@@ -202,32 +183,17 @@ class Node:
         # node waiting for simulated time (or a paused replay) is still alive
         self._hb_period_ns = int(heartbeat_s * 1e9) if heartbeat_s > 0 else 0
         self._hb_due_ns = time.monotonic_ns()
-        self._time_held = False
-        self._lead_acks = False
         self._set_up = False
         self._probe = ""
         """This node's readiness probe once the bus echoed it (``<name>/<pid>.<incarnation>``; ClockAck.probe)."""
         self._raw_sent: dict[str, int] = {}
         """Messages published with :meth:`publish_raw` per topic (service requests and replies among them)."""
+        self._sim_time: SimTime | None = None
+        """This node's side of the simulation clock (on one): ticks, instants, lockstep acks."""
         if self._topic_clock is not None:
-            # straight to the clock (palpa.direct): one ZeroMQ hop instead of two, at every instant of a lockstep
-            self._ack_pub = self.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1,
-                                           direct=isinstance(transport, ZmqTransport))
-            self._ack_heard = not self._ack_pub.direct
-            """Whether acks reach the clock: a direct one only once the clock has connected and subscribed (what a
-            direct socket sends before that is lost, and the clock would wait for it for good)."""
-            self._last_ack_ns = 0
-            self._acked: tuple[int, int, int, tuple[int, ...], int] | None = None
-            self._ack_shape: tuple[int, ...] = ()
-            self._ack_pubs: list[Publisher[Any]] = []
-            self._ack_stats: list[tuple[str, TopicStats]] = []
-            self._ack_subs: list[str] = []
-            self._joins: dict[str, None] = transport.joins_heard if isinstance(transport, ZmqTransport) else {}
-            self._joins_acked = 0
-            self.subscribe(CLOCK_TOPIC, ClockTick, self._on_clock)
-            self.subscribe(tick_topic(self.name), ClockTick, self._on_clock)  # the event lockstep's, to us alone
-            self._rx.on_instant = self._on_instant
-            self._await_first_tick(wait_for_clock_s)
+            self._sim_time = SimTime(self, self._topic_clock, self._timers, self._rx, self._pubs, self._raw_sent,
+                                     timeout_ns)
+            self._sim_time.await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0 if serve_params is None else serve_params:
             ParamServer(self, lambda: self.params, self._change_params)
         try:
@@ -432,9 +398,7 @@ class Node:
             raise ValueError(f"timer period must be > 0 s, got {period_s}")
         period_ns = int(period_s * 1e9)
         first = period_ns if first_in_s is None else int(first_in_s * 1e9)
-        t = Timer(period_ns, callback, self.clock.now_ns() + first, oneshot)
-        self._timers.append(t)
-        return t
+        return self._timers.add(Timer(period_ns, callback, self.clock.now_ns() + first, oneshot))
 
     # -- running -----------------------------------------------------------------------------------
     @property
@@ -449,10 +413,7 @@ class Node:
 
     def next_timer_due_ns(self) -> int | None:
         """When the earliest live timer fires (node-clock ns), or None (also once shutdown was requested)."""
-        if self._shutdown:
-            return None
-        live = [t.due_ns for t in self._timers if not t.cancelled]
-        return min(live) if live else None
+        return None if self._shutdown else self._timers.next_due_ns()
 
     def spin_once(self, timeout_s: float = 0.0) -> None:
         """Wait up to ``timeout_s`` for input (less if a timer is due sooner; not at all with 0), then dispatch what
@@ -479,58 +440,13 @@ class Node:
             for delivery in self._transport.poll(timeout_s):
                 self._rx.dispatch(delivery)
             self._run_timers()
-        clock = self._topic_clock
-        if clock is not None and clock.started and self._clock_timeout_ns and \
-                time.monotonic_ns() - self._last_tick_wall_ns > self._clock_timeout_ns and not self._shutdown:
-            # sim-time timers (watchdogs included) stop with the clock: only the wall clock can tell
-            self.log.error("simulated time stopped: no tick on %s for %.1f s of wall time (did the clock node "
-                           "die?); stopping", CLOCK_TOPIC, self._clock_timeout_ns / 1e9)
-            self.request_shutdown(_EXIT_CLOCK_LOST)
+        if self._sim_time is not None:
+            self._sim_time.check_alive()
         self._report_to_clock()
 
     def _report_to_clock(self) -> None:
-        clock = self._topic_clock
-        if clock is not None and clock.started and self._set_up and not self.dispatch.depth and not self._closed:
-            if not self._ack_heard:
-                t = self._transport
-                if isinstance(t, ZmqTransport) and not t.subscribed_exactly(_CLOCK_ACK_TOPIC_B):
-                    return  # the clock's subscription arriving on the direct socket wakes this node's poll
-                self._ack_heard = True
-            if self._lead_acks and clock.now_ns() - self._last_ack_ns >= _LEAD_ACK_NS:
-                self._acked = None  # a lead-mode clock holds time within a lead of this ack: send one anyway
-            self._lockstep_ack()
-
-    def _lockstep_ack(self) -> None:
-        """Tell the lockstep clock (palpa.simclock) what this node has done at the current simulated time, when
-        that changed: its next timer, and the messages it sent and took in (the clock moves on once every message
-        sent has been taken in). Not from inside a callback: a node waiting in a service call is not done."""
-        self.flush()
-        rx = self._rx
-        shape = (len(self._pubs), len(rx.subs), len(rx.raw), len(rx.raw_stats))
-        if shape != self._ack_shape:  # what is counted changes rarely: list it once per change
-            self._ack_shape = shape
-            self._ack_pubs = [p for p in self._pubs.values() if not p.topic.startswith(RUNTIME_PREFIX)]
-            self._ack_stats = [(t, st) for t, st in rx.counters().items() if not t.startswith(RUNTIME_PREFIX)]
-            self._ack_subs = [s.topic for s in rx.subs.values() if not s.topic.startswith(RUNTIME_PREFIX)]
-            self._ack_subs += [r.prefix.decode(errors="replace") + "*" for r in rx.raw
-                               if not r.prefix.startswith(RUNTIME_PREFIX.encode())]
-        due = self.next_timer_due_ns() or 0
-        sent_total = sum(p.seq for p in self._ack_pubs) + sum(self._raw_sent.values())
-        recv_total = sum(st.received + st.decode_errors for _, st in self._ack_stats)
-        heard = len(self._joins)
-        state = (due, sent_total, recv_total, shape, heard)
-        if state == self._acked:
-            return
-        self._acked = state
-        new_joins = list(self._joins)[self._joins_acked:] if heard > self._joins_acked else []
-        self._joins_acked = heard
-        sent = {p.topic: p.seq for p in self._ack_pubs if p.seq}
-        for topic, n in self._raw_sent.items():
-            sent[topic] = sent.get(topic, 0) + n
-        self._last_ack_ns = self.clock.now_ns()
-        self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns, next_ns=due, sent=sent,
-                                       recv={t: st.received + st.decode_errors for t, st in self._ack_stats},
-                                       subs=self._ack_subs, probe=self._probe, heard=new_joins))
+        if self._sim_time is not None and self._set_up:
+            self._sim_time.report(self._probe)
 
     def spin(self) -> None:
         """Run until :meth:`request_shutdown` (or a signal, under :func:`palpa.run_node`)."""
@@ -546,8 +462,8 @@ class Node:
             self.on_shutdown()
             for srv in self._services.values():
                 srv.withdraw()
-            if self._topic_clock is not None:  # the lockstep clock stops waiting for this node now, not later
-                self._ack_pub.publish(ClockAck(node=self.name, sim_ns=self._last_ack_ns, leaving=True))
+            if self._sim_time is not None:  # the lockstep clock stops waiting for this node now, not later
+                self._sim_time.leave()
             self.flush()
         finally:
             self._release(int(linger_s * 1000))
@@ -568,48 +484,10 @@ class Node:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _await_first_tick(self, timeout_s: float) -> None:
-        """Simulated time does not exist before the first tick: wait for it (bounded) so that setup() and
-        everything after it reads a real time."""
-        deadline = time.monotonic() + timeout_s
-        clock = self._topic_clock
-        while clock is not None and not clock.started and time.monotonic() < deadline:
-            self.spin_once(0.05)
-        if clock is not None and not clock.started and timeout_s > 0:
-            self.log.warning("no simulation time on %s after %.0f s; timers wait for the first tick",
-                             CLOCK_TOPIC, timeout_s)
-
-    def _on_clock(self, tick: ClockTick) -> None:
-        clock = self._topic_clock
-        if clock is None:
-            return
-        if not clock.started:
-            # timers declared before time existed count from the first tick
-            for t in self._timers:
-                t.due_ns += tick.sim_ns
-        clock.update(tick.sim_ns)
-        self._last_tick_wall_ns = time.monotonic_ns()
-        self._time_held = tick.hold
-        self._lead_acks = tick.lead
-        # the timers due now run before any message that follows the tick is handled, as in a composition
-        # (palpa.compose): what another node published at this time, in reaction to the same tick, comes after
-        self._run_timers()
-
     def instant_ns(self) -> int:
         """The simulated instant this node is at, for ``Header.at`` of what it sends (0: not on a simulation
         clock)."""
         return self._topic_clock.now_ns() if self._topic_clock is not None else 0
-
-    def _on_instant(self, at: int) -> None:
-        """A message sent at simulated instant ``at``: the event lockstep ticks a node only at its own timers'
-        deadlines (palpa.simclock), so it learns any other instant from the messages it handles there (timers due
-        by then run first, as at a tick). Not under a lead-mode clock, whose ticks every node gets."""
-        clock = self._topic_clock
-        if clock is not None and at > clock.now_ns() and clock.started and not self._time_held \
-                and not self._lead_acks:
-            clock.update(at)
-            self._last_tick_wall_ns = time.monotonic_ns()
-            self._run_timers()
 
     # -- internals ---------------------------------------------------------------------------------
     def run_timers(self) -> None:
@@ -618,33 +496,9 @@ class Node:
         self._run_timers()
 
     def _run_timers(self) -> None:
-        if self._shutdown or self._time_held or (self._topic_clock is not None and not self._topic_clock.started):
+        if self._shutdown or (self._sim_time is not None and self._sim_time.holds_timers):
             return
-        now = self.clock.now_ns()
-        for _ in range(_TIMER_PASSES):
-            if not self._timer_pass(now) or self._shutdown or \
-                    not any(t.due_ns <= now and not t.cancelled and not t.running for t in self._timers):
-                return
-
-    def _timer_pass(self, now: int) -> bool:
-        """Run the timers due at ``now`` once each; whether any ran."""
-        ran = False
-        for t in list(self._timers):
-            if t.cancelled:
-                if t in self._timers:  # a nested run (inside a service call's wait) may have removed it
-                    self._timers.remove(t)
-                continue
-            if t.due_ns <= now and not t.running:  # never re-entered while it waits on a service call
-                if t.oneshot:
-                    t.cancelled = True
-                else:
-                    # skip missed periods rather than firing a burst after a stall
-                    t.due_ns += t.period_ns * max(1, (now - t.due_ns) // t.period_ns + 1)
-                t.running = True
-                self.dispatch.call(t.callback)  # never raises
-                t.running = False
-                ran = True
-        return ran
+        self._timers.run(self.clock.now_ns())
 
     def flush(self) -> None:
         """Send every batched message still pending."""

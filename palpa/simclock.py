@@ -273,7 +273,7 @@ class ClockSource(Node):
 
     def _tick_due(self, sim_ns: int) -> None:
         """Send the new instant to the participants with a timer due at it, each on its own topic: the others learn
-        it from the messages they handle at it (``Header.at``, palpa.node), so a node with nothing to do at an
+        it from the messages they handle at it (``Header.at``, palpa.node_time), so a node with nothing to do at an
         instant is not woken (the broadcast every second keeps idle nodes' watchdogs fed)."""
         pubs = [self._tick_pub(n) for n in self._events.due(sim_ns)]
         t = self.transport
