@@ -25,8 +25,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import socket
-import time
 import traceback
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar, Protocol, TypeVar, cast
@@ -34,7 +32,6 @@ from typing import Any, ClassVar, Protocol, TypeVar, cast
 from palpa import env as palpa_env
 from palpa.address import BusAddress, from_env
 from palpa.clock import Clock, SystemClock, TopicClock
-from palpa.direct import JOIN_PROBE_PREFIX
 from palpa.dispatch import Dispatch
 from palpa.endpoints import (
     DEFAULT_BATCH,
@@ -51,33 +48,19 @@ from palpa.node_time import SimTime, Timers, clock_timeout_ns
 from palpa.params import Params as ParamsBase
 from palpa.params import convert_params
 from palpa.params_runtime import ParamServer
+from palpa.presence import JOIN_TIMEOUT_S, BusLogHandler, Heartbeats, confirm_subscriptions
+from palpa.presence import LOG_TEXT_MAX as LOG_TEXT_MAX  # re-exported: it was defined here
 from palpa.receive import Receiver
-from palpa.runtime_msgs import (
-    HEARTBEAT_TOPIC,
-    LOG_TOPIC,
-    Heartbeat,
-    LogRecord,
-    TopicCounters,
-)
 from palpa.service import DEFAULT_TIMEOUT_S, Responder, Service
 from palpa.service_client import Client
 from palpa.transport import Transport, TransportOptions, ZmqTransport
-from palpa.wire import (
-    Header,
-    TopicStats,
-    encode_header,
-)
+from palpa.wire import Header, TopicStats, encode_header
 
 __all__ = ["DEFAULT_BATCH", "MsgInfo", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
 
 M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
-_JOIN_TIMEOUT_S = 10.0
-"""Wall seconds a node waits for the bus to confirm its subscriptions before it counts as ready anyway (warning)."""
-_PROBE_REPEAT_NS = 50_000_000
-"""Wall ns after which an unanswered readiness probe is sent again (a catch-all subscriber let the first one go
-out before the proxy had our own probe subscription)."""
 
 
 class _Closable(Protocol):
@@ -89,35 +72,6 @@ C = TypeVar("C", bound=_Closable)
 
 class _NoParams(ParamsBase):
     pass
-
-
-class _BusLogHandler(logging.Handler):
-    def __init__(self, node: Node) -> None:
-        super().__init__(logging.INFO)
-        self._node = node
-        self._busy = False
-
-    def emit(self, record: logging.LogRecord) -> None:
-        if self._busy or self._node._log_pub is None or self._node._closed:
-            return
-        self._busy = True
-        try:
-            self._node._log_pub.publish(
-                LogRecord(node=self._node.name, level=record.levelname, text=_truncate(record.getMessage()),
-                          stamp_ns=self._node.clock.now_ns())
-            )
-        except Exception:  # a log line must never take the node down
-            pass
-        finally:
-            self._busy = False
-
-
-LOG_TEXT_MAX = 4000
-"""Characters of a log line published on ``_palpa/log``; the rest is cut (a peer's bytes can end up in a line)."""
-
-
-def _truncate(text: str) -> str:
-    return text if len(text) <= LOG_TEXT_MAX else f"{text[:LOG_TEXT_MAX]}... ({len(text) - LOG_TEXT_MAX} more chars)"
 
 
 class Node:
@@ -172,17 +126,10 @@ class Node:
         self._services: dict[str, Service[Any, Any]] = {}
         self._shutdown = False
         self._closed = False
-        self._started_ns = time.monotonic_ns()
         self.exit_code = 0
-        self._log_pub: Publisher[LogRecord] | None = None
-        self._bus_handler = _BusLogHandler(self)
+        self._bus_handler = BusLogHandler(self)
         self.log.addHandler(self._bus_handler)
-        self._log_pub = self.publisher(LOG_TOPIC, LogRecord)
-        self._hb_pub = self.publisher(HEARTBEAT_TOPIC, Heartbeat)
-        # heartbeats go on the wall clock whatever the node's clock: a listener waits a wall-clock window, and a
-        # node waiting for simulated time (or a paused replay) is still alive
-        self._hb_period_ns = int(heartbeat_s * 1e9) if heartbeat_s > 0 else 0
-        self._hb_due_ns = time.monotonic_ns()
+        self._heartbeats = Heartbeats(self, heartbeat_s, self._rx, self._pubs, self._services)
         self._set_up = False
         self._probe = ""
         """This node's readiness probe once the bus echoed it (``<name>/<pid>.<incarnation>``; ClockAck.probe)."""
@@ -198,53 +145,12 @@ class Node:
             ParamServer(self, lambda: self.params, self._change_params)
         try:
             self.setup()
-            self._confirm_subscriptions(_JOIN_TIMEOUT_S)
+            self._probe = confirm_subscriptions(self, self._rx, self.incarnation, JOIN_TIMEOUT_S)
         except BaseException:
             # a refused plan must not leave a robot connection or a serial port open behind it
             self._release(linger_ms=0)
             raise
         self._set_up = True
-
-    def _confirm_subscriptions(self, timeout_s: float) -> None:
-        """Wait until the subscriptions made so far are live end to end, so that a node counts as ready (heartbeats,
-        its first lockstep ack) only once nothing published to it can be dropped for lack of a route.
-
-        ZeroMQ subscriptions travel asynchronously (SUB -> the proxy's XPUB -> its XSUB -> every publisher's XPUB),
-        and a message published before its subscription has arrived is dropped without a trace; under load that
-        took a lockstep run's first message on a topic (the clock then waited for it, 30 s). So: subscribe a
-        private probe topic last, wait until the proxy forwards it back to our own publisher socket (it forwards in
-        order: every earlier subscription of ours is then in the proxy's filter), and publish the probe until it
-        comes back through the bus. Every other publisher hears the probe subscription after all our earlier ones
-        too (one connection from the proxy delivers in order), so one that has heard it (``heard_join``) reaches
-        us: the lockstep clock waits for that (ClockAck ``probe``/``heard``), as the player does for ``wait_for``.
-        Only on a real bus (in memory, subscriptions are immediate) and while it is connected; topics received from
-        direct publishers (palpa.direct) are not covered."""
-        t = self._transport
-        if not isinstance(t, ZmqTransport) or not t.connected or timeout_s <= 0 or not (self._rx.subs or
-                                                                                       self._rx.raw):
-            return
-        key = JOIN_PROBE_PREFIX + f"{self.name}/{os.getpid()}.{self.incarnation:x}".encode()
-        echoed: list[RawMessage] = []
-        self._rx.add_raw(key, echoed.append)
-        t.subscribe_probe(key)
-        header = encode_header(Header(type="", seq=0, stamp=time.time_ns(), node=self.name))
-        start = time.monotonic_ns()
-        deadline, sent = start + int(timeout_s * 1e9), 0
-        try:
-            while not echoed and not self._shutdown:
-                now = time.monotonic_ns()
-                if now > deadline:
-                    self.log.warning("the bus did not confirm this node's subscriptions within %.0f s (wall "
-                                     "clock): the first messages published to it may be lost", timeout_s)
-                    return
-                if now - sent > _PROBE_REPEAT_NS and t.heard_subscription(key):
-                    sent = now
-                    t.send([key, header, b"\xc0"], False)
-                self.spin_once(0.005)
-            self._probe = key[len(JOIN_PROBE_PREFIX):].decode()
-        finally:
-            self._rx.remove_raw(key)
-            t.unsubscribe(key)
 
     @property
     def transport(self) -> Transport:
@@ -427,14 +333,15 @@ class Node:
             for delivery in self._transport.poll(0):
                 self._rx.dispatch(delivery)
             self._run_timers()
-        self._beat()
+        if self._set_up:  # a heartbeat says "ready": set up, subscriptions confirmed (what a launcher waits for)
+            self._heartbeats.beat()
         if not self.clock.is_real():
             timeout_s = 0.0 if self._timers else timeout_s
         elif self._topic_clock is None and (due := self.next_timer_due_ns()) is not None:
             # (simulated time moves only when a tick arrives: a sim-clock node just waits for input)
             timeout_s = max(0.0, min(timeout_s, (due - self.clock.now_ns()) / 1e9))
-        if self._hb_period_ns and self._set_up:
-            timeout_s = max(0.0, min(timeout_s, (self._hb_due_ns - time.monotonic_ns()) / 1e9))
+        if self._set_up:
+            timeout_s = self._heartbeats.wait_s(timeout_s)
         if timeout_s > 0 or skipped:
             self._report_to_clock()  # before blocking: the clock may be waiting for what was just handled
             for delivery in self._transport.poll(timeout_s):
@@ -515,30 +422,6 @@ class Node:
         """Receive counters per subscribed topic (typed and raw; the typed ones where a topic has both)."""
         return self._rx.counters()
 
-    def _beat(self) -> None:
-        """Send the heartbeat when it is due on the wall clock (before simulated time starts, too)."""
-        if not self._hb_period_ns or self._shutdown or not self._set_up:
-            return  # a heartbeat says "ready": set up, subscriptions confirmed (what a launcher waits for)
-        now = time.monotonic_ns()
-        if now >= self._hb_due_ns:
-            self._hb_due_ns = now + self._hb_period_ns
-            self.dispatch.call(self._heartbeat)
-
     def _heartbeat(self) -> None:
-        subs = {s.topic: s.type.type_name for s in self._rx.subs.values()}
-        subs.update({r.prefix.decode() + "*": "*" for r in self._rx.raw})
-        self._hb_pub.publish(
-            Heartbeat(
-                node=self.name,
-                pid=os.getpid(),
-                host=socket.gethostname(),
-                publishes={p.topic: p.type.type_name for p in self._pubs.values()},
-                subscribes=subs,
-                counters={t: TopicCounters(**s.as_dict()) for t, s in self.counters().items()},
-                sent={p.topic: p.seq for p in self._pubs.values()},
-                uptime_s=(time.monotonic_ns() - self._started_ns) / 1e9,
-                direct=[p.topic for p in self._pubs.values() if p.direct],
-                services={name: srv.types for name, srv in self._services.items()},
-            )
-        )
-
+        """Send this node's heartbeat now (they go out by themselves every ``heartbeat_s`` once it is set up)."""
+        self._heartbeats.send()

@@ -85,7 +85,7 @@ class ClockAck(Message, frozen=True, kw_only=True):
     every message sent at this time has been taken in by every subscriber. Without ``next_ns`` (-1, an older or
     hand-written client) the clock only stays within a small lead of ``sim_ns``. ``leaving``: the node's last ack,
     sent as it closes: it no longer holds simulated time back. ``probe``: the readiness probe that confirmed the
-    node's subscriptions through the bus (``<node>/<pid>.<incarnation>``, palpa.node; empty on a bus without
+    node's subscriptions through the bus (``<node>/<pid>.<incarnation>``, palpa.presence; empty on a bus without
     one); the other participants must say they have ``heard`` it (``heard``: the probes this node's publisher socket
     heard since its previous ack) before the clock counts on them to reach it."""
 

@@ -1,5 +1,5 @@
 """A node counts as ready (heartbeats, its first lockstep ack, a player's ``wait_for``) only once its subscriptions
-are live end to end: nothing published to it afterwards is dropped by ZeroMQ for lack of a route (palpa.node)."""
+are live end to end: nothing published to it afterwards is dropped by ZeroMQ for lack of a route (palpa.presence)."""
 
 from __future__ import annotations
 

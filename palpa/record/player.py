@@ -133,7 +133,7 @@ class Player(Node):
 
     def _not_ready(self) -> list[str]:
         """The ``wait_for`` nodes not ready for the first message: not heard (a heartbeat: set up) or, on a real
-        bus, their subscriptions not yet heard by our publisher socket (their readiness probe, palpa.node)."""
+        bus, their subscriptions not yet heard by our publisher socket (their readiness probe, palpa.presence)."""
         t = self.transport
         return sorted(n for n in self.params.wait_for
                       if n in self._waiting or (isinstance(t, ZmqTransport) and not t.heard_join(n)))
