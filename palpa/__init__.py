@@ -5,7 +5,8 @@ Layering (imports point downwards only)::
     palpa.cli        command-line verbs (bus, topic, node, service, param, launch, record, play, bag)
     palpa.launch     launch files and the process supervisor
     palpa.record     MCAP recording and replay
-    palpa.node       the Node API: publishers, subscriptions, timers, parameters
+    palpa.node       the Node API: publishers, subscriptions, timers, parameters (its time and lockstep side in
+                     palpa.node_time; readiness, heartbeats and bus logging in palpa.presence)
     palpa.service    services (request/reply over the bus; callers in palpa.service_client), run-time
                      parameters on top of them (palpa.params_runtime)
     palpa.transport  ZeroMQ (and, in palpa.testing, in-memory) transports

@@ -18,6 +18,9 @@ and ``palpa.run_node(Talker)`` is its ``main()``. A bare ``Node(name="script")``
 
 Bad input never kills a node: a malformed frame, an unknown or wrong type, or a payload that does not validate is
 counted on its topic and logged at most every few seconds with what was wrong (the field path).
+
+The node's collaborators live apart: its timers and simulation-clock side in :mod:`palpa.node_time`, its
+readiness, heartbeats and bus logging in :mod:`palpa.presence`, topic naming in :mod:`palpa.naming`.
 """
 
 from __future__ import annotations
