@@ -37,9 +37,19 @@ class Talker(palpa.Node):
         if self.params.count and seq >= self.params.count:
             self.request_shutdown(0)
 
+    def on_shutdown(self) -> None:
+        self.log.info("sent %d", self.out.seq)
+
 
 class Listener(palpa.Node):
-    """Logs every ``Text`` heard on ``chatter`` and republishes its length on ``chatter_len``."""
+    """Logs every ``Text`` heard on ``chatter`` and republishes its length on ``chatter_len``; stops by itself after
+    ``count`` messages if set."""
+
+    class Params(palpa.Params):
+        count: int = 0
+        """Stop (exit 0) after hearing this many messages; 0 runs until stopped."""
+
+    params: Params
 
     def setup(self) -> None:
         self.heard = 0
@@ -50,6 +60,8 @@ class Listener(palpa.Node):
         self.heard += 1
         self.log.info("heard %r", msg.text)
         self.out.publish(Text(text=str(len(msg.text)), stamp_ns=msg.stamp_ns))
+        if self.params.count and self.heard >= self.params.count:
+            self.request_shutdown(0)
 
 
 def talker_main() -> None:
