@@ -15,7 +15,8 @@ inclusion, over all the draws of its phantom. The *suspect bar* is where the pla
 ``suspect x max(0.2, k x noise scale)`` (its defaults: 0.6, 4). An inclusion is sensed at distance e when its mean
 reading there clears the bar; its *reach* is the largest e from 0 outward up to which every bin does.
 
-Prints a table by depth and radius (the inclusions each set's raster found in every draw) and a JSON line:
+Prints a table by depth and radius (the inclusions the raster's map found in every draw, as models.scoring scores
+a scan) and a JSON line:
 ``sensed_at_model_reach`` (fraction whose mean reading at the model's reach clears the bar) and the reach's
 quantiles per depth class.
 
@@ -25,7 +26,6 @@ quantiles per depth class.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import sys
@@ -81,6 +81,17 @@ def profiles(map_npz: Path, phantom: Path, far_mm: float, k: float, suspect: flo
     return out, bar
 
 
+def raster_found(map_dir: Path, phantom: Path) -> list[bool]:
+    """For each of the phantom's inclusions, whether the raster's map found it (models.scoring, as bench/adaptive.py
+    scores a run)."""
+    from models.scoring import score_scan
+
+    with np.load(map_dir / "map.npz") as g:
+        grid = {k: g[k] for k in ("stiffness", "x_mm", "y_mm", "count")}
+    dets = json.loads((map_dir / "inclusions.json").read_text())
+    return [i.found for i in score_scan(load_phantom(phantom), dets, grid).inclusions]
+
+
 def reach_of(margin: np.ndarray) -> float:
     """The largest distance past the edge up to which every bin with data clears the bar (margin >= 0); -inf when
     even the rim does not."""
@@ -107,14 +118,8 @@ def main() -> int:
     # per (set, phantom, inclusion): margins over the bar, one row per draw
     margins: dict[tuple[str, str, int], list[np.ndarray]] = defaultdict(list)
     meta: dict[tuple[str, str, int], tuple[float, float, float]] = {}
-    sure: set[tuple[str, str, int]] = set()
+    missed: set[tuple[str, str, int]] = set()   # by the raster in some draw
     for s in args.sets:
-        rates = s / "inclusion_rates.csv"
-        if rates.is_file():
-            with rates.open() as f:
-                for row in csv.DictReader(f):
-                    if int(row["raster"]) == int(row["runs"]):
-                        sure.add((s.name, row["phantom"], int(row["inclusion"])))
         for run in sorted((s / "raster" / "runs").glob("*-s*")):
             name = run.name.rsplit("-s", 1)[0]
             npz, ph = run / "map" / "map.npz", find_phantom(name, dirs)
@@ -125,8 +130,11 @@ def main() -> int:
                 continue
             means, bar = got
             incs = load_phantom(ph).inclusions
+            found = raster_found(run / "map", ph)
             for i, m in enumerate(means):
                 key = (s.name, name, i)
+                if not found[i]:
+                    missed.add(key)
                 margins[key].append(m - bar)
                 meta[key] = (incs[i].radius_mm, incs[i].depth_mm, incs[i].youngs_modulus_kpa)
     model_bin = int(np.searchsorted(EDGES, args.model_past_edge_mm - 1e-9)) - 1
@@ -135,7 +143,7 @@ def main() -> int:
         with np.errstate(all="ignore"):
             mean = np.nanmean(np.array(ms), axis=0)
         r, d, _ = meta[key]
-        rows.append({"key": key, "radius": r, "depth": d, "sure": key in sure, "reach": reach_of(mean),
+        rows.append({"key": key, "radius": r, "depth": d, "sure": key not in missed, "reach": reach_of(mean),
                      "at_model": float(mean[model_bin])})
     judged = [r for r in rows if r["sure"] and not math.isnan(r["at_model"])]
     print(f"{len(rows)} inclusions over {len(args.sets)} sets; {len(judged)} found by the raster in every draw and "
@@ -149,7 +157,7 @@ def main() -> int:
             if not grp:
                 continue
             ok = sum(r["at_model"] >= 0 for r in grp)
-            reach = np.array([r["reach"] for r in grp])
+            reach = np.maximum([r["reach"] for r in grp], EDGES[0])
             label = "all" if (r0, r1) == (2.5, 7.1) else f"{r0:g}-{r1:g}"
             print(f"| {d0:g}-{d1:g} | {label} | {len(grp)} | {ok} ({100 * ok / len(grp):.0f} %) | "
                   f"{np.median(reach):.1f} ({np.percentile(reach, 10):.1f}) |")
@@ -157,9 +165,46 @@ def main() -> int:
                 summary[f"{d0:g}-{d1:g}"] = {"n": len(grp), "sensed": ok, "reach_median": float(np.median(reach)),
                                              "reach_p10": float(np.percentile(reach, 10))}
     ok_all = sum(r["at_model"] >= 0 for r in judged)
+    reach = np.maximum([r["reach"] for r in judged], EDGES[0]) if judged else np.array([np.nan])
+    quintiles = [round(float(q), 2) for q in np.percentile(reach, [10, 30, 50, 70, 90])]
+    spread = [round(q - args.model_past_edge_mm, 2) for q in quintiles]
+    print(f"\nreach past the edge, quintiles' middles (10/30/50/70/90th pct): {quintiles}; as offsets from the "
+          f"model's {args.model_past_edge_mm:g} mm (reach_spread_mm): {spread}")
+    hiding = miss_at_stop(args.sets, spread)
+    if hiding:
+        claimed, measured = np.array(hiding).T
+        print(f"the planner's {claimed.size} runs: the chance an inclusion of interest hid when it stopped, by its "
+              f"reach model {claimed.mean():.4f} (max {claimed.max():.4f}), over the measured reaches "
+              f"{measured.mean():.4f} (max {measured.max():.4f})")
     print(json.dumps({"inclusions": len(judged), "sensed_at_model_reach": ok_all / max(len(judged), 1),
-                      "model_past_edge_mm": args.model_past_edge_mm, "by_depth": summary}))
+                      "model_past_edge_mm": args.model_past_edge_mm, "reach_quintiles_mm": quintiles,
+                      "reach_spread_mm": spread, "by_depth": summary,
+                      "miss_at_stop_model": float(np.mean([h[0] for h in hiding])) if hiding else None,
+                      "miss_at_stop_measured": float(np.mean([h[1] for h in hiding])) if hiding else None}))
     return 0
+
+
+def miss_at_stop(sets: list[Path], spread: list[float]) -> list[tuple[float, float]]:
+    """For every adaptive run of ``sets`` (their ``adaptive/runs``), the chance that an inclusion of interest lay
+    where the planner's final map had sensed nothing, by the planner's default reach model and with the measured
+    ``spread`` of reaches instead (models.adaptive_cover.miss_probability over the map's measured cells; the
+    planner counts a sweep's whole path, so this is a little above its own figure)."""
+    from models.adaptive import PlannerConfig
+    from models.adaptive_cover import miss_probability
+
+    out = []
+    for s in sets:
+        for run in sorted((s / "adaptive" / "runs").glob("*-s*")):
+            if not (run / "map" / "map.npz").is_file():
+                continue
+            with np.load(run / "map" / "map.npz") as g:
+                measured, xs, ys = g["count"] > 0, g["x_mm"], g["y_mm"]
+            res = float(xs[1] - xs[0])
+            cfg = PlannerConfig((float(xs[0]), float(ys[0]), float(xs[-1]) + res, float(ys[-1]) + res))
+            with_spread = PlannerConfig(cfg.region_mm, reach_spread_mm=tuple(spread))
+            out.append((miss_probability(measured, res, cfg.reaches()),
+                        miss_probability(measured, res, with_spread.reaches())))
+    return out
 
 
 if __name__ == "__main__":
