@@ -84,6 +84,10 @@ class PlannerConfig:
     """detect: the radii of interest run from the smallest to this much larger (2.5-7 mm), and an inclusion's reach
     grows with its radius (``reach_mm`` + its radius above the smallest: the halo past its edge is the same); the
     chance that one hides is averaged over radii uniform in that span. 0: the smallest radius only."""
+    reach_spread_mm: tuple[float, ...] = (0.0,)
+    """detect: how far an inclusion's sensing reach strays from the one above, as equally likely offsets (mm). How
+    far past its edge an inclusion raises the map turns on its depth and contrast, which no sweep knows before:
+    the chance that one hides is averaged over these too (``(0.0,)``: the model's one reach)."""
     miss_probability: float = 0.01
     """detect: stop only when the chance that such an inclusion hides unsensed is below this (0.02 until the covering
     lattice made 0.01 affordable: tuning seeds 100-139, BENCHMARKS.md)."""
@@ -140,6 +144,9 @@ class PlannerConfig:
             raise ValueError("PlannerConfig: stop_rule detect or lse, reach_mm > 0, 0 <= miss_probability < 1 and "
                              f"0 < near_best <= 1 needed, got {self.stop_rule!r}, {self.reach_mm}, "
                              f"{self.miss_probability}, {self.near_best}")
+        if not self.reach_spread_mm or not self.reach_mm + min(self.reach_spread_mm) > 0:
+            raise ValueError(f"PlannerConfig.reach_spread_mm: expected at least one offset, none reaching below 0, "
+                             f"got {self.reach_spread_mm} around reach_mm {self.reach_mm}")
         if not (self.cover_column_mm >= 0 and self.cover_period_mm >= 0):
             raise ValueError(f"PlannerConfig: cover_column_mm and cover_period_mm >= 0 needed, got "
                              f"{self.cover_column_mm}, {self.cover_period_mm}")
@@ -154,10 +161,12 @@ class PlannerConfig:
                              f"got {self.sweep_mm}")
 
     def reaches(self) -> list[float]:
-        """The reaches of the radii of interest (``reach_mm`` up to ``reach_mm + radius_span_mm``, 0.5 mm apart),
-        each equally likely."""
+        """The reaches of interest, each equally likely, smallest first: one per radius of interest (``reach_mm`` up
+        to ``reach_mm + radius_span_mm``, 0.5 mm apart) and offset (``reach_spread_mm``). A value may repeat: it
+        then weighs more."""
         n = math.floor(self.radius_span_mm / 0.5 + 1e-9)
-        return [self.reach_mm + self.radius_span_mm * i / n for i in range(n + 1)] if n else [self.reach_mm]
+        radii = [self.reach_mm + self.radius_span_mm * i / n for i in range(n + 1)] if n else [self.reach_mm]
+        return sorted(r + s for r in radii for s in self.reach_spread_mm)
 
     def grid(self) -> tuple[FloatArray, FloatArray]:
         """Cell centres (x, y) of the belief grid over the region."""

@@ -25,6 +25,7 @@ tolerance, whatever the lattice left. Our own code.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Sequence
 from functools import lru_cache
 
@@ -90,12 +91,14 @@ def coverage_gain(observed: BoolArray, resolution_mm: float, reach_mm: float | S
     """For every sweep centre cell, how many hidden cells (:func:`hidden`) that sweep would reveal (summed over the
     reaches when several: the drop of :func:`miss_probability` it makes, times the cells and reaches)."""
     gain = np.zeros(np.shape(observed), dtype=np.float64)
-    for r in _reaches(reach_mm):
-        h = hidden(observed, resolution_mm, r).astype(np.float64)
+    dist = distance_to_measured(observed, resolution_mm)
+    # a reach given n times (a radius and an offset summing alike) weighs n: one correlation for it
+    for r, n in Counter(_reaches(reach_mm)).items():
+        h = (dist > r).astype(np.float64)
         st = sweep_stencil(footprint, resolution_mm, r).astype(np.float64)
         # the stencil is symmetric about its centre column; along y an even footprint is centred as in
         # models.adaptive.footprint_score (rows j - lo .. j - lo + k - 1), which the stencil's asymmetric rows encode
-        gain += ndimage.correlate(h, st, mode="constant", cval=0.0)
+        gain += n * ndimage.correlate(h, st, mode="constant", cval=0.0)
     return gain
 
 

@@ -228,16 +228,16 @@ def swept_cells(observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray, probed:
 
 def unsensed(observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray, probed: Sequence[tuple[float, float]],
              cfg: PlannerConfig) -> tuple[list[tuple[float, float]], BoolArray]:
-    """What the planner could not have sensed when it stops: for each reach of interest (``cfg.reaches()``, the
-    smallest radius's first), the fraction of the region farther than it from every sensed cell
-    (:func:`swept_cells`), where an inclusion of that size could lie unseen; and the cells where one of the
-    smallest could (its centre there). Their mean is :func:`models.adaptive_cover.miss_probability`, the number the
-    stop rule holds under ``cfg.miss_probability``: small, not nothing, and the reach is a model (a small inclusion
-    deep in the tissue is sensed from nearer than it says: BENCHMARKS.md)."""
+    """What the planner could not have sensed when it stops: for each reach of interest (``cfg.reaches()``,
+    smallest first), the fraction of the region farther than it from every sensed cell (:func:`swept_cells`), where
+    an inclusion of that reach could lie unseen; and the cells where one of the smallest radius could, at
+    ``cfg.reach_mm`` (its centre there). Their mean is :func:`models.adaptive_cover.miss_probability`, the number
+    the stop rule holds under ``cfg.miss_probability``: small, not nothing, and only as true as the reaches
+    (``reach_spread_mm``; bench/airfloat_reach.py measures them on raster maps)."""
     covered = swept_cells(observed, x_mm, y_mm, probed, cfg)
     reaches = cfg.reaches()
     fractions = list(zip(reaches, hidden_fractions(covered, cfg.resolution_mm, reaches), strict=True))
-    return fractions, hidden(covered, cfg.resolution_mm, reaches[0])
+    return fractions, hidden(covered, cfg.resolution_mm, cfg.reach_mm)
 
 
 @dataclass(frozen=True)

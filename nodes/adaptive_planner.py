@@ -93,6 +93,8 @@ class AdaptivePlanner(palpa.Node):
         """detect: a measurement within this of an inclusion's centre senses it (smallest radius + sensing reach)."""
         radius_span_mm: float = 4.5
         """detect: the radii of interest span this much above the smallest; the reach grows with them (PlannerConfig)."""
+        reach_spread_mm: tuple[float, ...] = (0.0,)
+        """detect: how far an inclusion's reach strays from that, as equally likely offsets (PlannerConfig)."""
         interior_gap_mm: float = 3.0
         """detect: every cell of a detected inclusion's disc within this of a measured cell before stopping (0: off)."""
         miss_probability: float = 0.01
@@ -149,6 +151,7 @@ class AdaptivePlanner(palpa.Node):
                                      max_probes=p.max_probes, seed_spacing_mm=p.seed_spacing_mm,
                                      length_scale_mm=(1.0, p.max_length_scale_mm), stop_rule=p.stop_rule,
                                      reach_mm=p.reach_mm, radius_span_mm=p.radius_span_mm,
+                                     reach_spread_mm=tuple(float(v) for v in p.reach_spread_mm),
                                      interior_gap_mm=p.interior_gap_mm,
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
                                      suspect=p.suspect, lower_spread=p.lower_spread,

@@ -70,6 +70,25 @@ def test_the_reach_grows_with_the_radius_and_the_miss_probability_averages_over_
     assert np.array_equal(gain, coverage_gain(obs, 2.0, 4.0, 3) + coverage_gain(obs, 2.0, 6.0, 3))
 
 
+def test_the_reach_spread_weighs_every_radius_at_every_offset_and_a_near_reach_costs_more_than_a_far_one_saves(
+        ) -> None:
+    cfg = _cfg(reach_mm=4.0, radius_span_mm=1.0, reach_spread_mm=(-1.0, 0.0, 1.0))
+    assert cfg.reaches() == [3.0, 3.5, 4.0, 4.0, 4.5, 5.0, 5.0, 5.5, 6.0]   # 4, 4.5, 5 each at -1, 0, +1
+    obs = np.zeros((20, 20), dtype=bool)
+    obs[:, 0] = True   # one measured column at x = 1 mm: column i is 2 i mm from it
+    # reach 3: columns 2.. hidden (18 of 20); 4 and 5: 3.. (17); so the spread's mean is above the one reach's
+    one = miss_probability(obs, 2.0, _cfg(reach_mm=4.0).reaches())
+    spread = miss_probability(obs, 2.0, _cfg(reach_mm=4.0, reach_spread_mm=(-1.0, 0.0, 1.0)).reaches())
+    assert one == 17 / 20 and math.isclose(spread, (18 + 17 + 17) / 60)
+    # a reach given twice weighs twice in the sweeps' gain, as in the miss probability
+    gain = coverage_gain(obs, 2.0, [4.0, 4.0, 6.0], 3)
+    assert np.array_equal(gain, 2 * coverage_gain(obs, 2.0, 4.0, 3) + coverage_gain(obs, 2.0, 6.0, 3))
+    with pytest.raises(ValueError, match="reach_spread_mm"):
+        _cfg(reach_mm=4.0, reach_spread_mm=(-4.0, 0.0))
+    with pytest.raises(ValueError, match="reach_spread_mm"):
+        _cfg(reach_mm=4.0, reach_spread_mm=())
+
+
 def test_the_sweep_stencil_is_every_cell_within_the_reach_of_the_swept_segment() -> None:
     st = sweep_stencil(3, 2.0, 4.0)   # rows -1..1 swept; 2 cells of reach
     assert st.shape == (7, 5)
