@@ -6,9 +6,10 @@ the raster's probes making sure of tissue where nothing was. The question a palp
 an inclusion, and where*. Two things must hold before that answer is good enough:
 
 * **nothing of interest can hide.** A sweep senses an inclusion only near it: the excess stiffness of an inclusion
-  reaches about a millimetre or two past its edge (the raster's measured maps, tuning set). An inclusion of radius
-  ``r`` whose centre lies within ``r`` plus that sensing reach of a measured cell raised that cell; one farther from
-  every measured cell could be anywhere there unseen. ``reach_mm`` is that distance for the smallest radius of
+  reaches about a millimetre or two past its edge (bench/airfloat_reach.py on the raster's maps: median 2 mm, a
+  quarter of them 1 mm or less, mostly the deeper ones; ``reach_spread_mm`` averages over that). An inclusion of
+  radius ``r`` whose centre lies within ``r`` plus that sensing reach of a measured cell raised that cell; one
+  farther from every measured cell could be anywhere there unseen. ``reach_mm`` is that distance for the smallest radius of
   interest (2.5 + 1.5 mm); it grows with the radius over ``radius_span_mm`` (to 7 mm: a large inclusion is sensed
   from farther, a small deep one only from near; one reach for all, 6 mm, let small ones hide 4-6 mm from a sweep).
   With the inclusion's centre uniform over the region (no prior on where tumours are) and its radius uniform over
