@@ -9,14 +9,14 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   reaches about a millimetre or two past its edge (bench/airfloat_reach.py on the raster's maps: median 2 mm, a
   quarter of them 1 mm or less, mostly the deeper ones; ``reach_spread_mm`` averages over that). An inclusion of
   radius ``r`` whose centre lies within ``r`` plus that sensing reach of a measured cell raised that cell; one
-  farther from every measured cell could be anywhere there unseen. ``reach_mm`` is that distance for the smallest radius of
-  interest (2.5 + 1.5 mm); it grows with the radius over ``radius_span_mm`` (to 7 mm: a large inclusion is sensed
-  from farther, a small deep one only from near; one reach for all, 6 mm, let small ones hide 4-6 mm from a sweep).
-  With the inclusion's centre uniform over the region (no prior on where tumours are) and its radius uniform over
-  the span, the probability that it hides is the fraction of the region farther than its reach from every measured
-  cell, averaged over the radii (:func:`miss_probability`). Stop only when that is below ``miss_probability``.
-  (Garg et al. 2016 and Gotovos et al. 2013 stop on the belief alone; a GP with a length scale shorter than that
-  reach cannot vouch for it, which is why the LSE rule costs coverage.)
+  farther from every measured cell could be anywhere there unseen. ``reach_mm`` is that distance for the smallest
+  radius of interest (2.5 + 1.5 mm); it grows with the radius over ``radius_span_mm`` (to 7 mm: a large inclusion is
+  sensed from farther, a small deep one only from near; one reach for all, 6 mm, let small ones hide 4-6 mm from a
+  sweep). With the inclusion's centre uniform over the region (no prior on where tumours are) and its radius uniform
+  over the span, the probability that it hides is the fraction of the region farther than its reach from every
+  measured cell, averaged over the radii (:func:`miss_probability`). Stop only when that is below
+  ``miss_probability``. (Garg et al. 2016 and Gotovos et al. 2013 stop on the belief alone; a GP with a length scale
+  shorter than that reach cannot vouch for it, which is why the LSE rule costs coverage.)
 * **every candidate is resolved.** A candidate is a region of the detection map above ``suspect`` times the
   detector's thresholds (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
   resolved when the points on the edge of its disc on all four sides (one cell out for a small one:
