@@ -45,6 +45,7 @@ from palpa.endpoints import (
     Timer,
     handler_type,
 )
+from palpa.errors import PalpaError
 from palpa.message import Message
 from palpa.naming import RUNTIME_PREFIX, default_node_name, resolve_topic
 from palpa.node_time import SimTime, Timers, clock_timeout_ns
@@ -103,6 +104,7 @@ class Node:
         sim_clock_timeout_s: float | None = None,
         serve_params: bool | None = None,
     ) -> None:
+        theirs = set(vars(self))   # what a subclass's __init__ set before calling this one
         self.name = name or default_node_name(type(self).__name__)
         self.incarnation = int.from_bytes(os.urandom(4), "big") | 1
         """Drawn anew at every start and sent in every header (``inc``): receivers tell a restart from a repeat."""
@@ -147,7 +149,9 @@ class Node:
         if heartbeat_s > 0 if serve_params is None else serve_params:
             ParamServer(self, lambda: self.params, self._change_params)
         try:
+            own = _own_state(self, theirs)
             self.setup()
+            _check_state_kept(self, own)
             self._probe = confirm_subscriptions(self, self._rx, self.incarnation, JOIN_TIMEOUT_S)
         except BaseException:
             # a refused plan must not leave a robot connection or a serial port open behind it
@@ -428,3 +432,19 @@ class Node:
     def _heartbeat(self) -> None:
         """Send this node's heartbeat now (they go out by themselves every ``heartbeat_s`` once it is set up)."""
         self._heartbeats.send()
+
+
+def _own_state(node: Node, theirs: set[str]) -> dict[str, object]:
+    """The private state objects palpa.Node's constructor made (not flags and counters, which change; not what the
+    subclass set before it)."""
+    return {k: v for k, v in vars(node).items()
+            if k.startswith("_") and k not in theirs and not isinstance(v, bool | int | float | str)}
+
+
+def _check_state_kept(node: Node, own: Mapping[str, object]) -> None:
+    """A subclass whose ``setup`` assigned one of these names broke the node (its timers, its sockets, ...) in a way
+    that shows only later, and far from the cause: say so now."""
+    for k, v in own.items():
+        if vars(node).get(k) is not v:
+            raise PalpaError(f"node {node.name!r}: {type(node).__name__}.setup() replaced {k!r}, which palpa.Node "
+                             "keeps its own state in; give your attribute another name")

@@ -298,3 +298,31 @@ def test_a_sim_clock_node_says_it_leaves_as_it_closes() -> None:
     node.close(0)
     h.spin_once(0)
     assert [a.leaving for a in acks] == [True] and acks[0].node == "sim"
+
+
+def test_a_setup_that_takes_a_name_the_node_keeps_its_state_in_is_refused_at_once() -> None:
+    """A subclass's ``self._timers = []`` in setup used to break the node later (its timers never ran), far from
+    the cause. Names the subclass set before calling Node.__init__, and flags and counters, are its own business."""
+    from palpa.errors import PalpaError
+
+    class Clobbers(palpa.Node):
+        def setup(self) -> None:
+            self._timers = []   # palpa.Node's timers live here
+
+    bus = MemoryBus()
+    with pytest.raises(PalpaError, match=r"node 'clobbers': Clobbers.setup\(\) replaced '_timers'"):
+        Clobbers(transport=bus.transport(), heartbeat_s=0)
+
+    class OwnsItsNames(palpa.Node):
+        def __init__(self, **kw: Any) -> None:
+            self._late: object = None   # set before Node.__init__, replaced in setup: its own
+            super().__init__(**kw)
+
+        def setup(self) -> None:
+            self._late = object()
+            self._buffer = [1, 2]   # a new name: fine
+            self.request_shutdown(3)   # flags and exit codes change in setup: fine
+
+    node = OwnsItsNames(transport=bus.transport(), heartbeat_s=0)
+    assert node.is_shutdown and node.exit_code == 3 and node._late is not None
+    node.close()
