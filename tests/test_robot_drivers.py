@@ -7,6 +7,7 @@ Python calls hold the GIL while they block, so an in-process emulator would star
 from __future__ import annotations
 
 import math
+import socket
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -24,7 +25,7 @@ from nodes.drivers.robot import (
 )
 from nodes.drivers.robot_sim import SimRobotDriver
 from palpa.clock import MockClock
-from tests.procs import ur_emulator
+from tests.procs import ur_emulator, wait_until
 
 pytest.importorskip("rtde_control")
 from nodes.drivers.robot_urrtde import URRtdeDriver  # noqa: E402
@@ -240,6 +241,37 @@ def test_ur_driver_reports_a_lost_connection_without_retrying(emu: UrEmulatorPro
             time.sleep(0.1)
     ur.move_path([PathPoint(5.0, 0.0, 30.0, 50.0, 1000.0)])
     assert wait_status(ur, 5.0)[-1] == (MotionStatus.DONE, 0)
+
+
+@pytest.mark.timeout(20)
+def test_a_program_stopped_by_the_watchdog_is_told_from_one_stopped_by_hand(emu: UrEmulatorProcess) -> None:
+    """The fault says why the control script stopped: this process stopped kicking the RTDE watchdog (a stall,
+    played here by holding the driver's lock: nothing can kick), or it kicked on time and someone stopped the
+    program (here the dashboard's ``stop``). The watchdog allows 1 s, so a busy machine does not make the second
+    stop look like a stall."""
+    ur = URRtdeDriver(emu.host, frame_offset_mm=OFFSET, watchdog_hz=1.0, start_timeout_s=EMULATOR_START_S)
+    try:
+        ur.connect()
+        ur.move_path(raster(20, speed=50.0))
+        wait_until(lambda: ur.state().speed_mm_s[1] != 0.0, 5.0, "the arm to move")
+        with ur._lock:   # the stall: neither the monitor thread nor a state() call can kick
+            emu.wait_state(lambda st: st["runtime_state"] == 1, 5.0)   # the controller's watchdog stopped it
+            ur.state()   # the process wakes and kicks (too late) before it sees the program gone
+        assert wait_status(ur, 5.0)[-1][0] is MotionStatus.FAULT
+        message = ur.progress().message
+        assert "RTDE watchdog: this driver did not kick it for" in message and "the 1 s it allows" in message, message
+        ur.connect()   # a new program, a new watchdog: the stall is not held against it
+        ur.move_path(raster(20, speed=50.0))
+        wait_until(lambda: ur.state().speed_mm_s[1] != 0.0, 5.0, "the arm to move")
+        with socket.create_connection((emu.host, 29999), timeout=5.0) as dash:
+            dash.recv(1024)   # the banner
+            dash.sendall(b"stop\n")
+            assert b"Stopped" in dash.recv(1024)
+        assert wait_status(ur, 5.0)[-1][0] is MotionStatus.FAULT
+        message = ur.progress().message
+        assert "not the RTDE watchdog: this driver kicked it at least every" in message, message
+    finally:
+        ur.close()
 
 
 @pytest.mark.timeout(15)

@@ -90,6 +90,8 @@ class URRtdeDriver:
         self._t_move = 0.0
         self._stop_requested = False
         self._last_kick = 0.0
+        self._kick_gap = 0.0
+        """The longest time between two watchdog kicks since it was last armed (s)."""
         self._last = TcpState(0, (0.0,) * 6, (0.0,) * 6, (0.0,) * 6)  # stamp 0: never read
 
     # ------------------------------------------------------------ connection
@@ -299,7 +301,7 @@ class URRtdeDriver:
                 if rr.getRuntimeState() == _RUNTIME_PLAYING and now - self._script_gone < self.command_timeout_s:
                     return
                 self._latch(MotionStatus.FAULT, "the control script stopped on the controller while moving "
-                                                "(RTDE watchdog, or stopped from the pendant or dashboard)")
+                                                f"({self._stop_cause(now)})")
             return
         self._moving = False
         if self._stop_requested:
@@ -312,6 +314,7 @@ class URRtdeDriver:
             return
         now = time.monotonic()
         if now - self._last_kick >= 0.25 / self.watchdog_hz:
+            self._kick_gap = max(self._kick_gap, now - self._last_kick)
             rc.kickWatchdog()
             self._last_kick = now
 
@@ -319,6 +322,20 @@ class URRtdeDriver:
         if self.watchdog_hz is not None and self._rc is not None:
             self._rc.setWatchdog(self.watchdog_hz)
             self._last_kick = time.monotonic()
+            self._kick_gap = 0.0
+
+    def _stop_cause(self, now: float) -> str:
+        """Why the program may have stopped: whether this driver let the watchdog starve (its longest gap between
+        kicks since the watchdog was armed: a stalled process or link) or kept it fed (the pendant, the dashboard,
+        another client)."""
+        if self.watchdog_hz is None:
+            return "stopped from the pendant or dashboard; no RTDE watchdog was set"
+        gap, allowed = max(self._kick_gap, now - self._last_kick), 1.0 / self.watchdog_hz
+        if gap > allowed:
+            return (f"RTDE watchdog: this driver did not kick it for {gap:.2f} s, over the {allowed:.2g} s it allows: "
+                    "this process stalled (CPU starved, or a blocking call) or the link did")
+        return (f"not the RTDE watchdog: this driver kicked it at least every {gap:.2f} s (it allows {allowed:.2g} s); "
+                "stopped from the pendant or dashboard, or by another client")
 
     def _monitor_loop(self) -> None:
         while not self._halt.wait(self.poll_s):
