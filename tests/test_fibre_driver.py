@@ -7,6 +7,7 @@ import math
 import random
 import signal
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -287,13 +288,31 @@ def test_command_channel(make_emu: Callable[..., FibreDaqEmulator], make_driver:
 def test_clock_offset_converges_across_32bit_wrap(make_emu: Callable[..., FibreDaqEmulator], make_driver: Callable[..., SerialFibreDriver]) -> None:
     emu = make_emu(clock_start_us=(1 << 32) - 300_000, drift_ppm=400.0)  # wraps after 0.3 s
     drv = make_driver(emu.port)
-    samples = collect(drv, 1200, timeout_s=10.0)  # ~2.4 s
+    samples: list[FibreSample] = []
+    handed_ns: list[int] = []   # when each sample reached this test: after it arrived at the driver
+
+    def take() -> None:
+        got = drv.read(0.1)
+        samples.extend(got)
+        handed_ns.extend([time.time_ns()] * len(got))
+
+    wait_until(lambda: len(samples) >= 1200, 10.0, "1200 samples", step=take)  # ~2.4 s
     dev = [s.device_stamp_ns for s in samples]
     steps = [b - a for a, b in zip(dev, dev[1:], strict=False)]
     assert min(steps) > 0 and dev[-1] > (1 << 32) * 1000  # unwrapped, monotonic
     true_ns = dict(emu.sample_wall_ns)
-    errs = sorted(abs(s.stamp_ns - true_ns[s.seq]) for s in samples[-250:])
-    assert errs[len(errs) // 2] < 2_000_000  # median within 2 ms of the true sampling instant
+    # How near the sampling instant a stamp can be is set by how fast samples crossed the pty: a minimum-delay
+    # filter stamps each sample about its block's fastest delay late. Idle that is well under a millisecond; with
+    # both cores busy the emulator's thread and this one run tens of ms late for whole blocks, and no estimator
+    # could know. So the bound is what the run's blocks allowed (the median over its 0.25 s blocks of each one's
+    # fastest sample, from sampling to reaching this test: an upper bound of its delay), plus 2 ms.
+    blocks: dict[int, int] = {}
+    for s, h in zip(samples, handed_ns, strict=True):
+        k = s.device_stamp_ns // 250_000_000
+        blocks[k] = min(h - true_ns[s.seq], blocks.get(k, h - true_ns[s.seq]))
+    allowed = sorted(blocks.values())[len(blocks) // 2] + 2_000_000
+    errs = sorted(s.stamp_ns - true_ns[s.seq] for s in samples[-250:])
+    assert -2_000_000 < errs[len(errs) // 2] < allowed, (errs[len(errs) // 2], sorted(blocks.values()))
     st = drv.status()
     assert st.clock_offset_ns is not None and st.clock_drift_ppm < 0  # device runs fast
 
