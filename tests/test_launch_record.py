@@ -46,7 +46,8 @@ def test_recorder_starts_first_and_stops_last(procs: ProcessGroup, tmp_path: Pat
     # up (before any subscriber is known to it): no subscriber can get those. The recorder must have everything
     # from the first message any other node heard up to the last one the talker sent.
     heard = [int(n) for n in re.findall(r"heard 'hello (\d+)'", (run_dir / "listener.log").read_text())]
-    assert len(heard) == 20, (run_dir / "listener.log").read_text()
+    # at least 20: under load the messages queued while the listener started come in one batch, heard to its end
+    assert len(heard) >= 20, (run_dir / "listener.log").read_text()
     sent = [int(n) for n in re.findall(r"sent (\d+)", (run_dir / "talker.log").read_text())]
     assert len(sent) == 1 and sent[0] >= heard[-1], (run_dir / "talker.log").read_text()
     assert chatter and chatter[0] <= heard[0], (chatter, heard)
