@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import gc
 import os
 import secrets
 import signal
@@ -152,14 +153,43 @@ def drain(sub: Any) -> list[Any]:
 
 
 @contextlib.contextmanager
+def _gc_frozen() -> Iterator[list[float]]:
+    """The test worker's heap (every earlier test's objects) frozen out of the collector while a real-time test runs,
+    and the pauses of the collections that still happen (s), to print: a full collection over a large heap holds
+    the GIL for tenths of a second on a loaded machine, and the driver's RTDE watchdog kicks, in this process, with
+    it (the watchdog allows 0.5 s). A rig's scanner runs in its own small process."""
+    pauses: list[float] = []
+    started: list[float] = []
+
+    def timed(phase: str, info: dict[str, int]) -> None:
+        if phase == "start":
+            started[:] = [time.perf_counter()]
+        elif started:
+            pauses.append(time.perf_counter() - started[0])
+
+    gc.collect()
+    gc.freeze()
+    gc.callbacks.append(timed)
+    try:
+        yield pauses
+    finally:
+        gc.callbacks.remove(timed)
+        gc.unfreeze()
+
+
+@contextlib.contextmanager
 def ur_emulator(args: Sequence[str]) -> Iterator[UrEmulatorProcess]:
     """A UR emulator process on a random loopback address, stopped at the end; it must exit 0 (its log is printed,
-    so pytest shows it when the test failed)."""
-    proc = UrEmulatorProcess.on_random_loopback(list(args))
-    proc.start()
-    try:
-        yield proc
-    finally:
-        code = proc.stop()
-        print(proc.log())
-        assert code == 0, f"emulator exited with {code}"
+    so pytest shows it when the test failed, with the longest garbage-collection pause of this process meanwhile:
+    :func:`_gc_frozen`)."""
+    with _gc_frozen() as pauses:
+        proc = UrEmulatorProcess.on_random_loopback(list(args))
+        proc.start()
+        try:
+            yield proc
+        finally:
+            code = proc.stop()
+            print(proc.log())
+            print(f"this process: {len(pauses)} garbage collections while the emulator ran, the longest "
+                  f"{max(pauses, default=0.0):.3f} s")
+            assert code == 0, f"emulator exited with {code}"
