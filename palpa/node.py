@@ -339,7 +339,7 @@ class Node:
         if not skipped:
             for delivery in self._transport.poll(0):
                 self._rx.dispatch(delivery)
-            self._run_timers()
+            self.run_timers()
         if self._set_up:  # a heartbeat says "ready": set up, subscriptions confirmed (what a launcher waits for)
             self._heartbeats.beat()
         if not self.clock.is_real():
@@ -353,7 +353,7 @@ class Node:
             self._report_to_clock()  # before blocking: the clock may be waiting for what was just handled
             for delivery in self._transport.poll(timeout_s):
                 self._rx.dispatch(delivery)
-            self._run_timers()
+            self.run_timers()
         if self._sim_time is not None:
             self._sim_time.check_alive()
         self._report_to_clock()
@@ -406,10 +406,8 @@ class Node:
     # -- internals ---------------------------------------------------------------------------------
     def run_timers(self) -> None:
         """Run the timers due at the current time (an executor's step, see palpa.compose), again while a callback
-        started one due at once: afterwards none is due."""
-        self._run_timers()
-
-    def _run_timers(self) -> None:
+        started one due at once: afterwards none is due. Not while shutting down, nor while a simulation clock
+        holds time."""
         if self._shutdown or (self._sim_time is not None and self._sim_time.holds_timers):
             return
         self._timers.run(self.clock.now_ns())
