@@ -37,7 +37,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from models.phantom import load_phantom  # noqa: E402
+from models.phantom import Phantom, load_phantom  # noqa: E402
 
 BIN_MM = 0.5
 EDGES = np.arange(-1.0, 5.01, BIN_MM)  # distance past the edge; cells over the inclusion's rim and beyond
@@ -50,11 +50,10 @@ def find_phantom(name: str, dirs: list[Path]) -> Path | None:
     return next((d / f"{name}.yaml" for d in dirs if (d / f"{name}.yaml").is_file()), None)
 
 
-def profiles(map_npz: Path, phantom: Path, far_mm: float, k: float, suspect: float
+def profiles(map_npz: Path, ph: Phantom, far_mm: float, k: float, suspect: float
              ) -> tuple[list[np.ndarray], float] | None:
     """Per inclusion, the mean ``rel`` of the map's measured cells in each bin of ``EDGES`` (nan: no cell), and the
     map's suspect bar; None when too few cells lie far from every inclusion to tell the baseline."""
-    ph = load_phantom(phantom)
     with np.load(map_npz) as g:
         v, xs, ys, count = g["stiffness"], g["x_mm"], g["y_mm"], g["count"]
     measured = np.isfinite(v) & (count > 0)
@@ -81,7 +80,7 @@ def profiles(map_npz: Path, phantom: Path, far_mm: float, k: float, suspect: flo
     return out, bar
 
 
-def raster_found(map_dir: Path, phantom: Path) -> list[bool]:
+def raster_found(map_dir: Path, ph: Phantom) -> list[bool]:
     """For each of the phantom's inclusions, whether the raster's map found it (models.scoring, as bench/adaptive.py
     scores a run)."""
     from models.scoring import score_scan
@@ -89,7 +88,7 @@ def raster_found(map_dir: Path, phantom: Path) -> list[bool]:
     with np.load(map_dir / "map.npz") as g:
         grid = {k: g[k] for k in ("stiffness", "x_mm", "y_mm", "count")}
     dets = json.loads((map_dir / "inclusions.json").read_text())
-    return [i.found for i in score_scan(load_phantom(phantom), dets, grid).inclusions]
+    return [i.found for i in score_scan(ph, dets, grid).inclusions]
 
 
 def reach_of(margin: np.ndarray) -> float:
@@ -125,12 +124,13 @@ def main() -> int:
             npz, ph = run / "map" / "map.npz", find_phantom(name, dirs)
             if not npz.is_file() or ph is None:
                 continue
-            got = profiles(npz, ph, args.far_mm, args.k, args.suspect)
+            phantom = load_phantom(ph)
+            got = profiles(npz, phantom, args.far_mm, args.k, args.suspect)
             if got is None:
                 continue
             means, bar = got
-            incs = load_phantom(ph).inclusions
-            found = raster_found(run / "map", ph)
+            incs = phantom.inclusions
+            found = raster_found(run / "map", phantom)
             for i, m in enumerate(means):
                 key = (s.name, name, i)
                 if not found[i]:
