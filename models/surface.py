@@ -25,6 +25,7 @@ __all__ = [
     "SpecimenDoesNotFit",
     "SurfaceFit",
     "check_fits",
+    "contact_onset_z",
     "fit_surface",
     "flat_surface",
     "region_from_touches",
@@ -117,6 +118,37 @@ def fit_surface(points: Sequence[tuple[float, float, float]],
     coeffs, *_ = np.linalg.lstsq(a, z, rcond=None)
     rms = float(np.sqrt(np.mean((a @ coeffs - z) ** 2)))
     return SurfaceFit(tuple(float(c) for c in coeffs), (cx, cy), model, rms, len(pts))
+
+
+def contact_onset_z(samples: Sequence[tuple[float, float]], powers: Sequence[float]) -> float | None:
+    """The height z0 where a contact signal began, from (z, s) samples of its rise as the probe descends.
+
+    The signal is taken as s = (k (z0 - z))^p: for each exponent p in ``powers`` the samples' s^(1/p) is fitted as
+    a line in z, and the exponent whose curve best fits the samples (in relative error, so that the small signals
+    near the onset count as much as the large ones) gives z0. One exponent is a known law (1: the camera probe's
+    springs); several, an unknown one: a sphere on a thick elastic layer rises as 1.5, and on a thin layer over the
+    table it stiffens well past that, so a fixed 1.5 puts the surface too low by as much as the layer stiffens.
+    None when the samples cannot tell: fewer than 3 (4 with a free exponent), no spread in z, or no rising line.
+    """
+    pts = [(z, s) for z, s in samples if s > 0.0 and math.isfinite(z) and math.isfinite(s)]
+    if len(pts) < (3 if len(powers) == 1 else 4):
+        return None
+    z = np.array([p[0] for p in pts])
+    s = np.array([p[1] for p in pts])
+    if float(np.ptp(z)) < 1e-3:
+        return None
+    best: tuple[float, float] | None = None  # (relative squared error, z0)
+    design = np.column_stack([z, np.ones_like(z)])
+    for p in powers:
+        (slope, icept), *_ = np.linalg.lstsq(design, s ** (1.0 / p), rcond=None)
+        if not slope < 0.0:  # the signal must grow as the probe goes down
+            continue
+        z0 = -float(icept) / float(slope)
+        model = np.clip(float(slope) * (z - z0), 0.0, None) ** p
+        err = float(np.sum(((model - s) / s) ** 2))
+        if best is None or err < best[0]:
+            best = (err, z0)
+    return None if best is None else best[1]
 
 
 def region_in_footprint(footprint: Region, margin_mm: float) -> Region:

@@ -12,8 +12,12 @@ and goes on to the next point. The contact signals (``signal``):
   surface is where they began to move (the samples since a quarter of the threshold extrapolated back to 0 along
   a line: springs).
 * ``force`` -- the arm's TCP force (ur_rtde's ``actual_TCP_force``): |Fz| above ``threshold`` (N); the surface is
-  the height where the force began (the samples from contact to ``threshold`` are extrapolated back to 0 N along
-  F^(2/3), the shape of any sphere's contact, so that the stiffness of the tissue does not bias it).
+  the height where the force began: the samples from contact to ``threshold`` are fitted with F = (k (z0 - z))^p,
+  p free in 1..2.5 (:func:`models.surface.contact_onset_z`), so that neither the tissue's stiffness nor how much
+  a thin layer stiffens under the press biases it (a fixed Hertz 1.5 put the surface 0.1 mm low on a 6 mm dome).
+  The force is read when :meth:`step` runs; if the rise went by in fewer than 4 readings (a descent too fast for a
+  busy PC's steps), the arm backs up to 1 mm over the last force-free height and descends again at half the
+  speed, up to three times (``reapproaches`` counts them).
 
 A descent that reaches the floor without contact is an error naming the point (nothing under it); in a search for
 the specimen (``search``, the scanner's ``search_box_mm``) it is a miss, and so is a ring half over an edge. The driver
@@ -37,6 +41,7 @@ from models.surface import (
     SpecimenDoesNotFit,
     SurfaceFit,
     check_fits,
+    contact_onset_z,
     fit_surface,
     flat_surface,
     region_from_touches,
@@ -54,6 +59,8 @@ __all__ = ["SpecimenPlanner", "TouchOff", "TouchOffConfig"]
 
 Signal = Literal["heights", "indenters", "force"]
 _NEAR_MM = 0.5
+_FORCE_POWERS = tuple(1.0 + 0.05 * k for k in range(31))  # a contact law's exponent: 1 (a spring) .. 2.5
+_REAPPROACHES = 3
 
 
 @dataclass(frozen=True)
@@ -97,6 +104,11 @@ class TouchOff:
         self._found: list[float] = []
         self._rising: list[tuple[float, float]] = []  # (z, signal) since the contact signal began to rise
         self._tare: tuple[float, ...] | None = None  # indenters: their displacements when the search here began
+        self._free_z: float | None = None  # force: the last height over this point with no force yet
+        self._slower = 0  # force: re-approaches at this point (each at half the last descent's speed)
+        self._again_from: float | None = None  # force: once stopped, descend again from this height
+        self.reapproaches = 0
+        """Force: descents repeated more slowly because the force rose in too few readings (all points)."""
 
     @property
     def done(self) -> bool:
@@ -181,7 +193,10 @@ class TouchOff:
         if self.phase == "lifting" and prog.status == MotionStatus.DONE:
             self.phase = "done"
         if self.phase == "stopping" and math.hypot(*st.speed_mm_s[:3]) < 0.5 and prog.status != MotionStatus.MOVING:
-            self._go(self.index + 1)
+            if self._again_from is not None:
+                self._descend(self._again_from)
+            else:
+                self._go(self.index + 1)
 
     def _signal_text(self) -> str:
         c = self.cfg
@@ -189,22 +204,32 @@ class TouchOff:
                 f"no indenter moved {c.threshold:g} mm", "force": f"no force over {c.threshold:g} N"}[c.signal]
 
     def _on_force(self, z: float, f: float) -> None:
-        if f > 0.05 * self.cfg.threshold:
-            self._rising.append((z, f))
+        if f <= 0.05 * self.cfg.threshold:
+            self._free_z = z
+            return
+        self._rising.append((z, f))
         if f > self.cfg.threshold:
-            self._found = [self._zero_crossing(z, 2 / 3)] * self.cfg.samples  # a sphere: F^(2/3) linear in depth
+            z0 = contact_onset_z(self._rising, _FORCE_POWERS)
+            if z0 is None and self._slower < _REAPPROACHES:
+                self._reapproach()
+                return
+            self._found = [z if z0 is None else z0] * self.cfg.samples
             self._contact(self._found[0])
 
+    def _reapproach(self) -> None:
+        """Too few readings of the rise to fit where it began: stop, and once at rest back up to 1 mm over the last
+        force-free height (or the start height) and descend again at half the speed."""
+        self._slower += 1
+        self.reapproaches += 1
+        free = self._free_z
+        self._again_from = self.cfg.start_z_mm if free is None else min(self.cfg.start_z_mm, free + 1.0)
+        self.driver.stop(self.cfg.accel_mm_s2)
+        self.phase = "stopping"
+
     def _zero_crossing(self, z_now: float, power: float) -> float:
-        """Height where the signal s began: s^power is taken as linear in the depth; fit it, extrapolate to 0."""
-        pts = [(z, f ** power) for z, f in self._rising]
-        if len(pts) < 3 or max(z for z, _ in pts) - min(z for z, _ in pts) < 1e-3:
-            return z_now
-        zs, gs = [p[0] for p in pts], [p[1] for p in pts]
-        mz, mg = statistics.fmean(zs), statistics.fmean(gs)
-        szz = sum((z - mz) ** 2 for z in zs)
-        slope = sum((z - mz) * (g - mg) for z, g in zip(zs, gs, strict=True)) / szz
-        return mz - mg / slope if slope < 0 else z_now
+        """Height where the signal began, s linear in the depth to the power ``power`` (else ``z_now``)."""
+        z0 = contact_onset_z(self._rising, (power,))
+        return z_now if z0 is None else z0
 
     def _over_point_at(self, stamp_ns: int) -> tuple[float, ...] | None:
         """The arm's (x, y, z) when a probe sample stamped ``stamp_ns`` was measured, if it was then over the point
@@ -246,6 +271,7 @@ class TouchOff:
 
     def _go(self, index: int) -> None:
         self.index, self._found, self._rising, self._tare, self._edge = index, [], [], None, 0
+        self._free_z, self._slower, self._again_from = None, 0, None
         if index >= len(self.points):
             x, y, z = self.driver.state().pose[:3]
             if self.cfg.start_z_mm - z < 0.5:  # contact came at the start height: no lift (a move of a few
@@ -260,6 +286,15 @@ class TouchOff:
         self.driver.move_path([self._point(x0, y0, c.start_z_mm, c.transit_speed_mm_s),
                                self._point(x, y, c.start_z_mm, c.transit_speed_mm_s),
                                self._point(x, y, c.floor_z_mm, c.search_speed_mm_s)])
+        self.phase = "searching"
+
+    def _descend(self, top: float) -> None:
+        """Over the same point again: up to ``top``, then down at the search speed halved per re-approach."""
+        c = self.cfg
+        x, y = self.points[self.index]
+        self._found, self._rising, self._free_z, self._again_from = [], [], None, None
+        self.driver.move_path([self._point(x, y, top, c.transit_speed_mm_s),
+                               self._point(x, y, c.floor_z_mm, c.search_speed_mm_s / 2 ** self._slower)])
         self.phase = "searching"
 
     def _point(self, x: float, y: float, z: float, speed: float) -> PathPoint:
@@ -390,8 +425,10 @@ class SpecimenPlanner:
         fit = fit_surface(self.touch.touches)
         self.surface = fit
         zs = [z for _, _, z in self.touch.touches]
+        slower = (f"; {self.touch.reapproaches} descents repeated more slowly (the force rose in too few readings)"
+                  if self.touch.reapproaches else "")
         return (f"{found}touch-off: {len(zs)} points, surface {min(zs):.2f}..{max(zs):.2f} mm, {fit.model} fit "
-                f"(rms {fit.rms_mm:.3f} mm)")
+                f"(rms {fit.rms_mm:.3f} mm){slower}")
 
 
 def _search_box(name: str, values: Sequence[float], signal: str,

@@ -44,7 +44,9 @@ def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator() 
                 time.sleep(0.002)
             assert touch.done, touch.error or "touch-off timed out"
             errors = [z - float(truth.surface_z(x, y)) for x, y, z in touch.touches]
-            assert len(errors) == 9 and max(abs(e) for e in errors) < 0.15, errors
+            # the contact law's fit finds the surface within 0.05 mm however often step() ran (a busy PC reads the
+            # rise in fewer samples: then it descends again more slowly, tests/test_touchoff_force.py)
+            assert len(errors) == 9 and max(abs(e) for e in errors) < 0.08, (errors, touch.reapproaches)
             fit = fit_surface(touch.touches)
             # sweep two lines across the dome pressing 0.5 mm below the found surface: the force must stay on
             plan = sweep_raster(20, 10, 40, 30, spacing_mm=20, speed_mm_s=10, contact_z_mm=-0.5, surface=fit,

@@ -1,0 +1,102 @@
+"""The force touch-off's estimate of where contact began: the contact-law fit (models.surface.contact_onset_z) on
+made-up laws, and the touch-off on the simulated arm over the simulated world's dome (mock clock), stepped often
+and stepped rarely, as a busy PC steps it. The same touch-off on the UR emulator: tests/test_touchoff_ur.py."""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+
+from models.phantom import load_phantom
+from models.surface import contact_onset_z, touch_points
+from models.world import TissueWorld
+from nodes.drivers.robot import TcpState
+from nodes.drivers.robot_sim import SimRobotDriver
+from nodes.touchoff import TouchOff, TouchOffConfig
+
+DOME = "phantoms/specimens/dome_6_3.yaml"
+POWERS = tuple(1.0 + 0.05 * k for k in range(31))
+
+
+def rise(z0: float, k: float, p: float, depths: np.ndarray) -> list[tuple[float, float]]:
+    return [(z0 - float(d), float((k * d) ** p)) for d in depths]
+
+
+def test_the_onset_of_a_known_law_and_of_a_stiffening_one() -> None:
+    depths = np.linspace(0.3, 1.5, 7)
+    # a sphere on a thick layer (1.5): a fixed 1.5 and a free exponent both find the onset
+    hertz = rise(5.0, 0.4, 1.5, depths)
+    assert contact_onset_z(hertz, (1.5,)) == pytest.approx(5.0, abs=1e-9)
+    assert contact_onset_z(hertz, POWERS) == pytest.approx(5.0, abs=1e-9)
+    # a thin layer stiffening to 1.9: a fixed 1.5 puts the surface low, the free exponent does not
+    thin = rise(5.0, 0.4, 1.9, depths)
+    fixed = contact_onset_z(thin, (1.5,))
+    assert fixed is not None and fixed < 5.0 - 0.1
+    assert contact_onset_z(thin, POWERS) == pytest.approx(5.0, abs=1e-6)
+    # no power law at all (a half-space term and a stiffening one): weighing the readings by their size, the small
+    # ones near the onset count, and it lands within 0.15 mm (in absolute error, 0.2 mm off)
+    both = [(5.0 - float(d), 0.1 * d ** 1.5 + 0.05 * d ** 3) for d in np.linspace(0.1, 2.0, 10)]
+    assert contact_onset_z(both, POWERS) == pytest.approx(5.0, abs=0.15)
+    # a spring (1) from three readings
+    assert contact_onset_z(rise(2.0, 3.0, 1.0, depths[:3]), (1.0,)) == pytest.approx(2.0, abs=1e-9)
+
+
+def test_the_onset_is_none_where_the_readings_cannot_tell() -> None:
+    depths = np.linspace(0.3, 1.5, 7)
+    assert contact_onset_z(rise(5.0, 0.4, 1.5, depths[:3]), POWERS) is None  # 3 readings, 3 unknowns
+    assert contact_onset_z(rise(5.0, 0.4, 1.5, depths[:2]), (1.5,)) is None
+    assert contact_onset_z([(5.0, 0.1), (5.0, 0.2), (5.0, 0.3), (5.0, 0.4)], POWERS) is None  # no spread in z
+    # a signal that falls as the probe goes down is not a contact
+    assert contact_onset_z([(5.0 - d, 1.0 / (1.0 + d)) for d in depths], POWERS) is None
+
+
+class ForceArm(SimRobotDriver):
+    """The simulated arm with a TCP force from the simulated world (the tissue's FE-grounded response, models.world):
+    the UR emulator's force, without the emulator."""
+
+    def __init__(self, world: TissueWorld, surface_z: Callable[[float, float], float],
+                 home_mm: tuple[float, float, float], clock: Callable[[], int]) -> None:
+        super().__init__(home_mm, clock=clock)
+        self.world, self.surface_z = world, surface_z
+
+    def state(self) -> TcpState:
+        st = super().state()
+        x, y, z = st.pose[:3]
+        depth = float(self.surface_z(x, y)) - z
+        fz = float(self.world.force_n(x, y, depth, indenter_radius_mm=3.5)) if depth > 0 else 0.0
+        return dataclasses.replace(st, force_n=(0.0, 0.0, fz, 0.0, 0.0, 0.0))
+
+
+def touch_off(step_s: float) -> tuple[TouchOff, list[float]]:
+    """Nine force touches over the dome's crest, the touch-off stepped every ``step_s`` of simulated time."""
+    truth = load_phantom(DOME)
+    now = [0]
+    arm = ForceArm(TissueWorld(truth), lambda x, y: float(truth.surface_z(x, y)), (20.0, 10.0, 7.0), lambda: now[0])
+    arm.connect()
+    touch = TouchOff(arm, touch_points((20.0, 10.0, 40.0, 30.0), 3), TouchOffConfig(
+        signal="force", start_z_mm=7.0, floor_z_mm=0.5, search_speed_mm_s=5.0, transit_speed_mm_s=60.0,
+        accel_mm_s2=1000.0, threshold=0.3))
+    touch.start()
+    for _ in range(int(600 / step_s)):
+        if touch.done or touch.failed:
+            break
+        now[0] += int(step_s * 1e9)
+        touch.step()
+    assert touch.done, touch.error
+    return touch, [z - float(truth.surface_z(x, y)) for x, y, z in touch.touches]
+
+
+@pytest.mark.parametrize("step_s", [0.002, 0.08, 0.2])
+def test_the_force_touch_finds_the_dome_however_rarely_it_is_stepped(step_s: float) -> None:
+    """Stepped every 2 ms the rise (0.015-0.3 N, ~1.3 mm at 5 mm/s) is read ~130 times; every 80 ms ~3-4 times,
+    every 200 ms once or twice, and the descents are repeated more slowly until it is read often enough. The
+    surface is found within 0.06 mm each time (above it: the layer's stiffening is not all a power law)."""
+    touch, errors = touch_off(step_s)
+    assert len(errors) == 9 and all(-0.01 < e < 0.06 for e in errors), errors
+    if step_s == 0.002:
+        assert touch.reapproaches == 0
+    if step_s == 0.2:
+        assert touch.reapproaches >= 9  # every point at least once
