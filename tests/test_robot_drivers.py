@@ -7,9 +7,11 @@ Python calls hold the GIL while they block, so an in-process emulator would star
 from __future__ import annotations
 
 import math
+import multiprocessing
 import socket
 import time
 from collections.abc import Iterator
+from multiprocessing.connection import Connection
 from typing import Any
 
 import pytest
@@ -217,30 +219,70 @@ def test_ur_driver_reports_a_protective_stop_and_only_reconnects_when_asked(
     assert wait_status(ur, 5.0)[-1] == (MotionStatus.DONE, 0)
 
 
-@pytest.mark.timeout(15)
-def test_ur_driver_reports_a_lost_connection_without_retrying(emu: UrEmulatorProcess, ur: URRtdeDriver) -> None:
-    ur.connect()
-    ur.move_path(raster(20, speed=50.0))
-    emu.command("drop 1.0")  # every connection closed; new ones refused for 1 s
-    seen = wait_status(ur, 5.0)
-    assert seen[-1][0] is MotionStatus.DISCONNECTED
-    assert "lost the connection" in ur.progress().message and "connect()" in ur.progress().message
-    # the controller's watchdog (5 Hz) stops the program and the arm without the client
-    st = emu.wait_state(lambda st: st["runtime_state"] == 1 and not st["moving"], 3.0)
-    end = raster(20)[-1]
-    assert math.dist(st["pose_mm"][:3], (end.x_mm + OFFSET[0], end.y_mm + OFFSET[1], end.z_mm + OFFSET[2])) > 5.0
-    emu.wait_state(lambda st: st["clients"] == 0, 2.0)
-    assert ur.progress().status is MotionStatus.DISCONNECTED  # latched: no silent retry
-    deadline = time.monotonic() + 3.0
-    while True:  # once the robot is reachable again, connect() is what brings it back
-        try:
-            ur.connect()
-            break
-        except RobotConnectionError:
-            assert time.monotonic() < deadline
-            time.sleep(0.1)
-    ur.move_path([PathPoint(5.0, 0.0, 30.0, 50.0, 1000.0)])
-    assert wait_status(ur, 5.0)[-1] == (MotionStatus.DONE, 0)
+def _driver_through_a_drop(host: str, pipe: Connection) -> None:
+    """The lost-connection test's ur_rtde side, in a child process: ur_rtde has aborted the process it ran in when
+    the controller dropped its connections (SIGABRT from its own reconnect thread, docs/robot.md); here an abort
+    fails this test alone, not the test worker."""
+
+    def heard(word: str) -> None:
+        assert pipe.poll(20.0) and pipe.recv() == word, f"no {word!r} from the test"
+
+    ur = URRtdeDriver(host, frame_offset_mm=OFFSET, watchdog_hz=5.0, start_timeout_s=EMULATOR_START_S)
+    try:
+        ur.connect()
+        ur.move_path(raster(20, speed=50.0))
+        pipe.send("moving")
+        heard("dropped")
+        seen = wait_status(ur, 5.0)
+        assert seen[-1][0] is MotionStatus.DISCONNECTED, seen
+        message = ur.progress().message
+        assert "lost the connection" in message and "connect()" in message, message
+        pipe.send("disconnected")
+        heard("gone")
+        assert ur.progress().status is MotionStatus.DISCONNECTED  # latched: no silent retry
+        deadline = time.monotonic() + 3.0
+        while True:  # once the robot is reachable again, connect() is what brings it back
+            try:
+                ur.connect()
+                break
+            except RobotConnectionError:
+                assert time.monotonic() < deadline
+                time.sleep(0.1)
+        ur.move_path([PathPoint(5.0, 0.0, 30.0, 50.0, 1000.0)])
+        assert wait_status(ur, 5.0)[-1] == (MotionStatus.DONE, 0)
+        pipe.send("done")
+    finally:
+        ur.close()
+
+
+@pytest.mark.timeout(40)
+def test_ur_driver_reports_a_lost_connection_without_retrying(emu: UrEmulatorProcess) -> None:
+    ctx = multiprocessing.get_context("spawn")
+    ours, theirs = ctx.Pipe()
+    child = ctx.Process(target=_driver_through_a_drop, args=(emu.host, theirs), daemon=True)
+    child.start()
+    try:
+        def said(word: str) -> bool:
+            assert child.is_alive() or ours.poll(), f"the driver's process died (exit code {child.exitcode})"
+            return bool(ours.poll(0.05)) and ours.recv() == word
+
+        wait_until(lambda: said("moving"), 15.0, "the driver to connect and move")
+        emu.command("drop 1.0")  # every connection closed; new ones refused for 1 s
+        ours.send("dropped")
+        wait_until(lambda: said("disconnected"), 10.0, "the driver to report the lost connection")
+        # the controller's watchdog (5 Hz) stops the program and the arm without the client
+        st = emu.wait_state(lambda st: st["runtime_state"] == 1 and not st["moving"], 3.0)
+        end = raster(20)[-1]
+        assert math.dist(st["pose_mm"][:3], (end.x_mm + OFFSET[0], end.y_mm + OFFSET[1], end.z_mm + OFFSET[2])) > 5.0
+        emu.wait_state(lambda st: st["clients"] == 0, 2.0)
+        ours.send("gone")
+        wait_until(lambda: said("done"), 15.0, "the driver to reconnect and move")
+    finally:
+        child.join(5.0)
+        if child.is_alive():
+            child.kill()
+            child.join(5.0)
+    assert child.exitcode == 0, f"the driver's process exited with {child.exitcode} (-6: ur_rtde aborted)"
 
 
 @pytest.mark.timeout(20)
