@@ -35,6 +35,7 @@ __all__ = [
 ]
 
 Region = tuple[float, float, float, float]
+_LAW_ERROR = 0.05  # contact_onset_z: how far a contact law is taken to be off, relative
 Box = tuple[float, float, float, float, float, float]
 
 
@@ -120,12 +121,15 @@ def fit_surface(points: Sequence[tuple[float, float, float]],
     return SurfaceFit(tuple(float(c) for c in coeffs), (cx, cy), model, rms, len(pts))
 
 
-def contact_onset_z(samples: Sequence[tuple[float, float]], powers: Sequence[float]) -> float | None:
+def contact_onset_z(samples: Sequence[tuple[float, float]], powers: Sequence[float], *,
+                    noise: float = 0.0, prior: tuple[float, float] | None = None) -> float | None:
     """The height z0 where a contact signal began, from (z, s) samples of its rise as the probe descends.
 
     The signal is taken as s = (k (z0 - z))^p: for each exponent p in ``powers`` the samples' s^(1/p) is fitted as
-    a line in z, and the exponent whose curve best fits the samples (in relative error, so that the small signals
-    near the onset count as much as the large ones) gives z0. One exponent is a known law (1: the camera probe's
+    a line in z, and the exponent whose curve best fits the samples gives z0. Each sample's misfit is weighed by
+    what it can be off by: 5 % of itself (a law is no better), or the readings' ``noise`` (sigma) where that is more,
+    so that the small signals near the onset count as much as the large ones unless noise drowns them. ``prior``
+    (mean, sigma) adds ((p - mean) / sigma)^2 to an exponent's misfit: readings must earn a departure from it. One exponent is a known law (1: the camera probe's
     springs); several, an unknown one: a sphere on a thick elastic layer rises as 1.5, and on a thin layer over the
     table it stiffens well past that, so a fixed 1.5 puts the surface too low by as much as the layer stiffens.
     None when the samples cannot tell: fewer than 3 (4 with a free exponent), no spread in z, or no rising line.
@@ -145,7 +149,9 @@ def contact_onset_z(samples: Sequence[tuple[float, float]], powers: Sequence[flo
             continue
         z0 = -float(icept) / float(slope)
         model = np.clip(float(slope) * (z - z0), 0.0, None) ** p
-        err = float(np.sum(((model - s) / s) ** 2))
+        err = float(np.sum((model - s) ** 2 / ((_LAW_ERROR * s) ** 2 + noise ** 2)))
+        if prior is not None:
+            err += ((p - prior[0]) / prior[1]) ** 2
         if best is None or err < best[0]:
             best = (err, z0)
     return None if best is None else best[1]

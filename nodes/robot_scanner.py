@@ -44,8 +44,8 @@ from models.raster import (
 from nodes.drivers.robot import MotionStatus, RobotDriver
 from nodes.scan_control import MOVING, ScanControl
 from nodes.scan_progress import PathProgressMeter
+from nodes.specimen import SpecimenPlanner
 from nodes.surface_follow import LineFollower
-from nodes.touchoff import SpecimenPlanner
 
 __all__ = ["RobotScanner"]
 

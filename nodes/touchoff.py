@@ -11,11 +11,14 @@ and goes on to the next point. The contact signals (``signal``):
   search over this point began (a tare: guide friction can hold an indenter in after the previous press); the
   surface is where they began to move (the samples since a quarter of the threshold extrapolated back to 0 along
   a line: springs).
-* ``force`` -- the arm's TCP force (ur_rtde's ``actual_TCP_force``): |Fz| above ``threshold`` (N); the surface is
-  the height where the force began: the samples from contact to ``threshold`` are fitted with F = (k (z0 - z))^p,
-  p free in 1..2.5 (:func:`models.surface.contact_onset_z`), so that neither the tissue's stiffness nor how much
-  a thin layer stiffens under the press biases it (a fixed Hertz 1.5 put the surface 0.1 mm low on a 6 mm dome).
-  The force is read when :meth:`step` runs; if the rise went by in fewer than 4 readings (a descent too fast for a
+* ``force`` -- the arm's TCP force (ur_rtde's ``actual_TCP_force``). Over each point the arm first rests at the
+  start height and reads the force's zero and spread there (a robot's sensor is offset by newtons until zeroed,
+  and noisy); a ``threshold`` under 6 sigma of that spread is refused, naming it (a UR's built-in sensor, sigma
+  ~1 N, cannot see soft tissue: touch off with the probe's own signal). Contact is |Fz - zero| above
+  ``threshold`` (N); the surface is the height where the force began: the readings from 3 sigma to ``threshold``
+  are fitted with F = (k (z0 - z))^p (:func:`models.surface.contact_onset_z`), p in 1..2.5 around Hertz's 1.5
+  (a thin layer stiffens past it, which put a 6 mm dome's surface 0.1 mm low; noisy readings cannot pull p far).
+  The force is read when :meth:`step` runs; if the rise went by in fewer than 8 readings (a descent too fast for a
   busy PC's steps), the arm backs up to 1 mm over the last force-free height and descends again at half the
   speed, up to three times (``reapproaches`` counts them).
 
@@ -27,40 +30,28 @@ timer. Pure logic apart from the driver: testable on the sim driver with a mock 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import statistics
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
-import palpa
-from messages import IndenterDisplacements, ProbeHeights
-from models.geometry import GeometryError, load_geometry
-from models.surface import (
-    SpecimenDoesNotFit,
-    SurfaceFit,
-    check_fits,
-    contact_onset_z,
-    fit_surface,
-    flat_surface,
-    region_from_touches,
-    region_in_footprint,
-    search_points,
-    touch_points,
-)
+from models.surface import contact_onset_z
 from models.timeseries import StampedBuffer
 from nodes.drivers.robot import MotionStatus, PathPoint, RobotDriver
 
-if TYPE_CHECKING:
-    from nodes.robot_scanner import RobotScanner
-
-__all__ = ["SpecimenPlanner", "TouchOff", "TouchOffConfig"]
+__all__ = ["TouchOff", "TouchOffConfig"]
 
 Signal = Literal["heights", "indenters", "force"]
 _NEAR_MM = 0.5
 _FORCE_POWERS = tuple(1.0 + 0.05 * k for k in range(31))  # a contact law's exponent: 1 (a spring) .. 2.5
 _REAPPROACHES = 3
+_MIN_RISE = 8  # force: readings of the rise wanted for the fit (with 4 the exponent's prior decides alone)
+_TARE_READINGS = 10
+_NOISE_MARGIN = 6.0  # force: the threshold must clear the noise at rest by this many sigma (the fit starts at 3)
+# the exponent's prior: Hertz's 1.5 unless the readings say otherwise; noisy ones cannot pull it far (without it, a
+# wrist sensor's 0.01 N put the dome's surface -0.11..+0.36 mm off; with it, -0.11..+0.07)
+_FORCE_PRIOR = (1.5, 0.25)
 
 
 @dataclass(frozen=True)
@@ -98,7 +89,7 @@ class TouchOff:
         self.misses: list[tuple[float, float]] = []
         self._edge = 0  # heights, search: samples with the SPS ring half over an edge at this point
         self.index = 0
-        self.phase: Literal["idle", "searching", "stopping", "lifting", "done", "failed"] = "idle"
+        self.phase: Literal["idle", "taring", "searching", "stopping", "lifting", "done", "failed"] = "idle"
         self.error = ""
         self._pose = StampedBuffer(max_gap_ns=200_000_000)
         self._found: list[float] = []
@@ -109,6 +100,12 @@ class TouchOff:
         self._again_from: float | None = None  # force: once stopped, descend again from this height
         self.reapproaches = 0
         """Force: descents repeated more slowly because the force rose in too few readings (all points)."""
+        self._at_rest: list[float] = []  # force: distinct readings at the start height over this point
+        self._rest_steps = 0
+        self.force_zero_n = 0.0
+        """Force: the reading at rest over the last point (the sensor's offset there), subtracted from the rest."""
+        self.force_noise_n = 0.0
+        """Force: the readings' spread (sigma, N) at rest over the last point."""
 
     @property
     def done(self) -> bool:
@@ -179,9 +176,13 @@ class TouchOff:
         if prog.status in (MotionStatus.PROTECTIVE_STOP, MotionStatus.DISCONNECTED, MotionStatus.FAULT):
             self._fail(f"robot {prog.status.name.lower()} during the touch-off: {prog.message}")
             return
+        if self.phase == "taring":
+            if prog.status != MotionStatus.MOVING and math.hypot(*st.speed_mm_s[:3]) < 0.5:
+                self._tare_force(st.force_n[2])
+            return
         if self.phase == "searching":
             if self.cfg.signal == "force" and self._over_point(st.pose[0], st.pose[1]):
-                self._on_force(st.pose[2], abs(st.force_n[2]))
+                self._on_force(st.pose[2], abs(st.force_n[2] - self.force_zero_n))
             if self.phase == "searching" and prog.status == MotionStatus.DONE:
                 if self.cfg.search:
                     self._miss()
@@ -203,21 +204,43 @@ class TouchOff:
         return {"heights": f"no SPS height under {c.threshold:g} mm", "indenters":
                 f"no indenter moved {c.threshold:g} mm", "force": f"no force over {c.threshold:g} N"}[c.signal]
 
+    def _tare_force(self, fz: float) -> None:
+        """At rest over the point at the start height, in the air: the sensor's zero and noise here. A threshold
+        the noise would cross is refused, naming what would do."""
+        self._rest_steps += 1
+        if not self._at_rest or fz != self._at_rest[-1]:  # a new sample (the same one read twice: no spread)
+            self._at_rest.append(fz)
+        if len(self._at_rest) < _TARE_READINGS and self._rest_steps < 5 * _TARE_READINGS:
+            return
+        self.force_zero_n = statistics.fmean(self._at_rest)
+        self.force_noise_n = statistics.stdev(self._at_rest) if len(self._at_rest) > 1 else 0.0
+        c = self.cfg
+        if c.threshold < _NOISE_MARGIN * self.force_noise_n:
+            x, y = self.points[self.index]
+            self._fail(f"touch-off by force at ({x:g}, {y:g}) mm: the force reads with a spread of "
+                       f"{self.force_noise_n:.3f} N at rest ({len(self._at_rest)} readings), so a {c.threshold:g} N "
+                       f"threshold would be crossed by noise; it needs at least {_NOISE_MARGIN * self.force_noise_n:.2f} "
+                       "N, which a soft specimen may not push back before the table: touch off with the probe's own "
+                       "signal (touchoff: heights or indenters) or a finer force sensor")
+            return
+        self._descend(c.start_z_mm)
+
     def _on_force(self, z: float, f: float) -> None:
-        if f <= 0.05 * self.cfg.threshold:
-            self._free_z = z
+        if f <= max(0.05 * self.cfg.threshold, 3.0 * self.force_noise_n):  # the rise is fitted above the noise
+            # back under it: what rose before was noise (a contact's force does not fall while the arm descends)
+            self._free_z, self._rising = z, []
             return
         self._rising.append((z, f))
         if f > self.cfg.threshold:
-            z0 = contact_onset_z(self._rising, _FORCE_POWERS)
-            if z0 is None and self._slower < _REAPPROACHES:
+            z0 = contact_onset_z(self._rising, _FORCE_POWERS, noise=self.force_noise_n, prior=_FORCE_PRIOR)
+            if (z0 is None or len(self._rising) < _MIN_RISE) and self._slower < _REAPPROACHES:
                 self._reapproach()
                 return
             self._found = [z if z0 is None else z0] * self.cfg.samples
             self._contact(self._found[0])
 
     def _reapproach(self) -> None:
-        """Too few readings of the rise to fit where it began: stop, and once at rest back up to 1 mm over the last
+        """Too few readings of the rise to fit where it began well: stop, and once at rest back up to 1 mm over the last
         force-free height (or the start height) and descend again at half the speed."""
         self._slower += 1
         self.reapproaches += 1
@@ -272,6 +295,7 @@ class TouchOff:
     def _go(self, index: int) -> None:
         self.index, self._found, self._rising, self._tare, self._edge = index, [], [], None, 0
         self._free_z, self._slower, self._again_from = None, 0, None
+        self._at_rest, self._rest_steps = [], 0
         if index >= len(self.points):
             x, y, z = self.driver.state().pose[:3]
             if self.cfg.start_z_mm - z < 0.5:  # contact came at the start height: no lift (a move of a few
@@ -283,6 +307,11 @@ class TouchOff:
         c = self.cfg
         x0, y0 = self.driver.state().pose[:2]
         x, y = self.points[index]
+        if c.signal == "force":  # first at rest over the point, to read the force's zero and noise there
+            self.driver.move_path([self._point(x0, y0, c.start_z_mm, c.transit_speed_mm_s),
+                                   self._point(x, y, c.start_z_mm, c.transit_speed_mm_s)])
+            self.phase = "taring"
+            return
         self.driver.move_path([self._point(x0, y0, c.start_z_mm, c.transit_speed_mm_s),
                                self._point(x, y, c.start_z_mm, c.transit_speed_mm_s),
                                self._point(x, y, c.floor_z_mm, c.search_speed_mm_s)])
@@ -293,8 +322,11 @@ class TouchOff:
         c = self.cfg
         x, y = self.points[self.index]
         self._found, self._rising, self._free_z, self._again_from = [], [], None, None
-        self.driver.move_path([self._point(x, y, top, c.transit_speed_mm_s),
-                               self._point(x, y, c.floor_z_mm, c.search_speed_mm_s / 2 ** self._slower)])
+        down = self._point(x, y, c.floor_z_mm, c.search_speed_mm_s / 2 ** self._slower)
+        if math.dist(self.driver.state().pose[:3], (x, y, top)) < 0.01:  # already there (after the tare)
+            self.driver.move_path([down])
+        else:
+            self.driver.move_path([self._point(x, y, top, c.transit_speed_mm_s), down])
         self.phase = "searching"
 
     def _point(self, x: float, y: float, z: float, speed: float) -> PathPoint:
@@ -303,146 +335,3 @@ class TouchOff:
     def _fail(self, why: str) -> None:
         self.driver.stop(self.cfg.accel_mm_s2)
         self.phase, self.error = "failed", why
-
-
-_DEFAULT_THRESHOLD = {"heights": 9.0, "indenters": 0.3, "force": 0.5}
-
-
-class SpecimenPlanner:
-    """The scanner's specimen: its region (given, or the measured footprint less a margin), the prior surface
-    (the measured thickness), the touch-off that finds the real one, and the raster's surface after it.
-
-    Everything that can be refused is refused in the constructor, before any motion: a region or a specimen
-    height the workspace box cannot hold raises ``palpa.ParamError`` naming the box and the extent.
-    """
-
-    def __init__(self, node: RobotScanner) -> None:
-        self.node = node
-        self.search_box: tuple[float, ...] | None = None
-        p = node.params
-        box = p.workspace_mm
-        geo = None
-        if p.geometry:
-            try:
-                geo = load_geometry(p.geometry)
-            except GeometryError as exc:
-                raise palpa.ParamError(f"{node.name}: geometry: {exc}") from None
-        footprint = geo.footprint_mm() if geo is not None else None
-        try:
-            if p.region_mm:
-                if len(p.region_mm) != 4:
-                    raise palpa.ParamError(f"{node.name}: region_mm needs x0, y0, x1, y1, got {p.region_mm}")
-                self.region = (float(p.region_mm[0]), float(p.region_mm[1]), float(p.region_mm[2]),
-                               float(p.region_mm[3]))
-                what = "the scan region (region_mm)"
-            elif p.search_box_mm:
-                self.search_box = _search_box(node.name, p.search_box_mm, p.touchoff, box)
-                sb = self.search_box
-                self.region, what = (sb[0], sb[1], sb[3], sb[4]), "the search box (search_box_mm)"
-            elif footprint is not None:
-                self.region = region_in_footprint(footprint, p.edge_margin_mm)
-                what = (f"the specimen's footprint x {footprint[0]:g}..{footprint[2]:g}, y {footprint[1]:g}.."
-                        f"{footprint[3]:g} mm less the {p.edge_margin_mm:g} mm edge margin,")
-            elif not p.autostart:  # serving probe_at only: no raster will run; a point plan at home passes checks
-                hx, hy = p.home_mm[0], p.home_mm[1]
-                self.region, what = (hx, hy, hx, hy), "the home position"
-            else:
-                raise palpa.ParamError(f"{node.name}: no scan region: give region_mm (x0, y0, x1, y1 mm), a "
-                                       "search_box_mm to find the specimen in, or a geometry file with its footprint")
-            top = geo.top_mm() if geo is not None else None
-            clearance = p.search_clearance_mm if p.touchoff != "off" else p.retract_clearance_mm
-            check_fits(self.region, box, top_mm=top, clearance_mm=clearance, what=what)
-        except (SpecimenDoesNotFit, ValueError) as exc:
-            raise palpa.ParamError(f"{node.name}: refusing the specimen before any motion: {exc}") from None
-        self.prior_top = top
-        # until the touch-off has run, heights are over a level surface: the flat contact_z_mm, or the thickest
-        # measured point (so that the pre-motion check of the plan sees the specimen's real height)
-        self.surface: SurfaceFit | None = None if p.touchoff == "off" else flat_surface(top if top is not None else 0.0)
-        self.touch: TouchOff | None = None
-        if p.touchoff != "off":
-            start = (top + p.search_clearance_mm) if top is not None else box[5] - 1.0
-            cfg = TouchOffConfig(signal=p.touchoff, start_z_mm=min(start, box[5] - 0.5), floor_z_mm=box[2],
-                                 search_speed_mm_s=p.search_speed_mm_s, transit_speed_mm_s=p.transit_speed_mm_s,
-                                 accel_mm_s2=p.accel_mm_s2,
-                                 threshold=p.touch_threshold or _DEFAULT_THRESHOLD[p.touchoff])
-            if self.search_box is not None:  # from the box's top down to its floor, at every point of a grid
-                sb = self.search_box
-                cfg = dataclasses.replace(cfg, start_z_mm=sb[5], floor_z_mm=sb[2], search=True)
-                self.touch = TouchOff(node.driver, search_points(self.region, p.search_step_mm), cfg)
-                return
-            i = p.touch_inset_mm
-            x0, y0, x1, y1 = self.region
-            inner = (x0 + i, y0 + i, x1 - i, y1 - i) if x1 - x0 > 2 * i and y1 - y0 > 2 * i else self.region
-            self.touch = TouchOff(node.driver, touch_points(inner, p.touch_grid), cfg)
-
-    def plan_heights(self) -> dict[str, object]:
-        """Keyword arguments of the raster functions for the heights: flat, or over the surface."""
-        p = self.node.params
-        if self.surface is None:
-            return {"contact_z_mm": p.contact_z_mm}
-        if p.mode == "sweep":
-            return {"contact_z_mm": p.working_offset_mm, "surface": self.surface}
-        return {"contact_z_mm": 0.0, "surface": self.surface}
-
-    def plan_z(self) -> Callable[[float, float], float] | None:
-        """A sweep's planned face height at (x, y) over the found surface (None: no surface)."""
-        surface, offset = self.surface, self.node.params.working_offset_mm
-        if surface is None:
-            return None
-        return lambda x, y: surface.z(x, y) + offset
-
-    def press_depth_mm(self) -> float:
-        """Indent depth: the set depth, but never more than ``max_press_fraction`` of the thinnest found point nor
-        closer than 0.2 mm to the workspace box's floor."""
-        p = self.node.params
-        if self.surface is None or self.touch is None:
-            return float(p.indent_depth_mm)
-        # before the touch-off the plan is checked over the thickest measured point; after it, the thinnest found
-        thinnest = min(z for _, _, z in self.touch.touches) if self.touch.done else (self.prior_top or math.inf)
-        floor = thinnest - p.workspace_mm[2] - 0.2  # and never within 0.2 mm of the box's floor
-        return float(max(0.1, min(p.indent_depth_mm, p.max_press_fraction * thinnest, floor)))
-
-    def on_probe(self, msg: ProbeHeights | IndenterDisplacements) -> None:
-        if self.touch is None:
-            return
-        if isinstance(msg, ProbeHeights):
-            self.touch.on_heights(msg.stamp_ns, msg.h_mm, msg.valid)
-        else:
-            self.touch.on_indenters(msg.stamp_ns, msg.displacement_mm, msg.valid)
-
-    def finish_touch(self) -> str:
-        """Fit the surface through the touches; returns a line for the log (raises ValueError if it cannot)."""
-        if self.touch is None:
-            raise ValueError("no touch-off ran")
-        found = ""
-        if self.search_box is not None:
-            sb, p = self.search_box, self.node.params
-            self.region = region_from_touches(self.touch.touches, p.edge_margin_mm, (sb[0], sb[1], sb[3], sb[4]))
-            xs, ys = [t[0] for t in self.touch.touches], [t[1] for t in self.touch.touches]
-            found = (f"search: the specimen under {len(xs)} of {len(xs) + len(self.touch.misses)} points, extent x "
-                     f"{min(xs):g}..{max(xs):g}, y {min(ys):g}..{max(ys):g} mm; region x {self.region[0]:g}.."
-                     f"{self.region[2]:g}, y {self.region[1]:g}..{self.region[3]:g} mm; ")
-        fit = fit_surface(self.touch.touches)
-        self.surface = fit
-        zs = [z for _, _, z in self.touch.touches]
-        slower = (f"; {self.touch.reapproaches} descents repeated more slowly (the force rose in too few readings)"
-                  if self.touch.reapproaches else "")
-        return (f"{found}touch-off: {len(zs)} points, surface {min(zs):.2f}..{max(zs):.2f} mm, {fit.model} fit "
-                f"(rms {fit.rms_mm:.3f} mm){slower}")
-
-
-def _search_box(name: str, values: Sequence[float], signal: str,
-                box: tuple[float, float, float, float, float, float]) -> tuple[float, ...]:
-    """search_box_mm checked: six numbers, a box inside the workspace, and a contact signal to search with."""
-    if signal == "off":
-        raise palpa.ParamError(f"{name}: search_box_mm needs a contact signal to find the specimen with: touchoff "
-                               "heights, force or indenters (it is off)")
-    sb = tuple(float(v) for v in values)
-    if len(sb) != 6 or not all(math.isfinite(v) for v in sb) or not (sb[0] <= sb[3] and sb[1] <= sb[4]
-                                                                     and sb[2] < sb[5]):
-        raise palpa.ParamError(f"{name}: search_box_mm needs xmin, ymin, zmin, xmax, ymax, zmax (mm) with zmin < zmax, "
-                               f"got {list(values)}")
-    if sb[2] < box[2] or sb[5] > box[5]:
-        raise SpecimenDoesNotFit(f"the search box's heights z {sb[2]:g}..{sb[5]:g} mm leave the workspace box (x "
-                                 f"{box[0]:g}..{box[3]:g}, y {box[1]:g}..{box[4]:g}, z {box[2]:g}..{box[5]:g} mm)")
-    return sb

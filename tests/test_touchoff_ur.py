@@ -28,7 +28,9 @@ DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm, 6 mm on the centre line
 @pytest.mark.timeout(90)
 def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator() -> None:
     truth = load_phantom(DOME)
-    with ur_emulator(["--unlock-delay", "0", "--home", f"20,10,7,0,{math.pi},0", "--phantom", DOME]) as emu:
+    # a wrist F/T sensor's noise (ATI Nano17 class: a few mN), its offset up to 3 N until the touch-off's zero
+    with ur_emulator(["--unlock-delay", "0", "--home", f"20,10,7,0,{math.pi},0", "--phantom", DOME,
+                      "--force-noise", "0.003"]) as emu:
         ur = URRtdeDriver(emu.host, watchdog_hz=5.0)
         try:
             ur.connect()
@@ -44,9 +46,9 @@ def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator() 
                 time.sleep(0.002)
             assert touch.done, touch.error or "touch-off timed out"
             errors = [z - float(truth.surface_z(x, y)) for x, y, z in touch.touches]
-            # the contact law's fit finds the surface within 0.05 mm however often step() ran (a busy PC reads the
+            # the contact law's fit finds the surface within 0.1 mm however often step() ran (a busy PC reads the
             # rise in fewer samples: then it descends again more slowly, tests/test_touchoff_force.py)
-            assert len(errors) == 9 and max(abs(e) for e in errors) < 0.08, (errors, touch.reapproaches)
+            assert len(errors) == 9 and max(abs(e) for e in errors) < 0.1, (errors, touch.reapproaches)
             fit = fit_surface(touch.touches)
             # sweep two lines across the dome pressing 0.5 mm below the found surface: the force must stay on
             plan = sweep_raster(20, 10, 40, 30, spacing_mm=20, speed_mm_s=10, contact_z_mm=-0.5, surface=fit,
@@ -61,12 +63,34 @@ def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator() 
                 vx, vy = st.speed_mm_s[:2]
                 if 9 < abs(vy) < 11 and abs(vx) < 1:  # sliding along a line (y) at the sweep speed
                     depths.append(float(truth.surface_z(x, y)) - z)
-                    forces.append(st.force_n[2])
+                    forces.append(st.force_n[2] - touch.force_zero_n)  # the sensor's offset, as the touch-off read it
                 time.sleep(0.005)
             assert ur.progress().status == MotionStatus.DONE
             assert len(depths) > 50
             assert min(depths) > 0.35 and max(depths) < 0.65, (min(depths), max(depths))
-            assert min(forces) > 0.0
+            assert min(forces) > 0.01  # in contact all along (0.5 mm in: ~0.04 N; the sensor's noise 0.003 N)
+        finally:
+            ur.close()
+
+
+@pytest.mark.timeout(60)
+def test_the_robot_s_own_force_sensor_is_too_coarse_to_touch_off_the_dome_and_the_touch_off_says_so() -> None:
+    """The emulator's default sensor (sigma 1 N, a UR's built-in one at its best) against a 0.5 N threshold: the
+    touch-off reads the spread at rest over the first point and refuses before descending, naming it."""
+    with ur_emulator(["--unlock-delay", "0", "--home", f"20,10,7,0,{math.pi},0", "--phantom", DOME]) as emu:
+        ur = URRtdeDriver(emu.host, watchdog_hz=5.0)
+        try:
+            ur.connect()
+            touch = TouchOff(ur, [(30.0, 20.0)], TouchOffConfig(signal="force", start_z_mm=7.0, floor_z_mm=0.5,
+                                                                threshold=0.5))
+            touch.start()
+            deadline = time.monotonic() + 30
+            while not (touch.done or touch.failed) and time.monotonic() < deadline:
+                touch.step()
+                time.sleep(0.002)
+            assert touch.failed and "would be crossed by noise" in touch.error, touch.error
+            assert 0.7 < touch.force_noise_n < 1.3
+            assert ur.state().pose[2] == pytest.approx(7.0, abs=0.01)  # it never went down
         finally:
             ur.close()
 

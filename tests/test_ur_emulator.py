@@ -18,6 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from emulators.ur import ControllerConfig, FaultPlan, UrController, UrEmulator
@@ -380,7 +381,8 @@ def test_contact_force_is_the_tissue_world_s_and_the_force_limit_protective_stop
     """The emulated TCP force is models.world's FE-grounded force (no estimator formula); pressed past the world's
     tables the specimen has bottomed out on the table, and the force limit trips the protective stop."""
     phantom = load_phantom(REPO / "phantoms" / "flat_26k.yaml")  # 20 mm thick: the surface at z = 20
-    cfg = ControllerConfig(home_pose=(20.0, 20.0, 22.0, 0.0, DOWN, 0.0), force_limit_n=1.0)
+    cfg = ControllerConfig(home_pose=(20.0, 20.0, 22.0, 0.0, DOWN, 0.0), force_limit_n=1.0, force_noise_n=0.0,
+                           force_bias_n=0.0)  # a perfect sensor: actual_TCP_force is the contact force
     ctl = UrController(cfg, phantom=phantom)
     ctl.tick()
     assert ctl.force[2] == 0.0  # 2 mm above the surface
@@ -399,6 +401,40 @@ def test_contact_force_is_the_tissue_world_s_and_the_force_limit_protective_stop
     assert ctl.protective_stopped and not ctl.arm.is_moving
     assert 20.0 - deepest - 0.5 < ctl.arm.pose[2] < 20.0 - deepest  # within half a mm of bottoming out
     assert any("exceeds the 1 N limit" in m for m in ctl.messages)
+
+
+def test_the_force_sensor_reads_the_contact_force_off_by_its_bias_and_noise_until_zeroed() -> None:
+    """actual_TCP_force is what a UR's sensor reads: the contact force plus an offset (up to force_bias_n, from the
+    seed) and white noise (force_noise_n per 2 ms sample); zero_ftsensor() takes the reading now as the zero; the
+    force limit acts on the contact force itself."""
+    phantom = load_phantom(REPO / "phantoms" / "flat_26k.yaml")
+
+    def readings(seed: int, zero: bool = False) -> tuple[float, np.ndarray]:
+        cfg = ControllerConfig(home_pose=(20.0, 20.0, 19.0, 0.0, DOWN, 0.0), force_noise_n=0.5, force_bias_n=3.0,
+                               sensor_seed=seed)
+        ctl = UrController(cfg, phantom=phantom)
+        ctl.tick()
+        if zero:
+            ctl.zero_ft_sensor()
+        out = []
+        for _ in range(2000):
+            ctl.tick()
+            out.append(ctl.output("actual_TCP_force"))
+        return ctl.force[2], np.asarray(out, dtype=float)
+
+    true_fz, r = readings(1)
+    assert 0.05 < true_fz < 1.0  # 1 mm into the tissue
+    bias = r[:, :3].mean(axis=0) - (0.0, 0.0, true_fz)
+    assert np.all(np.abs(bias) < 3.0) and np.max(np.abs(bias)) > 0.3  # off by its offset
+    assert np.allclose(r[:, :3].std(axis=0), 0.5, rtol=0.1)  # and noisy
+    assert np.allclose(r[:, 3:], 0.0)
+    _, again = readings(1)
+    assert np.array_equal(again, r)  # deterministic for a seed
+    _, other = readings(2)
+    assert np.max(np.abs(other[:, :3].mean(axis=0) - r[:, :3].mean(axis=0))) > 0.3  # another sensor
+    _, zeroed = readings(1, zero=True)
+    # zeroed, up to the noise of the one reading taken as the zero (seed 1's offset is over 1.5 N on x and y)
+    assert np.all(np.abs(zeroed[:, :3].mean(axis=0)) < 1.5) and np.max(np.abs(bias[:2])) > 1.5
 
 
 def test_a_spring_sample_pushes_back_as_its_spring() -> None:

@@ -49,6 +49,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--phantom", help="phantom YAML for the contact force (needs models.phantom)")
     p.add_argument("--phantom-origin", default="0,0,0", help="phantom frame origin in the base frame x,y,z (mm)")
     p.add_argument("--force-limit", type=float, default=150.0, help="contact force (N) that protective-stops")
+    p.add_argument("--force-noise", type=float, default=1.0,
+                   help="TCP force sensor noise, sigma (N) per sample and axis (1: a UR's built-in sensor at its "
+                        "best; ~0.01: a wrist F/T sensor)")
+    p.add_argument("--force-bias", type=float, default=3.0, help="TCP force offset until zeroed: up to this (N)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the force sensor's bias and noise")
     p.add_argument("--local-control", action="store_true", help="robot in local control: refuse remote commands")
     p.add_argument("--unlock-delay", type=float, default=5.0, help="seconds before a protective stop may be unlocked")
     p.add_argument("--pstop-after-waypoints", type=int, help="protective stop after N waypoints of the first motion")
@@ -121,7 +126,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     config = ControllerConfig(home_pose=(home[0], home[1], home[2], home[3], home[4], home[5]),
                               max_speed_mm_s=args.max_speed, max_accel_mm_s2=args.max_accel,
                               remote_control=not args.local_control, unlock_delay_s=args.unlock_delay,
-                              force_limit_n=args.force_limit, phantom_origin_mm=(origin[0], origin[1], origin[2]))
+                              force_limit_n=args.force_limit, phantom_origin_mm=(origin[0], origin[1], origin[2]),
+                              force_noise_n=args.force_noise, force_bias_n=args.force_bias, sensor_seed=args.seed)
 
     def log(message: str) -> None:
         if not args.quiet:

@@ -7,6 +7,7 @@ advances everything by one 2 ms controller cycle.
 from __future__ import annotations
 
 import math
+import random
 import threading
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -52,6 +53,13 @@ class ControllerConfig:
     force_limit_n: float = 150.0  # contact force that triggers a protective stop
     tip_radius_mm: float = 3.5  # spherical probe tip for the contact model
     phantom_origin_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)  # phantom frame origin in base
+    force_noise_n: float = 1.0
+    """The TCP force sensor's reading noise, sigma (N) per 2 ms sample and force axis. A UR's built-in sensor is
+    coarse: the UR5e datasheet gives a force precision of 3.5 N and an accuracy of 4 N, and a CB3 user measured a
+    sigma of 3.6 N; 1 N is at the kind end. A wrist F/T sensor (an ATI Nano17 resolves ~3 mN) is ~0.01 N."""
+    force_bias_n: float = 3.0
+    """Its offset until zero_ftsensor(): each force axis off by up to this (N), drawn from ``sensor_seed``."""
+    sensor_seed: int = 0
 
 
 @dataclass
@@ -92,6 +100,10 @@ class UrController:
         self._world: Any = None
         self._world_made = False
         self._force_offset = [0.0] * 6
+        self._sensor_rng = random.Random(self.config.sensor_seed)
+        bias = self.config.force_bias_n
+        self._force_bias = [self._sensor_rng.uniform(-bias, bias) for _ in range(3)] + [0.0] * 3
+        self._force_noise = [0.0] * 6
         self._watchdog: tuple[str, int] | None = None
         self._input_tick: dict[str, int] = {}
         self.input_writes = 0  # input data packages applied so far
@@ -225,7 +237,16 @@ class UrController:
         self.log(f"RTDE watchdog on {input_name}: at least {min_hz:g} Hz")
 
     def zero_ft_sensor(self) -> None:
-        self._force_offset = [f + o for f, o in zip(self.force, self._force_offset, strict=True)]
+        """URScript's zero_ftsensor(): the reading now (its noise included) becomes the zero."""
+        self._force_offset = list(self._raw_force())
+
+    def _raw_force(self) -> tuple[float, ...]:
+        """The sensor's reading before zeroing: the contact force, its bias and this cycle's noise."""
+        return tuple(f + b + n for f, b, n in zip(self.force, self._force_bias, self._force_noise, strict=True))
+
+    def sensed_force(self) -> tuple[float, ...]:
+        """actual_TCP_force: what the sensor reads (``force`` is the true contact force)."""
+        return tuple(r - o for r, o in zip(self._raw_force(), self._force_offset, strict=True))
 
     def arm_faults(self, plan: FaultPlan | None) -> None:
         self.faults, self._fault_t0 = plan, None
@@ -257,8 +278,10 @@ class UrController:
             return lambda: tuple(v / 1000 if i < 3 else v for i, v in enumerate(arm.pose))
         if name in ("actual_TCP_speed", "target_TCP_speed"):
             return lambda: tuple(v / 1000 if i < 3 else v for i, v in enumerate(arm.tcp_speed))
-        if name in ("actual_TCP_force", "ft_raw_wrench"):
-            return lambda: tuple(f - o for f, o in zip(self.force, self._force_offset, strict=True))
+        if name == "actual_TCP_force":
+            return self.sensed_force
+        if name == "ft_raw_wrench":
+            return self._raw_force
         dynamic: dict[str, Callable[[], object]] = {
             "timestamp": lambda: self.ticks * TICK_S,
             "runtime_state": lambda: self.runtime_state,
@@ -266,7 +289,7 @@ class UrController:
             "safety_status_bits": lambda: self.safety_status_bits,
             "safety_mode": lambda: self.safety_mode,
             "safety_status": lambda: self.safety_mode,
-            "tcp_force_scalar": lambda: math.hypot(*self.force[:3]),
+            "tcp_force_scalar": lambda: math.hypot(*self.sensed_force()[:3]),
         }
         if name in dynamic:
             return dynamic[name]
@@ -383,6 +406,8 @@ class UrController:
         return base + BACKING_N_PER_MM * max(0.0, depth - deepest)
 
     def _update_force(self) -> None:
+        sigma = self.config.force_noise_n
+        self._force_noise = [self._sensor_rng.gauss(0.0, sigma) if sigma > 0 else 0.0 for _ in range(3)] + [0.0] * 3
         if self.phantom is None:
             return
         p, o, c = self.arm.pose, self.config.phantom_origin_mm, self.config
