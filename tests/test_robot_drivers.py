@@ -433,3 +433,35 @@ def test_a_script_stop_is_reported_only_once_the_receive_stream_shows_it_too() -
     drv = moving_driver(command_timeout_s=0.0)  # a receive stream that never catches up: reported all the same
     drv._poll_path(_Control(_Path(True, 4), program_running=False), _Receive(2))
     assert drv.progress().status is MotionStatus.FAULT
+
+
+class _BurstingReceive:
+    """ur_rtde's receive interface answering each getter from the latest package, while a burst of packages (after
+    a stall) comes in: one more per call for the first ``burst`` calls. Package n: z = n mm, Fz = n N."""
+
+    def __init__(self, burst: int) -> None:
+        self.package, self.burst = 0, burst
+
+    def _next(self) -> int:
+        if self.burst > 0:
+            self.burst -= 1
+            self.package += 1
+        return self.package
+
+    def getTimestamp(self) -> float:  # noqa: N802 - ur_rtde's name
+        return self._next() * 0.002
+
+    def getActualTCPPose(self) -> list[float]:  # noqa: N802
+        return [0.0, 0.0, self._next() / 1000, 0.0, math.pi, 0.0]
+
+    def getActualTCPSpeed(self) -> list[float]:  # noqa: N802
+        return [0.0] * 6
+
+    def getActualTCPForce(self) -> list[float]:  # noqa: N802
+        return [0.0, 0.0, float(self._next()), 0.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("burst", [0, 3, 8])
+def test_the_ur_state_is_one_package_s_even_while_packages_burst_in(burst: int) -> None:
+    pose, _, force = URRtdeDriver._snapshot(_BurstingReceive(burst))
+    assert pose[2] * 1000 == pytest.approx(force[2])  # pose and force from the same package

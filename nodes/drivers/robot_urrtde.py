@@ -146,7 +146,7 @@ class URRtdeDriver:
             if rr is None or not rr.isConnected():
                 return self._last
             try:
-                pose, speed, force = rr.getActualTCPPose(), rr.getActualTCPSpeed(), rr.getActualTCPForce()
+                pose, speed, force = self._snapshot(rr)
                 if self._rc is not None and self._status not in _LATCHED:
                     self._kick(self._rc)  # also from here: whichever thread is busiest keeps it fed
             except RuntimeError:
@@ -158,6 +158,19 @@ class URRtdeDriver:
                 (speed[0] * 1000, speed[1] * 1000, speed[2] * 1000, speed[3], speed[4], speed[5]),
                 _vec6(force))
             return self._last
+
+    @staticmethod
+    def _snapshot(rr: Any) -> tuple[Sequence[float], Sequence[float], Sequence[float]]:
+        """Pose, speed and force from one RTDE package. ur_rtde answers each getter from the latest package, and
+        its receive thread can take a new one between two calls (several when the stream bursts after a stall), so
+        a force was paired with a pose up to ~10 cycles apart: 0.1 mm at a touch-off's 5 mm/s. The controller's
+        timestamp before and after tells; read again (at most twice) if a package came in between."""
+        for _ in range(3):
+            t0 = rr.getTimestamp()
+            pose, speed, force = rr.getActualTCPPose(), rr.getActualTCPSpeed(), rr.getActualTCPForce()
+            if rr.getTimestamp() == t0:
+                break
+        return pose, speed, force
 
     def progress(self) -> PathProgress:
         with self._lock:
