@@ -18,7 +18,7 @@ and goes on to the next point. The contact signals (``signal``):
   ``threshold`` (N); the surface is the height where the force began: the readings from 3 sigma to ``threshold``
   are fitted with F = (k (z0 - z))^p (:func:`models.surface.contact_onset_z`), p in 1..2.5 around Hertz's 1.5
   (a thin layer stiffens past it, which put a 6 mm dome's surface 0.1 mm low; noisy readings cannot pull p far).
-  The force is read when :meth:`step` runs; if the rise went by in fewer than 8 readings (a descent too fast for a
+  The force is read when :meth:`step` runs; if the rise went by in fewer than 16 readings (a descent too fast for a
   busy PC's steps), the arm backs up to 1 mm over the last force-free height and descends again at half the
   speed, up to three times (``reapproaches`` counts them).
 
@@ -46,12 +46,13 @@ Signal = Literal["heights", "indenters", "force"]
 _NEAR_MM = 0.5
 _FORCE_POWERS = tuple(1.0 + 0.05 * k for k in range(31))  # a contact law's exponent: 1 (a spring) .. 2.5
 _REAPPROACHES = 3
-_MIN_RISE = 8  # force: readings of the rise wanted for the fit (with 4 the exponent's prior decides alone)
-_TARE_READINGS = 10
+_MIN_RISE = 16  # force: readings of the rise wanted for the fit (fewer, noisy, let the exponent wander)
+_TARE_READINGS = 20  # force: readings at rest for the zero and the spread (10 put sigma 30 % low one time in 10)
 _NOISE_MARGIN = 6.0  # force: the threshold must clear the noise at rest by this many sigma (the fit starts at 3)
-# the exponent's prior: Hertz's 1.5 unless the readings say otherwise; noisy ones cannot pull it far (without it, a
-# wrist sensor's 0.01 N put the dome's surface -0.11..+0.36 mm off; with it, -0.11..+0.07)
-_FORCE_PRIOR = (1.5, 0.25)
+# the exponent's prior: Hertz's 1.5 unless the readings say otherwise, and noisy ones cannot pull it far. On
+# dome_6_3 (tests/test_touchoff_force.py) a wrist sensor's 3 mN noise put the surface -0.19..+0.19 mm off with
+# sigma 0.25 and 8 readings, -0.09..+0.07 with 0.15 and 16; without noise -0.06..+0.03 mm
+_FORCE_PRIOR = (1.5, 0.15)
 
 
 @dataclass(frozen=True)

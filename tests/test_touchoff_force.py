@@ -5,6 +5,7 @@ and stepped rarely, as a busy PC steps it. The same touch-off on the UR emulator
 from __future__ import annotations
 
 import dataclasses
+import math
 import random
 from collections.abc import Callable
 
@@ -60,10 +61,10 @@ class ForceArm(SimRobotDriver):
 
     def __init__(self, world: TissueWorld, surface_z: Callable[[float, float], float],
                  home_mm: tuple[float, float, float], clock: Callable[[], int], bias_n: float,
-                 noise_n: float) -> None:
+                 noise_n: float, seed: int = 0) -> None:
         super().__init__(home_mm, clock=clock)
         self.world, self.surface_z, self.bias_n, self.noise_n = world, surface_z, bias_n, noise_n
-        self.rng = random.Random(0)
+        self.rng = random.Random(seed)
 
     def state(self) -> TcpState:
         st = super().state()
@@ -74,13 +75,13 @@ class ForceArm(SimRobotDriver):
         return dataclasses.replace(st, force_n=(0.0, 0.0, fz, 0.0, 0.0, 0.0))
 
 
-def touch_off(step_s: float, bias_n: float = 2.0, noise_n: float = 0.0) -> tuple[TouchOff, list[float]]:
+def touch_off(step_s: float, bias_n: float = 2.0, noise_n: float = 0.0, seed: int = 0) -> tuple[TouchOff, list[float]]:
     """Nine force touches over the dome's crest, the touch-off stepped every ``step_s`` of simulated time, the force
     read off by ``bias_n`` with a noise of sigma ``noise_n``."""
     truth = load_phantom(DOME)
     now = [0]
     arm = ForceArm(TissueWorld(truth), lambda x, y: float(truth.surface_z(x, y)), (20.0, 10.0, 7.0),
-                   lambda: now[0], bias_n, noise_n)
+                   lambda: now[0], bias_n, noise_n, seed)
     arm.connect()
     touch = TouchOff(arm, touch_points((20.0, 10.0, 40.0, 30.0), 3), TouchOffConfig(
         signal="force", start_z_mm=7.0, floor_z_mm=0.5, search_speed_mm_s=5.0, transit_speed_mm_s=60.0,
@@ -96,26 +97,34 @@ def touch_off(step_s: float, bias_n: float = 2.0, noise_n: float = 0.0) -> tuple
 
 @pytest.mark.parametrize("step_s", [0.002, 0.08, 0.2])
 def test_the_force_touch_finds_the_dome_however_rarely_it_is_stepped(step_s: float) -> None:
-    """Stepped every 2 ms the rise (0.015-0.3 N, ~1.3 mm at 5 mm/s) is read ~130 times; every 80 ms ~3-4 times,
-    every 200 ms once or twice, and the descents are repeated more slowly until it is read 8 times. The
-    surface is found within -0.03..+0.06 mm each time (the layer's stiffening is not all a power law)."""
+    """A perfect sensor offset by 2 N. Stepped every 2 ms the rise (0.015-0.3 N, ~1.3 mm at 5 mm/s) is read ~130
+    times; every 80 ms ~3-4 times, every 200 ms once or twice, and the descents are repeated more slowly until it is
+    read 16 times. The surface is found within -0.07..+0.05 mm each time (the layer's stiffening is not all a power
+    law, and Hertz's exponent is the prior)."""
     touch, errors = touch_off(step_s)
     assert touch.done, touch.error
     assert touch.force_zero_n == pytest.approx(2.0)  # the sensor's offset, read at rest over the point
-    assert len(errors) == 9 and all(-0.03 < e < 0.06 for e in errors), errors
+    assert len(errors) == 9 and all(-0.07 < e < 0.05 for e in errors), errors
     if step_s == 0.002:
         assert touch.reapproaches == 0
     if step_s == 0.2:
         assert touch.reapproaches >= 9  # every point at least once
 
 
-def test_a_fine_force_sensor_s_noise_is_read_at_rest_and_the_rise_fitted_above_it() -> None:
-    """A wrist F/T sensor's noise (sigma 0.01 N): the rise is fitted from 0.03 N up, within 0.15 mm (the exponent's
-    prior keeps the noise from pulling the fit: without it, up to 0.36 mm off)."""
-    touch, errors = touch_off(0.002, noise_n=0.01)
-    assert touch.done, touch.error
-    assert 0.005 < touch.force_noise_n < 0.02
-    assert len(errors) == 9 and all(abs(e) < 0.15 for e in errors), errors
+def test_a_wrist_sensor_s_noise_is_read_at_rest_and_the_rise_fitted_above_it() -> None:
+    """A wrist F/T sensor (sigma 3 mN, as the UR test's), four noise draws, stepped every 2, 20 and 50 ms: its spread
+    is read at rest and the rise fitted from 0.015 N up; 108 touches within 0.12 mm, rms 0.034 mm. The exponent's
+    prior (sigma 0.15) and the 16 readings are what hold it: a prior of 0.25 puts one 0.14 mm off, 8 readings or
+    both changes an rms of 0.044 mm."""
+    errors = []
+    for seed in range(4):
+        for step_s in (0.002, 0.02, 0.05):
+            touch, e = touch_off(step_s, noise_n=0.003, seed=seed)
+            assert touch.done, touch.error
+            assert 0.002 < touch.force_noise_n < 0.004 and len(e) == 9
+            errors += e
+    assert max(abs(e) for e in errors) < 0.12, max(abs(e) for e in errors)
+    assert math.sqrt(sum(e * e for e in errors) / len(errors)) < 0.038
 
 
 def test_a_robot_s_coarse_force_sensor_cannot_touch_off_soft_tissue_and_says_so() -> None:

@@ -46,9 +46,10 @@ def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator() 
                 time.sleep(0.002)
             assert touch.done, touch.error or "touch-off timed out"
             errors = [z - float(truth.surface_z(x, y)) for x, y, z in touch.touches]
-            # the contact law's fit finds the surface within 0.1 mm however often step() ran (a busy PC reads the
-            # rise in fewer samples: then it descends again more slowly, tests/test_touchoff_force.py)
-            assert len(errors) == 9 and max(abs(e) for e in errors) < 0.1, (errors, touch.reapproaches)
+            # within 0.12 mm however often step() ran (a busy PC reads the rise fewer times: then it descends again
+            # more slowly); with this sensor's noise the sim arm's 108 touches in tests/test_touchoff_force.py are
+            # within 0.094 mm, rms 0.034
+            assert len(errors) == 9 and max(abs(e) for e in errors) < 0.12, (errors, touch.reapproaches)
             fit = fit_surface(touch.touches)
             # sweep two lines across the dome pressing 0.5 mm below the found surface: the force must stay on
             plan = sweep_raster(20, 10, 40, 30, spacing_mm=20, speed_mm_s=10, contact_z_mm=-0.5, surface=fit,
@@ -89,7 +90,7 @@ def test_the_robot_s_own_force_sensor_is_too_coarse_to_touch_off_the_dome_and_th
                 touch.step()
                 time.sleep(0.002)
             assert touch.failed and "would be crossed by noise" in touch.error, touch.error
-            assert 0.7 < touch.force_noise_n < 1.3
+            assert 0.5 < touch.force_noise_n < 1.5  # sigma from 20 readings: within ~3 of its standard errors
             assert ur.state().pose[2] == pytest.approx(7.0, abs=0.01)  # it never went down
         finally:
             ur.close()
