@@ -99,6 +99,7 @@ class TouchOff:
         self._free_z: float | None = None  # force: the last height over this point with no force yet
         self._slower = 0  # force: re-approaches at this point (each at half the last descent's speed)
         self._again_from: float | None = None  # force: once stopped, descend again from this height
+        self._stale_below: float | None = None  # force: after a stop, readings count once the arm rises past this
         self.reapproaches = 0
         """Force: descents repeated more slowly because the force rose in too few readings (all points)."""
         self._at_rest: list[float] = []  # force: distinct readings at the start height over this point
@@ -183,7 +184,10 @@ class TouchOff:
             return
         if self.phase == "searching":
             if self.cfg.signal == "force" and self._over_point(st.pose[0], st.pose[1]):
-                self._on_force(st.pose[2], abs(st.force_n[2] - self.force_zero_n))
+                if self._stale_below is not None and (st.pose[2] > self._stale_below + 0.05 or prog.index >= 1):
+                    self._stale_below = None  # the arm has left where it stopped: readings from now on are new
+                if self._stale_below is None:
+                    self._on_force(st.pose[2], abs(st.force_n[2] - self.force_zero_n))
             if self.phase == "searching" and prog.status == MotionStatus.DONE:
                 if self.cfg.search:
                     self._miss()
@@ -224,13 +228,15 @@ class TouchOff:
                        "N, which a soft specimen may not push back before the table: touch off with the probe's own "
                        "signal (touchoff: heights or indenters) or a finer force sensor")
             return
-        self._descend(c.start_z_mm)
+        self._descend(c.start_z_mm, at_top=True)
 
     def _on_force(self, z: float, f: float) -> None:
         if f <= max(0.05 * self.cfg.threshold, 3.0 * self.force_noise_n):  # the rise is fitted above the noise
             # back under it: what rose before was noise (a contact's force does not fall while the arm descends)
             self._free_z, self._rising = z, []
             return
+        if self._rising and self._rising[-1] == (z, f):
+            return  # the same package read again (the driver's stream behind the steps): no new reading
         self._rising.append((z, f))
         if f > self.cfg.threshold:
             z0 = contact_onset_z(self._rising, _FORCE_POWERS, noise=self.force_noise_n, prior=_FORCE_PRIOR)
@@ -295,7 +301,7 @@ class TouchOff:
 
     def _go(self, index: int) -> None:
         self.index, self._found, self._rising, self._tare, self._edge = index, [], [], None, 0
-        self._free_z, self._slower, self._again_from = None, 0, None
+        self._free_z, self._slower, self._again_from, self._stale_below = None, 0, None, None
         self._at_rest, self._rest_steps = [], 0
         if index >= len(self.points):
             x, y, z = self.driver.state().pose[:3]
@@ -318,13 +324,17 @@ class TouchOff:
                                self._point(x, y, c.floor_z_mm, c.search_speed_mm_s)])
         self.phase = "searching"
 
-    def _descend(self, top: float) -> None:
-        """Over the same point again: up to ``top``, then down at the search speed halved per re-approach."""
+    def _descend(self, top: float, *, at_top: bool = False) -> None:
+        """Over the same point again: up to ``top`` (unless ``at_top``: the path there has ended), then down at the
+        search speed halved per re-approach."""
         c = self.cfg
         x, y = self.points[self.index]
         self._found, self._rising, self._free_z, self._again_from = [], [], None, None
         down = self._point(x, y, c.floor_z_mm, c.search_speed_mm_s / 2 ** self._slower)
-        if math.dist(self.driver.state().pose[:3], (x, y, top)) < 0.01:  # already there (after the tare)
+        # a stream behind its reader still gives the stopped arm's readings, deep in the tissue, after the new path
+        # was sent: they count once one shows the arm above where it stopped, or the controller past the top
+        self._stale_below = None if at_top else self.driver.state().pose[2]
+        if at_top:  # not judged from the pose, which a stream behind its reader can give from before the stop
             self.driver.move_path([down])
         else:
             self.driver.move_path([self._point(x, y, top, c.transit_speed_mm_s), down])

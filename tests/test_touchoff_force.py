@@ -61,12 +61,22 @@ class ForceArm(SimRobotDriver):
 
     def __init__(self, world: TissueWorld, surface_z: Callable[[float, float], float],
                  home_mm: tuple[float, float, float], clock: Callable[[], int], bias_n: float,
-                 noise_n: float, seed: int = 0) -> None:
+                 noise_n: float, seed: int = 0, stale: int = 0) -> None:
         super().__init__(home_mm, clock=clock)
         self.world, self.surface_z, self.bias_n, self.noise_n = world, surface_z, bias_n, noise_n
         self.rng = random.Random(seed)
+        self.stale, self._reads = stale, 0
+        self._held: TcpState | None = None
 
     def state(self) -> TcpState:
+        """With ``stale``, each reading is answered again ``stale`` more times (a stream behind its reader)."""
+        self._reads += 1
+        if self._held is not None and self._reads % (self.stale + 1):
+            return self._held
+        self._held = self._read()
+        return self._held
+
+    def _read(self) -> TcpState:
         st = super().state()
         x, y, z = st.pose[:3]
         depth = float(self.surface_z(x, y)) - z
@@ -75,13 +85,14 @@ class ForceArm(SimRobotDriver):
         return dataclasses.replace(st, force_n=(0.0, 0.0, fz, 0.0, 0.0, 0.0))
 
 
-def touch_off(step_s: float, bias_n: float = 2.0, noise_n: float = 0.0, seed: int = 0) -> tuple[TouchOff, list[float]]:
+def touch_off(step_s: float, bias_n: float = 2.0, noise_n: float = 0.0, seed: int = 0,
+              stale: int = 0) -> tuple[TouchOff, list[float]]:
     """Nine force touches over the dome's crest, the touch-off stepped every ``step_s`` of simulated time, the force
     read off by ``bias_n`` with a noise of sigma ``noise_n``."""
     truth = load_phantom(DOME)
     now = [0]
     arm = ForceArm(TissueWorld(truth), lambda x, y: float(truth.surface_z(x, y)), (20.0, 10.0, 7.0),
-                   lambda: now[0], bias_n, noise_n, seed)
+                   lambda: now[0], bias_n, noise_n, seed, stale)
     arm.connect()
     touch = TouchOff(arm, touch_points((20.0, 10.0, 40.0, 30.0), 3), TouchOffConfig(
         signal="force", start_z_mm=7.0, floor_z_mm=0.5, search_speed_mm_s=5.0, transit_speed_mm_s=60.0,
@@ -122,6 +133,20 @@ def test_a_wrist_sensor_s_noise_is_read_at_rest_and_the_rise_fitted_above_it() -
             touch, e = touch_off(step_s, noise_n=0.003, seed=seed)
             assert touch.done, touch.error
             assert 0.002 < touch.force_noise_n < 0.004 and len(e) == 9
+            errors += e
+    assert max(abs(e) for e in errors) < 0.12, max(abs(e) for e in errors)
+    assert math.sqrt(sum(e * e for e in errors) / len(errors)) < 0.038
+
+
+def test_readings_of_a_stream_behind_its_reader_are_not_taken_twice_nor_from_before_a_stop() -> None:
+    """The driver's stream three packages behind the steps (each state answered four times, as ur_rtde's is when its
+    receive thread lags): a reading read again is not a new one, and after a stop the stopped arm's readings, deep
+    in the tissue, do not count for the next descent. The same 108 touches as above, within 0.12 mm, rms 0.034."""
+    errors = []
+    for seed in range(4):
+        for step_s in (0.002, 0.02, 0.05):
+            touch, e = touch_off(step_s / 4, noise_n=0.003, seed=seed, stale=3)
+            assert touch.done, touch.error
             errors += e
     assert max(abs(e) for e in errors) < 0.12, max(abs(e) for e in errors)
     assert math.sqrt(sum(e * e for e in errors) / len(errors)) < 0.038
