@@ -103,6 +103,8 @@ def sweep_over_the_dome(tmp_path: Path, gain: float, *, wall_clock: bool = False
     deadline = time.monotonic() + timeout_s
     stalls: list[float] = []
     since: list[float] = []  # per judged sample: seconds since the last stall ended, on the wall clock
+    trace: list[tuple[float, ...]] = []  # per judged sample: t, y, clearance, follower offset, sent offset, resends
+    t0 = time.monotonic()
     stalled, last, settled_at, stall_end = 0, time.monotonic(), 0.0, -math.inf
     for _ in range(int(timeout_s / 0.01)):
         if wall_clock:
@@ -137,8 +139,12 @@ def sweep_over_the_dome(tmp_path: Path, gain: float, *, wall_clock: bool = False
                 continue
             samples.append((decoder.decode(raw.payload), z - float(truth.surface_z(x, y))))
             since.append(time.monotonic() - stall_end)
+            f = scanner.follower
+            trace.append((time.monotonic() - t0, y, z - float(truth.surface_z(x, y)), f.offset_mm if f else 0.0,
+                          f.sent_mm if f else 0.0, f.resends if f else 0))
     g.close()
-    return {"scanner": scanner, "samples": samples, "stalled": stalled, "stalls": stalls, "since_stall": since}
+    return {"scanner": scanner, "samples": samples, "stalled": stalled, "stalls": stalls, "since_stall": since,
+            "trace": trace}
 
 
 def check_without_and_with_following(free: dict[str, Any], followed: dict[str, Any]) -> None:
@@ -164,6 +170,10 @@ def check_following(followed: dict[str, Any]) -> None:
                             "stalls (s):", followed.get("stalls"))
     worst = min(range(len(got)), key=lambda i: min(got[i][0].h_mm[:3]))
     since = followed.get("since_stall", [math.inf] * len(got))[worst]
+    if not all(in_working_range(m.h_mm) for m, _ in got) and followed.get("trace"):
+        print("before the worst sample: t (s), y, clearance, follower offset, sent offset (mm), resends")
+        for row in followed["trace"][max(0, worst - 60): worst + 1: 4]:
+            print(" ".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row))
     assert all(in_working_range(m.h_mm) for m, _ in got), (min(got[worst][0].h_mm[:3]), f"{since:.2f} s after the "
                                                              "last stall ended; stalls (s):", followed.get("stalls"))
     clearances = [c for _, c in got]
