@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import multiprocessing
 import os
 import secrets
 import signal
@@ -193,3 +194,40 @@ def ur_emulator(args: Sequence[str]) -> Iterator[UrEmulatorProcess]:
             print(f"this process: {len(pauses)} garbage collections while the emulator ran, the longest "
                   f"{max(pauses, default=0.0):.3f} s")
             assert code == 0, f"emulator exited with {code}"
+
+
+class ChildSteps:
+    """A spawned child process that talks with the test in words over a pipe: ``target(*args, pipe)`` sends a word
+    once it has done a step and waits for the test's (``tell``). For code that can abort the process it runs in
+    (ur_rtde's reconnect thread on a dropped connection): an abort fails the test that ran it, not the xdist worker.
+    Use as a context manager; on leaving it the child must have exited 0."""
+
+    def __init__(self, target: Callable[..., None], *args: Any, what: str = "the child") -> None:
+        ctx = multiprocessing.get_context("spawn")
+        self._ours, theirs = ctx.Pipe()
+        self.what = what
+        self.child = ctx.Process(target=target, args=(*args, theirs), daemon=True)
+
+    def __enter__(self) -> ChildSteps:
+        self.child.start()
+        return self
+
+    def said(self, word: str, timeout_s: float, what: str) -> None:
+        """Wait (at most ``timeout_s``) for the child to say ``word``; a child that died fails at once."""
+
+        def heard() -> bool:
+            assert self.child.is_alive() or self._ours.poll(), f"{self.what} died (exit code {self.child.exitcode})"
+            return bool(self._ours.poll(0.05)) and self._ours.recv() == word
+
+        wait_until(heard, timeout_s, what)
+
+    def tell(self, word: str) -> None:
+        self._ours.send(word)
+
+    def __exit__(self, *exc: object) -> None:
+        self.child.join(5.0)
+        if self.child.is_alive():
+            self.child.kill()
+            self.child.join(5.0)
+        if exc[0] is None:
+            assert self.child.exitcode == 0, f"{self.what} exited with {self.child.exitcode} (-6: ur_rtde aborted)"

@@ -7,7 +7,6 @@ Python calls hold the GIL while they block, so an in-process emulator would star
 from __future__ import annotations
 
 import math
-import multiprocessing
 import socket
 import time
 from collections.abc import Iterator
@@ -27,7 +26,7 @@ from nodes.drivers.robot import (
 )
 from nodes.drivers.robot_sim import SimRobotDriver
 from palpa.clock import MockClock
-from tests.procs import ur_emulator, wait_until
+from tests.procs import ChildSteps, ur_emulator, wait_until
 
 pytest.importorskip("rtde_control")
 from nodes.drivers.robot_urrtde import URRtdeDriver  # noqa: E402
@@ -257,32 +256,18 @@ def _driver_through_a_drop(host: str, pipe: Connection) -> None:
 
 @pytest.mark.timeout(40)
 def test_ur_driver_reports_a_lost_connection_without_retrying(emu: UrEmulatorProcess) -> None:
-    ctx = multiprocessing.get_context("spawn")
-    ours, theirs = ctx.Pipe()
-    child = ctx.Process(target=_driver_through_a_drop, args=(emu.host, theirs), daemon=True)
-    child.start()
-    try:
-        def said(word: str) -> bool:
-            assert child.is_alive() or ours.poll(), f"the driver's process died (exit code {child.exitcode})"
-            return bool(ours.poll(0.05)) and ours.recv() == word
-
-        wait_until(lambda: said("moving"), 15.0, "the driver to connect and move")
+    with ChildSteps(_driver_through_a_drop, emu.host, what="the driver's process") as child:
+        child.said("moving", 15.0, "the driver to connect and move")
         emu.command("drop 1.0")  # every connection closed; new ones refused for 1 s
-        ours.send("dropped")
-        wait_until(lambda: said("disconnected"), 10.0, "the driver to report the lost connection")
+        child.tell("dropped")
+        child.said("disconnected", 10.0, "the driver to report the lost connection")
         # the controller's watchdog (5 Hz) stops the program and the arm without the client
         st = emu.wait_state(lambda st: st["runtime_state"] == 1 and not st["moving"], 3.0)
         end = raster(20)[-1]
         assert math.dist(st["pose_mm"][:3], (end.x_mm + OFFSET[0], end.y_mm + OFFSET[1], end.z_mm + OFFSET[2])) > 5.0
         emu.wait_state(lambda st: st["clients"] == 0, 2.0)
-        ours.send("gone")
-        wait_until(lambda: said("done"), 15.0, "the driver to reconnect and move")
-    finally:
-        child.join(5.0)
-        if child.is_alive():
-            child.kill()
-            child.join(5.0)
-    assert child.exitcode == 0, f"the driver's process exited with {child.exitcode} (-6: ur_rtde aborted)"
+        child.tell("gone")
+        child.said("done", 15.0, "the driver to reconnect and move")
 
 
 @pytest.mark.timeout(20)

@@ -8,7 +8,6 @@ Protocol-level tests without ur_rtde run the emulator in-process with OS-chosen 
 from __future__ import annotations
 
 import math
-import multiprocessing
 import socket
 import struct
 import subprocess
@@ -29,7 +28,7 @@ from emulators.ur.script import ScriptReceiver, parse_path
 from models.arm import ArmTarget
 from models.phantom import load_phantom
 from models.world import TissueWorld
-from tests.procs import ur_emulator, wait_until
+from tests.procs import ChildSteps, ur_emulator, wait_until
 
 # the UR emulator moves in real time: its tests run one at a time on one xdist worker (make test, --dist loadgroup)
 pytestmark = pytest.mark.xdist_group("ur-emulator")
@@ -195,27 +194,14 @@ def _client_through_a_drop(host: str, pipe: Any) -> None:
 
 @pytest.mark.timeout(30)
 def test_reconnect_after_a_dropped_connection(emu: UrEmulatorProcess) -> None:
-    ctx = multiprocessing.get_context("spawn")
-    ours, theirs = ctx.Pipe()
-    child = ctx.Process(target=_client_through_a_drop, args=(emu.host, theirs), daemon=True)
-    child.start()
-    try:
-        def said(word: str) -> bool:
-            assert child.is_alive() or ours.poll(), f"the ur_rtde client died (exit code {child.exitcode})"
-            return ours.poll(0.05) and ours.recv() == word
-
-        wait_until(lambda: said("connected"), 10.0, "the client to connect")
+    with ChildSteps(_client_through_a_drop, emu.host, what="the ur_rtde client") as child:
+        child.said("connected", 10.0, "the client to connect")
         emu.command("drop 0.5")  # close every connection and refuse new ones for 0.5 s
-        ours.send("dropped")
-        wait_until(lambda: said("noticed"), 10.0, "the client to notice")
+        child.tell("dropped")
+        child.said("noticed", 10.0, "the client to notice")
         emu.wait_state(lambda st: st["clients"] == 0, 2.0)
-        ours.send("gone")
-        wait_until(lambda: said("done"), 10.0, "the client to reconnect and move")
-    finally:
-        child.join(5.0)
-        if child.is_alive():
-            child.kill()
-    assert child.exitcode == 0, f"the ur_rtde client exited with {child.exitcode} (-6: ur_rtde aborted)"
+        child.tell("gone")
+        child.said("done", 10.0, "the client to reconnect and move")
 
 
 @pytest.mark.timeout(15)
