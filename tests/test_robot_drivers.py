@@ -387,9 +387,9 @@ class _Receive:
         return self.runtime_state
 
 
-def moving_driver(**kwargs: float) -> URRtdeDriver:
+def moving_driver(start_timeout_s: float = 2.0, command_timeout_s: float = 10.0) -> URRtdeDriver:
     """A driver as move_path leaves it (no robot: its status is driven through _poll_path by fake interfaces)."""
-    drv = URRtdeDriver("127.0.0.1", **kwargs)
+    drv = URRtdeDriver("127.0.0.1", start_timeout_s=start_timeout_s, command_timeout_s=command_timeout_s)
     drv._status, drv._moving, drv._reg0, drv._count = MotionStatus.MOVING, True, -1, 20
     drv._t_move = time.monotonic()
     return drv
