@@ -22,6 +22,9 @@ from tests.test_surface_follow import check_following, sweep_over_the_dome
 # the UR emulator moves in real time: its tests run one at a time on one xdist worker (make test, --dist loadgroup)
 pytestmark = pytest.mark.xdist_group("ur-emulator")
 
+# how long the driver gives the emulator to start a path: a controller takes a few 2 ms cycles, but the emulator is a
+# Python process that busy cores may not run for seconds (as in tests/test_robot_drivers.py)
+EMULATOR_START_S = 10.0
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm, 6 mm on the centre line, 3 mm at the y edges
 
 
@@ -31,7 +34,7 @@ def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator() 
     # a wrist F/T sensor's noise (ATI Nano17 class: a few mN), its offset up to 3 N until the touch-off's zero
     with ur_emulator(["--unlock-delay", "0", "--home", f"20,10,7,0,{math.pi},0", "--phantom", DOME,
                       "--force-noise", "0.003"]) as emu:
-        ur = URRtdeDriver(emu.host, watchdog_hz=5.0)
+        ur = URRtdeDriver(emu.host, watchdog_hz=5.0, start_timeout_s=EMULATOR_START_S)
         try:
             ur.connect()
             # 20 x 20 mm over the crest (6 mm on y = 20, ~5.3 at the region's edges), each descent from 1 mm over it
@@ -79,7 +82,7 @@ def test_the_robot_s_own_force_sensor_is_too_coarse_to_touch_off_the_dome_and_th
     """The emulator's default sensor (sigma 1 N, a UR's built-in one at its best) against a 0.5 N threshold: the
     touch-off reads the spread at rest over the first point and refuses before descending, naming it."""
     with ur_emulator(["--unlock-delay", "0", "--home", f"20,10,7,0,{math.pi},0", "--phantom", DOME]) as emu:
-        ur = URRtdeDriver(emu.host, watchdog_hz=5.0)
+        ur = URRtdeDriver(emu.host, watchdog_hz=5.0, start_timeout_s=EMULATOR_START_S)
         try:
             ur.connect()
             touch = TouchOff(ur, [(30.0, 20.0)], TouchOffConfig(signal="force", start_z_mm=7.0, floor_z_mm=0.5,
