@@ -35,8 +35,8 @@ __all__ = [
 ]
 
 Region = tuple[float, float, float, float]
-_LAW_ERROR = 0.05  # contact_onset_z: how far a contact law is taken to be off, relative
 Box = tuple[float, float, float, float, float, float]
+_LAW_ERROR = 0.05  # contact_onset_z: how far a contact law is taken to be off, relative
 
 
 class SpecimenDoesNotFit(ValueError):
@@ -129,9 +129,11 @@ def contact_onset_z(samples: Sequence[tuple[float, float]], powers: Sequence[flo
     a line in z, and the exponent whose curve best fits the samples gives z0. Each sample's misfit is weighed by
     what it can be off by: 5 % of itself (a law is no better), or the readings' ``noise`` (sigma) where that is more,
     so that the small signals near the onset count as much as the large ones unless noise drowns them. ``prior``
-    (mean, sigma) adds ((p - mean) / sigma)^2 to an exponent's misfit: readings must earn a departure from it. One exponent is a known law (1: the camera probe's
-    springs); several, an unknown one: a sphere on a thick elastic layer rises as 1.5, and on a thin layer over the
-    table it stiffens well past that, so a fixed 1.5 puts the surface too low by as much as the layer stiffens.
+    (mean, sigma) adds ((p - mean) / sigma)^2 to an exponent's misfit: readings must earn a departure from it.
+
+    One exponent is a known law (1: the camera probe's springs); several, an unknown one: a sphere on a thick
+    elastic layer rises as 1.5, and on a thin layer over the table it stiffens well past that, so a fixed 1.5 puts
+    the surface too low by as much as the layer stiffens.
     None when the samples cannot tell: fewer than 3 (4 with a free exponent), no spread in z, or no rising line.
     """
     pts = [(z, s) for z, s in samples if s > 0.0 and math.isfinite(z) and math.isfinite(s)]
@@ -141,7 +143,7 @@ def contact_onset_z(samples: Sequence[tuple[float, float]], powers: Sequence[flo
     s = np.array([p[1] for p in pts])
     if float(np.ptp(z)) < 1e-3:
         return None
-    best: tuple[float, float] | None = None  # (relative squared error, z0)
+    best: tuple[float, float] | None = None  # (weighted misfit, z0)
     design = np.column_stack([z, np.ones_like(z)])
     for p in powers:
         (slope, icept), *_ = np.linalg.lstsq(design, s ** (1.0 / p), rcond=None)

@@ -20,7 +20,8 @@ and goes on to the next point. The contact signals (``signal``):
   (a thin layer stiffens past it, which put a 6 mm dome's surface 0.1 mm low; noisy readings cannot pull p far).
   The force is read when :meth:`step` runs; if the rise went by in fewer than 16 readings (a descent too fast for a
   busy PC's steps), the arm backs up to 1 mm over the last force-free height and descends again at half the
-  speed, up to three times (``reapproaches`` counts them).
+  speed, up to three times (``reapproaches`` counts them); a rise still read fewer than 4 times then fails the
+  touch-off, naming the point, rather than take the depth it was seen at for the surface.
 
 A descent that reaches the floor without contact is an error naming the point (nothing under it); in a search for
 the specimen (``search``, the scanner's ``search_box_mm``) it is a miss, and so is a ring half over an edge. The driver
@@ -243,7 +244,13 @@ class TouchOff:
             if (z0 is None or len(self._rising) < _MIN_RISE) and self._slower < _REAPPROACHES:
                 self._reapproach()
                 return
-            self._found = [z if z0 is None else z0] * self.cfg.samples
+            if z0 is None:  # the depth where the threshold was crossed is no surface: 1-2 mm into soft tissue
+                x, y = self.points[self.index]
+                self._fail(f"touch-off by force at ({x:g}, {y:g}) mm: the force rose past {self.cfg.threshold:g} N in "
+                           f"{len(self._rising)} readings even at 1/{2 ** self._slower} of the search speed, too few "
+                           "to find where it began: is step() called often enough (the node's timer)?")
+                return
+            self._found = [z0] * self.cfg.samples
             self._contact(self._found[0])
 
     def _reapproach(self) -> None:

@@ -178,6 +178,12 @@ def _gc_frozen() -> Iterator[list[float]]:
         gc.unfreeze()
 
 
+EMULATOR_START_S = 10.0
+"""How long the driver gives the emulator to start an uploaded path. A controller starts it within a few 2 ms cycles
+(the driver's 2 s default); the emulator is a Python process that two busy cores may not run for seconds, so its
+delay would be reported as a path that never started (the timeout itself: the last test of this file)."""
+
+
 @contextlib.contextmanager
 def ur_emulator(args: Sequence[str]) -> Iterator[UrEmulatorProcess]:
     """A UR emulator process on a random loopback address, stopped at the end; it must exit 0 (its log is printed,

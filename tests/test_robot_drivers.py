@@ -26,7 +26,7 @@ from nodes.drivers.robot import (
 )
 from nodes.drivers.robot_sim import SimRobotDriver
 from palpa.clock import MockClock
-from tests.procs import ChildSteps, ur_emulator, wait_until
+from tests.procs import EMULATOR_START_S, ChildSteps, ur_emulator, wait_until
 
 pytest.importorskip("rtde_control")
 from nodes.drivers.robot_urrtde import URRtdeDriver  # noqa: E402
@@ -145,12 +145,6 @@ def emu(request: pytest.FixtureRequest) -> Iterator[UrEmulatorProcess]:
     args = ["--unlock-delay", "0", "--home", HOME_ARG, *getattr(request, "param", ())]
     with ur_emulator(args) as proc:
         yield proc
-
-
-EMULATOR_START_S = 10.0
-"""How long the driver gives the emulator to start an uploaded path. A controller starts it within a few 2 ms cycles
-(the driver's 2 s default); the emulator is a Python process that two busy cores may not run for seconds, so its
-delay would be reported as a path that never started (the timeout itself: the last test of this file)."""
 
 
 @pytest.fixture

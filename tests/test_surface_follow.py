@@ -105,10 +105,10 @@ def sweep_over_the_dome(tmp_path: Path, gain: float, *, wall_clock: bool = False
     samples: list[tuple[ProbeHeights, float]] = []  # (sample, true clearance of the face)
     deadline = time.monotonic() + timeout_s
     stalls: list[float] = []
-    since: list[float] = []  # per judged sample: seconds since the last stall ended, on the wall clock
-    trace: list[tuple[float, ...]] = []  # per judged sample: t, y, clearance, follower offset, sent offset, resends
+    # per judged sample: t, s since the last stall ended, y, clearance, follower offset, sent offset (mm), resends
+    trace: list[tuple[float, ...]] = []
     t0 = time.monotonic()
-    stalled, last, settled_at, stall_end, line = 0, time.monotonic(), 0.0, -math.inf, -1
+    set_apart, last, settled_at, stall_end, line = 0, time.monotonic(), 0.0, -math.inf, -1
     for _ in range(int(timeout_s / 0.01)):
         if wall_clock:
             time.sleep(0.005)
@@ -141,17 +141,16 @@ def sweep_over_the_dome(tmp_path: Path, gain: float, *, wall_clock: bool = False
         for raw in raws:
             if raw.topic != "probe/heights":
                 continue
-            if wall_clock and time.monotonic() < settled_at:
-                stalled += 1
+            now = time.monotonic()
+            if wall_clock and now < settled_at:
+                set_apart += 1
                 continue
-            samples.append((decoder.decode(raw.payload), z - float(truth.surface_z(x, y))))
-            since.append(time.monotonic() - stall_end)
-            f = scanner.follower
-            trace.append((time.monotonic() - t0, y, z - float(truth.surface_z(x, y)), f.offset_mm if f else 0.0,
-                          f.sent_mm if f else 0.0, f.resends if f else 0))
+            clearance = z - float(truth.surface_z(x, y))
+            samples.append((decoder.decode(raw.payload), clearance))
+            trace.append((now - t0, now - stall_end, y, clearance, follower.offset_mm if follower else 0.0,
+                          follower.sent_mm if follower else 0.0, follower.resends if follower else 0))
     g.close()
-    return {"scanner": scanner, "samples": samples, "stalled": stalled, "stalls": stalls, "since_stall": since,
-            "trace": trace}
+    return {"scanner": scanner, "samples": samples, "set_apart": set_apart, "stalls": stalls, "trace": trace}
 
 
 def check_without_and_with_following(free: dict[str, Any], followed: dict[str, Any]) -> None:
@@ -173,13 +172,15 @@ def check_following(followed: dict[str, Any]) -> None:
     assert fit.model == "plane" and fit.z(25, 20) < float(truth.surface_z(25, 20)) - 0.9  # the premise: 1 mm off
     assert s.follower is not None and s.follower.resends > 5
     got = followed["samples"]
-    assert len(got) > 500, (len(got), "samples set apart (line starts, stalls):", followed.get("stalled"),
+    assert len(got) > 500, (len(got), "samples set apart (line starts, stalls):", followed.get("set_apart"),
                             "stalls (s):", followed.get("stalls"))
     worst = min(range(len(got)), key=lambda i: min(got[i][0].h_mm[:3]))
-    since = followed.get("since_stall", [math.inf] * len(got))[worst]
-    if not all(in_working_range(m.h_mm) for m, _ in got) and followed.get("trace"):
-        print("before the worst sample: t (s), y, clearance, follower offset, sent offset (mm), resends")
-        for row in followed["trace"][max(0, worst - 60): worst + 1: 4]:
+    trace = followed.get("trace")
+    since = trace[worst][1] if trace else math.inf
+    if not all(in_working_range(m.h_mm) for m, _ in got) and trace:
+        print("before the worst sample: t, since the last stall (s), y, clearance, follower offset, sent offset (mm), "
+              "resends")
+        for row in trace[max(0, worst - 60): worst + 1: 4]:
             print(" ".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row))
     assert all(in_working_range(m.h_mm) for m, _ in got), (min(got[worst][0].h_mm[:3]), f"{since:.2f} s after the "
                                                              "last stall ended; stalls (s):", followed.get("stalls"))

@@ -152,6 +152,16 @@ def test_readings_of_a_stream_behind_its_reader_are_not_taken_twice_nor_from_bef
     assert math.sqrt(sum(e * e for e in errors) / len(errors)) < 0.038
 
 
+def test_a_rise_read_too_rarely_even_at_an_eighth_of_the_speed_fails_the_touch_off_naming_the_point() -> None:
+    """Stepped once a second the rise is read once or twice even after three slower descents: the touch-off fails,
+    naming the point, instead of taking the depth where the threshold was crossed (1.5 mm into this dome) for the
+    surface."""
+    touch, errors = touch_off(1.0)
+    assert touch.failed and not errors and touch.reapproaches == 3
+    assert touch.error.startswith("touch-off by force at (20, 10) mm") and "too few to find where it began" in (
+        touch.error), touch.error
+
+
 def test_a_robot_s_coarse_force_sensor_cannot_touch_off_soft_tissue_and_says_so() -> None:
     """A UR's built-in sensor (sigma ~1 N) against a 0.3 N threshold: noise alone would cross it, and this dome
     pushes back 0.3 N only 1.5 mm in. The touch-off fails before descending, naming the spread and the way out."""

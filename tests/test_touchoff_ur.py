@@ -16,15 +16,12 @@ from models.surface import fit_surface, touch_points
 from nodes.drivers.robot import MotionStatus
 from nodes.drivers.robot_urrtde import URRtdeDriver
 from nodes.touchoff import TouchOff, TouchOffConfig
-from tests.procs import ur_emulator
+from tests.procs import EMULATOR_START_S, ur_emulator
 from tests.test_surface_follow import check_following, sweep_over_the_dome
 
 # the UR emulator moves in real time: its tests run one at a time on one xdist worker (make test, --dist loadgroup)
 pytestmark = pytest.mark.xdist_group("ur-emulator")
 
-# how long the driver gives the emulator to start a path: a controller takes a few 2 ms cycles, but the emulator is a
-# Python process that busy cores may not run for seconds (as in tests/test_robot_drivers.py)
-EMULATOR_START_S = 10.0
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm, 6 mm on the centre line, 3 mm at the y edges
 
 
@@ -119,6 +116,6 @@ def test_the_scanner_follows_the_dome_by_the_probe_heights_through_ur_rtde(tmp_p
         run = sweep_over_the_dome(tmp_path, gain=10.0, wall_clock=True, timeout_s=90.0, driver="ur_rtde",
                                   robot_host=emu.host, rtde_watchdog_hz=0.0)
         assert not any("watchdog" in m for m in emu.command("messages")["messages"])   # the scanner set none
-    print(f"{run['stalled']} samples set apart (each line's first second, and after {len(run['stalls'])} stalls of "
+    print(f"{run['set_apart']} samples set apart (each line's first second, and after {len(run['stalls'])} stalls of "
           f"this process: {run['stalls']})")
     check_following(run)
