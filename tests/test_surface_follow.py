@@ -5,7 +5,6 @@ clock); tests/test_touchoff_ur.py runs the same through the ur_rtde driver again
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 from typing import Any
@@ -13,6 +12,7 @@ from typing import Any
 import msgspec
 import pytest
 
+from emulators.lockstep import ClockWriter
 from messages import ProbeHeights
 from models.following import (
     FollowConfig,
@@ -33,15 +33,13 @@ from palpa.clock import MockClock
 from palpa.testing import GraphHarness, NodeHarness
 
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm: 6 mm on the centre line y = 20, 3 mm at the y edges
-# On the wall clock: a pass of the loop that took longer than STALL_S is this process stalled (starved by the other
-# workers, or in a blocking ur_rtde call that holds the GIL); for SETTLE_S after it, the probe's samples say what
-# the stall did, not what following does, and are counted apart. Following cannot correct while the process that
-# runs it is stopped: at 10 mm/s over this dome's slopes (<= 0.15 mm/mm) 0.25 s is <= 0.4 mm of drift, inside the
-# working range; the drift grows with the stall, and so does the time to take it back (the follower's rate is
-# capped): the samples are set apart for SETTLE_S plus the stall's own length. So are those of each line's first
-# SETTLE_S: a line starts at the plan's height, and the follower's first corrections take the loop's latency to land
-# (in simulated time it settles within the first 4 mm, which all runs leave out).
-STALL_S, SETTLE_S = 0.25, 1.0
+# With a real-time driver (the UR emulator) the harness's clock follows the wall clock, at most MAX_STEP_S per pass
+# of the loop: a stall of this process (starved by other workers, or in a ur_rtde call holding the GIL) slows the
+# graph's time down instead of jumping it, and the emulator, on the same clock (emulators.lockstep), holds with it
+# within its lead. Each line's first SETTLE_S of that time is set apart and counted, not judged: a line starts at
+# the plan's height, and the follower's first corrections take the loop's latency (each a ur_rtde path upload) to
+# land (in the mock clock's time it settles within the first 4 mm, which all runs leave out).
+MAX_STEP_S, SETTLE_S, STALL_S = 0.02, 1.0, 0.25
 REGION = [22.0, 6.0, 28.0, 34.0]  # two lines along y, across the crest (x clear of both inclusions' cores)
 
 
@@ -85,15 +83,15 @@ def geometry(tmp_path: Path) -> str:
     return str(f)
 
 
-def sweep_over_the_dome(tmp_path: Path, gain: float, *, wall_clock: bool = False, timeout_s: float = 60.0,
+def sweep_over_the_dome(tmp_path: Path, gain: float, *, clock: ClockWriter | None = None, timeout_s: float = 60.0,
                         **params: Any) -> dict[str, Any]:
     """The scanner (sim arm, or ``params`` for another driver), the sim regulator and the sim fibre probe
-    over the dome; touch-off on 2 x 2 points, then two lines at 10 mm/s. ``wall_clock``: the harness's clock follows
-    the wall clock (a real-time driver: the UR emulator). Returns the probe's samples while sliding (mid-line), the
-    scanner, and, on the wall clock, the samples set apart (after a stall of this process, or in a line's first
-    second) and the stalls (s)."""
+    over the dome; touch-off on 2 x 2 points, then two lines at 10 mm/s. ``clock``: the harness's clock follows
+    the wall clock (see MAX_STEP_S) and is published there, for a real-time driver that follows it (the UR
+    emulator's ``--clock-file``). Returns the probe's samples while sliding (mid-line), the scanner, and with a
+    clock the samples set apart (each line's first SETTLE_S), the stalls of this process (s), and a trace."""
     truth = load_phantom(DOME)
-    g = GraphHarness(clock=MockClock(time.time_ns()) if wall_clock else None)
+    g = GraphHarness(clock=MockClock(time.time_ns()) if clock is not None else None)
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": 36.0, "sim_tracking_kpa": 0.0})
     g.add(FibreReader, {"phantom": DOME, "sim_errors": "ideal", "poll_hz": 100.0})
     scanner = g.add(RobotScanner, {
@@ -105,20 +103,20 @@ def sweep_over_the_dome(tmp_path: Path, gain: float, *, wall_clock: bool = False
     samples: list[tuple[ProbeHeights, float]] = []  # (sample, true clearance of the face)
     deadline = time.monotonic() + timeout_s
     stalls: list[float] = []
-    # per judged sample: t, s since the last stall ended, y, clearance, follower offset, sent offset (mm), resends
+    # per judged sample: graph time (s), y, clearance, follower offset, sent offset (mm), resends
     trace: list[tuple[float, ...]] = []
-    t0 = time.monotonic()
-    set_apart, last, settled_at, stall_end, line = 0, time.monotonic(), 0.0, -math.inf, -1
-    for _ in range(int(timeout_s / 0.01)):
-        if wall_clock:
+    t0 = g.clock.now_ns()
+    set_apart, last, settled_at, line = 0, time.monotonic(), 0, -1
+    for _ in range(int(timeout_s / (0.005 if clock is not None else 0.01))):
+        if clock is not None:
+            clock.write(g.clock.now_ns())
             time.sleep(0.005)
             now = time.monotonic()
             if now - last > STALL_S:
-                stalls.append(now - last)
-                settled_at, stall_end = max(settled_at, now + SETTLE_S + (now - last)), now
+                stalls.append(round(now - last, 3))
+            g.advance(min(now - last, MAX_STEP_S))
             last = now
-            g.advance(max(0.0, (time.time_ns() - g.clock.now_ns()) / 1e9))
-            if time.monotonic() > deadline:
+            if now > deadline:
                 break
         else:
             g.advance(0.01)
@@ -135,20 +133,21 @@ def sweep_over_the_dome(tmp_path: Path, gain: float, *, wall_clock: bool = False
         if not (is_slide(scanner.path, i) and REGION[1] + 4 < y < REGION[3] - 4):
             continue
         follower = scanner.follower
-        if wall_clock and follower is not None and follower.line != line:
+        if clock is not None and follower is not None and follower.line != line:
             line = follower.line
-            settled_at = max(settled_at, time.monotonic() + SETTLE_S)
+            settled_at = g.clock.now_ns() + int(SETTLE_S * 1e9)
         for raw in raws:
             if raw.topic != "probe/heights":
                 continue
-            now = time.monotonic()
-            if wall_clock and now < settled_at:
+            if clock is not None and g.clock.now_ns() < settled_at:
                 set_apart += 1
                 continue
             clearance = z - float(truth.surface_z(x, y))
             samples.append((decoder.decode(raw.payload), clearance))
-            trace.append((now - t0, now - stall_end, y, clearance, follower.offset_mm if follower else 0.0,
+            trace.append(((g.clock.now_ns() - t0) / 1e9, y, clearance, follower.offset_mm if follower else 0.0,
                           follower.sent_mm if follower else 0.0, follower.resends if follower else 0))
+    if clock is not None:
+        clock.release()  # the driver's teardown waits for the emulator, which no longer needs to wait for us
     g.close()
     return {"scanner": scanner, "samples": samples, "set_apart": set_apart, "stalls": stalls, "trace": trace}
 
@@ -172,18 +171,16 @@ def check_following(followed: dict[str, Any]) -> None:
     assert fit.model == "plane" and fit.z(25, 20) < float(truth.surface_z(25, 20)) - 0.9  # the premise: 1 mm off
     assert s.follower is not None and s.follower.resends > 5
     got = followed["samples"]
-    assert len(got) > 500, (len(got), "samples set apart (line starts, stalls):", followed.get("set_apart"),
-                            "stalls (s):", followed.get("stalls"))
+    assert len(got) > 500, (len(got), "samples set apart (line starts):", followed.get("set_apart"),
+                            "stalls of this process (s):", followed.get("stalls"))
     worst = min(range(len(got)), key=lambda i: min(got[i][0].h_mm[:3]))
     trace = followed.get("trace")
-    since = trace[worst][1] if trace else math.inf
     if not all(in_working_range(m.h_mm) for m, _ in got) and trace:
-        print("before the worst sample: t, since the last stall (s), y, clearance, follower offset, sent offset (mm), "
-              "resends")
+        print("before the worst sample: graph time (s), y, clearance, follower offset, sent offset (mm), resends")
         for row in trace[max(0, worst - 60): worst + 1: 4]:
             print(" ".join(f"{v:.3f}" if isinstance(v, float) else str(v) for v in row))
-    assert all(in_working_range(m.h_mm) for m, _ in got), (min(got[worst][0].h_mm[:3]), f"{since:.2f} s after the "
-                                                             "last stall ended; stalls (s):", followed.get("stalls"))
+    assert all(in_working_range(m.h_mm) for m, _ in got), (min(got[worst][0].h_mm[:3]), "stalls of this process "
+                                                           "(s):", followed.get("stalls"))
     clearances = [c for _, c in got]
     assert min(clearances) > 0.4 and max(clearances) < 1.5, (min(clearances), max(clearances), "stalls (s):",
                                                              followed.get("stalls"))

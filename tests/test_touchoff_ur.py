@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from emulators.lockstep import ClockWriter
 from models.phantom import load_phantom
 from models.raster import sweep_raster
 from models.surface import fit_surface, touch_points
@@ -104,18 +105,21 @@ def test_the_scanner_follows_the_dome_by_the_probe_heights_through_ur_rtde(tmp_p
     0.4-1.5 mm above it, each correction a new ur_rtde path (the face resting on the crest without following:
     tests/test_surface_follow.py, on the sim arm).
 
-    Without the RTDE watchdog: the whole graph runs in this process on the wall clock, and on a loaded machine it
-    once went 0.5 s without kicking it, so the controller stopped the arm mid-line, as it should when the PC stalls
-    (that stop is tested in tests/test_robot_drivers.py and tests/test_ur_emulator.py); following is what is tested
-    here, and it does not depend on the process never stalling. For the same reason the samples within a second
-    after a stall of this process (a loop pass over 0.25 s: starved, or in a ur_rtde call holding the GIL) are set
-    apart and counted, not judged: following cannot correct while its process is stopped; and so are those of each
-    line's first second, which the follower's first corrections take to land on the wall clock (in an idle CI run
-    the face's uphill SPS was 0.03 mm from the tissue 4 mm into a line, before any stall)."""
-    with ur_emulator(["--unlock-delay", "0", "--home", f"25,20,14,0,{math.pi},0", "--phantom", DOME]) as emu:
-        run = sweep_over_the_dome(tmp_path, gain=10.0, wall_clock=True, timeout_s=90.0, driver="ur_rtde",
-                                  robot_host=emu.host, rtde_watchdog_hz=0.0)
-        assert not any("watchdog" in m for m in emu.command("messages")["messages"])   # the scanner set none
-    print(f"{run['set_apart']} samples set apart (each line's first second, and after {len(run['stalls'])} stalls of "
-          f"this process: {run['stalls']})")
+    The emulator follows the harness's clock (``--clock-file``, emulators.lockstep): following cannot correct while
+    the process that runs it is stopped (starved by the other workers, or in a ur_rtde call holding the GIL), and on
+    a loaded machine this process has stalled for up to 1.7 s, 17 mm of the line at 10 mm/s. On the rig that is a
+    PC unfit to follow, and the RTDE watchdog's business (tested in tests/test_robot_drivers.py and
+    tests/test_ur_emulator.py); here the arm holds with the graph's time, within the emulator's 0.1 s lead, and
+    every mid-line sample is judged but those of each line's first second."""
+    writer = ClockWriter(tmp_path / "clock")
+    try:
+        with ur_emulator(["--unlock-delay", "0", "--home", f"25,20,14,0,{math.pi},0", "--phantom", DOME,
+                          "--clock-file", str(writer.path)]) as emu:
+            run = sweep_over_the_dome(tmp_path, gain=10.0, clock=writer, timeout_s=90.0, driver="ur_rtde",
+                                      robot_host=emu.host, rtde_watchdog_hz=0.0)
+            assert not any("watchdog" in m for m in emu.command("messages")["messages"])   # the scanner set none
+    finally:
+        writer.close()
+    print(f"{run['set_apart']} samples set apart (each line's first second); {len(run['samples'])} judged; this "
+          f"process stalled {len(run['stalls'])} times: {run['stalls']}")
     check_following(run)

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from emulators.lockstep import ClockWriter
 from emulators.ur import ControllerConfig, FaultPlan, UrController, UrEmulator
 from emulators.ur.controller import BACKING_N_PER_MM
 from emulators.ur.process import UrEmulatorProcess
@@ -214,6 +215,40 @@ def test_short_streaming_pause_is_tolerated_and_the_watchdog_stops_the_program(
     assert clients.c.setWatchdog(10.0)  # then never kicked: the program must stop within 0.1 s
     wait_until(lambda: not clients.c.isProgramRunning(), 2.0, "the watchdog to stop the program")
     assert any("watchdog" in m for m in emu.command("messages")["messages"])
+
+
+@pytest.mark.timeout(30)
+def test_on_a_clock_file_the_arm_holds_while_that_clock_stands_and_the_controller_answers_meanwhile(
+        tmp_path: Path) -> None:
+    """``--clock-file`` (emulators.lockstep): the arm moves only as far as the clock's time plus the lead allows,
+    whatever the wall clock does; the controller meanwhile runs, so a path upload (which waits for the new script
+    to play) is answered while the clock stands; released, the arm runs on the wall clock again."""
+    writer = ClockWriter(tmp_path / "clock")
+    try:
+        with ur_emulator(["--unlock-delay", "0", "--clock-file", str(writer.path), "--clock-lead", "0.05"]) as emu:
+            clients = Clients(emu.host)
+            try:
+                t0 = time.time_ns()
+                writer.write(t0)
+                start = emu.state()
+                # the lead (25 steps) is spent at rest, then the arm holds while the controller's ticks go on
+                held = emu.wait_state(lambda st: st["ticks"] > start["ticks"] + 100, 5.0)["arm_steps"]
+                assert held <= start["arm_steps"] + 25
+                assert clients.c.moveL([0.3, 0.1, 0.3, 0.0, DOWN, 0.0], 0.05, 1.0, True)  # answered though held
+                st = emu.wait_state(lambda st: st["ticks"] > start["ticks"] + 300, 5.0)
+                assert st["arm_steps"] == held and st["pose_mm"][1] == pytest.approx(0.0, abs=1e-9), st
+                assert st["runtime_state"] == 2  # the new script plays; the arm waits for the clock
+                writer.write(t0 + 100_000_000)  # 0.1 s: 50 steps, from rest at 1 m/s^2 up to 50 mm/s
+                moved = emu.wait_state(lambda st: st["arm_steps"] >= held + 50, 5.0)
+                st = emu.wait_state(lambda st: st["ticks"] > moved["ticks"] + 100, 5.0)
+                assert st["arm_steps"] == held + 50, st
+                assert 2.5 < st["pose_mm"][1] < 4.5, st  # 1.25 mm accelerating, then ~0.05 s at 50 mm/s
+                writer.release()
+                emu.wait_state(lambda st: st["pose_mm"][1] > 99.9 and not st["moving"], 10.0)
+            finally:
+                clients.close()
+    finally:
+        writer.close()
 
 
 @pytest.mark.timeout(15)

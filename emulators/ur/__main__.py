@@ -22,6 +22,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
+from emulators.lockstep import ClockReader
 from emulators.ur.controller import ControllerConfig, FaultPlan, SurfaceLike
 from emulators.ur.server import UrEmulator
 
@@ -62,6 +63,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--refuse-for", type=float, default=0.0, help="after a drop, refuse connections this long (s)")
     p.add_argument("--pause-stream-at", type=float, help="pause RTDE streaming S seconds into the first motion")
     p.add_argument("--pause-stream-for", type=float, default=1.0, help="length of the streaming pause (s)")
+    p.add_argument("--clock-file", help="follow the clock an emulators.lockstep.ClockWriter publishes in this file: "
+                        "the controller never runs more than --clock-lead ahead of it (co-simulation with a graph "
+                        "whose clock may fall behind the wall clock); default: the wall clock alone")
+    p.add_argument("--clock-lead", type=float, default=0.1,
+                   help="with --clock-file: how far (s) the controller may run ahead of that clock")
     p.add_argument("--control", action="store_true", help="read control commands from stdin (see module doc)")
     p.add_argument("--quiet", action="store_true", help="do not log controller events to stderr")
     return p
@@ -81,7 +87,7 @@ def _command(emu: UrEmulator, line: str) -> dict[str, Any]:
     if verb == "state":
         with ctl.lock:
             return {"pose_mm": list(ctl.arm.pose), "speed": list(ctl.arm.tcp_speed), "ticks": ctl.ticks,
-                    "runtime_state": ctl.runtime_state, "protective_stopped": ctl.protective_stopped,
+                    "arm_steps": ctl.arm_steps, "runtime_state": ctl.runtime_state, "protective_stopped": ctl.protective_stopped,
                     "path_index": ctl.arm.path_index, "moving": ctl.arm.is_moving,
                     "remote_control": ctl.remote_control, "clients": emu.client_count,
                     "force": list(ctl.force)}
@@ -133,11 +139,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not args.quiet:
             print(message, file=sys.stderr, flush=True)
 
-    emu = UrEmulator(args.host, dashboard_port=args.dashboard_port, script_port=args.script_port,
-                     rtde_port=args.rtde_port, config=config, phantom=phantom, faults=_faults(args), log=log)
     try:
+        clock = ClockReader(args.clock_file) if args.clock_file else None
+        emu = UrEmulator(args.host, dashboard_port=args.dashboard_port, script_port=args.script_port,
+                         rtde_port=args.rtde_port, config=config, phantom=phantom, faults=_faults(args), log=log,
+                         clock=clock, clock_lead_s=args.clock_lead)
         emu.start()
-    except OSError as e:
+    except (OSError, ValueError) as e:
         print(f"palpa-urfake: {e}", file=sys.stderr)
         return 1
     done = threading.Event()

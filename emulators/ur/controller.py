@@ -94,6 +94,7 @@ class UrController:
         self.program: RtdeControlProgram | None = None
         self.last_program_source = ""
         self._starting: tuple[int, RtdeControlProgram] | None = None
+        self._ticks = 0
         self.protective_stopped = False
         self._pstop_tick = 0
         self.force = [0.0] * 6
@@ -118,6 +119,12 @@ class UrController:
     # ------------------------------------------------------------------ misc
     @property
     def ticks(self) -> int:
+        """Controller cycles run: the controller's time (RTDE's timestamp) in 2 ms."""
+        return self._ticks
+
+    @property
+    def arm_steps(self) -> int:
+        """Cycles the arm moved in: :attr:`ticks` less those it was held (``tick(hold=True)``)."""
         return self.arm.ticks
 
     def log(self, message: str) -> None:
@@ -315,8 +322,9 @@ class UrController:
         return lambda: fixed
 
     # ------------------------------------------------------------------ tick
-    def tick(self) -> None:
-        """One 2 ms controller cycle: start/run the program, move the arm, faults, contact."""
+    def tick(self, *, hold: bool = False) -> None:
+        """One 2 ms controller cycle: start/run the program, move the arm (unless ``hold``: the emulator's
+        motion waits for an external clock), faults, contact."""
         if self._starting is not None and self.ticks >= self._starting[0]:
             self.program, self._starting = self._starting[1], None
             self.log(f"program {self.program.name!r} playing")
@@ -332,7 +340,9 @@ class UrController:
             else:
                 if not alive:
                     self.end_program("program finished")
-        self.arm.step(TICK_S)
+        self._ticks += 1
+        if not hold:
+            self.arm.step(TICK_S)
         self._check_faults()
         self._update_force()
 

@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable
 from types import TracebackType
 
+from emulators.lockstep import ClockReader
 from emulators.ur.controller import ControllerConfig, FaultPlan, SurfaceLike, UrController
 from emulators.ur.dashboard import WELCOME
 from emulators.ur.dashboard import reply as dashboard_reply
@@ -87,12 +88,21 @@ class UrEmulator:
     `start()` returns once all three ports are listening; use as a context manager to have
     every thread stopped and joined on exit. Pass port 0 to let the OS choose (then see
     `ports`); ur_rtde itself always connects to 29999/30003/30004.
+
+    The controller runs on the wall clock. With `clock` (emulators.lockstep) the arm's motion also
+    never runs more than `clock_lead_s` ahead of that clock: the arm holds where it is while the
+    clock's owner stalls. Only the motion holds: the controller's programs, registers, watchdog and
+    RTDE streams go on, so that a client blocked in a handshake (ur_rtde's path upload waits for
+    the new script to run) is answered while nobody advances the clock.
     """
 
     def __init__(self, host: str = "127.0.0.1", *, dashboard_port: int = 29999, script_port: int = 30003,
                  rtde_port: int = 30004, config: ControllerConfig | None = None,
                  phantom: SurfaceLike | None = None, faults: FaultPlan | None = None,
-                 log: Callable[[str], None] | None = None) -> None:
+                 log: Callable[[str], None] | None = None, clock: ClockReader | None = None,
+                 clock_lead_s: float = 0.1) -> None:
+        if not clock_lead_s >= 0:
+            raise ValueError(f"UrEmulator: clock_lead_s must be >= 0, got {clock_lead_s}")
         self.host = host
         self.ports = {"dashboard": dashboard_port, "script": script_port, "rtde": rtde_port}
         self.controller = UrController(config, phantom, log or _LOG.info)
@@ -106,6 +116,9 @@ class UrEmulator:
         self._wake_r, self._wake_w = socket.socketpair()
         self._refuse_until = 0.0
         self._guard = threading.Lock()  # protects _conns, _sessions, _threads
+        self._clock, self._lead_ticks = clock, round(clock_lead_s / TICK_S)
+        self._clock_base: tuple[int, int] | None = None  # (clock ns, arm steps) when the clock was first read
+        self._clock_failed = False
 
     # ------------------------------------------------------------- lifecycle
     def start(self) -> UrEmulator:
@@ -333,6 +346,23 @@ class UrEmulator:
             buf += data
         return buf
 
+    def _motion_to(self) -> int | None:
+        """How many arm steps the external clock allows by now (its time since first read, plus the lead), or
+        None while the arm moves on the wall clock alone (no clock, or none written yet, or released)."""
+        try:
+            now = self._clock.read() if self._clock is not None else None
+        except (RuntimeError, ValueError) as e:  # the controller runs on whatever the file holds
+            if self._clock_base is not None or not self._clock_failed:
+                self.controller.log(f"external clock unreadable, the arm follows the wall clock: {e}")
+            self._clock_failed, now = True, None
+        if now is None:
+            self._clock_base = None  # released: a clock written again is followed from where it is then
+            return None
+        if self._clock_base is None:
+            self._clock_base = (now, self.controller.arm_steps)
+        ns0, steps0 = self._clock_base
+        return steps0 + int((now - ns0) / (TICK_S * 1e9)) + self._lead_ticks
+
     def _tick_loop(self) -> None:
         ctl = self.controller
         t0 = time.monotonic()
@@ -344,12 +374,13 @@ class UrEmulator:
                 ctl.log(f"controller lagging: skipping {n - _MAX_CATCHUP_TICKS} ticks")
                 n = _MAX_CATCHUP_TICKS
             done = max(done, target)
+            motion_to = self._motion_to()
             for start in range(0, n, _TICKS_PER_LOCK):
                 # release the lock between small batches so that client input (commands,
                 # watchdog kicks) is applied while the controller catches up after a stall
                 with ctl.lock:
                     for _ in range(min(_TICKS_PER_LOCK, n - start)):
-                        ctl.tick()
+                        ctl.tick(hold=motion_to is not None and ctl.arm_steps >= motion_to)
                 time.sleep(0)
             with ctl.lock:
                 paused = ctl.ticks < ctl.stream_paused_until
