@@ -1,41 +1,245 @@
-"""emulators.lockstep: the clock a graph publishes for the emulators that follow it."""
+"""The event lockstep (palpa.lockstep, palpa.simclock): processes get a composition's timeline."""
 
 from __future__ import annotations
 
-import struct
-from pathlib import Path
+import time
 
-import pytest
-
-from emulators.lockstep import ClockReader, ClockWriter
-
-
-def test_a_follower_reads_the_last_time_written_none_before_and_after_release(tmp_path: Path) -> None:
-    writer = ClockWriter(tmp_path / "clock")
-    reader = ClockReader(writer.path)
-    try:
-        assert reader.read() is None  # nothing written: the follower keeps to the wall clock
-        writer.write(1_000)
-        writer.write(2**62)
-        assert reader.read() == 2**62
-        with pytest.raises(ValueError, match="never decrease"):
-            writer.write(5)
-        writer.release()
-        assert reader.read() is None
-        writer.write(7)  # released: the clock may start again anywhere
-        assert reader.read() == 7
-    finally:
-        reader.close()
-        writer.close()
-    assert ClockReader(writer.path).read() is None  # a closed writer releases its followers
+import palpa
+from messages import Text
+from nodes.demo import Talker
+from palpa.lockstep import EventLockstep, InFlight
+from palpa.runtime_msgs import ClockAck
+from palpa.simclock import ClockSource
+from palpa.testing import MemoryBus
 
 
-def test_a_half_written_time_is_never_read_and_a_file_that_is_no_clock_is_refused(tmp_path: Path) -> None:
-    torn = tmp_path / "torn"
-    torn.write_bytes(struct.pack("<qq", 5_000, ~4_000))  # the time of one write, the check of another
-    with pytest.raises(RuntimeError, match="never read consistently"):
-        ClockReader(torn).read()
-    short = tmp_path / "short"
-    short.write_bytes(b"\x01\x02")
-    with pytest.raises(ValueError, match="not a clock file"):
-        ClockReader(short)
+def _ack(node: str, next_ns: int, sent: dict[str, int] | None = None, recv: dict[str, int] | None = None,
+         subs: list[str] | None = None) -> ClockAck:
+    return ClockAck(node=node, sim_ns=0, next_ns=next_ns, sent=sent or {}, recv=recv or {}, subs=subs or [])
+
+
+def test_time_waits_for_due_timers_and_for_every_message_in_flight() -> None:
+    ls = EventLockstep()
+    ls.report(_ack("b", 250, subs=["x"]))
+    ls.report(_ack("c", 0, subs=["srv/request*"]))
+    ls.report(_ack("a", 100, sent={"x": 3}))  # sent 3 before it joined (before b could hear it): not waited for
+    assert ls.due(100) == ["a"] and ls.in_flight() is None and ls.next_event_ns() == 100
+    ls.report(_ack("a", 200, sent={"x": 5, "srv/request": 1}))  # ran its timer: 2 on x, a service request
+    assert ls.due(100) == []
+    flying = ls.in_flight()
+    assert flying is not None and flying.topic == "x" and flying.subscriber == "b" and flying.missing == 2
+    ls.report(_ack("b", 250, recv={"x": 2}, subs=["x"]))
+    flying = ls.in_flight()
+    assert flying is not None and flying.subscriber == "c" and flying.topic == "srv/request"  # by prefix
+    ls.report(_ack("c", 0, recv={"srv/request": 1}, subs=["srv/request*"]))
+    assert ls.in_flight() is None and ls.next_event_ns() == 200
+    ls.report(_ack("a", 300, sent={"x": 6, "srv/request": 1}))
+    ls.report(_ack("d", 400))  # another publisher on x
+    ls.leave("a")  # its timers are no longer waited for; what it sent before leaving still is
+    assert ls.next_event_ns() == 250 and ls.in_flight() == InFlight("x", "b", 1)
+    ls.report(_ack("b", 250, recv={"x": 3}, subs=["x"]))
+    assert ls.in_flight() is None
+    ls.report(_ack("d", 500, sent={"x": 1}))
+    assert ls.in_flight() == InFlight("x", "b", 1)
+    ls.report(_ack("a", 600, sent={"x": 2}))  # back, restarted: counts anew
+    assert ls.in_flight() == InFlight("x", "b", 1)
+    ls.leave("b")  # the subscriber gone: nothing is waited for
+    assert ls.in_flight() is None
+
+
+class _Echo(palpa.Node):
+    """Publishes, from its handler, what it hears on ``chatter`` (a reaction: the lockstep must wait for it)."""
+
+    def setup(self) -> None:
+        self.out = self.publisher("echo", Text)
+        self.subscribe("chatter", Text, lambda m: self.out.publish(Text(text=m.text, stamp_ns=self.clock.now_ns())))
+
+
+class _Sink(palpa.Node):
+    def setup(self) -> None:
+        self.heard: list[tuple[int, int]] = []
+        """(stamp, simulated time it was handled at) of every echo."""
+        self.subscribe("echo", Text, lambda m: self.heard.append((m.stamp_ns, self.clock.now_ns())))
+
+
+def test_processes_see_timers_at_their_deadlines_and_messages_at_the_instant_sent() -> None:
+    """A 10 Hz talker, a node echoing it from its handler, a sink: the clock holds the start until all three have
+    joined, ticks only at the talker's deadlines, and moves on only once the echo of each tick reached the sink,
+    although the sink is spun after the clock (on sockets: whichever process the machine runs first). After the
+    start only the talker gets ticks (on its own topic); the echo and the sink, which have no timers, take each
+    instant from the messages they handle at it."""
+    bus = MemoryBus()
+    clock = ClockSource(params={"time_scale": 1000.0, "rate_hz": 1000.0, "participants": ["talker", "echo", "sink"]},
+                        transport=bus.transport(), heartbeat_s=0)
+    ticks: list[palpa.runtime_msgs.ClockTick] = []
+    spy = palpa.Node(name="spy", transport=bus.transport(), heartbeat_s=0)
+    spy.subscribe("_palpa/clock", palpa.runtime_msgs.ClockTick, ticks.append)
+    addressed: dict[str, list[palpa.runtime_msgs.ClockTick]] = {n: [] for n in ("talker", "echo", "sink")}
+    for name, got in addressed.items():
+        spy.subscribe(palpa.runtime_msgs.tick_topic(name), palpa.runtime_msgs.ClockTick, got.append)
+
+    def sim(cls: type[palpa.Node], name: str, **params: object) -> palpa.Node:
+        return cls(name=name, params=params, transport=bus.transport(), heartbeat_s=0, sim_clock=True,
+                   wait_for_clock_s=0)
+
+    talker = sim(Talker, "talker", rate_hz=10.0)
+    assert isinstance(talker, Talker)
+    nodes: list[palpa.Node] = [talker, clock]
+    deadline = time.monotonic() + 0.3
+    while time.monotonic() < deadline:
+        for n in nodes:
+            n.spin_once(0)
+    assert talker.out.seq == 0  # echo and sink not there yet: time has not started
+    echo, sink = sim(_Echo, "echo"), sim(_Sink, "sink")
+    assert isinstance(sink, _Sink)
+    nodes += [echo, sink]
+    deadline = time.monotonic() + 20
+    while len(sink.heard) < 10 and time.monotonic() < deadline:
+        for n in nodes:
+            n.spin_once(0)
+    spy.spin_once(0)
+    start = ticks[0].sim_ns
+    assert ticks[0].hold and not ticks[-1].hold  # held, then released (at the same instant)
+    assert [t.sim_ns - start for t in addressed["talker"]][:9] == [i * 100_000_000 for i in range(1, 10)]
+    assert not addressed["echo"] and not addressed["sink"]
+    assert sink.heard[:10] == [(start + i * 100_000_000, start + i * 100_000_000) for i in range(10)]
+    for n in [*nodes, spy]:
+        n.close(0)
+
+
+def test_a_lead_mode_clock_gets_an_ack_every_10_ms_of_simulated_time() -> None:
+    """Under ``lockstep: lead`` the clock keeps time within a lead of the acks: an idle node acks anyway."""
+    bus = MemoryBus()
+    node = palpa.Node(name="idle", transport=bus.transport(), heartbeat_s=0, sim_clock=True, wait_for_clock_s=0)
+    clock = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
+    tick = clock.publisher("_palpa/clock", palpa.runtime_msgs.ClockTick)
+    acks: list[ClockAck] = []
+    clock.subscribe(palpa.runtime_msgs.CLOCK_ACK_TOPIC, ClockAck, acks.append)
+    for i in range(10):
+        tick.publish(palpa.runtime_msgs.ClockTick(sim_ns=1_000_000_000 + i * 4_000_000, lead=True))
+        node.spin_once(0)
+    clock.spin_once(0)
+    assert [a.sim_ns - 1_000_000_000 for a in acks] == [0, 12_000_000, 24_000_000, 36_000_000]
+    node.close(0)
+    clock.close(0)
+
+
+def test_a_node_reports_what_it_handled_before_it_blocks_for_input() -> None:
+    """Input a sim-clock node took in is reported before it blocks for more: the clock waits for that report (it once
+    waited for the blocking poll's timeout at every simulated instant). A sim-clock node waits for input in its
+    blocking poll only (which returns at once when input is there): one poll per wake-up."""
+    from palpa.testing import MemoryTransport
+    from palpa.transport import Delivery, SendFn
+
+    events: list[str] = []
+
+    class Watched(MemoryTransport):
+        def poll(self, timeout_s: float) -> list[Delivery]:
+            if timeout_s > 0:
+                events.append("block")
+            return super().poll(timeout_s)
+
+        def sender(self, topic: bytes, direct: bool | None) -> SendFn:
+            send = super().sender(topic, direct)
+
+            def sending(frames: list[bytes], latched: bool) -> None:
+                events.append(frames[0].decode())
+                send(frames, latched)
+            return sending  # type: ignore[return-value]
+
+    bus = MemoryBus()
+    t = Watched(bus)
+    bus._add(t)
+    node = palpa.Node(name="n", transport=t, heartbeat_s=0, sim_clock=True, wait_for_clock_s=0)
+    clock = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
+    clock.publisher("_palpa/clock", palpa.runtime_msgs.ClockTick).publish(palpa.runtime_msgs.ClockTick(sim_ns=5))
+    node.spin_once(0.01)
+    node.spin_once(0.01)
+    assert events == ["block", palpa.runtime_msgs.CLOCK_ACK_TOPIC, "block"]
+    node.close(0)
+    clock.close(0)
+
+
+def test_a_participant_counts_only_once_every_publisher_heard_its_probe() -> None:
+    """A node whose subscriptions a readiness probe confirmed is waited for until every other participant's
+    publisher socket has heard that probe; what was sent to it before then is not expected to reach it."""
+    ls = EventLockstep()
+    ls.report(ClockAck(node="pub", sim_ns=0, next_ns=100, probe="pub/1.1", heard=["pub/1.1"]))
+    ls.report(ClockAck(node="sub", sim_ns=0, next_ns=0, subs=["x"], probe="sub/2.1", heard=["sub/2.1"]))
+    assert ls.unheard() == ("sub", "pub")
+    ls.report(ClockAck(node="pub", sim_ns=0, next_ns=100, sent={"x": 2}, probe="pub/1.1"))  # maybe no route yet
+    assert ls.unheard() == ("sub", "pub")
+    ls.report(ClockAck(node="pub", sim_ns=0, next_ns=100, sent={"x": 2}, probe="pub/1.1", heard=["sub/2.1"]))
+    assert ls.unheard() is None and ls.in_flight() is None  # its accounting starts once it is heard
+    ls.report(ClockAck(node="pub", sim_ns=0, next_ns=200, sent={"x": 3}, probe="pub/1.1"))
+    assert ls.in_flight() == InFlight("x", "sub", 1)
+    ls.report(ClockAck(node="late", sim_ns=0, next_ns=0, probe="late/3.1"))
+    assert ls.unheard() == ("late", "pub")
+    ls.leave("pub")  # the only one that had to hear it
+    assert ls.unheard() == ("late", "sub")
+    ls.report(ClockAck(node="old", sim_ns=0, next_ns=0))  # no probe (a memory bus): nobody needs to hear it
+    ls.report(ClockAck(node="sub", sim_ns=0, next_ns=0, subs=["x"], probe="sub/2.1", heard=["late/3.1"]))
+    assert ls.unheard() is None
+
+
+def test_the_clock_starts_time_only_once_the_participants_heard_each_other() -> None:
+    bus = MemoryBus()
+    clock = ClockSource(params={"time_scale": 1000.0, "participants": ["a", "b"]}, transport=bus.transport(),
+                        heartbeat_s=0)
+    peer = palpa.Node(name="peer", transport=bus.transport(), heartbeat_s=0)
+    acks = peer.publisher(palpa.runtime_msgs.CLOCK_ACK_TOPIC, ClockAck)
+    ticks: list[palpa.runtime_msgs.ClockTick] = []
+    peer.subscribe(palpa.runtime_msgs.CLOCK_TOPIC, palpa.runtime_msgs.ClockTick, ticks.append)
+
+    def spin() -> None:
+        for _ in range(5):
+            clock.spin_once(0)
+            peer.spin_once(0)
+
+    acks.publish(ClockAck(node="a", sim_ns=0, next_ns=10, probe="a/1.1", heard=["a/1.1"]))
+    acks.publish(ClockAck(node="b", sim_ns=0, next_ns=10, probe="b/2.1", heard=["a/1.1", "b/2.1"]))
+    spin()
+    assert ticks and all(t.hold for t in ticks)  # a has not heard b: b might miss what a sends first
+    acks.publish(ClockAck(node="a", sim_ns=0, next_ns=10, probe="a/1.1", heard=["b/2.1"]))
+    spin()
+    assert not ticks[-1].hold
+    for n in (clock, peer):
+        n.close(0)
+
+
+def test_the_bookkeeping_kept_report_by_report_agrees_with_a_recount() -> None:
+    """What is in flight is kept up to date at each report (the clock asks at every instant); a recount from the
+    members' bases after random joins, reports, resubscriptions, leaves and restarts gives the same."""
+    import random
+
+    rng = random.Random(5)
+    topics = ["a", "b", "srv/x", "srv/y"]
+    ls = EventLockstep()
+    sent: dict[str, dict[str, int]] = {}
+    recv: dict[str, dict[str, int]] = {}
+    subs: dict[str, list[str]] = {}
+    for step in range(3000):
+        node = rng.choice(["n0", "n1", "n2", "n3"])
+        r = rng.random()
+        if r < 0.03:
+            ls.leave(node)
+            sent.pop(node, None), recv.pop(node, None), subs.pop(node, None)
+            continue
+        if r < 0.04:
+            ls.restart_accounting()
+            continue
+        if node not in subs or r < 0.08:
+            subs[node] = rng.sample(["a", "b", "srv/*"], rng.randint(0, 3))
+        s, v = sent.setdefault(node, {}), recv.setdefault(node, {})
+        t = rng.choice(topics)
+        s[t] = s.get(t, 0) + rng.randint(0, 2)
+        t = rng.choice(topics)
+        v[t] = v.get(t, 0) + rng.randint(0, 2)
+        ls.report(_ack(node, 10, sent=dict(s), recv=dict(v), subs=list(subs[node])))
+        recount = {
+            (name, topic) for name, m in ls.members.items() for topic, n in ls._sent.items()
+            if m.wants(topic) and (n - m.base.get(topic, 0)) - (m.ack.recv.get(topic, 0) - m.base_recv.get(topic, 0)) > 0
+        }
+        assert set(ls._short) == recount, step
+        flying = ls.in_flight()
+        assert (flying is None) == (not recount)

@@ -12,7 +12,7 @@ from typing import Any
 import msgspec
 import pytest
 
-from emulators.lockstep import ClockWriter
+from emulators.clock_file import ClockWriter
 from messages import ProbeHeights
 from models.following import (
     FollowConfig,
@@ -35,7 +35,7 @@ from palpa.testing import GraphHarness, NodeHarness
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm: 6 mm on the centre line y = 20, 3 mm at the y edges
 # With a real-time driver (the UR emulator) the harness's clock follows the wall clock, at most MAX_STEP_S per pass
 # of the loop: a stall of this process (starved by other workers, or in a ur_rtde call holding the GIL) slows the
-# graph's time down instead of jumping it, and the emulator, on the same clock (emulators.lockstep), holds with it
+# graph's time down instead of jumping it, and the emulator, on the same clock (emulators.clock_file), holds with it
 # within its lead. Each line's first SETTLE_S of that time is set apart and counted, not judged: a line starts at
 # the plan's height, and the follower's first corrections take the loop's latency (each a ur_rtde path upload) to
 # land (in the mock clock's time it settles within the first 4 mm, which all runs leave out).

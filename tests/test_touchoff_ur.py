@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from emulators.lockstep import ClockWriter
+from emulators.clock_file import ClockWriter
 from models.phantom import load_phantom
 from models.raster import sweep_raster
 from models.surface import fit_surface, touch_points
@@ -105,7 +105,7 @@ def test_the_scanner_follows_the_dome_by_the_probe_heights_through_ur_rtde(tmp_p
     0.4-1.5 mm above it, each correction a new ur_rtde path (the face resting on the crest without following:
     tests/test_surface_follow.py, on the sim arm).
 
-    The emulator follows the harness's clock (``--clock-file``, emulators.lockstep): following cannot correct while
+    The emulator follows the harness's clock (``--clock-file``, emulators.clock_file): following cannot correct while
     the process that runs it is stopped (starved by the other workers, or in a ur_rtde call holding the GIL), and on
     a loaded machine this process has stalled for up to 1.7 s, 17 mm of the line at 10 mm/s. On the rig that is a
     PC unfit to follow, and the RTDE watchdog's business (tested in tests/test_robot_drivers.py and

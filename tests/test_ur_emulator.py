@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from emulators.lockstep import ClockWriter
+from emulators.clock_file import ClockWriter
 from emulators.ur import ControllerConfig, FaultPlan, UrController, UrEmulator
 from emulators.ur.controller import BACKING_N_PER_MM
 from emulators.ur.process import UrEmulatorProcess
@@ -220,7 +220,7 @@ def test_short_streaming_pause_is_tolerated_and_the_watchdog_stops_the_program(
 @pytest.mark.timeout(30)
 def test_on_a_clock_file_the_arm_holds_while_that_clock_stands_and_the_controller_answers_meanwhile(
         tmp_path: Path) -> None:
-    """``--clock-file`` (emulators.lockstep): the arm moves only as far as the clock's time plus the lead allows,
+    """``--clock-file`` (emulators.clock_file): the arm moves only as far as the clock's time plus the lead allows,
     whatever the wall clock does; the controller meanwhile runs, so a path upload (which waits for the new script
     to play) is answered while the clock stands; released, the arm runs on the wall clock again."""
     writer = ClockWriter(tmp_path / "clock")

@@ -22,7 +22,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
-from emulators.lockstep import ClockReader
+from emulators.clock_file import ClockReader
 from emulators.ur.controller import ControllerConfig, FaultPlan, SurfaceLike
 from emulators.ur.server import UrEmulator
 
@@ -63,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--refuse-for", type=float, default=0.0, help="after a drop, refuse connections this long (s)")
     p.add_argument("--pause-stream-at", type=float, help="pause RTDE streaming S seconds into the first motion")
     p.add_argument("--pause-stream-for", type=float, default=1.0, help="length of the streaming pause (s)")
-    p.add_argument("--clock-file", help="follow the clock an emulators.lockstep.ClockWriter publishes in this file: "
+    p.add_argument("--clock-file", help="follow the clock an emulators.clock_file.ClockWriter publishes in this file: "
                         "the controller never runs more than --clock-lead ahead of it (co-simulation with a graph "
                         "whose clock may fall behind the wall clock); default: the wall clock alone")
     p.add_argument("--clock-lead", type=float, default=0.1,

@@ -18,7 +18,7 @@ import time
 from collections.abc import Callable
 from types import TracebackType
 
-from emulators.lockstep import ClockReader
+from emulators.clock_file import ClockReader
 from emulators.ur.controller import ControllerConfig, FaultPlan, SurfaceLike, UrController
 from emulators.ur.dashboard import WELCOME
 from emulators.ur.dashboard import reply as dashboard_reply
@@ -89,7 +89,7 @@ class UrEmulator:
     every thread stopped and joined on exit. Pass port 0 to let the OS choose (then see
     `ports`); ur_rtde itself always connects to 29999/30003/30004.
 
-    The controller runs on the wall clock. With `clock` (emulators.lockstep) the arm's motion also
+    The controller runs on the wall clock. With `clock` (emulators.clock_file) the arm's motion also
     never runs more than `clock_lead_s` ahead of that clock: the arm holds where it is while the
     clock's owner stalls. Only the motion holds: the controller's programs, registers, watchdog and
     RTDE streams go on, so that a client blocked in a handshake (ur_rtde's path upload waits for
