@@ -177,11 +177,16 @@ def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path, calibration)
     with launched(procs, "launch/airfloat_sim.yaml", tmp_path / "run", "phantom:=phantoms/flat_10k.yaml",
                   "pressure_kpa:=33.5", f"calibration:={calibration}") as (proc, node):
         samples = node.subscribe("stiffness/sample", StiffnessSample)
+        # the file's smoke (tests/test_launch_smoke.py) is this launch: each of its topics carries messages
+        heard: set[str] = set()
+        smoke_topics = {"robot/pose", "pressure/state", "probe/heights", "probe/status"}
+        for topic in smoke_topics:
+            node.subscribe_raw(topic, lambda raw: heard.add(raw.topic))
         got: list[StiffnessSample] = []
 
         def enough() -> bool:
             got.extend(m for m in drain(samples) if m.valid)
-            return len(got) >= 300
+            return len(got) >= 300 and smoke_topics <= heard
 
         spin_until(node, enough, 60, "300 valid samples", proc)
     e = float(np.median([m.value for m in got[-200:]]))

@@ -18,6 +18,7 @@ from palpa.errors import LaunchError
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
 from palpa.node import Node
+from palpa.record.reader import iter_bag, resolve_bag_paths
 from palpa.transport import Delivery
 from tests.procs import ProcessGroup
 from tests.test_launch_smoke import REPO, Smoke, smoke
@@ -132,6 +133,12 @@ def test_in_process_and_multi_process_find_the_same_inclusions(procs: ProcessGro
     for x in a:
         gap = min(math.dist((x["x_mm"], x["y_mm"]), (y["x_mm"], y["y_mm"])) for y in b)
         assert gap <= 0.05, (gap, a, b, warnings)
+    # launch/scan_sim.yaml as processes: its smoke (tests/test_launch_smoke.py) is this run, every topic it should
+    # carry in the recording
+    recorded = {m.topic for m in iter_bag(resolve_bag_paths(str(tmp_path / "multi" / "recording.mcap")))}
+    smoke_topics = {"robot/pose", "robot/plan", "robot/scan_status", "probe/heights", "pressure/state",
+                    "stiffness/sample", "map/stiffness", "map/inclusions"}
+    assert smoke_topics <= recorded, sorted(smoke_topics - recorded)
 
 
 class _LateEchoBus:

@@ -78,14 +78,16 @@ def synthetic_scan_bag(tmp: Path) -> list[str]:
 
 SMOKE: dict[str, Smoke] = {
     "talker_listener.yaml": Smoke(args=["rate:=20.0"], topics=["chatter", "chatter_len"], timeout=30),
+    # launched as processes, and these topics checked, by the tests named in launched_by
     "airfloat_sim.yaml": Smoke(topics=["robot/pose", "pressure/state", "probe/heights", "probe/status",
-                                       "stiffness/sample"], timeout=40),
+                                       "stiffness/sample"], launched_by="tests/test_airfloat_nodes.py"),
     # touch-off is tested in tests/test_touchoff*.py: the smokes plan at the phantom's known height. time_scale is
     # a ceiling (the lockstep clock runs at the slowest node's pace): on an idle machine, a smoke waits less
     "scan_sim.yaml": Smoke(args=["region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0", "touchoff:=off",
                                  "time_scale:=20.0"],
                            topics=["robot/pose", "robot/plan", "robot/scan_status", "probe/heights", "pressure/state",
-                                   "stiffness/sample", "map/stiffness", "map/inclusions"], timeout=60),
+                                   "stiffness/sample", "map/stiffness", "map/inclusions"],
+                           launched_by="tests/test_compose.py"),
     # the rig's file: --check as is; the run with every driver simulated (never the default robot address)
     "scan_ur.yaml": Smoke(args=["scanner_driver:=sim", "fibre_driver:=sim", "pressure_driver:=sim",
                                 "phantom:=phantoms/airfloat_tumours.yaml",
@@ -112,7 +114,8 @@ SMOKE: dict[str, Smoke] = {
     "replay_scan.yaml": Smoke(prepare=synthetic_scan_bag, topics=["probe/heights", "stiffness/sample", "map/stiffness"],
                               timeout=60),
     # idle until asked: a probe_at is exercised by tests/test_service_cli.py
-    "probe_sim.yaml": Smoke(topics=["robot/pose", "robot/scan_status", "probe/heights", "pressure/state"], timeout=40),
+    "probe_sim.yaml": Smoke(topics=["robot/pose", "robot/scan_status", "probe/heights", "pressure/state"],
+                            launched_by="tests/test_service_cli.py"),
     "camera_sim.yaml": Smoke(args=["cycles:=0", "speed_mm_s:=4.0"], topics=["robot/pose", "robot/scan_status", "camera/status", "camera/indenters", "camera/debug", "stiffness/sample"], timeout=40),
 }
 

@@ -151,6 +151,10 @@ def test_service_call_probe_at_on_a_simulated_graph(procs: ProcessGroup, tmp_pat
         return "state: idle" in capsys.readouterr().out
 
     wait_until(idle, 90, "the scanner idle")
+    # the file's smoke (tests/test_launch_smoke.py) is this launch: each of its topics carries messages
+    for topic in ("robot/pose", "probe/heights", "pressure/state"):
+        assert main(["topic", "echo", topic, "-n", "1", "--timeout", "10", "--bus", bus]) == 0, topic
+        capsys.readouterr()
     code = main(["service", "call", "scanner/probe_at", "ProbeAt", "{x_mm: 30, y_mm: 36}", "--bus", bus,
                  "--wait", "60", "--timeout", "60", "--feedback", "robot/scan_status"])
     out = capsys.readouterr()
