@@ -2,8 +2,8 @@
 clock may fall behind the wall clock (a loaded PC, a process stopped in a debugger, a simulated clock).
 
 The graph's side writes its clock's time into a small shared file (:class:`ClockWriter`); the emulator reads it
-(:class:`ClockReader`) and never lets its own simulated time run more than a *lead* past it. So when the graph's
-process stalls, the emulated device stalls with it after at most the lead, instead of moving on under a controller
+(:class:`ClockReader`) and never lets the device's simulated motion run more than a *lead* past it. So when the
+graph's process stalls, the emulated device stalls with it after at most the lead, instead of moving on under a controller
 that cannot react, as the real device would (the stall is the PC's, which the real rig must not have; a test
 that wants to see what a stall does runs the emulator on the wall clock, its default).
 

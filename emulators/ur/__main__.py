@@ -64,10 +64,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pause-stream-at", type=float, help="pause RTDE streaming S seconds into the first motion")
     p.add_argument("--pause-stream-for", type=float, default=1.0, help="length of the streaming pause (s)")
     p.add_argument("--clock-file", help="follow the clock an emulators.clock_file.ClockWriter publishes in this file: "
-                        "the controller never runs more than --clock-lead ahead of it (co-simulation with a graph "
-                        "whose clock may fall behind the wall clock); default: the wall clock alone")
+                        "the arm never moves more than --clock-lead ahead of it, while the controller itself runs on "
+                        "(co-simulation with a graph whose clock may fall behind the wall clock); default: the wall "
+                        "clock alone")
     p.add_argument("--clock-lead", type=float, default=0.1,
-                   help="with --clock-file: how far (s) the controller may run ahead of that clock")
+                   help="with --clock-file: how far (s) the arm may move ahead of that clock")
     p.add_argument("--control", action="store_true", help="read control commands from stdin (see module doc)")
     p.add_argument("--quiet", action="store_true", help="do not log controller events to stderr")
     return p
@@ -87,7 +88,8 @@ def _command(emu: UrEmulator, line: str) -> dict[str, Any]:
     if verb == "state":
         with ctl.lock:
             return {"pose_mm": list(ctl.arm.pose), "speed": list(ctl.arm.tcp_speed), "ticks": ctl.ticks,
-                    "arm_steps": ctl.arm_steps, "runtime_state": ctl.runtime_state, "protective_stopped": ctl.protective_stopped,
+                    "arm_steps": ctl.arm_steps, "runtime_state": ctl.runtime_state,
+                    "protective_stopped": ctl.protective_stopped,
                     "path_index": ctl.arm.path_index, "moving": ctl.arm.is_moving,
                     "remote_control": ctl.remote_control, "clients": emu.client_count,
                     "force": list(ctl.force)}
