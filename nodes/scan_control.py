@@ -2,11 +2,13 @@
 
 ``scanner/probe_at`` (:class:`ProbeAt` -> :class:`ProbeResult`) drives a short path at the point (a sweep line or
 an indentation, checked against the same workspace box and caps as a scan), collects the estimator's valid
-``stiffness/sample`` estimates within a radius of the point while it moves, and answers with their median once
-the probe has rested at the path's end (its estimates there are part of the measurement) and the estimator has
-caught up with the path (an estimate measured at or after its end has arrived: on a busy machine the estimates of a
-wall-clock rig come late, and an answer made without them would be a refusal or the median of the path's first
-part). The reply is deferred: the scanner keeps running (watchdog, pose, status) meanwhile, and progress shows on
+``stiffness/sample`` estimates within a radius of the point measured while the probe was on the path's measuring
+part (sliding along the line at the working height, or pressing and holding: not the transit, the descent onto
+the line nor the retract, where the air-float probe's floating indenter still reaches the tissue and reads it
+from up to ~9 mm higher, at other loads), and answers with their median a rest after the path's end, once the
+estimator has caught up with the path (an estimate measured at or after its end has arrived: on a busy machine the
+estimates of a wall-clock rig come late, and an answer made without them would be a refusal or the median of the
+path's first part). The reply is deferred: the scanner keeps running (watchdog, pose, status) meanwhile, and progress shows on
 ``robot/scan_status`` (state ``probing``) like a scan's.
 ``scanner/pause`` stops the arm where it is, ``scanner/resume`` goes on from the waypoint it was heading for,
 ``scanner/abort`` stops for good: a scan ends as ``stopped`` (the node exits 2), a probe is answered with a
@@ -22,13 +24,14 @@ from typing import TYPE_CHECKING, Any
 import palpa
 from messages import ProbeAt, ProbeResult, StiffnessSample, Trigger, TriggerResult
 from messages.robot import ScanState
-from models.raster import RasterPlan, indent_raster, sweep_raster
+from models.following import is_slide
+from models.raster import RasterPlan, Waypoint, indent_raster, sweep_raster
 from palpa.service import RequestRefused, Responder
 
 if TYPE_CHECKING:
     from nodes.robot_scanner import RobotScanner
 
-__all__ = ["MOVING", "ScanControl"]
+__all__ = ["MOVING", "ScanControl", "measuring_moves"]
 
 MOVING = ("scanning", "probing")
 _SETTLE_S = 0.6
@@ -46,8 +49,11 @@ class ScanControl:
         self.node = node
         self.request: ProbeAt | None = None
         self.responder: Responder[ProbeResult] | None = None
-        self.values: list[float] = []
+        self.values: list[tuple[int, float]] = []  # (measured at, value) of the valid estimates near the point
         self.unit = ""
+        self.measuring: list[int] = []  # the path's measuring moves (the waypoints they end at)
+        self.window: list[int | None] = [None, None]
+        """When (ns) the probe was first seen on a measuring move, and first seen past the last one."""
         self.started_ns = 0
         self.settle_until_ns: int | None = None
         self.path_end_ns = 0
@@ -79,6 +85,7 @@ class ScanControl:
         except (ValueError, palpa.ParamError) as exc:
             raise RequestRefused(f"cannot probe at ({req.x_mm:g}, {req.y_mm:g}) mm: {exc}") from None
         self.request, self.values, self.started_ns, self.latest_ns = req, [], node.clock.now_ns(), None
+        self.measuring, self.window = measuring_moves(plan.waypoints), [None, None]
         self.responder = self.probe.defer()
         node.log.info("probing (%.1f, %.1f) mm: %s, %d waypoints", req.x_mm, req.y_mm, req.mode,
                       len(plan.waypoints))
@@ -112,15 +119,29 @@ class ScanControl:
         self.latest_ns = s.stamp_ns if self.latest_ns is None else max(self.latest_ns, s.stamp_ns)
         if not s.valid or math.dist((s.x_mm, s.y_mm), (req.x_mm, req.y_mm)) > req.radius_mm:
             return
-        self.values.append(s.value)
+        self.values.append((s.stamp_ns, s.value))
         self.unit = s.unit
 
     def path_done(self) -> None:
         """The probe's path is complete: answer after the rest, once the estimator has caught up (module doc)."""
         self.path_end_ns = self.node.clock.now_ns()
         self.settle_until_ns = self.path_end_ns + int(_SETTLE_S * 1e9)
+        if self.window[1] is None:
+            self.window[1] = self.path_end_ns
+
+    def _track(self, now_ns: int) -> None:
+        """Open the measuring window when the probe is first seen on a measuring move, close it once past them."""
+        node = self.node
+        if self.request is None or node.state != "probing" or self.window[1] is not None or not self.measuring:
+            return
+        i = node.segments[node.segment][0] + node.driver.progress().index
+        if self.window[0] is None and i >= self.measuring[0]:
+            self.window[0] = now_ns
+        if i > self.measuring[-1]:
+            self.window[1] = now_ns
 
     def supervise(self, now_ns: int) -> None:
+        self._track(now_ns)
         until = self.settle_until_ns
         if until is None or now_ns < until:
             return
@@ -135,20 +156,24 @@ class ScanControl:
         node.set_state("idle", "probe done")
         if req is None or responder is None:
             return
-        if not self.values:
+        opened, closed = self.window
+        values = [v for t, v in self.values if opened is not None and closed is not None and opened <= t <= closed]
+        if not values:
             latest = self.latest_ns
             heard = ("no estimate at all came: is the estimator running?" if latest is None else
                      f"the estimator lags: its latest estimate was measured {(self.path_end_ns - latest) / 1e9:.1f} s "
-                     "before the path's end" if latest < self.path_end_ns else "none of its estimates was")
+                     "before the path's end" if latest < self.path_end_ns else
+                     f"{len(self.values)} were, but none on the path's measuring part" if self.values else
+                     "none of its estimates was")
             responder.refuse(f"no valid stiffness estimate within {req.radius_mm:g} mm of ({req.x_mm:g}, "
                              f"{req.y_mm:g}) mm ({heard}; probe data on {node.params.watch_topic or 'no topic'}?)")
             return
-        median = statistics.median(self.values)
-        mad = statistics.median(abs(v - median) for v in self.values)
-        node.log.info("probe at (%.1f, %.1f) mm: %.2f %s from %d estimates", req.x_mm, req.y_mm, median, self.unit,
-                      len(self.values))
+        median = statistics.median(values)
+        mad = statistics.median(abs(v - median) for v in values)
+        node.log.info("probe at (%.1f, %.1f) mm: %.2f %s from %d estimates (%d near it in transit left out)",
+                      req.x_mm, req.y_mm, median, self.unit, len(values), len(self.values) - len(values))
         responder.reply(ProbeResult(x_mm=req.x_mm, y_mm=req.y_mm, value=median, unit=self.unit,
-                                    samples=len(self.values), mad=mad,
+                                    samples=len(values), mad=mad,
                                     duration_s=(node.clock.now_ns() - self.started_ns) / 1e9))
 
     def fail_probe(self, why: str) -> None:
@@ -186,3 +211,9 @@ class ScanControl:
         else:
             raise RequestRefused(f"nothing to abort: the scanner is {node.state}")
         return TriggerResult(message=f"aborted ({state})", state=node.state)
+
+
+def measuring_moves(path: tuple[Waypoint, ...]) -> list[int]:
+    """The waypoints that end a probe's measuring moves: the slides along a sweep line at the working height, or a
+    press and its hold; sorted."""
+    return [i for i, w in enumerate(path) if is_slide(path, i) or w.kind in ("press", "hold")]

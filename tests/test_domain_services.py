@@ -4,6 +4,7 @@ pause/resume/abort of a scan, a pressure set-point never above the cap, tare, sa
 from __future__ import annotations
 
 import math
+import statistics
 from pathlib import Path
 from typing import Any
 
@@ -94,6 +95,24 @@ def test_probe_over_an_inclusion_reads_stiffer_than_healthy_tissue() -> None:
     # equal depth, which eq. 7 reads as ~1.7x the modulus (BENCHMARKS.md: the demo scan's peak is 1.65)
     ratio = fut.result().value / float(load_phantom(PHANTOM).youngs_modulus(30.0, 30.0))
     assert 1.45 < ratio < 2.0, ratio
+    g.close()
+
+
+def test_a_probe_answers_from_its_measuring_part_only_not_from_the_descent_or_the_retract() -> None:
+    """The air-float probe's floating indenter reaches the tissue from up to ~9 mm above the working height and
+    reads it there at another load: with a radius that takes in the line's ends, the descent onto the line and the
+    retract are heard near the point too, and left out of the answer."""
+    g, op = probe_graph()
+    fut = op.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=60).call_async(
+        ProbeAt(x_mm=30.0, y_mm=30.0, radius_mm=4.0))
+    until_done(g, fut, 20.0)
+    r = fut.result()
+    near = [s for s in g.published("stiffness/sample") if s.valid and math.dist((s.x_mm, s.y_mm), (30.0, 30.0)) <= 4]
+    down = [s.value for s in near if abs(s.z_mm - 5.0) < 0.05]  # measured at the working height (contact_z_mm)
+    # the premise: most estimates near the point came from above it, and they read higher
+    assert len(near) > 2 * len(down) and statistics.median(s.value for s in near) > 1.03 * statistics.median(down)
+    assert 0.9 * len(down) <= r.samples <= len(down), (r.samples, len(down), len(near))
+    assert r.value == pytest.approx(statistics.median(down), rel=0.003)
     g.close()
 
 
