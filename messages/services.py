@@ -23,7 +23,8 @@ class ProbeAt(Message, frozen=True, kw_only=True):
     """Probe the tissue at (x, y) mm, phantom frame (service ``scanner/probe_at``).
 
     ``sweep``: slide the probe along a line of ``length_mm`` centred on the point (along the scanner's axis);
-    ``indent``: press at the point. The stiffness is the median of the valid estimates within ``radius_mm``."""
+    ``indent``: press at the point. The stiffness is the median of the valid estimates within ``radius_mm`` measured
+    while the probe slid along the line or pressed and held (not in transit, nor descending onto the line)."""
 
     x_mm: float
     y_mm: float
