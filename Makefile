@@ -22,8 +22,9 @@ demo: $(STAMP)
 
 # three workers (pytest-xdist): the process tests spend much of their time waiting on wall-clock motion. The UR
 # emulator's tests (xdist_group "ur-emulator") run one at a time on one worker (--dist loadgroup; pytest < 9.2, see
-# pyproject.toml): they move in real time and starve each other under load. 2.7 min on two idle cores, 3.5 min with
-# both cores kept busy by two other CPU-bound processes (BENCHMARKS.md, "The test suite"). `make test TEST_JOBS=0`
+# pyproject.toml): they move in real time and starve each other under load. 2.7 min on two idle cores in session 13,
+# 3.5-4 min on the same machine slower since; 5.3 min with both cores kept busy by two other CPU-bound processes
+# (BENCHMARKS.md, "The test suite"). `make test TEST_JOBS=0`
 # runs serially.
 TEST_JOBS ?= 3
 test: $(STAMP)
