@@ -3,12 +3,14 @@ clock may fall behind the wall clock (a loaded PC, a process stopped in a debugg
 
 The graph's side writes its clock's time into a small shared file (:class:`ClockWriter`); the emulator reads it
 (:class:`ClockReader`) and never lets the device's simulated motion run more than a *lead* past it. So when the
-graph's process stalls, the emulated device stalls with it after at most the lead, instead of moving on under a controller
-that cannot react, as the real device would (the stall is the PC's, which the real rig must not have; a test
-that wants to see what a stall does runs the emulator on the wall clock, its default).
+graph's process stalls, the emulated device stalls with it after at most the lead, instead of moving on under a
+controller that cannot react, as the real device would (the stall is the PC's, which the real rig must not have; a
+test that wants to see what a stall does runs the emulator on the wall clock, its default).
 
-The lead is what the emulator may run on while the graph's thread is blocked in a call that itself waits for the
-device (ur_rtde's path upload waits for the controller to run the new script): it must cover such a handshake.
+The lead lets the motion run on between the writer's updates (one per pass of its loop) instead of stopping at
+each. Only the motion should hold: a client blocked in a call that waits for the device (ur_rtde's path upload
+waits for the controller to run the new script) would wait forever on a device whose logic held too, since nobody
+advances the clock meanwhile (emulators.ur.server.UrEmulator).
 
 The file holds the time in ns (int64, little-endian) and its bitwise complement, so that a reader that meets a
 half-written value sees the two disagree and reads again. A file of zeros (nothing written yet) is no clock: the

@@ -8,8 +8,8 @@ the line nor the retract, where the air-float probe's floating indenter still re
 from up to ~9 mm higher, at other loads), and answers with their median a rest after the path's end, once the
 estimator has caught up with the path (an estimate measured at or after its end has arrived: on a busy machine the
 estimates of a wall-clock rig come late, and an answer made without them would be a refusal or the median of the
-path's first part). The reply is deferred: the scanner keeps running (watchdog, pose, status) meanwhile, and progress shows on
-``robot/scan_status`` (state ``probing``) like a scan's.
+path's first part). The reply is deferred: the scanner keeps running (watchdog, pose, status) meanwhile, and
+progress shows on ``robot/scan_status`` (state ``probing``) like a scan's.
 ``scanner/pause`` stops the arm where it is, ``scanner/resume`` goes on from the waypoint it was heading for,
 ``scanner/abort`` stops for good: a scan ends as ``stopped`` (the node exits 2), a probe is answered with a
 refusal and the scanner waits for the next request.

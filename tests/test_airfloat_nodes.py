@@ -189,6 +189,7 @@ def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path, calibration)
             return len(got) >= 300 and smoke_topics <= heard
 
         spin_until(node, enough, 60, "300 valid samples", proc)
+        assert proc.stop(30) == 0, proc.output()[-4000:]  # and, as its smoke, it stops on Ctrl-C with exit 0
     e = float(np.median([m.value for m in got[-200:]]))
     d = float(np.median([m.d_in_mm for m in got[-200:]]))
     # the honest world's soft sample takes ~3.4 mm at 33.5 kPa (the old world's eq. 7 mirror gave ~2.3 mm); at

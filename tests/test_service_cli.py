@@ -133,9 +133,9 @@ def test_service_call_probe_at_on_a_simulated_graph(procs: ProcessGroup, tmp_pat
 
     cal = airfloat_calibration()  # the simulated probe calibrated on the bench first, as on the rig
     bus = f"ipc://{short_ipc_base()}"
-    procs.start(palpa_cmd("launch", "launch/probe_sim.yaml", "--bus-address", bus, "--run-dir",
-                          str(tmp_path / "run"), "--no-progress", f"calibration:={cal}", "time_scale:=4.0"),
-                cwd=str(REPO))
+    launch = procs.start(palpa_cmd("launch", "launch/probe_sim.yaml", "--bus-address", bus, "--run-dir",
+                                   str(tmp_path / "run"), "--no-progress", f"calibration:={cal}", "time_scale:=4.0"),
+                         cwd=str(REPO))
     names = ("clock", "pressure", "fibre", "estimator", "map", "scanner")
 
     def all_up() -> bool:  # as an operator would check before probing: every node of the graph is running
@@ -168,3 +168,4 @@ def test_service_call_probe_at_on_a_simulated_graph(procs: ProcessGroup, tmp_pat
     assert result["samples"] >= 20 and abs(result["value"] / truth - 1) < 0.10, (result, truth)
     assert main(["service", "call", "pressure/set", "SetPressure", "{setpoint_kpa: 61}", "--bus", bus]) == 1
     assert "above the cap 60 kPa" in capsys.readouterr().err
+    assert launch.stop(30) == 0, launch.output()[-4000:]  # and, as its smoke, it stops on Ctrl-C with exit 0
