@@ -397,6 +397,8 @@ class RobotScanner(palpa.Node):
             return
         seg_start, seg_end = self.segments[self.segment]
         self.meter.update(seg_start + prog.index, self.driver.state().pose[:3])
+        if self.state == "probing":
+            self.control.track(seg_start + prog.index, now)
         if self.follower is not None and self.state == "scanning" and prog.status == MotionStatus.MOVING:
             self.follower.track(self.path, seg_start + prog.index)
             if self.follower.due(now):

@@ -52,8 +52,8 @@ class ScanControl:
         self.values: list[tuple[int, float]] = []  # (measured at, value) of the valid estimates near the point
         self.unit = ""
         self.measuring: list[int] = []  # the path's measuring moves (the waypoints they end at)
-        self.window: list[int | None] = [None, None]
-        """When (ns) the probe was first seen on a measuring move, and first seen past the last one."""
+        self.opened_ns: int | None = None  # when the probe was first seen on a measuring move
+        self.closed_ns: int | None = None  # ... and first seen past the last one (or the path ended)
         self.started_ns = 0
         self.settle_until_ns: int | None = None
         self.path_end_ns = 0
@@ -85,7 +85,7 @@ class ScanControl:
         except (ValueError, palpa.ParamError) as exc:
             raise RequestRefused(f"cannot probe at ({req.x_mm:g}, {req.y_mm:g}) mm: {exc}") from None
         self.request, self.values, self.started_ns, self.latest_ns = req, [], node.clock.now_ns(), None
-        self.measuring, self.window = measuring_moves(plan.waypoints), [None, None]
+        self.measuring, self.opened_ns, self.closed_ns = measuring_moves(plan.waypoints), None, None
         self.responder = self.probe.defer()
         node.log.info("probing (%.1f, %.1f) mm: %s, %d waypoints", req.x_mm, req.y_mm, req.mode,
                       len(plan.waypoints))
@@ -126,22 +126,20 @@ class ScanControl:
         """The probe's path is complete: answer after the rest, once the estimator has caught up (module doc)."""
         self.path_end_ns = self.node.clock.now_ns()
         self.settle_until_ns = self.path_end_ns + int(_SETTLE_S * 1e9)
-        if self.window[1] is None:
-            self.window[1] = self.path_end_ns
+        if self.closed_ns is None:
+            self.closed_ns = self.path_end_ns
 
-    def _track(self, now_ns: int) -> None:
-        """Open the measuring window when the probe is first seen on a measuring move, close it once past them."""
-        node = self.node
-        if self.request is None or node.state != "probing" or self.window[1] is not None or not self.measuring:
+    def track(self, index: int, now_ns: int) -> None:
+        """The scanner's supervision saw the arm heading for waypoint ``index`` of the path: open the measuring
+        window when it is first on a measuring move, close it once past them."""
+        if self.request is None or self.closed_ns is not None or not self.measuring:
             return
-        i = node.segments[node.segment][0] + node.driver.progress().index
-        if self.window[0] is None and i >= self.measuring[0]:
-            self.window[0] = now_ns
-        if i > self.measuring[-1]:
-            self.window[1] = now_ns
+        if self.opened_ns is None and index >= self.measuring[0]:
+            self.opened_ns = now_ns
+        if index > self.measuring[-1]:
+            self.closed_ns = now_ns
 
     def supervise(self, now_ns: int) -> None:
-        self._track(now_ns)
         until = self.settle_until_ns
         if until is None or now_ns < until:
             return
@@ -156,7 +154,7 @@ class ScanControl:
         node.set_state("idle", "probe done")
         if req is None or responder is None:
             return
-        opened, closed = self.window
+        opened, closed = self.opened_ns, self.closed_ns
         values = [v for t, v in self.values if opened is not None and closed is not None and opened <= t <= closed]
         if not values:
             latest = self.latest_ns

@@ -351,10 +351,12 @@ class UrEmulator:
         None while the arm moves on the wall clock alone (no clock, or none written yet, or released)."""
         try:
             now = self._clock.read() if self._clock is not None else None
-        except (RuntimeError, ValueError) as e:  # the controller runs on whatever the file holds
-            if self._clock_base is not None or not self._clock_failed:
+        except (RuntimeError, ValueError) as e:  # the arm runs on the wall clock rather than stop for good
+            if not self._clock_failed:
                 self.controller.log(f"external clock unreadable, the arm follows the wall clock: {e}")
             self._clock_failed, now = True, None
+        else:
+            self._clock_failed = False  # readable again: a later failure is logged again
         if now is None:
             self._clock_base = None  # released: a clock written again is followed from where it is then
             return None
