@@ -4,7 +4,8 @@ along it and reports progress; exits 0 when the scan is complete (so a launch ca
 Safety is enforced here whatever the driver: a plan that leaves the workspace box or exceeds the speed or
 acceleration cap is refused before any motion (naming the waypoint); while moving, a watchdog stops the arm when
 the probe's data goes stale (``watch_topic``), ``pressure/state`` reports a fault or goes quiet, and ``robot/estop`` stops it
-at once. The arm's pose is published on ``robot/pose``; the plan, latched, on ``robot/plan`` before motion.
+at once. Stale data ends a scan as a fault; a probe (a service call) fails instead, with the reason, and the scanner
+stays up and refuses the next probe until the data is fresh again. The arm's pose is published on ``robot/pose``; the plan, latched, on ``robot/plan`` before motion.
 
 Services (nodes.scan_control): ``scanner/probe_at`` probes one point and answers with the stiffness found there;
 ``scanner/pause``, ``scanner/resume`` and ``scanner/abort`` control a scan or a probe. With ``autostart: false``
@@ -314,6 +315,18 @@ class RobotScanner(palpa.Node):
             self.halt("estop", f"e-stop: {msg.reason or 'engaged'}")
 
     # -- running ---------------------------------------------------------------------------------
+    def stale_data(self, now: int) -> str:
+        """Why the data the arm moves on is stale, or '' while it is fresh: the probe's topic silent past the
+        watchdog, or ``pressure/state`` silent once it has been heard."""
+        p = self.params
+        if p.watch_topic and self.last_probe_ns is not None and (now - self.last_probe_ns) / 1e9 > p.watchdog_s:
+            return f"probe data on {p.watch_topic} stale for more than {p.watchdog_s * 1000:.0f} ms"
+        if p.pressure_watchdog_s > 0 and self.last_pressure_ns is not None and \
+                (now - self.last_pressure_ns) / 1e9 > p.pressure_watchdog_s:
+            return (f"pressure/state silent for more than {p.pressure_watchdog_s * 1000:.0f} ms "
+                    "(the pressure controller died?)")
+        return ""
+
     def halt(self, state: ScanState, why: str) -> None:
         """Stop the arm now and end the scan as ``state`` (fault, estop, stopped)."""
         try:
@@ -374,13 +387,12 @@ class RobotScanner(palpa.Node):
         touching = self.state == "touching"  # the touch-off moves the arm: the same checks as a scan
         if not touching and (self.state not in MOVING or self.segment >= len(self.segments)):
             return
-        if p.watch_topic and self.last_probe_ns is not None and (now - self.last_probe_ns) / 1e9 > p.watchdog_s:
-            self.halt("fault", f"probe data on {p.watch_topic} stale for more than {p.watchdog_s * 1000:.0f} ms")
+        stale = self.stale_data(now)
+        if stale and self.state == "probing":
+            self.control.stop_probe(f"the scanner stopped the arm: {stale}", f"probe stopped: {stale}")
             return
-        if p.pressure_watchdog_s > 0 and self.last_pressure_ns is not None and \
-                (now - self.last_pressure_ns) / 1e9 > p.pressure_watchdog_s:
-            self.halt("fault", f"pressure/state silent for more than {p.pressure_watchdog_s * 1000:.0f} ms "
-                               "(the pressure controller died?)")
+        if stale:
+            self.halt("fault", stale)
             return
         box = p.workspace_mm
         x, y, z = self.driver.state().pose[:3]

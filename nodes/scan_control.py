@@ -12,13 +12,17 @@ path's first part). The reply is deferred: the scanner keeps running (watchdog, 
 progress shows on ``robot/scan_status`` (state ``probing``) like a scan's.
 ``scanner/pause`` stops the arm where it is, ``scanner/resume`` goes on from the waypoint it was heading for,
 ``scanner/abort`` stops for good: a scan ends as ``stopped`` (the node exits 2), a probe is answered with a
-refusal and the scanner waits for the next request.
+refusal and the scanner waits for the next request. Stale data stops a probe the same way (the refusal says which
+data), and the next probe is refused until it is fresh again; a probe after a stopped one lifts the arm straight up
+before its path (:func:`lift_first`), so that a probe stopped in the tissue is not dragged across it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
+from collections.abc import Sequence
 from typing import TYPE_CHECKING, Any
 
 import palpa
@@ -31,12 +35,14 @@ from palpa.service import RequestRefused, Responder
 if TYPE_CHECKING:
     from nodes.robot_scanner import RobotScanner
 
-__all__ = ["MOVING", "ScanControl", "measuring_moves"]
+__all__ = ["MOVING", "ScanControl", "lift_first", "measuring_moves"]
 
 MOVING = ("scanning", "probing")
 _SETTLE_S = 0.6
 """After a probe's path: the rest at its end, and time for the estimator to publish the last estimates (its
 max_wait_s is 0.25 s); the earliest answer."""
+_LIFT_TOLERANCE_MM = 0.5
+"""An arm this much below a probe's first waypoint is lifted straight up to it first (:func:`lift_first`)."""
 _CATCH_UP_S = 10.0
 """After the rest: the longest an answer waits for an estimate measured at or after the path's end (an estimator that
 sends nothing, dead or unplugged, gets the refusal after this)."""
@@ -60,6 +66,8 @@ class ScanControl:
         self.latest_ns: int | None = None
         """The latest measurement stamp of any estimate (valid or not, anywhere) heard during the probe."""
         self.paused_from: ScanState = "scanning"  # set by on_pause before anything reads it
+        self.stopped_on_path = False
+        """The last probe stopped on its path (stale data, an abort): the next one lifts the arm first."""
         self.probe = node.service("scanner/probe_at", ProbeAt, ProbeResult, self.on_probe_at)
         node.service("scanner/pause", Trigger, TriggerResult, self.on_pause)
         node.service("scanner/resume", Trigger, TriggerResult, self.on_resume)
@@ -75,18 +83,23 @@ class ScanControl:
             raise RequestRefused(f"no fresh probe data on {p.watch_topic}: is the probe's reader running?")
         if node.state not in ("idle", "done"):
             raise RequestRefused(f"the scanner is {node.state}, not idle (abort first, or wait)")
-        if p.watch_topic and (last is None or (node.clock.now_ns() - last) / 1e9 > p.watchdog_s):
+        if p.watch_topic and last is None:
             raise RequestRefused(f"no fresh probe data on {p.watch_topic}: is the probe's reader running?")
+        if stale := node.stale_data(node.clock.now_ns()):
+            raise RequestRefused(f"no fresh data to move on: {stale}")
         if not (req.length_mm > 0 and req.radius_mm > 0):
             raise palpa.ParamError(f"length_mm and radius_mm must be > 0, got {req.length_mm}, {req.radius_mm}")
         try:
             plan = self._plan(req)
+            if self.stopped_on_path:
+                plan = lift_first(plan, node.driver.state().pose[:3])
             node.check_path(plan.waypoints)
         except (ValueError, palpa.ParamError) as exc:
             raise RequestRefused(f"cannot probe at ({req.x_mm:g}, {req.y_mm:g}) mm: {exc}") from None
         self.request, self.values, self.started_ns, self.latest_ns = req, [], node.clock.now_ns(), None
         self.measuring, self.opened_ns, self.closed_ns = measuring_moves(plan.waypoints), None, None
         self.responder = self.probe.defer()
+        self.stopped_on_path = False
         node.log.info("probing (%.1f, %.1f) mm: %s, %d waypoints", req.x_mm, req.y_mm, req.mode,
                       len(plan.waypoints))
         node.run_path(plan, "probing")
@@ -174,6 +187,19 @@ class ScanControl:
                                     samples=len(values), mad=mad,
                                     duration_s=(node.clock.now_ns() - self.started_ns) / 1e9))
 
+    def stop_probe(self, why: str, status: str = "") -> None:
+        """Stop the arm where it is and fail the probe in progress with ``why``; the scanner stays up, idle, for
+        the next request (a call fails, not its server: the caller decides). The next probe lifts the arm straight
+        up first (:func:`lift_first`), and is refused while the data stays stale."""
+        node = self.node
+        try:
+            node.driver.stop(node.params.max_accel_mm_s2)
+        finally:
+            self.fail_probe(why)
+            self.stopped_on_path = True
+            node.log.error("STOP (the probe failed; the scanner waits for the next): %s", why)
+            node.set_state("idle", status or f"probe stopped: {why}")
+
     def fail_probe(self, why: str) -> None:
         """End the probe in progress (if any) without a result."""
         responder, self.responder, self.request, self.settle_until_ns = self.responder, None, None, None
@@ -201,14 +227,25 @@ class ScanControl:
         node = self.node
         state = self.paused_from if node.state == "paused" else node.state
         if state == "probing":
-            node.driver.stop(node.params.max_accel_mm_s2)
-            self.fail_probe("aborted by scanner/abort")
-            node.set_state("idle", "probe aborted")
+            self.stop_probe("aborted by scanner/abort", "probe aborted")
         elif state in ("scanning", "waiting"):
             node.halt("stopped", "scan aborted by scanner/abort")
         else:
             raise RequestRefused(f"nothing to abort: the scanner is {node.state}")
         return TriggerResult(message=f"aborted ({state})", state=node.state)
+
+
+def lift_first(plan: RasterPlan, at: Sequence[float]) -> RasterPlan:
+    """``plan`` preceded by a lift straight up from ``at`` (x, y, z mm) to the plan's first height when the arm is
+    lower: after a probe stopped on its path the probe may still touch the tissue, and its move to the next one
+    must not drag it across."""
+    first = plan.waypoints[0]
+    x, y, z = (float(v) for v in at[:3])
+    if z >= first.z_mm - _LIFT_TOLERANCE_MM:
+        return plan
+    lift = Waypoint(x, y, first.z_mm, first.speed_mm_s, first.accel_mm_s2, 0.0, 0.0, first.line, "retract")
+    return dataclasses.replace(plan, waypoints=(lift, *plan.waypoints),
+                               duration_s=plan.duration_s + (first.z_mm - z) / first.speed_mm_s)
 
 
 def measuring_moves(path: tuple[Waypoint, ...]) -> list[int]:

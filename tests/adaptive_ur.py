@@ -55,11 +55,12 @@ def run_adaptive_on_ur_emulator(procs: ProcessGroup, run: Path, launch: str, hom
     planner_log = (run / "planner.log").read_text() if (run / "planner.log").exists() else ""
     refusals = [line for line in planner_log.splitlines() if " refused" in line]
     # late estimates refuse nothing: the scanner's answer waits for the estimator to catch up (nodes/scan_control.py);
-    # a starved camera can drop the frames of a press, so that none of its estimates there is valid: refused too, and
-    # like late probe data it must be retried and the point then answered
+    # a starved camera can drop the frames of a press, so that none of its estimates there is valid: refused too; a
+    # starved sensor or pressure controller stops the arm on the probe's path (the scanner's watchdog), and the
+    # scanner stays up. Each must be retried and the point then answered
+    causes = ("no fresh probe data", "none of its estimates was", "the scanner stopped the arm", "no fresh data to move")
     assert len(refusals) == plan["refused"] and all(
-        ("no fresh probe data" in r or "none of its estimates was" in r) and "retrying" in r for r in refusals), (
-        f"{plan}\n{logs}")
+        any(c in r for c in causes) and "retrying" in r for r in refusals), f"{plan}\n{logs}"
     answered = {(round(px, 1), round(py, 1)) for px, py in plan["points"]}
     for r in refusals:
         at = re.search(r"probe at \(([-\d.]+), ([-\d.]+)\) mm refused", r)

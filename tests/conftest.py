@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import functools
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -76,7 +78,9 @@ def airfloat_calibration() -> Path:
     from models.calibration_airfloat import save_calibration
     from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate
 
-    path = Path(tempfile.mkdtemp(prefix="palpa-cal-")) / "calibration.yaml"
+    folder = tempfile.mkdtemp(prefix="palpa-cal-")
+    atexit.register(shutil.rmtree, folder, True)  # one per worker process, gone with it
+    path = Path(folder) / "calibration.yaml"
     save_calibration(path, calibrate(0, [Reference.parse(t) for t in DEFAULT_REFERENCES]))
     return path
 

@@ -8,8 +8,9 @@ from typing import Any
 import pytest
 
 import palpa
-from messages import EStop, PressureState, ProbeHeights
+from messages import EStop, PressureState, ProbeAt, ProbeHeights, ProbeResult
 from nodes.robot_scanner import RobotScanner
+from palpa.service import RequestRefused
 from palpa.testing import NodeHarness
 
 SMALL: dict[str, Any] = {"region_mm": [10, 10, 20, 20], "spacing_mm": 5, "speed_mm_s": 20, "home_mm": [10, 10, 20]}
@@ -155,3 +156,53 @@ def test_pressure_state_going_quiet_stops_the_arm() -> None:
     poses = h.published("robot/pose")
     assert any(p.speed_mm_s > 15 for p in poses if quiet_from < p.stamp_ns < quiet_from + 200_000_000)
     assert all(p.speed_mm_s == 0.0 for p in poses if p.stamp_ns > quiet_from + 240_000_000)
+
+
+def test_stale_data_fails_the_probe_not_the_scanner_and_the_next_probe_lifts_first() -> None:
+    """A probe is a service call: data going stale on its path stops the arm and fails that call with the reason,
+    and the scanner stays up. It refuses probes while the data is stale; the first after it lifts the arm straight
+    up from where it stopped (the probe may still touch the tissue) before it moves across."""
+    h = NodeHarness(RobotScanner, {**SMALL, "autostart": False, "pressure_watchdog_s": 0.2, "contact_z_mm": 5.0})
+    probe = h.add(palpa.Node, name="caller").client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=60)
+
+    def fresh(seconds: float) -> None:
+        for _ in range(round(seconds / 0.01)):
+            heights(h)
+            pressure(h)
+            h.advance(0.01)
+
+    fresh(0.1)
+    first = probe.call_async(ProbeAt(x_mm=15.0, y_mm=15.0))
+    for _ in range(1000):
+        fresh(0.01)
+        if h.published("robot/pose")[-1].z_mm < 5.01 and speed(h) > 5:  # sliding along the line at its height
+            break
+    else:
+        raise AssertionError("the probe never reached its line")
+    run_with_probe(h, 0.3)  # the probe's data goes on; the pressure controller is silent
+    with pytest.raises(RequestRefused, match="the scanner stopped the arm.*pressure/state silent"):
+        first.result()
+    st = h.published("robot/scan_status")[-1]
+    assert st.state == "idle" and "pressure/state silent" in st.message and speed(h) == 0.0
+    assert not h.node.is_shutdown
+    stopped = h.published("robot/pose")[-1]
+    refused = probe.call_async(ProbeAt(x_mm=12.0, y_mm=12.0))
+    run_with_probe(h, 0.1)
+    with pytest.raises(RequestRefused, match="no fresh data to move on: pressure/state silent"):
+        refused.result()
+    assert h.published("robot/pose")[-1].x_mm == stopped.x_mm and speed(h) == 0.0
+    fresh(0.1)
+    n = len(h.published("robot/pose"))
+    after = probe.call_async(ProbeAt(x_mm=12.0, y_mm=12.0))
+    for _ in range(300):  # the answer waits up to 10 s for an estimate
+        fresh(0.1)
+        if after.done():
+            break
+    assert after.done()
+    with pytest.raises(RequestRefused, match="no valid stiffness estimate"):  # no estimator in this graph
+        after.result()
+    poses = h.published("robot/pose")[n:]
+    up = next(i for i, q in enumerate(poses) if q.z_mm > 19.99)  # the retract height: contact_z_mm + 15 mm
+    assert up > 0 and all(math.dist((q.x_mm, q.y_mm), (stopped.x_mm, stopped.y_mm)) < 1e-6 for q in poses[:up])
+    assert min(math.dist((q.x_mm, q.y_mm), (12.0, 12.0 - 3.0)) for q in poses) < 0.01  # then the new line's start
+    assert h.published("robot/scan_status")[-1].state == "idle" and not h.node.is_shutdown
