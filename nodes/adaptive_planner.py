@@ -20,7 +20,9 @@ latched) after every probe, and at the end writes the same files as a raster sca
 ``map.png``, ``inclusions.json``: nodes.map_output) plus ``planner.json`` (probes, refusals, simulated time, why it
 stopped, and with the detect rule ``unsensed``: per reach of interest the fraction of the region where an inclusion
 sensed from that far could still lie unseen; the smallest's cells are ``map.npz``'s ``unsensed`` and ``map.png``'s
-grey), publishes ``map/inclusions`` and exits 0: it is the launch's required node.
+grey), publishes ``map/inclusions`` and exits: it is the launch's required node. It exits 0 only when nothing was
+lost: a probe given up after the scanner's refusals, or estimates lost on the way, make the run incomplete (exit 1,
+``incomplete`` in planner.json, and the given-up sweeps' area counts as unsensed).
 """
 
 from __future__ import annotations
@@ -371,8 +373,8 @@ class AdaptivePlanner(palpa.Node):
         """Where an inclusion of the sizes of interest could still lie unseen (models.adaptive_detect.unsensed),
         said in the log: the stop rule bounds it, a user should still see where it is."""
         snap = self.grid.snapshot()
-        hiding, mask = unsensed(np.isfinite(snap.stiffness), snap.x_mm, snap.y_mm, self.probed + self.given_up,
-                                self.cfg)
+        # the points given up were never measured: where only they would have sensed, the report says unsensed
+        hiding, mask = unsensed(np.isfinite(snap.stiffness), snap.x_mm, snap.y_mm, self.probed, self.cfg)
         (r0, f0), (r1, f1) = hiding[0], hiding[-1]
         self.log.info("unsensed: an inclusion sensed from at most %.1f mm away (the smallest of interest) could lie "
                       "unseen in %.1f %% of the region, one sensed from %.1f mm (the largest) in %.1f %% (map.png's "
@@ -401,9 +403,26 @@ class AdaptivePlanner(palpa.Node):
             baseline=ref[0] if ref else self.belief.baseline if self.belief is not None else float("nan"),
             inclusions=[DetectedInclusion(x_mm=i.x_mm, y_mm=i.y_mm, radius_mm=i.radius_mm, contrast=i.contrast)
                         for i in found]))
+        lost = self._losses()
+        if lost:
+            self.log.error("the map is INCOMPLETE: %s", lost)
         out.mkdir(parents=True, exist_ok=True)
         (out / "planner.json").write_text(json.dumps({
             "probes": len(self.probed), "refused": self.refused, "sim_s": elapsed, "stop": why,
-            "points": self.probed, "why": self.why, "given_up": self.given_up,
+            "points": self.probed, "why": self.why, "given_up": self.given_up, "incomplete": lost,
             "unsensed": [{"reach_mm": r, "fraction": round(f, 4)} for r, f in hiding]}, indent=1) + "\n")
-        self.timer(0.2, lambda: self.request_shutdown(0), oneshot=True)
+        self.timer(0.2, lambda: self.request_shutdown(1 if lost else 0), oneshot=True)
+
+    def _losses(self) -> str:
+        """What the map lacks of what was asked for or measured ('' when nothing): probes given up after the
+        scanner's refusals, estimates lost on the way or a restarted estimator. Then the run is not clean: the
+        node exits 1 and planner.json's ``incomplete`` says why."""
+        lost = []
+        if self.given_up:
+            lost.append(f"{len(self.given_up)} probe(s) given up after refusals, at "
+                        + ", ".join(f"({x:.1f}, {y:.1f})" for x, y in self.given_up) + " mm: not in the map")
+        stats = self.counters().get(self.resolve("stiffness/sample"))
+        if stats is not None and (stats.gaps or stats.restarts):
+            lost.append(f"stiffness/sample lost {stats.gaps} estimate(s) and its publisher restarted "
+                        f"{stats.restarts} time(s)")
+        return "; ".join(lost)
