@@ -3,9 +3,10 @@ along it and reports progress; exits 0 when the scan is complete (so a launch ca
 
 Safety is enforced here whatever the driver: a plan that leaves the workspace box or exceeds the speed or
 acceleration cap is refused before any motion (naming the waypoint); while moving, a watchdog stops the arm when
-the probe's data goes stale (``watch_topic``), ``pressure/state`` reports a fault or goes quiet, and ``robot/estop`` stops it
-at once. Stale data ends a scan as a fault; a probe (a service call) fails instead, with the reason, and the scanner
-stays up and refuses the next probe until the data is fresh again. The arm's pose is published on ``robot/pose``; the plan, latched, on ``robot/plan`` before motion.
+the probe's data goes stale (``watch_topic``), ``pressure/state`` reports a fault or goes quiet, and ``robot/estop``
+stops it at once. Stale data ends a scan as a fault; a probe (a service call) fails instead, with the reason, and
+the scanner stays up and refuses the next probe until the data is fresh again. The arm's pose is published on
+``robot/pose``; the plan, latched, on ``robot/plan`` before motion.
 
 Services (nodes.scan_control): ``scanner/probe_at`` probes one point and answers with the stiffness found there;
 ``scanner/pause``, ``scanner/resume`` and ``scanner/abort`` control a scan or a probe. With ``autostart: false``

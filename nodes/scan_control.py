@@ -187,7 +187,7 @@ class ScanControl:
                                     samples=len(values), mad=mad,
                                     duration_s=(node.clock.now_ns() - self.started_ns) / 1e9))
 
-    def stop_probe(self, why: str, status: str = "") -> None:
+    def stop_probe(self, why: str, status: str = "", *, asked: bool = False) -> None:
         """Stop the arm where it is and fail the probe in progress with ``why``; the scanner stays up, idle, for
         the next request (a call fails, not its server: the caller decides). The next probe lifts the arm straight
         up first (:func:`lift_first`), and is refused while the data stays stale."""
@@ -197,7 +197,8 @@ class ScanControl:
         finally:
             self.fail_probe(why)
             self.stopped_on_path = True
-            node.log.error("STOP (the probe failed; the scanner waits for the next): %s", why)
+            log = node.log.info if asked else node.log.error  # an abort is asked for, stale data is a fault
+            log("STOP (the probe failed; the scanner waits for the next): %s", why)
             node.set_state("idle", status or f"probe stopped: {why}")
 
     def fail_probe(self, why: str) -> None:
@@ -227,7 +228,7 @@ class ScanControl:
         node = self.node
         state = self.paused_from if node.state == "paused" else node.state
         if state == "probing":
-            self.stop_probe("aborted by scanner/abort", "probe aborted")
+            self.stop_probe("aborted by scanner/abort", "probe aborted", asked=True)
         elif state in ("scanning", "waiting"):
             node.halt("stopped", "scan aborted by scanner/abort")
         else:
