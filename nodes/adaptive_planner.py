@@ -414,10 +414,12 @@ class AdaptivePlanner(palpa.Node):
         self.timer(0.2, lambda: self.request_shutdown(1 if lost else 0), oneshot=True)
 
     def _losses(self) -> str:
-        """What the map lacks of what was asked for or measured ('' when nothing): probes given up after the
-        scanner's refusals, estimates lost on the way or a restarted estimator. Then the run is not clean: the
+        """What the map lacks of what was asked for or measured ('' when nothing): the map itself, probes given up
+        after the scanner's refusals, estimates lost on the way or a restarted estimator. Then the run is not clean: the
         node exits 1 and planner.json's ``incomplete`` says why."""
         lost = []
+        if self.belief is None:
+            lost.append("no valid stiffness estimate reached the planner: there is no map")
         if self.given_up:
             lost.append(f"{len(self.given_up)} probe(s) given up after refusals, at "
                         + ", ".join(f"({x:.1f}, {y:.1f})" for x, y in self.given_up) + " mm: not in the map")

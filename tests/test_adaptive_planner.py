@@ -205,21 +205,32 @@ def test_where_two_probes_lines_overlap_a_sample_is_the_one_measuring_at_its_sta
     h.close()
 
 
-def test_estimates_lost_on_the_way_make_the_planners_run_incomplete(tmp_path: Path) -> None:
+def test_estimates_lost_on_the_way_or_none_at_all_make_the_planners_run_incomplete(tmp_path: Path) -> None:
     """The planner bins the estimator's estimates itself: two of them lost on the way (a gap in the publisher's
-    sequence), and its run cannot end clean, whatever it probed."""
+    sequence), or none reaching it at all, and its run cannot end clean, whatever it probed."""
+    import msgspec
+
     from nodes.adaptive_planner import AdaptivePlanner
     from palpa.testing import NodeHarness
-    from tests.test_map_aggregator import _raw_sample
+    from tests.test_map_aggregator import sample
 
-    for lost, out in (((), "ok"), ((6, 7), "lost")):
+    def raw(seq: int) -> list[bytes]:  # the estimator's seq-th estimate, along the probe's sweep
+        header = msgspec.msgpack.encode({"type": "StiffnessSample", "seq": seq, "stamp": 1, "node": "estimator",
+                                         "inc": 7})
+        return [b"stiffness/sample", header, msgspec.msgpack.encode(sample(5.0, 2.0 + 0.6 * seq, 26.0))]
+
+    for lost, out in (((), "ok"), ((6, 7), "lost"), (tuple(range(1, 11)), "none")):
         h = NodeHarness(AdaptivePlanner, {"output_dir": str(tmp_path / out), "region_mm": [0.0, 0.0, 20.0, 20.0]})
+        h.node.probed, h.node.blind = [(5.0, 5.0)], [True]   # as after its first probe, a sweep along y at x = 5
         for seq in (s for s in range(1, 11) if s not in lost):
-            h.publish_raw(_raw_sample(seq, 7, float(seq)))
+            h.publish_raw(raw(seq))
+        if len(lost) < 10:
+            h.node._update_belief()
         h.node.finish("the test ends it")
         h.advance(0.5)
         report = json.loads((tmp_path / out / "planner.json").read_text())
         assert h.node.exit_code == (1 if lost else 0), report
-        assert report["incomplete"] == ("stiffness/sample lost 2 estimate(s) and its publisher restarted 0 time(s)"
-                                        if lost else "")
+        assert report["incomplete"] == {
+            "ok": "", "lost": "stiffness/sample lost 2 estimate(s) and its publisher restarted 0 time(s)",
+            "none": "no valid stiffness estimate reached the planner: there is no map"}[out]
         h.close()
