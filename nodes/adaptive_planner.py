@@ -391,10 +391,13 @@ class AdaptivePlanner(palpa.Node):
         found: list[Inclusion] = []
         detect = self.cfg.stop_rule == "detect"
         hiding, mask = self._unsensed() if detect else ([], None)
+        lost = self._losses()
+        if lost:
+            self.log.error("the map is INCOMPLETE: %s", lost)
         if self.belief is not None:
             snap, found = self._publish_belief(final=True)
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
-            write_outputs(out, snap, found, unit=self.unit or "?", title=title, unsensed=mask)
+            write_outputs(out, snap, found, unit=self.unit or "?", title=title, unsensed=mask, incomplete=lost)
         ref = (reference(self.fair.snapshot().stiffness, lower=self.cfg.lower_spread,
                           neighbour_cap=self.cfg.neighbour_cap)
                if detect else None)
@@ -403,9 +406,6 @@ class AdaptivePlanner(palpa.Node):
             baseline=ref[0] if ref else self.belief.baseline if self.belief is not None else float("nan"),
             inclusions=[DetectedInclusion(x_mm=i.x_mm, y_mm=i.y_mm, radius_mm=i.radius_mm, contrast=i.contrast)
                         for i in found]))
-        lost = self._losses()
-        if lost:
-            self.log.error("the map is INCOMPLETE: %s", lost)
         out.mkdir(parents=True, exist_ok=True)
         (out / "planner.json").write_text(json.dumps({
             "probes": len(self.probed), "refused": self.refused, "sim_s": elapsed, "stop": why,

@@ -5,7 +5,9 @@ scanning; when the scan reports ``done`` on ``robot/scan_status`` it writes ``ma
 ``inclusions.json`` into ``output_dir`` (each file atomically). It writes once per scan: a repeated ``done`` (a
 scanner lingering, a replay) writes nothing new, and shutdown writes only samples no file holds yet (a scan
 stopped half-way), so a node asked to stop after its scan exits at once. The service ``map/save``
-(:class:`Trigger` -> :class:`MapSaved`) writes them now, mid-scan.
+(:class:`Trigger` -> :class:`MapSaved`) writes them now, mid-scan. A map written before its scan is done (saved
+mid-scan, or the scan stopped by a fault) says so: ``map.npz``'s ``incomplete`` and ``map.png``'s title tell how far
+the scan got and how it ended, as they tell of samples lost on the way.
 """
 
 from __future__ import annotations
@@ -72,6 +74,9 @@ class MapAggregator(palpa.Node):
         self.changed = False
         self.incomplete = ""
         """Why this map lacks data the scan produced ('' when it has everything): it is then declared failed."""
+        self.scan: ScanStatus | None = None
+        """The raster scan's latest status, once it has been seen scanning (not a scanner serving probes): a map
+        written before it is ``done`` holds only part of the scan and says so."""
         self.unsaved = 0
         """Samples taken since the files were last written."""
         self.touching = False
@@ -138,6 +143,8 @@ class MapAggregator(palpa.Node):
             self.log.error("map INCOMPLETE: %s", self.incomplete)
 
     def on_status(self, st: ScanStatus) -> None:
+        if st.state == "scanning" or self.scan is not None:
+            self.scan = st
         if st.state == "touching":
             self.touching = True
         elif self.touching:  # the touch-off is over: map only what is measured from now on
@@ -183,7 +190,10 @@ class MapAggregator(palpa.Node):
         out = Path(self.params.output_dir)
         title = self.params.title or f"stiffness map — {out}"
         title += f"\n{self.samples} samples, {len(found)} inclusion(s), {time.strftime('%Y-%m-%d %H:%M')}"
-        paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title)
+        partial = "; ".join(filter(None, (self.incomplete, self._unfinished())))
+        if partial:
+            self.log.warning("the map written holds part of the scan: %s", partial)
+        paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title, incomplete=partial)
         self.written += 1
         self.unsaved = 0
         for inc in found:
@@ -191,6 +201,15 @@ class MapAggregator(palpa.Node):
                           inc.x_mm, inc.y_mm, inc.radius_mm, inc.contrast)
         self.log.info("map written: %s", ", ".join(str(p) for p in paths))
         return list(paths)
+
+    def _unfinished(self) -> str:
+        """'' once the scan is done (or when no raster scan was seen); else how far it got and how it ended."""
+        scan = self.scan
+        if scan is None or scan.state == "done":
+            return ""
+        how = f"it ended {scan.state}" if scan.state in ("fault", "estop", "stopped") else f"last heard {scan.state}"
+        return (f"the scan did not finish: {how} at {100 * scan.progress:.0f} % of its path"
+                + (f" ({scan.message})" if scan.message else ""))
 
     def _check_complete(self) -> None:
         """A map missing samples (its estimator restarted, samples lost on the way) is declared failed: the

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -34,9 +35,11 @@ def _atomic_write(path: Path, data: bytes) -> None:
 
 
 def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str,
-                  title: str, unsensed: npt.NDArray[np.bool_] | None = None) -> list[Path]:
+                  title: str, unsensed: npt.NDArray[np.bool_] | None = None, incomplete: str = "") -> list[Path]:
     """Write the three files (each atomically: a reader never sees half a file); returns their paths.
-    ``unsensed``: a bool grid of the map's shape, kept in ``map.npz`` and greyed in ``map.png`` (module doc)."""
+    ``unsensed``: a bool grid of the map's shape, kept in ``map.npz`` and greyed in ``map.png`` (module doc).
+    ``incomplete``: why the map lacks part of what it was to hold ('' when it does not): kept in ``map.npz``
+    (``incomplete``) and written over ``map.png``'s title, so that a partial map read later says so."""
     if unsensed is not None and np.shape(unsensed) != np.shape(snap.stiffness):
         raise ValueError(f"unsensed: shape {np.shape(unsensed)} is not the map's {np.shape(snap.stiffness)}")
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -47,6 +50,9 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
         "spread": snap.spread, "unit": np.array(unit)}
     if unsensed is not None:
         arrays["unsensed"] = np.asarray(unsensed, dtype=bool)
+    if incomplete:
+        arrays["incomplete"] = np.array(incomplete)
+        title = "\n".join(textwrap.wrap(f"INCOMPLETE: {incomplete}", 90)) + "\n" + title
     np.savez_compressed(tmp, **arrays)
     os.replace(tmp, npz)
     js = out_dir / "inclusions.json"

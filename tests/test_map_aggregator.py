@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from messages import ScanPlan, ScanStatus, StiffnessSample
+from messages import ScanPlan, ScanStatus, StiffnessSample, Trigger
 from nodes.map_aggregator import MapAggregator
 from palpa.testing import MemoryBus, NodeHarness
 
@@ -148,3 +148,34 @@ def test_a_map_that_missed_samples_is_declared_failed(tmp_path: Path) -> None:
     h.publish("robot/scan_status", done)
     assert h.node.exit_code == 1 and "restarted mid-scan" in h.node.incomplete and "10 samples" in h.node.incomplete
     h.close()
+
+
+def test_a_map_written_before_its_scan_is_done_says_how_far_the_scan_got(tmp_path: Path) -> None:
+    """A scan stopped half-way by a fault: the map written as the node stops says that the scan did not finish, how
+    far it got and why (map.npz's ``incomplete``, map.png's title). A scan that is done writes no such note, nor a
+    scanner serving probes (never scanning); a map saved mid-scan says it is part of one."""
+    plan = ScanPlan(stamp_ns=0, mode="sweep", region_mm=(0.0, 0.0, 20.0, 20.0), spacing_mm=2.0, speed_mm_s=10.0,
+                    lines=10, estimated_duration_s=1.0, waypoints=[])
+    why = "pressure/state silent for more than 500 ms"
+    expected = {"done": "", "probes": "",
+                "fault": f"the scan did not finish: it ended fault at 50 % of its path ({why})",
+                "saved": "the scan did not finish: last heard scanning at 50 % of its path"}
+    for out, states in (("done", ("scanning", "done")), ("fault", ("scanning", "fault")), ("probes", ("idle",)),
+                        ("saved", ("scanning",))):
+        h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / out)})
+        h.publish("robot/plan", plan)
+        for seq in range(1, 11):
+            h.publish_raw(_raw_sample(seq, 7, float(seq)))
+        for state in states:
+            h.publish("robot/scan_status", ScanStatus(stamp_ns=0, state=state, line=5, lines=10,
+                                                      progress=1.0 if state == "done" else 0.5, eta_s=0.0,
+                                                      message=why if state == "fault" else ""))
+        if out == "saved":
+            h.node.on_save(Trigger())
+        else:
+            h.close()  # the node stops: what no file holds yet is written
+        with np.load(tmp_path / out / "map.npz") as grid:
+            assert (str(grid["incomplete"]) if "incomplete" in grid else "") == expected[out]
+        assert h.node.exit_code == 0  # what it did receive is all there: the scanner's own exit says the fault
+        if out == "saved":
+            h.close()
