@@ -136,6 +136,11 @@ class RobotScanner(palpa.Node):
         pressure_watchdog_s: palpa.NonNegative = 0.5
         """Once ``pressure/state`` has been heard, it going quiet this long while moving stops the arm like stale
         probe data (a dead pressure controller means unknown contact force); 0 disables."""
+        stale_hold_s: palpa.NonNegative = 0.0
+        """A scan stopped by stale data (either watchdog above) holds, paused, this long for the data to come back,
+        then goes on along its line from where it stopped (each hold logged and counted in the final status); still
+        stale after it, the scan ends as a fault. 0: it ends at once (a probe fails instead, for its caller to
+        retry, whatever this is)."""
         startup_timeout_s: palpa.Positive = 10.0
         """How long to wait for the probe's first data before giving up."""
         pose_rate_hz: palpa.Positive = 250.0
@@ -355,13 +360,14 @@ class RobotScanner(palpa.Node):
         self.set_state(state)
         self._start_segment()
 
-    def pause(self) -> None:
+    def pause(self, why: str = "") -> None:
         """Stop the arm where it is; :meth:`resume` goes on towards the waypoint it was heading for."""
         self.driver.stop(self.params.max_accel_mm_s2)
         self.resume_index = self.driver.progress().index
-        self.set_state("paused", f"paused during {self.control.paused_from}")
+        self.set_state("paused", why or f"paused during {self.control.paused_from}")
 
     def resume(self, state: ScanState) -> None:
+        self.control.stale_since = None
         a, b = self.segments[self.segment]
         a = min(a + self.resume_index, b)
         self.segments[self.segment] = (a, b)
@@ -385,12 +391,18 @@ class RobotScanner(palpa.Node):
             elif (now - self.started_ns) / 1e9 > p.startup_timeout_s:
                 self.halt("fault", f"no probe data on {p.watch_topic} within {p.startup_timeout_s:g} s")
             return
+        if self.control.stale_since is not None:
+            self.control.supervise_hold(now)
+            return
         touching = self.state == "touching"  # the touch-off moves the arm: the same checks as a scan
         if not touching and (self.state not in MOVING or self.segment >= len(self.segments)):
             return
         stale = self.stale_data(now)
         if stale and self.state == "probing":
             self.control.stop_probe(f"the scanner stopped the arm: {stale}", f"probe stopped: {stale}")
+            return
+        if stale and self.state == "scanning" and p.stale_hold_s > 0:
+            self.control.hold(stale, now)
             return
         if stale:
             self.halt("fault", stale)
@@ -469,7 +481,9 @@ class RobotScanner(palpa.Node):
             return
         if self.segment >= len(self.segments):
             self.meter.complete()
-            self.set_state("done", f"scan complete in {(self.clock.now_ns() - self.started_ns) / 1e9:.1f} s")
+            holds = self.control.stale_holds
+            held = f" (held {holds} time(s) for stale data)" if holds else ""
+            self.set_state("done", f"scan complete in {(self.clock.now_ns() - self.started_ns) / 1e9:.1f} s{held}")
             if self.follower is not None:
                 self.log.info("surface following: %d corrections, the largest %+.2f mm", self.follower.resends,
                               self.follower.largest_mm)

@@ -68,6 +68,9 @@ class ScanControl:
         self.paused_from: ScanState = "scanning"  # set by on_pause before anything reads it
         self.stopped_on_path = False
         """The last probe stopped on its path (stale data, an abort): the next one lifts the arm first."""
+        self.stale_since: int | None = None
+        """The scan held for stale data since then (the scanner's stale_hold_s)."""
+        self.stale_holds = 0
         self.probe = node.service("scanner/probe_at", ProbeAt, ProbeResult, self.on_probe_at)
         node.service("scanner/pause", Trigger, TriggerResult, self.on_pause)
         node.service("scanner/resume", Trigger, TriggerResult, self.on_resume)
@@ -207,6 +210,28 @@ class ScanControl:
         if responder is not None:
             responder.refuse(why)
 
+    # -- a scan held for stale data -------------------------------------------------------------
+    def hold(self, stale: str, now_ns: int) -> None:
+        """Stale data while scanning, with ``stale_hold_s`` set: stop the arm and hold the scan, paused."""
+        node = self.node
+        self.paused_from = "scanning"
+        node.pause(f"held: {stale}")
+        self.stale_since, self.stale_holds = now_ns, self.stale_holds + 1
+        node.log.error("HOLD: %s; the scan goes on once it is fresh again (at most %g s)", stale,
+                       node.params.stale_hold_s)
+
+    def supervise_hold(self, now_ns: int) -> None:
+        """A scan held for stale data: on when the data is fresh again, a fault when it stays away too long."""
+        node, since = self.node, self.stale_since
+        assert since is not None
+        stale = node.stale_data(now_ns)
+        if not stale:
+            node.log.warning("the data is fresh again after %.2f s: the scan goes on", (now_ns - since) / 1e9)
+            node.resume("scanning")
+        elif (now_ns - since) / 1e9 > node.params.stale_hold_s:
+            self.stale_since = None
+            node.halt("fault", f"{stale}, and not fresh again within the {node.params.stale_hold_s:g} s hold")
+
     # -- pause, resume, abort --------------------------------------------------------------------
     def on_pause(self, req: Trigger) -> TriggerResult:
         node = self.node
@@ -221,6 +246,8 @@ class ScanControl:
         node = self.node
         if node.state != "paused":
             raise RequestRefused(f"nothing to resume: the scanner is {node.state}")
+        if stale := node.stale_data(node.clock.now_ns()):
+            raise RequestRefused(f"not resuming on stale data: {stale}")
         node.resume(self.paused_from)
         return TriggerResult(message=f"resumed ({node.state})", state=node.state)
 

@@ -2,13 +2,22 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from typing import Any
 
 import pytest
 
 import palpa
-from messages import EStop, PressureState, ProbeAt, ProbeHeights, ProbeResult
+from messages import (
+    EStop,
+    PressureState,
+    ProbeAt,
+    ProbeHeights,
+    ProbeResult,
+    Trigger,
+    TriggerResult,
+)
 from nodes.robot_scanner import RobotScanner
 from palpa.service import RequestRefused
 from palpa.testing import NodeHarness
@@ -206,3 +215,43 @@ def test_stale_data_fails_the_probe_not_the_scanner_and_the_next_probe_lifts_fir
     assert up > 0 and all(math.dist((q.x_mm, q.y_mm), (stopped.x_mm, stopped.y_mm)) < 1e-6 for q in poses[:up])
     assert min(math.dist((q.x_mm, q.y_mm), (12.0, 12.0 - 3.0)) for q in poses) < 0.01  # then the new line's start
     assert h.published("robot/scan_status")[-1].state == "idle" and not h.node.is_shutdown
+
+
+def test_with_a_stale_hold_a_scan_waits_for_its_data_then_goes_on_or_ends_when_it_stays_away() -> None:
+    """stale_hold_s: a scan whose pressure controller goes quiet stops and holds, paused, without moving; data
+    fresh again, it goes on along its line and completes, the hold counted in its final status. Quiet for longer
+    than the hold, the scan ends as a fault. An operator's resume is refused while the data is stale."""
+    for back_after_s, code in ((0.5, 0), (1.5, 1)):
+        h = NodeHarness(RobotScanner, {**SMALL, "pressure_watchdog_s": 0.2, "stale_hold_s": 1.0})
+        resume = h.add(palpa.Node, name="operator").client("scanner/resume", Trigger, TriggerResult)
+        for _ in range(300):  # up to speed, with the pressure controller heard
+            pressure(h)
+            run_with_probe(h, 0.02)
+            if speed(h) > 15:
+                break
+        run_with_probe(h, 0.3)  # the pressure controller is silent
+        st = h.published("robot/scan_status")[-1]
+        assert st.state == "paused" and st.message.startswith("held: pressure/state silent") and speed(h) == 0.0
+        stopped = h.published("robot/pose")[-1]
+        refused = resume.call_async(Trigger())
+        run_with_probe(h, back_after_s - 0.3)
+        with pytest.raises(RequestRefused, match="not resuming on stale data"):
+            refused.result()
+        held = [q for q in h.published("robot/pose") if q.stamp_ns > stopped.stamp_ns]
+        if code:
+            st = h.published("robot/scan_status")[-1]
+            assert st.state == "fault" and "not fresh again within the 1 s hold" in st.message
+            assert all(q.x_mm == stopped.x_mm and q.y_mm == stopped.y_mm for q in held)
+            h.advance(1.0)
+            assert h.node.exit_code == 1
+            continue
+        assert all(q.x_mm == stopped.x_mm and q.y_mm == stopped.y_mm and q.z_mm == stopped.z_mm for q in held)
+        for _ in range(2000):  # the pressure controller is back
+            pressure(h)
+            run_with_probe(h, 0.02)
+            if h.node.is_shutdown:
+                break
+        states = [k for k, _ in itertools.groupby(s.state for s in h.published("robot/scan_status"))]
+        assert states[states.index("paused"):] == ["paused", "scanning", "done"]  # it went on, once
+        assert h.node.exit_code == 0 and h.published("robot/scan_status")[-1].message.endswith(
+            "(held 1 time(s) for stale data)")
