@@ -308,6 +308,11 @@ def test_ur_driver_stop_mid_path(emu: UrEmulatorProcess, ur: URRtdeDriver) -> No
     st = emu.wait_state(lambda st: not st["moving"], 2.0)
     assert st["pose_mm"][1] - OFFSET[1] < 55.0
     assert wait_status(ur, 2.0)[-1][0] is MotionStatus.STOPPED
+    # a stop is not a fault: the rest of the way is a new path from where the arm stopped (a scan resumed after a
+    # pause or a hold, the next probe after a stopped one)
+    ur.move_path([PathPoint(5.0, 60.0, 40.0, 50.0, 1000.0)])
+    assert wait_status(ur, 5.0)[-1] == (MotionStatus.DONE, 0)
+    assert emu.state()["pose_mm"][:3] == pytest.approx([5.0 + OFFSET[0], 60.0 + OFFSET[1], 40.0 + OFFSET[2]], abs=1e-3)
 
 
 @pytest.mark.timeout(15)
