@@ -7,10 +7,12 @@ from __future__ import annotations
 
 import math
 import time
+from pathlib import Path
 from typing import Any
 
 import pytest
 
+from emulators.clock_file import ClockWriter
 from models.surface import region_from_touches, search_points
 from nodes.fibre_reader import FibreReader
 from nodes.pressure_controller import PressureController
@@ -39,9 +41,15 @@ def test_search_points_cover_the_box_and_the_region_is_the_touched_extent_less_t
         region_from_touches(touches[:2], 2.0)
 
 
-def search(driver: dict[str, Any], wall_clock: bool, timeout_s: float) -> RobotScanner:
-    """The scanner with the sim probe over SMALL, given only BOX; returns it once the raster's plan is out."""
-    g = GraphHarness(clock=MockClock(time.time_ns()) if wall_clock else None)
+MAX_STEP_S = 0.02
+
+
+def search(driver: dict[str, Any], timeout_s: float, clock: ClockWriter | None = None) -> RobotScanner:
+    """The scanner with the sim probe over SMALL, given only BOX; returns it once the raster's plan is out. With
+    ``clock`` (a real-time driver, the UR emulator following it: ``--clock-file``) the harness's clock advances by
+    each pass's wall time, at most MAX_STEP_S, and is published there, so that a stall of this process holds the arm
+    instead of letting it run on unread (as in tests/test_surface_follow.py); else by 50 ms of simulated time."""
+    g = GraphHarness(clock=MockClock(time.time_ns()) if clock is not None else None)
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": 36.0, "sim_tracking_kpa": 0.0})
     g.add(FibreReader, {"phantom": SMALL, "sim_errors": "ideal", "poll_hz": 100.0})
     scanner = g.add(RobotScanner, {
@@ -49,12 +57,18 @@ def search(driver: dict[str, Any], wall_clock: bool, timeout_s: float) -> RobotS
         "search_speed_mm_s": 20.0, "transit_speed_mm_s": 45.0, "spacing_mm": 4.0, "home_mm": [0, 0, 16],
         "watchdog_s": 0.5, **driver})
     deadline = time.monotonic() + timeout_s
+    last = time.monotonic()
     while time.monotonic() < deadline and len(g.published("robot/plan")) < 2 and scanner.state != "fault":
-        if wall_clock:
+        if clock is not None:
+            clock.write(g.clock.now_ns())
             time.sleep(0.005)
-            g.advance(max(0.0, (time.time_ns() - g.clock.now_ns()) / 1e9))
+            now = time.monotonic()
+            g.advance(min(now - last, MAX_STEP_S))
+            last = now
         else:
             g.advance(0.05)
+    if clock is not None:
+        clock.release()  # the driver's teardown waits for the emulator: on the wall clock again
     g.close()
     return scanner
 
@@ -81,14 +95,19 @@ def check_found(scanner: RobotScanner) -> None:
 
 @pytest.mark.timeout(120)
 def test_the_scanner_finds_a_small_specimen_in_a_big_box_on_the_sim_arm() -> None:
-    check_found(search({}, wall_clock=False, timeout_s=90))
+    check_found(search({}, timeout_s=90))
 
 
 @pytest.mark.xdist_group("ur-emulator")  # real-time emulator: one at a time (make test)
 @pytest.mark.timeout(180)
-def test_the_scanner_finds_a_small_specimen_in_a_big_box_through_ur_rtde() -> None:
-    with ur_emulator(["--unlock-delay", "0", "--home", f"0,0,16,0,{math.pi},0", "--phantom", SMALL]) as emu:
-        scanner = search({"driver": "ur_rtde", "robot_host": emu.host}, wall_clock=True, timeout_s=150)
+def test_the_scanner_finds_a_small_specimen_in_a_big_box_through_ur_rtde(tmp_path: Path) -> None:
+    writer = ClockWriter(tmp_path / "clock")
+    try:
+        with ur_emulator(["--unlock-delay", "0", "--home", f"0,0,16,0,{math.pi},0", "--phantom", SMALL,
+                          "--clock-file", str(writer.path)]) as emu:
+            scanner = search({"driver": "ur_rtde", "robot_host": emu.host}, timeout_s=150, clock=writer)
+    finally:
+        writer.close()
     check_found(scanner)
 
 
