@@ -15,12 +15,14 @@ import pytest
 from scipy.spatial import cKDTree
 
 import palpa
+from emulators.clock_file import ClockWriter
 from messages import RobotPose
 from models.phantom import load_phantom
 from nodes.robot_scanner import RobotScanner
 from palpa.clock import MockClock
 from palpa.launch import load_launch, parse_overrides
 from palpa.testing import GraphHarness
+from tests.followed_clock import FollowedClock
 from tests.procs import ProcessGroup, palpa_cmd, ur_emulator
 from tests.test_launch_smoke import REPO
 
@@ -48,26 +50,30 @@ def launch_graph(file: str, run_dir: Path, args: list[str], extra: dict[str, dic
     return g, nodes
 
 
-def scan_in_harness(run_dir: Path, args: list[str], wall_clock: bool, timeout_s: float) -> list[RobotPose]:
+def scan_in_harness(run_dir: Path, args: list[str], timeout_s: float,
+                    clock: ClockWriter | None = None) -> list[RobotPose]:
     """launch/scan_ur.yaml's graph in process until the scanner is done; returns the poses it published (at home, on
-    the way, scanning). ``wall_clock``: the harness's clock follows the wall clock (a real-time arm: the UR emulator), else
-    mock time runs at CPU speed."""
+    the way, scanning). With ``clock`` (a real-time arm, the UR emulator following it: ``--clock-file``) the harness
+    runs on a tests.followed_clock.FollowedClock, about as fast as the wall clock, and a stall of this process holds
+    the arm too; else mock time runs at CPU speed."""
     g, nodes = launch_graph("launch/scan_ur.yaml", run_dir, [*UR_SCAN, *args], {"scanner": UR_MOVES},
-                            MockClock(time.time_ns()) if wall_clock else None)
+                            MockClock(time.time_ns()) if clock is not None else None)
     scanner = nodes["scanner"]
     assert isinstance(scanner, RobotScanner)
     poses: list[RobotPose] = []
     deadline = time.monotonic() + timeout_s
+    followed = FollowedClock(clock, g.advance) if clock is not None else None
     while not scanner.is_shutdown and time.monotonic() < deadline:
-        if wall_clock:
-            time.sleep(0.005)
-            g.advance(max(0.0, (time.time_ns() - g.clock.now_ns()) / 1e9))
+        if followed is not None:
+            followed.tick()
         else:
             g.advance(0.1)
         poses += g.published("robot/pose", RobotPose)
         # stamped by the graph's clock, which the probe's samples are matched to, not by the wall's
         assert all(q.stamp_ns <= g.clock.now_ns() for q in poses[-50:])
         g.clear()
+    if clock is not None:
+        clock.release()  # the driver's teardown waits for the emulator: on the wall clock again
     g.close()
     assert scanner.state == "done", (scanner.state, scanner.message)
     return poses
@@ -110,9 +116,14 @@ def test_ur_rtde_scan_through_emulator_matches_sim(tmp_path: Path) -> None:
     agree cell by cell with the tumour in the same place. The graph as processes: tests/test_launch_smoke.py (sim arm)
     and tests/test_adaptive_camera_ur.py (ur_rtde); the map's accuracy against the truth: the sim-arm scans."""
     home = [h + o for h, o in zip((39.0, 12.0, 9.0), UR_OFFSET, strict=True)]
-    with ur_emulator(["--unlock-delay", "0", "--home", ",".join(map(str, [*home, 0, math.pi, 0]))]) as emu:
-        ur = scan_in_harness(tmp_path / "ur", [f"robot_host:={emu.host}"], wall_clock=True, timeout_s=60)
-    sim = scan_in_harness(tmp_path / "sim", ["scanner_driver:=sim"], wall_clock=False, timeout_s=60)
+    writer = ClockWriter(tmp_path / "clock")
+    try:
+        with ur_emulator(["--unlock-delay", "0", "--home", ",".join(map(str, [*home, 0, math.pi, 0])),
+                          "--clock-file", str(writer.path)]) as emu:
+            ur = scan_in_harness(tmp_path / "ur", [f"robot_host:={emu.host}"], timeout_s=60, clock=writer)
+    finally:
+        writer.close()
+    sim = scan_in_harness(tmp_path / "sim", ["scanner_driver:=sim"], timeout_s=60)
     # the same path: every pose the UR reported lies on the sim arm's (sampled every 0.16 mm at most)
     a = np.array([(q.x_mm, q.y_mm, q.z_mm) for q in ur])
     b = np.array([(q.x_mm, q.y_mm, q.z_mm) for q in sim])

@@ -19,6 +19,7 @@ from nodes.pressure_controller import PressureController
 from nodes.robot_scanner import RobotScanner
 from palpa.clock import MockClock
 from palpa.testing import GraphHarness
+from tests.followed_clock import FollowedClock
 from tests.procs import ur_emulator
 
 SMALL = "phantoms/specimens/small_40x30_8mm.yaml"  # 40 x 30 mm, 8 mm thick, at the origin of the phantom frame
@@ -41,14 +42,11 @@ def test_search_points_cover_the_box_and_the_region_is_the_touched_extent_less_t
         region_from_touches(touches[:2], 2.0)
 
 
-MAX_STEP_S = 0.02
-
-
 def search(driver: dict[str, Any], timeout_s: float, clock: ClockWriter | None = None) -> RobotScanner:
     """The scanner with the sim probe over SMALL, given only BOX; returns it once the raster's plan is out. With
-    ``clock`` (a real-time driver, the UR emulator following it: ``--clock-file``) the harness's clock advances by
-    each pass's wall time, at most MAX_STEP_S, and is published there, so that a stall of this process holds the arm
-    instead of letting it run on unread (as in tests/test_surface_follow.py); else by 50 ms of simulated time."""
+    ``clock`` (a real-time driver, the UR emulator following it: ``--clock-file``) the harness runs on a
+    tests.followed_clock.FollowedClock, so that a stall of this process holds the arm instead of letting it run on
+    unread; else by 50 ms of simulated time."""
     g = GraphHarness(clock=MockClock(time.time_ns()) if clock is not None else None)
     g.add(PressureController, {"startup": "hold", "setpoint_kpa": 36.0, "sim_tracking_kpa": 0.0})
     g.add(FibreReader, {"phantom": SMALL, "sim_errors": "ideal", "poll_hz": 100.0})
@@ -57,14 +55,10 @@ def search(driver: dict[str, Any], timeout_s: float, clock: ClockWriter | None =
         "search_speed_mm_s": 20.0, "transit_speed_mm_s": 45.0, "spacing_mm": 4.0, "home_mm": [0, 0, 16],
         "watchdog_s": 0.5, **driver})
     deadline = time.monotonic() + timeout_s
-    last = time.monotonic()
+    followed = FollowedClock(clock, g.advance) if clock is not None else None
     while time.monotonic() < deadline and len(g.published("robot/plan")) < 2 and scanner.state != "fault":
-        if clock is not None:
-            clock.write(g.clock.now_ns())
-            time.sleep(0.005)
-            now = time.monotonic()
-            g.advance(min(now - last, MAX_STEP_S))
-            last = now
+        if followed is not None:
+            followed.tick()
         else:
             g.advance(0.05)
     if clock is not None:

@@ -17,6 +17,7 @@ from models.surface import fit_surface, touch_points
 from nodes.drivers.robot import MotionStatus
 from nodes.drivers.robot_urrtde import URRtdeDriver
 from nodes.touchoff import TouchOff, TouchOffConfig
+from tests.followed_clock import FollowedClock
 from tests.procs import EMULATOR_START_S, ur_emulator
 from tests.test_surface_follow import check_following, sweep_over_the_dome
 
@@ -26,29 +27,11 @@ pytestmark = pytest.mark.xdist_group("ur-emulator")
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm, 6 mm on the centre line, 3 mm at the y edges
 
 
-class _LoopClock:
-    """The test loop's clock for the emulator (``--clock-file``): it advances by each pass's wall time, at most
-    MAX_STEP_S, so that a stall of this process holds the arm (within the emulator's 0.1 s lead) instead of letting
-    it run on unread: on a loaded machine this process stalls for a second and more (test_the_scanner_follows...)."""
-
-    MAX_STEP_S = 0.02
-
-    def __init__(self, writer: ClockWriter) -> None:
-        self.writer, self.now_ns, self.last = writer, 1, time.monotonic()
-        writer.write(self.now_ns)
-
-    def tick(self) -> None:
-        now = time.monotonic()
-        self.now_ns += int(min(now - self.last, self.MAX_STEP_S) * 1e9)
-        self.last = now
-        self.writer.write(self.now_ns)
-
-
 @pytest.mark.timeout(90)
 def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator(tmp_path: Path) -> None:
     """The force touch-off and a sweep 0.5 mm into the fitted dome, through ur_rtde; the emulator's arm follows this
-    loop's clock (_LoopClock), so how often the loop reads the rise and the sweep does not depend on the machine's
-    load (a loaded suite once failed it)."""
+    loop's clock (tests.followed_clock), so how often the loop reads the rise and the sweep does not depend on the
+    machine's load (a loaded suite once failed it)."""
     truth = load_phantom(DOME)
     writer = ClockWriter(tmp_path / "clock")
     # a wrist F/T sensor's noise (ATI Nano17 class: a few mN), its offset up to 3 N until the touch-off's zero
@@ -57,7 +40,7 @@ def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator(tm
         ur = URRtdeDriver(emu.host, watchdog_hz=5.0, start_timeout_s=EMULATOR_START_S)
         try:
             ur.connect()
-            clock = _LoopClock(writer)
+            clock = FollowedClock(writer)
             # 20 x 20 mm over the crest (6 mm on y = 20, ~5.3 at the region's edges), each descent from 1 mm over it
             region = (20.0, 10.0, 40.0, 30.0)
             touch = TouchOff(ur, touch_points(region, 3), TouchOffConfig(
@@ -67,8 +50,7 @@ def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator(tm
             deadline = time.monotonic() + 60
             while not (touch.done or touch.failed) and time.monotonic() < deadline:
                 touch.step()
-                time.sleep(0.002)
-                clock.tick()
+                clock.tick(0.002)
             assert touch.done, touch.error or "touch-off timed out"
             errors = [z - float(truth.surface_z(x, y)) for x, y, z in touch.touches]
             # within 0.12 mm however often step() ran (a busy PC reads the rise fewer times: then it descends again
@@ -90,7 +72,6 @@ def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator(tm
                 if 9 < abs(vy) < 11 and abs(vx) < 1:  # sliding along a line (y) at the sweep speed
                     depths.append(float(truth.surface_z(x, y)) - z)
                     forces.append(st.force_n[2] - touch.force_zero_n)  # the sensor's offset, as the touch-off read it
-                time.sleep(0.005)
                 clock.tick()
             assert ur.progress().status == MotionStatus.DONE
             assert len(depths) > 50
