@@ -17,7 +17,6 @@ from models.surface import fit_surface, touch_points
 from nodes.drivers.robot import MotionStatus
 from nodes.drivers.robot_urrtde import URRtdeDriver
 from nodes.touchoff import TouchOff, TouchOffConfig
-from tests.followed_clock import FollowedClock
 from tests.procs import EMULATOR_START_S, ur_emulator
 from tests.test_surface_follow import check_following, sweep_over_the_dome
 
@@ -28,29 +27,24 @@ DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm, 6 mm on the centre line
 
 
 @pytest.mark.timeout(90)
-def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator(tmp_path: Path) -> None:
-    """The force touch-off and a sweep 0.5 mm into the fitted dome, through ur_rtde; the emulator's arm follows this
-    loop's clock (tests.followed_clock), so how often the loop reads the rise and the sweep does not depend on the
-    machine's load (a loaded suite once failed it)."""
+def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator() -> None:
     truth = load_phantom(DOME)
-    writer = ClockWriter(tmp_path / "clock")
     # a wrist F/T sensor's noise (ATI Nano17 class: a few mN), its offset up to 3 N until the touch-off's zero
     with ur_emulator(["--unlock-delay", "0", "--home", f"20,10,7,0,{math.pi},0", "--phantom", DOME,
-                      "--force-noise", "0.003", "--clock-file", str(writer.path)]) as emu:
+                      "--force-noise", "0.003"]) as emu:
         ur = URRtdeDriver(emu.host, watchdog_hz=5.0, start_timeout_s=EMULATOR_START_S)
         try:
             ur.connect()
-            clock = FollowedClock(writer)
             # 20 x 20 mm over the crest (6 mm on y = 20, ~5.3 at the region's edges), each descent from 1 mm over it
             region = (20.0, 10.0, 40.0, 30.0)
             touch = TouchOff(ur, touch_points(region, 3), TouchOffConfig(
                 signal="force", start_z_mm=7.0, floor_z_mm=0.5, search_speed_mm_s=5.0, transit_speed_mm_s=60.0,
                 accel_mm_s2=1000.0, threshold=0.3))
             touch.start()
-            limit_ns = clock.now_ns + 60 * 10**9  # of the arm's time: a slow loop slows the arm with it
-            while not (touch.done or touch.failed) and clock.now_ns < limit_ns:
+            deadline = time.monotonic() + 60
+            while not (touch.done or touch.failed) and time.monotonic() < deadline:
                 touch.step()
-                clock.tick(0.002)
+                time.sleep(0.002)
             assert touch.done, touch.error or "touch-off timed out"
             errors = [z - float(truth.surface_z(x, y)) for x, y, z in touch.touches]
             # within 0.12 mm however often step() ran (a busy PC reads the rise fewer times: then it descends again
@@ -64,23 +58,21 @@ def test_touchoff_by_force_and_a_sweep_over_the_found_dome_on_the_ur_emulator(tm
                                 approach_speed_mm_s=10, accel_mm_s2=1000)
             ur.move_path(plan.waypoints)
             depths, forces = [], []
-            limit_ns = clock.now_ns + 30 * 10**9
-            while ur.progress().status == MotionStatus.MOVING and clock.now_ns < limit_ns:
+            deadline = time.monotonic() + 30
+            while ur.progress().status == MotionStatus.MOVING and time.monotonic() < deadline:
                 st = ur.state()
                 x, y, z = st.pose[:3]
                 vx, vy = st.speed_mm_s[:2]
                 if 9 < abs(vy) < 11 and abs(vx) < 1:  # sliding along a line (y) at the sweep speed
                     depths.append(float(truth.surface_z(x, y)) - z)
                     forces.append(st.force_n[2] - touch.force_zero_n)  # the sensor's offset, as the touch-off read it
-                clock.tick()
+                time.sleep(0.005)
             assert ur.progress().status == MotionStatus.DONE
             assert len(depths) > 50
             assert min(depths) > 0.35 and max(depths) < 0.65, (min(depths), max(depths))
             assert min(forces) > 0.01  # in contact all along (0.5 mm in: ~0.04 N; the sensor's noise 0.003 N)
         finally:
-            writer.release()  # the driver's teardown waits for the emulator: on the wall clock again
             ur.close()
-            writer.close()
 
 
 @pytest.mark.timeout(60)
