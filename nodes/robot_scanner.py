@@ -335,6 +335,7 @@ class RobotScanner(palpa.Node):
 
     def halt(self, state: ScanState, why: str) -> None:
         """Stop the arm now and end the scan as ``state`` (fault, estop, stopped)."""
+        self.control.stale_since = None  # a scan held for stale data ends too: fresh data must not resume it
         try:
             self.driver.stop(self.params.max_accel_mm_s2)
         finally:

@@ -229,7 +229,6 @@ class ScanControl:
             node.log.warning("the data is fresh again after %.2f s: the scan goes on", (now_ns - since) / 1e9)
             node.resume("scanning")
         elif (now_ns - since) / 1e9 > node.params.stale_hold_s:
-            self.stale_since = None
             node.halt("fault", f"{stale}, and not fresh again within the {node.params.stale_hold_s:g} s hold")
 
     # -- pause, resume, abort --------------------------------------------------------------------

@@ -255,3 +255,31 @@ def test_with_a_stale_hold_a_scan_waits_for_its_data_then_goes_on_or_ends_when_i
         assert states[states.index("paused"):] == ["paused", "scanning", "done"]  # it went on, once
         assert h.node.exit_code == 0 and h.published("robot/scan_status")[-1].message.endswith(
             "(held 1 time(s) for stale data)")
+
+
+def test_an_estop_or_abort_during_a_stale_hold_ends_the_scan_and_fresh_data_does_not_move_the_arm_again() -> None:
+    """A hold waits for the data to resume the scan; an e-stop or an abort meanwhile ends it for good: the data
+    coming back afterwards must not start the arm again."""
+    for end in ("estop", "abort"):
+        h = NodeHarness(RobotScanner, {**SMALL, "pressure_watchdog_s": 0.2, "stale_hold_s": 5.0, "linger_s": 2.0})
+        abort = h.add(palpa.Node, name="operator").client("scanner/abort", Trigger, TriggerResult)
+        for _ in range(300):
+            pressure(h)
+            run_with_probe(h, 0.02)
+            if speed(h) > 15:
+                break
+        run_with_probe(h, 0.3)  # the pressure controller is silent: held
+        assert h.published("robot/scan_status")[-1].state == "paused"
+        if end == "estop":
+            h.publish("robot/estop", EStop(stamp_ns=h.clock.now_ns(), reason="operator"))
+        else:
+            fut = abort.call_async(Trigger())
+            h.spin()
+            assert fut.result().state == "stopped"
+        stopped = h.published("robot/pose")[-1]
+        for _ in range(50):  # the pressure controller is back, while the scanner lingers
+            pressure(h)
+            run_with_probe(h, 0.02)
+        after = [q for q in h.published("robot/pose") if q.stamp_ns > stopped.stamp_ns]
+        assert after and all((q.x_mm, q.y_mm, q.z_mm) == (stopped.x_mm, stopped.y_mm, stopped.z_mm) for q in after)
+        assert h.published("robot/scan_status")[-1].state == ("estop" if end == "estop" else "stopped")
