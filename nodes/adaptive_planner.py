@@ -424,7 +424,6 @@ class AdaptivePlanner(palpa.Node):
             lost.append(f"{len(self.given_up)} probe(s) given up after refusals, at "
                         + ", ".join(f"({x:.1f}, {y:.1f})" for x, y in self.given_up) + " mm: not in the map")
         stats = self.counters().get(self.resolve("stiffness/sample"))
-        if stats is not None and (stats.gaps or stats.restarts):
-            lost.append(f"stiffness/sample lost {stats.gaps} estimate(s) and its publisher restarted "
-                        f"{stats.restarts} time(s)")
+        if stats is not None and stats.loss():
+            lost.append(f"stiffness/sample {stats.loss()}")
         return "; ".join(lost)

@@ -215,9 +215,8 @@ class MapAggregator(palpa.Node):
         """A map missing samples (its estimator restarted, samples lost on the way) is declared failed: the
         node's exit code says so, so the launch cannot end clean."""
         stats = self.counters().get(self.resolve("stiffness/sample"))
-        if not self.incomplete and stats is not None and (stats.restarts or stats.gaps):
-            self.incomplete = (f"stiffness/sample lost {stats.gaps} sample(s) and its publisher restarted "
-                               f"{stats.restarts} time(s)")
+        if not self.incomplete and stats is not None and stats.loss():
+            self.incomplete = f"stiffness/sample {stats.loss()}"
         if self.incomplete:
             self.log.error("the map is INCOMPLETE and may be wrong: %s", self.incomplete)
             self.exit_code = 1

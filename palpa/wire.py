@@ -209,6 +209,13 @@ class TopicStats:
     decode_errors: int = 0
     last_error: str = ""
 
+    def loss(self) -> str:
+        """What a consumer that must hold every message lacks, in words ('' when nothing): messages missing by
+        their sequence numbers, and publisher restarts (what it held before is gone)."""
+        if not (self.gaps or self.restarts):
+            return ""
+        return f"lost {self.gaps} message(s) and its publisher restarted {self.restarts} time(s)"
+
     def as_dict(self) -> dict[str, Any]:
         return {
             "received": self.received,

@@ -231,6 +231,6 @@ def test_estimates_lost_on_the_way_or_none_at_all_make_the_planners_run_incomple
         report = json.loads((tmp_path / out / "planner.json").read_text())
         assert h.node.exit_code == (1 if lost else 0), report
         assert report["incomplete"] == {
-            "ok": "", "lost": "stiffness/sample lost 2 estimate(s) and its publisher restarted 0 time(s)",
+            "ok": "", "lost": "stiffness/sample lost 2 message(s) and its publisher restarted 0 time(s)",
             "none": "no valid stiffness estimate reached the planner: there is no map"}[out]
         h.close()
