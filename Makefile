@@ -1,16 +1,28 @@
-# Quick start: `make demo` and `make test`. Both bootstrap .venv from pyproject.toml.
+# Quick start: `make demo` and `make test`. Both bootstrap .venv from pyproject.toml, at the exact versions of
+# constraints.txt (what the suite and BENCHMARKS.md last ran with; `make lock` takes the newest within the ranges).
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck bench clean
+.PHONY: demo test lint typecheck bench clean lock
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --upgrade pip >/dev/null
-	$(BIN)/pip install -e '.[dev,bench]'
+	$(BIN)/pip install -c constraints.txt -e '.[dev,bench]'
 	touch $(STAMP)
+
+# the newest versions pyproject.toml's ranges allow, resolved in a throwaway venv and written to constraints.txt:
+# then `make test` (it reinstalls) and record the figures that move
+LOCK_VENV := .lock-venv
+lock:
+	rm -rf $(LOCK_VENV) && $(PY) -m venv $(LOCK_VENV)
+	$(LOCK_VENV)/bin/pip install -q --upgrade pip
+	$(LOCK_VENV)/bin/pip install -q -e '.[dev,bench]'
+	head -n 3 constraints.txt > constraints.new
+	$(LOCK_VENV)/bin/pip freeze --exclude-editable >> constraints.new
+	mv constraints.new constraints.txt && rm -rf $(LOCK_VENV)
 
 # the simulated air-float scan of the four-tumour phantom: calibrate the simulated probe on the reference samples
 # (as on the bench), scan with that calibration, then score the map against the phantom's truth
@@ -44,4 +56,4 @@ bench: $(STAMP)
 	$(BIN)/python bench/record.py
 
 clean:
-	rm -rf $(VENV) runs out .pytest_cache .mypy_cache
+	rm -rf $(VENV) $(LOCK_VENV) runs out .pytest_cache .mypy_cache
