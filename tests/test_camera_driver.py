@@ -213,6 +213,54 @@ def test_sim_source_newest_frame_on_its_clock() -> None:
     assert src.read() is None
 
 
+def test_sim_source_renders_only_as_far_as_its_world_is_known() -> None:
+    clock = MockClock()
+    known: list[int | None] = [None]
+    rendered: list[int] = []
+
+    def render(stamp_ns: int) -> np.ndarray:
+        rendered.append(stamp_ns)
+        return np.zeros((4, 6, 3), np.uint8)
+
+    src = SimSource(render, 10.0, clock.now_ns, known_until=lambda: known[0], lead_ns=50_000_000,
+                    max_wait_ns=1_000_000_000)
+    src.open()
+    t0 = clock.now_ns()
+    f = src.read()  # nothing known yet: the frame is due now and rendered (the probe off the sample)
+    assert f is not None and f.stamp_ns == t0
+    known[0] = t0 + 120_000_000
+    clock.advance(0.45)  # frames 1-4 due, the world known to 0.12 s: only frame 1 (0.1 <= 0.12 + 0.05) is
+    f = src.read()
+    assert f is not None and f.seq == 1 and f.stamp_ns == t0 + 100_000_000
+    assert src.read() is None  # frame 2 waits for the world, it is not rendered stale nor dropped
+    known[0] = t0 + 450_000_000
+    f = src.read()
+    assert f is not None and f.seq == 4 and src.info().dropped == 2  # then the newest, as ever
+    clock.advance(1.2)  # the world stalls more than max_wait behind: frames stream on at now
+    f = src.read()
+    assert f is not None and f.stamp_ns == t0 + 1_600_000_000
+    assert rendered == [t0, t0 + 100_000_000, t0 + 400_000_000, t0 + 1_600_000_000]
+
+
+def test_sim_camera_shows_a_press_whose_poses_came_late_not_the_arm_where_it_was(spring_phantom: object) -> None:
+    clock = MockClock()
+    cam = SimCameraSource(spring_phantom, clock.now_ns, pixel_noise_px=0.0, errors=None)  # type: ignore[arg-type]
+    cam.open()
+    cam.set_pose(clock.now_ns(), 20.0, 20.0, 40.0)  # above the 30 mm high sample
+    assert cam.read() is not None and cam.truth is not None and not cam.truth.contact.any()
+    t0 = clock.now_ns()
+    t_press = t0 + 300_000_000
+    clock.advance(0.6)  # the arm pressed 5 mm in at 0.3 s, but the camera's node was starved: no pose heard yet
+    early = cam.read()  # the frames up to 50 ms past the last pose may show it (the arm was still above then) ...
+    assert early is not None and early.stamp_ns <= t0 + 50_000_000 and not cam.truth.contact.any()
+    assert cam.read() is None  # ... a frame at 0.6 s would show the arm above where it pressed: it waits
+    for t in range(t_press, clock.now_ns() + 1, 100_000_000):  # the late poses come in, at the robot's rate
+        cam.set_pose(t, 20.0, 20.0, 25.0)
+    f = cam.read()
+    assert f is not None and 0 <= clock.now_ns() - f.stamp_ns < 34_000_000 and cam.truth is not None  # the newest
+    assert cam.truth.contact.any() and cam.truth.advance_mm > 4.0
+
+
 @pytest.fixture
 def spring_phantom() -> object:
     return load_phantom("phantoms/springs_037.yaml")

@@ -260,16 +260,27 @@ class SimSource:
     that one; frames due earlier and never read are counted as dropped and skipped in ``seq``.
     ``realtime``: ``read(timeout_s)`` may sleep (up to the timeout) until the next frame is due, for use
     with a wall clock; with a mock or simulated clock leave it False.
+
+    ``known_until`` (a simulated world fed from the bus): the latest instant the world is known at (the newest
+    robot pose the renderer was given; None: none yet). A frame is rendered only up to ``lead_ns`` past it, so that
+    a pose stream arriving late (a starved process on a wall clock) delays the frames instead of showing them the
+    arm where it was: a real camera sees the present. When the world is more than ``max_wait_ns`` behind (the pose
+    stream stalled), frames stream on at the clock's now, with what the world last knew: a stalled pose stream
+    must not look like a dead camera.
     """
 
     def __init__(self, render: Callable[[int], Image], rate_hz: float, clock: Callable[[], int], *,
-                 name: str = "sim", realtime: bool = False) -> None:
+                 name: str = "sim", realtime: bool = False, known_until: Callable[[], int | None] | None = None,
+                 lead_ns: int = 50_000_000, max_wait_ns: int = 1_000_000_000) -> None:
         if not rate_hz > 0:
             raise ValueError(f"SimSource: rate_hz must be > 0, got {rate_hz}")
         self._render = render
         self._period_ns = round(1e9 / rate_hz)
         self._clock = clock
         self._realtime = realtime
+        self._known_until = known_until
+        self._lead_ns = lead_ns
+        self._max_wait_ns = max_wait_ns
         self._t0: int | None = None
         self._next_seq = 0
         self._info = SourceInfo(name=name, kind="sim", fps=float(rate_hz))
@@ -283,9 +294,10 @@ class SimSource:
         if self._t0 is None or not self._info.connected:
             return None
         now = self._clock()
-        due_seq = (now - self._t0) // self._period_ns
+        until = self._rendered_until(now)
+        due_seq = (until - self._t0) // self._period_ns
         if due_seq < self._next_seq:
-            if not (self._realtime and timeout_s > 0):
+            if until < now or not (self._realtime and timeout_s > 0):
                 return None
             wait_s = (self._t0 + self._next_seq * self._period_ns - now) / 1e9
             if wait_s > timeout_s:
@@ -299,6 +311,13 @@ class SimSource:
                              width=image.shape[1], height=image.shape[0])
         self._next_seq = due_seq + 1
         return Frame(stamp, int(due_seq), image)
+
+    def _rendered_until(self, now: int) -> int:
+        """The latest frame stamp that may be rendered at ``now`` (class doc: ``known_until``)."""
+        known = self._known_until() if self._known_until is not None else None
+        if known is None or now - known > self._max_wait_ns:
+            return now
+        return min(now, known + self._lead_ns)
 
     def close(self) -> None:
         self._info = replace(self._info, connected=False)

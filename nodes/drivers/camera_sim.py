@@ -100,7 +100,8 @@ class SimCameraSource:
     probe; ``errors``: the manufacturing/camera error ranges the probe is drawn from with ``device_seed`` (None:
     the ideal probe); ``seed``: the image noise. ``occluded`` (settable, bool per marker) hides spheres, for lost-marker tests. Before any pose
     arrives the probe is off the sample (spheres at rest); afterwards the pose at each frame's stamp is
-    interpolated, or the newest held.
+    interpolated, or the newest held; frames wait for poses running late (up to 1 s: SimSource's ``known_until``)
+    rather than render the arm where it was.
     """
 
     def __init__(
@@ -145,7 +146,8 @@ class SimCameraSource:
         self._samples: dict[tuple[float, float], SpringRods | TissueTips] = {}
         self._renderer = Renderer(self.camera, rng)
         self._pose = StampedBuffer(max_gap_ns=200_000_000)
-        self._source = SimSource(self._render, rate_hz, clock, realtime=realtime)
+        self._source = SimSource(self._render, rate_hz, clock, realtime=realtime,
+                                 known_until=lambda: self._pose.latest_stamp)
         self._t0: int | None = None
         self.occluded = np.zeros(geometry.n, dtype=bool)
         self.truth: SimTruth | None = None
