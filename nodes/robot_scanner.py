@@ -13,13 +13,16 @@ Services (nodes.scan_control): ``scanner/probe_at`` probes one point and answers
 the scanner does not scan but waits, idle, for probe requests; with a touch-off set it finds the surface first,
 and probes then follow the found surface as a scan's lines would (sweep: the working offset; indent: the press depth
 below it).
+
+This module holds the node: its parameters, its inputs, its state and the actions on the arm (run a path, pause,
+resume, halt). The plan and its checks against the workspace box and caps are in nodes.scan_plan; the periodic
+supervision pass (watchdogs, the box, the arm's status, advancing the path) in nodes.scan_supervision.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from typing import Any, Literal
+from typing import Literal
 
 import palpa
 from messages import (
@@ -33,39 +36,20 @@ from messages import (
     ScanStatus,
 )
 from messages.robot import ScanState
-from models.following import FollowConfig, densify_slides
-from models.raster import (
-    RasterPlan,
-    Waypoint,
-    WorkspaceBox,
-    WorkspaceViolation,
-    check_workspace,
-    indent_raster,
-    sweep_raster,
-)
-from nodes.drivers.robot import MotionStatus, RobotDriver
-from nodes.scan_control import MOVING, ScanControl
+from models.following import FollowConfig
+from models.raster import RasterPlan, Waypoint
+from nodes.drivers.robot import RobotDriver
+from nodes.scan_control import ScanControl
+from nodes.scan_plan import check_path, path_segments, plan_raster
 from nodes.scan_progress import PathProgressMeter
+from nodes.scan_supervision import SUPERVISION_MAX_S, ScanSupervision, supervision_period_s
 from nodes.specimen import SpecimenPlanner
 from nodes.surface_follow import LineFollower
 
-__all__ = ["RobotScanner"]
+# SUPERVISION_MAX_S and supervision_period_s: importable from here as before the split (nodes.scan_supervision)
+__all__ = ["SUPERVISION_MAX_S", "RobotScanner", "supervision_period_s"]
 
 _STOPPING_FAULTS = {"device_lost", "over_pressure", "tracking_error"}
-
-
-SUPERVISION_MAX_S = 0.01
-"""The longest the scanner goes without checking its watchdogs, the workspace box and the arm's status."""
-
-
-def supervision_period_s(pose_rate_hz: float) -> float:
-    """How often the scanner supervises: a whole number of pose periods, as many as fit in
-    :data:`SUPERVISION_MAX_S`, so that both timers fall on the same instants (a lockstep simulation pays for every
-    distinct instant: at 250 Hz, 8 ms instead of 10 ms made 300 instants a simulated second, now 250). Poses
-    slower than that: every :data:`SUPERVISION_MAX_S`."""
-    pose_ns = int(1.0 / pose_rate_hz * 1e9)  # as palpa.Node.timer makes the pose timer's period
-    k = int(SUPERVISION_MAX_S * 1e9) // pose_ns
-    return (k * pose_ns + 0.5) / 1e9 if k else SUPERVISION_MAX_S
 
 
 class RobotScanner(palpa.Node):
@@ -185,14 +169,14 @@ class RobotScanner(palpa.Node):
                                                       gain_per_s=p.follow_gain_per_s,
                                                       max_offset_mm=p.follow_max_offset_mm),
                                          (p.workspace_mm[2], p.workspace_mm[5]))
-        self.plan = self._plan()
+        self.plan = self.make_plan()
         self.path: tuple[Waypoint, ...] = self.plan.waypoints
         self.meter = PathProgressMeter(self.plan.waypoints, self.plan.duration_s)
         self.check_plan()  # raises before any motion
         self.resume_index = 0
         self.control = ScanControl(self)
         if p.autostart:
-            self._publish_plan()
+            self.publish_plan()
         if p.watch_topic == "probe/heights":
             self.subscribe("probe/heights", ProbeHeights, self.on_probe)
         elif p.watch_topic == "camera/indenters":
@@ -206,7 +190,8 @@ class RobotScanner(palpa.Node):
         else:
             self.set_state("idle", "waiting for scanner/probe_at requests")
         self.timer(1.0 / p.pose_rate_hz, self.publish_pose, first_in_s=0.0)
-        self.timer(supervision_period_s(p.pose_rate_hz), self.supervise)
+        self.supervision = ScanSupervision(self)
+        self.timer(supervision_period_s(p.pose_rate_hz), self.supervision.supervise)
         self.timer(0.2, self.publish_status)
 
     # -- planning --------------------------------------------------------------------------------
@@ -224,73 +209,21 @@ class RobotScanner(palpa.Node):
                             tool_rotvec=tuple(p.tool_rotvec), watchdog_hz=p.rtde_watchdog_hz or None,
                             clock=self.clock.now_ns)
 
-    def _plan(self) -> RasterPlan:
-        p = self.params
-        x0, y0, x1, y1 = self.specimen.region
-        common: dict[str, Any] = dict(
-            spacing_mm=p.spacing_mm, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
-            approach_clearance_mm=p.approach_clearance_mm, retract_clearance_mm=p.retract_clearance_mm,
-            transit_speed_mm_s=p.transit_speed_mm_s, **self.specimen.plan_heights(),
-        )
-        if p.mode == "sweep":
-            plan = sweep_raster(x0, y0, x1, y1, speed_mm_s=p.speed_mm_s,
-                                approach_speed_mm_s=p.approach_speed_mm_s, **common)
-            if self.follower is None:
-                return plan
-            return dataclasses.replace(plan, waypoints=densify_slides(plan.waypoints, p.follow_step_mm))
-        # indent: press and lift at speed_mm_s
-        return indent_raster(x0, y0, x1, y1, depth_mm=self.specimen.press_depth_mm(),
-                             hold_s=p.hold_s, point_spacing_mm=p.point_spacing_mm or None,
-                             press_speed_mm_s=p.speed_mm_s, **common)
+    def make_plan(self) -> RasterPlan:
+        """The scan's raster from the parameters over the specimen (nodes.scan_plan)."""
+        return plan_raster(self.params, self.specimen, self.follower is not None)
 
     def check_plan(self) -> None:
         """Refuse a plan (and the path from the current pose to it) that leaves the box or exceeds a cap."""
         self.check_path(self.plan.waypoints)
-        self.segments = self._segments(self.plan.waypoints, self.follower is not None)
+        self.segments = path_segments(self.plan.waypoints, self.follower is not None)
 
     def check_path(self, waypoints: tuple[Waypoint, ...]) -> None:
         """Raise ParamError naming the first waypoint that leaves the workspace box or exceeds a cap (and when
-        the arm itself is outside the box)."""
-        p = self.params
-        x0, y0, z0, x1, y1, z1 = p.workspace_mm
-        try:
-            box = WorkspaceBox(x0, x1, y0, y1, z0, z1)
-        except ValueError as exc:
-            raise palpa.ParamError(f"{self.name}: workspace_mm: {exc}") from None
-        x, y, z = self.driver.state().pose[:3]
-        start = Waypoint(x, y, z, 0.0, 0.0, 0.0, 0.0, -1, "transit")
-        try:
-            check_workspace([start], box)
-        except WorkspaceViolation as exc:
-            raise palpa.ParamError(f"{self.name}: refusing to move: the arm's current pose is outside the "
-                                   f"workspace box ({exc})") from None
-        try:
-            check_workspace(waypoints, box)
-        except WorkspaceViolation as exc:
-            raise palpa.ParamError(f"{self.name}: refusing the plan before any motion: {exc}") from None
-        for i, w in enumerate(waypoints):
-            if w.speed_mm_s > p.max_speed_mm_s or w.accel_mm_s2 > p.max_accel_mm_s2:
-                raise palpa.ParamError(
-                    f"{self.name}: refusing the plan before any motion: waypoint {i} ({w.kind}, line {w.line}) "
-                    f"asks {w.speed_mm_s:g} mm/s, {w.accel_mm_s2:g} mm/s² over the caps "
-                    f"{p.max_speed_mm_s:g} mm/s, {p.max_accel_mm_s2:g} mm/s²")
+        the arm itself is outside the box): nodes.scan_plan.check_path."""
+        check_path(waypoints, self.params, self.name, self.driver)
 
-    @staticmethod
-    def _segments(waypoints: tuple[Waypoint, ...], by_line: bool = False) -> list[tuple[int, int]]:
-        """Indent mode holds at press points: a path runs in segments that end at each hold (and a long path, or
-        one whose lines are followed, at each line's retract, where the arm stops anyway: planning hundreds of
-        waypoints at once starves the node)."""
-        segments = []
-        start_i = 0
-        long = by_line or len(waypoints) > 200  # e.g. sweep lines following a dome
-        for c in [i for i, w in enumerate(waypoints) if w.hold_s > 0 or (long and w.kind == "retract")]:
-            segments.append((start_i, c))
-            start_i = c + 1
-        if start_i < len(waypoints):
-            segments.append((start_i, len(waypoints) - 1))
-        return segments
-
-    def _publish_plan(self) -> None:
+    def publish_plan(self) -> None:
         p, plan = self.params, self.plan
         self.plan_pub.publish(ScanPlan(
             stamp_ns=self.clock.now_ns(), mode=plan.mode, region_mm=self.specimen.region,
@@ -354,12 +287,12 @@ class RobotScanner(palpa.Node):
     def run_path(self, plan: RasterPlan, state: ScanState) -> None:
         """Drive ``plan`` (already checked) from where the arm is, in ``state`` (scanning, probing)."""
         self.path = plan.waypoints
-        self.segments = self._segments(plan.waypoints, self.follower is not None and state == "scanning")
+        self.segments = path_segments(plan.waypoints, self.follower is not None and state == "scanning")
         self.segment = 0
         self.hold_until_ns = None
         self.meter = PathProgressMeter(plan.waypoints, plan.duration_s)
         self.set_state(state)
-        self._start_segment()
+        self.start_segment()
 
     def pause(self, why: str = "") -> None:
         """Stop the arm where it is; :meth:`resume` goes on towards the waypoint it was heading for."""
@@ -376,106 +309,7 @@ class RobotScanner(palpa.Node):
         self.set_state(state)
         self._send(a, b)
 
-    def supervise(self) -> None:
-        now = self.clock.now_ns()
-        p = self.params
-        self.control.supervise(now)
-        if self.state == "waiting":
-            if (self.last_probe_ns is not None or not p.watch_topic) and self.specimen.touch is not None:
-                self.set_state("touching", "finding the specimen's surface")
-                self.specimen.touch.start()
-            elif (self.last_probe_ns is not None or not p.watch_topic) and not p.autostart:
-                self.set_state("idle", "waiting for scanner/probe_at requests")
-            elif self.last_probe_ns is not None or not p.watch_topic:
-                self.set_state("scanning")
-                self._start_segment()
-            elif (now - self.started_ns) / 1e9 > p.startup_timeout_s:
-                self.halt("fault", f"no probe data on {p.watch_topic} within {p.startup_timeout_s:g} s")
-            return
-        if self.control.stale_since is not None:
-            self.control.supervise_hold(now)
-            return
-        touching = self.state == "touching"  # the touch-off moves the arm: the same checks as a scan
-        if not touching and (self.state not in MOVING or self.segment >= len(self.segments)):
-            return
-        stale = self.stale_data(now)
-        if stale and self.state == "probing":
-            self.control.stop_probe(f"the scanner stopped the arm: {stale}", f"probe stopped: {stale}")
-            return
-        if stale and self.state == "scanning" and p.stale_hold_s > 0:
-            self.control.hold(stale, now)
-            return
-        if stale:
-            self.halt("fault", stale)
-            return
-        box = p.workspace_mm
-        x, y, z = self.driver.state().pose[:3]
-        if not (box[0] - 0.5 <= x <= box[3] + 0.5 and box[1] - 0.5 <= y <= box[4] + 0.5 and
-                box[2] - 0.5 <= z <= box[5] + 0.5):
-            self.halt("fault", f"TCP at ({x:.1f}, {y:.1f}, {z:.1f}) mm is outside the workspace box")
-            return
-        prog = self.driver.progress()
-        if prog.status in (MotionStatus.PROTECTIVE_STOP, MotionStatus.DISCONNECTED, MotionStatus.FAULT):
-            self.halt("fault", f"robot {prog.status.name.lower()}: {prog.message}")
-            return
-        if touching:
-            self.supervise_touch()
-            return
-        seg_start, seg_end = self.segments[self.segment]
-        self.meter.update(seg_start + prog.index, self.driver.state().pose[:3])
-        if self.state == "probing":
-            self.control.track(seg_start + prog.index, now)
-        if self.follower is not None and self.state == "scanning" and prog.status == MotionStatus.MOVING:
-            self.follower.track(self.path, seg_start + prog.index)
-            if self.follower.due(now):
-                self._resend(self.follower, seg_start + prog.index, seg_end, now)
-                return
-        if self.hold_until_ns is not None:
-            if now >= self.hold_until_ns:
-                self.hold_until_ns = None
-                self.segment += 1
-                self._start_segment()
-            return
-        if prog.status == MotionStatus.DONE:
-            hold = self.path[seg_end].hold_s
-            if hold > 0:
-                self.hold_until_ns = now + int(hold * 1e9)
-            else:
-                self.segment += 1
-                self._start_segment()
-        elif prog.status == MotionStatus.STOPPED:
-            self.halt("stopped", prog.message or "the arm stopped")
-
-    def supervise_touch(self) -> None:
-        """Touch-off in progress (after the scan's own checks); at its end, the raster over the found surface
-        (checked against the box and caps again) or a fault."""
-        touch = self.specimen.touch
-        if touch is None:
-            return
-        touch.step()
-        if touch.failed:
-            self.halt("fault", touch.error)
-        elif touch.done:
-            if not self.params.autostart:
-                try:
-                    self.log.info("%s", self.specimen.finish_touch())
-                except ValueError as exc:
-                    self.halt("fault", f"no surface from the touch-off: {exc}")
-                    return
-                self.set_state("idle", "surface found: waiting for scanner/probe_at requests")
-                return
-            try:
-                self.log.info("%s", self.specimen.finish_touch())
-                plan = self._plan()
-                self.check_path(plan.waypoints)
-            except (ValueError, palpa.ParamError) as exc:
-                self.halt("fault", f"no raster over the found surface: {exc}")
-                return
-            self.plan = plan
-            self._publish_plan()
-            self.run_path(plan, "scanning")
-
-    def _start_segment(self) -> None:
+    def start_segment(self) -> None:
         if self.segment >= len(self.segments) and self.state == "probing":
             self.meter.complete()
             self.control.path_done()
@@ -503,7 +337,7 @@ class RobotScanner(palpa.Node):
             pts = self.follower.shifted(pts)
         self.driver.move_path(pts)
 
-    def _resend(self, follower: LineFollower, i: int, b: int, now: int) -> None:
+    def resend(self, follower: LineFollower, i: int, b: int, now: int) -> None:
         """Surface following: the rest of the line (from the waypoint being approached) again, at the new offset,
         after the same checks as the plan (box, caps)."""
         try:

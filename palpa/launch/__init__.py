@@ -3,6 +3,9 @@
 Layering inside this package (imports point downwards)::
 
     supervisor   runs a LaunchPlan: in-process bus, child processes, respawn, staged shutdown, progress
+    summary      how the nodes ended: exit texts, the summary, the launch's exit code
+    nodeproc     the supervisor's record of one node: its output split into lines, its staged stop
+    signals      signals into the supervisor's loop (queued, with a wake-up fd)
     process      one child: own process group, PR_SET_PDEATHSIG, non-blocking output pipe
     progress     the progress bar fed from a topic
     loader       YAML -> LaunchPlan: args, substitutions, includes, node-class and params validation

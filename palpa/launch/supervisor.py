@@ -12,6 +12,10 @@ at once. The launcher names each node that needed SIGTERM or SIGKILL.
 
 Exit code: the required node's exit code when one ended the launch (128+N if killed by signal N); otherwise 0,
 unless a node failed (exited non-zero, or gave up respawning, without being asked to stop): then 1.
+
+This module decides (when to spawn, respawn, stop, escalate, end the launch); palpa.launch.nodeproc keeps each
+node's record, reads its output and carries out its staged stop, palpa.launch.signals brings the signals into the
+loop, palpa.launch.summary words the outcomes and makes the exit code.
 """
 
 from __future__ import annotations
@@ -20,26 +24,24 @@ import contextlib
 import os
 import selectors
 import signal
-import socket
 import subprocess
 import sys
-import threading
 import time
-from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from types import FrameType
 from typing import Any, TextIO
 
 from palpa.address import BusAddress
 from palpa.bus import Bus
 from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
+from palpa.launch.nodeproc import REAP_GRACE_S, NodeProc
 from palpa.launch.output import Screen
 from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
 from palpa.launch.process import Child
 from palpa.launch.progress import ProgressView, progress_fields
 from palpa.launch.reaper import Reaper
+from palpa.launch.signals import SignalInbox
+from palpa.launch.summary import exit_text, report_hidden, summarize
 from palpa.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 
@@ -47,43 +49,7 @@ __all__ = ["Supervisor", "exit_text"]
 
 _BACKOFF_CAP_S = 60.0
 _STABLE_S = 30.0  # a run at least this long resets the respawn backoff
-_REAP_GRACE_S = 3.0  # after SIGKILL, how long to wait for the kernel before giving up on a process
-_MAX_LINE = 65536
 _STEP_S = 0.05
-_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
-_REPORT_LINES = 12
-
-
-def exit_text(code: int) -> str:
-    """'exit code 3' or 'killed by SIGKILL' for a Popen return code."""
-    if code < 0:
-        try:
-            return f"killed by {signal.Signals(-code).name}"
-        except ValueError:
-            return f"killed by signal {-code}"
-    return f"exit code {code}"
-
-
-@dataclass
-class _Proc:
-    spec: NodeSpec
-    log: TextIO
-    color: str = ""
-    child: Child | None = None
-    state: str = "idle"  # idle | running | backoff | stopping | done
-    starts: int = 0
-    failures: int = 0  # consecutive exits that were answered by a respawn
-    started_at: float = 0.0
-    respawn_at: float = 0.0
-    stage: int = 0  # while stopping: 1 SIGINT sent, 2 SIGTERM sent, 3 SIGKILL sent
-    deadline: float = 0.0
-    buf: bytes = b""
-    tail: deque[str] = field(default_factory=lambda: deque(maxlen=15))
-    hidden: deque[str] = field(default_factory=lambda: deque(maxlen=_REPORT_LINES))
-    """Lines the progress bar kept off the screen (for ``progress: {report: [...]}``)."""
-    outcome: str = "not started"
-    failed: bool = False
-    escalated: str | None = None
 
 
 class Supervisor:
@@ -103,10 +69,10 @@ class Supervisor:
         self.err = err or sys.stderr
         self._bus_override = bus_address
         self._progress_opt = progress
-        self._procs: list[_Proc] = []
-        self._recorder: _Proc | None = None
+        self._procs: list[NodeProc] = []
+        self._recorder: NodeProc | None = None
         self._sel = selectors.DefaultSelector()
-        self._signals: list[int] = []
+        self._inbox = SignalInbox()
         self._stopping = False
         self._all_started = False
         self._reason = ""
@@ -118,16 +84,11 @@ class Supervisor:
         self._use_reaper = reaper
         self._announce = announce
         self._reaper: Reaper | None = None
-        self._wake_r, self._wake_w = socket.socketpair()
-        for s in (self._wake_r, self._wake_w):
-            s.setblocking(False)
 
     # -- public ----------------------------------------------------------------------------------------
     def request_stop(self) -> None:
         """Ask the launch to stop as if Ctrl-C was pressed (safe from other threads and signal handlers)."""
-        self._signals.append(signal.SIGINT)
-        with contextlib.suppress(OSError):
-            self._wake_w.send(b"\0")
+        self._inbox.push(signal.SIGINT)
 
     def run(self) -> int:
         """Start everything, supervise until the launch ends, stop everything; returns the exit code."""
@@ -140,7 +101,7 @@ class Supervisor:
         self._screen.open_launch_log(plan.run_dir / "launch.log")
         (plan.run_dir / "launch.resolved.yaml").write_text(plan.to_yaml(), encoding="utf-8")
         self._prepare()
-        old = self._install_signals()
+        old = self._inbox.install(self._sel)
         bus: Bus | None = None
         try:
             if self._use_reaper:
@@ -177,7 +138,7 @@ class Supervisor:
                 self._run_until(lambda: self._recorder is None or self._recorder.state in ("done", "idle"))
         finally:
             self._teardown(bus, old)
-        return self._finish()
+        return summarize(self._screen, self._all(), self.plan.run_dir, self._reason, self._code)
 
     # -- phases ----------------------------------------------------------------------------------------
     def _prepare(self) -> None:
@@ -223,15 +184,10 @@ class Supervisor:
         why = "exited before it was ready" if ready else f"sent no heartbeat within {timeout:g} s"
         self._request_stop(f"the recorder {why} (see {self.plan.run_dir / 'recorder.log'})", 1)
 
-    def _stop(self, procs: list[_Proc]) -> None:
+    def _stop(self, procs: list[NodeProc]) -> None:
         now = time.monotonic()
         for p in procs:
-            if p.state == "running" and p.child is not None:
-                p.state, p.stage = "stopping", 1
-                p.deadline = now + p.spec.sigterm_timeout
-                p.child.signal(signal.SIGINT)
-            elif p.state == "backoff":
-                p.state, p.outcome = "done", p.outcome + "; not respawned (launch stopping)"
+            p.begin_stop(now)
 
     def _run_until(self, cond: Callable[[], bool], timeout_s: float | None = None) -> bool:
         """Step the loop until ``cond()``; False if ``timeout_s`` passed first."""
@@ -246,31 +202,27 @@ class Supervisor:
     def _step(self) -> None:
         for key, _ in self._sel.select(_STEP_S):
             if key.data is None:
-                try:
-                    while self._wake_r.recv(4096):
-                        pass
-                except OSError:
-                    pass
+                self._inbox.drain()
             else:
-                self._read(key.data)
+                key.data.read(self._screen, self._sel)
         self._handle_signals()
         now = time.monotonic()
         for p in self._all():
             if p.state in ("running", "stopping") and p.child is not None and p.child.exited():
                 self._on_exit(p)
             elif p.state == "stopping" and now >= p.deadline:
-                self._escalate(p)
+                p.escalate(self._screen, self._sel)
             elif p.state == "backoff" and now >= p.respawn_at and not self._stopping:
                 self._spawn(p)
         if self._node is not None:
             self._node.spin_once(0)
 
-    def _all(self) -> list[_Proc]:
+    def _all(self) -> list[NodeProc]:
         return self._procs + ([self._recorder] if self._recorder is not None else [])
 
     def _handle_signals(self) -> None:
-        while self._signals:
-            sig = self._signals.pop(0)
+        while self._inbox.pending:
+            sig = self._inbox.pending.pop(0)
             name = signal.Signals(sig).name
             if not self._stopping:
                 self._request_stop(f"stopped by {name}", None)
@@ -278,36 +230,15 @@ class Supervisor:
                 self._screen.say(f"{name} again: moving every stopping node on to the next signal now", "WARNING")
                 for p in self._all():
                     if p.state == "stopping":
-                        self._escalate(p)
-
-    def _escalate(self, p: _Proc) -> None:
-        if p.child is None:
-            return
-        now = time.monotonic()
-        name = p.spec.name
-        if p.stage == 1:
-            self._screen.say(f"{name} did not stop within {p.spec.sigterm_timeout:g} s of SIGINT: sending SIGTERM",
-                      "WARNING")
-            p.stage, p.deadline, p.escalated = 2, now + p.spec.sigkill_timeout, "SIGTERM"
-            p.child.signal(signal.SIGTERM)
-        elif p.stage == 2:
-            self._screen.say(f"{name} did not stop within {p.spec.sigkill_timeout:g} s of SIGTERM: sending SIGKILL",
-                      "WARNING")
-            p.stage, p.deadline, p.escalated = 3, now + _REAP_GRACE_S, "SIGKILL"
-            p.child.signal(signal.SIGKILL)
-        else:
-            self._screen.say(f"{name} (pid {p.child.pid}) is still there {_REAP_GRACE_S:g} s after SIGKILL "
-                      "(stuck in the kernel?); giving up on it", "ERROR")
-            self._drop_output(p)
-            p.state, p.outcome, p.failed = "done", "could not be stopped", True
+                        p.escalate(self._screen, self._sel)
 
     # -- children --------------------------------------------------------------------------------------
-    def _make_proc(self, spec: NodeSpec, index: int) -> _Proc:
+    def _make_proc(self, spec: NodeSpec, index: int) -> NodeProc:
         log = open(self.plan.run_dir / f"{spec.name}.log", "a", encoding="utf-8", buffering=1)  # noqa: SIM115
         color = self._screen.color_for(index)
-        return _Proc(spec=spec, log=log, color=color)
+        return NodeProc(spec=spec, log=log, color=color)
 
-    def _spawn(self, p: _Proc) -> None:
+    def _spawn(self, p: NodeProc) -> None:
         spec = p.spec
         env = spec.child_env(dict(os.environ), bus=self.address, run_dir=self.plan.run_dir,
                              python_path=self.plan.python_path)
@@ -332,53 +263,11 @@ class Supervisor:
         p.log.write(f"[launch] started pid {p.child.pid}{again}: {' '.join(argv)}\n")
         self._screen.say(f"started {spec.name} pid {p.child.pid}{again}")
 
-    def _read(self, p: _Proc) -> None:
-        if p.child is None:
-            return
-        data = p.child.read()
-        if data is None:
-            self._drop_output(p)
-            return
-        self._take(p, data)
-
-    def _line(self, p: _Proc, text: str) -> None:
-        with contextlib.suppress(OSError, ValueError):
-            p.log.write(text + "\n")
-        p.tail.append(text)
-        if not self._screen.node_line(p.spec.name, p.color, p.spec.output, text) and p.spec.output == "screen":
-            p.hidden.append(text)
-
-    def _take(self, p: _Proc, data: bytes) -> None:
-        buf = p.buf + data
-        *lines, rest = buf.split(b"\n")
-        for raw in lines:
-            self._line(p, raw.decode("utf-8", errors="replace").rstrip("\r"))
-        if len(rest) > _MAX_LINE:
-            self._line(p, rest.decode("utf-8", errors="replace"))
-            rest = b""
-        p.buf = rest
-
-    def _drop_output(self, p: _Proc) -> None:
-        """Read what is left in the pipe, flush a last partial line, stop watching the pipe."""
-        if p.child is None:
-            return
-        for _ in range(64):
-            data = p.child.read()
-            if not data:
-                break
-            self._take(p, data)
-        if p.buf:
-            self._line(p, p.buf.decode("utf-8", errors="replace"))
-            p.buf = b""
-        with contextlib.suppress(KeyError, ValueError):
-            self._sel.unregister(p.child.fd)
-        p.child.close_output()
-
-    def _on_exit(self, p: _Proc) -> None:
+    def _on_exit(self, p: NodeProc) -> None:
         child = p.child
         if child is None or child.returncode is None:
             return
-        self._drop_output(p)
+        p.drop_output(self._screen, self._sel)
         if self._reaper is not None:
             self._reaper.remove(child.pid)
         code = child.returncode
@@ -397,7 +286,7 @@ class Supervisor:
             return
         self._after_exit(p, code)
 
-    def _after_exit(self, p: _Proc, code: int) -> None:
+    def _after_exit(self, p: NodeProc, code: int) -> None:
         """A node ended on its own: respawn it (if it failed and asks for it), end the launch (required), or
         carry on without it. Exit code 0 means the node has finished: it is never respawned."""
         spec, now = p.spec, time.monotonic()
@@ -461,34 +350,20 @@ class Supervisor:
         if fields is not None:
             view.update(fields)
 
-    # -- signals and teardown ----------------------------------------------------------------------------
-    def _install_signals(self) -> dict[int, Any]:
-        old: dict[int, Any] = {}
-        if threading.current_thread() is not threading.main_thread():
-            return old  # embedded use: the caller stops us with request_stop()
-
-        def on_signal(signum: int, frame: FrameType | None) -> None:
-            self._signals.append(signum)
-
-        for sig in _SIGNALS:
-            old[sig] = signal.signal(sig, on_signal)
-        old[-1] = signal.set_wakeup_fd(self._wake_w.fileno(), warn_on_full_buffer=False)
-        self._sel.register(self._wake_r.fileno(), selectors.EVENT_READ, None)
-        return old
-
+    # -- teardown ----------------------------------------------------------------------------------------
     def _teardown(self, bus: Bus | None, old: dict[int, Any]) -> None:
         # only reached with children still running if something raised: do not leave them behind
         for p in self._all():
             if p.state in ("running", "stopping") and p.child is not None and not p.child.exited():
                 p.child.signal(signal.SIGKILL)
                 with contextlib.suppress(subprocess.TimeoutExpired):
-                    p.child.popen.wait(_REAP_GRACE_S)
+                    p.child.popen.wait(REAP_GRACE_S)
                 p.child.exited()
                 p.state, p.outcome, p.failed = "done", "killed (launcher error)", True
         had_view = self._screen.view is not None
         self._screen.close_view()  # the summary goes to stderr like every launcher message
         if had_view:
-            self._report()
+            report_hidden(self._screen, self._all(), self.plan.progress_report)
         if self._announce:
             withdraw()
         if self._node is not None:
@@ -497,42 +372,8 @@ class Supervisor:
             bus.stop()
         if self._reaper is not None:
             self._reaper.close()
-        if -1 in old:
-            signal.set_wakeup_fd(old.pop(-1))
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
+        self._inbox.restore(old)
         for p in self._all():
             p.log.close()
         self._sel.close()
-        self._wake_r.close()
-        self._wake_w.close()
-
-    def _report(self) -> None:
-        """After the progress view: what the ``report`` nodes said under it (where the results went)."""
-        for p in self._all():
-            if p.spec.name in self.plan.progress_report:
-                for line in p.hidden:
-                    self._screen.show(f"[{p.spec.name}] {line}", loud=False)
-
-    def _finish(self) -> int:
-        code = self._code if self._code is not None else 0
-        failed = [p.spec.name for p in self._all() if p.failed]
-        restarted = [p.spec.name for p in self._all() if p.starts > 1 and not p.failed]
-        reason = self._reason or "ended"
-        if code == 0 and failed:
-            code = 1
-            reason += f"; failed: {', '.join(failed)}"
-        if restarted:  # a respawn recovers the graph, not what the node held or missed while down
-            code = code or 1
-            reason += f"; restarted mid-run (data lost while down): {', '.join(restarted)}"
-        width = max((len(p.spec.name) for p in self._all()), default=4)
-        lines = [f"summary (logs in {self.plan.run_dir}):"]
-        for p in self._all():
-            mark = "!" if (p.failed or p.escalated) else " "
-            starts = f"  (started {p.starts} times)" if p.starts > 1 else ""
-            lines.append(f" {mark} {p.spec.name:<{width}}  {p.outcome}{starts}")
-        lines.append(f"launch ended: {reason}; exit code {code}")
-        for line in lines:
-            self._screen.say(line, "WARNING" if line.startswith(" !") else "NOTICE")
-        self._screen.close()
-        return code
+        self._inbox.close()
