@@ -76,7 +76,8 @@ class ScanSupervision:
             node.halt("fault", stale)
             return
         box = p.workspace_mm
-        x, y, z = node.driver.state().pose[:3]
+        tcp = node.driver.state().pose[:3]  # read once a pass: on ur_rtde a state is several RTDE getters
+        x, y, z = tcp
         if not (box[0] - 0.5 <= x <= box[3] + 0.5 and box[1] - 0.5 <= y <= box[4] + 0.5 and
                 box[2] - 0.5 <= z <= box[5] + 0.5):
             node.halt("fault", f"TCP at ({x:.1f}, {y:.1f}, {z:.1f}) mm is outside the workspace box")
@@ -89,7 +90,7 @@ class ScanSupervision:
             self.supervise_touch()
             return
         seg_start, seg_end = node.segments[node.segment]
-        node.meter.update(seg_start + prog.index, node.driver.state().pose[:3])
+        node.meter.update(seg_start + prog.index, tcp)
         if node.state == "probing":
             node.control.track(seg_start + prog.index, now)
         if node.follower is not None and node.state == "scanning" and prog.status == MotionStatus.MOVING:
