@@ -151,7 +151,7 @@ def _through_gate(monkeypatch: pytest.MonkeyPatch, publisher: str, gate: Subscri
 
 
 def test_a_direct_subscriber_is_ready_only_once_the_publisher_has_its_subscriptions(
-        ipc_bus: BusAddress, monkeypatch: pytest.MonkeyPatch) -> None:
+        ipc_bus: BusAddress, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
     """A topic published direct (no proxy): the listener's subscriptions are held on their way to the talker's
     direct socket. The talker publishes its first message as soon as the listener says it is ready (and the talker
     heard its readiness probe): that message must arrive. Before direct topics were covered the listener said it
@@ -192,5 +192,7 @@ def test_a_direct_subscriber_is_ready_only_once_the_publisher_has_its_subscripti
 
                 wait_until(lambda: listener.heard.queue, 10, "a message at the listener", step=again)
                 assert listener.heard.queue[0].text == "first", "the first message was lost"
+                # ready because the talker confirmed, not because the wait ran out (the message came anyway)
+                assert not [r for r in caplog.records if r.name == "palpa.node.listener" and r.levelno >= 30]
             finally:
                 listener.close(0)
