@@ -133,16 +133,18 @@ REACH_PROBES = b"_palpa/reach/"
 """Direct readiness probes on the wire (docs/wire.md, *Direct topics*)."""
 
 
-def _through_gate(monkeypatch: pytest.MonkeyPatch, publisher: str, gate: SubscriptionGate) -> None:
-    """Make subscribers in this process connect to ``gate`` where the directory names ``publisher``: the
-    directory still says ``publisher`` (so does the publisher's own echo); only the connection goes round."""
+def through_gate(monkeypatch: pytest.MonkeyPatch, publisher: str, gate: SubscriptionGate,
+                 only: zmq.Socket[bytes] | None = None) -> None:
+    """Make subscribers in this process (or the one reading on socket ``only``) connect to ``gate`` where the
+    directory names ``publisher``: the directory still says ``publisher`` (so does the publisher's answer to a
+    probe); only the connection goes round."""
     import palpa.transport
 
     follow = palpa.transport.follow_directory
 
     def via_gate(sub: zmq.Socket[bytes], peers: set[str], key: bytes, payload: bytes,
                  bus_key: bytes | None) -> bool:
-        if key.endswith(b"\0" + publisher.encode()) and payload:
+        if key.endswith(b"\0" + publisher.encode()) and payload and (only is None or sub is only):
             key = key[: -len(publisher)] + gate.endpoint.encode()
             payload = gate.endpoint.encode()
         return bool(follow(sub, peers, key, payload, bus_key))
@@ -163,7 +165,7 @@ def test_a_direct_subscriber_is_ready_only_once_the_publisher_has_its_subscripti
         endpoint = transport.direct_endpoint
         assert endpoint
         with SubscriptionGate(endpoint) as gate:
-            _through_gate(monkeypatch, endpoint, gate)
+            through_gate(monkeypatch, endpoint, gate)
             built: list[palpa.Node] = []
             thread = threading.Thread(target=lambda: built.append(
                 _Listener(name="listener", bus=ipc_bus, heartbeat_s=0)))
