@@ -9,12 +9,15 @@ made, the probe after them). A publisher's direct socket answers every such prob
 payload is its endpoint (:meth:`palpa.direct.DirectSocket.drain`): when it comes back, the publisher has the
 subscriber's subscriptions, and the answer came the way a message comes.
 
-The subscriber waits for every publisher the directory named to it, connected or not yet: to know it has been told
-of all of them, it asks the cache ``PING`` after its ``GET``s and waits for the ``PONG``, which comes after their
-answers. Publishers announced later are probed when the subscriber connects to them; :attr:`DirectReach.reached`
-lists every endpoint confirmed, in order (the lockstep's ack does not carry it yet: docs/wire.md says what that
-leaves open). An endpoint withdrawn before it answered is not waited for; a stale one (its publisher died without
-withdrawing) never answers, and holds the subscriber's readiness until its bounded wait ends.
+The subscriber waits (palpa.presence) for every publisher the directory named to it: it connects as soon as it is
+told (one it cannot connect to, palpa.direct logged why, is not waited for), and to know it has been told of all of
+them it asks the cache ``PING`` after its ``GET``s and waits for the ``PONG``, which comes after their answers.
+Publishers announced later are probed when the subscriber connects to them, and :attr:`DirectReach.reached` lists
+every endpoint that answered, in order: the lockstep clock learns of them from the node's acks (ClockAck
+``reached``) and counts on a subscriber of a participant's direct topic only once it has reached that participant
+(palpa.lockstep). On the wall clock nothing waits for a later publisher (docs/wire.md, *Direct topics*). An
+endpoint withdrawn before it answered is not waited for; a stale one (its publisher died without withdrawing)
+never answers, and holds the subscriber's readiness until its bounded wait ends.
 """
 
 from __future__ import annotations
@@ -41,21 +44,16 @@ class DirectReach:
         self._serial = 0
         self._keys: list[bytes] = []
         self._needs: dict[str, int] = {}
-        """Endpoint told of and not yet answered -> the first probe subscribed after its connection (0: it is not
-        connected yet)."""
+        """Endpoint connected to and not yet answered -> the first probe subscribed after its connection."""
         self.reached: dict[str, None] = {}
         """The endpoints that answered, in order (a dict: an ordered set; live, it grows)."""
 
     def told(self, key: bytes, payload: bytes) -> None:
-        """The directory told of (or withdrew) a direct publisher of a topic this node takes."""
+        """The directory told of (or withdrew) a direct publisher of a topic this node takes: a withdrawn one is
+        not waited for (it will not answer; what it sent is on its way)."""
         entry = directory_entry(key, payload)
-        if entry is None:
-            return
-        endpoint, alive, _ = entry
-        if not alive:
-            self._needs.pop(endpoint, None)  # it will not answer: closed, what it sent is on its way
-        elif endpoint not in self.reached:
-            self._needs.setdefault(endpoint, 0)
+        if entry is not None and not entry[1]:
+            self._needs.pop(entry[0], None)
 
     def connected(self, endpoint: str) -> None:
         """The subscriber socket just connected to ``endpoint``: probe it (and every other not yet answered)."""
@@ -67,12 +65,6 @@ class DirectReach:
         self._keys.append(key)
         self._needs[endpoint] = self._serial
 
-    def unreachable(self, endpoint: str) -> None:
-        """The socket did not connect to ``endpoint`` (palpa.direct logged why): not waited for, unless it is
-        connected already (then its probe is out)."""
-        if not self._needs.get(endpoint):
-            self._needs.pop(endpoint, None)
-
     def answered(self, topic: bytes, endpoint: str) -> None:
         """A publisher's answer to probe ``topic``: ``endpoint`` has every subscription made before that probe."""
         try:
@@ -80,15 +72,15 @@ class DirectReach:
         except ValueError:
             return
         need = self._needs.get(endpoint)
-        if need is None or not 0 < need <= serial:
+        if need is None or need > serial:
             return
         del self._needs[endpoint]
         self.reached[endpoint] = None
-        if not any(self._needs.values()):  # no probe is waited for: stop receiving their answers
+        if not self._needs:  # no probe is waited for: stop receiving their answers
             for old in self._keys:
                 self._sub.setsockopt(zmq.UNSUBSCRIBE, old)
             self._keys.clear()
 
     def pending(self) -> list[str]:
-        """The endpoints told of that have not answered (connected or not)."""
+        """The endpoints connected to that have not answered."""
         return list(self._needs)

@@ -414,8 +414,6 @@ class ZmqTransport:
         self.reach.told(key, payload)
         if follow_directory(self._sub, self._peers, key, payload, self._bus_server_key):
             self.reach.connected(entry[0])
-        elif entry[1]:
-            self.reach.unreachable(entry[0])
 
     def _takes_direct(self, key: bytes) -> bool:
         """Whether a subscription here takes the topic of a direct publisher's announcement (``key``): a recorder

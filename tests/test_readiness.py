@@ -198,3 +198,99 @@ def test_a_direct_subscriber_is_ready_only_once_the_publisher_has_its_subscripti
                 assert not [r for r in caplog.records if r.name == "palpa.node.listener" and r.levelno >= 30]
             finally:
                 listener.close(0)
+
+
+class ReplyGate:
+    """A relay in front of the bus's latch cache (ROUTER towards the node, DEALER towards the cache) that passes
+    requests at once but holds the cache's replies, in order, until :meth:`open`: a directory answer slowed down."""
+
+    def __init__(self, upstream: str) -> None:
+        self._ctx = zmq.Context()
+        self._front = self._ctx.socket(zmq.ROUTER)
+        self._front.linger = 0
+        self._front.bind(f"ipc://{short_ipc_base()}.latch")
+        self._back = self._ctx.socket(zmq.DEALER)
+        self._back.linger = 0
+        self._back.connect(upstream)
+        self.endpoint = self._front.getsockopt_string(zmq.LAST_ENDPOINT)
+        self.held: list[list[bytes]] = []
+        self._ident = b""
+        self._open = threading.Event()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._relay, daemon=True)
+
+    def holds(self, verb: bytes) -> bool:
+        with self._lock:
+            return any(r[0] == verb for r in self.held)
+
+    def open(self) -> None:
+        self._open.set()
+
+    def _relay(self) -> None:
+        poller = zmq.Poller()
+        poller.register(self._front, zmq.POLLIN)
+        poller.register(self._back, zmq.POLLIN)
+        while not self._stop.is_set():
+            events = dict(poller.poll(10))
+            if self._front in events:
+                self._ident, *request = self._front.recv_multipart()
+                self._back.send_multipart(request)
+            with self._lock:
+                if self._back in events:
+                    self.held.append(self._back.recv_multipart())
+                if self._open.is_set() and self._ident:
+                    for reply in self.held:
+                        self._front.send_multipart([self._ident, *reply])
+                    self.held.clear()
+
+    def __enter__(self) -> ReplyGate:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        self._front.close(0)
+        self._back.close(0)
+        self._ctx.term()
+
+
+def test_a_direct_subscriber_waits_for_the_directory_to_name_its_publishers(ipc_bus: BusAddress) -> None:
+    """The directory's answer (the cache's, not the proxy's) is slow: a listener that said it was ready before it
+    knew of the talker's direct socket would lose the first message, published as soon as it is ready."""
+    with palpa.Node(name="talker", bus=ipc_bus, heartbeat_s=0) as talker, ReplyGate(ipc_bus.latch) as gate:
+        pub = talker.publisher("chatter", Text, direct=True)
+        assert pub.direct
+        built: list[palpa.Node] = []
+        thread = threading.Thread(target=lambda: built.append(
+            _Listener(name="listener", bus=BusAddress(ipc_bus.pub, ipc_bus.sub, gate.endpoint), heartbeat_s=0)))
+        thread.start()
+        try:
+            wait_until(lambda: built or gate.holds(b"PONG"), 20, "the listener ready, or its directory answer held",
+                       step=lambda: talker.spin_once(0.01))
+            for _ in range(50):  # a listener not waiting for the directory says it is ready now
+                if built:
+                    break
+                talker.spin_once(0.01)
+            if not built:
+                gate.open()
+            wait_until(lambda: built, 20, "the listener ready", step=lambda: talker.spin_once(0.01))
+        finally:
+            gate.open()  # never leave the constructor waiting
+            thread.join(20)
+        listener = built[0]
+        assert isinstance(listener, _Listener)
+        try:
+            pub.publish(Text(text="first"))
+            gate.open()
+
+            def again() -> None:
+                pub.publish(Text(text="again"))
+                listener.spin_once(0.01)
+                talker.spin_once(0)
+
+            wait_until(lambda: listener.heard.queue, 10, "a message at the listener", step=again)
+            assert listener.heard.queue[0].text == "first", "the first message was lost"
+        finally:
+            listener.close(0)
