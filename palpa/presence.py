@@ -51,7 +51,8 @@ def confirm_subscriptions(node: NodeApi, rx: Receiver, incarnation: int, timeout
     Topics published direct (palpa.direct) do not pass the proxy: then wait as well until the cache has answered
     every directory request (``PING``/``PONG``) and every direct publisher it named has answered this node's
     direct probe (palpa.reach): each of them has our subscriptions. Publishers announced after that are probed
-    when they appear, but nothing waits for them (docs/wire.md, *Direct topics*). Only on a real bus (in memory,
+    when they appear; the lockstep clock waits for those answers (palpa.lockstep), nothing on the wall clock does
+    (docs/wire.md, *Direct topics*). Only on a real bus (in memory,
     subscriptions are immediate) and while it is connected."""
     t = node.transport
     if not isinstance(t, ZmqTransport) or not t.connected or timeout_s <= 0 or not (rx.subs or rx.raw):
@@ -77,7 +78,7 @@ def confirm_subscriptions(node: NodeApi, rx: Receiver, incarnation: int, timeout
         rx.remove_raw(key)
         t.unsubscribe(key)
         token = t.sync_directory()
-        while not (t.directory_synced(token) and not t.reach.pending()) and not node.is_shutdown:
+        while not (t.reach.synced(token) and not t.reach.pending()) and not node.is_shutdown:
             if time.monotonic_ns() > deadline:
                 node.log.warning("direct publisher(s) %s did not confirm this node's subscriptions within %.0f s "
                                  "(wall clock): the first messages they publish to it may be lost",

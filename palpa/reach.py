@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import itertools
 import os
+import time
+from collections.abc import Callable, Sequence
 
 import zmq
 
@@ -47,6 +49,19 @@ class DirectReach:
         """Endpoint connected to and not yet answered -> the first probe subscribed after its connection."""
         self.reached: dict[str, None] = {}
         """The endpoints that answered, in order (a dict: an ordered set; live, it grows)."""
+        self.pongs: set[bytes] = set()
+        """The tokens of the cache's ``PONG`` answers (the transport adds them as they come)."""
+
+    def ping(self, to_cache: Callable[[Sequence[bytes]], None]) -> bytes:
+        """Ask the cache (through ``to_cache``) for a ``PONG`` after its answers to everything asked so far; returns
+        the token :meth:`synced` takes."""
+        token = f"{len(self.pongs)}.{time.monotonic_ns()}".encode()
+        to_cache([b"PING", token])
+        return token
+
+    def synced(self, token: bytes) -> bool:
+        """Whether the ``PONG`` for ``token`` came: every directory entry the cache had for us has been read."""
+        return token in self.pongs
 
     def told(self, key: bytes, payload: bytes) -> None:
         """The directory told of (or withdrew) a direct publisher of a topic this node takes: a withdrawn one is

@@ -176,7 +176,6 @@ class ZmqTransport:
         self._sub.reconnect_ivl_max = _RECONNECT_MAX_MS  # withdrawn direct publishers stay connected (cheaply)
         self.reach = DirectReach(self._sub)
         """Whether this node's subscriptions have reached its direct publishers (palpa.reach)."""
-        self._pongs: set[bytes] = set()
         for sock in (self._pub, self._sub, self._latch):
             if curve is not None:
                 sock.curve_serverkey = curve["server"]
@@ -280,15 +279,8 @@ class ZmqTransport:
         return self._direct.endpoint if self._direct is not None else ""
 
     def sync_directory(self) -> bytes:
-        """Ask the cache for a ``PONG`` after its answers to everything asked so far; returns the token to pass
-        :meth:`directory_synced`."""
-        token = f"{len(self._pongs)}.{time.monotonic_ns()}".encode()
-        self._to_cache([b"PING", token])
-        return token
-
-    def directory_synced(self, token: bytes) -> bool:
-        """Whether the cache's ``PONG`` for ``token`` came: every directory entry it had for us has been read."""
-        return token in self._pongs
+        """Ask the cache for a ``PONG`` after its answers to everything asked so far (``reach.synced(token)``)."""
+        return self.reach.ping(self._to_cache)
 
     def _send_direct(self, frames: Sequence[bytes], latched: bool) -> None:
         assert self._direct is not None
@@ -400,7 +392,7 @@ class ZmqTransport:
                     else:
                         out.append(Delivery(frames[1:], True))
                 elif len(frames) == 2 and frames[0] == b"PONG":
-                    self._pongs.add(frames[1])
+                    self.reach.pongs.add(frames[1])
                 elif frames and frames[0] == b"ERR" and len(frames) >= 3:
                     log.warning("the bus's latch cache refused %r: %s", frames[1][:80],
                                 frames[2][:300].decode(errors="replace"))
