@@ -13,7 +13,9 @@ endpoint (every 2 s at most).
 The price: a direct topic's messages do not pass the proxy, so the bus's own capture (launch ``bus.latched``)
 does not see them (a publisher's ``latched=True`` still works), and a foreign client must follow the directory
 (docs/wire.md). Messages published before a subscriber has connected are not delivered to it, as with any
-ZeroMQ PUB socket; :meth:`palpa.Publisher.wait_for_subscribers` tells when someone listens.
+ZeroMQ PUB socket: a subscriber counts as ready only once the direct publishers known to it have its subscriptions
+(palpa.reach); one that appears later is waited for by the lockstep clock only (palpa.lockstep), and
+:meth:`palpa.Publisher.wait_for_subscribers` tells when someone listens.
 
 On a CURVE bus (across hosts) the direct socket is a CURVE server too: it binds on this host's address on the route
 to the bus (or ``PALPA_DIRECT_HOST``), with a key pair made for it, and announces its public key beside the
@@ -25,6 +27,7 @@ subscriber meets it before it knows whom to accept (libzmq never retries a refus
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import logging
 import os
@@ -39,9 +42,11 @@ from zmq.auth.thread import ThreadAuthenticator
 
 from palpa import env as palpa_env
 from palpa.address import BusAddress, is_loopback_host
+from palpa.wire import Header, encode_header
 
 __all__ = [
-    "CLIENT_KEYS_TOPIC", "DIRECTORY_PREFIX", "JOIN_PROBE_PREFIX", "DirectSocket", "SubscriberSet", "bind_candidates",
+    "CLIENT_KEYS_TOPIC", "DIRECTORY_PREFIX", "JOIN_PROBE_PREFIX", "REACH_PREFIX", "DirectSocket", "SubscriberSet",
+    "bind_candidates",
     "directory_entry", "directory_key", "directory_value", "follow_directory",
 ]
 
@@ -49,6 +54,10 @@ DIRECTORY_PREFIX = b"_palpa/direct/"
 JOIN_PROBE_PREFIX = b"_palpa/join/"
 """Readiness probes: a node subscribes ``_palpa/join/<node>/<id>`` after its setup (palpa.presence)."""
 JOIN_PROBE_SUB = b"\x01" + JOIN_PROBE_PREFIX
+REACH_PREFIX = b"_palpa/reach/"
+"""Direct readiness probes: a subscriber subscribes ``_palpa/reach/<token>/<n>`` after connecting to a direct
+publisher, and the publisher's direct socket answers it with one message whose payload is its endpoint (palpa.reach)."""
+_REACH_SUB = b"\x01" + REACH_PREFIX
 CLIENT_KEYS_TOPIC = b"_palpa/curve/clients"
 """The cache key under which a CURVE bus publishes its authorised client keys (Z85, one a line); only the bus
 writes under ``_palpa/curve/``."""
@@ -81,33 +90,34 @@ def directory_entry(key: bytes, payload: bytes) -> tuple[str, bool, bytes | None
 
 
 def follow_directory(sub: zmq.Socket[bytes], peers: set[str], key: bytes, payload: bytes,
-                     bus_server_key: bytes | None) -> None:
+                     bus_server_key: bytes | None) -> bool:
     """Connect ``sub`` to a direct publisher the cache told about (once per endpoint, recorded in ``peers``), with
     its CURVE key when the bus is encrypted (``bus_server_key``: the key ``sub`` uses for the bus, put back after).
     A withdrawn one is not disconnected: its last messages may still be on their way (a disconnect would drop
     them); ZeroMQ keeps retrying a dead endpoint at most every few seconds, and a publisher that comes back there
-    is received once, not twice."""
+    is received once, not twice. True when a new connection was made."""
     entry = directory_entry(key, payload)
     if entry is None:
-        return
+        return False
     endpoint, alive, server_key = entry
     if not alive or endpoint in peers:
-        return
+        return False
     if (bus_server_key is None) != (server_key is None):
         log.warning("cannot connect to direct publisher %s: it is %s and this node's bus is %s", endpoint,
                     *(("encrypted", "not") if server_key else ("not encrypted", "encrypted")))
-        return
+        return False
     try:
         if server_key is not None:  # libzmq copies the options at connect: later reconnects keep this key
             sub.curve_serverkey = server_key
         sub.connect(endpoint)
     except zmq.ZMQError as exc:
         log.warning("cannot connect to direct publisher %s: %s", endpoint, exc)
-        return
+        return False
     finally:
         if server_key is not None and bus_server_key is not None:
             sub.curve_serverkey = bus_server_key
     peers.add(endpoint)
+    return True
 
 
 def own_address_towards(host: str) -> str:
@@ -278,6 +288,23 @@ class DirectSocket:
             return
         self.topics.append(topic)
         to_cache([b"SET", directory_key(topic, self.endpoint), b"", directory_value(self.endpoint, self.server_key)])
+
+    def drain(self) -> None:
+        """Read the subscriptions that arrived (:class:`SubscriberSet`) and answer each direct readiness probe
+        among them (:data:`REACH_PREFIX`) with the endpoint: its subscriber's earlier subscriptions came on the
+        same connection before it, so they are in this socket's filter now, and the answer travels the path a
+        message would. Subscriptions only: nothing per message."""
+        listeners = self.listeners
+        while True:
+            try:
+                message = self.sock.recv(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            listeners.note(message)
+            if message.startswith(_REACH_SUB):
+                header = encode_header(Header(type="", seq=0, stamp=time.time_ns(), node=self.endpoint))
+                with contextlib.suppress(zmq.Again):  # a full queue: unanswered, its subscriber's wait is bounded
+                    self.sock.send_multipart([message[1:], header, self.endpoint.encode()], zmq.NOBLOCK)
 
     def close(self, to_cache: Callable[[list[bytes]], None], linger_ms: int) -> None:
         """Withdraw every announcement, close the socket and remove its ipc file."""

@@ -10,7 +10,9 @@ taken in. Time moves from ``now`` only when
 * every participant is heard: a node whose subscriptions a readiness probe confirmed (palpa.presence) counts as a
   subscriber only once every other participant's publisher socket has heard that probe (ClockAck ``heard``), so
   that no message is dropped on its way to it for want of a route; until then time waits, and its accounting
-  starts when the last one heard it;
+  starts when the last one heard it; likewise a subscriber of a topic another participant publishes direct
+  (palpa.direct) counts on that publisher only once it reports that the publisher's direct socket answered its
+  probe (ClockAck ``reached``, palpa.reach), and its accounting of that publisher's direct topics starts then;
 * nothing is in flight: for every topic, each subscriber has taken in at least as many messages as its
   publishers sent since the subscriber's accounting started (its join, or the start of time: messages published
   before a subscriber was there never reach it);
@@ -42,6 +44,8 @@ class _Member:
     started, or by a publisher before that one joined)."""
     heard: set[str] = field(default_factory=set)
     """The readiness probes this member's publisher socket has heard (ClockAck ``heard``, accumulated)."""
+    reached: set[str] = field(default_factory=set)
+    """The direct endpoints that answered this member's direct probes (ClockAck ``reached``, accumulated)."""
     owed: dict[str, int] = field(default_factory=dict)
     """Per topic it subscribes to, the messages sent to it that it has not taken in (yet): kept up to date report
     by report, so that asking whether anything is in flight costs nothing at each of the thousands of instants."""
@@ -80,6 +84,9 @@ class EventLockstep:
         self._takers: dict[str, list[_Member]] = {}
         self._short: dict[tuple[str, str], None] = {}
         """(member, topic) pairs with messages in flight, oldest first (a dict: an ordered set)."""
+        self._unreached: list[tuple[str, str]] = []
+        """(subscriber, direct publisher) pairs where the subscriber has not reported reaching the publisher."""
+        self._reach_dirty = False
 
     def __contains__(self, node: str) -> bool:
         return node in self.members
@@ -106,11 +113,16 @@ class EventLockstep:
                 for topic, n in ack.recv.items():
                     if (d := n - old.recv.get(topic, 0)) and member.wants(topic):
                         self._owe(member, topic, -d)
+            if resubscribed or ack.reached or ack.direct_at != old.direct_at or ack.direct != old.direct:
+                member.reached.update(ack.reached)
+                self._reach_dirty = True
+                self._check_reach()
             if ack.heard:
                 member.heard.update(ack.heard)
                 self._confirm()
             return False
-        member = self.members[ack.node] = _Member(ack, heard=set(ack.heard))
+        member = self.members[ack.node] = _Member(ack, heard=set(ack.heard), reached=set(ack.reached))
+        self._reach_dirty = True
         member.subscribe(ack.subs)
         self._takers.clear()
         _add(self._sent, ack.sent)
@@ -121,6 +133,7 @@ class EventLockstep:
         if ack.probe:
             self._unheard.add(ack.node)
         self._confirm()
+        self._check_reach()
         return True
 
     def probe(self, node: str) -> str:
@@ -134,13 +147,39 @@ class EventLockstep:
             for other, m in self.members.items():
                 if other != name and m.ack.probe and probe not in m.heard:
                     return name, other
-        return None
+        return self._unreached[0] if self._unreached else None
 
     def assume_heard(self) -> None:
-        """Stop waiting for the participants' probes to be heard (the clock's stall timeout)."""
+        """Stop waiting for the participants' probes to be heard and their direct publishers to be reached (the
+        clock's stall timeout)."""
         for name in self._unheard:
             self._start(self.members[name])
         self._unheard.clear()
+        for sub, pub in self._unreached:
+            self.members[sub].reached.add(self.members[pub].ack.direct_at)
+        self._reach_dirty = True
+        self._check_reach()
+
+    def _check_reach(self) -> None:
+        """Which subscribers have not reached a participant that publishes a topic they take direct (recomputed only
+        when an ack changed what it depends on); a subscriber that now has counts that publisher's direct topics from
+        now: what was sent before may have found no route to it."""
+        if not self._reach_dirty:
+            return
+        self._reach_dirty = False
+        members = self.members
+        unreached = [(sub, pub) for pub, p in members.items() if p.ack.direct_at and p.ack.direct
+                     for sub, m in members.items() if sub != pub and p.ack.direct_at not in m.reached
+                     and any(m.wants(t) for t in p.ack.direct)]
+        for sub, pub in self._unreached:
+            if (sub, pub) not in unreached and sub in members and pub in members:
+                member = members[sub]
+                for topic in members[pub].ack.direct:
+                    if member.wants(topic):
+                        member.base[topic] = self._sent.get(topic, 0)
+                        member.base_recv[topic] = member.ack.recv.get(topic, 0)
+                self._recount(member)
+        self._unreached = unreached
 
     def _confirm(self) -> None:
         """Start the accounting of every participant whose probe all others have now heard: what was sent to it
@@ -168,6 +207,8 @@ class EventLockstep:
             self._takers.clear()
         self._unheard.discard(node)
         self._confirm()
+        self._reach_dirty = True
+        self._check_reach()
 
     def due(self, now_ns: int) -> list[str]:
         """Participants with a timer due at or before ``now_ns`` that they have not reported running."""

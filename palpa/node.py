@@ -52,7 +52,13 @@ from palpa.node_time import SimTime, Timers, clock_timeout_ns
 from palpa.params import Params as ParamsBase
 from palpa.params import convert_params
 from palpa.params_runtime import ParamServer
-from palpa.presence import JOIN_TIMEOUT_S, BusLogHandler, Heartbeats, confirm_subscriptions
+from palpa.presence import (
+    JOIN_TIMEOUT_S,
+    BusLogHandler,
+    Heartbeats,
+    confirm_subscriptions,
+    take_reach_answers,
+)
 from palpa.presence import LOG_TEXT_MAX as LOG_TEXT_MAX  # re-exported: it was defined here
 from palpa.receive import Receiver
 from palpa.service import DEFAULT_TIMEOUT_S, Responder, Service
@@ -135,6 +141,7 @@ class Node:
         self._bus_handler = BusLogHandler(self)
         self.log.addHandler(self._bus_handler)
         self._heartbeats = Heartbeats(self, heartbeat_s, self._rx, self._pubs, self._services)
+        take_reach_answers(self, self._rx)
         self._set_up = False
         self._probe = ""
         """This node's readiness probe once the bus echoed it (``<name>/<pid>.<incarnation>``; ClockAck.probe)."""

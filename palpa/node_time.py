@@ -143,13 +143,16 @@ class SimTime:
         """Whether acks reach the clock: a direct one only once the clock has connected and subscribed (what a
         direct socket sends before that is lost, and the clock would wait for it for good)."""
         self._last_ack_ns = 0
-        self._acked: tuple[int, int, int, tuple[int, ...], int] | None = None
+        self._acked: tuple[int, int, int, tuple[int, ...], int, int] | None = None
         self._ack_shape: tuple[int, ...] = ()
         self._ack_pubs: list[Publisher[Any]] = []
         self._ack_stats: list[tuple[str, TopicStats]] = []
         self._ack_subs: list[str] = []
         self._joins: dict[str, None] = transport.joins_heard if isinstance(transport, ZmqTransport) else {}
         self._joins_acked = 0
+        self._reached: dict[str, None] = transport.reach.reached if isinstance(transport, ZmqTransport) else {}
+        self._reached_acked = 0
+        self._ack_direct: list[str] = []
         node.subscribe(CLOCK_TOPIC, ClockTick, self.on_clock)
         node.subscribe(tick_topic(node.name), ClockTick, self.on_clock)  # the event lockstep's, to this node alone
         rx.on_instant = self.on_instant
@@ -231,23 +234,30 @@ class SimTime:
             self._ack_subs = [s.topic for s in rx.subs.values() if not s.topic.startswith(RUNTIME_PREFIX)]
             self._ack_subs += [r.prefix.decode(errors="replace") + "*" for r in rx.raw
                                if not r.prefix.startswith(RUNTIME_PREFIX.encode())]
+            self._ack_direct = [p.topic for p in self._ack_pubs if p.direct]
         due = self._node.next_timer_due_ns() or 0
         sent_total = sum(p.seq for p in self._ack_pubs) + sum(self._raw_sent.values())
         recv_total = sum(st.received + st.decode_errors for _, st in self._ack_stats)
-        heard = len(self._joins)
-        state = (due, sent_total, recv_total, shape, heard)
+        heard, reached = len(self._joins), len(self._reached)
+        state = (due, sent_total, recv_total, shape, heard, reached)
         if state == self._acked:
             return
         self._acked = state
         new_joins = list(self._joins)[self._joins_acked:] if heard > self._joins_acked else []
         self._joins_acked = heard
+        new_reached = list(self._reached)[self._reached_acked:] if reached > self._reached_acked else []
+        self._reached_acked = reached
+        direct = self._ack_direct
+        t = self._node.transport
         sent = {p.topic: p.seq for p in self._ack_pubs if p.seq}
         for topic, n in self._raw_sent.items():
             sent[topic] = sent.get(topic, 0) + n
         self._last_ack_ns = self._clock.now_ns()
         self._ack_pub.publish(ClockAck(node=self._node.name, sim_ns=self._last_ack_ns, next_ns=due, sent=sent,
                                        recv={t: st.received + st.decode_errors for t, st in self._ack_stats},
-                                       subs=self._ack_subs, probe=probe, heard=new_joins))
+                                       subs=self._ack_subs, probe=probe, heard=new_joins, direct=direct,
+                                       direct_at=t.direct_endpoint if direct and isinstance(t, ZmqTransport) else "",
+                                       reached=new_reached))
 
     def leave(self) -> None:
         """Tell the lockstep clock that this node is leaving: it stops waiting for it now, not later."""

@@ -14,7 +14,7 @@ import time
 from collections.abc import Mapping
 from typing import Any
 
-from palpa.direct import JOIN_PROBE_PREFIX
+from palpa.direct import JOIN_PROBE_PREFIX, REACH_PREFIX
 from palpa.endpoints import Publisher, RawMessage
 from palpa.nodeapi import NodeApi
 from palpa.receive import Receiver
@@ -23,7 +23,7 @@ from palpa.service import Service
 from palpa.transport import ZmqTransport
 from palpa.wire import Header, encode_header
 
-__all__ = ["JOIN_TIMEOUT_S", "LOG_TEXT_MAX", "BusLogHandler", "Heartbeats", "confirm_subscriptions"]
+__all__ = ["JOIN_TIMEOUT_S", "LOG_TEXT_MAX", "BusLogHandler", "Heartbeats", "confirm_subscriptions", "take_reach_answers"]
 
 JOIN_TIMEOUT_S = 10.0
 """Wall seconds a node waits for the bus to confirm its subscriptions before it counts as ready anyway (warning)."""
@@ -47,8 +47,13 @@ def confirm_subscriptions(node: NodeApi, rx: Receiver, incarnation: int, timeout
     comes back through the bus. Every other publisher hears the probe subscription after all our earlier ones
     too (one connection from the proxy delivers in order), so one that has heard it (``heard_join``) reaches
     us: the lockstep clock waits for that (ClockAck ``probe``/``heard``), as the player does for ``wait_for``.
-    Only on a real bus (in memory, subscriptions are immediate) and while it is connected; topics received from
-    direct publishers (palpa.direct) are not covered."""
+
+    Topics published direct (palpa.direct) do not pass the proxy: then wait as well until the cache has answered
+    every directory request (``PING``/``PONG``) and every direct publisher it named has answered this node's
+    direct probe (palpa.reach): each of them has our subscriptions. Publishers announced after that are probed
+    when they appear; the lockstep clock waits for those answers (palpa.lockstep), nothing on the wall clock does
+    (docs/wire.md, *Direct topics*). Only on a real bus (in memory,
+    subscriptions are immediate) and while it is connected."""
     t = node.transport
     if not isinstance(t, ZmqTransport) or not t.connected or timeout_s <= 0 or not (rx.subs or rx.raw):
         return ""
@@ -70,10 +75,29 @@ def confirm_subscriptions(node: NodeApi, rx: Receiver, incarnation: int, timeout
                 sent = now
                 t.send([key, header, b"\xc0"], False)
             node.spin_once(0.005)
+        rx.remove_raw(key)
+        t.unsubscribe(key)
+        token = t.sync_directory()
+        while not (t.reach.synced(token) and not t.reach.pending()) and not node.is_shutdown:
+            if time.monotonic_ns() > deadline:
+                node.log.warning("direct publisher(s) %s did not confirm this node's subscriptions within %.0f s "
+                                 "(wall clock): the first messages they publish to it may be lost",
+                                 ", ".join(t.reach.pending()) or "(the bus's directory did not answer)", timeout_s)
+                break
+            node.spin_once(0.005)
         return key[len(JOIN_PROBE_PREFIX):].decode()
     finally:
         rx.remove_raw(key)
         t.unsubscribe(key)
+
+
+def take_reach_answers(node: NodeApi, rx: Receiver) -> None:
+    """Hand the direct publishers' answers to this node's direct probes to its transport (palpa.reach), from
+    before setup on: a connection made while setting up is probed too."""
+    t = node.transport
+    if isinstance(t, ZmqTransport):
+        reach = t.reach
+        rx.add_raw(reach.prefix, lambda raw: reach.answered(raw.topic.encode(), raw.payload.decode(errors="replace")))
 
 
 class Heartbeats:
@@ -111,7 +135,7 @@ class Heartbeats:
         """Send the heartbeat now."""
         rx, pubs = self._rx, self._pubs
         subs = {s.topic: s.type.type_name for s in rx.subs.values()}
-        subs.update({r.prefix.decode() + "*": "*" for r in rx.raw})
+        subs.update({r.prefix.decode() + "*": "*" for r in rx.raw if not r.prefix.startswith(REACH_PREFIX)})
         self._pub.publish(
             Heartbeat(
                 node=self._node.name,

@@ -87,7 +87,10 @@ class ClockAck(Message, frozen=True, kw_only=True):
     sent as it closes: it no longer holds simulated time back. ``probe``: the readiness probe that confirmed the
     node's subscriptions through the bus (``<node>/<pid>.<incarnation>``, palpa.presence; empty on a bus without
     one); the other participants must say they have ``heard`` it (``heard``: the probes this node's publisher socket
-    heard since its previous ack) before the clock counts on them to reach it."""
+    heard since its previous ack) before the clock counts on them to reach it. ``direct``/``direct_at``: the topics it
+    publishes straight to their subscribers (palpa.direct) and the endpoint they leave from; ``reached``: the
+    direct endpoints that answered this node's direct probes since its previous ack (palpa.reach): the clock
+    counts on a subscriber of a direct topic only once it has reached every participant publishing it."""
 
     node: str
     sim_ns: int
@@ -98,3 +101,6 @@ class ClockAck(Message, frozen=True, kw_only=True):
     subs: list[str] = []
     probe: str = ""
     heard: list[str] = []
+    direct: list[str] = []
+    direct_at: str = ""
+    reached: list[str] = []

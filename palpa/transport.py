@@ -26,6 +26,7 @@ from palpa.direct import (
     DIRECTORY_PREFIX,
     DirectSocket,
     SubscriberSet,
+    directory_entry,
     follow_directory,
 )
 from palpa.errors import BusError
@@ -33,6 +34,7 @@ from palpa.exitflush import note_linger
 from palpa.handshake import HANDSHAKE_EVENTS, HandshakeWatch
 from palpa.keys import load_secret_key
 from palpa.options import TransportOptions
+from palpa.reach import DirectReach
 
 __all__ = ["Delivery", "SendFn", "Transport", "TransportOptions", "ZmqTransport", "curve_client_options"]
 
@@ -172,6 +174,8 @@ class ZmqTransport:
         if options.max_msg_bytes:
             self._sub.maxmsgsize = self._latch.maxmsgsize = options.max_msg_bytes
         self._sub.reconnect_ivl_max = _RECONNECT_MAX_MS  # withdrawn direct publishers stay connected (cheaply)
+        self.reach = DirectReach(self._sub)
+        """Whether this node's subscriptions have reached its direct publishers (palpa.reach)."""
         for sock in (self._pub, self._sub, self._latch):
             if curve is not None:
                 sock.curve_serverkey = curve["server"]
@@ -269,6 +273,15 @@ class ZmqTransport:
         self._direct.announce(self._to_cache, topic)
         return self._send_direct
 
+    @property
+    def direct_endpoint(self) -> str:
+        """Where this node's direct topics leave from ("": none so far)."""
+        return self._direct.endpoint if self._direct is not None else ""
+
+    def sync_directory(self) -> bytes:
+        """Ask the cache for a ``PONG`` after its answers to everything asked so far (``reach.synced(token)``)."""
+        return self.reach.ping(self._to_cache)
+
     def _send_direct(self, frames: Sequence[bytes], latched: bool) -> None:
         assert self._direct is not None
         self._publish(self._direct.sock, frames, latched)
@@ -360,7 +373,7 @@ class ZmqTransport:
         if self._pub in events:
             self._drain_subscriptions(self._pub, self._bus_listeners)
         if self._direct is not None and self._direct.sock in events:
-            self._drain_subscriptions(self._direct.sock, self._direct.listeners)
+            self._direct.drain()
         if self._sub in events:
             self._read_sub(out, max_batch)
         if self._latch in events:
@@ -372,16 +385,27 @@ class ZmqTransport:
                 if frames and frames[0] == b"VAL" and len(frames) >= 4:
                     if frames[1].startswith(DIRECTORY_PREFIX):
                         if self._takes_direct(frames[1]):
-                            follow_directory(self._sub, self._peers, frames[1], frames[3], self._bus_server_key)
+                            self._follow(frames[1], frames[3])
                     elif frames[1] == CLIENT_KEYS_TOPIC:
                         if self._direct is not None:
                             self._direct.allow(self._to_cache, frames[3])
                     else:
                         out.append(Delivery(frames[1:], True))
+                elif len(frames) == 2 and frames[0] == b"PONG":
+                    self.reach.pongs.add(frames[1])
                 elif frames and frames[0] == b"ERR" and len(frames) >= 3:
                     log.warning("the bus's latch cache refused %r: %s", frames[1][:80],
                                 frames[2][:300].decode(errors="replace"))
         return out
+
+    def _follow(self, key: bytes, payload: bytes) -> None:
+        """Connect to a direct publisher the cache told of, and probe it (palpa.reach)."""
+        entry = directory_entry(key, payload)
+        if entry is None:
+            return
+        self.reach.told(key, payload)
+        if follow_directory(self._sub, self._peers, key, payload, self._bus_server_key):
+            self.reach.connected(entry[0])
 
     def _takes_direct(self, key: bytes) -> bool:
         """Whether a subscription here takes the topic of a direct publisher's announcement (``key``): a recorder

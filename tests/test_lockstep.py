@@ -182,6 +182,31 @@ def test_a_participant_counts_only_once_every_publisher_heard_its_probe() -> Non
     assert ls.unheard() is None
 
 
+def test_a_subscriber_counts_on_a_direct_publisher_only_once_it_reached_it() -> None:
+    """A topic published direct (no proxy): its subscriber is waited for until it reports that the publisher's
+    direct socket answered its probe, whichever joined first; what was sent on it before then is not expected."""
+    ls = EventLockstep()
+    ls.report(ClockAck(node="sub", sim_ns=0, next_ns=0, subs=["pose"]))
+    ls.report(ClockAck(node="pub", sim_ns=0, next_ns=100, direct=["pose"], direct_at="ipc://p"))
+    assert ls.unheard() == ("sub", "pub")
+    ls.report(ClockAck(node="pub", sim_ns=0, next_ns=100, sent={"pose": 2}, direct=["pose"], direct_at="ipc://p"))
+    assert ls.unheard() == ("sub", "pub")
+    ls.report(ClockAck(node="sub", sim_ns=0, next_ns=0, subs=["pose"], reached=["ipc://p"]))
+    assert ls.unheard() is None and ls.in_flight() is None  # the two sent before may have found no route
+    ls.report(ClockAck(node="pub", sim_ns=0, next_ns=200, sent={"pose": 3}, direct=["pose"], direct_at="ipc://p"))
+    assert ls.in_flight() == InFlight("pose", "sub", 1)
+    ls.leave("pub")  # restarted: it binds anew, and its subscribers must reach it again
+    ls.report(ClockAck(node="pub", sim_ns=0, next_ns=100, direct=["pose"], direct_at="ipc://q"))
+    ls.report(ClockAck(node="other", sim_ns=0, next_ns=0, subs=["map"]))  # takes nothing direct: not waited for
+    assert ls.unheard() == ("sub", "pub")
+    ls.report(ClockAck(node="sub", sim_ns=0, next_ns=0, subs=["pose"], recv={"pose": 1}, reached=["ipc://q"]))
+    assert ls.unheard() is None and ls.in_flight() is None
+    ls.report(ClockAck(node="sub2", sim_ns=0, next_ns=0, subs=["pose"]))  # joins after the publisher
+    assert ls.unheard() == ("sub2", "pub")
+    ls.assume_heard()  # the clock's stall timeout
+    assert ls.unheard() is None
+
+
 def test_the_clock_starts_time_only_once_the_participants_heard_each_other() -> None:
     bus = MemoryBus()
     clock = ClockSource(params={"time_scale": 1000.0, "participants": ["a", "b"]}, transport=bus.transport(),

@@ -19,6 +19,7 @@ from palpa.runtime_msgs import CLOCK_ACK_TOPIC
 from palpa.simclock import ClockSource
 from palpa.transport import Delivery, ZmqTransport
 from tests.procs import short_ipc_base, wait_until
+from tests.test_readiness import REACH_PROBES, SubscriptionGate, through_gate
 
 LOCKSTEP_EXCLUDE = ["_palpa/clock.*", "_palpa/tick/.*", "_palpa/lockstep"]  # launch/scan_sim.yaml's record:
 
@@ -32,6 +33,18 @@ class _Ticker(palpa.Node):
     def tick(self) -> None:
         self.ran.append(self.clock.now_ns())
         self.out.publish(Text(text=str(len(self.ran)), stamp_ns=self.clock.now_ns()))
+
+
+class _DirectTicker(_Ticker):
+    def setup(self) -> None:
+        self.out = self.publisher("chatter", Text, direct=True)
+        self.ran = []
+        self.timer(0.01, self.tick)
+
+
+class _Listener(palpa.Node):
+    def setup(self) -> None:
+        self.heard = self.subscribe("chatter", Text)
 
 
 class _Graph:
@@ -126,3 +139,35 @@ def test_a_node_not_yet_connected_to_the_clock_gets_its_instants_through_the_bus
     ticker = graph.ticker()
     ticker.transport._takes_direct = lambda key: False  # type: ignore[attr-defined]
     wait_until(lambda: len(ticker.ran) >= 10, 10, "the ticker's timer to run", step=graph.spin)
+
+
+def test_time_waits_for_a_subscriber_to_reach_a_direct_publisher_that_joins_late(
+        graph: _Graph, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A publisher of a direct topic joins a running lockstep while its subscriber's connection to it is slow (its
+    subscriptions held at a gate): simulated time does not move until the publisher has them, so the message the
+    publisher sends at its first instant reaches the subscriber."""
+    clock = ClockSource("clock", {"time_scale": 1000.0, "participants": ["listener"]}, bus=graph.address,
+                        heartbeat_s=0)
+    graph.nodes.append(clock)
+    listener = _Listener("listener", bus=graph.address, sim_clock=True, heartbeat_s=0, wait_for_clock_s=0)
+    graph.nodes.append(listener)
+    sim = listener._sim_time
+    assert sim is not None
+    wait_until(lambda: not sim.holds_timers, 10, "simulated time to start", step=graph.spin)
+    ticker = _DirectTicker("ticker", bus=graph.address, sim_clock=True, heartbeat_s=0, wait_for_clock_s=0)
+    graph.nodes.append(ticker)
+    t, lt = ticker.transport, listener.transport
+    assert isinstance(t, ZmqTransport) and isinstance(lt, ZmqTransport) and ticker.out.direct
+    with SubscriptionGate(t.direct_endpoint) as gate:
+        through_gate(monkeypatch, t.direct_endpoint, gate, only=lt._sub)
+        # the clock, once it has the ticker, either waits for the listener to reach it or moves time on
+        wait_until(lambda: ticker.ran or clock._events.unheard() == ("listener", "ticker"), 10,
+                   "the clock to take the ticker in", step=graph.spin)
+        wait_until(lambda: ticker.ran or gate.holds(REACH_PROBES), 10, "the listener's probe held",
+                   step=graph.spin)
+        for _ in range(50):
+            graph.spin()
+        assert not ticker.ran, "time moved on while the listener had not reached the ticker"
+        gate.open()
+        wait_until(lambda: listener.heard.queue, 10, "a message of the ticker at the listener", step=graph.spin)
+        assert listener.heard.queue[0].text == "1", "the ticker's first message was lost"

@@ -20,19 +20,20 @@ from tests.procs import short_ipc_base, wait_until
 
 
 class SubscriptionGate:
-    """A relay in front of the bus's ``sub`` endpoint (XPUB towards the node, XSUB towards the proxy) that passes
-    messages at once but holds the node's subscriptions back until :meth:`open`: a subscription slowed down on its
-    way to the proxy, as a loaded machine slows it."""
+    """A relay in front of a socket that publishers send from (the bus's ``sub`` endpoint, or a node's direct
+    socket): XPUB towards the subscriber, XSUB towards ``upstream``. It passes messages at once but holds the
+    subscriber's subscriptions back until :meth:`open`: a subscription slowed down on its way, as a loaded machine
+    slows it."""
 
-    def __init__(self, bus: BusAddress) -> None:
+    def __init__(self, upstream: str) -> None:
         self._ctx = zmq.Context()
         self._front = self._ctx.socket(zmq.XPUB)
         self._front.linger = 0
         self._front.bind(f"ipc://{short_ipc_base()}.gate")
         self._back = self._ctx.socket(zmq.XSUB)
         self._back.linger = 0
-        self._back.connect(bus.sub)
-        self.address = BusAddress(bus.pub, self._front.getsockopt_string(zmq.LAST_ENDPOINT), bus.latch)
+        self._back.connect(upstream)
+        self.endpoint = self._front.getsockopt_string(zmq.LAST_ENDPOINT)
         self.held: list[bytes] = []
         self.opened_ns = 0
         self._lock = threading.Lock()
@@ -45,7 +46,7 @@ class SubscriptionGate:
 
     def open(self) -> None:
         with self._lock:
-            self.opened_ns = time.time_ns()
+            self.opened_ns = self.opened_ns or time.time_ns()
 
     def _relay(self) -> None:
         poller = zmq.Poller()
@@ -83,7 +84,7 @@ class _Listener(palpa.Node):
 
 @pytest.fixture
 def gate(ipc_bus: BusAddress) -> Iterator[SubscriptionGate]:
-    with SubscriptionGate(ipc_bus) as g:
+    with SubscriptionGate(ipc_bus.sub) as g:
         yield g
 
 
@@ -97,7 +98,8 @@ def test_a_node_is_ready_only_once_the_bus_has_its_subscriptions(ipc_bus: BusAdd
                              if raw.header.node == "listener" else None)
         built: list[palpa.Node] = []
         thread = threading.Thread(target=lambda: built.append(
-            _Listener(name="listener", bus=gate.address, heartbeat_s=0.01)))
+            _Listener(name="listener", bus=BusAddress(ipc_bus.pub, gate.endpoint, ipc_bus.latch),
+                                heartbeat_s=0.01)))
         thread.start()
         try:
             wait_until(lambda: built or gate.holds(JOIN_PROBE_PREFIX), 20, "the listener ready, or its probe held",
@@ -123,5 +125,172 @@ def test_a_node_is_ready_only_once_the_bus_has_its_subscriptions(ipc_bus: BusAdd
 
             wait_until(lambda: beats, 10, "a heartbeat of the ready listener", step=spin_both)
             assert min(beats) >= gate.opened_ns  # no heartbeat while its subscriptions were held
+        finally:
+            listener.close(0)
+
+
+REACH_PROBES = b"_palpa/reach/"
+"""Direct readiness probes on the wire (docs/wire.md, *Direct topics*)."""
+
+
+def through_gate(monkeypatch: pytest.MonkeyPatch, publisher: str, gate: SubscriptionGate,
+                 only: zmq.Socket[bytes] | None = None) -> None:
+    """Make subscribers in this process (or the one reading on socket ``only``) connect to ``gate`` where the
+    directory names ``publisher``: the directory still says ``publisher`` (so does the publisher's answer to a
+    probe); only the connection goes round."""
+    import palpa.transport
+
+    follow = palpa.transport.follow_directory
+
+    def via_gate(sub: zmq.Socket[bytes], peers: set[str], key: bytes, payload: bytes,
+                 bus_key: bytes | None) -> bool:
+        if key.endswith(b"\0" + publisher.encode()) and payload and (only is None or sub is only):
+            key = key[: -len(publisher)] + gate.endpoint.encode()
+            payload = gate.endpoint.encode()
+        return bool(follow(sub, peers, key, payload, bus_key))
+
+    monkeypatch.setattr(palpa.transport, "follow_directory", via_gate)
+
+
+def test_a_direct_subscriber_is_ready_only_once_the_publisher_has_its_subscriptions(
+        ipc_bus: BusAddress, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture) -> None:
+    """A topic published direct (no proxy): the listener's subscriptions are held on their way to the talker's
+    direct socket. The talker publishes its first message as soon as the listener says it is ready (and the talker
+    heard its readiness probe): that message must arrive. Before direct topics were covered the listener said it
+    was ready at once, and the first message was lost to the slow joiner."""
+    with palpa.Node(name="talker", bus=ipc_bus, heartbeat_s=0) as talker:
+        pub = talker.publisher("chatter", Text, direct=True)
+        transport = talker.transport
+        assert isinstance(transport, ZmqTransport) and pub.direct
+        endpoint = transport.direct_endpoint
+        assert endpoint
+        with SubscriptionGate(endpoint) as gate:
+            through_gate(monkeypatch, endpoint, gate)
+            built: list[palpa.Node] = []
+            thread = threading.Thread(target=lambda: built.append(
+                _Listener(name="listener", bus=ipc_bus, heartbeat_s=0)))
+            thread.start()
+            try:
+                # a listener that waits for its direct publisher shows it: the gate holds its direct probe
+                wait_until(lambda: built or gate.holds(REACH_PROBES), 20, "the listener ready, or its probe held",
+                           step=lambda: talker.spin_once(0.01))
+                if not built:
+                    gate.open()
+                wait_until(lambda: built, 20, "the listener ready", step=lambda: talker.spin_once(0.01))
+            finally:
+                gate.open()  # never leave the constructor waiting
+                thread.join(20)
+            listener = built[0]
+            assert isinstance(listener, _Listener)
+            try:
+                wait_until(lambda: transport.heard_join("listener"), 10, "the talker to hear the listener's probe",
+                           step=lambda: talker.spin_once(0.01))
+                pub.publish(Text(text="first"))
+                gate.open()
+
+                def again() -> None:  # the first may be lost: publish until something arrives, to say which
+                    pub.publish(Text(text="again"))
+                    listener.spin_once(0.01)
+
+                wait_until(lambda: listener.heard.queue, 10, "a message at the listener", step=again)
+                assert listener.heard.queue[0].text == "first", "the first message was lost"
+                # ready because the talker confirmed, not because the wait ran out (the message came anyway)
+                assert not [r for r in caplog.records if r.name == "palpa.node.listener" and r.levelno >= 30]
+            finally:
+                listener.close(0)
+
+
+class ReplyGate:
+    """A relay in front of the bus's latch cache (ROUTER towards the node, DEALER towards the cache) that passes
+    requests at once but holds the cache's replies, in order, until :meth:`open`: a directory answer slowed down."""
+
+    def __init__(self, upstream: str) -> None:
+        self._ctx = zmq.Context()
+        self._front = self._ctx.socket(zmq.ROUTER)
+        self._front.linger = 0
+        self._front.bind(f"ipc://{short_ipc_base()}.latch")
+        self._back = self._ctx.socket(zmq.DEALER)
+        self._back.linger = 0
+        self._back.connect(upstream)
+        self.endpoint = self._front.getsockopt_string(zmq.LAST_ENDPOINT)
+        self.held: list[list[bytes]] = []
+        self._ident = b""
+        self._open = threading.Event()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._relay, daemon=True)
+
+    def holds(self, verb: bytes) -> bool:
+        with self._lock:
+            return any(r[0] == verb for r in self.held)
+
+    def open(self) -> None:
+        self._open.set()
+
+    def _relay(self) -> None:
+        poller = zmq.Poller()
+        poller.register(self._front, zmq.POLLIN)
+        poller.register(self._back, zmq.POLLIN)
+        while not self._stop.is_set():
+            events = dict(poller.poll(10))
+            if self._front in events:
+                self._ident, *request = self._front.recv_multipart()
+                self._back.send_multipart(request)
+            with self._lock:
+                if self._back in events:
+                    self.held.append(self._back.recv_multipart())
+                if self._open.is_set() and self._ident:
+                    for reply in self.held:
+                        self._front.send_multipart([self._ident, *reply])
+                    self.held.clear()
+
+    def __enter__(self) -> ReplyGate:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        self._front.close(0)
+        self._back.close(0)
+        self._ctx.term()
+
+
+def test_a_direct_subscriber_waits_for_the_directory_to_name_its_publishers(ipc_bus: BusAddress) -> None:
+    """The directory's answer (the cache's, not the proxy's) is slow: a listener that said it was ready before it
+    knew of the talker's direct socket would lose the first message, published as soon as it is ready."""
+    with palpa.Node(name="talker", bus=ipc_bus, heartbeat_s=0) as talker, ReplyGate(ipc_bus.latch) as gate:
+        pub = talker.publisher("chatter", Text, direct=True)
+        assert pub.direct
+        built: list[palpa.Node] = []
+        thread = threading.Thread(target=lambda: built.append(
+            _Listener(name="listener", bus=BusAddress(ipc_bus.pub, ipc_bus.sub, gate.endpoint), heartbeat_s=0)))
+        thread.start()
+        try:
+            wait_until(lambda: built or gate.holds(b"PONG"), 20, "the listener ready, or its directory answer held",
+                       step=lambda: talker.spin_once(0.01))
+            for _ in range(50):  # a listener not waiting for the directory says it is ready now
+                if built:
+                    break
+                talker.spin_once(0.01)
+            if not built:
+                gate.open()
+            wait_until(lambda: built, 20, "the listener ready", step=lambda: talker.spin_once(0.01))
+        finally:
+            gate.open()  # never leave the constructor waiting
+            thread.join(20)
+        listener = built[0]
+        assert isinstance(listener, _Listener)
+        try:
+            pub.publish(Text(text="first"))
+            gate.open()
+
+            def again() -> None:
+                pub.publish(Text(text="again"))
+                listener.spin_once(0.01)
+                talker.spin_once(0)
+
+            wait_until(lambda: listener.heard.queue, 10, "a message at the listener", step=again)
+            assert listener.heard.queue[0].text == "first", "the first message was lost"
         finally:
             listener.close(0)
