@@ -29,6 +29,16 @@ def pose(z_mm: float, stamp_ns: int) -> RobotPose:
     return RobotPose(stamp_ns=stamp_ns, x_mm=20.0, y_mm=20.0, z_mm=z_mm)
 
 
+def hold(h: NodeHarness, z_mm: float, seconds: float, rate_hz: float = 125.0) -> None:
+    """Advance ``seconds`` with the arm held at ``z_mm``, its pose published at a robot's rate: the simulated camera
+    renders only as far as it has heard of the arm (a single pose would read as a pose stream running late)."""
+    n = max(1, round(seconds * rate_hz))
+    start = h.clock.now_ns()
+    for k in range(1, n + 1):
+        h.publish("robot/pose", pose(z_mm, h.clock.now_ns()))
+        h.advance((start + round(k * seconds * 1e9 / n) - h.clock.now_ns()) / 1e9)  # no drift: ends on time
+
+
 # ------------------------------------------------------------------------------------------- tracker node, sim
 
 
@@ -37,9 +47,9 @@ def test_indenters_published_once_zeroed_at_the_camera_rate() -> None:
     h.publish("robot/pose", pose(40.0, h.clock.now_ns()))  # 10 mm above the sample
     status = h.published("camera/status")
     assert status and status[-1].state == "ok" and "zeroing" in status[-1].message
-    h.advance(0.9)
+    hold(h, 40.0, 0.9)
     assert not h.published("camera/indenters")  # 28 frames: the zero reference needs 30
-    h.advance(1.1)
+    hold(h, 40.0, 1.1)
     msgs = h.published("camera/indenters", IndenterDisplacements)
     assert 25 <= len(msgs) <= 32
     seqs = [m.frame_seq for m in msgs]
@@ -47,7 +57,7 @@ def test_indenters_published_once_zeroed_at_the_camera_rate() -> None:
     assert all(b.stamp_ns - a.stamp_ns == round(1e9 / 30) for a, b in zip(msgs, msgs[1:], strict=False))
     assert all(all(m.valid) for m in msgs)
     assert max(abs(d) for m in msgs for d in m.displacement_mm) < 0.03  # off the sample: at rest
-    h.advance(1.0)
+    hold(h, 40.0, 1.0)
     s = h.published("camera/status")[-1]
     assert s.message == "" and s.counters["processed"] >= 89 and s.counters["dropped"] == 0
     h.close()
@@ -55,10 +65,8 @@ def test_indenters_published_once_zeroed_at_the_camera_rate() -> None:
 
 def test_displacements_follow_the_rendered_truth() -> None:
     h = NodeHarness(CameraTracker, {"phantom": SPRINGS[0.37], "tilt_deg": 12.0, "sim_errors": "ideal"})
-    h.publish("robot/pose", pose(40.0, h.clock.now_ns()))
-    h.advance(1.2)
-    h.publish("robot/pose", pose(30.0 - 6.0, h.clock.now_ns()))  # 6 mm into the sample
-    h.advance(2.0)
+    hold(h, 40.0, 1.2)
+    hold(h, 30.0 - 6.0, 2.0)  # 6 mm into the sample
     sim = h.node.sim
     assert sim is not None and sim.truth is not None
     last = h.published("camera/indenters")[-15:]
@@ -71,10 +79,8 @@ def test_displacements_follow_the_rendered_truth() -> None:
 def test_reversed_image_direction() -> None:
     """direction -1 (spheres move to smaller x as the indenters go in): rendered and tracked consistently."""
     h = NodeHarness(CameraTracker, {"phantom": SPRINGS[0.29], "direction": -1.0, "sim_errors": "ideal"})
-    h.publish("robot/pose", pose(40.0, h.clock.now_ns()))
-    h.advance(1.2)
-    h.publish("robot/pose", pose(30.0 - 8.0, h.clock.now_ns()))
-    h.advance(2.0)
+    hold(h, 40.0, 1.2)
+    hold(h, 30.0 - 8.0, 2.0)
     sim = h.node.sim
     assert sim is not None and sim.truth is not None and sim.truth.displacement_mm.min() > 4.0
     last = h.published("camera/indenters")[-1]
@@ -109,8 +115,7 @@ def test_lost_marker_reaches_the_estimator_as_invalid() -> None:
 
 def test_debug_image_topic_carries_the_frame() -> None:
     h = NodeHarness(CameraTracker, {"phantom": SPRINGS[0.29], "debug_hz": 2.0})
-    h.publish("robot/pose", pose(40.0, h.clock.now_ns()))
-    h.advance(2.0)
+    hold(h, 40.0, 2.0)
     infos = h.published("camera/debug")
     assert 3 <= len(infos) <= 5
     raw = [r for r in h.raw if r.topic == "camera/debug"][-1]
