@@ -6,6 +6,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Iterator
+from typing import Self
 
 import pytest
 import zmq
@@ -19,53 +20,34 @@ from palpa.transport import ZmqTransport
 from tests.procs import short_ipc_base, wait_until
 
 
-class SubscriptionGate:
-    """A relay in front of a socket that publishers send from (the bus's ``sub`` endpoint, or a node's direct
-    socket): XPUB towards the subscriber, XSUB towards ``upstream``. It passes messages at once but holds the
-    subscriber's subscriptions back until :meth:`open`: a subscription slowed down on its way, as a loaded machine
-    slows it."""
+class _Gate:
+    """A relay thread between a front socket (bound on a short ipc path, :attr:`endpoint`) and a back socket
+    connected to ``upstream``: what a subclass's :meth:`_pass` holds back stands for traffic slowed on its way."""
 
-    def __init__(self, upstream: str) -> None:
+    def __init__(self, upstream: str, front: int, back: int, suffix: str) -> None:
         self._ctx = zmq.Context()
-        self._front = self._ctx.socket(zmq.XPUB)
+        self._front = self._ctx.socket(front)
         self._front.linger = 0
-        self._front.bind(f"ipc://{short_ipc_base()}.gate")
-        self._back = self._ctx.socket(zmq.XSUB)
+        self._front.bind(f"ipc://{short_ipc_base()}.{suffix}")
+        self._back = self._ctx.socket(back)
         self._back.linger = 0
         self._back.connect(upstream)
         self.endpoint = self._front.getsockopt_string(zmq.LAST_ENDPOINT)
-        self.held: list[bytes] = []
-        self.opened_ns = 0
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._relay, daemon=True)
-
-    def holds(self, prefix: bytes) -> bool:
-        with self._lock:
-            return any(s[1:].startswith(prefix) for s in self.held)
-
-    def open(self) -> None:
-        with self._lock:
-            self.opened_ns = self.opened_ns or time.time_ns()
 
     def _relay(self) -> None:
         poller = zmq.Poller()
         poller.register(self._front, zmq.POLLIN)
         poller.register(self._back, zmq.POLLIN)
         while not self._stop.is_set():
-            events = dict(poller.poll(10))
-            if self._back in events:
-                self._front.send_multipart(self._back.recv_multipart())
-            if self._front in events:
-                with self._lock:
-                    self.held.append(self._front.recv())
-            with self._lock:
-                if self.opened_ns:
-                    for sub in self.held:
-                        self._back.send(sub)
-                    self.held.clear()
+            self._pass(dict(poller.poll(10)))
 
-    def __enter__(self) -> SubscriptionGate:
+    def _pass(self, events: dict[zmq.Socket[bytes], int]) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
         self._thread.start()
         return self
 
@@ -75,6 +57,38 @@ class SubscriptionGate:
         self._front.close(0)
         self._back.close(0)
         self._ctx.term()
+
+
+class SubscriptionGate(_Gate):
+    """A relay in front of a socket that publishers send from (the bus's ``sub`` endpoint, or a node's direct
+    socket): XPUB towards the subscriber, XSUB towards ``upstream``. It passes messages at once but holds the
+    subscriber's subscriptions back until :meth:`open`: a subscription slowed down on its way, as a loaded machine
+    slows it."""
+
+    def __init__(self, upstream: str) -> None:
+        super().__init__(upstream, zmq.XPUB, zmq.XSUB, "gate")
+        self.held: list[bytes] = []
+        self.opened_ns = 0
+
+    def holds(self, prefix: bytes) -> bool:
+        with self._lock:
+            return any(s[1:].startswith(prefix) for s in self.held)
+
+    def open(self) -> None:
+        with self._lock:
+            self.opened_ns = self.opened_ns or time.time_ns()
+
+    def _pass(self, events: dict[zmq.Socket[bytes], int]) -> None:
+        if self._back in events:
+            self._front.send_multipart(self._back.recv_multipart())
+        if self._front in events:
+            with self._lock:
+                self.held.append(self._front.recv())
+        with self._lock:
+            if self.opened_ns:
+                for sub in self.held:
+                    self._back.send(sub)
+                self.held.clear()
 
 
 class _Listener(palpa.Node):
@@ -200,25 +214,15 @@ def test_a_direct_subscriber_is_ready_only_once_the_publisher_has_its_subscripti
                 listener.close(0)
 
 
-class ReplyGate:
+class ReplyGate(_Gate):
     """A relay in front of the bus's latch cache (ROUTER towards the node, DEALER towards the cache) that passes
     requests at once but holds the cache's replies, in order, until :meth:`open`: a directory answer slowed down."""
 
     def __init__(self, upstream: str) -> None:
-        self._ctx = zmq.Context()
-        self._front = self._ctx.socket(zmq.ROUTER)
-        self._front.linger = 0
-        self._front.bind(f"ipc://{short_ipc_base()}.latch")
-        self._back = self._ctx.socket(zmq.DEALER)
-        self._back.linger = 0
-        self._back.connect(upstream)
-        self.endpoint = self._front.getsockopt_string(zmq.LAST_ENDPOINT)
+        super().__init__(upstream, zmq.ROUTER, zmq.DEALER, "latch")
         self.held: list[list[bytes]] = []
         self._ident = b""
         self._open = threading.Event()
-        self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._relay, daemon=True)
 
     def holds(self, verb: bytes) -> bool:
         with self._lock:
@@ -227,33 +231,17 @@ class ReplyGate:
     def open(self) -> None:
         self._open.set()
 
-    def _relay(self) -> None:
-        poller = zmq.Poller()
-        poller.register(self._front, zmq.POLLIN)
-        poller.register(self._back, zmq.POLLIN)
-        while not self._stop.is_set():
-            events = dict(poller.poll(10))
-            if self._front in events:
-                self._ident, *request = self._front.recv_multipart()
-                self._back.send_multipart(request)
-            with self._lock:
-                if self._back in events:
-                    self.held.append(self._back.recv_multipart())
-                if self._open.is_set() and self._ident:
-                    for reply in self.held:
-                        self._front.send_multipart([self._ident, *reply])
-                    self.held.clear()
-
-    def __enter__(self) -> ReplyGate:
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self._stop.set()
-        self._thread.join(5)
-        self._front.close(0)
-        self._back.close(0)
-        self._ctx.term()
+    def _pass(self, events: dict[zmq.Socket[bytes], int]) -> None:
+        if self._front in events:
+            self._ident, *request = self._front.recv_multipart()
+            self._back.send_multipart(request)
+        with self._lock:
+            if self._back in events:
+                self.held.append(self._back.recv_multipart())
+            if self._open.is_set() and self._ident:
+                for reply in self.held:
+                    self._front.send_multipart([self._ident, *reply])
+                self.held.clear()
 
 
 def test_a_direct_subscriber_waits_for_the_directory_to_name_its_publishers(ipc_bus: BusAddress) -> None:

@@ -394,6 +394,21 @@ def moving_driver(start_timeout_s: float = 2.0, command_timeout_s: float = 10.0)
     return drv
 
 
+def test_a_kick_gap_near_the_watchdog_s_limit_is_told_as_the_watchdog() -> None:
+    """The controller times a kick from its arrival, the driver from its sending: a loaded run stopped by the
+    watchdog when the driver had measured 0.99 s of its 1 s (the test above), and was told 'not the watchdog'."""
+    drv = URRtdeDriver("127.0.0.1", watchdog_hz=1.0)
+    now = time.monotonic()
+    for gap, watchdog in ((1.2, True), (0.99, True), (0.91, True), (0.85, False), (0.3, False)):
+        drv._last_kick, drv._kick_gap = now - 0.1, gap
+        cause = drv._stop_cause(now)
+        assert cause.startswith("RTDE watchdog") is watchdog and f"{gap:.2f} s" in cause, (gap, cause)
+    drv._kick_gap = 0.99
+    assert "within 0.1 s of the 1 s it allows" in drv._stop_cause(now)
+    drv._kick_gap = 1.2
+    assert "over the 1 s it allows" in drv._stop_cause(now)
+
+
 def test_a_path_the_controller_never_starts_latches_a_fault_after_the_start_timeout() -> None:
     drv = moving_driver(start_timeout_s=2.0)
     drv._t_move = time.monotonic() - 1.9
