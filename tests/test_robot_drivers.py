@@ -386,6 +386,36 @@ class _Receive:
         return self.runtime_state
 
 
+class _Sending(_Control):
+    """A control interface that takes paths (and records them) and whose register never moves."""
+
+    def __init__(self) -> None:
+        super().__init__(_Path(False))
+        self.sent: list[list[list[float]]] = []
+
+    def moveL(self, path: list[list[float]], asynchronous: bool) -> bool:  # noqa: N802
+        self.sent.append(path)
+        return True
+
+    def setWatchdog(self, hz: float) -> None:  # noqa: N802
+        pass
+
+
+def test_a_path_that_goes_nowhere_is_done_without_being_sent() -> None:
+    """A path to where the arm rests (a touch-off's rest over its first point, the arm homed there) ends within a
+    tick of the controller, often before the driver reads the progress register after moveL returns; the register
+    then never changed and the driver faulted "the path did not start within 10 s" (a loaded suite run)."""
+    drv = URRtdeDriver("127.0.0.1", start_timeout_s=2.0)
+    rc = _Sending()
+    drv._rc = rc  # no receive stream: state() answers the last state, the arm at rest at the origin
+    drv.move_path([PathPoint(0.0, 0.0, 0.005, 5.0, 100.0), PathPoint(0.0, 0.0, 0.0, 5.0, 100.0)])
+    assert not rc.sent and drv.progress().status is MotionStatus.DONE and drv.progress().index == 1
+    drv.move_path([PathPoint(0.0, 0.0, 0.005, 5.0, 100.0), PathPoint(0.0, 0.0, 1.0, 5.0, 100.0)])
+    assert len(rc.sent) == 1 and drv.progress().status is MotionStatus.MOVING  # one that goes somewhere is sent
+    drv.move_path([PathPoint(0.0, 0.0, 0.0, 5.0, 100.0)])
+    assert len(rc.sent) == 2, "a path to where the arm is while it moves is sent: it replaces the move"
+
+
 def moving_driver(start_timeout_s: float = 2.0, command_timeout_s: float = 10.0) -> URRtdeDriver:
     """A driver as move_path leaves it (no robot: its status is driven through _poll_path by fake interfaces)."""
     drv = URRtdeDriver("127.0.0.1", start_timeout_s=start_timeout_s, command_timeout_s=command_timeout_s)

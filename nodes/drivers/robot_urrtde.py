@@ -49,6 +49,9 @@ _RECEIVE_FIELDS = ["timestamp", "actual_TCP_pose", "actual_TCP_speed", "actual_T
                    "safety_mode", "runtime_state", "robot_status_bits", "safety_status_bits"]
 _SAFETY_MODES_OK = (1, 2)  # NORMAL, REDUCED
 _RUNTIME_PLAYING = 2  # RTDE runtime_state
+_ARRIVED_MM = 0.01
+"""A path whose every waypoint is this close to a TCP at rest (under 1 mm/s) goes nowhere: it is done without being
+sent (move_path)."""
 _WATCHDOG_LATENCY_S = 0.05
 """The least slack granted between a kick's sending and its arrival when telling a watchdog stop (_stop_cause)."""
 
@@ -181,7 +184,8 @@ class URRtdeDriver:
 
     # -------------------------------------------------------------- commands
     def move_path(self, points: Sequence[PathPointLike]) -> None:
-        start = self.state().pose[:3]
+        st = self.state()
+        start = st.pose[:3]
         path = checked_path(points, self.max_speed_mm_s, self.max_accel_mm_s2, (start[0], start[1], start[2]))
         o, r = self.offset, self.tool_rotvec
         ur_path = [[(p.x_mm + o[0]) / 1000, (p.y_mm + o[1]) / 1000, (p.z_mm + o[2]) / 1000, r[0], r[1], r[2],
@@ -192,6 +196,13 @@ class URRtdeDriver:
                 raise RobotDriverError(f"UR at {self.host}: not connected; call connect() first")
             if self._status in _LATCHED:
                 raise RobotDriverError(f"UR at {self.host}: cannot move: {self._status.value}: {self._message}")
+            still = not self._moving and math.hypot(*st.speed_mm_s[:3]) < _ARRIVED_MM * 100
+            if still and all(math.dist((p.x_mm, p.y_mm, p.z_mm), start) <= _ARRIVED_MM for p in path):
+                # already there: a path that goes nowhere ends within a tick or two of the controller, often before
+                # the progress register can be read after moveL returns, and would then look never started
+                self._count, self._index, self._moving = len(path), len(path) - 1, False
+                self._status, self._message = MotionStatus.DONE, "already at the path's end: nothing sent"
+                return
             ok = self._bounded(lambda: self._rc.moveL(ur_path, True), "moveL(path)")
             if not ok:
                 self._poll()
