@@ -90,34 +90,34 @@ def directory_entry(key: bytes, payload: bytes) -> tuple[str, bool, bytes | None
 
 
 def follow_directory(sub: zmq.Socket[bytes], peers: set[str], key: bytes, payload: bytes,
-                     bus_server_key: bytes | None) -> bool:
+                     bus_server_key: bytes | None) -> str | None:
     """Connect ``sub`` to a direct publisher the cache told about (once per endpoint, recorded in ``peers``), with
     its CURVE key when the bus is encrypted (``bus_server_key``: the key ``sub`` uses for the bus, put back after).
     A withdrawn one is not disconnected: its last messages may still be on their way (a disconnect would drop
     them); ZeroMQ keeps retrying a dead endpoint at most every few seconds, and a publisher that comes back there
-    is received once, not twice. True when a new connection was made."""
+    is received once, not twice. The endpoint when a new connection was made, else None."""
     entry = directory_entry(key, payload)
     if entry is None:
-        return False
+        return None
     endpoint, alive, server_key = entry
     if not alive or endpoint in peers:
-        return False
+        return None
     if (bus_server_key is None) != (server_key is None):
         log.warning("cannot connect to direct publisher %s: it is %s and this node's bus is %s", endpoint,
                     *(("encrypted", "not") if server_key else ("not encrypted", "encrypted")))
-        return False
+        return None
     try:
         if server_key is not None:  # libzmq copies the options at connect: later reconnects keep this key
             sub.curve_serverkey = server_key
         sub.connect(endpoint)
     except zmq.ZMQError as exc:
         log.warning("cannot connect to direct publisher %s: %s", endpoint, exc)
-        return False
+        return None
     finally:
         if server_key is not None and bus_server_key is not None:
             sub.curve_serverkey = bus_server_key
     peers.add(endpoint)
-    return True
+    return endpoint
 
 
 def own_address_towards(host: str) -> str:

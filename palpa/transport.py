@@ -26,7 +26,6 @@ from palpa.direct import (
     DIRECTORY_PREFIX,
     DirectSocket,
     SubscriberSet,
-    directory_entry,
     follow_directory,
 )
 from palpa.errors import BusError
@@ -400,12 +399,10 @@ class ZmqTransport:
 
     def _follow(self, key: bytes, payload: bytes) -> None:
         """Connect to a direct publisher the cache told of, and probe it (palpa.reach)."""
-        entry = directory_entry(key, payload)
-        if entry is None:
-            return
         self.reach.told(key, payload)
-        if follow_directory(self._sub, self._peers, key, payload, self._bus_server_key):
-            self.reach.connected(entry[0])
+        endpoint = follow_directory(self._sub, self._peers, key, payload, self._bus_server_key)
+        if endpoint is not None:
+            self.reach.connected(endpoint)
 
     def _takes_direct(self, key: bytes) -> bool:
         """Whether a subscription here takes the topic of a direct publisher's announcement (``key``): a recorder

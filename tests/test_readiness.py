@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Self
 
 import pytest
@@ -157,13 +157,36 @@ def through_gate(monkeypatch: pytest.MonkeyPatch, publisher: str, gate: Subscrip
     follow = palpa.transport.follow_directory
 
     def via_gate(sub: zmq.Socket[bytes], peers: set[str], key: bytes, payload: bytes,
-                 bus_key: bytes | None) -> bool:
+                 bus_key: bytes | None) -> str | None:
         if key.endswith(b"\0" + publisher.encode()) and payload and (only is None or sub is only):
             key = key[: -len(publisher)] + gate.endpoint.encode()
             payload = gate.endpoint.encode()
-        return bool(follow(sub, peers, key, payload, bus_key))
+            return publisher if follow(sub, peers, key, payload, bus_key) else None  # the name, not the way round
+        return follow(sub, peers, key, payload, bus_key)
 
     monkeypatch.setattr(palpa.transport, "follow_directory", via_gate)
+
+
+def listener_behind(gate: _Gate, bus: BusAddress, talker: palpa.Node, held: Callable[[], bool],
+                    what: str) -> _Listener:
+    """Build the listener (in a thread: its constructor waits to be ready) while ``gate`` holds what it waits for;
+    once ``held()`` says so, give it half a second more to say it is ready anyway (a listener that does not wait
+    for it would), then open the gate. Returns the listener, ready."""
+    built: list[_Listener] = []
+    thread = threading.Thread(target=lambda: built.append(_Listener(name="listener", bus=bus, heartbeat_s=0)))
+    thread.start()
+    try:
+        wait_until(lambda: built or held(), 20, f"the listener ready, or {what}", step=lambda: talker.spin_once(0.01))
+        for _ in range(50):
+            if built:
+                break
+            talker.spin_once(0.01)
+        gate.open()
+        wait_until(lambda: built, 20, "the listener ready", step=lambda: talker.spin_once(0.01))
+    finally:
+        gate.open()  # never leave the constructor waiting
+        thread.join(20)
+    return built[0]
 
 
 def test_a_direct_subscriber_is_ready_only_once_the_publisher_has_its_subscriptions(
@@ -180,22 +203,8 @@ def test_a_direct_subscriber_is_ready_only_once_the_publisher_has_its_subscripti
         assert endpoint
         with SubscriptionGate(endpoint) as gate:
             through_gate(monkeypatch, endpoint, gate)
-            built: list[palpa.Node] = []
-            thread = threading.Thread(target=lambda: built.append(
-                _Listener(name="listener", bus=ipc_bus, heartbeat_s=0)))
-            thread.start()
-            try:
-                # a listener that waits for its direct publisher shows it: the gate holds its direct probe
-                wait_until(lambda: built or gate.holds(REACH_PROBES), 20, "the listener ready, or its probe held",
-                           step=lambda: talker.spin_once(0.01))
-                if not built:
-                    gate.open()
-                wait_until(lambda: built, 20, "the listener ready", step=lambda: talker.spin_once(0.01))
-            finally:
-                gate.open()  # never leave the constructor waiting
-                thread.join(20)
-            listener = built[0]
-            assert isinstance(listener, _Listener)
+            # a listener that waits for its direct publisher shows it: the gate holds its direct probe
+            listener = listener_behind(gate, ipc_bus, talker, lambda: gate.holds(REACH_PROBES), "its probe held")
             try:
                 wait_until(lambda: transport.heard_join("listener"), 10, "the talker to hear the listener's probe",
                            step=lambda: talker.spin_once(0.01))
@@ -250,25 +259,8 @@ def test_a_direct_subscriber_waits_for_the_directory_to_name_its_publishers(ipc_
     with palpa.Node(name="talker", bus=ipc_bus, heartbeat_s=0) as talker, ReplyGate(ipc_bus.latch) as gate:
         pub = talker.publisher("chatter", Text, direct=True)
         assert pub.direct
-        built: list[palpa.Node] = []
-        thread = threading.Thread(target=lambda: built.append(
-            _Listener(name="listener", bus=BusAddress(ipc_bus.pub, ipc_bus.sub, gate.endpoint), heartbeat_s=0)))
-        thread.start()
-        try:
-            wait_until(lambda: built or gate.holds(b"PONG"), 20, "the listener ready, or its directory answer held",
-                       step=lambda: talker.spin_once(0.01))
-            for _ in range(50):  # a listener not waiting for the directory says it is ready now
-                if built:
-                    break
-                talker.spin_once(0.01)
-            if not built:
-                gate.open()
-            wait_until(lambda: built, 20, "the listener ready", step=lambda: talker.spin_once(0.01))
-        finally:
-            gate.open()  # never leave the constructor waiting
-            thread.join(20)
-        listener = built[0]
-        assert isinstance(listener, _Listener)
+        listener = listener_behind(gate, BusAddress(ipc_bus.pub, ipc_bus.sub, gate.endpoint), talker,
+                                   lambda: gate.holds(b"PONG"), "its directory answer held")
         try:
             pub.publish(Text(text="first"))
             gate.open()
