@@ -30,7 +30,7 @@ from nodes.pressure_controller import PressureController  # noqa: E402
 from nodes.robot_scanner import RobotScanner  # noqa: E402
 from nodes.stiffness_estimator import AirfloatStiffnessEstimator  # noqa: E402
 from palpa.testing import GraphHarness  # noqa: E402
-from palpa.wire import COUNTER_MAX, msgpack_array  # noqa: E402
+from palpa.net.wire import COUNTER_MAX, msgpack_array  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 PHANTOM = str(REPO / "phantoms" / "airfloat_tumours.yaml")

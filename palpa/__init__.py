@@ -9,14 +9,14 @@ Layering (imports point downwards only)::
                      palpa.node_time; readiness, heartbeats and bus logging in palpa.presence)
     palpa.service    services (request/reply over the bus; callers in palpa.service_client), run-time
                      parameters on top of them (palpa.params_runtime)
-    palpa.transport  ZeroMQ (and, in palpa.testing, in-memory) transports
-    palpa.bus        the XSUB/XPUB proxy and latched-value cache
-    palpa.wire       the envelope; palpa.message the typed-message base and registry
+    palpa.net.transport  ZeroMQ (and, in palpa.testing, in-memory) transports
+    palpa.net.bus        the XSUB/XPUB proxy and latched-value cache
+    palpa.net.wire       the envelope; palpa.message the typed-message base and registry
 
 This package knows nothing about palpation: the domain lives in ``messages``, ``models`` and ``nodes``.
 """
 
-from palpa.address import BusAddress
+from palpa.net.address import BusAddress
 from palpa.clock import Clock, MockClock, SystemClock
 from palpa.errors import BusError, DecodeError, LaunchError, PalpaError, ParamError, RegistryError
 from palpa.message import Finite, Message, json_schema, lookup, registered

@@ -28,13 +28,13 @@ from typing import Any
 
 import msgspec
 
-from palpa.address import from_env
+from palpa.net.address import from_env
 from palpa.clock import MockClock
 from palpa.errors import DecodeError, PalpaError
 from palpa.node import Node
 from palpa.testing import MemoryBus, MemoryTransport
-from palpa.transport import Delivery, SendFn, Transport, TransportOptions, ZmqTransport
-from palpa.wire import parse_envelope
+from palpa.net.transport import Delivery, SendFn, Transport, TransportOptions, ZmqTransport
+from palpa.net.wire import parse_envelope
 
 __all__ = ["Composition", "ComposedNode", "GraphSpec", "main"]
 

@@ -17,8 +17,8 @@ import msgspec
 from palpa.clock import Clock
 from palpa.dispatch import Dispatch, Spinner
 from palpa.message import Message
-from palpa.transport import Transport
-from palpa.wire import Header, HeaderTemplate, TopicStats, msgpack_array
+from palpa.net.transport import Transport
+from palpa.net.wire import Header, HeaderTemplate, TopicStats, msgpack_array
 
 __all__ = ["DEFAULT_BATCH", "MsgInfo", "Publisher", "RawMessage", "Subscription", "Timer", "handler_type",
            "wants_info"]

@@ -11,8 +11,8 @@ taken in. Time moves from ``now`` only when
   subscriber only once every other participant's publisher socket has heard that probe (ClockAck ``heard``), so
   that no message is dropped on its way to it for want of a route; until then time waits, and its accounting
   starts when the last one heard it; likewise a subscriber of a topic another participant publishes direct
-  (palpa.direct) counts on that publisher only once it reports that the publisher's direct socket answered its
-  probe (ClockAck ``reached``, palpa.reach), and its accounting of that publisher's direct topics starts then;
+  (palpa.net.direct) counts on that publisher only once it reports that the publisher's direct socket answered its
+  probe (ClockAck ``reached``, palpa.net.reach), and its accounting of that publisher's direct topics starts then;
 * nothing is in flight: for every topic, each subscriber has taken in at least as many messages as its
   publishers sent since the subscriber's accounting started (its join, or the start of time: messages published
   before a subscriber was there never reach it);

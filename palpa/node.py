@@ -33,7 +33,7 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar, Protocol, TypeVar, cast
 
 from palpa import env as palpa_env
-from palpa.address import BusAddress, from_env
+from palpa.net.address import BusAddress, from_env
 from palpa.clock import Clock, SystemClock, TopicClock
 from palpa.dispatch import Dispatch
 from palpa.endpoints import (
@@ -63,8 +63,8 @@ from palpa.presence import LOG_TEXT_MAX as LOG_TEXT_MAX  # re-exported: it was d
 from palpa.receive import Receiver
 from palpa.service import DEFAULT_TIMEOUT_S, Responder, Service
 from palpa.service_client import Client
-from palpa.transport import Transport, TransportOptions, ZmqTransport
-from palpa.wire import Header, TopicStats, encode_header
+from palpa.net.transport import Transport, TransportOptions, ZmqTransport
+from palpa.net.wire import Header, TopicStats, encode_header
 
 __all__ = ["DEFAULT_BATCH", "MsgInfo", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
 
@@ -249,7 +249,7 @@ class Node:
         ``Publisher.flush()`` or the node's loop); ``batch=1`` never batches.
 
         ``direct=True`` sends straight to the subscribers instead of through the bus's proxy (lower latency, see
-        :mod:`palpa.direct`); None leaves it to the transport options (launch ``transport: {direct: [...]}``).
+        :mod:`palpa.net.direct`); None leaves it to the transport options (launch ``transport: {direct: [...]}``).
         """
         resolved = self.resolve(topic)
         existing = self._pubs.get(resolved)

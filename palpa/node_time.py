@@ -22,8 +22,8 @@ from palpa.naming import RUNTIME_PREFIX
 from palpa.nodeapi import NodeApi
 from palpa.receive import Receiver
 from palpa.runtime_msgs import CLOCK_ACK_TOPIC, CLOCK_TOPIC, ClockAck, ClockTick, tick_topic
-from palpa.transport import ZmqTransport
-from palpa.wire import TopicStats
+from palpa.net.transport import ZmqTransport
+from palpa.net.wire import TopicStats
 
 __all__ = ["EXIT_CLOCK_LOST", "SimTime", "Timers", "clock_timeout_ns"]
 
@@ -127,7 +127,7 @@ class SimTime:
         self._node = node
         self._clock = clock
         transport = node.transport
-        # straight to the clock (palpa.direct): one ZeroMQ hop instead of two, at every instant of a lockstep
+        # straight to the clock (palpa.net.direct): one ZeroMQ hop instead of two, at every instant of a lockstep
         ack_pub = self._ack_pub = node.publisher(CLOCK_ACK_TOPIC, ClockAck, batch=1,
                                                  direct=isinstance(transport, ZmqTransport))
         self._timers = timers

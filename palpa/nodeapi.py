@@ -14,8 +14,8 @@ from palpa.clock import Clock
 from palpa.dispatch import Dispatch
 from palpa.endpoints import Publisher, RawMessage, Timer
 from palpa.message import Message
-from palpa.transport import Transport
-from palpa.wire import Header
+from palpa.net.transport import Transport
+from palpa.net.wire import Header
 
 __all__ = ["NodeApi"]
 

@@ -14,14 +14,14 @@ import time
 from collections.abc import Mapping
 from typing import Any
 
-from palpa.direct import JOIN_PROBE_PREFIX, REACH_PREFIX
+from palpa.net.direct import JOIN_PROBE_PREFIX, REACH_PREFIX
 from palpa.endpoints import Publisher, RawMessage
 from palpa.nodeapi import NodeApi
 from palpa.receive import Receiver
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat, LogRecord, TopicCounters
 from palpa.service import Service
-from palpa.transport import ZmqTransport
-from palpa.wire import Header, encode_header
+from palpa.net.transport import ZmqTransport
+from palpa.net.wire import Header, encode_header
 
 __all__ = ["JOIN_TIMEOUT_S", "LOG_TEXT_MAX", "BusLogHandler", "Heartbeats", "confirm_subscriptions", "take_reach_answers"]
 
@@ -48,9 +48,9 @@ def confirm_subscriptions(node: NodeApi, rx: Receiver, incarnation: int, timeout
     too (one connection from the proxy delivers in order), so one that has heard it (``heard_join``) reaches
     us: the lockstep clock waits for that (ClockAck ``probe``/``heard``), as the player does for ``wait_for``.
 
-    Topics published direct (palpa.direct) do not pass the proxy: then wait as well until the cache has answered
+    Topics published direct (palpa.net.direct) do not pass the proxy: then wait as well until the cache has answered
     every directory request (``PING``/``PONG``) and every direct publisher it named has answered this node's
-    direct probe (palpa.reach): each of them has our subscriptions. Publishers announced after that are probed
+    direct probe (palpa.net.reach): each of them has our subscriptions. Publishers announced after that are probed
     when they appear; the lockstep clock waits for those answers (palpa.lockstep), nothing on the wall clock does
     (docs/wire.md, *Direct topics*). Only on a real bus (in memory,
     subscriptions are immediate) and while it is connected."""
@@ -92,7 +92,7 @@ def confirm_subscriptions(node: NodeApi, rx: Receiver, incarnation: int, timeout
 
 
 def take_reach_answers(node: NodeApi, rx: Receiver) -> None:
-    """Hand the direct publishers' answers to this node's direct probes to its transport (palpa.reach), from
+    """Hand the direct publishers' answers to this node's direct probes to its transport (palpa.net.reach), from
     before setup on: a connection made while setting up is probed too."""
     t = node.transport
     if isinstance(t, ZmqTransport):

@@ -19,8 +19,8 @@ import msgspec
 from palpa.dispatch import Dispatch
 from palpa.endpoints import MsgInfo, RawMessage, Subscription
 from palpa.errors import DecodeError
-from palpa.transport import Delivery
-from palpa.wire import (
+from palpa.net.transport import Delivery
+from palpa.net.wire import (
     COUNTER_MAX,
     MAX_MSG_BYTES,
     MAX_TOPIC_BYTES,
@@ -57,7 +57,7 @@ _NO_ROUTE = object()
 class Receiver:
     """Routes a node's received envelopes to its subscriptions; one per node.
 
-    ``max_bytes`` bounds an envelope (0: :data:`palpa.wire.MAX_MSG_BYTES`); ``log`` gets the rate-limited reports
+    ``max_bytes`` bounds an envelope (0: :data:`palpa.net.wire.MAX_MSG_BYTES`); ``log`` gets the rate-limited reports
     of bad input."""
 
     def __init__(self, dispatch: Dispatch, log: logging.Logger, max_bytes: int = 0) -> None:

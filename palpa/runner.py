@@ -4,7 +4,7 @@
 
     --name NAME  --namespace NS  --bus ADDRESS  -p/--param KEY=VALUE (VALUE is YAML: 3, 2.5, true, [1, 2])
     --params-json JSON  --params-file FILE.yaml  --remap FROM:=TO  --sim-clock  --debug
-    --sndhwm N  --rcvhwm N  --busy-poll-us US  --direct TOPIC   (transport options: palpa.transport)
+    --sndhwm N  --rcvhwm N  --busy-poll-us US  --direct TOPIC   (transport options: palpa.net.transport)
 
 SIGINT and SIGTERM ask the node to stop; it finishes its current callback, runs ``on_shutdown`` and closes its
 sockets with a bounded linger. The process exits with ``node.exit_code`` (0 unless the node set it).
@@ -28,7 +28,7 @@ from typing import Any
 from palpa.errors import PalpaError
 from palpa.node import Node
 from palpa.params import Params, describe_params, parse_param_value, read_params_file
-from palpa.transport import TransportOptions
+from palpa.net.transport import TransportOptions
 
 __all__ = ["node_arg_parser", "params_from_args", "parse_remaps", "run_node", "run_node_code"]
 

@@ -24,7 +24,7 @@ def tick_topic(node: str) -> str:
 
 
 class TopicCounters(msgspec.Struct, frozen=True, kw_only=True):
-    """Receive counters of one subscribed topic (see palpa.wire.TopicStats)."""
+    """Receive counters of one subscribed topic (see palpa.net.wire.TopicStats)."""
 
     received: int = 0
     gaps: int = 0
@@ -49,7 +49,7 @@ class Heartbeat(Message, frozen=True, kw_only=True):
     uptime_s: float
     state: str = "running"
     direct: list[str] = []
-    """Published topics sent straight to their subscribers, past the proxy (palpa.direct)."""
+    """Published topics sent straight to their subscribers, past the proxy (palpa.net.direct)."""
     services: dict[str, str] = {}
     """Service name -> 'Request -> Response' (palpa.service)."""
 
@@ -88,8 +88,8 @@ class ClockAck(Message, frozen=True, kw_only=True):
     node's subscriptions through the bus (``<node>/<pid>.<incarnation>``, palpa.presence; empty on a bus without
     one); the other participants must say they have ``heard`` it (``heard``: the probes this node's publisher socket
     heard since its previous ack) before the clock counts on them to reach it. ``direct``/``direct_at``: the topics it
-    publishes straight to their subscribers (palpa.direct) and the endpoint they leave from; ``reached``: the
-    direct endpoints that answered this node's direct probes since its previous ack (palpa.reach): the clock
+    publishes straight to their subscribers (palpa.net.direct) and the endpoint they leave from; ``reached``: the
+    direct endpoints that answered this node's direct probes since its previous ack (palpa.net.reach): the clock
     counts on a subscriber of a direct topic only once it has reached every participant publishing it."""
 
     node: str

@@ -36,7 +36,7 @@ import msgspec
 from palpa.endpoints import RawMessage
 from palpa.errors import PalpaError, ParamError
 from palpa.message import Message
-from palpa.wire import Header
+from palpa.net.wire import Header
 
 if TYPE_CHECKING:
     from palpa.nodeapi import NodeApi

@@ -34,7 +34,7 @@ from palpa.service import (
     reply_topic,
     request_topic,
 )
-from palpa.wire import Header
+from palpa.net.wire import Header
 
 if TYPE_CHECKING:
     from palpa.nodeapi import NodeApi

@@ -9,7 +9,7 @@ has sent and taken in (:class:`~palpa.runtime_msgs.ClockAck`); the source moves 
 once no timer is left due and no message is in flight (:mod:`palpa.lockstep`), so the graph sees the timeline a
 composition (:mod:`palpa.compose`) gives it: timers at their exact deadlines, every message handled at the
 instant it was sent. Each instant goes only to the nodes with a timer due at it, each on its own topic
-(``_palpa/tick/<node>/``; ticks and acks go straight between clock and node, palpa.direct, not through the
+(``_palpa/tick/<node>/``; ticks and acks go straight between clock and node, palpa.net.direct, not through the
 proxy); the others take it from the messages they handle (``Header.at``), and ``_palpa/clock``
 carries the held start, the release and, once a wall second, the current time. Time starts only when every node
 named in ``participants`` (the launcher fills in the file's sim-clock nodes) has set up: until then the source
@@ -55,7 +55,7 @@ from palpa.runtime_msgs import (
     Heartbeat,
     tick_topic,
 )
-from palpa.transport import ZmqTransport
+from palpa.net.transport import ZmqTransport
 
 __all__ = ["ClockSource"]
 
@@ -288,7 +288,7 @@ class ClockSource(Node):
             pub.publish(tick)
 
     def _tick_pub(self, node: str) -> tuple[Publisher[ClockTick], bytes]:
-        """The publisher of ``node``'s instants, straight to it (palpa.direct: one ZeroMQ hop instead of two), and
+        """The publisher of ``node``'s instants, straight to it (palpa.net.direct: one ZeroMQ hop instead of two), and
         its topic as the wire has it (looked up at every instant)."""
         entry = self._tick_pubs.get(node)
         if entry is None:

@@ -20,7 +20,7 @@ from palpa.clock import MockClock
 from palpa.message import Message, lookup
 from palpa.node import Node, Publisher, RawMessage
 from palpa.params import Params
-from palpa.transport import Delivery, SendFn
+from palpa.net.transport import Delivery, SendFn
 
 __all__ = ["GraphHarness", "MemoryBus", "MemoryTransport", "NodeHarness"]
 

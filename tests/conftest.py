@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from palpa.address import BusAddress
-from palpa.bus import Bus
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
 from tests.procs import ProcessGroup, bus_spec
 
 # launches started by tests note their bus here, not in the user's own current-bus file (palpa.current)

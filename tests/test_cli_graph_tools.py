@@ -17,8 +17,8 @@ import pytest
 
 import palpa
 from messages import EStop, Text
-from palpa.address import BusAddress
-from palpa.bus import Bus
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
 from palpa.cli.common import message_from_yaml
 from palpa.cli.main import main
 from palpa.current import announce, find_bus, withdraw

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from palpa.address import BusAddress
+from palpa.net.address import BusAddress
 from palpa.cli.launch import describe
 from palpa.errors import LaunchError
 from palpa.launch import json_schema, load_launch, parse_overrides

@@ -129,7 +129,7 @@ def test_a_node_reports_what_it_handled_before_it_blocks_for_input() -> None:
     waited for the blocking poll's timeout at every simulated instant). A sim-clock node waits for input in its
     blocking poll only (which returns at once when input is there): one poll per wake-up."""
     from palpa.testing import MemoryTransport
-    from palpa.transport import Delivery, SendFn
+    from palpa.net.transport import Delivery, SendFn
 
     events: list[str] = []
 

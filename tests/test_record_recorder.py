@@ -28,7 +28,7 @@ from palpa.record.recorder import Recorder
 from palpa.record.testing import check_official
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat, LogRecord
 from palpa.testing import NodeHarness
-from palpa.wire import Header, encode_header
+from palpa.net.wire import Header, encode_header
 
 
 def _frames(topic: str, type_name: str, seq: int, payload: bytes, node: str = "ext", latched: bool = False,

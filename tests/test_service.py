@@ -21,7 +21,7 @@ from palpa.service import (
 )
 from palpa.service_client import Future, set_wait_pump
 from palpa.testing import GraphHarness, MemoryBus
-from palpa.wire import Header
+from palpa.net.wire import Header
 
 
 class AddRequest(palpa.Message, frozen=True, kw_only=True):

@@ -14,7 +14,7 @@ import yaml
 import palpa
 from models.phantom import load_phantom
 from nodes.demo import Talker
-from palpa.address import BusAddress
+from palpa.net.address import BusAddress
 from palpa.cli.main import main
 from palpa.params import convert_params
 from palpa.record.info import bag_info, format_info

@@ -18,7 +18,7 @@ import palpa
 from messages import EStop, Inclusions, ProbeHeights, RobotPose, ScanPlan, StiffnessMap
 from messages.robot import PlanWaypoint
 from nodes.foxglove_views import ScanViews
-from palpa.address import BusAddress
+from palpa.net.address import BusAddress
 from palpa.errors import ParamError
 from palpa.testing import GraphHarness
 from palpa.viz import SUBPROTOCOL, Bridge

@@ -13,7 +13,7 @@ from typing import Any
 import msgspec
 
 from palpa import env as palpa_env
-from palpa.address import BusAddress
+from palpa.net.address import BusAddress
 from palpa.current import find_bus
 from palpa.errors import PalpaError
 from palpa.launch.validate import did_you_mean

@@ -18,7 +18,7 @@ from palpa.launch.validate import did_you_mean
 from palpa.message import lookup
 from palpa.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
-from palpa.wire import TopicStats
+from palpa.net.wire import TopicStats
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -195,7 +195,7 @@ def run_echo(args: argparse.Namespace) -> int:
 def run_hz(args: argparse.Namespace) -> int:
     stamps: list[int] = []
     stats = TopicStats()
-    from palpa.wire import SequenceTracker
+    from palpa.net.wire import SequenceTracker
 
     tracker = SequenceTracker()
     started = time.monotonic()

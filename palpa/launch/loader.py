@@ -25,7 +25,7 @@ from typing import Any
 
 import msgspec
 
-from palpa.address import is_loopback_host
+from palpa.net.address import is_loopback_host
 from palpa.errors import BusError, LaunchError, ParamError
 from palpa.launch.compose import name_clock_participants
 from palpa.launch.hazards import check_hazards

@@ -30,7 +30,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 from msgspec import UNSET, Meta, Struct, UnsetType, field
 
-from palpa.options import TransportOptions
+from palpa.net.options import TransportOptions
 
 __all__ = [
     "NAME_PATTERN",

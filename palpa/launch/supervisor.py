@@ -30,8 +30,8 @@ import time
 from collections.abc import Callable
 from typing import Any, TextIO
 
-from palpa.address import BusAddress
-from palpa.bus import Bus
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
 from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
 from palpa.launch.nodeproc import REAP_GRACE_S, NodeProc

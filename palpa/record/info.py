@@ -20,7 +20,7 @@ from mcap.records import Attachment, Channel, ChunkIndex, McapRecord, Metadata
 
 from palpa.record.format import MD_DROPS, MD_NODES, MD_RECORDING, MD_RECOVERY, META_SCHEMA, BagError
 from palpa.record.reader import channel_info, iter_file
-from palpa.wire import SequenceTracker, TopicStats
+from palpa.net.wire import SequenceTracker, TopicStats
 
 __all__ = ["bag_info", "format_info"]
 

@@ -31,8 +31,8 @@ from palpa.params import convert_params
 from palpa.record.format import TopicFilter
 from palpa.record.reader import BagMessage, iter_bag, resolve_bag_paths
 from palpa.runtime_msgs import CLOCK_TOPIC, HEARTBEAT_TOPIC, ClockTick, Heartbeat
-from palpa.transport import ZmqTransport
-from palpa.wire import Header
+from palpa.net.transport import ZmqTransport
+from palpa.net.wire import Header
 
 __all__ = ["PlayerParams", "Player"]
 

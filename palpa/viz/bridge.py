@@ -27,7 +27,7 @@ import msgspec
 
 import palpa
 from palpa import env as palpa_env
-from palpa.address import is_loopback_host
+from palpa.net.address import is_loopback_host
 from palpa.errors import ParamError, RegistryError
 from palpa.message import Message, lookup
 from palpa.node import Node, Publisher, RawMessage

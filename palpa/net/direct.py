@@ -14,7 +14,7 @@ The price: a direct topic's messages do not pass the proxy, so the bus's own cap
 does not see them (a publisher's ``latched=True`` still works), and a foreign client must follow the directory
 (docs/wire.md). Messages published before a subscriber has connected are not delivered to it, as with any
 ZeroMQ PUB socket: a subscriber counts as ready only once the direct publishers known to it have its subscriptions
-(palpa.reach); one that appears later is waited for by the lockstep clock only (palpa.lockstep), and
+(palpa.net.reach); one that appears later is waited for by the lockstep clock only (palpa.lockstep), and
 :meth:`palpa.Publisher.wait_for_subscribers` tells when someone listens.
 
 On a CURVE bus (across hosts) the direct socket is a CURVE server too: it binds on this host's address on the route
@@ -41,8 +41,8 @@ import zmq
 from zmq.auth.thread import ThreadAuthenticator
 
 from palpa import env as palpa_env
-from palpa.address import BusAddress, is_loopback_host
-from palpa.wire import Header, encode_header
+from palpa.net.address import BusAddress, is_loopback_host
+from palpa.net.wire import Header, encode_header
 
 __all__ = [
     "CLIENT_KEYS_TOPIC", "DIRECTORY_PREFIX", "JOIN_PROBE_PREFIX", "REACH_PREFIX", "DirectSocket", "SubscriberSet",
@@ -56,12 +56,12 @@ JOIN_PROBE_PREFIX = b"_palpa/join/"
 JOIN_PROBE_SUB = b"\x01" + JOIN_PROBE_PREFIX
 REACH_PREFIX = b"_palpa/reach/"
 """Direct readiness probes: a subscriber subscribes ``_palpa/reach/<token>/<n>`` after connecting to a direct
-publisher, and the publisher's direct socket answers it with one message whose payload is its endpoint (palpa.reach)."""
+publisher, and the publisher's direct socket answers it with one message whose payload is its endpoint (palpa.net.reach)."""
 _REACH_SUB = b"\x01" + REACH_PREFIX
 CLIENT_KEYS_TOPIC = b"_palpa/curve/clients"
 """The cache key under which a CURVE bus publishes its authorised client keys (Z85, one a line); only the bus
 writes under ``_palpa/curve/``."""
-log = logging.getLogger("palpa.transport")
+log = logging.getLogger("palpa.net.transport")
 _IPC_MAX = 100  # sun_path holds 107 bytes
 _REFUSAL_LOG_INTERVAL_S = 5.0
 _counter = itertools.count()
@@ -325,7 +325,7 @@ class _Curve:
         self.public, self.secret = zmq.curve_keypair()
         self.ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context()
         self.allowed = _AllowedKeys()
-        self.auth = ThreadAuthenticator(self.ctx, log=logging.getLogger("palpa.direct.zap"))
+        self.auth = ThreadAuthenticator(self.ctx, log=logging.getLogger("palpa.net.direct.zap"))
         self.auth.start()
         self.auth.configure_curve_callback(domain="*", credentials_provider=self.allowed)
 

@@ -15,7 +15,7 @@ from msgspec import Meta
 
 from palpa import env as palpa_env
 from palpa.errors import BusError
-from palpa.wire import MAX_MSG_BYTES
+from palpa.net.wire import MAX_MSG_BYTES
 
 __all__ = ["TransportOptions"]
 
@@ -35,7 +35,7 @@ class TransportOptions(msgspec.Struct, frozen=True, forbid_unknown_fields=True, 
                                        "frames); larger ones are refused and counted")] = MAX_MSG_BYTES
     direct: Annotated[tuple[Annotated[str, Meta(min_length=1)], ...], Meta(
         description="topics (as on the bus, after namespace and remap) this node publishes straight to their "
-                    "subscribers instead of through the proxy: lower latency (see palpa.direct)")] = ()
+                    "subscribers instead of through the proxy: lower latency (see palpa.net.direct)")] = ()
 
     def __post_init__(self) -> None:
         # the bounds are the field annotations above; a decoded value was checked by msgspec already, a

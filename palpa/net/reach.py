@@ -1,4 +1,4 @@
-"""Whether a subscriber's subscriptions have reached its direct publishers (palpa.direct), the direct topics' side of
+"""Whether a subscriber's subscriptions have reached its direct publishers (palpa.net.direct), the direct topics' side of
 a node's readiness (palpa.presence).
 
 A subscription to a direct topic travels on the subscriber's own connection to each publisher's direct socket, not
@@ -6,11 +6,11 @@ through the proxy, so the bus's echo of a readiness probe says nothing about it.
 subscriber subscribes one more probe, ``_palpa/reach/<token>/<n>``; on that connection it follows every earlier
 subscription (one connection delivers in order; subscriptions made before the connect are sent at once when it is
 made, the probe after them). A publisher's direct socket answers every such probe it hears with one message whose
-payload is its endpoint (:meth:`palpa.direct.DirectSocket.drain`): when it comes back, the publisher has the
+payload is its endpoint (:meth:`palpa.net.direct.DirectSocket.drain`): when it comes back, the publisher has the
 subscriber's subscriptions, and the answer came the way a message comes.
 
 The subscriber waits (palpa.presence) for every publisher the directory named to it: it connects as soon as it is
-told (one it cannot connect to, palpa.direct logged why, is not waited for), and to know it has been told of all of
+told (one it cannot connect to, palpa.net.direct logged why, is not waited for), and to know it has been told of all of
 them it asks the cache ``PING`` after its ``GET``s and waits for the ``PONG``, which comes after their answers.
 Publishers announced later are probed when the subscriber connects to them, and :attr:`DirectReach.reached` lists
 every endpoint that answered, in order: the lockstep clock learns of them from the node's acks (ClockAck
@@ -29,7 +29,7 @@ from collections.abc import Callable, Sequence
 
 import zmq
 
-from palpa.direct import REACH_PREFIX, directory_entry
+from palpa.net.direct import REACH_PREFIX, directory_entry
 
 __all__ = ["DirectReach"]
 

@@ -20,8 +20,8 @@ import zmq
 import zmq.auth
 
 from palpa import env as palpa_env
-from palpa.address import BusAddress
-from palpa.direct import (
+from palpa.net.address import BusAddress
+from palpa.net.direct import (
     CLIENT_KEYS_TOPIC,
     DIRECTORY_PREFIX,
     DirectSocket,
@@ -29,15 +29,15 @@ from palpa.direct import (
     follow_directory,
 )
 from palpa.errors import BusError
-from palpa.exitflush import note_linger
-from palpa.handshake import HANDSHAKE_EVENTS, HandshakeWatch
-from palpa.keys import load_secret_key
-from palpa.options import TransportOptions
-from palpa.reach import DirectReach
+from palpa.net.exitflush import note_linger
+from palpa.net.handshake import HANDSHAKE_EVENTS, HandshakeWatch
+from palpa.net.keys import load_secret_key
+from palpa.net.options import TransportOptions
+from palpa.net.reach import DirectReach
 
 __all__ = ["Delivery", "SendFn", "Transport", "TransportOptions", "ZmqTransport", "curve_client_options"]
 
-log = logging.getLogger("palpa.transport")
+log = logging.getLogger("palpa.net.transport")
 
 SendFn = Callable[[Sequence[bytes], bool], None]
 """Sends one envelope's frames; the bool says whether the topic is latched."""
@@ -71,7 +71,7 @@ class Transport(Protocol):
     def subscribe(self, prefix: bytes, request_latched: bool, wants: Callable[[str], bool] | None = None) -> None:
         """Receive envelopes whose topic starts with ``prefix``; optionally ask the cache for its last value.
         ``wants``: which of those topics are taken (the rest may still be delivered), so that no connection is made
-        to a direct publisher (palpa.direct) for a topic no one here takes."""
+        to a direct publisher (palpa.net.direct) for a topic no one here takes."""
         ...
 
     def unsubscribe(self, prefix: bytes) -> None: ...
@@ -142,7 +142,7 @@ def curve_client_options() -> dict[str, bytes] | None:
 
 class ZmqTransport:
     """A PUB socket to the proxy, a SUB socket from it (and from direct publishers), a DEALER to the latched-value
-    cache, and, once a topic is published direct, an XPUB its subscribers connect to (palpa.direct)."""
+    cache, and, once a topic is published direct, an XPUB its subscribers connect to (palpa.net.direct)."""
 
     def __init__(
         self,
@@ -174,7 +174,7 @@ class ZmqTransport:
             self._sub.maxmsgsize = self._latch.maxmsgsize = options.max_msg_bytes
         self._sub.reconnect_ivl_max = _RECONNECT_MAX_MS  # withdrawn direct publishers stay connected (cheaply)
         self.reach = DirectReach(self._sub)
-        """Whether this node's subscriptions have reached its direct publishers (palpa.reach)."""
+        """Whether this node's subscriptions have reached its direct publishers (palpa.net.reach)."""
         for sock in (self._pub, self._sub, self._latch):
             if curve is not None:
                 sock.curve_serverkey = curve["server"]
@@ -315,7 +315,7 @@ class ZmqTransport:
         if request_latched:
             self._prefixes.append(prefix)
             self._to_cache([b"GET", prefix])  # asked again on acceptance when it cannot go now
-        # direct publishers of matching topics, now and later (palpa.direct), on any bus; asked again on acceptance
+        # direct publishers of matching topics, now and later (palpa.net.direct), on any bus; asked again on acceptance
         self._directory_prefixes.append(prefix)
         self._to_cache([b"GET", DIRECTORY_PREFIX + prefix])
 
@@ -352,7 +352,7 @@ class ZmqTransport:
 
     def poll(self, timeout_s: float, max_batch: int = 1000) -> list[Delivery]:
         out: list[Delivery] = []
-        if self._watch_hs.monitor is not None:  # refused by the bus: retry (palpa.handshake)
+        if self._watch_hs.monitor is not None:  # refused by the bus: retry (palpa.net.handshake)
             self._watch_hs.check()
         if timeout_s > 0:
             if self._busy_poll_ns:
@@ -398,7 +398,7 @@ class ZmqTransport:
         return out
 
     def _follow(self, key: bytes, payload: bytes) -> None:
-        """Connect to a direct publisher the cache told of, and probe it (palpa.reach)."""
+        """Connect to a direct publisher the cache told of, and probe it (palpa.net.reach)."""
         self.reach.told(key, payload)
         endpoint = follow_directory(self._sub, self._peers, key, payload, self._bus_server_key)
         if endpoint is not None:

@@ -14,7 +14,7 @@ Latch protocol (DEALER -> ROUTER), every frame bytes:
                                                  matching topics are pushed to the asker too, so a value set
                                                  while its subscription is still propagating is not lost
     PING token                                -> PONG token: every reply to the asker's earlier requests came
-                                                 before it (a node waits for its directory answers, palpa.reach)
+                                                 before it (a node waits for its directory answers, palpa.net.reach)
 """
 
 from __future__ import annotations
@@ -31,16 +31,16 @@ import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 
-from palpa.address import BusAddress, is_loopback_host
-from palpa.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
+from palpa.net.address import BusAddress, is_loopback_host
+from palpa.net.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
 from palpa.errors import BusError
-from palpa.keys import ClientKeys, load_secret_key
-from palpa.latch import DEFAULT_LATCH_MAX_BYTES, DEFAULT_LATCH_MAX_ENTRIES, LatchCache
-from palpa.wire import MAX_MSG_BYTES
+from palpa.net.keys import ClientKeys, load_secret_key
+from palpa.net.latch import DEFAULT_LATCH_MAX_BYTES, DEFAULT_LATCH_MAX_ENTRIES, LatchCache
+from palpa.net.wire import MAX_MSG_BYTES
 
 __all__ = ["Bus", "CurveServer", "is_loopback_endpoint"]
 
-log = logging.getLogger("palpa.bus")
+log = logging.getLogger("palpa.net.bus")
 
 def is_loopback_endpoint(endpoint: str) -> bool:
     """True for ipc/inproc endpoints and tcp endpoints on a loopback address: ``localhost`` itself or a
@@ -118,7 +118,7 @@ class Bus:
         """Bind all three endpoints and start the proxy and cache threads."""
         if self._curve is not None:
             self.clients = ClientKeys(self._curve.authorized_clients_dir)
-            self._auth = ThreadAuthenticator(self._ctx, log=logging.getLogger("palpa.bus.zap"))
+            self._auth = ThreadAuthenticator(self._ctx, log=logging.getLogger("palpa.net.bus.zap"))
             self._auth.start()
             self._auth.configure_curve_callback(domain="*", credentials_provider=self.clients)
         xsub = self._ctx.socket(zmq.XSUB)
@@ -249,7 +249,7 @@ class Bus:
 
     def _publish_client_keys(self, router: zmq.Socket[bytes], listing: bytes) -> None:
         """Cache the authorised client keys (read at start and on every reload) and push them to whoever asked:
-        direct CURVE publishers let in exactly these (palpa.direct)."""
+        direct CURVE publishers let in exactly these (palpa.net.direct)."""
         value = [b"", listing]
         with self._cache_lock:
             why = self._cache.put(CLIENT_KEYS_TOPIC, value)

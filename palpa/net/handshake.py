@@ -18,7 +18,7 @@ from zmq.utils.monitor import recv_monitor_message
 
 __all__ = ["HANDSHAKE_EVENTS", "HandshakeWatch"]
 
-log = logging.getLogger("palpa.transport")
+log = logging.getLogger("palpa.net.transport")
 
 _FAILURES: dict[int, str] = {zmq.EVENT_HANDSHAKE_FAILED_AUTH: "authentication refused",
                              zmq.EVENT_HANDSHAKE_FAILED_PROTOCOL: "protocol error",

@@ -16,7 +16,7 @@ from palpa.errors import BusError
 
 __all__ = ["ClientKeys", "create_key_pair", "load_secret_key"]
 
-log = logging.getLogger("palpa.bus.auth")
+log = logging.getLogger("palpa.net.bus.auth")
 _DENIAL_LOG_INTERVAL_S = 5.0
 
 

@@ -1,16 +1,16 @@
 """The bus's last-value cache: what it accepts (a SET must be a well-formed message of a latched topic) and how much
 it holds (bounded by entries and by bytes), so that no client can grow the bus without limit or have garbage
-pushed to every later subscriber. The bus (palpa.bus) serves it on its ROUTER socket; see docs/wire.md.
+pushed to every later subscriber. The bus (palpa.net.bus) serves it on its ROUTER socket; see docs/wire.md.
 """
 
 from __future__ import annotations
 
 import msgspec
 
-from palpa.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
+from palpa.net.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
 from palpa.errors import DecodeError, RegistryError
 from palpa.message import lookup
-from palpa.wire import MAX_TOPIC_BYTES, decode_header
+from palpa.net.wire import MAX_TOPIC_BYTES, decode_header
 
 __all__ = ["DEFAULT_LATCH_MAX_BYTES", "DEFAULT_LATCH_MAX_ENTRIES", "LatchCache"]
 
@@ -47,7 +47,7 @@ class LatchCache:
         header, payload = value[0], value[1]
         if topic.startswith(CLIENT_KEYS_TOPIC.rpartition(b"/")[0] + b"/"):
             return "topics under _palpa/curve/ are written by the bus only"
-        if topic.startswith(DIRECTORY_PREFIX):  # a direct publisher's announcement (palpa.direct)
+        if topic.startswith(DIRECTORY_PREFIX):  # a direct publisher's announcement (palpa.net.direct)
             if len(value) != 2 or header or len(payload) > _ENDPOINT_MAX or b"\0" not in topic:
                 return "malformed direct-topic announcement"
             return None
