@@ -17,7 +17,7 @@ This package knows nothing about palpation: the domain lives in ``messages``, ``
 """
 
 from palpa.net.address import BusAddress
-from palpa.clock import Clock, MockClock, SystemClock
+from palpa.timing.clock import Clock, MockClock, SystemClock
 from palpa.errors import BusError, DecodeError, LaunchError, PalpaError, ParamError, RegistryError
 from palpa.message import Finite, Message, json_schema, lookup, registered
 from palpa.node import MsgInfo, Node, Publisher, RawMessage, Subscription, Timer

@@ -14,7 +14,7 @@ from typing import Any, Generic, NamedTuple, TypeVar, get_type_hints
 
 import msgspec
 
-from palpa.clock import Clock
+from palpa.timing.clock import Clock
 from palpa.dispatch import Dispatch, Spinner
 from palpa.message import Message
 from palpa.net.transport import Transport

@@ -34,7 +34,7 @@ from typing import Any, ClassVar, Protocol, TypeVar, cast
 
 from palpa import env as palpa_env
 from palpa.net.address import BusAddress, from_env
-from palpa.clock import Clock, SystemClock, TopicClock
+from palpa.timing.clock import Clock, SystemClock, TopicClock
 from palpa.dispatch import Dispatch
 from palpa.endpoints import (
     DEFAULT_BATCH,
@@ -412,7 +412,7 @@ class Node:
 
     # -- internals ---------------------------------------------------------------------------------
     def run_timers(self) -> None:
-        """Run the timers due at the current time (an executor's step, see palpa.compose), again while a callback
+        """Run the timers due at the current time (an executor's step, see palpa.timing.compose), again while a callback
         started one due at once: afterwards none is due. Not while shutting down, nor while a simulation clock
         holds time."""
         if self._shutdown or (self._sim_time is not None and self._sim_time.holds_timers):

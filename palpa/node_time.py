@@ -2,8 +2,8 @@
 
 :class:`palpa.node.Node` owns one :class:`Timers` and, on a simulation clock (``--sim-clock``), one
 :class:`SimTime`. They are apart from the node because they are one mechanism with its own state, read in one
-place: when time moves (a tick from the clock node, :mod:`palpa.simclock`, or a message stamped with a later
-instant), the timers due then run, and the node tells the lockstep clock (:mod:`palpa.lockstep`) what it has done
+place: when time moves (a tick from the clock node, :mod:`palpa.timing.simclock`, or a message stamped with a later
+instant), the timers due then run, and the node tells the lockstep clock (:mod:`palpa.timing.lockstep`) what it has done
 at that time. The node's loop calls in with :meth:`SimTime.report` (before it blocks and after each wake-up) and
 :meth:`SimTime.check_alive` (a clock that stopped ticking stops the node).
 """
@@ -15,7 +15,7 @@ from collections.abc import Mapping
 from typing import Any, Protocol
 
 from palpa import env as palpa_env
-from palpa.clock import TopicClock
+from palpa.timing.clock import TopicClock
 from palpa.endpoints import Publisher, Timer
 from palpa.errors import PalpaError
 from palpa.naming import RUNTIME_PREFIX
@@ -183,12 +183,12 @@ class SimTime:
         self._time_held = tick.hold
         self._lead_acks = tick.lead
         # the timers due now run before any message that follows the tick is handled, as in a composition
-        # (palpa.compose): what another node published at this time, in reaction to the same tick, comes after
+        # (palpa.timing.compose): what another node published at this time, in reaction to the same tick, comes after
         self._node.run_timers()
 
     def on_instant(self, at: int) -> None:
         """A message sent at simulated instant ``at``: the event lockstep ticks a node only at its own timers'
-        deadlines (palpa.simclock), so it learns any other instant from the messages it handles there (timers due
+        deadlines (palpa.timing.simclock), so it learns any other instant from the messages it handles there (timers due
         by then run first, as at a tick). Not under a lead-mode clock, whose ticks every node gets."""
         clock = self._clock
         if at > clock.now_ns() and clock.started and not self._time_held and not self._lead_acks:
@@ -221,7 +221,7 @@ class SimTime:
             self._ack(probe)
 
     def _ack(self, probe: str) -> None:
-        """Tell the lockstep clock (palpa.simclock) what this node has done at the current simulated time, when
+        """Tell the lockstep clock (palpa.timing.simclock) what this node has done at the current simulated time, when
         that changed: its next timer, and the messages it sent and took in (the clock moves on once every message
         sent has been taken in). Not from inside a callback: a node waiting in a service call is not done."""
         self._node.flush()

@@ -10,7 +10,7 @@ import logging
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol, TypeVar
 
-from palpa.clock import Clock
+from palpa.timing.clock import Clock
 from palpa.dispatch import Dispatch
 from palpa.endpoints import Publisher, RawMessage, Timer
 from palpa.message import Message

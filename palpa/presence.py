@@ -51,7 +51,7 @@ def confirm_subscriptions(node: NodeApi, rx: Receiver, incarnation: int, timeout
     Topics published direct (palpa.net.direct) do not pass the proxy: then wait as well until the cache has answered
     every directory request (``PING``/``PONG``) and every direct publisher it named has answered this node's
     direct probe (palpa.net.reach): each of them has our subscriptions. Publishers announced after that are probed
-    when they appear; the lockstep clock waits for those answers (palpa.lockstep), nothing on the wall clock does
+    when they appear; the lockstep clock waits for those answers (palpa.timing.lockstep), nothing on the wall clock does
     (docs/wire.md, *Direct topics*). Only on a real bus (in memory,
     subscriptions are immediate) and while it is connected."""
     t = node.transport

@@ -78,7 +78,7 @@ class ClockTick(Message, frozen=True, kw_only=True):
 class ClockAck(Message, frozen=True, kw_only=True):
     """A sim-clock node's report that it has handled everything up to ``sim_ns`` (topic ``_palpa/lockstep``).
 
-    With ``next_ns`` (>= 0) the report is an event-lockstep one (palpa.simclock): the node has run its timers due
+    With ``next_ns`` (>= 0) the report is an event-lockstep one (palpa.timing.simclock): the node has run its timers due
     at ``sim_ns`` and handled every message it counted in ``recv``; its next timer is due at ``next_ns`` (0: none).
     ``sent``/``recv`` count the messages it published / took in per topic since it started (runtime ``_palpa/``
     topics excepted), ``subs`` names what it subscribes to (a prefix ends in ``*``): the clock moves on only when

@@ -16,7 +16,7 @@ from typing import Any, Generic, TypeVar
 
 import msgspec
 
-from palpa.clock import MockClock
+from palpa.timing.clock import MockClock
 from palpa.message import Message, lookup
 from palpa.node import Node, Publisher, RawMessage
 from palpa.params import Params

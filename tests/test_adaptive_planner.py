@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from messages import RobotPose, ScanStatus, StiffnessMap
-from palpa.clock import MockClock
-from palpa.compose import Composition
+from palpa.timing.clock import MockClock
+from palpa.timing.compose import Composition
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
 from palpa.node import Node

@@ -12,8 +12,8 @@ import pytest
 
 from messages import Text
 from nodes.demo import Listener, Talker
-from palpa.clock import MockClock
-from palpa.compose import Composition
+from palpa.timing.clock import MockClock
+from palpa.timing.compose import Composition
 from palpa.errors import LaunchError
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan

@@ -1,4 +1,4 @@
-"""The event lockstep (palpa.lockstep, palpa.simclock): processes get a composition's timeline."""
+"""The event lockstep (palpa.timing.lockstep, palpa.timing.simclock): processes get a composition's timeline."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import time
 import palpa
 from messages import Text
 from nodes.demo import Talker
-from palpa.lockstep import EventLockstep, InFlight
+from palpa.timing.lockstep import EventLockstep, InFlight
 from palpa.runtime_msgs import ClockAck
-from palpa.simclock import ClockSource
+from palpa.timing.simclock import ClockSource
 from palpa.testing import MemoryBus
 
 

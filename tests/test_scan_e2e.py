@@ -19,7 +19,7 @@ from emulators.clock_file import ClockWriter
 from messages import RobotPose
 from models.phantom import load_phantom
 from nodes.robot_scanner import RobotScanner
-from palpa.clock import MockClock
+from palpa.timing.clock import MockClock
 from palpa.launch import load_launch, parse_overrides
 from palpa.testing import GraphHarness
 from tests.followed_clock import FollowedClock

@@ -17,7 +17,7 @@ from models.surface import region_from_touches, search_points
 from nodes.fibre_reader import FibreReader
 from nodes.pressure_controller import PressureController
 from nodes.robot_scanner import RobotScanner
-from palpa.clock import MockClock
+from palpa.timing.clock import MockClock
 from palpa.testing import GraphHarness
 from tests.followed_clock import FollowedClock
 from tests.procs import ur_emulator

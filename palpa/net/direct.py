@@ -14,7 +14,7 @@ The price: a direct topic's messages do not pass the proxy, so the bus's own cap
 does not see them (a publisher's ``latched=True`` still works), and a foreign client must follow the directory
 (docs/wire.md). Messages published before a subscriber has connected are not delivered to it, as with any
 ZeroMQ PUB socket: a subscriber counts as ready only once the direct publishers known to it have its subscriptions
-(palpa.net.reach); one that appears later is waited for by the lockstep clock only (palpa.lockstep), and
+(palpa.net.reach); one that appears later is waited for by the lockstep clock only (palpa.timing.lockstep), and
 :meth:`palpa.Publisher.wait_for_subscribers` tells when someone listens.
 
 On a CURVE bus (across hosts) the direct socket is a CURVE server too: it binds on this host's address on the route

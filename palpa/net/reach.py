@@ -15,7 +15,7 @@ them it asks the cache ``PING`` after its ``GET``s and waits for the ``PONG``, w
 Publishers announced later are probed when the subscriber connects to them, and :attr:`DirectReach.reached` lists
 every endpoint that answered, in order: the lockstep clock learns of them from the node's acks (ClockAck
 ``reached``) and counts on a subscriber of a participant's direct topic only once it has reached that participant
-(palpa.lockstep). On the wall clock nothing waits for a later publisher (docs/wire.md, *Direct topics*). An
+(palpa.timing.lockstep). On the wall clock nothing waits for a later publisher (docs/wire.md, *Direct topics*). An
 endpoint withdrawn before it answered is not waited for; a stale one (its publisher died without withdrawing)
 never answers, and holds the subscriber's readiness until its bounded wait ends.
 """

@@ -78,7 +78,7 @@ class Header(msgspec.Struct, frozen=True, omit_defaults=True, gc=False):
     at: _UINT64 = 0
     """The simulated instant (ns) the publisher was at, from a node following a simulation clock (0: a node on the
     wall clock, or not given). Under the event lockstep a node gets clock ticks only at its own timers' deadlines
-    and takes the time of any other instant from the messages it handles there (palpa.simclock)."""
+    and takes the time of any other instant from the messages it handles there (palpa.timing.simclock)."""
 
 
 _header_encoder = msgspec.msgpack.Encoder()

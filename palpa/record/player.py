@@ -62,7 +62,7 @@ class PlayerParams(palpa.Params):
     """Publish the recording's time on _palpa/clock (ClockTick)."""
     clock_hz: float = 1000.0
     """Clock ticks per second of playback (the time resolution sim-clock nodes' timers get, as with
-    palpa.simclock.ClockSource)."""
+    palpa.timing.simclock.ClockSource)."""
     exit_when_done: bool = True
     """Stop the node (exit 0) after the last message; otherwise keep running until stopped."""
     exit_delay_s: float = 0.5

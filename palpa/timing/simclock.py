@@ -6,8 +6,8 @@ consistently. ``palpa play --clock`` drives the same topic from a recording.
 
 Event lockstep: every sim-clock node reports on ``_palpa/lockstep`` its next timer deadline and the messages it
 has sent and taken in (:class:`~palpa.runtime_msgs.ClockAck`); the source moves time to the earliest deadline only
-once no timer is left due and no message is in flight (:mod:`palpa.lockstep`), so the graph sees the timeline a
-composition (:mod:`palpa.compose`) gives it: timers at their exact deadlines, every message handled at the
+once no timer is left due and no message is in flight (:mod:`palpa.timing.lockstep`), so the graph sees the timeline a
+composition (:mod:`palpa.timing.compose`) gives it: timers at their exact deadlines, every message handled at the
 instant it was sent. Each instant goes only to the nodes with a timer due at it, each on its own topic
 (``_palpa/tick/<node>/``; ticks and acks go straight between clock and node, palpa.net.direct, not through the
 proxy); the others take it from the messages they handle (``Header.at``), and ``_palpa/clock``
@@ -40,8 +40,8 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any, Literal
 
-from palpa.clock import SystemClock
-from palpa.lockstep import EventLockstep
+from palpa.timing.clock import SystemClock
+from palpa.timing.lockstep import EventLockstep
 from palpa.node import Node, Publisher
 from palpa.params import NonNegative, Positive
 from palpa.params import Params as ParamsBase
@@ -108,7 +108,7 @@ class ClockSource(Node):
         """Whether a process of this host exists (replaceable in tests)."""
         self._host = socket.gethostname()
         self._wall = time.monotonic_ns()
-        self._sim = time.time_ns() // 1_000_000_000 * 1_000_000_000  # on a whole second, as palpa.compose starts
+        self._sim = time.time_ns() // 1_000_000_000 * 1_000_000_000  # on a whole second, as palpa.timing.compose starts
         self._acks: dict[str, int] = {}
         """participating node -> the simulated ns it acknowledged last"""
         self._heard: dict[str, int] = {}

@@ -2,7 +2,7 @@
 
 A multi-process simulation pays for every message twice (a send, a receive through the proxy) and for the lockstep
 clock (ticks out, acknowledgements back); the graph then runs as fast as the slowest exchange allows. Composed,
-the same node classes share an in-memory bus and a :class:`~palpa.clock.MockClock` that :class:`Composition`
+the same node classes share an in-memory bus and a :class:`~palpa.timing.clock.MockClock` that :class:`Composition`
 moves straight to the next timer deadline of any node once every message in flight has been handled: time goes
 as fast as the CPU computes the nodes' work, and a run is deterministic (the same seed gives the same output).
 
@@ -12,7 +12,7 @@ launcher's progress bar outside see it as they would see separate processes; wha
 topic the composed nodes subscribe to (and do not publish themselves) comes in.
 
 ``palpa launch FILE --in-process`` (or ``in_process: true`` in the file) runs a launch file's simulated-clock
-nodes, its clock and its recorder this way, as one child process: ``python -m palpa.compose GRAPH.json``.
+nodes, its clock and its recorder this way, as one child process: ``python -m palpa.timing.compose GRAPH.json``.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from typing import Any
 import msgspec
 
 from palpa.net.address import from_env
-from palpa.clock import MockClock
+from palpa.timing.clock import MockClock
 from palpa.errors import DecodeError, PalpaError
 from palpa.node import Node
 from palpa.testing import MemoryBus, MemoryTransport
@@ -38,7 +38,7 @@ from palpa.net.wire import parse_envelope
 
 __all__ = ["Composition", "ComposedNode", "GraphSpec", "main"]
 
-log = logging.getLogger("palpa.compose")
+log = logging.getLogger("palpa.timing.compose")
 
 _IDLE_WAIT_S = 0.05
 _MAX_ROUNDS = 100_000
@@ -114,7 +114,7 @@ class _HubTransport(MemoryTransport):
 
 @dataclass
 class ComposedNode:
-    """One node of a composition as a launch file describes it (``python -m palpa.compose`` builds it)."""
+    """One node of a composition as a launch file describes it (``python -m palpa.timing.compose`` builds it)."""
 
     name: str
     target: str
@@ -127,7 +127,7 @@ class ComposedNode:
 
 
 class GraphSpec(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
-    """What ``python -m palpa.compose`` runs (written by the launcher as JSON)."""
+    """What ``python -m palpa.timing.compose`` runs (written by the launcher as JSON)."""
 
     nodes: list[dict[str, Any]]
     """Each a :class:`ComposedNode`'s fields."""
@@ -212,7 +212,7 @@ class Composition:
         now = self.clock.now_ns()
         ready = [node for d, node in dues if d <= now]
         # every timer due now runs before any message sent at this instant is handled, as a node of the lockstep
-        # clock does (palpa.simclock): the order of nodes in the composition then does not matter
+        # clock does (palpa.timing.simclock): the order of nodes in the composition then does not matter
         for node in ready:
             node.run_timers()
         for node in ready:
@@ -333,7 +333,7 @@ class Composition:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m palpa.compose GRAPH.json`` (or ``--json TEXT``): run a composed graph (a :class:`GraphSpec`) on
+    """``python -m palpa.timing.compose GRAPH.json`` (or ``--json TEXT``): run a composed graph (a :class:`GraphSpec`) on
     the bus named by ``PALPA_BUS``; SIGINT/SIGTERM stop it. The exit code is the required node's (2: bad graph)."""
     from palpa.cli.run import load_node_class
 
@@ -347,10 +347,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             with open(args[0], "rb") as f:
                 text = f.read()
         except OSError as exc:
-            print(f"palpa.compose: {exc}", file=sys.stderr)
+            print(f"palpa.timing.compose: {exc}", file=sys.stderr)
             return 2
     else:
-        print("usage: python -m palpa.compose GRAPH.json | --json TEXT", file=sys.stderr)
+        print("usage: python -m palpa.timing.compose GRAPH.json | --json TEXT", file=sys.stderr)
         return 2
     try:
         spec = msgspec.json.decode(text, type=GraphSpec)
@@ -358,7 +358,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         classes = [load_node_class(e.target) for e in entries]
         bridge = ZmqTransport(from_env(), TransportOptions.from_env())
     except (msgspec.DecodeError, msgspec.ValidationError, TypeError, PalpaError) as exc:
-        print(f"palpa.compose: {where}: {exc}", file=sys.stderr)
+        print(f"palpa.timing.compose: {where}: {exc}", file=sys.stderr)
         return 2
     comp = Composition(bridge=bridge, heartbeat_s=spec.heartbeat_s)
 
@@ -371,7 +371,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for e, cls in zip(entries, classes, strict=True):
             comp.add(cls, e.name, e.params, namespace=e.namespace, remap=e.remap, required=e.required)
     except PalpaError as exc:
-        print(f"palpa.compose: {exc}", file=sys.stderr)
+        print(f"palpa.timing.compose: {exc}", file=sys.stderr)
         comp.close()
         return 2
     wall, sim = time.monotonic(), comp.clock.now_ns()

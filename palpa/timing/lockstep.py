@@ -1,8 +1,8 @@
 """The bookkeeping of the event lockstep: when may simulated time move on, and to when.
 
-A composition (:mod:`palpa.compose`) runs its nodes' timers due at an instant, lets every message published in
+A composition (:mod:`palpa.timing.compose`) runs its nodes' timers due at an instant, lets every message published in
 reaction be handled (and every message those published...), and only then jumps to the next timer deadline. The
-lockstep clock (:mod:`palpa.simclock`) gives processes the same timeline, from what each sim-clock node reports
+lockstep clock (:mod:`palpa.timing.simclock`) gives processes the same timeline, from what each sim-clock node reports
 in its :class:`~palpa.runtime_msgs.ClockAck`: its next timer deadline, and per topic the messages it has sent and
 taken in. Time moves from ``now`` only when
 
