@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from palpa.net.address import BusAddress  # noqa: E402
 from palpa.net.bus import Bus  # noqa: E402
-from palpa.node import Node  # noqa: E402
+from palpa.node.node import Node  # noqa: E402
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat  # noqa: E402
 from palpa.net.wire import HeaderTemplate, decode_header, msgpack_array  # noqa: E402
 

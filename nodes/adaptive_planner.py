@@ -58,8 +58,8 @@ from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, detect_inclusions
 from models.surface import region_in_footprint
 from nodes.map_output import write_outputs
-from palpa.service import ServiceError
-from palpa.service_client import Future
+from palpa.node.service import ServiceError
+from palpa.node.service_client import Future
 
 __all__ = ["AdaptivePlanner"]
 

@@ -36,7 +36,7 @@ from nodes.common import phantom_from_param
 from nodes.drivers.fibre import FibreDriver, FibreError, FibreSample
 from nodes.drivers.fibre_serial import SerialFibreDriver
 from nodes.drivers.fibre_sim import SimFibreDriver
-from palpa.service import RequestRefused
+from palpa.node.service import RequestRefused
 
 __all__ = ["FibreReader"]
 

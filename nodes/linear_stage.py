@@ -19,7 +19,7 @@ from typing import Literal, NamedTuple
 import palpa
 from messages import RobotPose, ScanStatus
 from nodes.common import phantom_from_param
-from palpa.node import RawMessage
+from palpa.node.node import RawMessage
 
 __all__ = ["LinearStage", "StageProfile", "StageSample"]
 

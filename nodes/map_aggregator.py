@@ -36,7 +36,7 @@ from models.stiffness_map import (
     detect_inclusions,
 )
 from nodes.map_output import write_outputs
-from palpa.service import RequestRefused
+from palpa.node.service import RequestRefused
 
 __all__ = ["MapAggregator"]
 

@@ -27,7 +27,7 @@ from nodes.drivers.pressure import (
     PressureReading,
 )
 from nodes.drivers.pressure_sim import SimPressureDriver
-from palpa.service import RequestRefused
+from palpa.node.service import RequestRefused
 
 __all__ = ["PressureController"]
 

@@ -1,4 +1,4 @@
-"""The robot scanner's services: probe one point, pause, resume and abort (palpa.service).
+"""The robot scanner's services: probe one point, pause, resume and abort (palpa.node.service).
 
 ``scanner/probe_at`` (:class:`ProbeAt` -> :class:`ProbeResult`) drives a short path at the point (a sweep line or
 an indentation, checked against the same workspace box and caps as a scan), collects the estimator's valid
@@ -30,7 +30,7 @@ from messages import ProbeAt, ProbeResult, StiffnessSample, Trigger, TriggerResu
 from messages.robot import ScanState
 from models.following import is_slide
 from models.raster import RasterPlan, Waypoint, indent_raster, sweep_raster
-from palpa.service import RequestRefused, Responder
+from palpa.node.service import RequestRefused, Responder
 
 if TYPE_CHECKING:
     from nodes.robot_scanner import RobotScanner

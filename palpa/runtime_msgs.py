@@ -51,7 +51,7 @@ class Heartbeat(Message, frozen=True, kw_only=True):
     direct: list[str] = []
     """Published topics sent straight to their subscribers, past the proxy (palpa.net.direct)."""
     services: dict[str, str] = {}
-    """Service name -> 'Request -> Response' (palpa.service)."""
+    """Service name -> 'Request -> Response' (palpa.node.service)."""
 
 
 class LogRecord(Message, frozen=True, kw_only=True):
@@ -85,7 +85,7 @@ class ClockAck(Message, frozen=True, kw_only=True):
     every message sent at this time has been taken in by every subscriber. Without ``next_ns`` (-1, an older or
     hand-written client) the clock only stays within a small lead of ``sim_ns``. ``leaving``: the node's last ack,
     sent as it closes: it no longer holds simulated time back. ``probe``: the readiness probe that confirmed the
-    node's subscriptions through the bus (``<node>/<pid>.<incarnation>``, palpa.presence; empty on a bus without
+    node's subscriptions through the bus (``<node>/<pid>.<incarnation>``, palpa.node.presence; empty on a bus without
     one); the other participants must say they have ``heard`` it (``heard``: the probes this node's publisher socket
     heard since its previous ack) before the clock counts on them to reach it. ``direct``/``direct_at``: the topics it
     publishes straight to their subscribers (palpa.net.direct) and the endpoint they leave from; ``reached``: the

@@ -18,8 +18,8 @@ import msgspec
 
 from palpa.timing.clock import MockClock
 from palpa.message import Message, lookup
-from palpa.node import Node, Publisher, RawMessage
-from palpa.params import Params
+from palpa.node.node import Node, Publisher, RawMessage
+from palpa.node.params import Params
 from palpa.net.transport import Delivery, SendFn
 
 __all__ = ["GraphHarness", "MemoryBus", "MemoryTransport", "NodeHarness"]

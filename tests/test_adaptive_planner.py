@@ -14,7 +14,7 @@ from palpa.timing.clock import MockClock
 from palpa.timing.compose import Composition
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
-from palpa.node import Node
+from palpa.node.node import Node
 from tests.procs import REPO
 
 # contact_z_mm is the flat height a probe would sweep at without a touch-off: far above the dome (3-4 mm thick here)
@@ -125,7 +125,7 @@ def test_a_probes_late_estimates_count_as_that_probes_not_the_next_ones(tmp_path
     import palpa
     from messages import ProbeAt, ProbeResult, StiffnessSample
     from nodes.adaptive_planner import AdaptivePlanner
-    from palpa.service import Responder
+    from palpa.node.service import Responder
     from palpa.testing import GraphHarness
 
     g = GraphHarness()

@@ -223,14 +223,14 @@ def test_yamlstruct_and_models_do_not_import_the_runtime() -> None:
 def untyped_params(classes: list[type[Any]]) -> list[str]:
     """The node classes whose ``params`` is not annotated as their own ``Params`` (mypy would then check no
     ``self.params.<name>``: the base class declares only :class:`palpa.Params`)."""
-    from palpa.node import Node
+    from palpa.node.node import Node
 
     return [f"{c.__module__}.{c.__qualname__}" for c in classes
             if c.Params is not Node.Params and typing.get_type_hints(c).get("params") is not c.Params]
 
 
 def _project_node_classes() -> list[type[Any]]:
-    from palpa.node import Node
+    from palpa.node.node import Node
 
     for name in _modules(("palpa", "nodes")):
         if not name.endswith("__main__"):

@@ -17,7 +17,7 @@ from palpa.timing.compose import Composition
 from palpa.errors import LaunchError
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
-from palpa.node import Node
+from palpa.node.node import Node
 from palpa.record.reader import iter_bag, resolve_bag_paths
 from palpa.net.transport import Delivery
 from tests.procs import ProcessGroup

@@ -22,7 +22,7 @@ from palpa.net.direct import (
     directory_key,
     directory_value,
 )
-from palpa.endpoints import RawMessage
+from palpa.node.endpoints import RawMessage
 from palpa.launch import load_launch
 from palpa.testing import MemoryBus
 from palpa.net.transport import TransportOptions, ZmqTransport

@@ -27,8 +27,8 @@ from nodes.map_aggregator import MapAggregator
 from nodes.pressure_controller import PressureController
 from nodes.robot_scanner import RobotScanner
 from nodes.stiffness_estimator import AirfloatStiffnessEstimator
-from palpa.service import BadRequestError, RequestRefused
-from palpa.service_client import Future
+from palpa.node.service import BadRequestError, RequestRefused
+from palpa.node.service_client import Future
 from palpa.testing import GraphHarness, NodeHarness
 from tests.test_robot_scanner import SMALL, run_with_probe
 

@@ -19,7 +19,7 @@ import pytest
 
 import palpa
 from palpa.cli.main import main as cli_main
-from palpa.node import RawMessage
+from palpa.node.node import RawMessage
 from tests.procs import ProcessGroup, palpa_cmd, wait_until
 
 REPO = Path(__file__).resolve().parent.parent

@@ -18,7 +18,7 @@ from messages import Text
 from palpa.net.address import BusAddress
 from palpa.net.bus import Bus
 from palpa.cli.main import main
-from palpa.node import LOG_TEXT_MAX
+from palpa.node.node import LOG_TEXT_MAX
 from palpa.record.format import MD_DROPS
 from palpa.record.recorder import Recorder
 from palpa.record.testing import check_official

@@ -11,7 +11,7 @@ import pytest
 
 from messages import Text
 from palpa.errors import ParamError
-from palpa.node import Node, RawMessage
+from palpa.node.node import Node, RawMessage
 from palpa.record.format import BagError
 from palpa.record.player import Player
 from palpa.record.recorder import Recorder

@@ -12,7 +12,7 @@ import pytest
 from messages import Text
 from palpa.errors import ParamError
 from palpa.message import json_schema
-from palpa.node import Node
+from palpa.node.node import Node
 from palpa.record.format import (
     LAUNCH_ATTACHMENT,
     MD_DROPS,

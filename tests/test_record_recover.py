@@ -15,7 +15,7 @@ from mcap.stream_reader import StreamReader
 
 from messages import Text
 from palpa.net.address import BusAddress
-from palpa.node import Node
+from palpa.node.node import Node
 from palpa.record.format import MD_DROPS, MD_NODES, MD_RECORDING, MD_RECOVERY, BagError
 from palpa.record.info import bag_info
 from palpa.record.reader import iter_file

@@ -13,7 +13,7 @@ import zmq
 
 import palpa
 from palpa.net.address import BusAddress
-from palpa.service import RequestRefused
+from palpa.node.service import RequestRefused
 from tests.procs import wait_until
 from tests.test_service import Adder, AddReply, AddRequest
 

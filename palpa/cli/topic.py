@@ -16,7 +16,7 @@ from palpa.cli.common import add_bus_arg, bus_and_source, import_message_modules
 from palpa.errors import BusError, PalpaError, RegistryError
 from palpa.launch.validate import did_you_mean
 from palpa.message import lookup
-from palpa.node import Node, RawMessage
+from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.net.wire import TopicStats
 

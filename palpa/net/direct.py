@@ -52,7 +52,7 @@ __all__ = [
 
 DIRECTORY_PREFIX = b"_palpa/direct/"
 JOIN_PROBE_PREFIX = b"_palpa/join/"
-"""Readiness probes: a node subscribes ``_palpa/join/<node>/<id>`` after its setup (palpa.presence)."""
+"""Readiness probes: a node subscribes ``_palpa/join/<node>/<id>`` after its setup (palpa.node.presence)."""
 JOIN_PROBE_SUB = b"\x01" + JOIN_PROBE_PREFIX
 REACH_PREFIX = b"_palpa/reach/"
 """Direct readiness probes: a subscriber subscribes ``_palpa/reach/<token>/<n>`` after connecting to a direct
@@ -163,7 +163,7 @@ class SubscriberSet:
     def __init__(self) -> None:
         self.prefixes: set[bytes] = set()
         self.joined: dict[str, None] = {}
-        """The readiness probes (``_palpa/join/<node>/<pid>.<incarnation>``, palpa.presence; kept without the prefix)
+        """The readiness probes (``_palpa/join/<node>/<pid>.<incarnation>``, palpa.node.presence; kept without the prefix)
         this socket has heard subscribed:
         it has every subscription those nodes made before they were ready (one connection delivers in order). In
         the order heard (a dict: an ordered set)."""

@@ -1,5 +1,5 @@
 """Whether a subscriber's subscriptions have reached its direct publishers (palpa.net.direct), the direct topics' side of
-a node's readiness (palpa.presence).
+a node's readiness (palpa.node.presence).
 
 A subscription to a direct topic travels on the subscriber's own connection to each publisher's direct socket, not
 through the proxy, so the bus's echo of a readiness probe says nothing about it. After each new connection the
@@ -9,7 +9,7 @@ made, the probe after them). A publisher's direct socket answers every such prob
 payload is its endpoint (:meth:`palpa.net.direct.DirectSocket.drain`): when it comes back, the publisher has the
 subscriber's subscriptions, and the answer came the way a message comes.
 
-The subscriber waits (palpa.presence) for every publisher the directory named to it: it connects as soon as it is
+The subscriber waits (palpa.node.presence) for every publisher the directory named to it: it connects as soon as it is
 told (one it cannot connect to, palpa.net.direct logged why, is not waited for), and to know it has been told of all of
 them it asks the cache ``PING`` after its ``GET``s and waits for the ``PONG``, which comes after their answers.
 Publishers announced later are probed when the subscriber connects to them, and :attr:`DirectReach.reached` lists

@@ -340,7 +340,7 @@ class ZmqTransport:
                          self._bus_listeners).prefixes
 
     def heard_join(self, node: str) -> bool:
-        """Whether this node's publisher socket has heard ``node``'s readiness probe subscribed (palpa.presence), and
+        """Whether this node's publisher socket has heard ``node``'s readiness probe subscribed (palpa.node.presence), and
         so every subscription ``node`` made before it was ready: nothing published here now is lost to it."""
         return any(probe.rpartition("/")[0] == node for probe in self._bus_listeners.joined)
 

@@ -175,7 +175,7 @@ def bag_info(paths: Sequence[Path]) -> dict[str, Any]:
 
 
 def _services(topics: dict[str, dict[str, Any]], faults: dict[str, int]) -> dict[str, dict[str, Any]]:
-    """Service calls in the recording, from the request and reply topics (palpa.service): per service, the
+    """Service calls in the recording, from the request and reply topics (palpa.node.service): per service, the
     request and response types, requests, replies, failed replies and callers."""
     out: dict[str, dict[str, Any]] = {}
     for topic, t in topics.items():

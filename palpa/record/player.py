@@ -26,8 +26,8 @@ from typing import Any, Literal
 
 import palpa
 from palpa.errors import ParamError
-from palpa.node import Node
-from palpa.params import convert_params
+from palpa.node.node import Node
+from palpa.node.params import convert_params
 from palpa.record.format import TopicFilter
 from palpa.record.reader import BagMessage, iter_bag, resolve_bag_paths
 from palpa.runtime_msgs import CLOCK_TOPIC, HEARTBEAT_TOPIC, ClockTick, Heartbeat
@@ -133,7 +133,7 @@ class Player(Node):
 
     def _not_ready(self) -> list[str]:
         """The ``wait_for`` nodes not ready for the first message: not heard (a heartbeat: set up) or, on a real
-        bus, their subscriptions not yet heard by our publisher socket (their readiness probe, palpa.presence)."""
+        bus, their subscriptions not yet heard by our publisher socket (their readiness probe, palpa.node.presence)."""
         t = self.transport
         return sorted(n for n in self.params.wait_for
                       if n in self._waiting or (isinstance(t, ZmqTransport) and not t.heard_join(n)))

@@ -31,7 +31,7 @@ import msgspec
 from palpa.net.address import from_env
 from palpa.timing.clock import MockClock
 from palpa.errors import DecodeError, PalpaError
-from palpa.node import Node
+from palpa.node.node import Node
 from palpa.testing import MemoryBus, MemoryTransport
 from palpa.net.transport import Delivery, SendFn, Transport, TransportOptions, ZmqTransport
 from palpa.net.wire import parse_envelope
@@ -312,7 +312,7 @@ class Composition:
 
     def _ours(self, frames: list[bytes]) -> bool:
         """Whether an envelope from the bridge is one a composed node sent, back from the proxy: its header names
-        one of them, or one of their service clients (``<node>.<id>``, palpa.service_client). An echo of a
+        one of them, or one of their service clients (``<node>.<id>``, palpa.node.service_client). An echo of a
         request taken in again after the client's next call reads to the server as a publisher's restart, and the
         server would run it twice (a robot sent back to a point it had left: fresh seed 8007 under load)."""
         try:

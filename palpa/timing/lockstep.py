@@ -7,7 +7,7 @@ in its :class:`~palpa.runtime_msgs.ClockAck`: its next timer deadline, and per t
 taken in. Time moves from ``now`` only when
 
 * no node has a timer due at or before ``now`` that it has not run (its ack names a later deadline), and
-* every participant is heard: a node whose subscriptions a readiness probe confirmed (palpa.presence) counts as a
+* every participant is heard: a node whose subscriptions a readiness probe confirmed (palpa.node.presence) counts as a
   subscriber only once every other participant's publisher socket has heard that probe (ClockAck ``heard``), so
   that no message is dropped on its way to it for want of a route; until then time waits, and its accounting
   starts when the last one heard it; likewise a subscriber of a topic another participant publishes direct

@@ -42,10 +42,10 @@ from typing import Any, Literal
 
 from palpa.timing.clock import SystemClock
 from palpa.timing.lockstep import EventLockstep
-from palpa.node import Node, Publisher
-from palpa.params import NonNegative, Positive
-from palpa.params import Params as ParamsBase
-from palpa.runner import run_node
+from palpa.node.node import Node, Publisher
+from palpa.node.params import NonNegative, Positive
+from palpa.node.params import Params as ParamsBase
+from palpa.node.runner import run_node
 from palpa.runtime_msgs import (
     CLOCK_ACK_TOPIC,
     CLOCK_TOPIC,
@@ -273,7 +273,7 @@ class ClockSource(Node):
 
     def _tick_due(self, sim_ns: int) -> None:
         """Send the new instant to the participants with a timer due at it, each on its own topic: the others learn
-        it from the messages they handle at it (``Header.at``, palpa.node_time), so a node with nothing to do at an
+        it from the messages they handle at it (``Header.at``, palpa.node.node_time), so a node with nothing to do at an
         instant is not woken (the broadcast every second keeps idle nodes' watchdogs fed)."""
         pubs = [self._tick_pub(n) for n in self._events.due(sim_ns)]
         t = self.transport

@@ -3,7 +3,7 @@
 ZeroMQ matches subscriptions by prefix; here each envelope goes to the subscription of exactly its topic (and to
 raw subscriptions whose prefix matches), duplicates and gaps are counted per publisher, and a malformed frame, an
 unknown type or an invalid payload is counted and logged with what was wrong: it never reaches a callback and
-never stops the node. Callbacks run through the node's :class:`~palpa.dispatch.Dispatch` (exception isolation,
+never stops the node. Callbacks run through the node's :class:`~palpa.node.dispatch.Dispatch` (exception isolation,
 batching depth); the receiver never sees the node itself.
 """
 
@@ -16,8 +16,8 @@ from typing import Any, NamedTuple
 
 import msgspec
 
-from palpa.dispatch import Dispatch
-from palpa.endpoints import MsgInfo, RawMessage, Subscription
+from palpa.node.dispatch import Dispatch
+from palpa.node.endpoints import MsgInfo, RawMessage, Subscription
 from palpa.errors import DecodeError
 from palpa.net.transport import Delivery
 from palpa.net.wire import (

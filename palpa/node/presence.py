@@ -1,7 +1,7 @@
 """What a node tells the bus about itself besides its data: that it is ready (its subscriptions confirmed end to
 end), that it is alive (heartbeats on ``_palpa/heartbeat``), and what it logs (``_palpa/log``).
 
-:class:`palpa.node.Node` uses these once it is set up; they are apart from it because none of them is part of
+:class:`palpa.node.node.Node` uses these once it is set up; they are apart from it because none of them is part of
 the node's own traffic: they are how launchers, ``palpa node list`` and the lockstep clock learn about a node.
 """
 
@@ -15,11 +15,11 @@ from collections.abc import Mapping
 from typing import Any
 
 from palpa.net.direct import JOIN_PROBE_PREFIX, REACH_PREFIX
-from palpa.endpoints import Publisher, RawMessage
-from palpa.nodeapi import NodeApi
-from palpa.receive import Receiver
+from palpa.node.endpoints import Publisher, RawMessage
+from palpa.node.nodeapi import NodeApi
+from palpa.node.receive import Receiver
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat, LogRecord, TopicCounters
-from palpa.service import Service
+from palpa.node.service import Service
 from palpa.net.transport import ZmqTransport
 from palpa.net.wire import Header, encode_header
 

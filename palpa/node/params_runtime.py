@@ -17,11 +17,11 @@ import msgspec
 
 from palpa.errors import ParamError
 from palpa.message import Message
-from palpa.params import Params, convert_params, describe_params
-from palpa.service import RequestRefused
+from palpa.node.params import Params, convert_params, describe_params
+from palpa.node.service import RequestRefused
 
 if TYPE_CHECKING:
-    from palpa.nodeapi import NodeApi
+    from palpa.node.nodeapi import NodeApi
 
 __all__ = ["PARAMS_TOPIC", "ParamChange", "ParamGet", "ParamServer", "ParamSet", "ParamValues", "param_service"]
 

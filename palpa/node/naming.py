@@ -1,7 +1,7 @@
 """Names on the bus: what a topic written in a node is called on the bus (remapping, namespaces), and the name a
 node gets when it is given none.
 
-Separate from :mod:`palpa.node` because these are pure string rules that do not need a node: the launcher resolves
+Separate from :mod:`palpa.node.node` because these are pure string rules that do not need a node: the launcher resolves
 the topics a node class declares without starting it (:mod:`palpa.launch.topics`).
 """
 

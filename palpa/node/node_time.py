@@ -1,6 +1,6 @@
 """A node's time: its timers, and its side of a simulation clock (ticks, instants, lockstep acks).
 
-:class:`palpa.node.Node` owns one :class:`Timers` and, on a simulation clock (``--sim-clock``), one
+:class:`palpa.node.node.Node` owns one :class:`Timers` and, on a simulation clock (``--sim-clock``), one
 :class:`SimTime`. They are apart from the node because they are one mechanism with its own state, read in one
 place: when time moves (a tick from the clock node, :mod:`palpa.timing.simclock`, or a message stamped with a later
 instant), the timers due then run, and the node tells the lockstep clock (:mod:`palpa.timing.lockstep`) what it has done
@@ -16,11 +16,11 @@ from typing import Any, Protocol
 
 from palpa import env as palpa_env
 from palpa.timing.clock import TopicClock
-from palpa.endpoints import Publisher, Timer
+from palpa.node.endpoints import Publisher, Timer
 from palpa.errors import PalpaError
-from palpa.naming import RUNTIME_PREFIX
-from palpa.nodeapi import NodeApi
-from palpa.receive import Receiver
+from palpa.node.naming import RUNTIME_PREFIX
+from palpa.node.nodeapi import NodeApi
+from palpa.node.receive import Receiver
 from palpa.runtime_msgs import CLOCK_ACK_TOPIC, CLOCK_TOPIC, ClockAck, ClockTick, tick_topic
 from palpa.net.transport import ZmqTransport
 from palpa.net.wire import TopicStats
@@ -105,7 +105,7 @@ class Timers:
 
 
 class _Host(NodeApi, Protocol):
-    """What :class:`SimTime` uses of its node beyond :class:`palpa.nodeapi.NodeApi`."""
+    """What :class:`SimTime` uses of its node beyond :class:`palpa.node.nodeapi.NodeApi`."""
 
     def run_timers(self) -> None: ...
 

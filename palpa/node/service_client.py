@@ -18,9 +18,9 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import msgspec
 
-from palpa.endpoints import RawMessage, Timer
+from palpa.node.endpoints import RawMessage, Timer
 from palpa.message import Message
-from palpa.service import (
+from palpa.node.service import (
     _FAULTS,
     DEFAULT_TIMEOUT_S,
     SERVICE_INFO_PREFIX,
@@ -37,7 +37,7 @@ from palpa.service import (
 from palpa.net.wire import Header
 
 if TYPE_CHECKING:
-    from palpa.nodeapi import NodeApi
+    from palpa.node.nodeapi import NodeApi
 
 __all__ = ["Client", "Future", "discover", "set_wait_pump"]
 

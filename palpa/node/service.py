@@ -18,7 +18,7 @@ number as its ``seq``; the reply (the response type, or a :class:`ServiceFault`)
 ``_palpa/srv/<name>`` (the bus's last-value cache is the directory) and in its node's heartbeat.
 
 This module is the server side and what both sides share (errors, announcement, topics); the caller side
-(``Node.client``) is :mod:`palpa.service_client`. No deadlock, from anywhere: a blocking ``Client.call`` keeps the node dispatching while it waits (its own
+(``Node.client``) is :mod:`palpa.node.service_client`. No deadlock, from anywhere: a blocking ``Client.call`` keeps the node dispatching while it waits (its own
 service requests, other topics, timers), so a callback may call a service of another node, of a node that calls
 back, or of its own node. A timer never re-enters itself while it waits; a subscription callback can be handed the
 next message of its topic during a blocking call (as an ``await`` would) — use ``Client.call_async`` where that
@@ -33,13 +33,13 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import msgspec
 
-from palpa.endpoints import RawMessage
+from palpa.node.endpoints import RawMessage
 from palpa.errors import PalpaError, ParamError
 from palpa.message import Message
 from palpa.net.wire import Header
 
 if TYPE_CHECKING:
-    from palpa.nodeapi import NodeApi
+    from palpa.node.nodeapi import NodeApi
 
 __all__ = [
     "DEFAULT_TIMEOUT_S",

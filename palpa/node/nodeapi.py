@@ -1,6 +1,6 @@
 """What the runtime's helpers (services, service clients, the parameter server) use of a node, as a Protocol.
 
-They are made by :class:`palpa.node.Node` and given the node, but they depend on this surface only, so that
+They are made by :class:`palpa.node.node.Node` and given the node, but they depend on this surface only, so that
 ``node.py`` can import them without them importing ``node.py`` back (no import cycle in the core).
 """
 
@@ -11,8 +11,8 @@ from collections.abc import Callable, Sequence
 from typing import Any, Protocol, TypeVar
 
 from palpa.timing.clock import Clock
-from palpa.dispatch import Dispatch
-from palpa.endpoints import Publisher, RawMessage, Timer
+from palpa.node.dispatch import Dispatch
+from palpa.node.endpoints import Publisher, RawMessage, Timer
 from palpa.message import Message
 from palpa.net.transport import Transport
 from palpa.net.wire import Header
@@ -23,7 +23,7 @@ M = TypeVar("M", bound=Message)
 
 
 class NodeApi(Protocol):
-    """The part of :class:`palpa.node.Node` that services, clients and the parameter server call."""
+    """The part of :class:`palpa.node.node.Node` that services, clients and the parameter server call."""
 
     name: str
     clock: Clock

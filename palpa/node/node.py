@@ -19,8 +19,8 @@ and ``palpa.run_node(Talker)`` is its ``main()``. A bare ``Node(name="script")``
 Bad input never kills a node: a malformed frame, an unknown or wrong type, or a payload that does not validate is
 counted on its topic and logged at most every few seconds with what was wrong (the field path).
 
-The node's collaborators live apart: its timers and simulation-clock side in :mod:`palpa.node_time`, its
-readiness, heartbeats and bus logging in :mod:`palpa.presence`, topic naming in :mod:`palpa.naming`.
+The node's collaborators live apart: its timers and simulation-clock side in :mod:`palpa.node.node_time`, its
+readiness, heartbeats and bus logging in :mod:`palpa.node.presence`, topic naming in :mod:`palpa.node.naming`.
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ from typing import Any, ClassVar, Protocol, TypeVar, cast
 from palpa import env as palpa_env
 from palpa.net.address import BusAddress, from_env
 from palpa.timing.clock import Clock, SystemClock, TopicClock
-from palpa.dispatch import Dispatch
-from palpa.endpoints import (
+from palpa.node.dispatch import Dispatch
+from palpa.node.endpoints import (
     DEFAULT_BATCH,
     MsgInfo,
     Publisher,
@@ -47,22 +47,22 @@ from palpa.endpoints import (
 )
 from palpa.errors import PalpaError
 from palpa.message import Message
-from palpa.naming import RUNTIME_PREFIX, default_node_name, resolve_topic
-from palpa.node_time import SimTime, Timers, clock_timeout_ns
-from palpa.params import Params as ParamsBase
-from palpa.params import convert_params
-from palpa.params_runtime import ParamServer
-from palpa.presence import (
+from palpa.node.naming import RUNTIME_PREFIX, default_node_name, resolve_topic
+from palpa.node.node_time import SimTime, Timers, clock_timeout_ns
+from palpa.node.params import Params as ParamsBase
+from palpa.node.params import convert_params
+from palpa.node.params_runtime import ParamServer
+from palpa.node.presence import (
     JOIN_TIMEOUT_S,
     BusLogHandler,
     Heartbeats,
     confirm_subscriptions,
     take_reach_answers,
 )
-from palpa.presence import LOG_TEXT_MAX as LOG_TEXT_MAX  # re-exported: it was defined here
-from palpa.receive import Receiver
-from palpa.service import DEFAULT_TIMEOUT_S, Responder, Service
-from palpa.service_client import Client
+from palpa.node.presence import LOG_TEXT_MAX as LOG_TEXT_MAX  # re-exported: it was defined here
+from palpa.node.receive import Receiver
+from palpa.node.service import DEFAULT_TIMEOUT_S, Responder, Service
+from palpa.node.service_client import Client
 from palpa.net.transport import Transport, TransportOptions, ZmqTransport
 from palpa.net.wire import Header, TopicStats, encode_header
 
@@ -222,7 +222,7 @@ class Node:
     def service(
         self, name: str, request_type: type[Q], response_type: type[R], handler: Callable[[Q], R | Responder[R]]
     ) -> Service[Q, R]:
-        """Serve ``name`` with ``handler(request) -> response`` (deferred answers, refusals: :mod:`palpa.service`)."""
+        """Serve ``name`` with ``handler(request) -> response`` (deferred answers, refusals: :mod:`palpa.node.service`)."""
         if self.resolve(name) in self._services:
             raise ValueError(f"node {self.name!r} already serves {self.resolve(name)!r}")
         srv = self._services[self.resolve(name)] = Service(self, name, request_type, response_type, handler)

@@ -1,7 +1,7 @@
 """The endpoints a node hands out: publishers, subscriptions, timers, and the raw envelope type.
 
-They get what they use and no more: a publisher the transport, the clock and the node's :class:`~palpa.dispatch.Dispatch`
-(to batch inside callbacks), and a :class:`~palpa.dispatch.Spinner` for its blocking wait; a subscription only the
+They get what they use and no more: a publisher the transport, the clock and the node's :class:`~palpa.node.dispatch.Dispatch`
+(to batch inside callbacks), and a :class:`~palpa.node.dispatch.Spinner` for its blocking wait; a subscription only the
 spinner. Create them through ``Node.publisher``, ``Node.subscribe`` and ``Node.timer``, not directly.
 """
 
@@ -15,7 +15,7 @@ from typing import Any, Generic, NamedTuple, TypeVar, get_type_hints
 import msgspec
 
 from palpa.timing.clock import Clock
-from palpa.dispatch import Dispatch, Spinner
+from palpa.node.dispatch import Dispatch, Spinner
 from palpa.message import Message
 from palpa.net.transport import Transport
 from palpa.net.wire import Header, HeaderTemplate, TopicStats, msgpack_array
