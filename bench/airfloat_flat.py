@@ -27,7 +27,7 @@ from messages import PressureCommand, StiffnessFit  # noqa: E402
 from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate  # noqa: E402
 from nodes.fibre_reader import FibreReader  # noqa: E402
 from nodes.pressure_controller import PressureController  # noqa: E402
-from nodes.static_pose import StaticPose  # noqa: E402
+from nodes.scanner.static_pose import StaticPose  # noqa: E402
 from nodes.stiffness_estimator import AirfloatStiffnessEstimator  # noqa: E402
 from palpa.testing import GraphHarness  # noqa: E402
 

@@ -27,7 +27,7 @@ import yaml
 from messages import StiffnessSample
 from nodes.camera_calibrate import REFERENCES, calibrate, press_reference
 from nodes.camera_tracker import CameraTracker
-from nodes.linear_stage import LinearStage
+from nodes.scanner.linear_stage import LinearStage
 from nodes.stiffness_estimator import MultiIndenterStiffnessEstimator
 from palpa.testing import GraphHarness
 

@@ -87,7 +87,7 @@ def sim_reference_ramp(ref: Reference, seed: int, target_kpa: float) -> Referenc
     """Hold the probe 1 mm above a reference sample and ramp the pressure; d_in and read-back kPa by stamp."""
     from nodes.fibre_reader import FibreReader
     from nodes.pressure_controller import PressureController
-    from nodes.static_pose import StaticPose
+    from nodes.scanner.static_pose import StaticPose
     from palpa.testing import GraphHarness
 
     thickness = float(load_geometry(ref.geometry).thickness(*_CENTRE))

@@ -101,7 +101,7 @@ def press_reference(phantom: str, *, device_seed: int, seed: int = 0, depth_mm: 
                     speed_mm_s: float = 1.5, cycles: int = 4, ideal: bool = False) -> Press:
     """One simulated reference press of the linear stage (in-process graph): the poses and indenter frames."""
     from nodes.camera_tracker import CameraTracker
-    from nodes.linear_stage import LinearStage
+    from nodes.scanner.linear_stage import LinearStage
     from palpa.testing import GraphHarness
 
     g = GraphHarness()

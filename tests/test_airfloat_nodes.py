@@ -11,7 +11,7 @@ import pytest
 from messages import PressureCommand, ProbeHeights, RobotPose, StiffnessSample
 from nodes.fibre_reader import FibreReader
 from nodes.pressure_controller import PressureController
-from nodes.static_pose import StaticPose
+from nodes.scanner.static_pose import StaticPose
 from nodes.stiffness_estimator import AirfloatStiffnessEstimator
 from palpa.testing import GraphHarness, NodeHarness
 

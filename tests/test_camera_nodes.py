@@ -15,8 +15,8 @@ import palpa
 from messages import IndenterDisplacements, RobotPose, ScanStatus
 from models.camera_render import CameraModel, Renderer
 from nodes.camera_tracker import CameraTracker
-from nodes.linear_stage import LinearStage, StageProfile
-from nodes.static_pose import StaticPose
+from nodes.scanner.linear_stage import LinearStage, StageProfile
+from nodes.scanner.static_pose import StaticPose
 from nodes.stiffness_estimator import MultiIndenterStiffnessEstimator
 from palpa.testing import GraphHarness, NodeHarness
 from tests.procs import wait_until

@@ -25,7 +25,7 @@ from models.phantom import load_phantom
 from nodes.fibre_reader import FibreReader
 from nodes.map_aggregator import MapAggregator
 from nodes.pressure_controller import PressureController
-from nodes.robot_scanner import RobotScanner
+from nodes.scanner.robot_scanner import RobotScanner
 from nodes.stiffness_estimator import AirfloatStiffnessEstimator
 from palpa.node.service import BadRequestError, RequestRefused
 from palpa.node.service_client import Future

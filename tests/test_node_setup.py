@@ -20,7 +20,7 @@ from nodes.camera_tracker import CameraTracker
 from nodes.drivers.robot import PathPoint, RobotDriver, RobotDriverError
 from nodes.fibre_reader import FibreReader
 from nodes.pressure_controller import PressureController
-from nodes.robot_scanner import RobotScanner
+from nodes.scanner.robot_scanner import RobotScanner
 from palpa.timing.clock import MockClock
 from palpa.testing import MemoryBus, NodeHarness
 from tests.procs import ur_emulator

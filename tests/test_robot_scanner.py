@@ -18,7 +18,7 @@ from messages import (
     Trigger,
     TriggerResult,
 )
-from nodes.robot_scanner import RobotScanner
+from nodes.scanner.robot_scanner import RobotScanner
 from palpa.node.service import RequestRefused
 from palpa.testing import NodeHarness
 

@@ -18,7 +18,7 @@ import palpa
 from emulators.clock_file import ClockWriter
 from messages import RobotPose
 from models.phantom import load_phantom
-from nodes.robot_scanner import RobotScanner
+from nodes.scanner.robot_scanner import RobotScanner
 from palpa.timing.clock import MockClock
 from palpa.launch import load_launch, parse_overrides
 from palpa.testing import GraphHarness
@@ -196,7 +196,7 @@ def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path, calibratio
     from nodes.fibre_reader import FibreReader
     from nodes.map_aggregator import MapAggregator
     from nodes.pressure_controller import PressureController
-    from nodes.robot_scanner import RobotScanner
+    from nodes.scanner.robot_scanner import RobotScanner
     from nodes.stiffness_estimator import AirfloatStiffnessEstimator
     from palpa.testing import GraphHarness
 

@@ -27,8 +27,8 @@ from models.phantom import load_phantom
 from models.raster import sweep_raster
 from nodes.fibre_reader import FibreReader
 from nodes.pressure_controller import PressureController
-from nodes.robot_scanner import RobotScanner
-from nodes.surface_follow import LineFollower
+from nodes.scanner.robot_scanner import RobotScanner
+from nodes.scanner.surface_follow import LineFollower
 from palpa.timing.clock import MockClock
 from palpa.testing import GraphHarness, NodeHarness
 

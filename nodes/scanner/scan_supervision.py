@@ -5,7 +5,7 @@ after ``startup_timeout_s``). Moving (a scan, a probe, a touch-off), it stops th
 a scan holds or ends as a fault: ``RobotScanner.stale_data``), on a TCP outside the workspace box and on a robot
 fault; it then advances the path: progress, the probe's measuring window, the surface follower's corrections, the
 holds at press points and the next segment. At a touch-off's end it plans the raster over the found surface and
-checks it again before it runs. Split from nodes/robot_scanner.py, which owns the state this reads and the actions
+checks it again before it runs. Split from nodes/scanner/robot_scanner.py, which owns the state this reads and the actions
 it takes (halt, set_state, start_segment, resend).
 """
 
@@ -15,10 +15,10 @@ from typing import TYPE_CHECKING
 
 import palpa
 from nodes.drivers.robot import MotionStatus
-from nodes.scan_control import MOVING
+from nodes.scanner.scan_control import MOVING
 
 if TYPE_CHECKING:
-    from nodes.robot_scanner import RobotScanner
+    from nodes.scanner.robot_scanner import RobotScanner
 
 __all__ = ["SUPERVISION_MAX_S", "ScanSupervision", "supervision_period_s"]
 

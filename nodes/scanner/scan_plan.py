@@ -4,7 +4,7 @@
 its lines are followed, or an indentation); :func:`check_path` refuses a path (a scan's, a probe's, a following
 correction's) that leaves the workspace box or exceeds the speed or acceleration cap, naming the waypoint, or any
 path at all while the arm is outside the box; :func:`path_segments` cuts a path where the arm stops anyway. Split
-from nodes/robot_scanner.py, which drives the arm along what these plan and pass.
+from nodes/scanner/robot_scanner.py, which drives the arm along what these plan and pass.
 """
 
 from __future__ import annotations
@@ -24,10 +24,10 @@ from models.raster import (
     sweep_raster,
 )
 from nodes.drivers.robot import RobotDriver
-from nodes.specimen import SpecimenPlanner
+from nodes.scanner.specimen import SpecimenPlanner
 
 if TYPE_CHECKING:
-    from nodes.robot_scanner import RobotScanner
+    from nodes.scanner.robot_scanner import RobotScanner
 
 __all__ = ["check_path", "path_segments", "plan_raster"]
 

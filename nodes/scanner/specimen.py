@@ -1,5 +1,5 @@
 """The scanner's specimen: its region, the prior surface, the touch-off that finds the real one
-(:class:`nodes.touchoff.TouchOff`) and the raster's surface after it. Split from nodes/touchoff.py, which drives the
+(:class:`nodes.scanner.touchoff.TouchOff`) and the raster's surface after it. Split from nodes/scanner/touchoff.py, which drives the
 arm; this decides where and with what."""
 
 from __future__ import annotations
@@ -23,10 +23,10 @@ from models.surface import (
     search_points,
     touch_points,
 )
-from nodes.touchoff import TouchOff, TouchOffConfig
+from nodes.scanner.touchoff import TouchOff, TouchOffConfig
 
 if TYPE_CHECKING:
-    from nodes.robot_scanner import RobotScanner
+    from nodes.scanner.robot_scanner import RobotScanner
 
 __all__ = ["SpecimenPlanner"]
 

@@ -33,7 +33,7 @@ from models.raster import RasterPlan, Waypoint, indent_raster, sweep_raster
 from palpa.node.service import RequestRefused, Responder
 
 if TYPE_CHECKING:
-    from nodes.robot_scanner import RobotScanner
+    from nodes.scanner.robot_scanner import RobotScanner
 
 __all__ = ["MOVING", "ScanControl", "lift_first", "measuring_moves"]
 

@@ -8,15 +8,15 @@ stops it at once. Stale data ends a scan as a fault; a probe (a service call) fa
 the scanner stays up and refuses the next probe until the data is fresh again. The arm's pose is published on
 ``robot/pose``; the plan, latched, on ``robot/plan`` before motion.
 
-Services (nodes.scan_control): ``scanner/probe_at`` probes one point and answers with the stiffness found there;
+Services (nodes.scanner.scan_control): ``scanner/probe_at`` probes one point and answers with the stiffness found there;
 ``scanner/pause``, ``scanner/resume`` and ``scanner/abort`` control a scan or a probe. With ``autostart: false``
 the scanner does not scan but waits, idle, for probe requests; with a touch-off set it finds the surface first,
 and probes then follow the found surface as a scan's lines would (sweep: the working offset; indent: the press depth
 below it).
 
 This module holds the node: its parameters, its inputs, its state and the actions on the arm (run a path, pause,
-resume, halt). The plan and its checks against the workspace box and caps are in nodes.scan_plan; the periodic
-supervision pass (watchdogs, the box, the arm's status, advancing the path) in nodes.scan_supervision.
+resume, halt). The plan and its checks against the workspace box and caps are in nodes.scanner.scan_plan; the periodic
+supervision pass (watchdogs, the box, the arm's status, advancing the path) in nodes.scanner.scan_supervision.
 """
 
 from __future__ import annotations
@@ -39,14 +39,14 @@ from messages.robot import ScanState
 from models.following import FollowConfig
 from models.raster import RasterPlan, Waypoint
 from nodes.drivers.robot import RobotDriver
-from nodes.scan_control import ScanControl
-from nodes.scan_plan import check_path, path_segments, plan_raster
-from nodes.scan_progress import PathProgressMeter
-from nodes.scan_supervision import SUPERVISION_MAX_S, ScanSupervision, supervision_period_s
-from nodes.specimen import SpecimenPlanner
-from nodes.surface_follow import LineFollower
+from nodes.scanner.scan_control import ScanControl
+from nodes.scanner.scan_plan import check_path, path_segments, plan_raster
+from nodes.scanner.scan_progress import PathProgressMeter
+from nodes.scanner.scan_supervision import SUPERVISION_MAX_S, ScanSupervision, supervision_period_s
+from nodes.scanner.specimen import SpecimenPlanner
+from nodes.scanner.surface_follow import LineFollower
 
-# SUPERVISION_MAX_S and supervision_period_s: importable from here as before the split (nodes.scan_supervision)
+# SUPERVISION_MAX_S and supervision_period_s: importable from here as before the split (nodes.scanner.scan_supervision)
 __all__ = ["SUPERVISION_MAX_S", "RobotScanner", "supervision_period_s"]
 
 _STOPPING_FAULTS = {"device_lost", "over_pressure", "tracking_error"}
@@ -70,7 +70,7 @@ class RobotScanner(palpa.Node):
         the region is the extent of the points that found it less edge_margin_mm, its surface fitted through them."""
         search_step_mm: palpa.Positive = 10.0
         touchoff: Literal["off", "heights", "indenters", "force"] = "off"
-        """Find the surface before the raster (nodes/touchoff.py) by this contact signal; off: flat contact_z_mm."""
+        """Find the surface before the raster (nodes/scanner/touchoff.py) by this contact signal; off: flat contact_z_mm."""
         touch_grid: int = 3
         """Touch-off points: a grid x grid lattice over the region (2: corners and centre)."""
         touch_inset_mm: float = 0.0
@@ -85,7 +85,7 @@ class RobotScanner(palpa.Node):
         follow_gain_per_s: palpa.NonNegative = 10.0
         """Sweep over a found surface with the air-float probe: its heights hold the face's clearance (eq. 2's d_n)
         at working_offset_mm along each line, taking this fraction of the error out per second (0: no following;
-        nodes/surface_follow.py)."""
+        nodes/scanner/surface_follow.py)."""
         follow_step_mm: palpa.Positive = 1.5
         """Following: the lines' waypoints at most this far apart (a correction acts within one step)."""
         follow_max_offset_mm: palpa.Positive = 2.0
@@ -210,7 +210,7 @@ class RobotScanner(palpa.Node):
                             clock=self.clock.now_ns)
 
     def make_plan(self) -> RasterPlan:
-        """The scan's raster from the parameters over the specimen (nodes.scan_plan)."""
+        """The scan's raster from the parameters over the specimen (nodes.scanner.scan_plan)."""
         return plan_raster(self.params, self.specimen, self.follower is not None)
 
     def check_plan(self) -> None:
@@ -220,7 +220,7 @@ class RobotScanner(palpa.Node):
 
     def check_path(self, waypoints: tuple[Waypoint, ...]) -> None:
         """Raise ParamError naming the first waypoint that leaves the workspace box or exceeds a cap (and when
-        the arm itself is outside the box): nodes.scan_plan.check_path."""
+        the arm itself is outside the box): nodes.scanner.scan_plan.check_path."""
         check_path(waypoints, self.params, self.name, self.driver)
 
     def publish_plan(self) -> None:
