@@ -26,9 +26,9 @@ import yaml
 
 from messages import StiffnessSample
 from nodes.camera_calibrate import REFERENCES, calibrate, press_reference
-from nodes.camera_tracker import CameraTracker
+from nodes.probe.camera_tracker import CameraTracker
 from nodes.scanner.linear_stage import LinearStage
-from nodes.stiffness_estimator import MultiIndenterStiffnessEstimator
+from nodes.probe.stiffness_estimator import MultiIndenterStiffnessEstimator
 from palpa.testing import GraphHarness
 
 SPRINGS = {0.29: "phantoms/springs_029.yaml", 0.37: "phantoms/springs_037.yaml",

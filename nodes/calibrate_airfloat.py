@@ -64,7 +64,7 @@ class Reference:
 
 def sim_force_plate(seed: int, cycles: int = 3, noise_n: float = 0.003) -> tuple[np.ndarray, np.ndarray]:
     """(read-back kPa, plate N) from the simulated regulator and a force sensor under the simulated probe."""
-    from nodes.pressure_controller import PressureController
+    from nodes.probe.pressure_controller import PressureController
     from palpa.testing import GraphHarness
 
     probe = TrueProbe(ProbeErrors.draw(seed))
@@ -85,8 +85,8 @@ def sim_force_plate(seed: int, cycles: int = 3, noise_n: float = 0.003) -> tuple
 
 def sim_reference_ramp(ref: Reference, seed: int, target_kpa: float) -> ReferenceRamp:
     """Hold the probe 1 mm above a reference sample and ramp the pressure; d_in and read-back kPa by stamp."""
-    from nodes.fibre_reader import FibreReader
-    from nodes.pressure_controller import PressureController
+    from nodes.probe.fibre_reader import FibreReader
+    from nodes.probe.pressure_controller import PressureController
     from nodes.scanner.static_pose import StaticPose
     from palpa.testing import GraphHarness
 

@@ -100,7 +100,7 @@ def calibrate(presses: Sequence[tuple[Press, float]], info: dict[str, object] | 
 def press_reference(phantom: str, *, device_seed: int, seed: int = 0, depth_mm: float = 9.0,
                     speed_mm_s: float = 1.5, cycles: int = 4, ideal: bool = False) -> Press:
     """One simulated reference press of the linear stage (in-process graph): the poses and indenter frames."""
-    from nodes.camera_tracker import CameraTracker
+    from nodes.probe.camera_tracker import CameraTracker
     from nodes.scanner.linear_stage import LinearStage
     from palpa.testing import GraphHarness
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from messages import PressureCommand, ProbeHeights, RobotPose, StiffnessSample
-from nodes.fibre_reader import FibreReader
-from nodes.pressure_controller import PressureController
+from nodes.probe.fibre_reader import FibreReader
+from nodes.probe.pressure_controller import PressureController
 from nodes.scanner.static_pose import StaticPose
-from nodes.stiffness_estimator import AirfloatStiffnessEstimator
+from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator
 from palpa.testing import GraphHarness, NodeHarness
 
 

@@ -143,7 +143,7 @@ WORLD = ("models.world", "models.airfloat_device", "models.camera_world", "model
 # encodes with as the real one does (fibre_sim's world adds the sensor's gain and bow errors on top)
 ESTIMATORS = {"models.contact", "models.multi_indenter_solve", "models.stiffness_map", "models.calibration_airfloat",
               "models.camera_calibration", "models.tracker", "models.kalman",
-              "models.adaptive", "models.scoring", "nodes.stiffness_estimator", "nodes.estimator_multi",
+              "models.adaptive", "models.scoring", "nodes.probe.stiffness_estimator", "nodes.probe.estimator_multi",
               "nodes.map_aggregator"}
 AIRFLOAT_GEOMETRY = {"DEFAULT_INDENTER_RADIUS_MM", "DEFAULT_SPS_RADIUS_MM", "heights_over_phantom"}
 
@@ -246,7 +246,7 @@ def _project_node_classes() -> list[type[Any]]:
 
 def test_every_node_class_types_its_params() -> None:
     classes = _project_node_classes()
-    assert {"nodes.stiffness_estimator.AirfloatStiffnessEstimator", "palpa.record.player.Player"} <= {
+    assert {"nodes.probe.stiffness_estimator.AirfloatStiffnessEstimator", "palpa.record.player.Player"} <= {
         f"{c.__module__}.{c.__qualname__}" for c in classes}
     assert untyped_params(classes) == []
 

@@ -14,10 +14,10 @@ import pytest
 import palpa
 from messages import IndenterDisplacements, RobotPose, ScanStatus
 from models.camera_render import CameraModel, Renderer
-from nodes.camera_tracker import CameraTracker
+from nodes.probe.camera_tracker import CameraTracker
 from nodes.scanner.linear_stage import LinearStage, StageProfile
 from nodes.scanner.static_pose import StaticPose
-from nodes.stiffness_estimator import MultiIndenterStiffnessEstimator
+from nodes.probe.stiffness_estimator import MultiIndenterStiffnessEstimator
 from palpa.testing import GraphHarness, NodeHarness
 from tests.procs import wait_until
 

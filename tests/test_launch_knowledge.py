@@ -51,12 +51,12 @@ def test_only_simulated_drivers_get_a_phantom(file: Path) -> None:
 def test_the_rig_file_with_simulated_probe_drivers_gives_the_phantom_to_them_only() -> None:
     over = {"fibre_driver": "sim", "pressure_driver": "sim", "phantom": "phantoms/airfloat_tumours.yaml"}
     assert given_a_phantom(REPO / "launch" / "scan_ur.yaml", over) == {
-        "fibre": ("nodes.fibre_reader:FibreReader", "sim")}
+        "fibre": ("nodes.probe.fibre_reader:FibreReader", "sim")}
 
 
 def test_the_check_sees_a_phantom_under_any_name(tmp_path: Path) -> None:
     """The check itself can fail: an estimator handed the phantom as its 'geometry' is caught."""
     f = tmp_path / "bad.yaml"
-    f.write_text(f"nodes:\n  - name: estimator\n    node: nodes.stiffness_estimator:AirfloatStiffnessEstimator\n"
+    f.write_text(f"nodes:\n  - name: estimator\n    node: nodes.probe.stiffness_estimator:AirfloatStiffnessEstimator\n"
                  f"    params: {{geometry: {PHANTOMS / 'flat_26k.yaml'}}}\n")
-    assert given_a_phantom(f, {}) == {"estimator": ("nodes.stiffness_estimator:AirfloatStiffnessEstimator", None)}
+    assert given_a_phantom(f, {}) == {"estimator": ("nodes.probe.stiffness_estimator:AirfloatStiffnessEstimator", None)}

@@ -45,8 +45,8 @@ class Smoke:
 
 def synthetic_scan_bag(tmp: Path) -> list[str]:
     """A 3 s recording of a probe held over the flat 26.4 kPa phantom, made with the real sim nodes."""
-    from nodes.fibre_reader import FibreReader
-    from nodes.pressure_controller import PressureController
+    from nodes.probe.fibre_reader import FibreReader
+    from nodes.probe.pressure_controller import PressureController
     from nodes.scanner.static_pose import StaticPose
     from palpa.record.testing import Rec, write_bag
     from palpa.testing import GraphHarness

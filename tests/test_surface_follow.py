@@ -25,8 +25,8 @@ from models.following import (
 )
 from models.phantom import load_phantom
 from models.raster import sweep_raster
-from nodes.fibre_reader import FibreReader
-from nodes.pressure_controller import PressureController
+from nodes.probe.fibre_reader import FibreReader
+from nodes.probe.pressure_controller import PressureController
 from nodes.scanner.robot_scanner import RobotScanner
 from nodes.scanner.surface_follow import LineFollower
 from palpa.timing.clock import MockClock

@@ -14,8 +14,8 @@ import pytest
 
 from emulators.clock_file import ClockWriter
 from models.surface import region_from_touches, search_points
-from nodes.fibre_reader import FibreReader
-from nodes.pressure_controller import PressureController
+from nodes.probe.fibre_reader import FibreReader
+from nodes.probe.pressure_controller import PressureController
 from nodes.scanner.robot_scanner import RobotScanner
 from palpa.timing.clock import MockClock
 from palpa.testing import GraphHarness

@@ -27,8 +27,8 @@ from models.calibration_airfloat import CalibrationError, load_calibration
 from models.geometry import GeometryError, load_geometry
 from models.multi_indenter import PAPER_GEOMETRY, ProbeGeometry
 from nodes.common import load_probe_calibration
-from nodes.estimator_airfloat import AirfloatConfig, AirfloatEstimator
-from nodes.estimator_multi import MultiIndenterEstimator
+from nodes.probe.estimator_airfloat import AirfloatConfig, AirfloatEstimator
+from nodes.probe.estimator_multi import MultiIndenterEstimator
 
 __all__ = ["AirfloatStiffnessEstimator", "MultiIndenterStiffnessEstimator"]
 
