@@ -25,7 +25,7 @@ import msgpack
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from nodes.probe.fibre_reader import FibreReader  # noqa: E402  (after the sys.path line)
-from nodes.map_aggregator import MapAggregator  # noqa: E402
+from nodes.mapping.map_aggregator import MapAggregator  # noqa: E402
 from nodes.probe.pressure_controller import PressureController  # noqa: E402
 from nodes.scanner.robot_scanner import RobotScanner  # noqa: E402
 from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator  # noqa: E402

@@ -144,7 +144,7 @@ WORLD = ("models.world", "models.airfloat_device", "models.camera_world", "model
 ESTIMATORS = {"models.contact", "models.multi_indenter_solve", "models.stiffness_map", "models.calibration_airfloat",
               "models.camera_calibration", "models.tracker", "models.kalman",
               "models.adaptive", "models.scoring", "nodes.probe.stiffness_estimator", "nodes.probe.estimator_multi",
-              "nodes.map_aggregator"}
+              "nodes.mapping.map_aggregator"}
 AIRFLOAT_GEOMETRY = {"DEFAULT_INDENTER_RADIUS_MM", "DEFAULT_SPS_RADIUS_MM", "heights_over_phantom"}
 
 

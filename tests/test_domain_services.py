@@ -23,7 +23,7 @@ from messages import (
 )
 from models.phantom import load_phantom
 from nodes.probe.fibre_reader import FibreReader
-from nodes.map_aggregator import MapAggregator
+from nodes.mapping.map_aggregator import MapAggregator
 from nodes.probe.pressure_controller import PressureController
 from nodes.scanner.robot_scanner import RobotScanner
 from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator

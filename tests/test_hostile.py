@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 
 import palpa
 from messages import PressureCommand, PressureState, Text
-from nodes.map_aggregator import MapAggregator
+from nodes.mapping.map_aggregator import MapAggregator
 from nodes.probe.pressure_controller import PressureController
 from palpa.runtime_msgs import Heartbeat
 from palpa.testing import GraphHarness, NodeHarness

@@ -194,7 +194,7 @@ def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path, calibratio
     """The same nodes in-process (mock clock), realistic calibrated probe: a phantom without inclusions gives no
     detection at all, and the map's median is within 6 % of the truth."""
     from nodes.probe.fibre_reader import FibreReader
-    from nodes.map_aggregator import MapAggregator
+    from nodes.mapping.map_aggregator import MapAggregator
     from nodes.probe.pressure_controller import PressureController
     from nodes.scanner.robot_scanner import RobotScanner
     from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator

@@ -17,7 +17,7 @@ import messages  # noqa: F401
 import palpa
 from messages import EStop, Inclusions, ProbeHeights, RobotPose, ScanPlan, StiffnessMap
 from messages.robot import PlanWaypoint
-from nodes.foxglove_views import ScanViews
+from nodes.mapping.foxglove_views import ScanViews
 from palpa.net.address import BusAddress
 from palpa.errors import ParamError
 from palpa.testing import GraphHarness

@@ -17,7 +17,7 @@ on the GP mean.
 
 Publishes ``planner/mean``, ``planner/std`` and ``planner/map`` (the map inclusions are detected on; StiffnessMap,
 latched) after every probe, and at the end writes the same files as a raster scan's map (``map.npz`` of that map,
-``map.png``, ``inclusions.json``: nodes.map_output) plus ``planner.json`` (probes, refusals, simulated time, why it
+``map.png``, ``inclusions.json``: nodes.mapping.map_output) plus ``planner.json`` (probes, refusals, simulated time, why it
 stopped, and with the detect rule ``unsensed``: per reach of interest the fraction of the region where an inclusion
 sensed from that far could still lie unseen; the smallest's cells are ``map.npz``'s ``unsensed`` and ``map.png``'s
 grey), publishes ``map/inclusions`` and exits: it is the launch's required node. It exits 0 only when nothing was
@@ -57,7 +57,7 @@ from models.adaptive_detect import decide, detect_candidates, reference, unsense
 from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, detect_inclusions
 from models.surface import region_in_footprint
-from nodes.map_output import write_outputs
+from nodes.mapping.map_output import write_outputs
 from palpa.node.service import ServiceError
 from palpa.node.service_client import Future
 

@@ -35,7 +35,7 @@ from models.stiffness_map import (
     background,
     detect_inclusions,
 )
-from nodes.map_output import write_outputs
+from nodes.mapping.map_output import write_outputs
 from palpa.node.service import RequestRefused
 
 __all__ = ["MapAggregator"]
