@@ -203,7 +203,7 @@ def test_stage_node_waits_for_its_topic_then_presses_and_exits() -> None:
 
 # ------------------------------------------------------------------------------- acceptance: Table I, in-process
 
-CALIBRATION = str(Path(__file__).parent / "data" / "camera_probe6.yaml")  # python -m nodes.camera_calibrate
+CALIBRATION = str(Path(__file__).parent / "data" / "camera_probe6.yaml")  # python -m tools.camera_calibrate
 
 
 def table_row(k: float, values: np.ndarray) -> tuple[float, float, float, float]:

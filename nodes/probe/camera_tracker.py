@@ -66,7 +66,7 @@ class CameraTracker(palpa.Node):
         rest_x_px: list[float] = []
         """Stored calibration: marker x (px) at zero displacement; empty: measure it on the first frames."""
         calibration_file: palpa.InputPath = ""
-        """A probe calibration (``python -m nodes.camera_calibrate``): its per-marker pixel -> mm maps replace
+        """A probe calibration (``python -m tools.camera_calibrate``): its per-marker pixel -> mm maps replace
         ``px_per_mm`` and its direction ``direction``. Empty: the nominal scale."""
         px_per_mm: palpa.Positive = PX_PER_MM
         direction: float = 1.0

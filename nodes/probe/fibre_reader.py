@@ -62,7 +62,7 @@ class FibreReader(palpa.Node):
         """Sim device errors drawn from ``device_seed`` (docs/airfloat-sim.md); ``ideal``: a perfect device, unit tests
         only."""
         device_seed: int = 0
-        """Which simulated probe (its error draw); calibrate with the same one (``nodes.calibrate_airfloat``)."""
+        """Which simulated probe (its error draw); calibrate with the same one (``tools.calibrate_airfloat``)."""
         sps_radius_mm: palpa.Positive = DEFAULT_SPS_RADIUS_MM
         indenter_radius_mm: palpa.Positive = DEFAULT_INDENTER_RADIUS_MM
         stroke_mm: palpa.Positive = 10.0

@@ -54,7 +54,7 @@ class PressureController(palpa.Node):
         force_pressure_unit_kpa: palpa.Positive = 100.0
         """Eq. 4's pressure unit in kPa (100: the paper's P read as bar; see docs/physics.md)."""
         calibration: palpa.InputPath = ""
-        """Calibration YAML (``python -m nodes.calibrate_airfloat``): its force line replaces force_gain/offset."""
+        """Calibration YAML (``python -m tools.calibrate_airfloat``): its force line replaces force_gain/offset."""
         port: str = "/dev/ttyUSB0"
         unit_id: str = "A"
         baudrate: palpa.PositiveInt = 19200

@@ -65,7 +65,7 @@ class AirfloatStiffnessEstimator(_Publishing):
         thickness_mm: palpa.Positive = 20.0
         """Tissue thickness for eq. 7 (mm) when no ``geometry`` file is given: a value someone measured."""
         calibration: palpa.InputPath = ""
-        """Calibration YAML (``python -m nodes.calibrate_airfloat``): its depth offset is added to eqs. 1-3's d_in."""
+        """Calibration YAML (``python -m tools.calibrate_airfloat``): its depth offset is added to eqs. 1-3's d_in."""
         geometry: palpa.InputPath = ""
         """Measured-geometry YAML (a thickness map or constant, docs/physics.md); overrides ``thickness_mm``."""
         poisson_ratio: float = 0.5

@@ -1,7 +1,7 @@
 """Batch evaluation: a launch file over phantoms x seeds x arg values, every run scored against its phantom's truth.
 
-    python -m nodes.evaluate launch/scan_sim.yaml --generate 20 -o runs/eval
-    python -m nodes.evaluate launch/scan_sim.yaml --phantom phantoms/airfloat_tumours.yaml --seeds 0 1 2 \\
+    python -m tools.evaluate launch/scan_sim.yaml --generate 20 -o runs/eval
+    python -m tools.evaluate launch/scan_sim.yaml --phantom phantoms/airfloat_tumours.yaml --seeds 0 1 2 \\
         --arg spacing_mm=2,3,4 -o runs/spacing
 
 Each run is ``palpa launch FILE --in-process`` in its own run directory (``--multi-process`` for one process per
@@ -243,7 +243,7 @@ def _parse_grid(items: Sequence[str]) -> dict[str, list[Any]]:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m nodes.evaluate", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m tools.evaluate", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("launch", type=Path, help="the launch file to evaluate")
     ap.add_argument("-o", "--out", type=Path, required=True, help="output folder (runs, tables, summary)")

@@ -1,4 +1,4 @@
-"""Calibrate the air-float probe: ``python -m nodes.calibrate_airfloat -o calibration.yaml [--seed N]``.
+"""Calibrate the air-float probe: ``python -m tools.calibrate_airfloat -o calibration.yaml [--seed N]``.
 
 The procedure a user runs on the bench (docs/physics.md, "Calibration"), here against the simulated devices:
 
@@ -129,11 +129,11 @@ def calibrate(seed: int, references: list[Reference], plate_csv: Path | None = N
     force = ForceCalibration(line.gain, line.offset + df, line.pressure_unit_kpa)
     names = ", ".join(f"{Path(r.phantom).stem} ({r.modulus_kpa:g} kPa)" for r in references)
     return AirfloatCalibration(force=force, depth_offset_mm=delta, force_line_rmse_n=rmse, reference_rms_rel=rel,
-                               source=f"nodes.calibrate_airfloat, sim probe seed {seed}; references: {names}")
+                               source=f"tools.calibrate_airfloat, sim probe seed {seed}; references: {names}")
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m nodes.calibrate_airfloat", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m tools.calibrate_airfloat", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("-o", "--output", type=Path, required=True)
     ap.add_argument("--seed", type=int, default=0, help="the simulated probe (the fibre reader's device_seed)")

@@ -1,4 +1,4 @@
-"""Print where a scan wrote its map and what it found: ``python -m nodes.scan_report RUN_DIR [--phantom FILE]``.
+"""Print where a scan wrote its map and what it found: ``python -m tools.scan_report RUN_DIR [--phantom FILE]``.
 
 With ``--phantom`` (simulation: the truth, read here after the run and never by the graph) the scan is scored by
 ``models.scoring.score_scan``: each true inclusion found or missed with its centroid and radius errors, false

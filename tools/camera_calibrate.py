@@ -1,6 +1,6 @@
 """Calibrate a camera probe: press a rigid flat and reference springs, write the calibration file.
 
-    python -m nodes.camera_calibrate -o probe7.yaml --device-seed 7            # in simulation
+    python -m tools.camera_calibrate -o probe7.yaml --device-seed 7            # in simulation
     palpa launch launch/camera_sim.yaml calibration_file:=probe7.yaml ...      # then use it
 
 The procedure is the rig's (docs/camera.md, "Calibration"): the linear stage presses the probe
@@ -117,7 +117,7 @@ def press_reference(phantom: str, *, device_seed: int, seed: int = 0, depth_mm: 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """CLI: calibrate a simulated probe and write the file."""
-    ap = argparse.ArgumentParser(prog="python -m nodes.camera_calibrate", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m tools.camera_calibrate", description=__doc__.split("\n")[0])
     ap.add_argument("-o", "--output", required=True, help="calibration file to write (YAML)")
     ap.add_argument("--device-seed", type=int, default=0, help="which simulated probe (the sim camera's device_seed)")
     ap.add_argument("--seed", type=int, default=100, help="image-noise seed of the calibration presses")
@@ -131,7 +131,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CalibrationError as exc:
         print(f"camera_calibrate: {exc}", file=sys.stderr)
         return 1
-    Path(args.output).write_text("# camera-probe calibration (python -m nodes.camera_calibrate)\n"
+    Path(args.output).write_text("# camera-probe calibration (python -m tools.camera_calibrate)\n"
                                  + yaml.safe_dump(cal.to_dict(), sort_keys=False))
     print(json.dumps({"output": args.output, "k_n_per_mm": cal.k_n_per_mm, "scale_poly": cal.scale_poly}))
     return 0
