@@ -11,7 +11,7 @@ import yaml
 
 from palpa.cli.common import add_bus_arg
 from palpa.cli.service import call_service
-from palpa.cli.topic import _tool_node
+from palpa.cli.topic import tool_node
 from palpa.errors import PalpaError
 from palpa.message import Message
 from palpa.node.params import parse_param_value, read_params_file
@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _ask(args: argparse.Namespace, verb: str, request: Message) -> ParamValues:
-    with _tool_node(args, f"param_{verb}") as node:
+    with tool_node(args, f"param_{verb}") as node:
         reply = call_service(node, param_service(args.node, verb), request, wait_s=args.timeout,
                              timeout_s=args.timeout)
     assert isinstance(reply, ParamValues)

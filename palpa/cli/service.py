@@ -10,7 +10,7 @@ import msgspec
 import yaml
 
 from palpa.cli.common import add_bus_arg, message_from_yaml
-from palpa.cli.topic import _tool_node, collect_heartbeats
+from palpa.cli.topic import collect_heartbeats, tool_node
 from palpa.errors import PalpaError
 from palpa.message import Message, lookup
 from palpa.node.node import Node, RawMessage
@@ -44,7 +44,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run_list(args: argparse.Namespace) -> int:
-    with _tool_node(args, "service_list") as node:
+    with tool_node(args, "service_list") as node:
         beats = collect_heartbeats(node, args.wait)
     rows = sorted((name, types, hb.node) for hb in beats.values() for name, types in hb.services.items()
                   if args.all or not name.startswith("_palpa/"))
@@ -68,7 +68,7 @@ def call_service(node: Node, name: str, request: Message, *, wait_s: float, time
 
 def run_call(args: argparse.Namespace) -> int:
     request = message_from_yaml(args.type, args.data, "request")
-    with _tool_node(args, "service_call") as node:
+    with tool_node(args, "service_call") as node:
         if args.feedback:
             node.subscribe_raw(args.feedback, lambda raw: _print_feedback(args.feedback, raw))
         response = call_service(node, args.name, request, wait_s=args.wait, timeout_s=args.timeout)

@@ -16,9 +16,9 @@ from palpa.cli.common import add_bus_arg, bus_and_source, import_message_modules
 from palpa.errors import BusError, PalpaError, RegistryError
 from palpa.launch.validate import did_you_mean
 from palpa.message import lookup
+from palpa.net.wire import TopicStats
 from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
-from palpa.net.wire import TopicStats
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -63,7 +63,7 @@ WAIT_S = 1.5
 WAIT_HELP = "seconds to listen for heartbeats (every node sends one a second; default %(default)s)"
 
 
-def _tool_node(args: argparse.Namespace, name: str) -> Node:
+def tool_node(args: argparse.Namespace, name: str) -> Node:
     """A heartbeat-less node on the verb's bus; ``args.bus_where`` names that bus and why it was chosen."""
     import_message_modules()
     address, source = bus_and_source(args)
@@ -140,7 +140,7 @@ def collect_heartbeats(node: Node, wait_s: float) -> dict[str, Heartbeat]:
 
 
 def run_list(args: argparse.Namespace) -> int:
-    with _tool_node(args, "topic_list") as node:
+    with tool_node(args, "topic_list") as node:
         beats = collect_heartbeats(node, args.wait)
     topics = graph_topics(beats)
     if not topics:
@@ -180,7 +180,7 @@ def run_echo(args: argparse.Namespace) -> int:
             print(yaml.safe_dump(body, sort_keys=False, default_flow_style=None, width=120).rstrip())
         sys.stdout.flush()
 
-    with _tool_node(args, "echo") as node:
+    with tool_node(args, "echo") as node:
         node.subscribe_raw(topic, on_raw)
         watch = GraphWatch(node, args, topic)
         while (not args.count or count < args.count) and time.monotonic() < deadline:
@@ -210,7 +210,7 @@ def run_hz(args: argparse.Namespace) -> int:
             stamps.append(raw.header.stamp)
             del stamps[: -args.window]
 
-    with _tool_node(args, "hz") as node:
+    with tool_node(args, "hz") as node:
         node.subscribe_raw(topic, on_raw)
         watch = GraphWatch(node, args, topic)
         while not args.duration or time.monotonic() - started < args.duration:
@@ -253,7 +253,7 @@ def run_pub(args: argparse.Namespace) -> int:
     import_message_modules()
     msg = message_from_yaml(args.type, args.data)
     topic = bare_topic(args.topic)
-    with _tool_node(args, "pub") as node:
+    with tool_node(args, "pub") as node:
         if not getattr(node.transport, "connected", True):
             raise BusError(f"no bus answered on {args.bus_where}: nothing was sent (is the launch running? "
                            "--bus or --run DIR choose another)")

@@ -31,9 +31,9 @@ import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 
+from palpa.errors import BusError
 from palpa.net.address import BusAddress, is_loopback_host
 from palpa.net.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
-from palpa.errors import BusError
 from palpa.net.keys import ClientKeys, load_secret_key
 from palpa.net.latch import DEFAULT_LATCH_MAX_BYTES, DEFAULT_LATCH_MAX_ENTRIES, LatchCache
 from palpa.net.wire import MAX_MSG_BYTES

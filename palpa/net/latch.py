@@ -7,9 +7,9 @@ from __future__ import annotations
 
 import msgspec
 
-from palpa.net.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
 from palpa.errors import DecodeError, RegistryError
 from palpa.message import lookup
+from palpa.net.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
 from palpa.net.wire import MAX_TOPIC_BYTES, decode_header
 
 __all__ = ["DEFAULT_LATCH_MAX_BYTES", "DEFAULT_LATCH_MAX_ENTRIES", "LatchCache"]

@@ -16,8 +16,6 @@ from typing import Any, NamedTuple
 
 import msgspec
 
-from palpa.node.dispatch import Dispatch
-from palpa.node.endpoints import MsgInfo, RawMessage, Subscription
 from palpa.errors import DecodeError
 from palpa.net.transport import Delivery
 from palpa.net.wire import (
@@ -30,6 +28,8 @@ from palpa.net.wire import (
     TopicStats,
     parse_envelope,
 )
+from palpa.node.dispatch import Dispatch
+from palpa.node.endpoints import MsgInfo, RawMessage, Subscription
 
 __all__ = ["Receiver"]
 

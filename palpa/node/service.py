@@ -33,10 +33,10 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import msgspec
 
-from palpa.node.endpoints import RawMessage
 from palpa.errors import PalpaError, ParamError
 from palpa.message import Message
 from palpa.net.wire import Header
+from palpa.node.endpoints import RawMessage
 
 if TYPE_CHECKING:
     from palpa.node.nodeapi import NodeApi
@@ -111,10 +111,10 @@ class ServiceFault(Message, frozen=True, kw_only=True):
     message: str
 
 
-_FAULTS: dict[str, type[ServiceError]] = {
+FAULTS: dict[str, type[ServiceError]] = {
     "bad_request": BadRequestError, "refused": RequestRefused, "handler_error": HandlerError,
 }
-_encoder = msgspec.msgpack.Encoder()
+ENCODER = msgspec.msgpack.Encoder()
 
 
 def request_topic(name: str) -> str:
@@ -141,7 +141,7 @@ class Responder(Generic[R]):
         if not isinstance(response, self._service.response_type):
             raise TypeError(f"service {self._service.name!r} answers {self._service.response_type.type_name}, "
                             f"not {type(response).__name__}")
-        self._send(self._service.response_type.type_name, _encoder.encode(response))
+        self._send(self._service.response_type.type_name, ENCODER.encode(response))
 
     def refuse(self, reason: str) -> None:
         """Answer with a refusal (the caller gets :class:`RequestRefused`)."""
@@ -150,7 +150,7 @@ class Responder(Generic[R]):
     def fail(self, kind: str, message: str) -> None:
         """Answer with a fault of ``kind`` (``bad_request``, ``refused`` or ``handler_error``)."""
         self._service.faults += not self.done
-        self._send(ServiceFault.type_name, _encoder.encode(ServiceFault(kind=kind, message=message)))
+        self._send(ServiceFault.type_name, ENCODER.encode(ServiceFault(kind=kind, message=message)))
 
     def _send(self, type_name: str, payload: bytes) -> None:
         if self.done:

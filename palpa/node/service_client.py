@@ -18,11 +18,13 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import msgspec
 
-from palpa.node.endpoints import RawMessage, Timer
 from palpa.message import Message
+from palpa.net.wire import Header
+from palpa.node.endpoints import RawMessage, Timer
 from palpa.node.service import (
-    _FAULTS,
     DEFAULT_TIMEOUT_S,
+    ENCODER,
+    FAULTS,
     SERVICE_INFO_PREFIX,
     HandlerError,
     NoServerError,
@@ -30,11 +32,9 @@ from palpa.node.service import (
     ServiceFault,
     ServiceInfo,
     ServiceTimeout,
-    _encoder,
     reply_topic,
     request_topic,
 )
-from palpa.net.wire import Header
 
 if TYPE_CHECKING:
     from palpa.node.nodeapi import NodeApi
@@ -208,7 +208,7 @@ class Client(Generic[Q, R]):
         seq = self._seq
         fut: Future[R] = Future(self, seq, time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s))
         self._pending[seq] = fut
-        self._unsent[seq] = _encoder.encode(request)
+        self._unsent[seq] = ENCODER.encode(request)
         self._send_unsent()
         if self._timer is None:
             self._timer = self.node.timer(_EXPIRY_PERIOD_S, self._tick)
@@ -234,7 +234,7 @@ class Client(Generic[Q, R]):
         try:
             if raw.header.type == ServiceFault.type_name:
                 fault = _fault_decoder.decode(raw.payload)
-                err = _FAULTS.get(fault.kind, HandlerError)
+                err = FAULTS.get(fault.kind, HandlerError)
                 fut._finish(None, err(f"service {self.name!r}: {fault.message}"))
             elif raw.header.type == self.response_type.type_name:
                 fut._finish(self._decoder.decode(raw.payload), None)
