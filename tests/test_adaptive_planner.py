@@ -53,6 +53,7 @@ def _adaptive(tmp: Path) -> tuple[dict[str, Any], list[dict[str, float]], list[S
             beliefs, probing_z)
 
 
+@pytest.mark.system
 def test_planner_probes_through_the_scanner_carries_on_after_refusals_and_is_deterministic(tmp_path: Path) -> None:
     """Requests outside the scanner's box are refused by the scanner (the planner never checks the box itself);
     the planner gives those points up and spends its budget on the rest; it publishes its belief after each

@@ -168,6 +168,7 @@ def test_fibre_sim_rate_and_no_contact_when_lifted() -> None:
     assert pose.params.z_mm == 40.0
 
 
+@pytest.mark.system
 def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path, calibration) -> None:  # type: ignore[no-untyped-def]
     """Issue 6 acceptance as processes: launch/airfloat_sim.yaml over the 10.8 kPa phantom, the simulated probe
     calibrated on the bench first (uncalibrated it reads about a third low: BENCHMARKS.md)."""

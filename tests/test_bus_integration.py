@@ -21,6 +21,8 @@ from palpa.net.address import BusAddress
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from tests.procs import ProcessGroup, drain, palpa_cmd, short_ipc_base, wait_until
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 
 def heartbeats(node: palpa.Node) -> palpa.Subscription[Heartbeat]:
     existing = node._rx.subs.get(HEARTBEAT_TOPIC.encode())

@@ -73,6 +73,7 @@ def test_pub_refuses_a_misspelt_field_with_a_suggestion(capsys: pytest.CaptureFi
     assert message_from_yaml("EStop", "{engaged: false}").engaged is False
 
 
+@pytest.mark.system
 def test_pub_fails_when_no_bus_answers(capsys: pytest.CaptureFixture[str]) -> None:
     nowhere = f"ipc://{short_ipc_base()}"
     assert main(["topic", "pub", "chatter", "Text", "{text: hi}", "--bus", nowhere]) == 1
@@ -80,6 +81,7 @@ def test_pub_fails_when_no_bus_answers(capsys: pytest.CaptureFixture[str]) -> No
     assert "no bus answered" in err and nowhere in err and "nothing was sent" in err
 
 
+@pytest.mark.system
 def test_pub_warns_on_a_type_the_graph_does_not_use(live_bus: BusAddress,
                                                    capsys: pytest.CaptureFixture[str]) -> None:
     with graph_node(live_bus, "estop"):
@@ -90,6 +92,7 @@ def test_pub_warns_on_a_type_the_graph_does_not_use(live_bus: BusAddress,
         assert "nothing subscribes to 'robot/nothing'" in capsys.readouterr().err
 
 
+@pytest.mark.system
 def test_echo_strips_the_slash_and_names_the_missing_publisher(live_bus: BusAddress,
                                                               capsys: pytest.CaptureFixture[str]) -> None:
     with graph_node(live_bus, "talker"):
@@ -100,6 +103,7 @@ def test_echo_strips_the_slash_and_names_the_missing_publisher(live_bus: BusAddr
         assert "publishes 'chater' (did you mean 'chatter'?)" in capsys.readouterr().err
 
 
+@pytest.mark.system
 def test_tools_find_the_current_launch_then_a_run_dir(live_bus: BusAddress, tmp_path: Path,
                                                      monkeypatch: pytest.MonkeyPatch,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
@@ -127,6 +131,7 @@ def test_tools_find_the_current_launch_then_a_run_dir(live_bus: BusAddress, tmp_
     assert find_bus()[1].startswith("the default bus")
 
 
+@pytest.mark.system
 def test_nothing_heard_names_the_bus(capsys: pytest.CaptureFixture[str]) -> None:
     nowhere = f"ipc://{short_ipc_base()}"
     assert main(["node", "list", "--wait", "0.2", "--bus", nowhere]) == 1
@@ -137,6 +142,7 @@ def test_nothing_heard_names_the_bus(capsys: pytest.CaptureFixture[str]) -> None
 
 
 @pytest.mark.slow
+@pytest.mark.system
 def test_readme_commands_find_a_launch_from_a_second_terminal(procs: ProcessGroup, tmp_path: Path) -> None:
     """``palpa node list`` exactly as the README prints it, in another process with no --bus and no PALPA_BUS."""
     env = {k: v for k, v in os.environ.items() if k != "PALPA_BUS"}
@@ -160,6 +166,7 @@ def test_palpa_run_help_without_a_target(capsys: pytest.CaptureFixture[str]) -> 
     assert "MODULE:CLASS" in out and "--param" in out and "working directory" in out
 
 
+@pytest.mark.system
 def test_palpa_run_imports_from_the_working_directory_and_lists_parameters(tmp_path: Path) -> None:
     folder = Path(__file__).resolve().parent.parent / "examples" / "custom_node"
     env = {**os.environ, "PYTHONPATH": str(folder.parents[1])}  # palpa itself, not the example's folder
@@ -186,6 +193,7 @@ def test_schema_lists_type_names_and_suggests_a_close_one(capsys: pytest.Capture
     assert "did you mean 'EStop'?" in capsys.readouterr().err
 
 
+@pytest.mark.system
 def test_a_node_that_cannot_start_says_why_in_one_line(ipc_bus: BusAddress,
                                                        capsys: pytest.CaptureFixture[str]) -> None:
     # on a live bus: without one the node would first wait out the bus handshake, which is not what is tested

@@ -95,6 +95,7 @@ def _scan(tmp: Path) -> tuple[list[dict[str, float]], np.ndarray]:
     return json.loads((out / "inclusions.json").read_text()), np.load(out / "map.npz")["stiffness"]
 
 
+@pytest.mark.system
 def test_the_same_seed_gives_the_same_map(tmp_path: Path) -> None:
     a, grid_a = _scan(tmp_path / "a")
     b, grid_b = _scan(tmp_path / "b")
@@ -102,6 +103,7 @@ def test_the_same_seed_gives_the_same_map(tmp_path: Path) -> None:
     assert np.array_equal(grid_a, grid_b, equal_nan=True)
 
 
+@pytest.mark.system
 def test_in_process_launch_is_seen_on_the_bus_by_outside_tools(procs: ProcessGroup, tmp_path: Path) -> None:
     """`palpa launch scan_sim.yaml --in-process`: a node of our own on the run's bus hears the composed graph's
     topics and heartbeats (what topic echo/hz and node list use); the scan ends by itself with exit 0."""
@@ -114,6 +116,7 @@ def test_in_process_launch_is_seen_on_the_bus_by_outside_tools(procs: ProcessGro
 
 
 @pytest.mark.timeout(400)
+@pytest.mark.system
 def test_in_process_and_multi_process_find_the_same_inclusions(procs: ProcessGroup, tmp_path: Path) -> None:
     """The same small scan composed and as one process per node: the same inclusions, within 0.05 mm (the event
     lockstep gives the processes the composition's timeline: same timer instants, every message handled at the

@@ -28,6 +28,8 @@ from palpa.node.endpoints import RawMessage
 from palpa.testing import MemoryBus
 from tests.procs import ProcessGroup, palpa_cmd, wait_until
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 
 def _texts(n: int, start: int = 0) -> list[str]:
     return [str(i) for i in range(start, start + n)]

@@ -22,6 +22,8 @@ from palpa.net.latch import LatchCache
 from palpa.net.transport import ZmqTransport
 from tests.procs import wait_until
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 TCP = BusAddress("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")
 
 

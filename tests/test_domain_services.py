@@ -293,6 +293,7 @@ def test_tare_and_save_map_now(tmp_path: Path) -> None:
     g.close()
 
 
+@pytest.mark.system
 def test_tare_over_the_serial_driver_zeroes_the_heights() -> None:
     """probe/tare on the real serial driver against the DAQ emulator ($ZERO): the current pose then reads the
     calibration's zero heights (0 mm), where it read 1.5/1.5/1.5/3.5 mm before."""

@@ -108,6 +108,7 @@ def test_a_run_is_scored_against_its_phantom_and_its_recording(tmp_path: Path) -
 
 
 @pytest.mark.timeout(300)
+@pytest.mark.system
 def test_evaluate_runs_a_generated_phantom_end_to_end(tmp_path: Path) -> None:
     """`python -m tools.evaluate` on one generated phantom, a small raster: tables and a summary."""
     out = tmp_path / "eval"

@@ -47,6 +47,7 @@ def test_keygen_writes_a_private_secret_and_loading_refuses_a_readable_one(tmp_p
             curve=palpa.net.bus.CurveServer(secret, tmp_path)).start()
 
 
+@pytest.mark.system
 def test_ipc_sockets_live_in_a_checked_private_directory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     runtime = tmp_path / "run"
     runtime.mkdir(mode=0o700)
@@ -65,6 +66,7 @@ def test_ipc_sockets_live_in_a_checked_private_directory(tmp_path: Path, monkeyp
     assert private_dir() == Path(f"/tmp/palpa-{os.getuid()}")
 
 
+@pytest.mark.system
 def test_a_node_refuses_another_users_ipc_socket(tmp_path: Path) -> None:
     if os.getuid() != 0:
         pytest.skip("needs root to make a socket owned by another user")
@@ -76,6 +78,7 @@ def test_a_node_refuses_another_users_ipc_socket(tmp_path: Path) -> None:
             ZmqTransport(bus.address)
 
 
+@pytest.mark.system
 def test_curve_refusals_are_logged_on_both_sides_and_sighup_lets_a_new_key_in(
         tmp_path: Path, procs: ProcessGroup, caplog: pytest.LogCaptureFixture) -> None:
     from palpa.net.keys import create_key_pair

@@ -194,6 +194,7 @@ def test_record_section(tmp_path: Path) -> None:
         load_launch(write(tmp_path / "clash.yaml", "record: true\nnodes: [{name: recorder, cmd: [x]}]\n"))
 
 
+@pytest.mark.system
 def test_json_schema_comes_from_the_same_definitions() -> None:
     schema = json_schema()
     defs = schema["$defs"]

@@ -22,6 +22,8 @@ from palpa.cli.main import main as cli_main
 from palpa.node.node import RawMessage
 from tests.procs import ProcessGroup, palpa_cmd, wait_until
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 REPO = Path(__file__).resolve().parent.parent
 LAUNCH_DIR = REPO / "launch"
 

@@ -23,6 +23,8 @@ from palpa.launch.process import process_alive
 from palpa.net.address import BusAddress
 from tests.procs import Proc, ProcessGroup, palpa_cmd, wait_until
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 TESTS = Path(__file__).resolve().parent
 HELPER = TESTS / "launch_nodes.py"
 REPO = TESTS.parent

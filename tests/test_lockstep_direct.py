@@ -21,6 +21,8 @@ from palpa.timing.simclock import ClockSource
 from tests.procs import short_ipc_base, wait_until
 from tests.test_readiness import REACH_PROBES, SubscriptionGate, through_gate
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 LOCKSTEP_EXCLUDE = ["_palpa/clock.*", "_palpa/tick/.*", "_palpa/lockstep"]  # launch/scan_sim.yaml's record:
 
 

@@ -26,7 +26,7 @@ from tests.netns import Hosts, why_no_netns
 from tests.procs import REPO, Proc, ProcessGroup, wait_until
 
 _WHY = why_no_netns()
-pytestmark = pytest.mark.skipif(bool(_WHY), reason=_WHY or "ok")
+pytestmark = [pytest.mark.system, pytest.mark.skipif(bool(_WHY), reason=_WHY or "ok")]
 GEOMETRY = REPO / "phantoms" / "measured" / "airfloat_tumours.yaml"
 HOST_OF = {"clock": 1, "pressure": 2, "fibre": 2, "estimator": 3, "map": 3, "scanner": 3}
 """Where each node of launch/scan_sim.yaml runs; the bus and the recorder are on host 1, the tools on host 4."""

@@ -9,10 +9,14 @@ import signal
 import time
 from pathlib import Path
 
+import pytest
+
 import palpa
 from palpa.runtime_msgs import ClockTick
 from palpa.testing import MemoryBus
 from tests.procs import ProcessGroup, wait_until
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 
 class Ticker(palpa.Node):

@@ -19,6 +19,8 @@ from palpa.net.transport import ZmqTransport
 from palpa.runtime_msgs import HEARTBEAT_TOPIC
 from tests.procs import short_ipc_base, wait_until
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 
 class _Gate:
     """A relay thread between a front socket (bound on a short ipc path, :attr:`endpoint`) and a back socket

@@ -20,6 +20,8 @@ from palpa.record.testing import Rec, check_official, write_bag
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from tests.procs import ProcessGroup, palpa_cmd, short_ipc_base, wait_until
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 MS = 1_000_000
 
 

@@ -102,6 +102,7 @@ def test_recover_refuses_to_overwrite_its_source(tmp_path: Path) -> None:
     assert not (tmp_path / "n2.mcap").exists()
 
 
+@pytest.mark.system
 def test_kill_9_then_recover(ipc_bus: BusAddress, procs: ProcessGroup, env_for, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """A real recorder process SIGKILLed mid-run loses at most its last second; recover makes the file whole."""
     out = tmp_path / "killed.mcap"

@@ -230,7 +230,7 @@ def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.Mo
 
 def _clock_source(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], MemoryBus, Any]:
     """A clock source (2x, 20 ms lead, simulated time from 1 s) on a memory bus, its wall clock ``wall[0]``."""
-    from palpa import simclock
+    from palpa.timing import simclock
 
     wall = [0]
     monkeypatch.setattr(simclock.time, "monotonic_ns", lambda: wall[0])

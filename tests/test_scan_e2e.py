@@ -89,7 +89,7 @@ def stiff_centre(m: Any) -> tuple[float, float]:
 
 
 # whole simulated scans: each launch is bounded by its own wait (run_launch's timeout), not the suite's 120 s
-pytestmark = pytest.mark.timeout(900)
+pytestmark = [pytest.mark.system, pytest.mark.timeout(900)]
 
 
 def run_launch(procs: ProcessGroup, run_dir: Path, file: str, *args: str, timeout: float = 240) -> str:

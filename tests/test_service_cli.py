@@ -24,6 +24,8 @@ from tests.procs import REPO, ProcessGroup, palpa_cmd, short_ipc_base, wait_unti
 from tests.test_service import Adder, AddReply, AddRequest
 from tests.test_service_zmq import adder  # noqa: F401  (fixture)
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 
 @pytest.fixture
 def talker_graph(procs: ProcessGroup, tmp_path: Path) -> Iterator[str]:

@@ -17,6 +17,8 @@ from palpa.node.service import RequestRefused
 from tests.procs import wait_until
 from tests.test_service import Adder, AddReply, AddRequest
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 
 @pytest.fixture
 def adder(ipc_bus: BusAddress) -> Iterator[Adder]:

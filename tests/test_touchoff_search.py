@@ -22,6 +22,8 @@ from palpa.timing.clock import MockClock
 from tests.followed_clock import FollowedClock
 from tests.procs import ur_emulator
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 SMALL = "phantoms/specimens/small_40x30_8mm.yaml"  # 40 x 30 mm, 8 mm thick, at the origin of the phantom frame
 BOX = [-10.0, -6.0, 0.5, 50.0, 36.0, 16.0]  # 60 x 42 mm of table around it, searched from 16 mm down
 STEP = 14.0

@@ -19,6 +19,8 @@ from palpa.net.transport import TransportOptions, ZmqTransport
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from tests.procs import ProcessGroup, bus_spec, palpa_cmd, wait_until
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 
 def test_options_from_defaults_environment_and_flags() -> None:
     assert TransportOptions.from_env({}) == TransportOptions(10_000, 10_000, 0)

@@ -26,6 +26,8 @@ from tests.foxglove_client import FoxgloveClient
 from tests.procs import ProcessGroup, palpa_cmd, wait_until
 from tests.test_launch_smoke import REPO
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 
 @pytest.fixture
 def graph() -> Iterator[tuple[GraphHarness, Bridge]]:
