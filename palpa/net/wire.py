@@ -3,7 +3,7 @@
 A message is one ZeroMQ multipart message::
 
     frame 0  topic    UTF-8 bytes, e.g. b"probe/heights"       (what ZeroMQ filters on, by prefix)
-    frame 1  header   msgpack map {"type": str, "seq": int, "stamp": int ns, "node": str[, "latched": true]}
+    frame 1  header   msgpack map {"type": str, "seq": uint64, "stamp": uint64 ns, "node": str[, "latched": true]}
     frame 2  payload  msgpack map of the message's fields (plain ``msgpack.unpackb`` reads it)
     frame 3+ blobs    optional raw binary attachments (e.g. a debug image), never msgpack-encoded
 
@@ -37,6 +37,7 @@ __all__ = [
     "MAX_BATCH",
     "MAX_MSG_BYTES",
     "MAX_TOPIC_BYTES",
+    "WIRE_VERSION",
     "Header",
     "HeaderTemplate",
     "SequenceTracker",
@@ -47,6 +48,7 @@ __all__ = [
     "parse_envelope",
     "split_batch",
     "split_envelope",
+    "uint64",
 ]
 
 
@@ -87,9 +89,34 @@ _batch_decoder = msgspec.msgpack.Decoder(list[Header])
 _raw_items_decoder = msgspec.msgpack.Decoder(list[msgspec.Raw])
 
 
+WIRE_VERSION = 2
+"""The wire protocol's version (docs/wire.md, *Versions*); nodes state it in their heartbeats. 2: every integer of
+a header is a msgpack uint64, the latch cache takes ``UNWATCH``, ``ERR`` reasons are plain text."""
+
+_U64 = struct.Struct(">BQ")
+_KEYS = {name: _header_encoder.encode(name) for name in ("type", "seq", "stamp", "node", "latched", "inc", "at")}
+
+
+def uint64(value: int, what: str) -> bytes:
+    """``value`` as a msgpack uint64 (``0xcf`` and 8 bytes), the one width every header integer has on the wire, so
+    that a reader typing integers by their width (JavaScript's BigInt for 64-bit ones) sees one type per field."""
+    if not 0 <= value < 2**64:
+        raise ValueError(f"header {what} {value} is not a uint64")
+    return _U64.pack(0xCF, value)
+
+
 def encode_header(header: Header) -> bytes:
-    """Serialise a header to its msgpack map."""
-    return _header_encoder.encode(header)
+    """Serialise a header to its msgpack map (its integers as uint64, whatever their size: docs/wire.md)."""
+    h, k, enc = header, _KEYS, _header_encoder.encode
+    parts = [k["type"], enc(h.type), k["seq"], uint64(h.seq, "seq"), k["stamp"], uint64(h.stamp, "stamp"),
+             k["node"], enc(h.node)]
+    if h.latched:
+        parts += (k["latched"], b"\xc3")
+    if h.inc:
+        parts += (k["inc"], uint64(h.inc, "inc"))
+    if h.at:
+        parts += (k["at"], uint64(h.at, "at"))
+    return bytes([0x80 | len(parts) // 2]) + b"".join(parts)
 
 
 def decode_header(frame: bytes) -> Header:
@@ -109,7 +136,7 @@ class HeaderTemplate:
         entries = 4 + bool(latched) + bool(inc) + bool(instant)
         prefix = (
             bytes([0x80 | entries]) + enc("type") + enc(type_name) + enc("node") + enc(node)
-            + (enc("latched") + enc(True) if latched else b"") + (enc("inc") + enc(inc) if inc else b"")
+            + (enc("latched") + enc(True) if latched else b"") + (enc("inc") + uint64(inc, "inc") if inc else b"")
             + enc("seq") + b"\xcf"
         )
         mid = enc("stamp") + b"\xcf"
