@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck bench clean lock
+.PHONY: demo test lint typecheck bench clean lock conformance-js
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
@@ -42,6 +42,18 @@ TEST_JOBS ?= 3
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(TEST_JOBS) --dist loadgroup
 
+# the Node.js conformance client (conformance/js, tests/test_conformance_js.py): its packages from the npm registry at
+# the versions of its package-lock.json. --ignore-scripts: zeromq's install script would build or download a binary;
+# zeromq 6 ships its prebuilt addon (linux/darwin/win32, glibc and musl) inside the npm package itself
+JS_CLIENT := conformance/js
+$(JS_CLIENT)/node_modules/.installed: $(JS_CLIENT)/package.json $(JS_CLIENT)/package-lock.json
+	cd $(JS_CLIENT) && npm ci --ignore-scripts --no-audit --no-fund
+	touch $@
+conformance-js: $(JS_CLIENT)/node_modules/.installed
+
+# the system tier runs the conformance client too (a prerequisite only: the tier's own recipe is elsewhere)
+test-system: conformance-js
+
 lint: $(STAMP)
 	$(BIN)/ruff check palpa messages devices models nodes emulators tests
 	$(BIN)/mypy
@@ -56,4 +68,4 @@ bench: $(STAMP)
 	$(BIN)/python bench/record.py
 
 clean:
-	rm -rf $(VENV) $(LOCK_VENV) runs out .pytest_cache .mypy_cache
+	rm -rf $(VENV) $(LOCK_VENV) runs out .pytest_cache .mypy_cache $(JS_CLIENT)/node_modules

@@ -244,10 +244,10 @@ class Bus:
             for cached_topic, value in hits:
                 self._send(router, topic, ident, [b"VAL", cached_topic, *value])
         elif verb == b"UNWATCH":
-            idents = self._watchers.get(topic)
-            if idents is not None:
-                idents.discard(ident)
-                if not idents:
+            watching = self._watchers.get(topic)
+            if watching is not None:
+                watching.discard(ident)
+                if not watching:
                     del self._watchers[topic]
         elif verb == b"PING":
             self._send(router, b"", ident, [b"PONG", topic])
