@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -202,4 +201,15 @@ def test_the_paths_and_addresses_wire_md_gives_are_the_real_ones(monkeypatch: py
     assert "`$XDG_RUNTIME_DIR/palpa/current`" in doc and "`ipc://$XDG_RUNTIME_DIR/palpa/bus`" in doc
     assert "palpa-<uid>.current" not in doc and "}.current" not in doc
     # the Python example at the end of the page reads the same file
-    assert re.search(r'open\(f"/tmp/palpa-\{os\.getuid\(\)\}/current"\)', doc)
+    assert 'or f"/tmp/palpa-{os.getuid()}/current"' in doc
+
+
+def test_the_python_example_of_wire_md_writes_a_version_2_header() -> None:
+    doc = (REPO / "docs" / "wire.md").read_text()
+    code = doc.split("```python", 1)[1].split("```", 1)[0]
+    helper = code[code.index("def header"):code.index("\nctx =")]
+    scope: dict[str, Any] = {"msgpack": msgpack, "time": __import__("time")}
+    exec(helper, scope)  # the page's own helper, as a reader would paste it
+    frame = scope["header"]("Text", 1, "my_client")
+    assert int_widths(frame) == {"seq": 0xCF, "stamp": 0xCF}
+    assert decode_header(frame).seq == 1 and decode_header(frame).node == "my_client"
