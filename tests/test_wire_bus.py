@@ -11,8 +11,8 @@ import msgpack
 import pytest
 import zmq
 
-from palpa.address import BusAddress
-from palpa.wire import Header, encode_header
+from palpa.net.address import BusAddress
+from palpa.net.wire import Header, encode_header
 from tests.procs import wait_until
 
 pytestmark = pytest.mark.system

@@ -17,14 +17,14 @@ import pytest
 
 import palpa
 from messages import Text
-from palpa.address import default_address, private_dir
 from palpa.cli import service as service_cli
 from palpa.cli import topic as topic_cli
 from palpa.current import current_file
-from palpa.latch import LatchCache
+from palpa.net.address import default_address, private_dir
+from palpa.net.latch import LatchCache
+from palpa.net.wire import WIRE_VERSION, Header, HeaderTemplate, decode_header, encode_header
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.testing import GraphHarness, MemoryBus
-from palpa.wire import WIRE_VERSION, Header, HeaderTemplate, decode_header, encode_header
 from tests.test_service import Adder, Caller
 
 REPO = Path(__file__).resolve().parent.parent
