@@ -71,17 +71,24 @@ function findBus(argBus) {
 }
 
 // ---- receiving -----------------------------------------------------------------------------------------
-// One reader per socket (zeromq.js allows one pending receive); what it reads waits in a queue until taken.
+// One reader per socket (zeromq.js allows one pending receive); what it reads waits in a queue until taken, as
+// split(frames) makes it (the SUB's inbox holds messages: a batch is split into its messages).
 class Inbox {
-  constructor(sock, limit = 20000) {
+  constructor(sock, split = (frames) => [frames], limit = 20000) {
     this.items = []
     this.wakers = new Set()
     this.closed = false
     ;(async () => {
       try {
         for await (const frames of sock) {
-          this.items.push(frames)
-          if (this.items.length > limit) this.items.shift()
+          let items
+          try {
+            items = split(frames)
+          } catch {
+            continue // not msgpack: a malformed message is dropped (a palpa node counts it as a decode error)
+          }
+          this.items.push(...items)
+          while (this.items.length > limit) this.items.shift()
           for (const w of this.wakers) w()
         }
       } catch { /* socket closed */ }
@@ -141,7 +148,7 @@ class Client {
     this.pub.connect(ep.pub)
     this.sub.connect(ep.sub)
     this.latch.connect(ep.latch)
-    this.inbox = new Inbox(this.sub)
+    this.inbox = new Inbox(this.sub, messages)
     this.latchInbox = new Inbox(this.latch)
     this.subscribed = new Set() // each subscription arrives once per connection: remember them
     this.seq = new Map() // topic -> last seq sent: seq counts per (this node, topic)
@@ -189,16 +196,10 @@ class Client {
     await send(this.pub, [topic, pack(this.header(topic, type)), rawPayload ?? pack(payload)])
   }
 
-  // the next message on exactly `topic` for which fn(msg) is not undefined
+  // fn(msg) of the next message on exactly `topic` for which that is not undefined
   async next(topic, ms, fn = (m) => m) {
-    return this.inbox.take((frames) => {
-      if (frames[0].toString("utf8") !== topic) return undefined // subscriptions match by prefix: compare exactly
-      for (const m of messages(frames)) {
-        const got = fn(m)
-        if (got !== undefined) return got
-      }
-      return undefined
-    }, ms, `a message on ${topic}`)
+    // subscriptions match by prefix: compare the topic exactly
+    return this.inbox.take((m) => (m.topic === topic ? fn(m) : undefined), ms, `a message on ${topic}`)
   }
 
   // the next reply `verb` (on `topic`, if given) from the latch cache, read from `inbox`
