@@ -62,7 +62,7 @@ def test_every_header_integer_is_a_uint64_however_small() -> None:
     assert decode_header(encode_header(small)) == small
     assert int_widths(HeaderTemplate("Text", "n", True, 3, instant=True).pack(1, 2, 4)) == \
         {"seq": 0xCF, "stamp": 0xCF, "inc": 0xCF, "at": 0xCF}
-    with pytest.raises(ValueError, match="seq -1 is not a uint64"):
+    with pytest.raises(ValueError, match="seq -1 or stamp 0 is not a uint64"):
         encode_header(Header(type="Text", seq=-1, stamp=0, node="n"))
 
 

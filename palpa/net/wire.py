@@ -94,7 +94,7 @@ WIRE_VERSION = 2
 a header is a msgpack uint64, the latch cache takes ``UNWATCH``, ``ERR`` reasons are plain text."""
 
 _U64 = struct.Struct(">BQ")
-_KEYS = {name: _header_encoder.encode(name) for name in ("type", "seq", "stamp", "node", "latched", "inc", "at")}
+_SEQ_STAMP = struct.Struct(">4sBQ6sBQ").pack   # "seq", uint64, "stamp", uint64: one call for the hot part
 
 
 def uint64(value: int, what: str) -> bytes:
@@ -107,16 +107,19 @@ def uint64(value: int, what: str) -> bytes:
 
 def encode_header(header: Header) -> bytes:
     """Serialise a header to its msgpack map (its integers as uint64, whatever their size: docs/wire.md)."""
-    h, k, enc = header, _KEYS, _header_encoder.encode
-    parts = [k["type"], enc(h.type), k["seq"], uint64(h.seq, "seq"), k["stamp"], uint64(h.stamp, "stamp"),
-             k["node"], enc(h.node)]
+    h, enc = header, _header_encoder.encode
+    try:
+        out = (bytes((0x84 + h.latched + bool(h.inc) + bool(h.at),)) + b"\xa4type" + enc(h.type)
+               + _SEQ_STAMP(b"\xa3seq", 0xCF, h.seq, b"\xa5stamp", 0xCF, h.stamp) + b"\xa4node" + enc(h.node))
+    except struct.error:
+        raise ValueError(f"header seq {h.seq} or stamp {h.stamp} is not a uint64") from None
     if h.latched:
-        parts += (k["latched"], b"\xc3")
+        out += b"\xa7latched\xc3"
     if h.inc:
-        parts += (k["inc"], uint64(h.inc, "inc"))
+        out += b"\xa3inc" + uint64(h.inc, "inc")
     if h.at:
-        parts += (k["at"], uint64(h.at, "at"))
-    return bytes([0x80 | len(parts) // 2]) + b"".join(parts)
+        out += b"\xa2at" + uint64(h.at, "at")
+    return out
 
 
 def decode_header(frame: bytes) -> Header:
