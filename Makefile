@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-system lint typecheck bench clean lock
+.PHONY: demo test test-system lint typecheck bench clean lock conformance-js
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
@@ -43,8 +43,17 @@ test: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(TEST_JOBS) -m "not system"
 
 SYSTEM_JOBS ?= 3
-test-system: $(STAMP)
+test-system: $(STAMP) conformance-js
 	$(BIN)/python -m pytest -q -n $(SYSTEM_JOBS) --dist loadgroup -m system
+
+# the Node.js conformance client (conformance/js, tests/test_conformance_js.py): its packages from the npm registry at
+# the versions of its package-lock.json. --ignore-scripts: zeromq's install script would build or download a binary;
+# zeromq 6 ships its prebuilt addon (linux/darwin/win32, glibc and musl) inside the npm package itself
+JS_CLIENT := conformance/js
+$(JS_CLIENT)/node_modules/.installed: $(JS_CLIENT)/package.json $(JS_CLIENT)/package-lock.json
+	cd $(JS_CLIENT) && npm ci --ignore-scripts --no-audit --no-fund
+	touch $@
+conformance-js: $(JS_CLIENT)/node_modules/.installed
 
 lint: $(STAMP)
 	$(BIN)/ruff check palpa messages devices models nodes emulators tests
@@ -60,4 +69,4 @@ bench: $(STAMP)
 	$(BIN)/python bench/record.py
 
 clean:
-	rm -rf $(VENV) $(LOCK_VENV) runs out .pytest_cache .mypy_cache
+	rm -rf $(VENV) $(LOCK_VENV) runs out .pytest_cache .mypy_cache $(JS_CLIENT)/node_modules

@@ -45,13 +45,16 @@ class Heartbeat(Message, frozen=True, kw_only=True):
     """Topic -> message type name ('*' for raw/prefix subscriptions)."""
     counters: dict[str, TopicCounters]
     sent: dict[str, int]
-    """Topic -> messages published so far."""
+    """Topic -> the ``seq`` of the last message published on it (this heartbeat's own included)."""
     uptime_s: float
     state: str = "running"
+    """``running``; ``leaving`` in the last heartbeat a node sends, as it closes."""
     direct: list[str] = []
     """Published topics sent straight to their subscribers, past the proxy (palpa.net.direct)."""
     services: dict[str, str] = {}
     """Service name -> 'Request -> Response' (palpa.node.service)."""
+    wire: int = 1
+    """The wire protocol version the node speaks (palpa.net.wire.WIRE_VERSION; absent: 1, a node from before it)."""
 
 
 class LogRecord(Message, frozen=True, kw_only=True):

@@ -46,13 +46,16 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def run_list(args: argparse.Namespace) -> int:
     with tool_node(args, "service_list") as node:
         beats = collect_heartbeats(node, args.wait)
-    rows = sorted((name, types, hb.node) for hb in beats.values() for name, types in hb.services.items()
-                  if args.all or not name.startswith("_palpa/"))
-    if not rows:
+    every = sorted((name, types, hb.node) for hb in beats.values() for name, types in hb.services.items())
+    rows = [row for row in every if args.all or not row[0].startswith("_palpa/")]
+    if not every:
         print("no services (no node heartbeat announced one; is the graph running on this bus?)", file=sys.stderr)
         return 1
     for name, types, server in rows:
         print(f"{name}  [{types}]  server: {server}")
+    if hidden := len(every) - len(rows):
+        print(f"({'and ' if rows else 'no services but '}{hidden} parameter services, _palpa/param/NODE/get|set: "
+              "`palpa service list --all` lists them, `palpa param` uses them)")
     return 0
 
 

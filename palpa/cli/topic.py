@@ -128,7 +128,8 @@ class GraphWatch:
 
 
 def collect_heartbeats(node: Node, wait_s: float) -> dict[str, Heartbeat]:
-    """Listen for ``wait_s`` seconds and return the latest heartbeat of every node."""
+    """Listen for ``wait_s`` seconds and return the latest heartbeat of every node (not of a node whose latest
+    said it is leaving)."""
     sub = node.subscribe(HEARTBEAT_TOPIC, Heartbeat)
     seen: dict[str, Heartbeat] = {}
     deadline = time.monotonic() + wait_s
@@ -136,7 +137,7 @@ def collect_heartbeats(node: Node, wait_s: float) -> dict[str, Heartbeat]:
         hb = sub.next(remaining)
         if hb is not None:
             seen[hb.node] = hb
-    return seen
+    return {name: hb for name, hb in seen.items() if hb.state != "leaving"}
 
 
 def run_list(args: argparse.Namespace) -> int:

@@ -13,6 +13,8 @@ Latch protocol (DEALER -> ROUTER), every frame bytes:
                                                  starts with prefix (none when nothing matches); later SETs on
                                                  matching topics are pushed to the asker too, so a value set
                                                  while its subscription is still propagating is not lost
+    UNWATCH prefix                            no reply: SETs on topics under prefix are no longer pushed to the
+                                                 asker (what its GET of that prefix started; wire version 2)
     PING token                                -> PONG token: every reply to the asker's earlier requests came
                                                  before it (a node waits for its directory answers, palpa.net.reach)
 """
@@ -241,11 +243,17 @@ class Bus:
                 hits = self._cache.matching(topic)
             for cached_topic, value in hits:
                 self._send(router, topic, ident, [b"VAL", cached_topic, *value])
+        elif verb == b"UNWATCH":
+            watching = self._watchers.get(topic)
+            if watching is not None:
+                watching.discard(ident)
+                if not watching:
+                    del self._watchers[topic]
         elif verb == b"PING":
             self._send(router, b"", ident, [b"PONG", topic])
         else:
             log.warning("latch: ignoring unknown request %r (%d frames)", verb[:16], len(frames))
-            self._send(router, b"", ident, [b"ERR", b"", b"unknown request (expected SET, GET or PING)"])
+            self._send(router, b"", ident, [b"ERR", b"", b"unknown request (expected SET, GET, UNWATCH or PING)"])
 
     def _publish_client_keys(self, router: zmq.Socket[bytes], listing: bytes) -> None:
         """Cache the authorised client keys (read at start and on every reload) and push them to whoever asked:

@@ -56,7 +56,9 @@ class LatchCache:
         except DecodeError as exc:
             return str(exc)
         if not (h.latched or topic in self._graph_latched):
-            return f"topic {topic[:80]!r} is not latched (header without latched: true, not in bus.latched)"
+            # plain text, as every ERR reason (docs/wire.md): not Python's b'...' spelling of the bytes
+            return f"topic '{topic[:80].decode(errors='replace')}' is not latched (header without latched: true, " \
+                   "not in bus.latched)"
         try:
             cls = lookup(h.type)
         except RegistryError:

@@ -3,7 +3,7 @@
 A message is one ZeroMQ multipart message::
 
     frame 0  topic    UTF-8 bytes, e.g. b"probe/heights"       (what ZeroMQ filters on, by prefix)
-    frame 1  header   msgpack map {"type": str, "seq": int, "stamp": int ns, "node": str[, "latched": true]}
+    frame 1  header   msgpack map {"type": str, "seq": uint64, "stamp": uint64 ns, "node": str[, "latched": true]}
     frame 2  payload  msgpack map of the message's fields (plain ``msgpack.unpackb`` reads it)
     frame 3+ blobs    optional raw binary attachments (e.g. a debug image), never msgpack-encoded
 
@@ -37,6 +37,7 @@ __all__ = [
     "MAX_BATCH",
     "MAX_MSG_BYTES",
     "MAX_TOPIC_BYTES",
+    "WIRE_VERSION",
     "Header",
     "HeaderTemplate",
     "SequenceTracker",
@@ -47,6 +48,7 @@ __all__ = [
     "parse_envelope",
     "split_batch",
     "split_envelope",
+    "uint64",
 ]
 
 
@@ -87,9 +89,37 @@ _batch_decoder = msgspec.msgpack.Decoder(list[Header])
 _raw_items_decoder = msgspec.msgpack.Decoder(list[msgspec.Raw])
 
 
+WIRE_VERSION = 2
+"""The wire protocol's version (docs/wire.md, *Versions*); nodes state it in their heartbeats. 2: every integer of
+a header is a msgpack uint64, the latch cache takes ``UNWATCH``, ``ERR`` reasons are plain text."""
+
+_U64 = struct.Struct(">BQ")
+_SEQ_STAMP = struct.Struct(">4sBQ6sBQ").pack   # "seq", uint64, "stamp", uint64: one call for the hot part
+
+
+def uint64(value: int, what: str) -> bytes:
+    """``value`` as a msgpack uint64 (``0xcf`` and 8 bytes), the one width every header integer has on the wire, so
+    that a reader typing integers by their width (JavaScript's BigInt for 64-bit ones) sees one type per field."""
+    if not 0 <= value < 2**64:
+        raise ValueError(f"header {what} {value} is not a uint64")
+    return _U64.pack(0xCF, value)
+
+
 def encode_header(header: Header) -> bytes:
-    """Serialise a header to its msgpack map."""
-    return _header_encoder.encode(header)
+    """Serialise a header to its msgpack map (its integers as uint64, whatever their size: docs/wire.md)."""
+    h, enc = header, _header_encoder.encode
+    try:
+        out = (bytes((0x84 + h.latched + bool(h.inc) + bool(h.at),)) + b"\xa4type" + enc(h.type)
+               + _SEQ_STAMP(b"\xa3seq", 0xCF, h.seq, b"\xa5stamp", 0xCF, h.stamp) + b"\xa4node" + enc(h.node))
+    except struct.error:
+        raise ValueError(f"header seq {h.seq} or stamp {h.stamp} is not a uint64") from None
+    if h.latched:
+        out += b"\xa7latched\xc3"
+    if h.inc:
+        out += b"\xa3inc" + uint64(h.inc, "inc")
+    if h.at:
+        out += b"\xa2at" + uint64(h.at, "at")
+    return out
 
 
 def decode_header(frame: bytes) -> Header:
@@ -109,7 +139,7 @@ class HeaderTemplate:
         entries = 4 + bool(latched) + bool(inc) + bool(instant)
         prefix = (
             bytes([0x80 | entries]) + enc("type") + enc(type_name) + enc("node") + enc(node)
-            + (enc("latched") + enc(True) if latched else b"") + (enc("inc") + enc(inc) if inc else b"")
+            + (enc("latched") + enc(True) if latched else b"") + (enc("inc") + uint64(inc, "inc") if inc else b"")
             + enc("seq") + b"\xcf"
         )
         mid = enc("stamp") + b"\xcf"

@@ -383,6 +383,8 @@ class Node:
             self.on_shutdown()
             for srv in self._services.values():
                 srv.withdraw()
+            if self._set_up:
+                self._heartbeats.leave()
             if self._sim_time is not None:  # the lockstep clock stops waiting for this node now, not later
                 self._sim_time.leave()
             self.flush()

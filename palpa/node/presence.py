@@ -16,7 +16,7 @@ from typing import Any
 
 from palpa.net.direct import JOIN_PROBE_PREFIX, REACH_PREFIX
 from palpa.net.transport import ZmqTransport
-from palpa.net.wire import Header, encode_header
+from palpa.net.wire import WIRE_VERSION, Header, encode_header
 from palpa.node.endpoints import Publisher, RawMessage
 from palpa.node.nodeapi import NodeApi
 from palpa.node.receive import Receiver
@@ -131,11 +131,18 @@ class Heartbeats:
             return timeout_s
         return max(0.0, min(timeout_s, (self._due_ns - time.monotonic_ns()) / 1e9))
 
-    def send(self) -> None:
+    def leave(self) -> None:
+        """Send the last heartbeat, ``state: leaving``, as the node closes (tools stop listing it at once)."""
+        if self._period_ns:
+            self.send("leaving")
+
+    def send(self, state: str = "running") -> None:
         """Send the heartbeat now."""
         rx, pubs = self._rx, self._pubs
         subs = {s.topic: s.type.type_name for s in rx.subs.values()}
         subs.update({r.prefix.decode() + "*": "*" for r in rx.raw if not r.prefix.startswith(REACH_PREFIX)})
+        sent = {p.topic: p.seq for p in pubs.values()}
+        sent[HEARTBEAT_TOPIC] = self._pub.seq + 1  # this heartbeat counts itself: its own seq
         self._pub.publish(
             Heartbeat(
                 node=self._node.name,
@@ -144,8 +151,10 @@ class Heartbeats:
                 publishes={p.topic: p.type.type_name for p in pubs.values()},
                 subscribes=subs,
                 counters={t: TopicCounters(**s.as_dict()) for t, s in rx.counters().items()},
-                sent={p.topic: p.seq for p in pubs.values()},
+                sent=sent,
                 uptime_s=(time.monotonic_ns() - self._started_ns) / 1e9,
+                state=state,
+                wire=WIRE_VERSION,
                 direct=[p.topic for p in pubs.values() if p.direct],
                 services={name: srv.types for name, srv in self._services.items()},
             )
