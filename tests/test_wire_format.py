@@ -158,7 +158,7 @@ def test_tools_drop_a_node_whose_latest_heartbeat_says_leaving() -> None:
 @pytest.fixture
 def graph_beats(monkeypatch: pytest.MonkeyPatch) -> Iterator[list[Heartbeat]]:
     beats: list[Heartbeat] = []
-    monkeypatch.setattr(service_cli, "_tool_node", lambda args, name: _ToolNode(beats))
+    monkeypatch.setattr(service_cli, "tool_node", lambda args, name: _ToolNode(beats))
     yield beats
 
 
