@@ -27,7 +27,7 @@ BOX_X_MAX = 46.0
 
 
 def _adaptive(tmp: Path) -> tuple[dict[str, Any], list[dict[str, float]], list[StiffnessMap], list[float]]:
-    from palpa.cli.run import load_node_class
+    from palpa.targets import load_node_class
 
     plan = compose_plan(load_launch(REPO / "launch" / "scan_adaptive_sim.yaml", parse_overrides(SMALL),
                                     run_dir=tmp))

@@ -83,7 +83,7 @@ def test_compose_plan_refuses_a_file_without_sim_clock_nodes(tmp_path: Path) -> 
 
 def _scan(tmp: Path) -> tuple[list[dict[str, float]], np.ndarray]:
     """The air-float scan of a small region, composed in memory (no bus)."""
-    from palpa.cli.run import load_node_class
+    from palpa.targets import load_node_class
 
     plan = compose_plan(load_launch(REPO / "launch" / "scan_sim.yaml", parse_overrides(SMALL), run_dir=tmp))
     comp = Composition(clock=MockClock(1_700_000_000_000_000_000), heartbeat_s=0)

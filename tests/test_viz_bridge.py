@@ -223,8 +223,8 @@ def test_a_viewer_joins_a_simulated_scan_midway(tmp_path: Path) -> None:
     stops advancing simulated time once the first map is out, so the late client joins a graph that is still
     running, however loaded the machine), getting the latched plan and map, then vanishing; the scan then ends
     normally and the watcher still gets what came after."""
-    from palpa.cli.run import load_node_class
     from palpa.launch import load_launch, parse_overrides
+    from palpa.targets import load_node_class
     from palpa.timing.clock import MockClock
     from palpa.timing.compose import Composition
     from palpa.timing.simclock import ClockSource

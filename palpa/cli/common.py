@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
-import importlib
 import json
 import time
 from pathlib import Path
@@ -12,7 +10,6 @@ from typing import Any
 
 import msgspec
 
-from palpa import env as palpa_env
 from palpa.current import find_bus
 from palpa.errors import PalpaError
 from palpa.launch.validate import did_you_mean
@@ -20,6 +17,7 @@ from palpa.message import Message, lookup
 from palpa.net.address import BusAddress
 from palpa.node.node import Node
 from palpa.node.runner import run_node_code
+from palpa.targets import import_message_modules
 from yamlstruct import Source, YamlError
 
 __all__ = ["add_bus_arg", "bus_address", "bus_and_source", "import_message_modules", "message_from_yaml",
@@ -40,14 +38,6 @@ def bus_and_source(args: argparse.Namespace) -> tuple[BusAddress, str]:
 
 def bus_address(args: argparse.Namespace) -> BusAddress:
     return bus_and_source(args)[0]
-
-
-def import_message_modules() -> None:
-    """Import the message packages so their types are in the registry (``PALPA_MESSAGES`` adds more,
-    comma-separated module names)."""
-    for name in ["messages", *palpa_env.listed(palpa_env.MESSAGES)]:
-        with contextlib.suppress(ImportError):
-            importlib.import_module(name)
 
 
 def message_from_yaml(type_name: str, text: str, what: str = "data", *, stamp: bool = True) -> Message:

@@ -335,7 +335,7 @@ class Composition:
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m palpa.timing.compose GRAPH.json`` (or ``--json TEXT``): run a composed graph (a :class:`GraphSpec`) on
     the bus named by ``PALPA_BUS``; SIGINT/SIGTERM stop it. The exit code is the required node's (2: bad graph)."""
-    from palpa.cli.run import load_node_class
+    from palpa.targets import load_node_class
 
     args = list(sys.argv[1:] if argv is None else argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
