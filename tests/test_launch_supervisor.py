@@ -247,7 +247,7 @@ def test_progress_bar_hides_node_chatter_but_not_warnings(procs: ProcessGroup, t
     out = proc.output()
     assert re.search(r"^progress +\d+% scanning  line \d+/20", out, re.M), out
     assert "[loud] WARNING this line is shown on screen" in out
-    assert "[ticker] WARNING palpa.node.node.ticker: halfway there" in out
+    assert "[ticker] WARNING palpa.node.ticker: halfway there" in out
     assert "only goes to the log" not in out and "step 3 of 20" not in out and "started loud" not in out
     assert "launch ended: required node ticker ended (exit code 0); exit code 0" in out  # the summary stays
     assert "INFO this line only goes to the log" in (run_dir / "loud.log").read_text()
@@ -287,5 +287,5 @@ def test_progress_lines_off_a_terminal_by_default_then_the_reported_nodes_result
     out = proc.output()
     assert re.search(r"^progress +\d+% scanning  line \d+/20", out, re.M), out
     last_progress = max(m.end() for m in re.finditer(r"^progress .*$", out, re.M))
-    assert out.index("[ticker] INFO palpa.node.node.ticker: step 20 of 20", last_progress) > last_progress
+    assert out.index("[ticker] INFO palpa.node.ticker: step 20 of 20", last_progress) > last_progress
     assert "step 3 of 20" not in out  # only the last lines: the results, not the whole run

@@ -220,7 +220,7 @@ def test_a_direct_subscriber_is_ready_only_once_the_publisher_has_its_subscripti
                 wait_until(lambda: listener.heard.queue, 10, "a message at the listener", step=again)
                 assert listener.heard.queue[0].text == "first", "the first message was lost"
                 # ready because the talker confirmed, not because the wait ran out (the message came anyway)
-                assert not [r for r in caplog.records if r.name == "palpa.node.node.listener" and r.levelno >= 30]
+                assert not [r for r in caplog.records if r.name == "palpa.node.listener" and r.levelno >= 30]
             finally:
                 listener.close(0)
 
