@@ -38,7 +38,7 @@ from messages import (
 from messages.robot import ScanState
 from models.following import FollowConfig
 from models.raster import RasterPlan, Waypoint
-from nodes.drivers.robot import RobotDriver
+from nodes.drivers.robot import RobotDriver, RobotDriverError
 from nodes.scanner.scan_control import ScanControl
 from nodes.scanner.scan_plan import check_path, path_segments, plan_raster
 from nodes.scanner.scan_progress import PathProgressMeter
@@ -336,7 +336,12 @@ class RobotScanner(palpa.Node):
         pts = self.path[a : b + 1]
         if self.follower is not None and self.state == "scanning":
             pts = self.follower.shifted(pts)
-        self.driver.move_path(pts)
+        try:
+            self.driver.move_path(pts)
+        except (ValueError, RobotDriverError) as exc:
+            if self.state != "probing":
+                raise
+            self.control.driver_refused(exc)
 
     def resend(self, follower: LineFollower, i: int, b: int, now: int) -> None:
         """Surface following: the rest of the line (from the waypoint being approached) again, at the new offset,
