@@ -176,7 +176,7 @@ def test_palpa_run_imports_from_the_working_directory_and_lists_parameters(tmp_p
     res = subprocess.run([sys.executable, str(entry), "run", "shouter:Shouter", "--help"], cwd=folder, env=env,
                          capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr
-    assert "parameters (-p NAME=VALUE):" in res.stdout and "suffix: str = '!'" in res.stdout
+    assert "parameters (-p NAME=VALUE;" in res.stdout and "suffix: str = '!'" in res.stdout
 
 
 def test_palpa_run_misspelt_parameter_gets_did_you_mean(capsys: pytest.CaptureFixture[str]) -> None:
