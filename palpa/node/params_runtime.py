@@ -13,7 +13,7 @@ line.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Any
 
 import msgspec
@@ -115,7 +115,7 @@ class ParamServer:
         return self.values()
 
 
-def _refuse_fixed(node: str, changed: dict[str, Any], rules: dict[str, str]) -> None:
+def _refuse_fixed(node: str, changed: dict[str, Any], rules: Mapping[str, str]) -> None:
     """Raise :class:`RequestRefused` when ``changed`` holds a parameter that may not change at run time (safety
     limits named first); the message says what may change instead."""
     limits = sorted(k for k in changed if rules.get(k) == "safety limit")
