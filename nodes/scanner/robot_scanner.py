@@ -38,7 +38,7 @@ from messages import (
 from messages.robot import ScanState
 from models.following import FollowConfig
 from models.raster import RasterPlan, Waypoint
-from nodes.drivers.robot import RobotDriver, RobotDriverError
+from nodes.drivers.robot import RobotConnectionError, RobotDriver, RobotDriverError
 from nodes.scanner.scan_control import ScanControl
 from nodes.scanner.scan_plan import check_path, path_segments, plan_raster
 from nodes.scanner.scan_progress import PathProgressMeter
@@ -162,7 +162,10 @@ class RobotScanner(palpa.Node):
         self.hold_until_ns: int | None = None
         self.started_ns = self.clock.now_ns()
         self.driver: RobotDriver = self.closing(self._make_driver())  # closed even if the plan is refused below
-        self.driver.connect()
+        try:
+            self.driver.connect()
+        except RobotConnectionError as exc:  # an expected failure (robot off, wrong host): one line, no traceback
+            raise palpa.PalpaError(f"{self.name}: {' '.join(str(exc).split())}") from None
         self.specimen = SpecimenPlanner(self)  # refuses a specimen that does not fit, before any motion
         self.follower: LineFollower | None = None
         if p.mode == "sweep" and p.touchoff != "off" and p.watch_topic == "probe/heights" and p.follow_gain_per_s > 0:
