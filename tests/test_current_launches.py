@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from palpa.cli.main import main
 from palpa.current import announce, find_bus, launches_dir, running_launches, withdraw
 from palpa.errors import BusError
 from palpa.net.address import BusAddress
@@ -63,6 +64,13 @@ def test_a_dead_or_reused_launchers_entry_does_not_count_and_is_removed(runs: Pa
     assert sorted(p.name for p in folder.iterdir()) == [a.name]
     withdraw(a)
     assert not folder.exists()
+
+
+def test_palpa_run_does_not_join_a_guessed_graph_either(runs: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    announce(A, runs / "a")
+    announce(B, runs / "b")
+    assert main(["run", "nodes.demo:Talker"]) == 1
+    assert "2 launches are running; not guessing" in capsys.readouterr().err
 
 
 def test_palpa_bus_in_the_environment_is_explicit_and_wins(runs: Path, monkeypatch: pytest.MonkeyPatch) -> None:
