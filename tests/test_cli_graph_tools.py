@@ -26,9 +26,9 @@ from tests.procs import ProcessGroup, palpa_cmd, short_ipc_base, wait_until
 
 
 @contextmanager
-def graph_node(address: BusAddress, setup: str) -> Iterator[None]:
-    """A heartbeating node on ``address`` spun in a thread: ``setup`` 'estop' subscribes robot/estop (EStop),
-    'talker' publishes Text on chatter."""
+def graph_node(address: BusAddress, setup: str, heard: list[EStop] | None = None) -> Iterator[None]:
+    """A heartbeating node on ``address`` spun in a thread: ``setup`` 'estop' subscribes robot/estop (EStop; what
+    it hears goes in ``heard``), 'talker' publishes Text on chatter."""
     stop = threading.Event()
     ready = threading.Event()
 
@@ -36,7 +36,7 @@ def graph_node(address: BusAddress, setup: str) -> Iterator[None]:
         with palpa.Node(name=f"{setup}_node", bus=address, heartbeat_s=0.2) as node:
             pub = None
             if setup == "estop":
-                node.subscribe("robot/estop", EStop, lambda m: None)
+                node.subscribe("robot/estop", EStop, heard.append if heard is not None else lambda m: None)
             else:
                 pub = node.publisher("chatter", Text)
             ready.set()

@@ -4,44 +4,20 @@ on its first stderr line. Two live ipc buses in this process, the tools driven i
 
 from __future__ import annotations
 
-import threading
-from collections.abc import Iterator
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
 
-import palpa
 from messages import EStop
 from palpa.cli.main import main
 from palpa.current import announce, withdraw
 from palpa.net.address import BusAddress
 from palpa.net.bus import Bus
 from tests.procs import short_ipc_base
+from tests.test_cli_graph_tools import graph_node
 
 pytestmark = pytest.mark.system
-
-
-@contextmanager
-def estop_listener(address: BusAddress, heard: list[EStop]) -> Iterator[None]:
-    """A heartbeating node on ``address`` that keeps every EStop it hears on robot/estop, spun in a thread."""
-    stop, ready = threading.Event(), threading.Event()
-
-    def body() -> None:
-        with palpa.Node(name="arm", bus=address, heartbeat_s=0.2) as node:
-            node.subscribe("robot/estop", EStop, heard.append)
-            ready.set()
-            while not stop.is_set():
-                node.spin_once(0.05)
-
-    t = threading.Thread(target=body, daemon=True)
-    t.start()
-    assert ready.wait(10)
-    try:
-        yield
-    finally:
-        stop.set()
-        t.join(10)
 
 
 def test_two_graphs_the_tools_ask_which_and_address_only_the_one_named(
@@ -58,7 +34,7 @@ def test_two_graphs_the_tools_ask_which_and_address_only_the_one_named(
             run_dir = tmp_path / "runs" / name
             run_dir.mkdir(parents=True)
             (run_dir / "bus.address").write_text(f"{bus.address}\n")
-            stack.enter_context(estop_listener(bus.address, heard[name]))
+            stack.enter_context(graph_node(bus.address, "estop", heard[name]))
         entries = {name: announce(buses[name], tmp_path / "runs" / name) for name in ("a", "b")}
 
         assert main(["topic", "pub", "robot/estop", "EStop", "{engaged: true, reason: test}"]) == 1
@@ -74,7 +50,7 @@ def test_two_graphs_the_tools_ask_which_and_address_only_the_one_named(
         assert err.splitlines()[0] == f"palpa topic: bus {buses['a']} (the launch in {tmp_path / 'runs' / 'a'})"
         assert main(["node", "list", "--run", "b", "--wait", "1.5"]) == 0  # by the run's name
         out = capsys.readouterr()
-        assert out.err.splitlines()[0].startswith(f"palpa node: bus {buses['b']} (the launch in ") and "arm" in out.out
+        assert out.err.splitlines()[0].startswith(f"palpa node: bus {buses['b']} (the launch in ") and "estop_node" in out.out
 
         withdraw(entries["b"])  # graph b ended: one candidate left, used and named
         assert main(["node", "list", "--wait", "1.5"]) == 0
