@@ -36,12 +36,14 @@ def add_bus_arg(p: argparse.ArgumentParser) -> None:
 
 def bus_and_source(args: argparse.Namespace) -> tuple[BusAddress, str]:
     """The bus the verb uses and where that came from (see palpa.current); the first time, says so on stderr
-    (``palpa node: bus ... (the running launch in runs/x)``) before the verb does anything on it."""
+    (``palpa node: bus ... (the running launch in runs/x)``) before the verb does anything on it, unless the
+    command line names it (``--bus``: the user typed it, and an expected failure stays one line)."""
     chosen: tuple[BusAddress, str] | None = getattr(args, "bus_chosen", None)
     if chosen is None:  # chosen once per command: the line said and the bus used are the same
         chosen = args.bus_chosen = find_bus(getattr(args, "bus", None), getattr(args, "run", None))
-        print(f"palpa {getattr(args, 'verb', None) or 'tool'}: bus {chosen[0]} ({chosen[1]})", file=sys.stderr,
-              flush=True)
+        if chosen[1] != "--bus":
+            print(f"palpa {getattr(args, 'verb', None) or 'tool'}: bus {chosen[0]} ({chosen[1]})", file=sys.stderr,
+                  flush=True)
     return chosen
 
 

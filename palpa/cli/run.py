@@ -6,6 +6,7 @@ import argparse
 import os
 import sys
 
+from palpa import env as palpa_env
 from palpa.current import find_bus
 from palpa.node.runner import node_arg_parser, run_node_code
 from palpa.targets import load_node_class
@@ -31,7 +32,8 @@ def run(args: argparse.Namespace) -> int:
         sys.path.insert(0, cwd)  # as `python -m` does: a node's own folder is importable
     cls = load_node_class(args.target)  # a TargetError is a PalpaError: the CLI prints it as one line
     rest = list(args.rest)
-    if not any(a == "--bus" or a.startswith("--bus=") for a in rest) and not {"-h", "--help"} & set(rest):
+    named = any(a == "--bus" or a.startswith("--bus=") for a in rest) or palpa_env.get(palpa_env.BUS)
+    if not named and not {"-h", "--help"} & set(rest):  # a launched node has $PALPA_BUS: nothing to choose or say
         address, source = find_bus()  # refuses to guess among several running launches
         print(f"palpa run: joining bus {address} ({source})", file=sys.stderr)
         rest = ["--bus", str(address), *rest]
