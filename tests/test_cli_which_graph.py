@@ -52,6 +52,8 @@ def test_two_graphs_the_tools_ask_which_and_address_only_the_one_named(
         out = capsys.readouterr()
         assert out.err.splitlines()[0].startswith(f"palpa node: bus {buses['b']} (the launch in ") and "estop_node" in out.out
 
+        assert main(["node", "list", "--bus", str(buses["b"]), "--wait", "1.5"]) == 0
+        assert "palpa node: bus" not in capsys.readouterr().err  # named on the command line: not said again
         withdraw(entries["b"])  # graph b ended: one candidate left, used and named
         assert main(["node", "list", "--wait", "1.5"]) == 0
         assert capsys.readouterr().err.splitlines()[0].startswith(f"palpa node: bus {buses['a']} (the running launch")
