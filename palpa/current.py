@@ -1,7 +1,7 @@
 """Finding the running launches: every ``palpa launch`` binds a fresh bus, so it says where, and a tool never guesses.
 
 While a launch runs, ``palpa launch`` keeps an entry in this user's directory of running launches (``launches`` in
-the private socket directory, palpa.address.private_dir; or ``$PALPA_CURRENT``): one JSON file per launch naming its
+the private socket directory, palpa.net.address.private_dir; or ``$PALPA_CURRENT``): one JSON file per launch naming its
 bus, its launcher's pid (and that process's start time, so a reused pid is not believed) and its run directory;
 it points ``runs/latest`` at the run directory when that is in a ``runs`` folder. An entry whose launcher is gone
 (killed, it could not withdraw) is stale: it is removed when read and never counts.

@@ -34,7 +34,7 @@ InputPath = Annotated[str, msgspec.Meta(extra={"palpa": "input path"})]
 every launch) checks that it exists before any node starts."""
 
 
-# When a parameter may change (palpa.params_runtime): by default only at launch, since a node that does not apply a
+# When a parameter may change (palpa.node.params_runtime): by default only at launch, since a node that does not apply a
 # change must not acknowledge one. The node declares what it applies while it runs; a safety limit never changes.
 _CHANGE_KEY = "palpa change"
 Change = Literal["run time", "launch", "safety limit"]

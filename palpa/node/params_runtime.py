@@ -48,7 +48,7 @@ class ParamSet(Message, frozen=True, kw_only=True):
 
 class ParamValues(Message, frozen=True, kw_only=True):
     """A node's parameters: name -> value, name -> 'type = default' (what ``palpa param list`` shows), and name ->
-    when it may change (``run time``, ``launch`` or ``safety limit``: palpa.params.Change; empty from a node older
+    when it may change (``run time``, ``launch`` or ``safety limit``: palpa.node.params.Change; empty from a node older
     than the rule)."""
 
     node: str

@@ -118,7 +118,7 @@ class SdkServer:
                 services=services or None, message_backlog_size=backlog)
         except RuntimeError as exc:  # the SDK reports an OS error as RuntimeError("FoxgloveError: ...")
             reason = str(exc).removeprefix("FoxgloveError: ")
-            hint = " (--port 0 lets the OS choose a free port)" if "in use" in reason else ""
+            hint = " (--port 0, or port: 0 under a launch file's viz:, lets the OS choose a free one)" if "in use" in reason else ""
             raise PalpaError(f"cannot listen on {host}:{port}: {reason}{hint}") from None
         self.port = self._server.port
         self._stats_channel = foxglove.Channel(STATS_TOPIC, message_encoding="json", context=self._context)
