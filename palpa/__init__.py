@@ -20,7 +20,15 @@ from palpa.errors import BusError, DecodeError, LaunchError, PalpaError, ParamEr
 from palpa.message import Finite, Message, json_schema, lookup, registered
 from palpa.net.address import BusAddress
 from palpa.node.node import MsgInfo, Node, Publisher, RawMessage, Subscription, Timer
-from palpa.node.params import InputPath, NonNegative, Params, Positive, PositiveInt
+from palpa.node.params import (
+    InputPath,
+    NonNegative,
+    Params,
+    Positive,
+    PositiveInt,
+    RunTime,
+    SafetyLimit,
+)
 from palpa.node.runner import run_node
 from palpa.timing.clock import Clock, MockClock, SystemClock
 
@@ -47,6 +55,8 @@ __all__ = [
     "MsgInfo",
     "RawMessage",
     "RegistryError",
+    "RunTime",
+    "SafetyLimit",
     "Subscription",
     "SystemClock",
     "Timer",

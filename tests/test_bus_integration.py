@@ -330,7 +330,9 @@ def test_bus_process_ready_line_and_clean_stop(procs: ProcessGroup) -> None:
 def test_cli_expected_failure_is_one_line(ipc_bus: BusAddress, procs: ProcessGroup, env_for, verb) -> None:  # type: ignore[no-untyped-def]
     p = procs.start(palpa_cmd(*verb), env=env_for(ipc_bus))
     assert p.wait(10) == 1
-    assert p.output().strip().splitlines() == ["palpa topic: nope: got 0 of 1 messages before the timeout"]
+    # the bus it addressed ($PALPA_BUS: not on the command line, so said first), then the one line of the failure
+    assert p.output().strip().splitlines() == [f"palpa topic: bus {ipc_bus} ($PALPA_BUS)",
+                                               "palpa topic: nope: got 0 of 1 messages before the timeout"]
 
 
 def test_topic_cli_tools(ipc_bus: BusAddress, procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]

@@ -50,7 +50,7 @@ def test_a_nodejs_client_does_the_five_jobs_on_a_live_graph(procs: ProcessGroup,
         beats: dict[str, Heartbeat] = {}
         node.subscribe(HEARTBEAT_TOPIC, Heartbeat, lambda hb: beats.__setitem__(hb.node, hb))
         spin_until(node, lambda: {"talker", "listener"} <= beats.keys(), 30, "the graph's heartbeats", launch)
-        # no --bus: the client finds the launch as docs/wire.md says, by the current-launch file
+        # no --bus: the client finds the launch as docs/wire.md says, by its entry among the running launches
         js = procs.start([node_exe, str(CLIENT), "--deadline", "90"], cwd=str(CLIENT.parent))
         try:
             js.wait_for_output('"job":"heartbeat"', 100)

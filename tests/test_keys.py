@@ -47,6 +47,23 @@ def test_keygen_writes_a_private_secret_and_loading_refuses_a_readable_one(tmp_p
             curve=palpa.net.bus.CurveServer(secret, tmp_path)).start()
 
 
+def test_keygen_refuses_to_overwrite_a_pair_unless_forced(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["keygen", str(tmp_path), "server"]) == 0
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    capsys.readouterr()
+    assert main(["keygen", str(tmp_path), "server"]) == 1
+    err = capsys.readouterr().err
+    assert "server.key" in err and "already exist" in err and "--force" in err and len(err.splitlines()) == 1
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    (tmp_path / "server.key").unlink()  # half a pair is refused too: its secret is someone's
+    assert main(["keygen", str(tmp_path), "server"]) == 1
+    assert (tmp_path / "server.key_secret").read_bytes() == before["server.key_secret"]
+    assert main(["keygen", str(tmp_path), "server", "--force"]) == 0
+    assert (tmp_path / "server.key_secret").read_bytes() != before["server.key_secret"]
+    assert stat.S_IMODE((tmp_path / "server.key_secret").stat().st_mode) == 0o600
+
+
 @pytest.mark.system
 def test_ipc_sockets_live_in_a_checked_private_directory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     runtime = tmp_path / "run"

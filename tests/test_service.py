@@ -37,7 +37,7 @@ class Adder(palpa.Node):
     """Adds; refuses negative totals; raises on a == 13; answers a == 99 later (deferred)."""
 
     class Params(palpa.Params):
-        offset: float = 0.0
+        offset: palpa.RunTime[float] = 0.0
         """Not used by the handler: a parameter to change at run time."""
 
     def setup(self) -> None:

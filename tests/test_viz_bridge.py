@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import socket
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -192,6 +193,20 @@ def test_a_client_may_publish_the_estop_and_nothing_else(graph: tuple[GraphHarne
 def test_loopback_only_unless_asked() -> None:
     with pytest.raises(ParamError, match="allow_remote"):
         Bridge(params={"host": "0.0.0.0", "port": 0}, transport=GraphHarness().bus.transport())
+
+
+def test_a_port_in_use_is_one_line_with_the_hint() -> None:
+    """`palpa viz` with its port taken printed a 30-line traceback (issue 39): now one line (the CLI prints a
+    PalpaError so) that names the address and says --port 0."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(palpa.PalpaError) as info:
+            Bridge(params={"port": port}, transport=GraphHarness().bus.transport())
+    text = str(info.value)
+    assert f"cannot listen on 127.0.0.1:{port}" in text and "in use" in text and "--port 0" in text
+    assert "\n" not in text and "Traceback" not in text
 
 
 def test_palpa_viz_serves_a_running_graph_and_survives_a_vanished_client(

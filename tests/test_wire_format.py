@@ -19,7 +19,7 @@ import palpa
 from messages import Text
 from palpa.cli import service as service_cli
 from palpa.cli import topic as topic_cli
-from palpa.current import current_file
+from palpa.current import launches_dir
 from palpa.net.address import default_address, private_dir
 from palpa.net.latch import LatchCache
 from palpa.net.wire import WIRE_VERSION, Header, HeaderTemplate, decode_header, encode_header
@@ -194,14 +194,14 @@ def test_the_paths_and_addresses_wire_md_gives_are_the_real_ones(monkeypatch: py
     monkeypatch.delenv("PALPA_CURRENT", raising=False)
     monkeypatch.delenv("XDG_RUNTIME_DIR", raising=False)
     uid = os.getuid()
-    assert current_file() == Path(f"/tmp/palpa-{uid}/current") == private_dir() / "current"
+    assert launches_dir() == Path(f"/tmp/palpa-{uid}/launches") == private_dir() / "launches"
     assert default_address() == f"ipc:///tmp/palpa-{uid}/bus"
     doc = (REPO / "docs" / "wire.md").read_text()
-    assert "`/tmp/palpa-<uid>/current`" in doc and "`ipc:///tmp/palpa-<uid>/bus`" in doc
-    assert "`$XDG_RUNTIME_DIR/palpa/current`" in doc and "`ipc://$XDG_RUNTIME_DIR/palpa/bus`" in doc
-    assert "palpa-<uid>.current" not in doc and "}.current" not in doc
-    # the Python example at the end of the page reads the same file
-    assert 'or f"/tmp/palpa-{os.getuid()}/current"' in doc
+    assert "`/tmp/palpa-<uid>/launches`" in doc and "`ipc:///tmp/palpa-<uid>/bus`" in doc
+    assert "`$XDG_RUNTIME_DIR/palpa/launches`" in doc and "`ipc://$XDG_RUNTIME_DIR/palpa/bus`" in doc
+    assert "palpa-<uid>.current" not in doc and "}.current" not in doc and "palpa/current" not in doc
+    # the Python example at the end of the page reads the same folder
+    assert 'or f"/tmp/palpa-{os.getuid()}/launches"' in doc
 
 
 def test_the_python_example_of_wire_md_writes_a_version_2_header() -> None:

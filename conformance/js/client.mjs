@@ -61,12 +61,22 @@ function privateDir() {
 function findBus(argBus) {
   if (argBus) return [parseAddress(argBus), "--bus"]
   if (process.env.PALPA_BUS) return [parseAddress(process.env.PALPA_BUS), "$PALPA_BUS"]
-  const file = process.env.PALPA_CURRENT || path.join(privateDir(), "current")
-  try {
-    const cur = JSON.parse(fs.readFileSync(file, "utf8"))
-    process.kill(cur.pid, 0) // a killed launcher leaves the file behind: trust it only while its pid lives
-    return [parseAddress(cur.bus), `the launch in ${cur.run_dir}`]
-  } catch { /* no running launch */ }
+  // the running launches: one JSON entry each in <private dir>/launches (docs/wire.md, "Finding the bus")
+  const folder = process.env.PALPA_CURRENT || path.join(privateDir(), "launches")
+  const live = []
+  let names = []
+  try { names = fs.readdirSync(folder).filter((n) => n.endsWith(".json")).sort() } catch { /* none runs */ }
+  for (const name of names) {
+    try {
+      const entry = JSON.parse(fs.readFileSync(path.join(folder, name), "utf8"))
+      process.kill(entry.pid, 0) // a killed launcher leaves its entry behind: trust it only while its pid lives
+      live.push(entry)
+    } catch { /* unreadable, or its launcher is gone */ }
+  }
+  if (live.length > 1) { // never guess which graph to act on
+    throw new Error(`${live.length} launches are running (${live.map((e) => e.run_dir).join(", ")}): say which with --bus`)
+  }
+  if (live.length === 1) return [parseAddress(live[0].bus), `the launch in ${live[0].run_dir}`]
   return [parseAddress(`ipc://${privateDir()}/bus`), "the default bus"]
 }
 

@@ -37,7 +37,7 @@ class PressureController(palpa.Node):
 
     class Params(palpa.Params):
         driver: Literal["sim", "alicat"] = "sim"
-        max_kpa: palpa.Positive = 60.0
+        max_kpa: palpa.SafetyLimit[palpa.Positive] = 60.0
         """Hard cap: no set-point above it is ever sent, whatever is commanded."""
         rate_hz: palpa.Positive = 50.0
         """Control/poll rate."""
@@ -45,10 +45,11 @@ class PressureController(palpa.Node):
         setpoint_kpa: palpa.NonNegative = 0.0
         """Start-up set-point (hold) or ramp target."""
         ramp_rate_kpa_s: palpa.Positive = 5.0
-        tracking_tolerance_kpa: palpa.Positive = 3.0
-        tracking_timeout_s: palpa.Positive = 1.0
+        tracking_tolerance_kpa: palpa.SafetyLimit[palpa.Positive] = 3.0
+        tracking_timeout_s: palpa.SafetyLimit[palpa.Positive] = 1.0
         """A read-back further than the tolerance from the set-point for this long is a fault."""
-        lost_timeout_s: palpa.Positive = 0.5
+        lost_timeout_s: palpa.SafetyLimit[palpa.Positive] = 0.5
+        """No read-back from the regulator this long is a fault (the device is lost)."""
         force_gain: float = 7.59
         force_offset: float = -2.34
         force_pressure_unit_kpa: palpa.Positive = 100.0

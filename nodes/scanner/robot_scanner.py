@@ -38,7 +38,7 @@ from messages import (
 from messages.robot import ScanState
 from models.following import FollowConfig
 from models.raster import RasterPlan, Waypoint
-from nodes.drivers.robot import RobotDriver
+from nodes.drivers.robot import RobotConnectionError, RobotDriver, RobotDriverError
 from nodes.scanner.scan_control import ScanControl
 from nodes.scanner.scan_plan import check_path, path_segments, plan_raster
 from nodes.scanner.scan_progress import PathProgressMeter
@@ -88,9 +88,9 @@ class RobotScanner(palpa.Node):
         nodes/scanner/surface_follow.py)."""
         follow_step_mm: palpa.Positive = 1.5
         """Following: the lines' waypoints at most this far apart (a correction acts within one step)."""
-        follow_max_offset_mm: palpa.Positive = 2.0
+        follow_max_offset_mm: palpa.SafetyLimit[palpa.Positive] = 2.0
         """Following never moves a line more than this from its plan."""
-        max_press_fraction: float = 0.6
+        max_press_fraction: palpa.SafetyLimit[float] = 0.6
         """After a touch-off, indent: never press deeper than this fraction of the thinnest found point."""
         spacing_mm: palpa.Positive = 2.0
         speed_mm_s: palpa.Positive = 10.0
@@ -110,17 +110,18 @@ class RobotScanner(palpa.Node):
         accel_mm_s2: palpa.Positive = 500.0
         home_mm: tuple[float, float, float] = (0.0, 0.0, 40.0)
         """Start pose of the simulated arm (phantom frame)."""
-        workspace_mm: tuple[float, float, float, float, float, float] = (-10.0, -10.0, 0.5, 70.0, 70.0, 60.0)
+        workspace_mm: palpa.SafetyLimit[tuple[float, float, float, float, float, float]] = (
+            -10.0, -10.0, 0.5, 70.0, 70.0, 60.0)
         """xmin, ymin, zmin, xmax, ymax, zmax: the arm never leaves this box."""
-        max_speed_mm_s: palpa.Positive = 50.0
-        max_accel_mm_s2: palpa.Positive = 1000.0
-        watch_topic: Literal["probe/heights", "camera/indenters", ""] = "probe/heights"
+        max_speed_mm_s: palpa.SafetyLimit[palpa.Positive] = 50.0
+        max_accel_mm_s2: palpa.SafetyLimit[palpa.Positive] = 1000.0
+        watch_topic: palpa.SafetyLimit[Literal["probe/heights", "camera/indenters", ""]] = "probe/heights"
         """Probe data that must stay fresh while moving ('' disables the watchdog: bench tests only)."""
-        watchdog_s: palpa.Positive = 0.05
-        pressure_watchdog_s: palpa.NonNegative = 0.5
+        watchdog_s: palpa.SafetyLimit[palpa.Positive] = 0.05
+        pressure_watchdog_s: palpa.SafetyLimit[palpa.NonNegative] = 0.5
         """Once ``pressure/state`` has been heard, it going quiet this long while moving stops the arm like stale
         probe data (a dead pressure controller means unknown contact force); 0 disables."""
-        stale_hold_s: palpa.NonNegative = 0.0
+        stale_hold_s: palpa.SafetyLimit[palpa.NonNegative] = 0.0
         """A scan stopped by stale data (either watchdog above) holds, paused, this long for the data to come back,
         then goes on along its line from where it stopped (each hold logged and counted in the final status); still
         stale after it, the scan ends as a fault. 0: it ends at once (a probe fails instead, for its caller to
@@ -138,7 +139,7 @@ class RobotScanner(palpa.Node):
         """Phantom frame origin in the robot base frame (mm)."""
         tool_rotvec: tuple[float, float, float] = (0.0, math.pi, 0.0)
         """Fixed tool orientation (rotation vector, rad): probe pointing down."""
-        rtde_watchdog_hz: palpa.NonNegative = 2.0
+        rtde_watchdog_hz: palpa.SafetyLimit[palpa.NonNegative] = 2.0
         """ur_rtde: the controller stops the program (and the arm) when this process has not kicked its RTDE
         watchdog for 1/rtde_watchdog_hz s (a stalled PC or a cut cable); 0: no watchdog."""
         autostart: bool = True
@@ -161,7 +162,10 @@ class RobotScanner(palpa.Node):
         self.hold_until_ns: int | None = None
         self.started_ns = self.clock.now_ns()
         self.driver: RobotDriver = self.closing(self._make_driver())  # closed even if the plan is refused below
-        self.driver.connect()
+        try:
+            self.driver.connect()
+        except RobotConnectionError as exc:  # an expected failure (robot off, wrong host): one line, no traceback
+            raise palpa.PalpaError(f"{self.name}: {' '.join(str(exc).split())}") from None
         self.specimen = SpecimenPlanner(self)  # refuses a specimen that does not fit, before any motion
         self.follower: LineFollower | None = None
         if p.mode == "sweep" and p.touchoff != "off" and p.watch_topic == "probe/heights" and p.follow_gain_per_s > 0:
@@ -335,7 +339,12 @@ class RobotScanner(palpa.Node):
         pts = self.path[a : b + 1]
         if self.follower is not None and self.state == "scanning":
             pts = self.follower.shifted(pts)
-        self.driver.move_path(pts)
+        try:
+            self.driver.move_path(pts)
+        except (ValueError, RobotDriverError) as exc:
+            if self.state != "probing":
+                raise
+            self.control.driver_refused(exc)
 
     def resend(self, follower: LineFollower, i: int, b: int, now: int) -> None:
         """Surface following: the rest of the line (from the waypoint being approached) again, at the new offset,

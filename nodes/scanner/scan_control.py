@@ -13,7 +13,8 @@ progress shows on ``robot/scan_status`` (state ``probing``) like a scan's.
 ``scanner/pause`` stops the arm where it is, ``scanner/resume`` goes on from the waypoint it was heading for,
 ``scanner/abort`` stops for good: a scan ends as ``stopped`` (the node exits 2), a probe is answered with a
 refusal and the scanner waits for the next request. Stale data stops a probe the same way (the refusal says which
-data), and the next probe is refused until it is fresh again; a probe after a stopped one lifts the arm straight up
+data), and the next probe is refused until it is fresh again; a path the arm's driver refuses fails the probe with
+the driver's reason, the scanner idle again; a probe after a stopped one lifts the arm straight up
 before its path (:func:`lift_first`), so that a probe stopped in the tissue is not dragged across it.
 """
 
@@ -101,12 +102,12 @@ class ScanControl:
             raise RequestRefused(f"cannot probe at ({req.x_mm:g}, {req.y_mm:g}) mm: {exc}") from None
         self.request, self.values, self.started_ns, self.latest_ns = req, [], node.clock.now_ns(), None
         self.measuring, self.opened_ns, self.closed_ns = measuring_moves(plan.waypoints), None, None
-        self.responder = self.probe.defer()
+        responder = self.responder = self.probe.defer()
         self.stopped_on_path = False
         node.log.info("probing (%.1f, %.1f) mm: %s, %d waypoints", req.x_mm, req.y_mm, req.mode,
                       len(plan.waypoints))
-        node.run_path(plan, "probing")
-        return self.responder
+        node.run_path(plan, "probing")  # a path the driver refuses is answered at once (driver_refused)
+        return responder
 
     def _plan(self, req: ProbeAt) -> RasterPlan:
         p = self.node.params
@@ -203,6 +204,12 @@ class ScanControl:
             log = node.log.info if asked else node.log.error  # an abort is asked for, stale data is a fault
             log("STOP (the probe failed; the scanner waits for the next): %s", why)
             node.set_state("idle", status or f"probe stopped: {why}")
+
+    def driver_refused(self, exc: Exception) -> None:
+        """The arm's driver refused a path of the probe (a protective stop, a path it cannot drive): the probe fails
+        with the driver's reason and the scanner is idle for the next request (not left ``probing``)."""
+        why = f"the arm's driver refused the probe's path: {exc}"
+        self.stop_probe(why, f"probe refused: {why}")
 
     def fail_probe(self, why: str) -> None:
         """End the probe in progress (if any) without a result."""

@@ -165,6 +165,7 @@ def run_echo(args: argparse.Namespace) -> int:
     count = 0
     deadline = time.monotonic() + args.timeout if args.timeout > 0 else math.inf
 
+    bus_and_source(args)  # which bus, said first
     topic = bare_topic(args.topic)
 
     def on_raw(raw: RawMessage) -> None:
@@ -202,6 +203,7 @@ def run_hz(args: argparse.Namespace) -> int:
     started = time.monotonic()
     last_print = started
 
+    bus_and_source(args)  # which bus, said first
     topic = bare_topic(args.topic)
 
     def on_raw(raw: RawMessage) -> None:
@@ -253,6 +255,7 @@ def _check_graph(node: Node, topic: str, type_name: str, where: str) -> None:
 def run_pub(args: argparse.Namespace) -> int:
     import_message_modules()
     msg = message_from_yaml(args.type, args.data)
+    bus_and_source(args)  # which bus, said first
     topic = bare_topic(args.topic)
     with tool_node(args, "pub") as node:
         if not getattr(node.transport, "connected", True):

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import zmq.auth
 
-from palpa.errors import BusError
+from palpa.errors import BusError, PalpaError
 
 __all__ = ["ClientKeys", "create_key_pair", "load_secret_key"]
 
@@ -20,8 +20,17 @@ log = logging.getLogger("palpa.net.bus.auth")
 _DENIAL_LOG_INTERVAL_S = 5.0
 
 
-def create_key_pair(directory: Path, name: str) -> tuple[Path, Path]:
-    """``NAME.key`` (public, 0644) and ``NAME.key_secret`` (0600, never readable by anyone else) in ``directory``."""
+def create_key_pair(directory: Path, name: str, *, force: bool = False) -> tuple[Path, Path]:
+    """``NAME.key`` (public, 0644) and ``NAME.key_secret`` (0600, never readable by anyone else) in ``directory``.
+    Refuses (:class:`PalpaError`) when either exists, unless ``force``: a replaced pair locks out whoever holds the
+    old public key (every client of a bus, or the bus its clients trust)."""
+    existing = [p for p in (directory / f"{name}.key", directory / f"{name}.key_secret") if p.exists()]
+    if existing and not force:
+        raise PalpaError(f"{', '.join(map(str, existing))} already exist{'s' if len(existing) == 1 else ''}: "
+                         "a new pair would lock out whoever holds the old public key; nothing was written "
+                         "(--force replaces it)")
+    for path in existing:
+        path.unlink()  # written afresh under the umask below, never through an old file's mode
     directory.mkdir(parents=True, exist_ok=True)
     old = os.umask(0o077)  # the secret file is private from its first byte
     try:

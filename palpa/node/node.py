@@ -210,7 +210,8 @@ class Node:
         ``new``, both validated instances of this node's :attr:`Params` (a subclass annotates them so:
         ``def on_params_changed(self, old: Talker.Params, new: Talker.Params)``): apply what needs applying
         (re-time a timer) and return None, or refuse the whole change by returning False or raising
-        :class:`palpa.ParamError` with the reason."""
+        :class:`palpa.ParamError` with the reason. Only parameters declared :data:`palpa.RunTime` ever reach it:
+        a change of any other is refused before (palpa.node.params_runtime)."""
         return None
 
     def _change_params(self, old: ParamsBase, new: ParamsBase) -> bool:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any, TypeVar, get_args, get_origin
+from typing import Annotated, Any, Literal, TypeVar, get_args, get_origin
 
 import msgspec
 
@@ -14,11 +14,12 @@ from palpa.errors import ParamError
 from yamlstruct import Source, YamlError, convert, did_you_mean
 
 __all__ = [
-    "InputPath", "NonNegative", "Params", "Positive", "PositiveInt", "convert_params", "describe_params", "input_paths",
-    "parse_param_value", "read_params_file",
+    "Change", "InputPath", "NonNegative", "Params", "Positive", "PositiveInt", "RunTime", "SafetyLimit", "change_rules",
+    "convert_params", "describe_params", "input_paths", "parse_param_value", "read_params_file",
 ]
 
 P = TypeVar("P", bound="Params")
+T = TypeVar("T")
 
 # Physical bounds declared in the type: a launch file's --check and a node's start refuse a value outside them
 # (naming file:line and the parameter) before anything runs. NaN and infinity fail them too.
@@ -31,6 +32,39 @@ PositiveInt = Annotated[int, msgspec.Meta(gt=0)]
 InputPath = Annotated[str, msgspec.Meta(extra={"palpa": "input path"})]
 """A ``str`` parameter naming a file or folder the node reads ('' = not given): ``palpa launch --check`` (and
 every launch) checks that it exists before any node starts."""
+
+
+# When a parameter may change (palpa.node.params_runtime): by default only at launch, since a node that does not apply a
+# change must not acknowledge one. The node declares what it applies while it runs; a safety limit never changes.
+_CHANGE_KEY = "palpa change"
+Change = Literal["run time", "launch", "safety limit"]
+"""When a parameter may change: ``run time`` (``palpa param set``; the node applies it), ``launch`` (the default:
+fixed once the node runs), ``safety limit`` (fixed at launch, and no declaration can make it changeable)."""
+
+RunTime = Annotated[T, msgspec.Meta(extra={_CHANGE_KEY: "run time"})]
+"""A parameter the node applies when it changes while it runs (``palpa param set``): its ``on_params_changed``
+takes the new value, or the node reads ``self.params`` afresh every time it uses it. Written around the type:
+``rate_hz: palpa.RunTime[palpa.Positive] = 10.0``. Parameters without it are fixed at launch and a change is
+refused."""
+SafetyLimit = Annotated[T, msgspec.Meta(extra={_CHANGE_KEY: "safety limit"})]
+"""A safety limit (a workspace box, a speed or pressure cap, a watchdog): fixed at launch, and a run-time change is
+refused saying so (``workspace_mm: palpa.SafetyLimit[tuple[float, ...]] = ...``)."""
+
+
+def _change_rule(name: str, tp: Any) -> Change:
+    marks = {(m.extra or {}).get(_CHANGE_KEY) for m in get_args(tp)[1:] if isinstance(m, msgspec.Meta)} \
+        if get_origin(tp) is Annotated else set()
+    marks.discard(None)
+    if marks == {"run time", "safety limit"}:
+        raise TypeError(f"parameter {name!r} is declared both RunTime and SafetyLimit: a safety limit is fixed "
+                        "at launch")
+    return "safety limit" if "safety limit" in marks else "run time" if marks else "launch"
+
+
+def change_rules(cls: type[Params]) -> dict[str, Change]:
+    """Parameter name -> when it may change (:data:`Change`), from the declaration (:data:`RunTime`,
+    :data:`SafetyLimit`; undeclared: ``launch``)."""
+    return {f.name: _change_rule(f.name, f.type) for f in msgspec.structs.fields(cls)}
 
 
 def _is_input_path(tp: Any) -> bool:

@@ -28,7 +28,13 @@ from typing import Any
 from palpa.errors import PalpaError
 from palpa.net.transport import TransportOptions
 from palpa.node.node import Node
-from palpa.node.params import Params, describe_params, parse_param_value, read_params_file
+from palpa.node.params import (
+    Params,
+    change_rules,
+    describe_params,
+    parse_param_value,
+    read_params_file,
+)
 
 __all__ = ["node_arg_parser", "params_from_args", "parse_remaps", "run_node", "run_node_code"]
 
@@ -110,8 +116,10 @@ def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: s
     """:func:`run_node` without the ``sys.exit``: returns the exit code."""
     ap = node_arg_parser(prog or cls.__name__)
     ap.formatter_class = argparse.RawDescriptionHelpFormatter
-    declared = describe_params(cls.Params)
-    ap.epilog = "parameters (-p NAME=VALUE):\n" + ("\n".join(f"  {k}: {v}" for k, v in declared.items()) or "  none")
+    declared, rules = describe_params(cls.Params), change_rules(cls.Params)
+    marks = {"run time": "  [run-time changeable]", "safety limit": "  [safety limit]", "launch": ""}
+    ap.epilog = "parameters (-p NAME=VALUE; fixed at launch unless marked run-time changeable):\n" + (
+        "\n".join(f"  {k}: {v}{marks[rules[k]]}" for k, v in declared.items()) or "  none")
     args = ap.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.debug else logging.INFO,
