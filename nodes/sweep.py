@@ -182,13 +182,13 @@ def _execute(todo: Sequence[Task], where: Cluster, tell: Callable[[str], None],
         shown = threading.Thread(target=progress, args=(futures,), daemon=True) if bar else None
         if shown:
             shown.start()
+        # the futures are held to the end (a result is a few kB): Dask's bar waits for every key it was given
         for fut in as_completed(futures):  # type: ignore[no-untyped-call]
             task = by_key[fut.key]
             try:
                 result = fut.result()
             except Exception as exc:  # noqa: BLE001 - a task Dask gave up on (its workers kept dying): failed
                 result = {"error": f"{type(exc).__name__}: {exc}"}
-            fut.release()
             yield _record(task, result)
         if shown:
             shown.join(10)

@@ -32,6 +32,7 @@ import ctypes
 import itertools
 import json
 import math
+import resource
 import shutil
 import signal
 import subprocess
@@ -202,17 +203,24 @@ def plan_runs(launch: Path, phantoms: Sequence[Path], seeds: Sequence[int], grid
 
 
 def launch_one(launch: Path, spec: RunSpec, *, in_process: bool, timeout_s: float) -> dict[str, Any]:
-    """Run one launch; its exit code and wall time (output in its run directory's logs)."""
+    """Run one launch; its exit code, wall time and CPU time (user + system of the launch and every process it
+    waited for; run one launch at a time per process for that to be the launch's own) (output in its run
+    directory's logs)."""
     cmd = [sys.executable, "-m", "palpa.cli.main", "launch", str(launch), "--run-dir", str(spec.run_dir),
            "--no-progress", *(["--in-process"] if in_process else []),
            *(f"{k}:={json.dumps(v)}" for k, v in spec.overrides.items())]
-    t0 = time.monotonic()
+    t0, cpu0 = time.monotonic(), _children_cpu_s()
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, preexec_fn=_end_with_parent)
         code, tail = proc.returncode, proc.stderr[-2000:]
     except subprocess.TimeoutExpired:
         code, tail = -1, f"timed out after {timeout_s:g} s"
-    return {"exit_code": code, "wall_s": time.monotonic() - t0, "tail": tail}
+    return {"exit_code": code, "wall_s": time.monotonic() - t0, "cpu_s": _children_cpu_s() - cpu0, "tail": tail}
+
+
+def _children_cpu_s() -> float:
+    use = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return use.ru_utime + use.ru_stime
 
 
 def _end_with_parent() -> None:
@@ -264,7 +272,8 @@ def run_and_score(job: RunJob) -> dict[str, Any]:
     spec = job.spec
     shutil.rmtree(spec.run_dir, ignore_errors=True)  # a retried run starts from nothing
     ran = launch_one(job.launch, spec, in_process=job.in_process, timeout_s=job.timeout_s)
-    row: dict[str, Any] = {"exit_code": ran["exit_code"], "wall_s": round(ran["wall_s"], 2)}
+    row: dict[str, Any] = {"exit_code": ran["exit_code"], "wall_s": round(ran["wall_s"], 2),
+                           "cpu_s": round(ran["cpu_s"], 2)}
     if ran["exit_code"] != 0:
         return {"row": row, "error": f"launch failed ({ran['exit_code']}): {ran['tail'].strip().splitlines()[-1:]}"}
     try:
