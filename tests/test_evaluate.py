@@ -111,6 +111,14 @@ def test_a_run_is_scored_against_its_phantom_and_its_recording(tmp_path: Path) -
     assert lines[0].startswith("spacing_mm=3: 1 of 2 runs scored; inclusions found 1/1 (100 %); false positives 1")
 
 
+def test_two_equal_detections_of_one_inclusion_are_one_match_and_one_false_positive(tmp_path: Path) -> None:
+    spec = _fake_run(tmp_path)
+    twice = {"x_mm": 20.5, "y_mm": 20.0, "radius_mm": 5.0, "contrast": 3.0}
+    (spec.run_dir / "map" / "inclusions.json").write_text(json.dumps([twice, twice]))
+    row, _, dets = score_outputs(spec, load_phantom(spec.phantom))
+    assert row["false_positives"] == 1 and [d["inclusion"] for d in dets] == [0, -1]
+
+
 @pytest.mark.timeout(300)
 def test_evaluate_runs_a_generated_phantom_end_to_end(tmp_path: Path) -> None:
     """`python -m tools.evaluate` on one generated phantom, a small raster: tables and a summary."""
