@@ -4,8 +4,8 @@
 
 Runs ``launch/scan_sim.yaml`` (the 3 mm sweep raster) and ``launch/scan_adaptive_sim.yaml`` (the GP planner) on the
 shipped phantom and N generated ones (``models.phantom_gen`` seeds 0..N-1), each ``palpa launch --in-process`` in
-its own run directory, all of them one sweep of the batch runner's engine (``nodes.evaluate.run_tasks``,
-``nodes.sweep``: a local Dask cluster, ``--workers`` processes, or ``--scheduler tcp://HOST:8786``; a run whose
+its own run directory, all of them one sweep of the batch runner's engine (``tools.evaluate.run_tasks``,
+``tools.sweep``: a local Dask cluster, ``--workers`` processes, or ``--scheduler tcp://HOST:8786``; a run whose
 result is kept under ``OUT/results`` with the same content key is not run again: ``--rerun`` to force), scores
 every map with ``models.scoring`` against its phantom, and compares per phantom:
 

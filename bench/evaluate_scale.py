@@ -1,10 +1,10 @@
-"""What a sweep of nodes.evaluate costs on this machine, and on paper on N workers (issue 40).
+"""What a sweep of tools.evaluate costs on this machine, and on paper on N workers (issue 40).
 
     .venv/bin/python bench/evaluate_scale.py                # 4 small rasters on 1 worker, then on 2
     .venv/bin/python bench/evaluate_scale.py --runs 8 --launch-cpu-s 40
 
 The same sweep (``--runs`` small rasters: generated phantoms, a 16 x 16 mm region, 4 mm lines) runs on a local
-Dask cluster of 1 worker, then of 2, each into a fresh folder, through ``nodes.evaluate.main`` (the real runner).
+Dask cluster of 1 worker, then of 2, each into a fresh folder, through ``tools.evaluate.main`` (the real runner).
 For each: wall time, CPU time (this process and every process it started: the workers and their launches, user +
 system; and the launches' own, the runs table's ``cpu_s``) and the load average. From those: **runs per CPU-hour** (CPU time is what a busy shared machine moves
 least), the **speed-up of 2 workers over 1** (wall over wall: on two cores shared with others it is what is
@@ -33,8 +33,8 @@ from typing import Any
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from nodes.evaluate import main as evaluate  # noqa: E402
-from nodes.evaluate_tables import TABLES, WALL_CLOCK, read_tables  # noqa: E402
+from tools.evaluate import main as evaluate  # noqa: E402
+from tools.evaluate_tables import TABLES, WALL_CLOCK, read_tables  # noqa: E402
 
 LAUNCH_CPU_S = 9.4
 """One full-size launch's CPU seconds: the mean of the shipped phantom's raster and adaptive runs (BENCHMARKS.md)."""

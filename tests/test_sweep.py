@@ -1,4 +1,4 @@
-"""The sweep engine (nodes.sweep) in this process, and the batch runner's keys and tables (issue 40). The same
+"""The sweep engine (tools.sweep) in this process, and the batch runner's keys and tables (issue 40). The same
 engine on a Dask cluster: tests/test_sweep_cluster.py."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ from typing import Any
 import pandas as pd
 import pytest
 
-from nodes.evaluate import RunJob, RunSpec, main, run_key
-from nodes.evaluate_tables import read_tables, summarize, write_tables
-from nodes.sweep import Cluster, Store, Task, content_key, run_sweep, tree_digest
 from tests.sweep_tasks import echo
+from tools.evaluate import RunJob, RunSpec, main, run_key
+from tools.evaluate_tables import read_tables, summarize, write_tables
+from tools.sweep import Cluster, Store, Task, content_key, run_sweep, tree_digest
 
 SERIAL = Cluster(serial=True)
 

@@ -2,7 +2,7 @@
 killed mid-run loses no run and duplicates none, and a cluster over network namespaces (a scheduler on one host,
 workers on two others, the sweep started from a fourth) gives the same tables again.
 
-The sweep is the real one: ``python -m nodes.evaluate`` over four tiny rasters (one generated phantom, two seeds,
+The sweep is the real one: ``python -m tools.evaluate`` over four tiny rasters (one generated phantom, two seeds,
 two line spacings, a 12 x 12 mm region; a few seconds each). The kill test runs a stand-in run function
 (tests/sweep_tasks.py) through the real engine, so it can hold a run until the worker running it is killed.
 """
@@ -21,11 +21,11 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from nodes.evaluate_tables import TABLES, WALL_CLOCK, read_tables
-from nodes.sweep import Cluster, Store, Task, content_key, run_sweep
 from tests.netns import Hosts, why_no_netns
 from tests.procs import REPO, ProcessGroup, wait_until
 from tests.sweep_tasks import held
+from tools.evaluate_tables import TABLES, WALL_CLOCK, read_tables
+from tools.sweep import Cluster, Store, Task, content_key, run_sweep
 
 pytestmark = pytest.mark.system
 SWEEP = [str(REPO / "launch" / "scan_sim.yaml"), "--generate", "1", "--phantom-seed", "3", "--seeds", "0", "1",
@@ -34,9 +34,9 @@ SWEEP = [str(REPO / "launch" / "scan_sim.yaml"), "--generate", "1", "--phantom-s
 
 
 def _evaluate(out: Path, *where: str, cmd: list[str] | None = None, env: dict[str, str] | None = None) -> str:
-    """``python -m nodes.evaluate`` of :data:`SWEEP` into ``out`` (``cmd``: a prefix, e.g. a namespace's);
+    """``python -m tools.evaluate`` of :data:`SWEEP` into ``out`` (``cmd``: a prefix, e.g. a namespace's);
     its output, after asserting exit 0."""
-    argv = [*(cmd or []), sys.executable, "-m", "nodes.evaluate", *SWEEP, "-o", str(out), *where]
+    argv = [*(cmd or []), sys.executable, "-m", "tools.evaluate", *SWEEP, "-o", str(out), *where]
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=400, cwd=REPO, env=env)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     return proc.stdout + proc.stderr

@@ -5,7 +5,7 @@
         --arg spacing_mm=2,3,4 -o runs/spacing
 
 Each run is ``palpa launch FILE --in-process`` in its own run directory (``--multi-process`` for one process per
-node), a task of a sweep on dask.distributed (``nodes.sweep``): a local cluster of ``--workers`` processes
+node), a task of a sweep on dask.distributed (``tools.sweep``): a local cluster of ``--workers`` processes
 (default: one per core), or a running cluster with ``--scheduler tcp://HOST:8786``; the dashboard's address is
 printed, and Dask's progress bar shown on a terminal. Each run has a content key (the launch file's, the
 phantom's and every file override's bytes, the seed and args, the code version), its result is kept under
@@ -21,7 +21,7 @@ region) and a probe height above its top
 ``OUT/phantoms``. After the runs, each one's ``inclusions.json`` and ``map.npz`` are scored with
 ``models.scoring.score_scan``, and its recording gives the scan time, the path length and the number of probe
 samples. Written to OUT: the tables ``runs``, ``inclusions`` and ``detections`` as Parquet and CSV, ``runs.json``
-(``nodes.evaluate_tables``) and ``summary.txt`` (per arg combination; also printed; ``--summary OUT`` prints it
+(``tools.evaluate_tables``) and ``summary.txt`` (per arg combination; also printed; ``--summary OUT`` prints it
 again from the Parquet tables). The truth is read here, after the runs, never by the graph's estimators.
 """
 
@@ -52,15 +52,15 @@ from models.geometry import measure_phantom
 from models.phantom import Phantom, load_phantom
 from models.phantom_gen import PhantomRanges, random_phantom
 from models.scoring import Detection, score_scan
-from nodes.evaluate_tables import read_tables, summarize, write_tables
-from nodes.sweep import Cluster, Store, Task, content_key, file_digest, run_sweep, tree_digest
+from tools.evaluate_tables import read_tables, summarize, write_tables
+from tools.sweep import Cluster, Store, Task, content_key, file_digest, run_sweep, tree_digest
 from yamlstruct import Source, YamlError
 
 __all__ = ["RunJob", "RunSpec", "main", "run_and_score", "run_tasks", "scan_facts", "score_run", "summarize"]
 
 REPO = Path(__file__).resolve().parent.parent
-CODE = ("palpa", "nodes", "models", "messages", "devices", "yamlstruct", "launch")
-"""What the code version of a run's key covers (``nodes.sweep.tree_digest``)."""
+CODE = ("palpa", "nodes", "tools", "models", "messages", "devices", "yamlstruct", "launch")
+"""What the code version of a run's key covers (``tools.sweep.tree_digest``)."""
 
 
 @dataclass
@@ -285,7 +285,7 @@ def run_and_score(job: RunJob) -> dict[str, Any]:
 
 def run_tasks(jobs: Sequence[RunJob], out: Path, where: Cluster, *, rerun: bool = False,
               progress: bool | None = None) -> list[dict[str, Any]]:
-    """Run ``jobs`` as one sweep (``nodes.sweep``), their results kept under ``OUT/results``: every job's record
+    """Run ``jobs`` as one sweep (``tools.sweep``), their results kept under ``OUT/results``: every job's record
     (``ok``, ``error``, ``result`` = :func:`run_and_score`'s), in the order of ``jobs``."""
     code = tree_digest(REPO, CODE)
     tasks = [Task(run_key(j, code), j.spec.id, run_and_score, j) for j in jobs]
@@ -367,7 +367,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def add_cluster_args(ap: argparse.ArgumentParser) -> None:
-    """Where a sweep runs: ``--workers``/``--jobs``, ``--scheduler``, ``--serial`` (``nodes.sweep.Cluster``)."""
+    """Where a sweep runs: ``--workers``/``--jobs``, ``--scheduler``, ``--serial`` (``tools.sweep.Cluster``)."""
     ap.add_argument("--workers", "--jobs", dest="workers", type=int, default=None,
                     help="local cluster: worker processes (default: one per core)")
     ap.add_argument("--scheduler", metavar="tcp://HOST:8786", help="run on this running Dask cluster instead")

@@ -1,4 +1,4 @@
-"""The batch runner's tables (``nodes.evaluate``): runs, inclusions and detections, as Parquet beside CSV/JSON.
+"""The batch runner's tables (``tools.evaluate``): runs, inclusions and detections, as Parquet beside CSV/JSON.
 
 ``OUT/runs.parquet``: one row per run (``run``, ``key``, ``phantom``, ``seed``, the varied args, ``exit_code``,
 ``wall_s``, ``cpu_s``, ``error`` and the scores: counts, ``sensitivity``, ``specificity``, ``iou``, ``*_mm``

@@ -1,6 +1,6 @@
 """A sweep: many independent runs on dask.distributed, each a task with a content key, each result kept once.
 
-The engine of ``nodes.evaluate`` and ``bench/adaptive.py``. A :class:`Task` names a picklable function, its
+The engine of ``tools.evaluate`` and ``bench/adaptive.py``. A :class:`Task` names a picklable function, its
 argument and a *content key*: a digest of everything that decides the result (the caller's inputs and the code
 version, :func:`content_key`, :func:`tree_digest`). :func:`run_sweep` runs every task whose key has no successful
 result in the :class:`Store` yet, on a local cluster (one single-threaded worker process per core) or on a running
