@@ -10,12 +10,12 @@ node), a task of a sweep on dask.distributed (``tools.sweep``): a local cluster 
 printed, and Dask's progress bar shown on a terminal. Each run has a content key (the launch file's, the
 phantom's and every file override's bytes, the seed and args, the code version), its result is kept under
 ``OUT/results/<key>.json`` as it finishes, and running the same sweep again runs only the runs that failed or are
-missing (``--rerun``: all). docs/evaluate.md has a laptop sweep, a cluster sweep and the tables. The runner gives the launch file the
-phantom (``phantom:=``), a simulated thickness measurement of it (``geometry:=``, made with the sim's measurer,
-``models.geometry.measure_phantom``), the seed (``seed:=``), and, unless set with ``--arg``, a raster region
-inside the phantom (``region_mm:=``, ``--margin`` from its true edges; without ``--margin`` the launch file's own
-region) and a probe height above its top
-(``contact_z_mm:=``, 1 mm above the thickest point): each only if the launch file declares that arg.
+missing (``--rerun``: all); docs/evaluate.md has a laptop sweep, a cluster sweep and the tables. The runner gives
+the launch file the phantom (``phantom:=``), a simulated thickness measurement of it (``geometry:=``, made with
+the sim's measurer, ``models.geometry.measure_phantom``), the seed (``seed:=``), and, unless set with ``--arg``,
+a raster region inside the phantom (``region_mm:=``, ``--margin`` from its true edges; without ``--margin`` the
+launch file's own region) and a probe height above its top (``contact_z_mm:=``, 1 mm above the thickest point):
+each only if the launch file declares that arg.
 
 ``--generate N`` makes N random phantoms (``models.phantom_gen``, seeds ``--phantom-seed``..+N-1) into
 ``OUT/phantoms``. After the runs, each one's ``inclusions.json`` and ``map.npz`` are scored with
