@@ -125,7 +125,6 @@ def _client(where: Cluster, say: Callable[[str], None]) -> Iterator[Any]:
     from dask.distributed import Client, LocalCluster
 
     # distributed's constructors are untyped: the ignores below say so, nothing more
-
     if where.scheduler:
         with Client(where.scheduler, timeout="30s") as client:  # type: ignore[no-untyped-call]
             say(f"scheduler {where.scheduler}, {len(client.scheduler_info()['workers'])} workers; "
