@@ -154,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--first-seed", type=int, default=0, help="seed of the first generated phantom (a set to tune "
                     "settings on must not be the set they are judged on)")
     add_cluster_args(ap)
-    ap.add_argument("--rerun", action="store_true", help="run again even where a run's outputs exist")
+    ap.add_argument("--rerun", action="store_true", help="run again even the runs with a result under OUT/results")
     ap.add_argument("--adaptive-arg", action="append", default=[], metavar="NAME=VALUE",
                     help="an arg of the adaptive launch file (repeatable), e.g. epsilon=0.2")
     ap.add_argument("--no-run", action="store_true", help="only score and compare the runs already made")
