@@ -112,12 +112,8 @@ _WHY = why_no_netns()
 @pytest.fixture
 def hosts() -> Iterator[Hosts]:
     """Four hosts, deleted after the test's processes are gone (fixtures end in reverse order)."""
-    h = Hosts(4)
-    try:
-        h.up()
+    with Hosts(4) as h:
         yield h
-    finally:
-        h.down()
 
 
 @pytest.mark.skipif(bool(_WHY), reason=_WHY or "ok")
