@@ -56,7 +56,7 @@ $(JS_CLIENT)/node_modules/.installed: $(JS_CLIENT)/package.json $(JS_CLIENT)/pac
 conformance-js: $(JS_CLIENT)/node_modules/.installed
 
 lint: $(STAMP)
-	$(BIN)/ruff check palpa messages devices models nodes emulators tests
+	$(BIN)/ruff check palpa messages devices models nodes emulators tools tests
 	$(BIN)/mypy
 
 typecheck: $(STAMP)
