@@ -37,7 +37,6 @@ from palpa.record.format import (
     LAUNCH_ATTACHMENT,
     MESSAGE_ENCODING,
     META_BLOBS_OF,
-    META_SEQ_BASE,
     SCHEMA_ENCODING,
     BagError,
     TopicFilter,
@@ -66,7 +65,8 @@ class EditReport:
         if self.held_latched:
             extra.append(f"{self.held_latched} latched messages from before the start kept at the start")
         if self.duplicates:
-            extra.append(f"{self.duplicates} repeated latched copies of split pieces dropped")
+            extra.append(f"{self.duplicates} repeated copies dropped (latched copies opening split pieces, the same "
+                         "message in two merged recordings)")
         return (f"wrote {self.messages} messages on {len(self.topics)} topics to {self.output}"
                 + (f" ({'; '.join(extra)})" if extra else ""))
 
@@ -142,8 +142,7 @@ class _Out:
 
     def message(self, src: _Source, m: BagMessage, log_time: int) -> None:
         cid = self.channel(src, m.channel_id)
-        base = int(src.channels[m.channel_id].metadata.get(META_SEQ_BASE, "0"))
-        seq = (m.seq - base) & 0xFFFF_FFFF
+        seq = m.seq & 0xFFFF_FFFF  # the channel's palpa.seq_base (a multiple of 2**32, copied) holds the rest
         if m.blobs:
             self.w.add_message(self.blobs_channel(m.topic, cid), log_time=log_time, publish_time=m.publish_time,
                                sequence=seq, data=_blobs_encoder.encode(list(m.blobs)))
@@ -201,11 +200,10 @@ def rewrite(recordings: Sequence[Sequence[Path]], out: str | os.PathLike[str], *
 
 def _copy_messages(out: _Out, recordings: Sequence[Sequence[Path]], keep: Callable[[str], bool],
                    start_ns: int | None, end_ns: int | None, report: EditReport) -> None:
-    streams = []
-    for r, rec in enumerate(recordings):
-        streams.append(_chain(_Source(r, p).messages(i) for i, p in enumerate(rec)))
+    streams = [_chain([_Source(r, p).messages(i) for i, p in enumerate(rec)]) for r, rec in enumerate(recordings)]
     held: dict[tuple[int, str, str], tuple[_Source, BagMessage]] = {}
     last_latched: dict[tuple[int, str, str], int] = {}
+    streams_of = _Streams()
     started = start_ns is None
     for src, m in heapq.merge(*streams, key=lambda item: item[1].log_time):
         if not keep(m.topic):
@@ -230,11 +228,50 @@ def _copy_messages(out: _Out, recordings: Sequence[Sequence[Path]], keep: Callab
                 report.duplicates += 1
                 continue  # the copy of a latched message that opens the next piece of a split recording
             last_latched[key] = m.seq
+        if len(recordings) > 1 and not streams_of.take(src, m, recordings):
+            report.duplicates += 1
+            continue
         out.message(src, m, m.log_time)
         report.messages += 1
         report.topics.add(m.topic)
 
 
-def _chain(parts: Iterator[Iterator[tuple[_Source, BagMessage]]]) -> Iterator[tuple[_Source, BagMessage]]:
+class _Streams:
+    """Merging: one publisher's stream of one topic must come from one recording at a time. The same message in
+    two recordings (two recorders on one bus) is kept once; two recordings whose streams of one publisher and topic
+    interleave would replay as one stream whose sequence numbers jump back and forth, which subscribers drop as
+    duplicates, so that is refused. One recording after another (runs of the same graph) is a restart, as live."""
+
+    _WINDOW = 256
+
+    def __init__(self) -> None:
+        self._last: dict[tuple[str, str], int] = {}
+        self._done: dict[tuple[str, str], set[int]] = {}
+        self._recent: dict[tuple[str, str], dict[tuple[int, bytes], None]] = {}
+
+    def take(self, src: _Source, m: BagMessage, recordings: Sequence[Sequence[Path]]) -> bool:
+        """False for a message already taken from another recording; raises on interleaved streams."""
+        key = (m.topic, m.node)
+        recent = self._recent.setdefault(key, {})
+        ident = (m.seq, m.payload)
+        if ident in recent:
+            return False
+        last = self._last.get(key, src.recording)
+        if last != src.recording:
+            done = self._done.setdefault(key, set())
+            if src.recording in done:
+                raise BagError(f"{m.topic} from {m.node!r} interleaves in {recordings[last][0]} and "
+                               f"{recordings[src.recording][0]} with different messages: a replay would mix two "
+                               "streams of one publisher (leave the topic out of one with `palpa bag filter "
+                               "--exclude` first)")
+            done.add(last)
+        self._last[key] = src.recording
+        recent[ident] = None
+        if len(recent) > self._WINDOW:
+            del recent[next(iter(recent))]
+        return True
+
+
+def _chain(parts: list[Iterator[tuple[_Source, BagMessage]]]) -> Iterator[tuple[_Source, BagMessage]]:
     for part in parts:
         yield from part
