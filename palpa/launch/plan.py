@@ -125,6 +125,8 @@ class LaunchPlan:
     """Node name -> every parameter of a ``node:`` entry, defaults included (filled by the loader)."""
     files: list[str] = field(default_factory=list)
     """Every launch file read, the top-level one first."""
+    included_args: dict[str, list[str]] = field(default_factory=dict)
+    """Included file -> the args the command line set in it (docs/launch.md, "Includes")."""
     in_process: bool = False
     """The file asks for its simulated-clock nodes in one process (see :mod:`palpa.launch.compose`)."""
     composed_from: str | None = None
