@@ -104,7 +104,8 @@ def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
     under the working directory)."""
     path = Path(file)
     if not path.is_file():
-        raise LaunchError(f"{display_path(path)}: no such launch file")
+        siblings = sorted(display_path(p) for p in path.parent.glob("*.yaml")) if path.parent.is_dir() else []
+        raise LaunchError(f"{display_path(path)}: no such launch file{did_you_mean(display_path(path), siblings)}")
     if run_dir is None:  # what the run directory will be called (the supervisor makes it)
         run_dir = Path("runs") / time.strftime("%Y%m%d-%H%M%S")
     plan = LaunchPlan(file=path.resolve(), run_dir=Path(os.path.abspath(run_dir)))
