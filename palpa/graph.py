@@ -102,14 +102,27 @@ def graph_of_plan(plan: LaunchPlan, load_class: Any) -> GraphModel:
 def graph_of_heartbeats(beats: Mapping[str, Heartbeat], title: str = "") -> GraphModel:
     """The running graph as its nodes' heartbeats describe it (runtime ``_palpa/...`` traffic left out)."""
     g = GraphModel(title=title)
+    services = {s for hb in beats.values() for s in hb.services if not s.startswith("_palpa/")}
+
+    def plumbing(topic: str) -> str | None:
+        """The service whose request or reply topic this is (palpa.service), or None."""
+        for s in services:
+            if topic.rstrip("*") == f"{s}/request" or topic.startswith(f"{s}/reply/"):
+                return s
+        return None
+
     for name in sorted(beats):
         hb = beats[name]
         g.nodes[name] = f"pid {hb.pid} on {hb.host}"
         for topic, type_name in hb.publishes.items():
-            if not topic.startswith("_palpa/"):
+            if not topic.startswith("_palpa/") and plumbing(topic) is None:
                 g.publish(name, topic, type_name)
         for topic, type_name in hb.subscribes.items():
-            if not topic.startswith("_palpa/"):
+            service = plumbing(topic)
+            if service is not None and "/reply/" in topic:
+                g.services.setdefault(service, "")
+                g.calls.add((name, service))  # a caller hears its replies on <service>/reply/<caller>
+            elif not topic.startswith("_palpa/") and service is None:
                 g.subscribe(name, topic, type_name)
         g.direct.update(t for t in hb.direct if not t.startswith("_palpa/"))
         for service, types in hb.services.items():

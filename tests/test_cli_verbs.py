@@ -7,6 +7,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import msgspec
 import pytest
@@ -95,6 +96,17 @@ def test_node_topic_and_service_verbs(graph: str, capsys: pytest.CaptureFixture[
     last = capsys.readouterr().out.strip().splitlines()[-1]
     size = len(msgspec.msgpack.encode(Text(text="g" * 10, stamp_ns=1)))
     assert "/s from " in last and f"min {size} B  max {size} B" in last and "(wall time)" in last
+
+
+def test_graph_of_the_running_graph_from_heartbeats(graph: str, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "live.svg"
+    assert main(["graph", "--bus", graph, "--wait", "1.0", "-o", str(out)]) == 0
+    assert "2 nodes, 1 topics (0 direct), 1 services" in capsys.readouterr().out
+    svg = out.read_text()
+    assert "gadget" in svg and "listener" in svg and "chatter" in svg and "[Text]" in svg and "gadget/reset" in svg
+    assert main(["graph", "--bus", f"ipc://{short_ipc_base()}", "--wait", "0.3", "-o", str(tmp_path / "x.png")]) == 1
+    assert "no node heartbeats heard" in capsys.readouterr().err
 
 
 def test_param_describe_and_list_over_every_node(graph: str, capsys: pytest.CaptureFixture[str]) -> None:

@@ -64,11 +64,15 @@ def _beat(node: str, pub: dict[str, str], sub: dict[str, str], **kw: object) -> 
 
 def test_a_running_graph_from_heartbeats_with_direct_topics_marked(tmp_path: Path) -> None:
     beats = {"talker": _beat("talker", {"chatter": "Text", "_palpa/log": "LogRecord"}, {}, direct=["chatter"]),
-             "listener": _beat("listener", {"chatter_len": "Text"}, {"chatter": "Text"},
-                               services={"listener/reset": "Trigger -> TriggerResult"})}
+             "listener": _beat("listener", {"chatter_len": "Text"},
+                               {"chatter": "Text", "listener/reset/request*": "*"},
+                               services={"listener/reset": "Trigger -> TriggerResult"}),
+             "operator": _beat("operator", {"listener/reset/request": "Trigger"},
+                               {"listener/reset/reply/operator*": "*"})}
     g = graph_of_heartbeats(beats, "test")
     assert g.topics == {"chatter": "Text", "chatter_len": "Text"}  # runtime topics left out
     assert g.direct == {"chatter"} and ("listener", "listener/reset") in g.serves
+    assert g.calls == {("operator", "listener/reset")}  # the request and reply topics are the service's edges
     svg = render(g, tmp_path / "g.svg").read_text()
     assert "chatter" in svg and "[Text]" in svg and "Trigger -&gt; TriggerResult" in svg
     assert svg.count("#e07000") > 1  # the topic's box and edges, not only the legend
