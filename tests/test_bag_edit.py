@@ -10,13 +10,11 @@ import pytest
 
 from messages import Text
 from palpa.cli.main import main
-from palpa.node import Node, RawMessage
 from palpa.record.format import LAUNCH_ATTACHMENT, MD_NODES, MD_RECORDING, META_SEQ_BASE
-from palpa.record.player import Player
 from palpa.record.reader import iter_bag, launch_text_of
 from palpa.record.recorder import Recorder
-from palpa.record.testing import Rec, check_official, write_bag
-from palpa.testing import MemoryBus, NodeHarness
+from palpa.record.testing import Rec, check_official, play_in_memory, write_bag
+from palpa.testing import NodeHarness
 from palpa.wire import Header, encode_header
 
 S = 1_000_000_000
@@ -128,18 +126,7 @@ def test_merge_interleaves_recordings_by_time_and_the_result_replays(tmp_path: P
     assert len([c for c in view.channels.values() if c.topic == "chatter"]) == 2
     assert view.statistics.metadata_count == va.statistics.metadata_count + vb.statistics.metadata_count + 1
 
-    bus = MemoryBus()
-    got: list[RawMessage] = []
-    probe = Node(name="probe", transport=bus.transport(), heartbeat_s=0)
-    probe.subscribe_raw("", got.append)
-    player = Player(name="player", params={"file": str(out), "exit_delay_s": 0.0, "rate": 1000.0},
-                    transport=bus.transport(), heartbeat_s=0)
-    try:
-        player.spin()
-        probe.spin_once(0)
-    finally:
-        player.close(0)
-        probe.close(0)
+    player, got = play_in_memory({"file": str(out), "rate": 1000.0})
     assert player.exit_code == 0
     played = [msgspec.msgpack.decode(r.payload)["text"] for r in got if r.topic == "chatter"]
     assert played == ["a 0", "b 0", "a 1", "b 1", "a 2", "b 2"]
