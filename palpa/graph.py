@@ -66,6 +66,7 @@ def graph_of_plan(plan: LaunchPlan, load_class: Any) -> GraphModel:
     """The graph a launch plan would run, from each node class's declared topics and services (nothing started).
     ``load_class(target)`` imports a ``module:Class``. The recorder and the Foxglove bridge, which take every topic,
     are shown without edges."""
+    from palpa.launch.plan import RECORDER_TARGET, VIZ_TARGET
     from palpa.launch.topics import declared_services, declared_topics
 
     g = GraphModel(title=f"{plan.files[0] if plan.files else plan.file} (declared topics)")
@@ -78,7 +79,7 @@ def graph_of_plan(plan: LaunchPlan, load_class: Any) -> GraphModel:
             g.nodes[spec.name] = " ".join(spec.cmd or [])[:40]
             continue
         g.nodes[spec.name] = spec.target.rpartition(":")[2]
-        if spec.target in ("palpa.record.recorder:Recorder", "palpa.viz.bridge:Bridge"):
+        if spec.target in (RECORDER_TARGET, VIZ_TARGET):
             g.nodes[spec.name] += " (takes every topic)"
             continue
         cls = load_class(spec.target)

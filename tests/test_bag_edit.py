@@ -10,12 +10,12 @@ import pytest
 
 from messages import Text
 from palpa.cli.main import main
+from palpa.net.wire import Header, encode_header
 from palpa.record.format import LAUNCH_ATTACHMENT, MD_NODES, MD_RECORDING, META_SEQ_BASE
 from palpa.record.reader import iter_bag, launch_text_of
 from palpa.record.recorder import Recorder
 from palpa.record.testing import Rec, check_official, play_in_memory, write_bag
 from palpa.testing import NodeHarness
-from palpa.wire import Header, encode_header
 
 S = 1_000_000_000
 LAUNCH = "# resolved\nnodes: []\n"

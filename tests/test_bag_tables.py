@@ -17,14 +17,14 @@ from mcap.reader import make_reader
 
 import palpa.bag
 from palpa.cli.main import main
-from palpa.clock import MockClock
-from palpa.compose import Composition
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
 from palpa.record.format import BagError
 from palpa.record.info import bag_info
 from palpa.record.tables import Flattener
 from palpa.record.testing import Rec, write_bag
+from palpa.timing.clock import MockClock
+from palpa.timing.compose import Composition
 from tests.test_launch_smoke import REPO
 
 # a few lines over the r 5 mm tumour, measured geometry given as a user would (no prepare step in memory)
@@ -34,7 +34,7 @@ SMALL = ["region_mm:=[38.0, 12.0, 50.0, 24.0]", "spacing_mm:=4.0", "speed_mm_s:=
 
 def record_scan(run_dir: Path) -> Path:
     """launch/scan_sim.yaml's nodes and recorder composed in memory on a mock clock; returns the recording."""
-    from palpa.cli.run import load_node_class
+    from palpa.targets import load_node_class
 
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "launch.resolved.yaml").write_text("# the scan\nnodes: []\n")

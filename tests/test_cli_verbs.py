@@ -14,11 +14,11 @@ import pytest
 
 import palpa
 from messages import Text, Trigger, TriggerResult
-from palpa.address import BusAddress
-from palpa.bus import Bus
 from palpa.cli.main import main
 from palpa.cli.topic import bw_line, hz_line, time_base
-from palpa.wire import Header, TopicStats
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
+from palpa.net.wire import Header, TopicStats
 from tests.procs import short_ipc_base
 
 pytestmark = pytest.mark.system

@@ -32,9 +32,9 @@ def test_the_scan_launch_file_drawn_without_starting_it(tmp_path: Path, capsys: 
 
 
 def test_the_model_of_a_launch_file_has_its_edges_and_direct_topics(tmp_path: Path) -> None:
-    from palpa.cli.run import load_node_class
     from palpa.graph import graph_of_plan
     from palpa.launch import load_launch
+    from palpa.targets import load_node_class
 
     plan = load_launch(REPO / "launch" / "scan_sim.yaml", {}, run_dir=tmp_path)
     g = graph_of_plan(plan, load_node_class)
@@ -52,7 +52,7 @@ def test_the_model_of_a_launch_file_has_its_edges_and_direct_topics(tmp_path: Pa
 
 
 def test_declared_services() -> None:
-    from nodes.map_aggregator import MapAggregator
+    from nodes.mapping.map_aggregator import MapAggregator
 
     assert declared_services(MapAggregator, "left") == {"serves": ["left/map/save"], "calls": []}
 

@@ -10,11 +10,11 @@ import math
 from pathlib import Path
 
 import pytest
+from nodes.mapping.map_aggregator import MapAggregator
+from nodes.probe.stiffness_estimator import MultiIndenterStiffnessEstimator
 
 from messages import ScanPlan, StiffnessSample
 from models.stiffness_map import spacing_warning
-from nodes.map_aggregator import MapAggregator
-from nodes.stiffness_estimator import MultiIndenterStiffnessEstimator
 from palpa.errors import LaunchError, RegistryError
 from palpa.launch import load_launch
 from palpa.launch.compose import compose_plan
@@ -24,7 +24,7 @@ from palpa.launch.plan import VIZ_TARGET, NodeSpec
 from palpa.launch.progress import ProgressView
 from palpa.launch.summary import report_hidden
 from palpa.message import lookup
-from palpa.runner import run_node_code
+from palpa.node.runner import run_node_code
 from palpa.testing import NodeHarness
 from tests.test_launch_smoke import REPO
 

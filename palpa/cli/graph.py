@@ -9,7 +9,7 @@ from pathlib import Path
 from palpa.cli.common import add_bus_arg, bus_and_source, import_message_modules
 from palpa.errors import PalpaError
 from palpa.graph import describe, graph_of_heartbeats, graph_of_plan, render
-from palpa.node import Node
+from palpa.node.node import Node
 
 __all__ = ["register"]
 
@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from palpa.cli.run import load_node_class
+    from palpa.targets import load_node_class
 
     if args.source:
         if args.source[0] != "launch" or len(args.source) < 2:

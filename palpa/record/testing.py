@@ -29,7 +29,7 @@ from palpa.record.format import (
 from palpa.record.writer import BagWriter
 
 if TYPE_CHECKING:
-    from palpa.node import RawMessage
+    from palpa.node.node import RawMessage
     from palpa.record.player import Player
 
 __all__ = ["OfficialView", "Rec", "check_official", "play_in_memory", "write_bag"]
@@ -127,7 +127,7 @@ def play_in_memory(params: Mapping[str, object]) -> tuple[Player, list[RawMessag
     """Run the Player node with ``params`` (``file`` and the rest of ``palpa play``'s; ``exit_delay_s`` 0 unless
     given) on a :class:`~palpa.testing.MemoryBus` until it is done; returns it (exit code, lateness) and every
     message it sent, as a subscriber of every topic received them."""
-    from palpa.node import Node
+    from palpa.node.node import Node
     from palpa.record.player import Player
     from palpa.testing import MemoryBus
 
