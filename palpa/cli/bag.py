@@ -81,6 +81,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         e.add_argument("--force", action="store_true", help="overwrite an existing output")
         e.set_defaults(func=run_edit, edit=verb)
 
+
 def run_info(args: argparse.Namespace) -> int:
     info = bag_info(resolve_bag_paths(args.files))
     if args.json:
