@@ -75,7 +75,8 @@ def test_a_running_graph_from_heartbeats_with_direct_topics_marked(tmp_path: Pat
     assert g.calls == {("operator", "listener/reset")}  # the request and reply topics are the service's edges
     svg = render(g, tmp_path / "g.svg").read_text()
     assert "chatter" in svg and "[Text]" in svg and "Trigger -&gt; TriggerResult" in svg
-    assert svg.count("#e07000") > 1  # the topic's box and edges, not only the legend
+    assert svg.count("fill: #ffffff; stroke: #e07000") == 1  # the direct topic's box
+    assert svg.count("fill: none; stroke: #e07000; stroke-width: 2.6; stroke-linecap: round") == 2  # its edges
     plain = graph_of_heartbeats({**beats, "talker": _beat("talker", {"chatter": "Text"}, {})})
     assert render(plain, tmp_path / "p.svg").read_text().count("#e07000") == 1
 
