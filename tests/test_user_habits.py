@@ -10,11 +10,11 @@ import math
 from pathlib import Path
 
 import pytest
-from nodes.mapping.map_aggregator import MapAggregator
-from nodes.probe.stiffness_estimator import MultiIndenterStiffnessEstimator
 
 from messages import ScanPlan, StiffnessSample
 from models.stiffness_map import spacing_warning
+from nodes.mapping.map_aggregator import MapAggregator
+from nodes.probe.stiffness_estimator import MultiIndenterStiffnessEstimator
 from palpa.errors import LaunchError, RegistryError
 from palpa.launch import load_launch
 from palpa.launch.compose import compose_plan
@@ -129,5 +129,5 @@ def test_palpa_run_help_lists_params_with_their_docstrings(capsys: pytest.Captur
     with pytest.raises(SystemExit):
         run_node_code(Talker, ["--help"], prog="nodes.demo:Talker")
     out = capsys.readouterr().out
-    assert "  rate_hz: float = 10.0\n      > 0\n" in out
-    assert "  count: int = 0\n      Stop (exit 0) after this many messages; 0 runs until stopped.\n" in out
+    assert "  rate_hz: float = 10.0  [run-time changeable]\n      > 0; Applied at once when changed at run time" in out
+    assert "  count: int = 0  [run-time changeable]\n      Stop (exit 0) after this many messages; 0 runs" in out
