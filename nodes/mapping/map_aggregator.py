@@ -34,6 +34,7 @@ from models.stiffness_map import (
     StiffnessGrid,
     background,
     detect_inclusions,
+    spacing_warning,
 )
 from nodes.mapping.map_output import write_outputs
 from palpa.node.service import RequestRefused
@@ -67,6 +68,7 @@ class MapAggregator(palpa.Node):
         self.map_pub = self.publisher("map/stiffness", StiffnessMap, latched=True)
         self.inc_pub = self.publisher("map/inclusions", Inclusions, latched=True)
         self.grid: StiffnessGrid | None = None
+        self.warned_spacing = 0.0
         self.unit = ""
         self.samples = 0
         self.pending: list[tuple[float, float, float]] = []
@@ -115,6 +117,10 @@ class MapAggregator(palpa.Node):
             self.pending.clear()
 
     def on_plan(self, plan: ScanPlan) -> None:
+        warning = spacing_warning(plan.spacing_mm, self.params.resolution_mm)
+        if warning and plan.spacing_mm != self.warned_spacing:
+            self.warned_spacing = plan.spacing_mm
+            self.log.warning("%s", warning)
         if self.grid is None:
             # half a cell of margin: raster lines and grid points on the region's edges fall on cell centres
             h = self.params.resolution_mm / 2

@@ -51,11 +51,32 @@ class _Publishing(palpa.Node):
         self.samples = self.publisher("stiffness/sample", StiffnessSample)
         self.fits = self.publisher("stiffness/fit", StiffnessFit)
         self.published = 0
+        self.valid: list[tuple[float, float, float]] = []  # (value, pan, tilt) of each valid sample: the result
+        self.unit = ""
 
     def publish_samples(self, out: list[StiffnessSample]) -> None:
         for s in out:
             self.samples.publish(s)
             self.published += 1
+            if s.valid and math.isfinite(s.value):
+                self.valid.append((s.value, s.pan_rad, s.tilt_rad))
+                self.unit = s.unit
+
+    def result_line(self) -> str:
+        """The run's result in one line (logged at shutdown, shown after the progress bar by a launch file's
+        ``progress: {report: [estimator]}``): the median estimate over the valid samples, with their spread."""
+        if not self.valid:
+            return f"result: no valid stiffness estimate in {self.published} samples"
+        values = sorted(v for v, _, _ in self.valid)
+        n = len(values)
+        pans, tilts = sorted(p for _, p, _ in self.valid), sorted(t for _, _, t in self.valid)
+        return (f"result: stiffness median {values[n // 2]:.4g} {self.unit} over {n} valid of {self.published} "
+                f"samples (10-90 %: {values[n // 10]:.4g} to {values[(9 * n) // 10]:.4g}); pan median "
+                f"{math.degrees(pans[n // 2]):.1f} deg, tilt median {math.degrees(tilts[n // 2]):.1f} deg")
+
+    def on_shutdown(self) -> None:
+        """Say the result (what the run was for) before the node goes."""
+        self.log.info("%s", self.result_line())
 
 
 class AirfloatStiffnessEstimator(_Publishing):

@@ -136,6 +136,8 @@ def describe(plan: LaunchPlan) -> str:
         doc["description"] = plan.description
     doc["files"] = list(plan.files)
     doc["args"] = dict(plan.args)
+    if plan.included_args:
+        doc["args set in included files by the command line"] = dict(plan.included_args)
     if plan.python_path:
         doc["python_path"] = list(plan.python_path)
     bus = plan.bus

@@ -1,4 +1,4 @@
-"""``palpa service list|call``: the services of the running graph, and calling one from the shell."""
+"""``palpa service list|type|call``: the services of the running graph, and calling one from the shell."""
 
 from __future__ import annotations
 
@@ -30,6 +30,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_bus_arg(ls)
     ls.set_defaults(func=run_list)
 
+    typ = verbs.add_parser("type", help="a service's request and response types (as its server announces them)")
+    typ.add_argument("name", help="service name, e.g. map/save")
+    typ.add_argument("--wait", type=float, default=5.0, help="seconds to wait for the server to be found")
+    add_bus_arg(typ)
+    typ.set_defaults(func=run_type)
+
     call = verbs.add_parser("call", help="call a service with a request given as YAML; prints the response")
     call.add_argument("name", help="service name, e.g. scanner/probe_at")
     call.add_argument("type", help="request type name, e.g. ProbeAt")
@@ -56,6 +62,13 @@ def run_list(args: argparse.Namespace) -> int:
     if hidden := len(every) - len(rows):
         print(f"({'and ' if rows else 'no services but '}{hidden} parameter services, _palpa/param/NODE/get|set: "
               "`palpa service list --all` lists them, `palpa param` uses them)")
+    return 0
+
+
+def run_type(args: argparse.Namespace) -> int:
+    with tool_node(args, "service_type") as node:
+        info = discover(node, args.name, args.wait)
+    print(f"{info.request_type} -> {info.response_type}")
     return 0
 
 

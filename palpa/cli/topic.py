@@ -1,4 +1,4 @@
-"""``palpa topic list|echo|hz|pub``: look at and poke the running graph."""
+"""``palpa topic list|info|type|echo|hz|bw|pub``: look at and poke the running graph."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from palpa.cli.common import add_bus_arg, bus_and_source, import_message_modules
 from palpa.errors import BusError, PalpaError, RegistryError
 from palpa.launch.validate import did_you_mean
 from palpa.message import lookup
-from palpa.net.wire import TopicStats
+from palpa.net.wire import SequenceTracker, TopicStats
 from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 
@@ -30,6 +30,23 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_bus_arg(ls)
     ls.set_defaults(func=run_list)
 
+    info = verbs.add_parser("info", help="a topic's type, publishers and subscribers (from heartbeats)")
+    info.add_argument("topic")
+    info.add_argument("-v", "--verbose", action="store_true", help="each publisher and subscriber, with counters")
+    typ = verbs.add_parser("type", help="the message type a topic carries (from heartbeats)")
+    typ.add_argument("topic")
+    for verb, fn in ((info, run_info), (typ, run_type)):
+        verb.add_argument("--wait", type=float, default=WAIT_S, help=WAIT_HELP)
+        add_bus_arg(verb)
+        verb.set_defaults(func=fn)
+
+    bw = verbs.add_parser("bw", help="bandwidth of a topic: bytes per wall second, message sizes")
+    bw.add_argument("topic")
+    bw.add_argument("--window", type=int, default=100, help="messages in the rolling window")
+    bw.add_argument("--duration", type=float, default=0.0, help="stop after S seconds (0: never)")
+    add_bus_arg(bw)
+    bw.set_defaults(func=run_bw)
+
     echo = verbs.add_parser("echo", help="print messages on a topic")
     echo.add_argument("topic", help="topic name as on the bus, e.g. chatter (no leading slash)")
     echo.add_argument("--raw", action="store_true", help="print the envelope header and payload bytes")
@@ -38,7 +55,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_bus_arg(echo)
     echo.set_defaults(func=run_echo)
 
-    hz = verbs.add_parser("hz", help="rate from publish stamps, gaps from sequence numbers")
+    hz = verbs.add_parser("hz", help="rate from publish stamps (simulated or wall time, said on each line), gaps "
+                                     "from sequence numbers")
     hz.add_argument("topic", help="topic name as on the bus (no leading slash)")
     hz.add_argument("--window", type=int, default=1000, help="stamps in the rolling window")
     hz.add_argument("--duration", type=float, default=0.0, help="stop after S seconds (0: never)")
@@ -153,6 +171,86 @@ def run_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def topic_info_lines(topic: str, beats: dict[str, Heartbeat], verbose: bool = False) -> list[str]:
+    """What ``topic info`` prints (ros2 topic info): type, publisher and subscription counts, with -v each node.
+    Raises :class:`PalpaError` naming close topics when no node heard publishes or subscribes to it."""
+    entry = graph_topics(beats).get(topic)
+    if entry is None:
+        raise PalpaError(f"no node heard publishes or subscribes to {topic!r}"
+                         f"{did_you_mean(topic, list(graph_topics(beats)))} ({len(beats)} nodes heard)")
+    lines = [f"Type: {'/'.join(sorted(entry['types'])) or entry['type']}",
+             f"Publisher count: {len(entry['pub'])}", f"Subscription count: {len(entry['sub'])}"]
+    if verbose:
+        for name in sorted(entry["pub"]):
+            hb = beats[name.removesuffix(" (direct)")]
+            lines.append(f"  publisher  {name}  pid {hb.pid} on {hb.host}  sent {hb.sent.get(topic, 0)}")
+        for name in sorted(entry["sub"]):
+            c = beats[name].counters.get(topic)
+            extra = f"  received {c.received} gaps {c.gaps} bad {c.decode_errors}" if c else ""
+            lines.append(f"  subscriber {name}  pid {beats[name].pid} on {beats[name].host}{extra}")
+    return lines
+
+
+def run_info(args: argparse.Namespace) -> int:
+    topic = bare_topic(args.topic)
+    with tool_node(args, "topic_info") as node:
+        beats = collect_heartbeats(node, args.wait)
+    print("\n".join(topic_info_lines(topic, beats, args.verbose)))
+    return 0
+
+
+def run_type(args: argparse.Namespace) -> int:
+    topic = bare_topic(args.topic)
+    with tool_node(args, "topic_type") as node:
+        beats = collect_heartbeats(node, args.wait)
+    print(topic_info_lines(topic, beats)[0].removeprefix("Type: "))
+    return 0
+
+
+def bw_line(sizes: list[tuple[int, int]]) -> str:
+    """Bandwidth from (receive time ns, bytes) pairs: bytes per second of wall time over the window, with the
+    message sizes (ros2 topic bw)."""
+    if len(sizes) < 2:
+        return f"no bandwidth yet ({len(sizes)} received)"
+    span = (sizes[-1][0] - sizes[0][0]) / 1e9
+    nbytes = [n for _, n in sizes]
+    rate = sum(nbytes[1:]) / span if span > 0 else math.inf
+    return (f"{_size(rate)}/s from {len(sizes)} messages (wall time)  mean {_size(sum(nbytes) / len(nbytes))}  "
+            f"min {_size(min(nbytes))}  max {_size(max(nbytes))}")
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "KB", "MB"):
+        if n < 1000 or unit == "MB":
+            return f"{n:.2f} {unit}" if unit != "B" else f"{n:.0f} B"
+        n /= 1000
+    return f"{n:.2f} MB"
+
+
+def run_bw(args: argparse.Namespace) -> int:
+    topic = bare_topic(args.topic)
+    sizes: list[tuple[int, int]] = []
+
+    def on_raw(raw: RawMessage) -> None:
+        if raw.topic == topic and not raw.from_cache:
+            sizes.append((raw.recv_ns, len(raw.payload) + sum(map(len, raw.blobs))))
+            del sizes[: -args.window]
+
+    started = last_print = time.monotonic()
+    with tool_node(args, "bw") as node:
+        node.subscribe_raw(topic, on_raw)
+        watch = GraphWatch(node, args, topic)
+        while not args.duration or time.monotonic() - started < args.duration:
+            node.spin_once(0.1)
+            if not sizes:
+                watch.check()
+            if time.monotonic() - last_print >= 1.0:
+                last_print = time.monotonic()
+                print(bw_line(sizes), flush=True)
+    print(bw_line(sizes), flush=True)
+    return 0
+
+
 def _to_builtins(raw: RawMessage) -> Any:
     try:
         cls = lookup(raw.header.type)
@@ -197,9 +295,8 @@ def run_echo(args: argparse.Namespace) -> int:
 def run_hz(args: argparse.Namespace) -> int:
     stamps: list[int] = []
     stats = TopicStats()
-    from palpa.net.wire import SequenceTracker
-
     tracker = SequenceTracker()
+    base = {"simulated": 0, "wall": 0}
     started = time.monotonic()
     last_print = started
 
@@ -209,9 +306,10 @@ def run_hz(args: argparse.Namespace) -> int:
     def on_raw(raw: RawMessage) -> None:
         if raw.topic != topic or raw.from_cache:
             return
-        if tracker.observe(raw.topic, raw.header.node, raw.header.seq, stats):
+        if tracker.observe(raw.topic, raw.header.node, raw.header.seq, stats, raw.header.inc):
             stamps.append(raw.header.stamp)
             del stamps[: -args.window]
+            base["simulated" if raw.header.at else "wall"] += 1
 
     with tool_node(args, "hz") as node:
         node.subscribe_raw(topic, on_raw)
@@ -222,21 +320,32 @@ def run_hz(args: argparse.Namespace) -> int:
                 watch.check()
             if time.monotonic() - last_print >= 1.0:
                 last_print = time.monotonic()
-                print(hz_line(stamps, stats), flush=True)
-    print(hz_line(stamps, stats), flush=True)
+                print(hz_line(stamps, stats, time_base(base)), flush=True)
+    print(hz_line(stamps, stats, time_base(base)), flush=True)
     return 0
 
 
-def hz_line(stamps: list[int], stats: TopicStats) -> str:
-    """One line of rate statistics from publish stamps (ns) and sequence counters."""
+def time_base(counts: dict[str, int]) -> str:
+    """The clock ``topic hz`` measures by: the publishers' stamps are simulated time when the publisher follows a
+    simulation clock (its envelopes carry the simulated instant, ``at``), else wall time (a replay re-stamps what
+    it plays with the wall clock)."""
+    if counts["simulated"] and counts["wall"]:
+        return "mixed: simulated and wall stamps"
+    return "simulated time" if counts["simulated"] else "wall time"
+
+
+def hz_line(stamps: list[int], stats: TopicStats, base: str = "wall time") -> str:
+    """One line of rate statistics from publish stamps (ns) on the clock ``base`` names, and the losses the
+    sequence numbers show (gaps: numbers skipped; restarts: a publisher that started again)."""
+    losses = f"gaps {stats.gaps}" + (f"  restarts {stats.restarts}" if stats.restarts else "")
     if len(stamps) < 2:
-        return f"no rate yet ({stats.received} received)"
+        return f"no rate yet ({stats.received} received, {losses})"
     dts = [(b - a) / 1e9 for a, b in zip(stamps, stamps[1:], strict=False)]
     mean = sum(dts) / len(dts)
     std = math.sqrt(sum((d - mean) ** 2 for d in dts) / len(dts))
     rate = 1.0 / mean if mean > 0 else math.inf
-    return (f"rate {rate:.2f} Hz  min {min(dts) * 1e3:.2f} ms  max {max(dts) * 1e3:.2f} ms  "
-            f"std {std * 1e3:.2f} ms  window {len(stamps)}  received {stats.received}  gaps {stats.gaps}")
+    return (f"rate {rate:.2f} Hz ({base})  min {min(dts) * 1e3:.2f} ms  max {max(dts) * 1e3:.2f} ms  "
+            f"std {std * 1e3:.2f} ms  window {len(stamps)}  received {stats.received}  {losses} (by sequence number)")
 
 
 def _check_graph(node: Node, topic: str, type_name: str, where: str) -> None:

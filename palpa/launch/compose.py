@@ -73,5 +73,8 @@ def compose_plan(plan: LaunchPlan) -> LaunchPlan:
         sigkill_timeout=max(s.sigkill_timeout for s in members),
         where=f"{where}: in_process ({', '.join(s.name for s in members)})",
     )
-    return dataclasses.replace(plan, nodes=[*rest, entry], record=None, in_process=True,
+    # a report node composed in goes on being reported: the entry's lines its logger wrote
+    inside = {s.name for s in members}
+    report = [f"{name}:{r}" if r in inside else r for r in plan.progress_report]
+    return dataclasses.replace(plan, nodes=[*rest, entry], record=None, in_process=True, progress_report=report,
                                composed_from=dataclasses.replace(plan, in_process=True).to_yaml())

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import TextIO
 
 from palpa.launch.output import Screen
-from palpa.launch.plan import NodeSpec
+from palpa.launch.plan import VIZ_READY, VIZ_TARGET, NodeSpec
 from palpa.launch.process import Child
 
 __all__ = ["REAP_GRACE_S", "NodeProc"]
@@ -29,7 +29,7 @@ __all__ = ["REAP_GRACE_S", "NodeProc"]
 REAP_GRACE_S = 3.0  # after SIGKILL, how long to wait for the kernel before giving up on a process
 
 _MAX_LINE = 65536
-_REPORT_LINES = 12
+_REPORT_LINES = 40  # a composed process's lines are every member's: room for the reported one's
 
 
 @dataclass
@@ -68,6 +68,10 @@ class NodeProc:
         with contextlib.suppress(OSError, ValueError):
             self.log.write(text + "\n")
         self.tail.append(text)
+        if self.spec.target == VIZ_TARGET and text.startswith(VIZ_READY):
+            url = text[len(VIZ_READY):].split(" ", 1)[0]
+            screen.say(f"Foxglove: open {url} in the Foxglove app (Open connection -> Foxglove WebSocket; "
+                       "docs/foxglove.md)", "NOTICE")
         if not screen.node_line(self.spec.name, self.color, self.spec.output, text) and self.spec.output == "screen":
             self.hidden.append(text)
 

@@ -19,7 +19,7 @@ from palpa.launch.schema import BusDecl, RecordDecl, VizDecl
 from palpa.net.address import BusAddress, private_dir
 from palpa.net.options import TransportOptions
 
-__all__ = ["RECORDER_NAME", "RECORDER_TARGET", "VIZ_NAME", "VIZ_TARGET", "LaunchPlan", "NodeSpec"]
+__all__ = ["RECORDER_NAME", "RECORDER_TARGET", "VIZ_NAME", "VIZ_READY", "VIZ_TARGET", "LaunchPlan", "NodeSpec"]
 
 _FRESH = itertools.count()
 """Numbers this process's fresh bus paths (LaunchPlan.bus_request)."""
@@ -28,6 +28,9 @@ RECORDER_NAME = "recorder"
 RECORDER_TARGET = "palpa.record.recorder:Recorder"
 VIZ_NAME = "viz"
 VIZ_TARGET = "palpa.viz.bridge:Bridge"
+VIZ_READY = "palpa viz ready "
+"""How the bridge's line announcing its URL begins (``palpa viz ready ws://HOST:PORT ...``): the launcher shows
+the URL even under a progress bar."""
 
 
 @dataclass
@@ -125,6 +128,8 @@ class LaunchPlan:
     """Node name -> every parameter of a ``node:`` entry, defaults included (filled by the loader)."""
     files: list[str] = field(default_factory=list)
     """Every launch file read, the top-level one first."""
+    included_args: dict[str, list[str]] = field(default_factory=dict)
+    """Included file -> the args the command line set in it (docs/launch.md, "Includes")."""
     in_process: bool = False
     """The file asks for its simulated-clock nodes in one process (see :mod:`palpa.launch.compose`)."""
     composed_from: str | None = None

@@ -31,10 +31,16 @@ def exit_text(code: int) -> str:
 
 
 def report_hidden(screen: Screen, procs: Sequence[NodeProc], report: Collection[str]) -> None:
-    """After the progress view: what the ``report`` nodes said under it (where the results went)."""
+    """After the progress view: what the ``report`` nodes said under it (where the results went). An entry
+    ``PROC:NODE`` names a node composed into process PROC (``--in-process``): of PROC's lines, those NODE's logger
+    wrote (``palpa.node.NODE:``)."""
     for p in procs:
-        if p.spec.name in report:
-            for line in p.hidden:
+        members = [r.partition(":")[2] for r in report if r.partition(":")[0] == p.spec.name]
+        if not members:
+            continue
+        loggers = tuple(f"palpa.node.{m}:" for m in members if m)
+        for line in p.hidden:
+            if not loggers or any(lg in line for lg in loggers):
                 screen.show(f"[{p.spec.name}] {line}", loud=False)
 
 

@@ -351,7 +351,7 @@ class Supervisor:
             return
         fields = progress_fields(raw.payload)
         if fields is not None:
-            view.update(fields)
+            view.update(fields, raw.recv_ns)
 
     # -- teardown ----------------------------------------------------------------------------------------
     def _teardown(self, bus: Bus | None, old: dict[int, Any]) -> None:

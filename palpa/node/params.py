@@ -15,7 +15,7 @@ from yamlstruct import Source, YamlError, convert, did_you_mean
 
 __all__ = [
     "Change", "InputPath", "NonNegative", "Params", "Positive", "PositiveInt", "RunTime", "SafetyLimit", "change_rules",
-    "convert_params", "describe_params", "input_paths", "parse_param_value", "read_params_file",
+    "convert_params", "describe_params", "input_paths", "param_docs", "parse_param_value", "read_params_file",
 ]
 
 P = TypeVar("P", bound="Params")
@@ -153,4 +153,49 @@ def describe_params(cls: type[Params]) -> dict[str, str]:
         tp = get_args(field.type)[0] if get_origin(field.type) is Annotated else field.type  # bounds: the base
         tname = "path" if _is_input_path(field.type) else getattr(tp, "__name__", None) or str(tp)
         out[field.name] = f"{tname} = {default}"
+    return out
+
+
+_BOUNDS = (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="), ("min_length", "length >="),
+           ("max_length", "length <="))
+
+
+def _bounds(tp: Any) -> str:
+    """'> 0' for ``Annotated[float, Meta(gt=0)]`` (the float range's own ends left out)."""
+    parts = []
+    for meta in get_args(tp)[1:] if get_origin(tp) is Annotated else ():
+        if isinstance(meta, msgspec.Meta):
+            for key, sign in _BOUNDS:
+                value = getattr(meta, key, None)
+                if value is not None and abs(value) != sys.float_info.max:
+                    parts.append(f"{sign} {value:g}" if isinstance(value, float) else f"{sign} {value}")
+            if meta.description:
+                parts.append(meta.description)
+    return ", ".join(parts)
+
+
+def param_docs(cls: type[Params]) -> dict[str, str]:
+    """Parameter name -> what it is, for ``palpa run X --help`` and ``palpa param describe``: the docstring written
+    under the field (``rate_hz: float = 10.0`` then ``\"\"\"Ticks per second.\"\"\"``) in the class or a base, and
+    the bounds its type declares (``> 0``). Names without either are left out."""
+    import ast
+    import inspect
+    import textwrap
+
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        try:
+            tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
+        except (OSError, TypeError, SyntaxError):
+            continue
+        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+        for stmt, after in zip(body, [*body[1:], None], strict=True):
+            if (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name) and isinstance(after, ast.Expr)
+                    and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str)):
+                docs[stmt.target.id] = " ".join(after.value.value.split())
+    out: dict[str, str] = {}
+    for field in msgspec.structs.fields(cls):
+        text = "; ".join(filter(None, [_bounds(field.type), docs.get(field.name, "")]))
+        if text:
+            out[field.name] = text
     return out

@@ -20,7 +20,7 @@ import msgspec
 
 from palpa.errors import ParamError
 from palpa.message import Message
-from palpa.node.params import Params, change_rules, convert_params, describe_params
+from palpa.node.params import Params, change_rules, convert_params, describe_params, param_docs
 from palpa.node.service import RequestRefused
 
 if TYPE_CHECKING:
@@ -47,14 +47,15 @@ class ParamSet(Message, frozen=True, kw_only=True):
 
 
 class ParamValues(Message, frozen=True, kw_only=True):
-    """A node's parameters: name -> value, name -> 'type = default' (what ``palpa param list`` shows), and name ->
-    when it may change (``run time``, ``launch`` or ``safety limit``: palpa.node.params.Change; empty from a node older
-    than the rule)."""
+    """A node's parameters: name -> value, name -> 'type = default' (what ``palpa param list`` shows), name ->
+    when it may change (``run time``, ``launch`` or ``safety limit``: palpa.node.params.Change), and name -> its
+    description and bounds (``palpa param describe``); the last two empty from a node older than them."""
 
     node: str
     values: dict[str, Any]
     types: dict[str, str]
     change: dict[str, str] = {}
+    docs: dict[str, str] = {}
 
 
 class ParamChange(Message, frozen=True, kw_only=True):
@@ -85,7 +86,15 @@ class ParamServer:
         node = self.node
         params = self.current()
         return ParamValues(node=node.name, values=msgspec.to_builtins(params), types=describe_params(type(params)),
-                           change=dict(change_rules(type(params))))
+                           change=dict(change_rules(type(params))), docs=self._docs(type(params)))
+
+    _docs_cache: dict[type[Params], dict[str, str]] = {}
+
+    @classmethod
+    def _docs(cls, params_type: type[Params]) -> dict[str, str]:
+        if params_type not in cls._docs_cache:  # read from the class source once per class
+            cls._docs_cache[params_type] = param_docs(params_type)
+        return cls._docs_cache[params_type]
 
     def on_get(self, req: ParamGet) -> ParamValues:
         return self.values()

@@ -20,6 +20,7 @@ import json
 import logging
 import signal
 import sys
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 from types import FrameType
@@ -32,6 +33,7 @@ from palpa.node.params import (
     Params,
     change_rules,
     describe_params,
+    param_docs,
     parse_param_value,
     read_params_file,
 )
@@ -116,10 +118,11 @@ def run_node_code(cls: type[Node], argv: Sequence[str] | None = None, *, prog: s
     """:func:`run_node` without the ``sys.exit``: returns the exit code."""
     ap = node_arg_parser(prog or cls.__name__)
     ap.formatter_class = argparse.RawDescriptionHelpFormatter
-    declared, rules = describe_params(cls.Params), change_rules(cls.Params)
+    declared, rules, docs = describe_params(cls.Params), change_rules(cls.Params), param_docs(cls.Params)
     marks = {"run time": "  [run-time changeable]", "safety limit": "  [safety limit]", "launch": ""}
-    ap.epilog = "parameters (-p NAME=VALUE; fixed at launch unless marked run-time changeable):\n" + (
-        "\n".join(f"  {k}: {v}{marks[rules[k]]}" for k, v in declared.items()) or "  none")
+    ap.epilog = "parameters (-p NAME=VALUE; fixed at launch unless marked run-time changeable):\n" + ("\n".join(
+        f"  {k}: {v}{marks[rules[k]]}" + "".join(f"\n      {line}" for line in textwrap.wrap(docs.get(k, ""), 100))
+        for k, v in declared.items()) or "  none")
     args = ap.parse_args(argv)
     logging.basicConfig(
         level=logging.DEBUG if args.debug else logging.INFO,
