@@ -1,5 +1,5 @@
 """The graph as a picture (``palpa graph``, rqt_graph's job): nodes, topics and services, who publishes and who
-subscribes, which topics go direct (past the proxy, palpa.direct).
+subscribes, which topics go direct (past the proxy, palpa.net.direct).
 
 :class:`GraphModel` is built from a launch plan without starting anything (each node class's declared topics and
 services, read from its source by :mod:`palpa.launch.topics`; a ``cmd:`` entry is an opaque process) or from the
@@ -106,7 +106,7 @@ def graph_of_heartbeats(beats: Mapping[str, Heartbeat], title: str = "") -> Grap
     services = {s for hb in beats.values() for s in hb.services if not s.startswith("_palpa/")}
 
     def plumbing(topic: str) -> str | None:
-        """The service whose request or reply topic this is (palpa.service), or None."""
+        """The service whose request or reply topic this is (palpa.node.service), or None."""
         for s in services:
             if topic.rstrip("*") == f"{s}/request" or topic.startswith(f"{s}/reply/"):
                 return s
