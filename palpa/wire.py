@@ -37,6 +37,7 @@ __all__ = [
     "MAX_BATCH",
     "MAX_MSG_BYTES",
     "MAX_TOPIC_BYTES",
+    "MAX_TRACKED_PUBLISHERS",
     "Header",
     "HeaderTemplate",
     "SequenceTracker",
@@ -226,13 +227,34 @@ class TopicStats:
         }
 
 
+MAX_TRACKED_PUBLISHERS = 16_384
+"""(topic, publisher) pairs one :class:`SequenceTracker` remembers. Past it the least recently heard pair is
+forgotten (counted in ``forgotten``): its next message counts as its first, so gaps across the forgetting go
+uncounted. A graph has tens of nodes; only a flood of invented publisher names reaches it."""
+
+
 @dataclass
 class SequenceTracker:
-    """Tracks the last sequence number per (topic, publisher) and classifies each arrival."""
+    """Tracks the last sequence number per (topic, publisher) and classifies each arrival. Holds at most
+    ``max_entries`` pairs, forgetting the least recently heard."""
 
     _last: dict[tuple[str, str], int] = field(default_factory=dict)
     _inc: dict[tuple[str, str], int] = field(default_factory=dict)
     """The incarnation last seen per (topic, publisher), where one was given."""
+    max_entries: int = MAX_TRACKED_PUBLISHERS
+    forgotten: int = 0
+    """Pairs forgotten to stay within ``max_entries``."""
+
+    def _take(self, key: tuple[str, str]) -> int | None:
+        """Remove and return the last sequence number of ``key`` (the caller puts it back, which makes it the most
+        recently heard); make room for one more pair when ``key`` is new."""
+        last = self._last.pop(key, None)
+        if last is None and len(self._last) >= self.max_entries:
+            oldest = next(iter(self._last))
+            del self._last[oldest]
+            self._inc.pop(oldest, None)
+            self.forgotten += 1
+        return last
 
     def observe(self, topic: str, node: str, seq: int, stats: TopicStats, inc: int = 0) -> bool:
         """Record one arrival; returns False when it is a duplicate that should be dropped.
@@ -242,7 +264,7 @@ class SequenceTracker:
         a restart whatever its sequence number.
         """
         key = (topic, node)
-        last = self._last.get(key)
+        last = self._take(key)
         if self._inc.get(key, 0) != inc:
             self._inc[key] = inc
             if last is not None:
@@ -251,6 +273,7 @@ class SequenceTracker:
         if last is not None:
             if seq == last:
                 stats.duplicates = min(COUNTER_MAX, stats.duplicates + 1)
+                self._last[key] = last
                 return False
             if seq < last:
                 stats.restarts = min(COUNTER_MAX, stats.restarts + 1)
@@ -266,13 +289,12 @@ class SequenceTracker:
         incarnation (the caller then goes message by message)."""
         key = (topic, node)
         last = self._last.get(key)
+        if last is not None and (self._inc.get(key, 0) != inc or first <= last):
+            return False
+        self._take(key)
         if self._inc.get(key, 0) != inc:
-            if last is not None:
-                return False
             self._inc[key] = inc
         if last is not None:
-            if first <= last:
-                return False
             stats.gaps = min(COUNTER_MAX, stats.gaps + first - last - 1)
         self._last[key] = first + n - 1
         stats.received += n
@@ -285,3 +307,5 @@ class SequenceTracker:
         last = self._last.get(key)
         return last is not None and last >= seq and self._inc.get(key, 0) == inc
 
+    def __len__(self) -> int:
+        return len(self._last)
