@@ -12,6 +12,7 @@ import msgspec
 import pytest
 
 from messages import Text
+from palpa.cli.main import main
 from palpa.record.format import MD_REFUSED, BagError
 from palpa.record.recorder import MAX_LATCHED_BYTES, RESERVED_CHANNELS, Recorder
 from palpa.record.testing import check_official
@@ -121,3 +122,28 @@ def test_sequence_state_is_bounded_and_forgets_the_least_recently_heard() -> Non
     assert len(tracker) == 3 and tracker.forgotten == 2 and not tracker.seen_at_least("t", "c", 1)
     assert not tracker.observe("t", "a", 2, stats) and stats.duplicates == 1  # a duplicate keeps its entry
     assert tracker.seen_at_least("t", "a", 2)
+
+
+def test_recover_in_place_refuses_a_file_a_recorder_is_writing(tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "live.mcap"
+    w = BagWriter(path)  # a live recorder's writer: it holds the file's lock while it writes
+    cid = w.register_channel("t", "msgpack", 0, {})
+    for i in range(1, 6):
+        w.add_message(cid, i, i, i, b"x")
+    w.flush()
+    before = path.read_bytes()
+    assert main(["bag", "recover", "--in-place", str(path)]) == 1
+    assert "is in use: a recorder is still writing it" in capsys.readouterr().err
+    assert path.read_bytes() == before and not (tmp_path / "live.mcap.recovering").exists()
+    assert main(["bag", "recover", str(path), "-o", str(tmp_path / "copy.mcap")]) == 0  # a snapshot is allowed
+    assert "still being written" in capsys.readouterr().err
+    for i in range(6, 11):  # the recorder goes on, undisturbed
+        w.add_message(cid, i, i, i, b"x")
+    w.finish()
+    assert [m[1] for m in check_official(path).messages] == list(range(1, 11))
+    w2 = BagWriter(tmp_path / "dead.mcap")
+    w2.add_message(w2.register_channel("t", "msgpack", 0, {}), 1, 1, 1, b"x")
+    w2.abandon()  # its writer died: the lock went with it
+    assert main(["bag", "recover", "--in-place", str(tmp_path / "dead.mcap")]) == 0
+    assert len(check_official(tmp_path / "dead.mcap").messages) == 1

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 
 from palpa.record.export import export_json
@@ -12,6 +13,7 @@ from palpa.record.format import BagError
 from palpa.record.info import bag_info, format_info
 from palpa.record.reader import resolve_bag_paths
 from palpa.record.recover import recover
+from palpa.record.writer import lock_exclusive
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -55,12 +57,21 @@ def run_recover(args: argparse.Namespace) -> int:
     if args.in_place:
         if args.output:
             raise BagError("--in-place and --output exclude each other")
-        tmp = src.with_name(src.name + ".recovering")
-        report = recover(src, tmp, overwrite=True)
-        os.replace(tmp, src)
+        with open(src, "rb") as guard:  # held until the file is replaced: no recorder starts writing it meanwhile
+            if not lock_exclusive(guard):
+                raise BagError(f"{src} is in use: a recorder is still writing it (it holds the file's lock); "
+                               "stop the recorder first, or recover a copy with -o OUT")
+            tmp = src.with_name(src.name + ".recovering")
+            report = recover(src, tmp, overwrite=True)
+            os.replace(tmp, src)
         report.output = src
     else:
+        with open(src, "rb") as probe:
+            live = not lock_exclusive(probe)
         report = recover(src, args.output, overwrite=args.force)
+        if live:
+            print(f"palpa bag: {src} is still being written by a recorder: the copy holds what it had written so far",
+                  file=sys.stderr)
     print(report.text())
     return 0
 

@@ -13,11 +13,13 @@ are registered, and :meth:`BagWriter.flush` closes the open chunk and hands ever
 outside a chunk's buffer ends with a provisional tail (DataEnd, a Footer without summary, the closing magic)
 that the next write overwrites: a process killed between writes leaves a complete, footer-terminated MCAP file
 without a summary section (the spec allows one), which the official ``mcap`` readers read as it is, up to the
-last complete chunk; ``palpa bag recover`` adds the summary (indexes, statistics).
+last complete chunk; ``palpa bag recover`` adds the summary (indexes, statistics). While it writes, a BagWriter
+holds an exclusive ``flock`` on its file, so ``recover --in-place`` can tell a live file from a dead writer's.
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import struct
 import sys
@@ -50,7 +52,7 @@ from mcap.records import (
 
 from palpa.record.format import MAGIC, BagError
 
-__all__ = ["COMPRESSIONS", "MAX_CHANNELS", "BagWriter"]
+__all__ = ["COMPRESSIONS", "MAX_CHANNELS", "BagWriter", "lock_exclusive"]
 
 MAX_CHANNELS = 0xFFFF
 """Channels one MCAP file can hold (its channel ids are uint16, 0 is reserved)."""
@@ -84,6 +86,16 @@ def _pack_index(entries: list[int]) -> bytes:
     return arr.tobytes()
 
 
+def lock_exclusive(fh: BinaryIO) -> bool:
+    """Take the advisory lock (``flock``) a live :class:`BagWriter` holds on its file, without waiting; False when
+    someone (a recorder, in this or another process) holds it. Released when ``fh`` is closed."""
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
+
+
 class BagWriter:
     """One MCAP file. ``add_message`` buffers into the open chunk; ``flush`` closes it; ``finish`` writes the
     summary and footer. Times are ns since the Unix epoch; ``sequence`` must fit MCAP's uint32.
@@ -115,6 +127,8 @@ class BagWriter:
             raise BagError(f"{self.path} already exists (use --force / force: true to overwrite)") from None
         except OSError as exc:
             raise BagError(f"cannot create {self.path}: {exc}") from None
+        # held while the file is written: `palpa bag recover --in-place` must not replace a file in use
+        lock_exclusive(self._file)
         self._pos = 0
         self.written = 0
         """Bytes handed to the file so far (updated when a chunk closes; cheap to poll per message)."""
