@@ -14,14 +14,13 @@ import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
-import msgspec
-
 from palpa.dispatch import Dispatch
 from palpa.endpoints import MsgInfo, RawMessage, Subscription
 from palpa.errors import DecodeError
 from palpa.transport import Delivery
 from palpa.wire import (
     COUNTER_MAX,
+    DECODE_ERRORS,
     MAX_MSG_BYTES,
     MAX_TOPIC_BYTES,
     Envelope,
@@ -188,7 +187,7 @@ class Receiver:
             return False
         try:
             msgs = sub.batch_decoder.decode(env.payload)
-        except (msgspec.ValidationError, msgspec.DecodeError):
+        except DECODE_ERRORS:
             return False
         if len(msgs) != n or not self._tracker.observe_run(topic, first.node, first.seq, n, sub.stats, first.inc):
             return False
@@ -220,7 +219,7 @@ class Receiver:
             return
         try:
             msg = sub.decoder.decode(payload)
-        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        except DECODE_ERRORS as exc:
             self.count_error(topic, sub.stats, f"{header.type}: {exc}")
             return
         # sequence numbers count only once the message is valid: garbage cannot fake gaps or restarts

@@ -36,7 +36,7 @@ import msgspec
 from palpa.endpoints import RawMessage
 from palpa.errors import PalpaError, ParamError
 from palpa.message import Message
-from palpa.wire import Header
+from palpa.wire import DECODE_ERRORS, Header
 
 if TYPE_CHECKING:
     from palpa.nodeapi import NodeApi
@@ -233,7 +233,7 @@ class Service(Generic[Q, R]):
             return
         try:
             request = self._decoder.decode(raw.payload)
-        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        except DECODE_ERRORS as exc:
             responder.fail("bad_request", f"{self.request_type.type_name}: {exc}")
             return
         # a handler waiting on a blocking call may see this service handle another request meanwhile

@@ -33,6 +33,8 @@ from palpa.errors import DecodeError
 
 __all__ = [
     "COUNTER_MAX",
+    "DECODE_ERRORS",
+    "MAX_NESTING",
     "Envelope",
     "MAX_BATCH",
     "MAX_MSG_BYTES",
@@ -42,6 +44,7 @@ __all__ = [
     "HeaderTemplate",
     "SequenceTracker",
     "TopicStats",
+    "decode_any",
     "decode_header",
     "encode_header",
     "msgpack_array",
@@ -62,6 +65,52 @@ MAX_BATCH = 10_000
 COUNTER_MAX = 2**63 - 1
 """Receive counters saturate here: any msgpack reader (int64 or uint64) reads them, and no bytes a peer sends
 can push a counter past what a heartbeat encodes."""
+
+
+MAX_NESTING = 64
+"""Deepest nesting of arrays and maps a payload decoded without its type may have (:func:`decode_any`: the bus
+cache's check, the recorder's reading of latched values, ``bag export``, ``topic echo``, ``service call``, viz);
+deeper is a :class:`DecodeError`. Typed decodes are bounded by their type; see :data:`DECODE_ERRORS`."""
+
+DECODE_ERRORS = (msgspec.ValidationError, msgspec.DecodeError, RecursionError)
+"""What decoding untrusted bytes with msgspec may raise. A typed decode skips unknown fields, and skipping recurses
+in C: a field nested deeper than the interpreter's recursion limit (1000) raises RecursionError, which callers
+treat as one more malformed message."""
+
+_CONTAINER_BYTES = bytes([*range(0x80, 0xA0), 0xDC, 0xDD, 0xDE, 0xDF])
+_NOT_CONTAINER_BYTES = bytes(b for b in range(256) if b not in _CONTAINER_BYTES)
+_CONTAINER_TYPES = frozenset((dict, list, tuple))
+_any_decoder = msgspec.msgpack.Decoder()
+
+
+def _deeper_than(obj: Any, limit: int) -> bool:
+    """Whether decoded ``obj`` nests containers more than ``limit`` deep (iterative: no recursion to exhaust)."""
+    stack: list[tuple[Any, int]] = [(obj, 1)]
+    while stack:
+        item, depth = stack.pop()
+        children = [*item.keys(), *item.values()] if isinstance(item, dict) else item
+        if _CONTAINER_TYPES.isdisjoint(set(map(type, children))):  # the common leaf: numbers, strings (C speed)
+            continue
+        if depth >= limit:
+            return True
+        stack.extend((child, depth + 1) for child in children if isinstance(child, (dict, list, tuple)))
+    return False
+
+
+def decode_any(data: bytes, limit: int = MAX_NESTING) -> Any:
+    """Decode msgpack without a type (maps, arrays, scalars); raises :class:`DecodeError` when ``data`` is not
+    one msgpack object or nests arrays and maps more than ``limit`` deep (whatever the interpreter's stack)."""
+    try:
+        obj = _any_decoder.decode(data)
+    except RecursionError:
+        raise DecodeError(f"nested deeper than {limit} levels") from None
+    except msgspec.DecodeError as exc:
+        raise DecodeError(f"not msgpack: {exc}") from None
+    # each level of nesting needs a container header byte: fewer such bytes than the limit cannot be too deep
+    if isinstance(obj, (dict, list)) and len(data.translate(None, _NOT_CONTAINER_BYTES)) > limit \
+            and _deeper_than(obj, limit):
+        raise DecodeError(f"nested deeper than {limit} levels")
+    return obj
 
 
 class Header(msgspec.Struct, frozen=True, omit_defaults=True, gc=False):
@@ -97,7 +146,7 @@ def decode_header(frame: bytes) -> Header:
     """Parse frame 1; raises :class:`DecodeError` naming the problem when it is not a valid header."""
     try:
         return _header_decoder.decode(frame)
-    except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+    except DECODE_ERRORS as exc:
         raise DecodeError(f"bad envelope header: {exc}") from None
 
 
@@ -168,7 +217,7 @@ def parse_envelope(frames: list[bytes]) -> Envelope:
     if kind & 0xF0 == 0x90 or kind == 0xDC or kind == 0xDD:  # a msgpack array: a batch
         try:
             headers = _batch_decoder.decode(head)
-        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        except DECODE_ERRORS as exc:
             raise DecodeError(f"bad batch header: {exc}") from None
         if not headers or len(headers) > MAX_BATCH:
             raise DecodeError(f"batch of {len(headers)} messages (1..{MAX_BATCH})")
@@ -182,7 +231,7 @@ def split_batch(envelope: Envelope) -> list[bytes]:
     """The payload bytes of each message of a batch (each a complete msgpack object)."""
     try:
         items = _raw_items_decoder.decode(envelope.payload)
-    except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+    except DECODE_ERRORS as exc:
         raise DecodeError(f"bad batch payload array: {exc}") from None
     if len(items) != len(envelope.headers):
         raise DecodeError(f"batch header lists {len(envelope.headers)} messages but {len(items)} payloads follow")

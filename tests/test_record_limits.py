@@ -4,7 +4,6 @@ past their bounds. Files are read back with the official ``mcap`` reader (palpa.
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 

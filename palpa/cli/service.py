@@ -11,11 +11,12 @@ import yaml
 
 from palpa.cli.common import add_bus_arg, message_from_yaml
 from palpa.cli.topic import _tool_node, collect_heartbeats
-from palpa.errors import PalpaError
+from palpa.errors import DecodeError, PalpaError
 from palpa.message import Message, lookup
 from palpa.node import Node, RawMessage
 from palpa.params_runtime import ParamGet  # noqa: F401  (registers the parameter messages for `call`)
 from palpa.service_client import discover
+from palpa.wire import decode_any
 
 __all__ = ["call_service", "register"]
 
@@ -79,5 +80,8 @@ def run_call(args: argparse.Namespace) -> int:
 
 def _print_feedback(topic: str, raw: RawMessage) -> None:
     if raw.topic == topic and not raw.from_cache:
-        body = msgspec.to_builtins(msgspec.msgpack.decode(raw.payload))
+        try:
+            body = decode_any(raw.payload)
+        except DecodeError as exc:
+            body = {"_undecodable": str(exc)}
         print(f"[{topic}] " + yaml.safe_dump(body, default_flow_style=True, width=1_000_000).strip(), flush=True)

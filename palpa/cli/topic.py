@@ -13,12 +13,12 @@ import msgspec
 import yaml
 
 from palpa.cli.common import add_bus_arg, bus_and_source, import_message_modules, message_from_yaml
-from palpa.errors import BusError, PalpaError, RegistryError
+from palpa.errors import BusError, DecodeError, PalpaError, RegistryError
 from palpa.launch.validate import did_you_mean
 from palpa.message import lookup
 from palpa.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
-from palpa.wire import TopicStats
+from palpa.wire import DECODE_ERRORS, TopicStats, decode_any
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -156,8 +156,12 @@ def _to_builtins(raw: RawMessage) -> Any:
     try:
         cls = lookup(raw.header.type)
         return msgspec.to_builtins(msgspec.msgpack.decode(raw.payload, type=cls))
-    except (RegistryError, msgspec.ValidationError, msgspec.DecodeError):
-        return msgspec.msgpack.decode(raw.payload)  # unknown type: still readable
+    except (RegistryError, *DECODE_ERRORS):
+        pass
+    try:
+        return decode_any(raw.payload)  # unknown type: still readable
+    except DecodeError as exc:
+        return {"_undecodable": str(exc), "payload_bytes": len(raw.payload)}
 
 
 def run_echo(args: argparse.Namespace) -> int:

@@ -27,6 +27,7 @@ import msgspec
 
 import palpa
 from palpa.errors import ParamError
+from palpa.lograte import LogThrottle
 from palpa.node import Node, RawMessage
 from palpa.params import convert_params
 from palpa.params_runtime import PARAMS_TOPIC
@@ -54,7 +55,6 @@ from palpa.record.format import (
     split_path,
     split_pieces,
 )
-from palpa.lograte import LogThrottle
 from palpa.record.writer import COMPRESSIONS, MAX_CHANNELS, BagWriter
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat
 
@@ -78,7 +78,7 @@ def _well_formed(payload: bytes) -> bool:
         return False
     try:
         _any_decoder.decode(payload)
-    except msgspec.DecodeError:
+    except (msgspec.DecodeError, RecursionError):  # not msgpack, or nested past the interpreter's stack
         return False
     return True
 
