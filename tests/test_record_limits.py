@@ -4,21 +4,24 @@ past their bounds. Files are read back with the official ``mcap`` reader (palpa.
 
 from __future__ import annotations
 
+import base64
+import json
 import logging
 from pathlib import Path
 
 import msgspec
 import pytest
+from mcap.reader import make_reader
 
 from messages import Text
 from palpa.cli.main import main
 from palpa.record.format import MD_REFUSED, BagError
 from palpa.record.recorder import MAX_LATCHED_BYTES, RESERVED_CHANNELS, Recorder
-from palpa.record.testing import check_official
+from palpa.record.testing import Rec, check_official, write_bag
 from palpa.record.writer import MAX_CHANNELS, BagWriter
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.testing import NodeHarness
-from palpa.wire import Header, SequenceTracker, TopicStats, encode_header
+from palpa.wire import MAX_NESTING, Header, SequenceTracker, TopicStats, encode_header
 
 TEXT = msgspec.msgpack.encode(Text(text="hi"))
 
@@ -146,3 +149,22 @@ def test_recover_in_place_refuses_a_file_a_recorder_is_writing(tmp_path: Path,
     w2.abandon()  # its writer died: the lock went with it
     assert main(["bag", "recover", "--in-place", str(tmp_path / "dead.mcap")]) == 0
     assert len(check_official(tmp_path / "dead.mcap").messages) == 1
+
+
+def test_export_json_writes_a_placeholder_for_a_deeply_nested_payload_and_says_so(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    deep = b"\x81\xa4text" + b"\x91" * 5000 + b"\x01"
+    payloads = [TEXT, deep, TEXT, b"\x81\xa4text" + b"\x91" * MAX_NESTING + b"\x01"]
+    bag = write_bag(tmp_path / "in.mcap", [Rec("chatter", 10 + i, p, i + 1) for i, p in enumerate(payloads)])
+    out = tmp_path / "out.mcap"
+    assert main(["bag", "export", str(bag), "--json", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert "2 message(s) exported as placeholders" in captured.out and "#1 on 'chatter' (nested deeper" in captured.out
+    assert "#3 on 'chatter'" in captured.out and "exit status 1" in captured.err
+    with open(out, "rb") as fh:
+        exported = [json.loads(m.data) for _s, _c, m in make_reader(fh).iter_messages()]
+    assert exported[0] == exported[2] == {"text": "hi", "stamp_ns": 0}
+    for index in (1, 3):
+        assert exported[index]["_palpa_index"] == index
+        assert f"nested deeper than {MAX_NESTING} levels" in exported[index]["_palpa_error"]
+        assert base64.b64decode(exported[index]["_palpa_msgpack_base64"]) == payloads[index]

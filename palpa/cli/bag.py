@@ -79,4 +79,8 @@ def run_recover(args: argparse.Namespace) -> int:
 def run_export(args: argparse.Namespace) -> int:
     report = export_json(resolve_bag_paths(args.files), args.out, blobs=args.blobs, overwrite=args.force)
     print(report.text())
+    if not report.complete:
+        print(f"palpa bag: {len(report.placeholders)} message(s) could not be exported as JSON (see above); the rest "
+              "were exported; exit status 1", file=sys.stderr)
+        return 1
     return 0
