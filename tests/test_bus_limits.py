@@ -5,14 +5,16 @@ over a real bus is in test_bus_limits_system.py."""
 from __future__ import annotations
 
 import logging
+from pathlib import Path
 
 import msgpack
 import msgspec
 import pytest
 
 from palpa.errors import DecodeError
+from palpa.keys import ClientKeys
 from palpa.latch import BUS_OWNER, LatchCache, OwnedTable, Watchers
-from palpa.lograte import LogThrottle
+from palpa.lograte import LOG_INTERVAL_S, LogThrottle
 from palpa.wire import MAX_NESTING, decode_any, decode_header, parse_envelope
 
 
@@ -134,3 +136,18 @@ def test_the_log_throttle_counts_everything_and_logs_one_line_per_interval(caplo
     assert throttle.counts == {"refused": 1000} and throttle.lines == 2
     assert [r.getMessage() for r in caplog.records] == ["refused 0", "refused 500 (and 499 more like it in the "
                                                         "last 5 s)"]
+
+
+def test_unauthenticated_handshakes_are_all_counted_and_logged_once_per_interval(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    clients = ClientKeys(tmp_path)
+    now = [0.0]
+    clients._throttle._now = lambda: now[0]
+    caplog.set_level(logging.WARNING, logger="palpa.bus.auth")
+    for i in range(20_000):  # each a key of its own, as a scanner trying keys would send
+        assert not clients.callback("*", f"{i:040d}".encode())
+    now[0] = LOG_INTERVAL_S
+    assert not clients.callback("*", b"k" * 40)
+    assert clients.refused == 20_001
+    lines = [r.getMessage() for r in caplog.records if "CURVE: refused a client" in r.getMessage()]
+    assert len(lines) == 2 and "(and 19999 more like it in the last 5 s)" in lines[1]
