@@ -104,7 +104,7 @@ def test_latched_values_the_recorder_keeps_are_bounded_in_bytes(tmp_path: Path) 
     for i in range(8):
         h.publish_raw(frames(1, stamp=1, node=f"pub{i}", topic=f"cal/{i}", latched=True, payload=big))
     rec = h.node
-    assert rec._latched_bytes <= MAX_LATCHED_BYTES
+    assert rec._latched.bytes <= MAX_LATCHED_BYTES
     assert [k[0] for k in rec._latched] == ["cal/3", "cal/4", "cal/5", "cal/6", "cal/7"]  # oldest went first
     assert rec.refused == {"latched_forgotten": 3}
     h.close()

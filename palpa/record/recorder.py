@@ -55,6 +55,7 @@ from palpa.record.format import (
     split_path,
     split_pieces,
 )
+from palpa.record.lastvalues import LastValues
 from palpa.record.writer import COMPRESSIONS, MAX_CHANNELS, BagWriter
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat
 
@@ -153,8 +154,7 @@ class Recorder(Node):
         self._blob_ids: dict[int, int] = {}
         self._schema_ids: dict[str, int] = {}
         self._schema_cache: dict[str, bytes | None] = {}
-        self._latched: dict[_ChannelKey, RawMessage] = {}
-        self._latched_bytes = 0
+        self._latched: LastValues[_ChannelKey] = LastValues(MAX_LATCHED_BYTES)
         self._throttle = LogThrottle(self.log, now=lambda: self.clock.now_ns() / 1e9)
         self._refused: dict[str, int] = {}
         """Refusals (and forgotten latched values) of the open file, by reason; written as palpa.refused."""
@@ -274,7 +274,8 @@ class Recorder(Node):
 
     def _channel_for(self, key: _ChannelKey) -> int | None:
         """The channel id of ``key`` (registered now if new); 0 for a topic not recorded; None when the file has no
-        room for it (and, with ``blobs``, its blob channel) within MAX_CHANNELS."""
+        room for it and a blob channel it may need within MAX_CHANNELS (less RESERVED_CHANNELS for a publisher
+        not heard in heartbeats)."""
         topic, node, type_name, latched, epoch = key
         if not self._filter(topic):
             self._ids[key] = 0
@@ -297,26 +298,6 @@ class Recorder(Node):
         self._refused[reason] = self._refused.get(reason, 0) + 1
         self.refused[reason] = self.refused.get(reason, 0) + 1
         self._throttle.event(reason, logging.WARNING, text, *args)
-
-    def _keep_latched(self, key: _ChannelKey, raw: RawMessage) -> None:
-        """Keep ``raw`` as the last value of ``key`` (it opens every later split piece), within MAX_LATCHED_BYTES:
-        the least recently updated values are forgotten first."""
-        size = len(raw.payload) + sum(len(b) for b in raw.blobs)
-        old = self._latched.pop(key, None)
-        if old is not None:
-            self._latched_bytes -= len(old.payload) + sum(len(b) for b in old.blobs)
-        while self._latched and self._latched_bytes + size > MAX_LATCHED_BYTES:
-            gone_key = next(iter(self._latched))
-            gone = self._latched.pop(gone_key)
-            self._latched_bytes -= len(gone.payload) + sum(len(b) for b in gone.blobs)
-            self._refuse("latched_forgotten", "latched values over %d bytes: forgot the last value of %r from %r "
-                         "(later split pieces do not start with it)", MAX_LATCHED_BYTES, gone_key[0], gone_key[1])
-        if size > MAX_LATCHED_BYTES:
-            self._refuse("latched_forgotten", "a latched value of %d bytes on %r is over %d bytes: recorded, but "
-                         "later split pieces do not start with it", size, raw.topic, MAX_LATCHED_BYTES)
-            return
-        self._latched[key] = raw
-        self._latched_bytes += size
 
     def _write_blobs(self, cid: int, raw: RawMessage, log_time: int) -> None:
         bid = self._blob_ids.get(cid)
@@ -366,7 +347,10 @@ class Recorder(Node):
             if h.latched or cached or (self._bus_latched and topic in self._bus_latched):
                 if cached:
                     self._bus_latched.add(topic)
-                self._keep_latched(key, raw)
+                for gone in self._latched.put(key, raw):
+                    self._refuse("latched_forgotten", "latched values over %d bytes: forgot the last value of %r "
+                                 "from %r (later split pieces do not start with it)", MAX_LATCHED_BYTES, gone[0],
+                                 gone[1])
             if w.written >= self._split_bytes:
                 self._roll()
         except (OSError, BagError) as exc:
