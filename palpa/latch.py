@@ -62,10 +62,6 @@ class OwnedTable(Generic[K, V]):
     def __iter__(self) -> Iterator[K]:
         return iter(self.values)
 
-    def owner(self, key: K) -> bytes | None:
-        meta = self._meta.get(key)
-        return None if meta is None else meta[0]
-
     def put(self, key: K, value: V, size: int, owner: bytes) -> tuple[str | None, list[tuple[bytes, K]]]:
         """Store ``value`` (replacing ``key``'s old value, whoever set it), evicting what must go; returns (why it
         cannot be stored, or None; the evicted (owner, key) pairs). A refusal changes nothing."""
@@ -135,7 +131,8 @@ class Watchers:
         return self._table.evicted
 
     def add(self, prefix: bytes, ident: bytes) -> str | None:
-        """Watch ``prefix`` for ``ident``; why not (the table is full of ``ident``'s own), or None."""
+        """Watch ``prefix`` for ``ident`` (evicting the greediest client's oldest watch when full); why not (one
+        prefix over the byte bound), or None."""
         why, evicted = self._table.put((prefix, ident), None, len(prefix) + len(ident), ident)
         for _owner, (p, i) in evicted:
             self._unindex(p, i)

@@ -69,8 +69,8 @@ can push a counter past what a heartbeat encodes."""
 
 MAX_NESTING = 64
 """Deepest nesting of arrays and maps a payload decoded without its type may have (:func:`decode_any`: the bus
-cache's check, the recorder's reading of latched values, ``bag export``, ``topic echo``, ``service call``, viz);
-deeper is a :class:`DecodeError`. Typed decodes are bounded by their type; see :data:`DECODE_ERRORS`."""
+cache's check of every SET, ``bag export``, ``topic echo``, ``service call``'s feedback, viz, the launch's progress
+view); deeper is a :class:`DecodeError`. Typed decodes are bounded by their type; see :data:`DECODE_ERRORS`."""
 
 DECODE_ERRORS = (msgspec.ValidationError, msgspec.DecodeError, RecursionError)
 """What decoding untrusted bytes with msgspec may raise. A typed decode skips unknown fields, and skipping recurses

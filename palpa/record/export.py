@@ -59,7 +59,6 @@ class ExportReport:
     output: Path
     messages: int = 0
     blobs_dropped: int = 0
-    undecodable: int = 0
     placeholders: list[tuple[int, str, str]] = field(default_factory=list)
 
     @property
@@ -165,7 +164,6 @@ def export_json(paths: Sequence[Path], out: str | os.PathLike[str], *, blobs: st
             for index, m in enumerate(iter_bag(paths, on_record=on_record)):
                 data, why = _to_json(m.payload)
                 if data is None:
-                    report.undecodable += 1
                     report.placeholders.append((index, m.topic, why))
                     data = msgspec.json.encode({"_palpa_error": why, "_palpa_index": index,
                                                 "_palpa_msgpack_base64": base64.b64encode(m.payload).decode()})
