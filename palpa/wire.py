@@ -72,10 +72,11 @@ MAX_NESTING = 64
 cache's check of every SET, ``bag export``, ``topic echo``, ``service call``'s feedback, viz, the launch's progress
 view); deeper is a :class:`DecodeError`. Typed decodes are bounded by their type; see :data:`DECODE_ERRORS`."""
 
-DECODE_ERRORS = (msgspec.ValidationError, msgspec.DecodeError, RecursionError)
-"""What decoding untrusted bytes with msgspec may raise. A typed decode skips unknown fields, and skipping recurses
-in C: a field nested deeper than the interpreter's recursion limit (1000) raises RecursionError, which callers
-treat as one more malformed message."""
+DECODE_ERRORS = (msgspec.ValidationError, msgspec.DecodeError, RecursionError, UnicodeDecodeError)
+"""What decoding untrusted bytes with msgspec may raise, typed or not; callers treat each as one more malformed
+message. Besides msgspec's own: a string that is not UTF-8 raises UnicodeDecodeError, and a typed decode skips
+unknown fields recursively in C, so one nested deeper than the interpreter's recursion limit (1000) raises
+RecursionError."""
 
 _CONTAINER_BYTES = bytes([*range(0x80, 0xA0), 0xDC, 0xDD, 0xDE, 0xDF])
 _NOT_CONTAINER_BYTES = bytes(b for b in range(256) if b not in _CONTAINER_BYTES)
@@ -104,7 +105,7 @@ def decode_any(data: bytes, limit: int = MAX_NESTING) -> Any:
         obj = _any_decoder.decode(data)
     except RecursionError:
         raise DecodeError(f"nested deeper than {limit} levels") from None
-    except msgspec.DecodeError as exc:
+    except (msgspec.DecodeError, UnicodeDecodeError) as exc:
         raise DecodeError(f"not msgpack: {exc}") from None
     # each level of nesting needs a container header byte: fewer such bytes than the limit cannot be too deep
     if isinstance(obj, (dict, list)) and len(data.translate(None, _NOT_CONTAINER_BYTES)) > limit \

@@ -47,6 +47,17 @@ def test_decode_any_refuses_nesting_past_the_limit_at_any_depth() -> None:
         decode_any(b"\xc1")
 
 
+def test_strings_that_are_not_utf8_are_decode_errors_everywhere() -> None:
+    bad = b"\x81\xa4text\xa1\x80"  # {"text": <one byte that is not UTF-8>}
+    with pytest.raises(DecodeError, match="not msgpack"):
+        decode_any(bad)
+    with pytest.raises(DecodeError):
+        decode_header(header(node="X").replace(b"\xa1X", b"\xa1\x80"))  # the node name is not UTF-8
+    for type_ in ("Text", "NoSuchType"):
+        why = LatchCache(frozenset()).check(b"t", [header(type_=type_), bad])
+        assert why is not None and "not msgpack" in why
+
+
 def test_typed_decodes_of_deep_input_raise_decode_errors_only() -> None:
     with pytest.raises(DecodeError):
         decode_header(header(extra=nested(5000)))  # a typed decode skips the unknown field, recursively

@@ -168,3 +168,15 @@ def test_export_json_writes_a_placeholder_for_a_deeply_nested_payload_and_says_s
         assert exported[index]["_palpa_index"] == index
         assert f"nested deeper than {MAX_NESTING} levels" in exported[index]["_palpa_error"]
         assert base64.b64decode(exported[index]["_palpa_msgpack_base64"]) == payloads[index]
+
+
+def test_a_payload_that_is_not_utf8_is_recorded_and_counted_as_malformed(tmp_path: Path,
+                                                                         caplog: pytest.LogCaptureFixture) -> None:
+    out = tmp_path / "r.mcap"
+    h = NodeHarness(Recorder, {"output": str(out)})
+    h.publish_raw(frames(1, payload=b"\x81\xa4text\xa1\x80"))
+    h.publish_raw(frames(2))
+    assert h.node.counters()["chatter"].decode_errors == 1
+    h.close()
+    assert [m[1] for m in check_official(out).messages if m[0] == "chatter"] == [1, 2]
+    assert not [r for r in caplog.records if r.levelno >= logging.ERROR]

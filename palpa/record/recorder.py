@@ -58,6 +58,7 @@ from palpa.record.format import (
 from palpa.record.lastvalues import LastValues
 from palpa.record.writer import COMPRESSIONS, MAX_CHANNELS, BagWriter
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat
+from palpa.wire import DECODE_ERRORS
 
 __all__ = ["MAX_LATCHED_BYTES", "RESERVED_CHANNELS", "RecorderParams", "Recorder"]
 
@@ -79,7 +80,7 @@ def _well_formed(payload: bytes) -> bool:
         return False
     try:
         _any_decoder.decode(payload)
-    except (msgspec.DecodeError, RecursionError):  # not msgpack, or nested past the interpreter's stack
+    except DECODE_ERRORS:  # not msgpack, a string not UTF-8, or nested past the interpreter's stack
         return False
     return True
 
