@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
@@ -294,6 +295,8 @@ class SequenceTracker:
     max_entries: int = MAX_TRACKED_PUBLISHERS
     forgotten: int = 0
     """Pairs forgotten to stay within ``max_entries``."""
+    on_forget: Callable[[str, str], object] | None = None
+    """Told (topic, publisher) of each pair forgotten (a receiver logs it)."""
 
     def _take(self, key: tuple[str, str]) -> int | None:
         """Remove and return the last sequence number of ``key`` (the caller puts it back, which makes it the most
@@ -304,6 +307,8 @@ class SequenceTracker:
             del self._last[oldest]
             self._inc.pop(oldest, None)
             self.forgotten += 1
+            if self.on_forget is not None:
+                self.on_forget(*oldest)
         return last
 
     def observe(self, topic: str, node: str, seq: int, stats: TopicStats, inc: int = 0) -> bool:

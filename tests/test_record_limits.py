@@ -180,3 +180,18 @@ def test_a_payload_that_is_not_utf8_is_recorded_and_counted_as_malformed(tmp_pat
     h.close()
     assert [m[1] for m in check_official(out).messages if m[0] == "chatter"] == [1, 2]
     assert not [r for r in caplog.records if r.levelno >= logging.ERROR]
+
+
+def test_forgetting_publishers_is_counted_and_logged_once_per_interval(tmp_path: Path,
+                                                                      caplog: pytest.LogCaptureFixture) -> None:
+    h = NodeHarness(Recorder, {"output": str(tmp_path / "r.mcap")})
+    h.node._rx._raw_tracker.max_entries = 10  # MAX_TRACKED_PUBLISHERS, made small
+    caplog.set_level(logging.WARNING)
+    for i in range(15):
+        h.publish_raw(frames(1, node=f"name-{i}"))
+    tracker = h.node._rx._raw_tracker  # (its own log line about it is one more pair)
+    assert h.node._rx.publishers_forgotten >= 5 and len(tracker) == 10
+    assert tracker.seen_at_least("chatter", "name-14", 1) and not tracker.seen_at_least("chatter", "name-4", 1)
+    lines = [r.getMessage() for r in caplog.records if "sequence state full" in r.getMessage()]
+    assert len(lines) == 1 and "forgot 'name-0' on 'chatter'" in lines[0]
+    h.close()
