@@ -4,17 +4,20 @@ test_bus_limits.py."""
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator
 
 import msgpack
 import pytest
 import zmq
 
+import palpa
 from palpa.bus import Bus
 from palpa.latch import MAX_WATCHES
 from palpa.wire import MAX_NESTING
 from tests.procs import bus_spec, wait_until
 from tests.test_bus_limits import header, nested
+from tests.test_service import Adder, AddReply, AddRequest
 
 pytestmark = pytest.mark.system
 
@@ -112,3 +115,26 @@ def test_a_request_whose_handling_raises_is_counted_and_the_thread_goes_on(
         sock = dealer(ctx, bus)
         sock.send_multipart([b"SET", b"a/topic", header(), TEXT])
         assert replies_until_pong(sock) == [] and bus.internal_errors == 1
+
+
+def test_a_service_started_after_the_cache_was_flooded_is_announced_and_answers(
+        ctx: zmq.Context[zmq.Socket[bytes]]) -> None:
+    with Bus(bus_spec("ipc")) as bus:
+        assert bus.address is not None
+        flooder = dealer(ctx, bus)
+        for i in range(4096 + 10):
+            flooder.send_multipart([b"SET", f"junk/{i}".encode(), header(node="flood"), TEXT])
+        replies_until_pong(flooder)
+        assert len(bus.cached_topics()) == 4096  # full
+        adder = Adder(name="adder", bus=bus.address, heartbeat_s=0)
+        thread = threading.Thread(target=adder.spin, daemon=True)
+        thread.start()
+        try:
+            with palpa.Node(name="caller", bus=bus.address, heartbeat_s=0) as caller:
+                add = caller.client("math/add", AddRequest, AddReply)
+                assert add.wait_for_service(10.0), "the service's announcement was not cached"
+                assert add.call(AddRequest(a=1, b=2), timeout_s=10.0).total == 3
+        finally:
+            adder.request_shutdown()
+            thread.join(5)
+            adder.close(0)
