@@ -81,7 +81,7 @@ def run_call(args: argparse.Namespace) -> int:
 def _print_feedback(topic: str, raw: RawMessage) -> None:
     if raw.topic == topic and not raw.from_cache:
         try:
-            body = decode_any(raw.payload)
+            body = msgspec.to_builtins(decode_any(raw.payload))
         except DecodeError as exc:
             body = {"_undecodable": str(exc)}
         print(f"[{topic}] " + yaml.safe_dump(body, default_flow_style=True, width=1_000_000).strip(), flush=True)
