@@ -28,9 +28,9 @@ lock:
 # (as on the bench), scan with that calibration, then score the map against the phantom's truth
 demo: $(STAMP)
 	@run=runs/demo-$$(date +%Y%m%d-%H%M%S); mkdir -p $$run && \
-	$(BIN)/python -m nodes.calibrate_airfloat -o $$run/calibration.yaml && \
+	$(BIN)/python -m tools.calibrate_airfloat -o $$run/calibration.yaml && \
 	$(BIN)/palpa launch launch/scan_sim.yaml --run-dir $$run calibration:=$$run/calibration.yaml $(DEMO_ARGS) && \
-	$(BIN)/python -m nodes.scan_report $$run --phantom phantoms/airfloat_tumours.yaml
+	$(BIN)/python -m tools.scan_report $$run --phantom phantoms/airfloat_tumours.yaml
 
 # three workers (pytest-xdist): the process tests spend much of their time waiting on wall-clock motion. The UR
 # emulator's tests (xdist_group "ur-emulator") run one at a time on one worker (--dist loadgroup; pytest < 9.2, see

@@ -1,4 +1,4 @@
-"""Raster against adaptive palpation (issue 20), through the batch runner's pieces (nodes.evaluate).
+"""Raster against adaptive palpation (issue 20), through the batch runner's pieces (tools.evaluate).
 
     .venv/bin/python bench/adaptive.py -o runs/bench_adaptive --generate 20 --jobs 2
 
@@ -63,7 +63,7 @@ sys.path.insert(0, str(REPO))
 from models.phantom import load_phantom  # noqa: E402
 from models.phantom_gen import PhantomRanges, random_phantom  # noqa: E402
 from models.scoring import redraw_misses  # noqa: E402
-from nodes.evaluate import RunSpec, launch_one, plan_runs, score_run  # noqa: E402
+from tools.evaluate import RunSpec, launch_one, plan_runs, score_run  # noqa: E402
 from yamlstruct import Source  # noqa: E402
 
 RASTER = REPO / "launch" / "scan_sim.yaml"

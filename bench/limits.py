@@ -19,11 +19,11 @@ import msgpack
 import psutil
 import zmq
 
-from palpa.address import BusAddress
-from palpa.bus import Bus
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
 from palpa.record.recorder import Recorder
 from palpa.testing import NodeHarness
-from palpa.wire import Header, encode_header
+from palpa.net.wire import Header, encode_header
 
 
 def rss_mb() -> float:

@@ -1,7 +1,7 @@
 """Finding the running launch: every ``palpa launch`` binds a fresh bus, so it says where.
 
 While a launch runs, ``palpa launch`` keeps a per-user "current bus" file (``current`` in the private socket
-directory, palpa.address.private_dir; or ``$PALPA_CURRENT``) naming its bus, its pid and its run directory, and points ``runs/latest`` at the run
+directory, palpa.net.address.private_dir; or ``$PALPA_CURRENT``) naming its bus, its pid and its run directory, and points ``runs/latest`` at the run
 directory when that is in a ``runs`` folder. The CLI tools pick the bus in this order: ``--bus``, ``--run DIR`` (that
 run's ``bus.address``), ``$PALPA_BUS``, the current launch (if its launcher is still alive), the default bus.
 """
@@ -14,7 +14,7 @@ import os
 from pathlib import Path
 
 from palpa import env as palpa_env
-from palpa.address import BusAddress, default_address, private_dir
+from palpa.net.address import BusAddress, default_address, private_dir
 from palpa.errors import BusError
 
 __all__ = ["announce", "current_file", "find_bus", "read_current", "withdraw"]

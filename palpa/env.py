@@ -39,7 +39,7 @@ VARIABLES: dict[str, str] = {
     NAMESPACE: "set by the launcher on `cmd:` entries: the node's namespace",
     SIM_CLOCK: "1: follow simulated time on _palpa/clock (as --sim-clock)",
     SIM_CLOCK_TIMEOUT_S: "wall seconds without a clock tick after which a sim-clock node stops (0: never)",
-    TRANSPORT: "the node's transport options as one JSON object (palpa.options.TransportOptions; the launcher "
+    TRANSPORT: "the node's transport options as one JSON object (palpa.net.options.TransportOptions; the launcher "
                "sets it from `transport:`)",
     MESSAGES: "extra message modules, comma-separated (for tools, the recorder and viz)",
     NODE_MODULES: "set by the launcher on its recorder: the launched node classes' modules, comma-separated",

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from palpa.address import BusAddress
-from palpa.bus import Bus
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
 from tests.procs import ProcessGroup, bus_spec
 
 # launches started by tests note their bus here, not in the user's own current-bus file (palpa.current)
@@ -74,9 +74,9 @@ def env_for() -> object:
 @functools.lru_cache(maxsize=1)
 def airfloat_calibration() -> Path:
     """The simulated air-float probe (device 0) calibrated on the bench once per session, as `make demo` and a user
-    on the rig do before scanning (nodes.calibrate_airfloat: force sensor + the two reference samples)."""
+    on the rig do before scanning (tools.calibrate_airfloat: force sensor + the two reference samples)."""
     from models.calibration_airfloat import save_calibration
-    from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate
+    from tools.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate
 
     folder = tempfile.mkdtemp(prefix="palpa-cal-")
     atexit.register(shutil.rmtree, folder, True)  # one per worker process, gone with it

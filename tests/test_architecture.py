@@ -143,8 +143,8 @@ WORLD = ("models.world", "models.airfloat_device", "models.camera_world", "model
 # encodes with as the real one does (fibre_sim's world adds the sensor's gain and bow errors on top)
 ESTIMATORS = {"models.contact", "models.multi_indenter_solve", "models.stiffness_map", "models.calibration_airfloat",
               "models.camera_calibration", "models.tracker", "models.kalman",
-              "models.adaptive", "models.scoring", "nodes.stiffness_estimator", "nodes.estimator_multi",
-              "nodes.map_aggregator"}
+              "models.adaptive", "models.scoring", "nodes.probe.stiffness_estimator", "nodes.probe.estimator_multi",
+              "nodes.mapping.map_aggregator"}
 AIRFLOAT_GEOMETRY = {"DEFAULT_INDENTER_RADIUS_MM", "DEFAULT_SPS_RADIUS_MM", "heights_over_phantom"}
 
 
@@ -223,14 +223,14 @@ def test_yamlstruct_and_models_do_not_import_the_runtime() -> None:
 def untyped_params(classes: list[type[Any]]) -> list[str]:
     """The node classes whose ``params`` is not annotated as their own ``Params`` (mypy would then check no
     ``self.params.<name>``: the base class declares only :class:`palpa.Params`)."""
-    from palpa.node import Node
+    from palpa.node.node import Node
 
     return [f"{c.__module__}.{c.__qualname__}" for c in classes
             if c.Params is not Node.Params and typing.get_type_hints(c).get("params") is not c.Params]
 
 
 def _project_node_classes() -> list[type[Any]]:
-    from palpa.node import Node
+    from palpa.node.node import Node
 
     for name in _modules(("palpa", "nodes")):
         if not name.endswith("__main__"):
@@ -246,7 +246,7 @@ def _project_node_classes() -> list[type[Any]]:
 
 def test_every_node_class_types_its_params() -> None:
     classes = _project_node_classes()
-    assert {"nodes.stiffness_estimator.AirfloatStiffnessEstimator", "palpa.record.player.Player"} <= {
+    assert {"nodes.probe.stiffness_estimator.AirfloatStiffnessEstimator", "palpa.record.player.Player"} <= {
         f"{c.__module__}.{c.__qualname__}" for c in classes}
     assert untyped_params(classes) == []
 

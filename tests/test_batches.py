@@ -11,7 +11,7 @@ import palpa
 from messages import Text
 from nodes.demo import Listener
 from palpa.testing import GraphHarness, NodeHarness
-from palpa.wire import Header, HeaderTemplate, msgpack_array, split_envelope
+from palpa.net.wire import Header, HeaderTemplate, msgpack_array, split_envelope
 
 
 def batch(topic: bytes, items: list[tuple[str, int, str, object]]) -> list[bytes]:

@@ -17,7 +17,7 @@ import zmq
 
 import palpa
 from messages import Text
-from palpa.address import BusAddress
+from palpa.net.address import BusAddress
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from tests.procs import ProcessGroup, drain, palpa_cmd, short_ipc_base, wait_until
 
@@ -258,7 +258,7 @@ def test_curve_bus_rejects_unknown_clients(tmp_path, procs: ProcessGroup) -> Non
     clients = tmp_path / "clients"
     clients.mkdir()
     keys.mkdir()
-    from palpa.keys import create_key_pair
+    from palpa.net.keys import create_key_pair
 
     for who in ("server", "good", "evil"):
         create_key_pair(keys, who)  # secret keys 0600: palpa refuses to load one others can read

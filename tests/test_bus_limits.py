@@ -12,10 +12,10 @@ import msgspec
 import pytest
 
 from palpa.errors import DecodeError
-from palpa.keys import ClientKeys
-from palpa.latch import BUS_OWNER, LatchCache, OwnedTable, Watchers
+from palpa.net.keys import ClientKeys
+from palpa.net.latch import BUS_OWNER, LatchCache, OwnedTable, Watchers
 from palpa.lograte import LOG_INTERVAL_S, LogThrottle
-from palpa.wire import MAX_NESTING, decode_any, decode_header, parse_envelope
+from palpa.net.wire import MAX_NESTING, decode_any, decode_header, parse_envelope
 
 
 def nested(depth: int, leaf: bytes = b"\x01") -> bytes:
@@ -154,7 +154,7 @@ def test_unauthenticated_handshakes_are_all_counted_and_logged_once_per_interval
     clients = ClientKeys(tmp_path)
     now = [0.0]
     clients._throttle._now = lambda: now[0]
-    caplog.set_level(logging.WARNING, logger="palpa.bus.auth")
+    caplog.set_level(logging.WARNING, logger="palpa.net.bus.auth")
     for i in range(20_000):  # each a key of its own, as a scanner trying keys would send
         assert not clients.callback("*", f"{i:040d}".encode())
     now[0] = LOG_INTERVAL_S

@@ -12,9 +12,9 @@ import pytest
 import zmq
 
 import palpa
-from palpa.bus import Bus
-from palpa.latch import MAX_WATCHES
-from palpa.wire import MAX_NESTING
+from palpa.net.bus import Bus
+from palpa.net.latch import MAX_WATCHES
+from palpa.net.wire import MAX_NESTING
 from tests.procs import bus_spec, wait_until
 from tests.test_bus_limits import header, nested
 from tests.test_service import Adder, AddReply, AddRequest

@@ -15,7 +15,7 @@ import pytest
 from messages import Text
 from palpa.cli import topic as topic_cli
 from palpa.cli.main import main
-from palpa.node import Node
+from palpa.node.node import Node
 from palpa.runtime_msgs import LOG_TOPIC, LogRecord
 from palpa.testing import GraphHarness
 

@@ -17,8 +17,8 @@ import pytest
 
 import palpa
 from messages import EStop, Text
-from palpa.address import BusAddress
-from palpa.bus import Bus
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
 from palpa.cli.common import message_from_yaml
 from palpa.cli.main import main
 from palpa.current import announce, find_bus, withdraw
@@ -189,7 +189,7 @@ def test_schema_lists_type_names_and_suggests_a_close_one(capsys: pytest.Capture
 def test_a_node_that_cannot_start_says_why_in_one_line(ipc_bus: BusAddress,
                                                        capsys: pytest.CaptureFixture[str]) -> None:
     # on a live bus: without one the node would first wait out the bus handshake, which is not what is tested
-    code = main(["run", "nodes.fibre_reader:FibreReader", "-p", "driver=sim", "-p", "phantom=no_such.yaml",
+    code = main(["run", "nodes.probe.fibre_reader:FibreReader", "-p", "driver=sim", "-p", "phantom=no_such.yaml",
                  "--bus", str(ipc_bus)])
     err = capsys.readouterr().err
     assert code == 2 and "phantom file 'no_such.yaml' does not exist" in err

@@ -22,13 +22,13 @@ from messages import (
     TriggerResult,
 )
 from models.phantom import load_phantom
-from nodes.fibre_reader import FibreReader
-from nodes.map_aggregator import MapAggregator
-from nodes.pressure_controller import PressureController
-from nodes.robot_scanner import RobotScanner
-from nodes.stiffness_estimator import AirfloatStiffnessEstimator
-from palpa.service import BadRequestError, RequestRefused
-from palpa.service_client import Future
+from nodes.probe.fibre_reader import FibreReader
+from nodes.mapping.map_aggregator import MapAggregator
+from nodes.probe.pressure_controller import PressureController
+from nodes.scanner.robot_scanner import RobotScanner
+from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator
+from palpa.node.service import BadRequestError, RequestRefused
+from palpa.node.service_client import Future
 from palpa.testing import GraphHarness, NodeHarness
 from tests.test_robot_scanner import SMALL, run_with_probe
 

@@ -16,7 +16,7 @@ import pytest
 from messages import RobotPose, ScanStatus, StiffnessSample
 from models.phantom import load_phantom, parse_phantom
 from models.phantom_gen import PhantomRanges, random_phantom
-from nodes.evaluate import RunSpec, scan_facts, score_run, summarize
+from tools.evaluate import RunSpec, scan_facts, score_run, summarize
 from palpa.record.testing import Rec, write_bag
 
 REPO = Path(__file__).resolve().parent.parent
@@ -109,10 +109,10 @@ def test_a_run_is_scored_against_its_phantom_and_its_recording(tmp_path: Path) -
 
 @pytest.mark.timeout(300)
 def test_evaluate_runs_a_generated_phantom_end_to_end(tmp_path: Path) -> None:
-    """`python -m nodes.evaluate` on one generated phantom, a small raster: tables and a summary."""
+    """`python -m tools.evaluate` on one generated phantom, a small raster: tables and a summary."""
     out = tmp_path / "eval"
     proc = subprocess.run(
-        [sys.executable, "-m", "nodes.evaluate", str(REPO / "launch" / "scan_sim.yaml"), "--generate", "1",
+        [sys.executable, "-m", "tools.evaluate", str(REPO / "launch" / "scan_sim.yaml"), "--generate", "1",
          "--phantom-seed", "3", "--jobs", "1", "-o", str(out), "--arg", "region_mm=[[8.0, 24.0, 20.0, 36.0]]",
          "--arg", "spacing_mm=4.0"], capture_output=True, text=True, timeout=280, cwd=REPO)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]

@@ -12,12 +12,12 @@ import pytest
 
 import palpa
 from messages import Text
-from palpa.address import BusAddress, default_address, private_dir
-from palpa.bus import Bus, is_loopback_endpoint
+from palpa.net.address import BusAddress, default_address, private_dir
+from palpa.net.bus import Bus, is_loopback_endpoint
 from palpa.cli.main import main
 from palpa.errors import BusError
-from palpa.keys import load_secret_key
-from palpa.transport import ZmqTransport
+from palpa.net.keys import load_secret_key
+from palpa.net.transport import ZmqTransport
 from tests.procs import ProcessGroup, palpa_cmd, wait_until
 
 
@@ -44,7 +44,7 @@ def test_keygen_writes_a_private_secret_and_loading_refuses_a_readable_one(tmp_p
         load_secret_key(secret)
     with pytest.raises(BusError, match="accessible by others"):
         Bus(BusAddress("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*"),
-            curve=palpa.bus.CurveServer(secret, tmp_path)).start()
+            curve=palpa.net.bus.CurveServer(secret, tmp_path)).start()
 
 
 def test_ipc_sockets_live_in_a_checked_private_directory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -78,7 +78,7 @@ def test_a_node_refuses_another_users_ipc_socket(tmp_path: Path) -> None:
 
 def test_curve_refusals_are_logged_on_both_sides_and_sighup_lets_a_new_key_in(
         tmp_path: Path, procs: ProcessGroup, caplog: pytest.LogCaptureFixture) -> None:
-    from palpa.keys import create_key_pair
+    from palpa.net.keys import create_key_pair
 
     keys, clients = tmp_path / "keys", tmp_path / "clients"
     clients.mkdir()
@@ -100,7 +100,7 @@ def test_curve_refusals_are_logged_on_both_sides_and_sighup_lets_a_new_key_in(
             os.environ.update(old)
 
     with make("good_pub", "good") as pub_node:
-        with caplog.at_level("ERROR", logger="palpa.transport"):
+        with caplog.at_level("ERROR", logger="palpa.net.transport"):
             late = make("late_sub", "late")
         assert "refused this node's handshake (authentication refused)" in caplog.text
         bus.wait_for_output("CURVE: refused a client with unknown public key", 10)

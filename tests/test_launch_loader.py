@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from palpa.address import BusAddress
+from palpa.net.address import BusAddress
 from palpa.cli.launch import describe
 from palpa.errors import LaunchError
 from palpa.launch import json_schema, load_launch, parse_overrides
@@ -255,7 +255,7 @@ def test_replay_takes_the_geometry_from_the_recording(tmp_path: Path) -> None:
 
     geo = REPO / "phantoms" / "measured" / "flat_26k.yaml"
     scanned = tmp_path / "scan.resolved.yaml"
-    scanned.write_text("nodes:\n  - name: estimator\n    node: nodes.stiffness_estimator:AirfloatStiffnessEstimator\n"
+    scanned.write_text("nodes:\n  - name: estimator\n    node: nodes.probe.stiffness_estimator:AirfloatStiffnessEstimator\n"
                        f"    params: {{geometry: {geo}, calibration: ''}}\n")
     bag = tmp_path / "run" / "recording.mcap"
     bag.parent.mkdir()

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from palpa.address import BusAddress
+from palpa.net.address import BusAddress
 from palpa.launch import load_launch
 from palpa.launch.process import process_alive
 from tests.procs import Proc, ProcessGroup, palpa_cmd, wait_until

@@ -7,10 +7,10 @@ import sys
 
 from messages import Text
 from nodes.demo import Listener, Talker
-from nodes.fibre_reader import FibreReader
+from nodes.probe.fibre_reader import FibreReader
 from palpa import Node
 from palpa.launch.topics import declared_topics
-from palpa.simclock import ClockSource
+from palpa.timing.simclock import ClockSource
 from tests.test_launch_smoke import REPO
 
 

@@ -15,16 +15,16 @@ import zmq
 
 import palpa
 from messages import Text
-from palpa.address import BusAddress
-from palpa.bus import Bus
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
 from palpa.cli.main import main
-from palpa.node import LOG_TEXT_MAX
+from palpa.node.node import LOG_TEXT_MAX
 from palpa.record.format import MD_DROPS
 from palpa.record.recorder import Recorder
 from palpa.record.testing import check_official
 from palpa.runtime_msgs import LogRecord
 from palpa.testing import NodeHarness
-from palpa.transport import TransportOptions, ZmqTransport
+from palpa.net.transport import TransportOptions, ZmqTransport
 from tests.procs import bus_spec, wait_until
 
 
@@ -119,7 +119,7 @@ def test_a_node_refuses_and_counts_messages_over_its_limit(ipc_bus: BusAddress) 
         pub = talker.publisher("chatter", Text, batch=1)
         assert pub.wait_for_subscribers(5.0)
         # every frame under the limit, the message over it: refused by the node and counted
-        talker.publish_raw("chatter", msgspec.msgpack.decode(header(1), type=palpa.wire.Header),
+        talker.publish_raw("chatter", msgspec.msgpack.decode(header(1), type=palpa.net.wire.Header),
                            msgpack.packb({"text": "a"}), [b"b" * 1500, b"c" * 1500])
         pub.publish(Text(text="fits"))
         assert sub.next(5.0) == Text(text="fits")

@@ -14,12 +14,12 @@ import msgpack
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from palpa.bus import Bus
-from palpa.latch import MAX_WATCHES
+from palpa.net.bus import Bus
+from palpa.net.latch import MAX_WATCHES
 from palpa.record.recorder import Recorder
 from palpa.record.testing import check_official
 from palpa.testing import NodeHarness
-from palpa.wire import MAX_NESTING
+from palpa.net.wire import MAX_NESTING
 from tests.procs import bus_spec
 
 U64 = 2**64 - 1
@@ -127,7 +127,7 @@ def test_recorder_fuzz(messages: list[tuple[str, bytes, bytes, tuple[bytes, ...]
 
 def _parses(head: bytes) -> bool:
     from palpa.errors import DecodeError
-    from palpa.wire import decode_header
+    from palpa.net.wire import decode_header
 
     try:
         decode_header(head)

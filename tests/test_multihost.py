@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from palpa.keys import create_key_pair
+from palpa.net.keys import create_key_pair
 from palpa.launch import load_launch
 from palpa.launch.loader import parse_overrides
 from palpa.record.reader import iter_bag
@@ -75,7 +75,7 @@ class Graph:
 
 def test_a_direct_topic_across_hosts_with_curve_survives_a_link_going_down(
         hosts: Hosts, procs: ProcessGroup, tmp_path: Path) -> None:
-    """A talker on host 2 publishes ``chatter`` direct (its own CURVE socket on its own address, palpa.direct), a
+    """A talker on host 2 publishes ``chatter`` direct (its own CURVE socket on its own address, palpa.net.direct), a
     listener on host 3 and the recorder on host 1 connect to it there; host 2's link goes down and comes back."""
     g = Graph(hosts, procs, tmp_path, "calibration")
     rec_file = tmp_path / "run.mcap"

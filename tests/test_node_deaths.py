@@ -109,7 +109,7 @@ def test_a_node_process_that_stops_still_delivers_what_it_had_queued(procs: Proc
     the linger before exiting, or the tail of a burst is lost where no sequence gap shows it (found across hosts,
     bench/multihost.py)."""
     from messages import Text
-    from palpa.bus import Bus
+    from palpa.net.bus import Bus
     from tests.procs import bus_spec, palpa_cmd
 
     with Bus(bus_spec("ipc")) as bus, palpa.Node(name="sink", bus=bus.address, heartbeat_s=0) as sink:

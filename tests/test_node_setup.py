@@ -16,12 +16,12 @@ import palpa
 from emulators.alicat import AlicatEmulator
 from emulators.fibre_daq import FibreDaqEmulator, source_from_heights
 from models.fibre_calibration import load_calibration
-from nodes.camera_tracker import CameraTracker
+from nodes.probe.camera_tracker import CameraTracker
 from nodes.drivers.robot import PathPoint, RobotDriver, RobotDriverError
-from nodes.fibre_reader import FibreReader
-from nodes.pressure_controller import PressureController
-from nodes.robot_scanner import RobotScanner
-from palpa.clock import MockClock
+from nodes.probe.fibre_reader import FibreReader
+from nodes.probe.pressure_controller import PressureController
+from nodes.scanner.robot_scanner import RobotScanner
+from palpa.timing.clock import MockClock
 from palpa.testing import MemoryBus, NodeHarness
 from tests.procs import ur_emulator
 

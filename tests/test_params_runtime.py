@@ -7,8 +7,8 @@ import pytest
 
 import palpa
 from nodes.demo import Talker
-from palpa.params_runtime import PARAMS_TOPIC, ParamGet, ParamSet, ParamValues, param_service
-from palpa.service import BadRequestError, RequestRefused
+from palpa.node.params_runtime import PARAMS_TOPIC, ParamGet, ParamSet, ParamValues, param_service
+from palpa.node.service import BadRequestError, RequestRefused
 from palpa.testing import GraphHarness
 
 

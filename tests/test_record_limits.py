@@ -21,7 +21,7 @@ from palpa.record.testing import Rec, check_official, write_bag
 from palpa.record.writer import MAX_CHANNELS, BagWriter
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.testing import NodeHarness
-from palpa.wire import MAX_NESTING, Header, SequenceTracker, TopicStats, encode_header
+from palpa.net.wire import MAX_NESTING, Header, SequenceTracker, TopicStats, encode_header
 
 TEXT = msgspec.msgpack.encode(Text(text="hi"))
 

@@ -14,8 +14,8 @@ from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
 
 from messages import Text
-from palpa.address import BusAddress
-from palpa.node import Node
+from palpa.net.address import BusAddress
+from palpa.node.node import Node
 from palpa.record.format import MD_DROPS, MD_NODES, MD_RECORDING, MD_RECOVERY, BagError
 from palpa.record.info import bag_info
 from palpa.record.reader import iter_file

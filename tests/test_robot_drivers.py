@@ -25,7 +25,7 @@ from nodes.drivers.robot import (
     RobotDriverError,
 )
 from nodes.drivers.robot_sim import SimRobotDriver
-from palpa.clock import MockClock
+from palpa.timing.clock import MockClock
 from tests.procs import EMULATOR_START_S, ChildSteps, ur_emulator, wait_until
 
 pytest.importorskip("rtde_control")

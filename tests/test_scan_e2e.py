@@ -18,8 +18,8 @@ import palpa
 from emulators.clock_file import ClockWriter
 from messages import RobotPose
 from models.phantom import load_phantom
-from nodes.robot_scanner import RobotScanner
-from palpa.clock import MockClock
+from nodes.scanner.robot_scanner import RobotScanner
+from palpa.timing.clock import MockClock
 from palpa.launch import load_launch, parse_overrides
 from palpa.testing import GraphHarness
 from tests.followed_clock import FollowedClock
@@ -193,11 +193,11 @@ def test_airfloat_scan_finds_the_tumours_and_its_recording_replays(procs: Proces
 def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path, calibration: Path) -> None:
     """The same nodes in-process (mock clock), realistic calibrated probe: a phantom without inclusions gives no
     detection at all, and the map's median is within 6 % of the truth."""
-    from nodes.fibre_reader import FibreReader
-    from nodes.map_aggregator import MapAggregator
-    from nodes.pressure_controller import PressureController
-    from nodes.robot_scanner import RobotScanner
-    from nodes.stiffness_estimator import AirfloatStiffnessEstimator
+    from nodes.probe.fibre_reader import FibreReader
+    from nodes.mapping.map_aggregator import MapAggregator
+    from nodes.probe.pressure_controller import PressureController
+    from nodes.scanner.robot_scanner import RobotScanner
+    from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator
     from palpa.testing import GraphHarness
 
     path = str(REPO / "phantoms" / phantom)

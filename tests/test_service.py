@@ -7,8 +7,8 @@ import msgspec
 import pytest
 
 import palpa
-from palpa.node import RawMessage
-from palpa.service import (
+from palpa.node.node import RawMessage
+from palpa.node.service import (
     BadRequestError,
     HandlerError,
     NoServerError,
@@ -19,9 +19,9 @@ from palpa.service import (
     reply_topic,
     request_topic,
 )
-from palpa.service_client import Future, set_wait_pump
+from palpa.node.service_client import Future, set_wait_pump
 from palpa.testing import GraphHarness, MemoryBus
-from palpa.wire import Header
+from palpa.net.wire import Header
 
 
 class AddRequest(palpa.Message, frozen=True, kw_only=True):

@@ -12,8 +12,8 @@ import pytest
 import zmq
 
 import palpa
-from palpa.address import BusAddress
-from palpa.service import RequestRefused
+from palpa.net.address import BusAddress
+from palpa.node.service import RequestRefused
 from tests.procs import wait_until
 from tests.test_service import Adder, AddReply, AddRequest
 

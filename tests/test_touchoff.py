@@ -22,7 +22,7 @@ from models.surface import (
     region_in_footprint,
     touch_points,
 )
-from nodes.robot_scanner import RobotScanner
+from nodes.scanner.robot_scanner import RobotScanner
 from palpa.testing import NodeHarness
 
 REPO = Path(__file__).resolve().parent.parent

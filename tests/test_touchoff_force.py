@@ -17,7 +17,7 @@ from models.surface import contact_onset_z, touch_points
 from models.world import TissueWorld
 from nodes.drivers.robot import TcpState
 from nodes.drivers.robot_sim import SimRobotDriver
-from nodes.touchoff import TouchOff, TouchOffConfig
+from nodes.scanner.touchoff import TouchOff, TouchOffConfig
 
 DOME = "phantoms/specimens/dome_6_3.yaml"
 POWERS = tuple(1.0 + 0.05 * k for k in range(31))

@@ -16,7 +16,7 @@ from models.raster import sweep_raster
 from models.surface import fit_surface, touch_points
 from nodes.drivers.robot import MotionStatus
 from nodes.drivers.robot_urrtde import URRtdeDriver
-from nodes.touchoff import TouchOff, TouchOffConfig
+from nodes.scanner.touchoff import TouchOff, TouchOffConfig
 from tests.procs import EMULATOR_START_S, ur_emulator
 from tests.test_surface_follow import check_following, sweep_over_the_dome
 

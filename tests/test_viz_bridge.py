@@ -17,8 +17,8 @@ import messages  # noqa: F401
 import palpa
 from messages import EStop, Inclusions, ProbeHeights, RobotPose, ScanPlan, StiffnessMap
 from messages.robot import PlanWaypoint
-from nodes.foxglove_views import ScanViews
-from palpa.address import BusAddress
+from nodes.mapping.foxglove_views import ScanViews
+from palpa.net.address import BusAddress
 from palpa.errors import ParamError
 from palpa.testing import GraphHarness
 from palpa.viz import SUBPROTOCOL, Bridge
@@ -222,10 +222,10 @@ def test_a_viewer_joins_a_simulated_scan_midway(tmp_path: Path) -> None:
     running, however loaded the machine), getting the latched plan and map, then vanishing; the scan then ends
     normally and the watcher still gets what came after."""
     from palpa.cli.run import load_node_class
-    from palpa.clock import MockClock
-    from palpa.compose import Composition
+    from palpa.timing.clock import MockClock
+    from palpa.timing.compose import Composition
     from palpa.launch import load_launch, parse_overrides
-    from palpa.simclock import ClockSource
+    from palpa.timing.simclock import ClockSource
 
     plan = load_launch(REPO / "launch" / "scan_sim.yaml", parse_overrides([
         "viz:=true", "viz_port:=0", "spacing_mm:=4.0", "region_mm:=[10.0, 14.0, 22.0, 22.0]",

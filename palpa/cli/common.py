@@ -13,13 +13,13 @@ from typing import Any
 import msgspec
 
 from palpa import env as palpa_env
-from palpa.address import BusAddress
+from palpa.net.address import BusAddress
 from palpa.current import find_bus
 from palpa.errors import PalpaError
 from palpa.launch.validate import did_you_mean
 from palpa.message import Message, lookup
-from palpa.node import Node
-from palpa.runner import run_node_code
+from palpa.node.node import Node
+from palpa.node.runner import run_node_code
 from yamlstruct import Source, YamlError
 
 __all__ = ["add_bus_arg", "bus_address", "bus_and_source", "import_message_modules", "message_from_yaml",

@@ -14,8 +14,8 @@ from palpa.cli.service import call_service
 from palpa.cli.topic import _tool_node
 from palpa.errors import PalpaError
 from palpa.message import Message
-from palpa.params import parse_param_value, read_params_file
-from palpa.params_runtime import ParamGet, ParamSet, ParamValues, param_service
+from palpa.node.params import parse_param_value, read_params_file
+from palpa.node.params_runtime import ParamGet, ParamSet, ParamValues, param_service
 
 __all__ = ["register"]
 

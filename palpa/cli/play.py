@@ -6,7 +6,7 @@ import argparse
 
 from palpa.cli.common import add_bus_arg, run_with_params
 from palpa.record.player import Player
-from palpa.runner import parse_remaps
+from palpa.node.runner import parse_remaps
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

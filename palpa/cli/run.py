@@ -10,8 +10,8 @@ import sys
 from palpa import env as palpa_env
 from palpa.current import read_current
 from palpa.errors import PalpaError
-from palpa.node import Node
-from palpa.runner import node_arg_parser, run_node_code
+from palpa.node.node import Node
+from palpa.node.runner import node_arg_parser, run_node_code
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -12,7 +12,7 @@ import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
-from palpa.bus import is_loopback_endpoint
+from palpa.net.bus import is_loopback_endpoint
 from palpa.errors import BusError
 from palpa.launch.plan import LaunchPlan, NodeSpec
 from palpa.launch.source import Path_, Source

@@ -4,7 +4,7 @@ Order of work for each file: read the YAML with marks; validate and resolve ``ar
 else an error); apply substitutions to everything else; validate the result against
 :class:`~palpa.launch.schema.LaunchFile`; load includes (paths relative to the including file, cycles refused);
 collect the nodes. When every file is in, each ``node:`` class is imported and its params are validated with
-:func:`palpa.params.convert_params`. Every error reads ``file:line:col: what was expected``.
+:func:`palpa.node.params.convert_params`. Every error reads ``file:line:col: what was expected``.
 
 Substitutions are applied by :mod:`palpa.launch.subst`; validation errors are worded by
 :mod:`palpa.launch.validate`.
@@ -25,7 +25,7 @@ from typing import Any
 
 import msgspec
 
-from palpa.address import is_loopback_host
+from palpa.net.address import is_loopback_host
 from palpa.errors import BusError, LaunchError, ParamError
 from palpa.launch.compose import name_clock_participants
 from palpa.launch.hazards import check_hazards
@@ -34,8 +34,8 @@ from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, Reco
 from palpa.launch.source import Mark, Path_, Source, display_path
 from palpa.launch.subst import substitute
 from palpa.launch.validate import convert, did_you_mean, kind, lower_first
-from palpa.node import Node
-from palpa.params import convert_params, input_paths
+from palpa.node.node import Node
+from palpa.node.params import convert_params, input_paths
 
 __all__ = ["load_launch", "parse_overrides"]
 

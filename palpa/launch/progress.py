@@ -17,7 +17,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, Progress, TaskID, TaskProgressColumn, TextColumn
 
 from palpa.errors import DecodeError
-from palpa.wire import decode_any
+from palpa.net.wire import decode_any
 
 __all__ = ["ProgressView", "progress_fields"]
 

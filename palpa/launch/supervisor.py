@@ -30,8 +30,8 @@ import time
 from collections.abc import Callable
 from typing import Any, TextIO
 
-from palpa.address import BusAddress
-from palpa.bus import Bus
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
 from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
 from palpa.launch.nodeproc import REAP_GRACE_S, NodeProc
@@ -42,7 +42,7 @@ from palpa.launch.progress import ProgressView, progress_fields
 from palpa.launch.reaper import Reaper
 from palpa.launch.signals import SignalInbox
 from palpa.launch.summary import exit_text, report_hidden, summarize
-from palpa.node import Node, RawMessage
+from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 
 __all__ = ["Supervisor", "exit_text"]

@@ -6,7 +6,7 @@ as the msgspec JSON Schemas say; NaN/inf become null). Schemas are the recorded 
 (viewers handle plain nested objects best). Blob frames are dropped with a note by default, or exported as base64
 on ``_palpa/blobs/<topic>`` channels. The output is written with the official ``mcap`` Writer.
 
-A payload that is not msgpack, nests deeper than ``palpa.wire.MAX_NESTING`` or has no JSON form is exported as a
+A payload that is not msgpack, nests deeper than ``palpa.net.wire.MAX_NESTING`` or has no JSON form is exported as a
 placeholder ``{"_palpa_error", "_palpa_index", "_palpa_msgpack_base64"}`` and listed in the report; everything
 else is exported all the same, and ``palpa bag export`` then ends with status 1.
 """
@@ -38,7 +38,7 @@ from palpa.record.format import (
     schema_bytes,
 )
 from palpa.record.reader import iter_bag
-from palpa.wire import decode_any
+from palpa.net.wire import decode_any
 
 __all__ = ["ExportReport", "export_json", "inline_refs"]
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 from collections.abc import Hashable, ItemsView, Iterator
 from typing import Generic, TypeVar
 
-from palpa.endpoints import RawMessage
+from palpa.node.endpoints import RawMessage
 
 __all__ = ["LastValues"]
 

@@ -28,9 +28,9 @@ import msgspec
 import palpa
 from palpa.errors import ParamError
 from palpa.lograte import LogThrottle
-from palpa.node import Node, RawMessage
-from palpa.params import convert_params
-from palpa.params_runtime import PARAMS_TOPIC
+from palpa.node.node import Node, RawMessage
+from palpa.node.params import convert_params
+from palpa.node.params_runtime import PARAMS_TOPIC
 from palpa.record.format import (
     BLOBS_SCHEMA,
     BLOBS_SCHEMA_NAME,
@@ -58,7 +58,7 @@ from palpa.record.format import (
 from palpa.record.lastvalues import LastValues
 from palpa.record.writer import COMPRESSIONS, MAX_CHANNELS, BagWriter
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat
-from palpa.wire import DECODE_ERRORS
+from palpa.net.wire import DECODE_ERRORS
 
 __all__ = ["MAX_LATCHED_BYTES", "RESERVED_CHANNELS", "RecorderParams", "Recorder"]
 

@@ -29,7 +29,7 @@ from foxglove.websocket import Capability, ChannelView, Client, ClientChannel, S
 
 from palpa.errors import DecodeError
 from palpa.viz.schema import foxglove_schema
-from palpa.wire import decode_any
+from palpa.net.wire import decode_any
 
 __all__ = ["ClientStats", "SUBPROTOCOL", "SdkServer", "STATS_TOPIC", "TopicStats"]
 
