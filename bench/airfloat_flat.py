@@ -24,12 +24,12 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from messages import PressureCommand, StiffnessFit  # noqa: E402
-from tools.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate  # noqa: E402
 from nodes.probe.fibre_reader import FibreReader  # noqa: E402
 from nodes.probe.pressure_controller import PressureController  # noqa: E402
-from nodes.scanner.static_pose import StaticPose  # noqa: E402
 from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator  # noqa: E402
+from nodes.scanner.static_pose import StaticPose  # noqa: E402
 from palpa.testing import GraphHarness  # noqa: E402
+from tools.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate  # noqa: E402
 
 SAMPLES = [("flat_26k", 26.4, 42.5), ("flat_10k", 10.8, 35.6)]  # name, truth, ramp target (kPa): ~3 mm deep
 LOCATIONS = [(20.0, 20.0), (40.0, 20.0), (20.0, 40.0), (40.0, 40.0)]

@@ -21,9 +21,9 @@ import zmq
 
 from palpa.net.address import BusAddress
 from palpa.net.bus import Bus
+from palpa.net.wire import Header, encode_header
 from palpa.record.recorder import Recorder
 from palpa.testing import NodeHarness
-from palpa.net.wire import Header, encode_header
 
 
 def rss_mb() -> float:

@@ -25,11 +25,11 @@ import numpy as np
 import yaml
 
 from messages import StiffnessSample
-from tools.camera_calibrate import REFERENCES, calibrate, press_reference
 from nodes.probe.camera_tracker import CameraTracker
-from nodes.scanner.linear_stage import LinearStage
 from nodes.probe.stiffness_estimator import MultiIndenterStiffnessEstimator
+from nodes.scanner.linear_stage import LinearStage
 from palpa.testing import GraphHarness
+from tools.camera_calibrate import REFERENCES, calibrate, press_reference
 
 SPRINGS = {0.29: "phantoms/springs_029.yaml", 0.37: "phantoms/springs_037.yaml",
            0.62: "phantoms/springs_062.yaml", 0.63: "phantoms/springs_063.yaml"}

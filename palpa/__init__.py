@@ -16,13 +16,13 @@ Layering (imports point downwards only)::
 This package knows nothing about palpation: the domain lives in ``messages``, ``models`` and ``nodes``.
 """
 
-from palpa.net.address import BusAddress
-from palpa.timing.clock import Clock, MockClock, SystemClock
 from palpa.errors import BusError, DecodeError, LaunchError, PalpaError, ParamError, RegistryError
 from palpa.message import Finite, Message, json_schema, lookup, registered
+from palpa.net.address import BusAddress
 from palpa.node.node import MsgInfo, Node, Publisher, RawMessage, Subscription, Timer
 from palpa.node.params import InputPath, NonNegative, Params, Positive, PositiveInt
 from palpa.node.runner import run_node
+from palpa.timing.clock import Clock, MockClock, SystemClock
 
 __version__ = "0.1.0"
 

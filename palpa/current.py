@@ -14,8 +14,8 @@ import os
 from pathlib import Path
 
 from palpa import env as palpa_env
-from palpa.net.address import BusAddress, default_address, private_dir
 from palpa.errors import BusError
+from palpa.net.address import BusAddress, default_address, private_dir
 
 __all__ = ["announce", "current_file", "find_bus", "read_current", "withdraw"]
 

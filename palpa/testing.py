@@ -16,11 +16,11 @@ from typing import Any, Generic, TypeVar
 
 import msgspec
 
-from palpa.timing.clock import MockClock
 from palpa.message import Message, lookup
+from palpa.net.transport import Delivery, SendFn
 from palpa.node.node import Node, Publisher, RawMessage
 from palpa.node.params import Params
-from palpa.net.transport import Delivery, SendFn
+from palpa.timing.clock import MockClock
 
 __all__ = ["GraphHarness", "MemoryBus", "MemoryTransport", "NodeHarness"]
 

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from messages import RobotPose, ScanStatus, StiffnessMap
-from palpa.timing.clock import MockClock
-from palpa.timing.compose import Composition
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
 from palpa.node.node import Node
+from palpa.timing.clock import MockClock
+from palpa.timing.compose import Composition
 from tests.procs import REPO
 
 # contact_z_mm is the flat height a probe would sweep at without a touch-off: far above the dome (3-4 mm thick here)

@@ -11,8 +11,8 @@ import pytest
 from messages import PressureCommand, ProbeHeights, RobotPose, StiffnessSample
 from nodes.probe.fibre_reader import FibreReader
 from nodes.probe.pressure_controller import PressureController
-from nodes.scanner.static_pose import StaticPose
 from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator
+from nodes.scanner.static_pose import StaticPose
 from palpa.testing import GraphHarness, NodeHarness
 
 

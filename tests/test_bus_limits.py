@@ -12,9 +12,9 @@ import msgspec
 import pytest
 
 from palpa.errors import DecodeError
+from palpa.lograte import LOG_INTERVAL_S, LogThrottle
 from palpa.net.keys import ClientKeys
 from palpa.net.latch import BUS_OWNER, LatchCache, OwnedTable, Watchers
-from palpa.lograte import LOG_INTERVAL_S, LogThrottle
 from palpa.net.wire import MAX_NESTING, decode_any, decode_header, parse_envelope
 
 

@@ -15,9 +15,9 @@ import palpa
 from messages import IndenterDisplacements, RobotPose, ScanStatus
 from models.camera_render import CameraModel, Renderer
 from nodes.probe.camera_tracker import CameraTracker
+from nodes.probe.stiffness_estimator import MultiIndenterStiffnessEstimator
 from nodes.scanner.linear_stage import LinearStage, StageProfile
 from nodes.scanner.static_pose import StaticPose
-from nodes.probe.stiffness_estimator import MultiIndenterStiffnessEstimator
 from palpa.testing import GraphHarness, NodeHarness
 from tests.procs import wait_until
 

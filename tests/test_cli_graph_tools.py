@@ -17,11 +17,11 @@ import pytest
 
 import palpa
 from messages import EStop, Text
-from palpa.net.address import BusAddress
-from palpa.net.bus import Bus
 from palpa.cli.common import message_from_yaml
 from palpa.cli.main import main
 from palpa.current import announce, find_bus, withdraw
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
 from tests.launching import launched, wait_nodes_up
 from tests.procs import ProcessGroup, palpa_cmd, short_ipc_base, wait_until
 

@@ -12,14 +12,14 @@ import pytest
 
 from messages import Text
 from nodes.demo import Listener, Talker
-from palpa.timing.clock import MockClock
-from palpa.timing.compose import Composition
 from palpa.errors import LaunchError
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
+from palpa.net.transport import Delivery
 from palpa.node.node import Node
 from palpa.record.reader import iter_bag, resolve_bag_paths
-from palpa.net.transport import Delivery
+from palpa.timing.clock import MockClock
+from palpa.timing.compose import Composition
 from tests.procs import ProcessGroup
 from tests.test_launch_smoke import REPO, Smoke, smoke
 

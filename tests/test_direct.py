@@ -14,6 +14,7 @@ import zmq
 
 import palpa
 from messages import Text
+from palpa.launch import load_launch
 from palpa.net.address import BusAddress
 from palpa.net.direct import (
     SubscriberSet,
@@ -22,10 +23,9 @@ from palpa.net.direct import (
     directory_key,
     directory_value,
 )
-from palpa.node.endpoints import RawMessage
-from palpa.launch import load_launch
-from palpa.testing import MemoryBus
 from palpa.net.transport import TransportOptions, ZmqTransport
+from palpa.node.endpoints import RawMessage
+from palpa.testing import MemoryBus
 from tests.procs import ProcessGroup, palpa_cmd, wait_until
 
 

@@ -22,11 +22,11 @@ from messages import (
     TriggerResult,
 )
 from models.phantom import load_phantom
-from nodes.probe.fibre_reader import FibreReader
 from nodes.mapping.map_aggregator import MapAggregator
+from nodes.probe.fibre_reader import FibreReader
 from nodes.probe.pressure_controller import PressureController
-from nodes.scanner.robot_scanner import RobotScanner
 from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator
+from nodes.scanner.robot_scanner import RobotScanner
 from palpa.node.service import BadRequestError, RequestRefused
 from palpa.node.service_client import Future
 from palpa.testing import GraphHarness, NodeHarness

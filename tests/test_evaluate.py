@@ -16,8 +16,8 @@ import pytest
 from messages import RobotPose, ScanStatus, StiffnessSample
 from models.phantom import load_phantom, parse_phantom
 from models.phantom_gen import PhantomRanges, random_phantom
-from tools.evaluate import RunSpec, scan_facts, score_run, summarize
 from palpa.record.testing import Rec, write_bag
+from tools.evaluate import RunSpec, scan_facts, score_run, summarize
 
 REPO = Path(__file__).resolve().parent.parent
 

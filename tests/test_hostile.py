@@ -15,9 +15,9 @@ import palpa
 from messages import PressureCommand, PressureState, Text
 from nodes.mapping.map_aggregator import MapAggregator
 from nodes.probe.pressure_controller import PressureController
+from palpa.net.wire import COUNTER_MAX, msgpack_array
 from palpa.runtime_msgs import Heartbeat
 from palpa.testing import GraphHarness, NodeHarness
-from palpa.net.wire import COUNTER_MAX, msgpack_array
 
 U64 = 2**64 - 1
 

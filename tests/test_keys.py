@@ -12,10 +12,10 @@ import pytest
 
 import palpa
 from messages import Text
-from palpa.net.address import BusAddress, default_address, private_dir
-from palpa.net.bus import Bus, is_loopback_endpoint
 from palpa.cli.main import main
 from palpa.errors import BusError
+from palpa.net.address import BusAddress, default_address, private_dir
+from palpa.net.bus import Bus, is_loopback_endpoint
 from palpa.net.keys import load_secret_key
 from palpa.net.transport import ZmqTransport
 from tests.procs import ProcessGroup, palpa_cmd, wait_until

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from palpa.net.address import BusAddress
 from palpa.cli.launch import describe
 from palpa.errors import LaunchError
 from palpa.launch import json_schema, load_launch, parse_overrides
 from palpa.launch.plan import RECORDER_TARGET
+from palpa.net.address import BusAddress
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import pytest
 
-from palpa.net.address import BusAddress
 from palpa.launch import load_launch
 from palpa.launch.process import process_alive
+from palpa.net.address import BusAddress
 from tests.procs import Proc, ProcessGroup, palpa_cmd, wait_until
 
 TESTS = Path(__file__).resolve().parent

@@ -15,16 +15,16 @@ import zmq
 
 import palpa
 from messages import Text
+from palpa.cli.main import main
 from palpa.net.address import BusAddress
 from palpa.net.bus import Bus
-from palpa.cli.main import main
+from palpa.net.transport import TransportOptions, ZmqTransport
 from palpa.node.node import LOG_TEXT_MAX
 from palpa.record.format import MD_DROPS
 from palpa.record.recorder import Recorder
 from palpa.record.testing import check_official
 from palpa.runtime_msgs import LogRecord
 from palpa.testing import NodeHarness
-from palpa.net.transport import TransportOptions, ZmqTransport
 from tests.procs import bus_spec, wait_until
 
 

@@ -16,10 +16,10 @@ from hypothesis import strategies as st
 
 from palpa.net.bus import Bus
 from palpa.net.latch import MAX_WATCHES
+from palpa.net.wire import MAX_NESTING
 from palpa.record.recorder import Recorder
 from palpa.record.testing import check_official
 from palpa.testing import NodeHarness
-from palpa.net.wire import MAX_NESTING
 from tests.procs import bus_spec
 
 U64 = 2**64 - 1

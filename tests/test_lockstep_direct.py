@@ -13,11 +13,11 @@ from messages import Text
 from palpa.net.address import BusAddress
 from palpa.net.bus import Bus
 from palpa.net.direct import DIRECTORY_PREFIX
+from palpa.net.transport import Delivery, ZmqTransport
 from palpa.record.reader import iter_bag
 from palpa.record.recorder import Recorder
 from palpa.runtime_msgs import CLOCK_ACK_TOPIC
 from palpa.timing.simclock import ClockSource
-from palpa.net.transport import Delivery, ZmqTransport
 from tests.procs import short_ipc_base, wait_until
 from tests.test_readiness import REACH_PROBES, SubscriptionGate, through_gate
 

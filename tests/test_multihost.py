@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from palpa.net.keys import create_key_pair
 from palpa.launch import load_launch
 from palpa.launch.loader import parse_overrides
+from palpa.net.keys import create_key_pair
 from palpa.record.reader import iter_bag
 from tests.netns import Hosts, why_no_netns
 from tests.procs import REPO, Proc, ProcessGroup, wait_until

@@ -16,13 +16,13 @@ import palpa
 from emulators.alicat import AlicatEmulator
 from emulators.fibre_daq import FibreDaqEmulator, source_from_heights
 from models.fibre_calibration import load_calibration
-from nodes.probe.camera_tracker import CameraTracker
 from nodes.drivers.robot import PathPoint, RobotDriver, RobotDriverError
+from nodes.probe.camera_tracker import CameraTracker
 from nodes.probe.fibre_reader import FibreReader
 from nodes.probe.pressure_controller import PressureController
 from nodes.scanner.robot_scanner import RobotScanner
-from palpa.timing.clock import MockClock
 from palpa.testing import MemoryBus, NodeHarness
+from palpa.timing.clock import MockClock
 from tests.procs import ur_emulator
 
 SMALL: dict[str, Any] = {"region_mm": [10, 10, 20, 20], "spacing_mm": 5, "speed_mm_s": 20, "home_mm": [10, 10, 20]}

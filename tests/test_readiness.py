@@ -15,8 +15,8 @@ import palpa
 from messages import Text
 from palpa.net.address import BusAddress
 from palpa.net.direct import JOIN_PROBE_PREFIX
-from palpa.runtime_msgs import HEARTBEAT_TOPIC
 from palpa.net.transport import ZmqTransport
+from palpa.runtime_msgs import HEARTBEAT_TOPIC
 from tests.procs import short_ipc_base, wait_until
 
 

@@ -15,13 +15,13 @@ from mcap.reader import make_reader
 
 from messages import Text
 from palpa.cli.main import main
+from palpa.net.wire import MAX_NESTING, Header, SequenceTracker, TopicStats, encode_header
 from palpa.record.format import MD_REFUSED, BagError
 from palpa.record.recorder import MAX_LATCHED_BYTES, RESERVED_CHANNELS, Recorder
 from palpa.record.testing import Rec, check_official, write_bag
 from palpa.record.writer import MAX_CHANNELS, BagWriter
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.testing import NodeHarness
-from palpa.net.wire import MAX_NESTING, Header, SequenceTracker, TopicStats, encode_header
 
 TEXT = msgspec.msgpack.encode(Text(text="hi"))
 

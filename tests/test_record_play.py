@@ -11,6 +11,7 @@ import pytest
 
 from messages import Text
 from palpa.errors import ParamError
+from palpa.net.transport import Delivery
 from palpa.node.node import Node, RawMessage
 from palpa.record.format import BagError
 from palpa.record.player import Player
@@ -18,7 +19,6 @@ from palpa.record.recorder import Recorder
 from palpa.record.testing import Rec, write_bag
 from palpa.runtime_msgs import CLOCK_TOPIC, ClockTick
 from palpa.testing import MemoryBus, MemoryTransport, NodeHarness
-from palpa.net.transport import Delivery
 from tests.procs import wait_until
 
 T0 = 1_700_000_000_000_000_000

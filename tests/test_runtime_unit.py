@@ -11,10 +11,10 @@ import pytest
 import palpa
 from messages import Text
 from nodes.demo import Listener, Talker
-from palpa.net.address import BusAddress
 from palpa.errors import BusError, ParamError
-from palpa.testing import MemoryBus, NodeHarness
+from palpa.net.address import BusAddress
 from palpa.net.wire import Header, SequenceTracker, TopicStats, encode_header
+from palpa.testing import MemoryBus, NodeHarness
 
 
 def test_address_forms() -> None:

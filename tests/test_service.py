@@ -7,6 +7,7 @@ import msgspec
 import pytest
 
 import palpa
+from palpa.net.wire import Header
 from palpa.node.node import RawMessage
 from palpa.node.service import (
     BadRequestError,
@@ -21,7 +22,6 @@ from palpa.node.service import (
 )
 from palpa.node.service_client import Future, set_wait_pump
 from palpa.testing import GraphHarness, MemoryBus
-from palpa.net.wire import Header
 
 
 class AddRequest(palpa.Message, frozen=True, kw_only=True):

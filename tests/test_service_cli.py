@@ -14,12 +14,12 @@ import yaml
 import palpa
 from models.phantom import load_phantom
 from nodes.demo import Talker
-from palpa.net.address import BusAddress
 from palpa.cli.main import main
+from palpa.net.address import BusAddress
 from palpa.node.params import convert_params
+from palpa.node.service import RequestRefused
 from palpa.record.info import bag_info, format_info
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
-from palpa.node.service import RequestRefused
 from tests.procs import REPO, ProcessGroup, palpa_cmd, short_ipc_base, wait_until
 from tests.test_service import Adder, AddReply, AddRequest
 from tests.test_service_zmq import adder  # noqa: F401  (fixture)

@@ -17,8 +17,8 @@ from models.surface import region_from_touches, search_points
 from nodes.probe.fibre_reader import FibreReader
 from nodes.probe.pressure_controller import PressureController
 from nodes.scanner.robot_scanner import RobotScanner
-from palpa.timing.clock import MockClock
 from palpa.testing import GraphHarness
+from palpa.timing.clock import MockClock
 from tests.followed_clock import FollowedClock
 from tests.procs import ur_emulator
 

@@ -11,12 +11,12 @@ import pytest
 
 import palpa
 from messages import Text
-from palpa.net.address import BusAddress
-from palpa.net.bus import Bus
 from palpa.errors import BusError, LaunchError
 from palpa.launch import load_launch
-from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
 from palpa.net.transport import TransportOptions, ZmqTransport
+from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from tests.procs import ProcessGroup, bus_spec, palpa_cmd, wait_until
 
 

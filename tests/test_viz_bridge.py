@@ -18,8 +18,8 @@ import palpa
 from messages import EStop, Inclusions, ProbeHeights, RobotPose, ScanPlan, StiffnessMap
 from messages.robot import PlanWaypoint
 from nodes.mapping.foxglove_views import ScanViews
-from palpa.net.address import BusAddress
 from palpa.errors import ParamError
+from palpa.net.address import BusAddress
 from palpa.testing import GraphHarness
 from palpa.viz import SUBPROTOCOL, Bridge
 from tests.foxglove_client import FoxgloveClient
@@ -222,9 +222,9 @@ def test_a_viewer_joins_a_simulated_scan_midway(tmp_path: Path) -> None:
     running, however loaded the machine), getting the latched plan and map, then vanishing; the scan then ends
     normally and the watcher still gets what came after."""
     from palpa.cli.run import load_node_class
+    from palpa.launch import load_launch, parse_overrides
     from palpa.timing.clock import MockClock
     from palpa.timing.compose import Composition
-    from palpa.launch import load_launch, parse_overrides
     from palpa.timing.simclock import ClockSource
 
     plan = load_launch(REPO / "launch" / "scan_sim.yaml", parse_overrides([

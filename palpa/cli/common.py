@@ -13,11 +13,11 @@ from typing import Any
 import msgspec
 
 from palpa import env as palpa_env
-from palpa.net.address import BusAddress
 from palpa.current import find_bus
 from palpa.errors import PalpaError
 from palpa.launch.validate import did_you_mean
 from palpa.message import Message, lookup
+from palpa.net.address import BusAddress
 from palpa.node.node import Node
 from palpa.node.runner import run_node_code
 from yamlstruct import Source, YamlError

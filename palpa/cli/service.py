@@ -13,10 +13,10 @@ from palpa.cli.common import add_bus_arg, message_from_yaml
 from palpa.cli.topic import _tool_node, collect_heartbeats
 from palpa.errors import DecodeError, PalpaError
 from palpa.message import Message, lookup
+from palpa.net.wire import decode_any
 from palpa.node.node import Node, RawMessage
 from palpa.node.params_runtime import ParamGet  # noqa: F401  (registers the parameter messages for `call`)
 from palpa.node.service_client import discover
-from palpa.net.wire import decode_any
 
 __all__ = ["call_service", "register"]
 

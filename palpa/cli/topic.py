@@ -17,9 +17,9 @@ from palpa.cli.common import add_bus_arg, bus_and_source, import_message_modules
 from palpa.errors import BusError, DecodeError, PalpaError, RegistryError
 from palpa.launch.validate import did_you_mean
 from palpa.message import lookup
+from palpa.net.wire import DECODE_ERRORS, TopicStats, decode_any
 from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
-from palpa.net.wire import DECODE_ERRORS, TopicStats, decode_any
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -25,7 +25,6 @@ from typing import Any
 
 import msgspec
 
-from palpa.net.address import is_loopback_host
 from palpa.errors import BusError, LaunchError, ParamError
 from palpa.launch.compose import name_clock_participants
 from palpa.launch.hazards import check_hazards
@@ -34,6 +33,7 @@ from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, Reco
 from palpa.launch.source import Mark, Path_, Source, display_path
 from palpa.launch.subst import substitute
 from palpa.launch.validate import convert, did_you_mean, kind, lower_first
+from palpa.net.address import is_loopback_host
 from palpa.node.node import Node
 from palpa.node.params import convert_params, input_paths
 

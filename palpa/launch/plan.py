@@ -14,9 +14,9 @@ from typing import Any
 import yaml
 
 from palpa import env as palpa_env
-from palpa.net.address import BusAddress, private_dir
 from palpa.errors import BusError
 from palpa.launch.schema import BusDecl, RecordDecl, VizDecl
+from palpa.net.address import BusAddress, private_dir
 from palpa.net.options import TransportOptions
 
 __all__ = ["RECORDER_NAME", "RECORDER_TARGET", "VIZ_NAME", "VIZ_TARGET", "LaunchPlan", "NodeSpec"]

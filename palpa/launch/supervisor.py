@@ -30,8 +30,6 @@ import time
 from collections.abc import Callable
 from typing import Any, TextIO
 
-from palpa.net.address import BusAddress
-from palpa.net.bus import Bus
 from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
 from palpa.launch.nodeproc import REAP_GRACE_S, NodeProc
@@ -42,6 +40,8 @@ from palpa.launch.progress import ProgressView, progress_fields
 from palpa.launch.reaper import Reaper
 from palpa.launch.signals import SignalInbox
 from palpa.launch.summary import exit_text, report_hidden, summarize
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
 from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 

@@ -32,9 +32,10 @@ import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 
+from palpa.errors import BusError
+from palpa.lograte import LogThrottle
 from palpa.net.address import BusAddress, is_loopback_host
 from palpa.net.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
-from palpa.errors import BusError
 from palpa.net.keys import ClientKeys, load_secret_key
 from palpa.net.latch import (
     BUS_OWNER,
@@ -43,7 +44,6 @@ from palpa.net.latch import (
     LatchCache,
     Watchers,
 )
-from palpa.lograte import LogThrottle
 from palpa.net.wire import MAX_MSG_BYTES, MAX_TOPIC_BYTES
 
 __all__ = ["Bus", "CurveServer", "is_loopback_endpoint"]

@@ -41,8 +41,8 @@ import zmq
 from zmq.auth.thread import ThreadAuthenticator
 
 from palpa import env as palpa_env
-from palpa.net.address import BusAddress, is_loopback_host
 from palpa.lograte import LogThrottle
+from palpa.net.address import BusAddress, is_loopback_host
 from palpa.net.wire import Header, encode_header
 
 __all__ = [

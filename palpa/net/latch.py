@@ -15,9 +15,9 @@ from typing import Generic, TypeVar
 
 import msgspec
 
-from palpa.net.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
 from palpa.errors import DecodeError, RegistryError
 from palpa.message import lookup
+from palpa.net.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
 from palpa.net.wire import DECODE_ERRORS, MAX_TOPIC_BYTES, decode_any, decode_header
 
 __all__ = ["BUS_OWNER", "DEFAULT_LATCH_MAX_BYTES", "DEFAULT_LATCH_MAX_ENTRIES", "MAX_WATCH_BYTES", "MAX_WATCHES",

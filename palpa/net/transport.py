@@ -20,6 +20,7 @@ import zmq
 import zmq.auth
 
 from palpa import env as palpa_env
+from palpa.errors import BusError
 from palpa.net.address import BusAddress
 from palpa.net.direct import (
     CLIENT_KEYS_TOPIC,
@@ -28,7 +29,6 @@ from palpa.net.direct import (
     SubscriberSet,
     follow_directory,
 )
-from palpa.errors import BusError
 from palpa.net.exitflush import note_linger
 from palpa.net.handshake import HANDSHAKE_EVENTS, HandshakeWatch
 from palpa.net.keys import load_secret_key

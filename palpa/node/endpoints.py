@@ -14,11 +14,11 @@ from typing import Any, Generic, NamedTuple, TypeVar, get_type_hints
 
 import msgspec
 
-from palpa.timing.clock import Clock
-from palpa.node.dispatch import Dispatch, Spinner
 from palpa.message import Message
 from palpa.net.transport import Transport
 from palpa.net.wire import Header, HeaderTemplate, TopicStats, msgpack_array
+from palpa.node.dispatch import Dispatch, Spinner
+from palpa.timing.clock import Clock
 
 __all__ = ["DEFAULT_BATCH", "MsgInfo", "Publisher", "RawMessage", "Subscription", "Timer", "handler_type",
            "wants_info"]

@@ -33,8 +33,11 @@ from collections.abc import Callable, Mapping, Sequence
 from typing import Any, ClassVar, Protocol, TypeVar, cast
 
 from palpa import env as palpa_env
+from palpa.errors import PalpaError
+from palpa.message import Message
 from palpa.net.address import BusAddress, from_env
-from palpa.timing.clock import Clock, SystemClock, TopicClock
+from palpa.net.transport import Transport, TransportOptions, ZmqTransport
+from palpa.net.wire import Header, TopicStats, encode_header
 from palpa.node.dispatch import Dispatch
 from palpa.node.endpoints import (
     DEFAULT_BATCH,
@@ -45,8 +48,6 @@ from palpa.node.endpoints import (
     Timer,
     handler_type,
 )
-from palpa.errors import PalpaError
-from palpa.message import Message
 from palpa.node.naming import RUNTIME_PREFIX, default_node_name, resolve_topic
 from palpa.node.node_time import SimTime, Timers, clock_timeout_ns
 from palpa.node.params import Params as ParamsBase
@@ -63,8 +64,7 @@ from palpa.node.presence import LOG_TEXT_MAX as LOG_TEXT_MAX  # re-exported: it 
 from palpa.node.receive import Receiver
 from palpa.node.service import DEFAULT_TIMEOUT_S, Responder, Service
 from palpa.node.service_client import Client
-from palpa.net.transport import Transport, TransportOptions, ZmqTransport
-from palpa.net.wire import Header, TopicStats, encode_header
+from palpa.timing.clock import Clock, SystemClock, TopicClock
 
 __all__ = ["DEFAULT_BATCH", "MsgInfo", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
 

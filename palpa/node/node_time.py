@@ -15,15 +15,15 @@ from collections.abc import Mapping
 from typing import Any, Protocol
 
 from palpa import env as palpa_env
-from palpa.timing.clock import TopicClock
-from palpa.node.endpoints import Publisher, Timer
 from palpa.errors import PalpaError
+from palpa.net.transport import ZmqTransport
+from palpa.net.wire import TopicStats
+from palpa.node.endpoints import Publisher, Timer
 from palpa.node.naming import RUNTIME_PREFIX
 from palpa.node.nodeapi import NodeApi
 from palpa.node.receive import Receiver
 from palpa.runtime_msgs import CLOCK_ACK_TOPIC, CLOCK_TOPIC, ClockAck, ClockTick, tick_topic
-from palpa.net.transport import ZmqTransport
-from palpa.net.wire import TopicStats
+from palpa.timing.clock import TopicClock
 
 __all__ = ["EXIT_CLOCK_LOST", "SimTime", "Timers", "clock_timeout_ns"]
 

@@ -10,12 +10,12 @@ import logging
 from collections.abc import Callable, Sequence
 from typing import Any, Protocol, TypeVar
 
-from palpa.timing.clock import Clock
-from palpa.node.dispatch import Dispatch
-from palpa.node.endpoints import Publisher, RawMessage, Timer
 from palpa.message import Message
 from palpa.net.transport import Transport
 from palpa.net.wire import Header
+from palpa.node.dispatch import Dispatch
+from palpa.node.endpoints import Publisher, RawMessage, Timer
+from palpa.timing.clock import Clock
 
 __all__ = ["NodeApi"]
 

@@ -15,13 +15,13 @@ from collections.abc import Mapping
 from typing import Any
 
 from palpa.net.direct import JOIN_PROBE_PREFIX, REACH_PREFIX
+from palpa.net.transport import ZmqTransport
+from palpa.net.wire import Header, encode_header
 from palpa.node.endpoints import Publisher, RawMessage
 from palpa.node.nodeapi import NodeApi
 from palpa.node.receive import Receiver
-from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat, LogRecord, TopicCounters
 from palpa.node.service import Service
-from palpa.net.transport import ZmqTransport
-from palpa.net.wire import Header, encode_header
+from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat, LogRecord, TopicCounters
 
 __all__ = ["JOIN_TIMEOUT_S", "LOG_TEXT_MAX", "BusLogHandler", "Heartbeats", "confirm_subscriptions", "take_reach_answers"]
 

@@ -14,8 +14,6 @@ import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
-from palpa.node.dispatch import Dispatch
-from palpa.node.endpoints import MsgInfo, RawMessage, Subscription
 from palpa.errors import DecodeError
 from palpa.lograte import LogThrottle
 from palpa.net.transport import Delivery
@@ -31,6 +29,8 @@ from palpa.net.wire import (
     TopicStats,
     parse_envelope,
 )
+from palpa.node.dispatch import Dispatch
+from palpa.node.endpoints import MsgInfo, RawMessage, Subscription
 
 __all__ = ["Receiver"]
 

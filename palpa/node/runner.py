@@ -26,9 +26,9 @@ from types import FrameType
 from typing import Any
 
 from palpa.errors import PalpaError
+from palpa.net.transport import TransportOptions
 from palpa.node.node import Node
 from palpa.node.params import Params, describe_params, parse_param_value, read_params_file
-from palpa.net.transport import TransportOptions
 
 __all__ = ["node_arg_parser", "params_from_args", "parse_remaps", "run_node", "run_node_code"]
 

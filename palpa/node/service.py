@@ -33,10 +33,10 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import msgspec
 
-from palpa.node.endpoints import RawMessage
 from palpa.errors import PalpaError, ParamError
 from palpa.message import Message
 from palpa.net.wire import DECODE_ERRORS, Header
+from palpa.node.endpoints import RawMessage
 
 if TYPE_CHECKING:
     from palpa.node.nodeapi import NodeApi

@@ -18,8 +18,9 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
 import msgspec
 
-from palpa.node.endpoints import RawMessage, Timer
 from palpa.message import Message
+from palpa.net.wire import DECODE_ERRORS, Header
+from palpa.node.endpoints import RawMessage, Timer
 from palpa.node.service import (
     _FAULTS,
     DEFAULT_TIMEOUT_S,
@@ -34,7 +35,6 @@ from palpa.node.service import (
     reply_topic,
     request_topic,
 )
-from palpa.net.wire import DECODE_ERRORS, Header
 
 if TYPE_CHECKING:
     from palpa.node.nodeapi import NodeApi

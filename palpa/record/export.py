@@ -28,6 +28,7 @@ from mcap.writer import CompressionType, Writer
 
 import palpa
 from palpa.errors import DecodeError
+from palpa.net.wire import decode_any
 from palpa.record.format import (
     BLOBS_TOPIC_PREFIX,
     META_LATCHED,
@@ -38,7 +39,6 @@ from palpa.record.format import (
     schema_bytes,
 )
 from palpa.record.reader import iter_bag
-from palpa.net.wire import decode_any
 
 __all__ = ["ExportReport", "export_json", "inline_refs"]
 

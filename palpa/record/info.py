@@ -18,9 +18,9 @@ from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, ChunkIndex, McapRecord, Metadata
 
+from palpa.net.wire import SequenceTracker, TopicStats
 from palpa.record.format import MD_DROPS, MD_NODES, MD_RECORDING, MD_RECOVERY, META_SCHEMA, BagError
 from palpa.record.reader import channel_info, iter_file
-from palpa.net.wire import SequenceTracker, TopicStats
 
 __all__ = ["bag_info", "format_info"]
 

@@ -26,13 +26,13 @@ from typing import Any, Literal
 
 import palpa
 from palpa.errors import ParamError
+from palpa.net.transport import ZmqTransport
+from palpa.net.wire import Header
 from palpa.node.node import Node
 from palpa.node.params import convert_params
 from palpa.record.format import TopicFilter
 from palpa.record.reader import BagMessage, iter_bag, resolve_bag_paths
 from palpa.runtime_msgs import CLOCK_TOPIC, HEARTBEAT_TOPIC, ClockTick, Heartbeat
-from palpa.net.transport import ZmqTransport
-from palpa.net.wire import Header
 
 __all__ = ["PlayerParams", "Player"]
 

@@ -28,6 +28,7 @@ import msgspec
 import palpa
 from palpa.errors import ParamError
 from palpa.lograte import LogThrottle
+from palpa.net.wire import DECODE_ERRORS
 from palpa.node.node import Node, RawMessage
 from palpa.node.params import convert_params
 from palpa.node.params_runtime import PARAMS_TOPIC
@@ -58,7 +59,6 @@ from palpa.record.format import (
 from palpa.record.lastvalues import LastValues
 from palpa.record.writer import COMPRESSIONS, MAX_CHANNELS, BagWriter
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat
-from palpa.net.wire import DECODE_ERRORS
 
 __all__ = ["MAX_LATCHED_BYTES", "RESERVED_CHANNELS", "RecorderParams", "Recorder"]
 

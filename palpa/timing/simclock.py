@@ -40,8 +40,7 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any, Literal
 
-from palpa.timing.clock import SystemClock
-from palpa.timing.lockstep import EventLockstep
+from palpa.net.transport import ZmqTransport
 from palpa.node.node import Node, Publisher
 from palpa.node.params import NonNegative, Positive
 from palpa.node.params import Params as ParamsBase
@@ -55,7 +54,8 @@ from palpa.runtime_msgs import (
     Heartbeat,
     tick_topic,
 )
-from palpa.net.transport import ZmqTransport
+from palpa.timing.clock import SystemClock
+from palpa.timing.lockstep import EventLockstep
 
 __all__ = ["ClockSource"]
 

@@ -28,8 +28,8 @@ import msgspec
 from foxglove.websocket import Capability, ChannelView, Client, ClientChannel, ServerListener
 
 from palpa.errors import DecodeError
-from palpa.viz.schema import foxglove_schema
 from palpa.net.wire import decode_any
+from palpa.viz.schema import foxglove_schema
 
 __all__ = ["ClientStats", "SUBPROTOCOL", "SdkServer", "STATS_TOPIC", "TopicStats"]
 
