@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
 
 from palpa.record.edit import rewrite
@@ -15,6 +16,7 @@ from palpa.record.reader import resolve_bag_paths
 from palpa.record.recover import recover
 from palpa.record.table_export import AlignSpec, export_tables
 from palpa.record.tables import read
+from palpa.record.writer import lock_exclusive
 
 TOPICS_HELP = ("topics to take: regular expressions matched against the whole name (runtime _palpa/... topics "
                "only when a pattern names them); default: every topic")
@@ -98,12 +100,21 @@ def run_recover(args: argparse.Namespace) -> int:
     if args.in_place:
         if args.output:
             raise BagError("--in-place and --output exclude each other")
-        tmp = src.with_name(src.name + ".recovering")
-        report = recover(src, tmp, overwrite=True)
-        os.replace(tmp, src)
+        with open(src, "rb") as guard:  # held until the file is replaced: no recorder starts writing it meanwhile
+            if not lock_exclusive(guard):
+                raise BagError(f"{src} is in use: a recorder is still writing it (it holds the file's lock); "
+                               "stop the recorder first, or recover a copy with -o OUT")
+            tmp = src.with_name(src.name + ".recovering")
+            report = recover(src, tmp, overwrite=True)
+            os.replace(tmp, src)
         report.output = src
     else:
+        with open(src, "rb") as probe:
+            live = not lock_exclusive(probe)
         report = recover(src, args.output, overwrite=args.force)
+        if live:
+            print(f"palpa bag: {src} is still being written by a recorder: the copy holds what it had written so far",
+                  file=sys.stderr)
     print(report.text())
     return 0
 
@@ -113,6 +124,10 @@ def run_export(args: argparse.Namespace) -> int:
     if args.json_out is not None:
         report = export_json(paths, args.json_out, blobs=args.blobs, overwrite=args.force)
         print(report.text())
+        if not report.complete:
+            print(f"palpa bag: {len(report.placeholders)} message(s) could not be exported as JSON (see above); the "
+                  "rest were exported; exit status 1", file=sys.stderr)
+            return 1
         return 0
     if args.output is None:
         raise BagError("--format needs -o OUT (a directory for one table per topic, a file with --align/--rate)")

@@ -11,8 +11,9 @@ import yaml
 
 from palpa.cli.common import add_bus_arg, message_from_yaml
 from palpa.cli.topic import collect_heartbeats, tool_node
-from palpa.errors import PalpaError
+from palpa.errors import DecodeError, PalpaError
 from palpa.message import Message, lookup
+from palpa.net.wire import decode_any
 from palpa.node.node import Node, RawMessage
 from palpa.node.params_runtime import ParamGet  # noqa: F401  (registers the parameter messages for `call`)
 from palpa.node.service_client import discover
@@ -95,5 +96,8 @@ def run_call(args: argparse.Namespace) -> int:
 
 def _print_feedback(topic: str, raw: RawMessage) -> None:
     if raw.topic == topic and not raw.from_cache:
-        body = msgspec.to_builtins(msgspec.msgpack.decode(raw.payload))
+        try:
+            body = msgspec.to_builtins(decode_any(raw.payload))
+        except DecodeError as exc:
+            body = {"_undecodable": str(exc)}
         print(f"[{topic}] " + yaml.safe_dump(body, default_flow_style=True, width=1_000_000).strip(), flush=True)

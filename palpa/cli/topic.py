@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from typing import Any
@@ -13,10 +14,10 @@ import msgspec
 import yaml
 
 from palpa.cli.common import add_bus_arg, bus_and_source, import_message_modules, message_from_yaml
-from palpa.errors import BusError, PalpaError, RegistryError
+from palpa.errors import BusError, DecodeError, PalpaError, RegistryError
 from palpa.launch.validate import did_you_mean
 from palpa.message import lookup
-from palpa.net.wire import SequenceTracker, TopicStats
+from palpa.net.wire import DECODE_ERRORS, SequenceTracker, TopicStats, decode_any
 from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 
@@ -255,8 +256,22 @@ def _to_builtins(raw: RawMessage) -> Any:
     try:
         cls = lookup(raw.header.type)
         return msgspec.to_builtins(msgspec.msgpack.decode(raw.payload, type=cls))
-    except (RegistryError, msgspec.ValidationError, msgspec.DecodeError):
-        return msgspec.msgpack.decode(raw.payload)  # unknown type: still readable
+    except (RegistryError, *DECODE_ERRORS):
+        pass
+    try:
+        return decode_any(raw.payload)  # unknown type: still readable
+    except DecodeError as exc:
+        return {"_undecodable": str(exc), "payload_bytes": len(raw.payload)}
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null once its reader is gone, so that no later flush (at exit) fails again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # not a real file (a test's stand-in): nothing to redirect
+        pass
 
 
 def run_echo(args: argparse.Namespace) -> int:
@@ -266,27 +281,35 @@ def run_echo(args: argparse.Namespace) -> int:
     bus_and_source(args)  # which bus, said first
     topic = bare_topic(args.topic)
 
+    closed = False
+
     def on_raw(raw: RawMessage) -> None:
-        nonlocal count
-        if raw.topic != topic:
+        nonlocal count, closed
+        if raw.topic != topic or closed:
             return
         count += 1
-        if args.raw:
-            print(json.dumps({"topic": raw.topic, "header": msgspec.to_builtins(raw.header),
-                              "payload_hex": raw.payload.hex(), "blobs": [len(b) for b in raw.blobs]}))
-        else:
-            body = _to_builtins(raw)
-            print(f"--- {raw.topic} [{raw.header.type}] seq={raw.header.seq} from {raw.header.node}")
-            print(yaml.safe_dump(body, sort_keys=False, default_flow_style=None, width=120).rstrip())
-        sys.stdout.flush()
+        try:
+            if args.raw:
+                print(json.dumps({"topic": raw.topic, "header": msgspec.to_builtins(raw.header),
+                                  "payload_hex": raw.payload.hex(), "blobs": [len(b) for b in raw.blobs]}))
+            else:
+                body = _to_builtins(raw)
+                print(f"--- {raw.topic} [{raw.header.type}] seq={raw.header.seq} from {raw.header.node}")
+                print(yaml.safe_dump(body, sort_keys=False, default_flow_style=None, width=120).rstrip())
+            sys.stdout.flush()
+        except BrokenPipeError:  # the reader went away (`| head`): done, as any CLI tool would be
+            closed = True
+            _silence_stdout()
 
     with tool_node(args, "echo") as node:
         node.subscribe_raw(topic, on_raw)
         watch = GraphWatch(node, args, topic)
-        while (not args.count or count < args.count) and time.monotonic() < deadline:
+        while (not args.count or count < args.count) and time.monotonic() < deadline and not closed:
             node.spin_once(0.1)
             if not count:
                 watch.check()
+    if closed:
+        return 0
     if args.count and count < args.count:
         raise PalpaError(f"{topic}: got {count} of {args.count} messages before the timeout")
     return 0

@@ -12,10 +12,12 @@ import math
 from collections.abc import Mapping
 from typing import Any, TextIO
 
-import msgspec
 from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, Progress, TaskID, TaskProgressColumn, TextColumn
+
+from palpa.errors import DecodeError
+from palpa.net.wire import decode_any
 
 __all__ = ["ProgressView", "progress_fields"]
 
@@ -23,8 +25,8 @@ __all__ = ["ProgressView", "progress_fields"]
 def progress_fields(payload: bytes) -> dict[str, Any] | None:
     """The progress fields of a msgpack payload, or None if it is not a map with a numeric ``progress``."""
     try:
-        data = msgspec.msgpack.decode(payload)
-    except msgspec.DecodeError:
+        data = decode_any(payload)
+    except DecodeError:
         return None
     if not isinstance(data, dict):
         return None

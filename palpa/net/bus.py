@@ -25,20 +25,28 @@ import contextlib
 import logging
 import os
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import zmq
 import zmq.auth
 from zmq.auth.thread import ThreadAuthenticator
 
 from palpa.errors import BusError
+from palpa.lograte import LogThrottle
 from palpa.net.address import BusAddress, is_loopback_host
 from palpa.net.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
 from palpa.net.keys import ClientKeys, load_secret_key
-from palpa.net.latch import DEFAULT_LATCH_MAX_BYTES, DEFAULT_LATCH_MAX_ENTRIES, LatchCache
-from palpa.net.wire import MAX_MSG_BYTES
+from palpa.net.latch import (
+    BUS_OWNER,
+    DEFAULT_LATCH_MAX_BYTES,
+    DEFAULT_LATCH_MAX_ENTRIES,
+    LatchCache,
+    Watchers,
+)
+from palpa.net.wire import MAX_MSG_BYTES, MAX_TOPIC_BYTES
 
 __all__ = ["Bus", "CurveServer", "is_loopback_endpoint"]
 
@@ -87,7 +95,12 @@ class Bus:
         self._cache = LatchCache(frozenset(t.encode() for t in self._latched_topics), latch_max_bytes,
                                  latch_max_entries)
         self._cache_lock = threading.Lock()
-        self._watchers: dict[bytes, set[bytes]] = {}
+        self._watchers = Watchers()
+        self._throttle = LogThrottle(log)
+        self.watch_refused = 0
+        """Latched GETs whose watch was refused (prefix too long, or too long for the watcher table)."""
+        self.internal_errors = 0
+        """Latch requests whose handling raised (counted and logged; the cache thread goes on)."""
         self.address: BusAddress | None = None
         self.clients: ClientKeys | None = None
         """The authorised CURVE client keys (None without CURVE); ``clients.reload()`` rereads the folder."""
@@ -214,14 +227,24 @@ class Bus:
                     except zmq.Again:
                         break
                     if len(frames) >= 3 and frames[0] in exact:
-                        self._store(None, frames[0], frames[1:])
+                        self._guarded(self._store, None, frames[0], frames[1:])
             if router in events:
                 while True:
                     try:
                         frames = router.recv_multipart(zmq.NOBLOCK)
                     except zmq.Again:
                         break
-                    self._handle_latch(router, frames)
+                    self._guarded(self._handle_latch, router, frames)
+
+    def _guarded(self, handle: Callable[..., object], *args: Any) -> None:
+        """Run one request's handling; whatever it raises is counted and logged, and the cache thread goes on
+        (everything the graph's readiness, services and late joiners need runs on it)."""
+        try:
+            handle(*args)
+        except Exception as exc:  # noqa: BLE001 - no input may end the cache thread
+            self.internal_errors += 1
+            self._throttle.event("internal", logging.ERROR, "latch: error handling a request (%d so far): %r",
+                                 self.internal_errors, exc)
 
     def _handle_latch(self, router: zmq.Socket[bytes], frames: list[bytes]) -> None:
         if len(frames) < 2:
@@ -232,23 +255,29 @@ class Bus:
         if verb == b"SET":
             if not self._store(router, topic, frames[3:], ident):
                 return
-            for prefix, idents in list(self._watchers.items()):
-                if topic.startswith(prefix):
-                    for watcher in list(idents):
-                        if watcher != ident:
-                            self._send(router, prefix, watcher, [b"VAL", topic, *frames[3:]])
+            for prefix, watcher in self._watchers.matching(topic):
+                if watcher != ident:
+                    self._send(router, prefix, watcher, [b"VAL", topic, *frames[3:]])
         elif verb == b"GET":
-            self._watchers.setdefault(topic, set()).add(ident)
+            if len(topic) > MAX_TOPIC_BYTES:
+                self.watch_refused += 1
+                self._refuse(router, ident, topic, f"GET prefix of {len(topic)} bytes (at most {MAX_TOPIC_BYTES})")
+                return
+            evicted_before = self._watchers.evicted
+            why = self._watchers.add(topic, ident)
+            if why is not None:
+                self.watch_refused += 1
+                self._refuse(router, ident, topic, f"watcher table {why}")
+            elif self._watchers.evicted != evicted_before:
+                self._throttle.event("watch-evicted", logging.WARNING, "latch: watcher table full (%d watches): "
+                                     "dropped the oldest watch of the client holding the most (%d so far)",
+                                     len(self._watchers), self._watchers.evicted)
             with self._cache_lock:
                 hits = self._cache.matching(topic)
             for cached_topic, value in hits:
                 self._send(router, topic, ident, [b"VAL", cached_topic, *value])
         elif verb == b"UNWATCH":
-            watching = self._watchers.get(topic)
-            if watching is not None:
-                watching.discard(ident)
-                if not watching:
-                    del self._watchers[topic]
+            self._watchers.discard(topic, ident)
         elif verb == b"PING":
             self._send(router, b"", ident, [b"PONG", topic])
         else:
@@ -260,29 +289,38 @@ class Bus:
         direct CURVE publishers let in exactly these (palpa.net.direct)."""
         value = [b"", listing]
         with self._cache_lock:
-            why = self._cache.put(CLIENT_KEYS_TOPIC, value)
+            why, _ = self._cache.put(CLIENT_KEYS_TOPIC, value)
         if why is not None:
             log.error("latch: cannot cache the authorised client keys: %s", why)
             return
-        for prefix, idents in list(self._watchers.items()):
-            if CLIENT_KEYS_TOPIC.startswith(prefix):
-                for watcher in list(idents):
-                    self._send(router, prefix, watcher, [b"VAL", CLIENT_KEYS_TOPIC, *value])
+        for prefix, watcher in self._watchers.matching(CLIENT_KEYS_TOPIC):
+            self._send(router, prefix, watcher, [b"VAL", CLIENT_KEYS_TOPIC, *value])
 
-    def _store(self, router: zmq.Socket[bytes] | None, topic: bytes, value: list[bytes], ident: bytes = b"") -> bool:
-        """Check and cache one value; a refusal is counted, logged and (to a SET's sender) answered with
-        ``ERR topic reason``."""
+    def _store(self, router: zmq.Socket[bytes] | None, topic: bytes, value: list[bytes],
+               ident: bytes = BUS_OWNER) -> bool:
+        """Check and cache one value (owned by ``ident``; a captured one by the bus); a refusal is counted, logged
+        and (to a SET's sender) answered with ``ERR topic reason``."""
+        evicted: list[bytes] = []
         with self._cache_lock:
-            why = self._cache.check(topic, value) or self._cache.put(topic, value)
+            why = self._cache.check(topic, value)
+            if why is None:
+                why, evicted = self._cache.put(topic, value, ident)
             if why is not None:
                 self._cache.refused += 1
-                refused = self._cache.refused
+        if evicted:
+            self._throttle.event("evicted", logging.WARNING, "latch: cache full: evicted %d value(s) of the client "
+                                 "holding the most (last %r) to keep %r", len(evicted), evicted[-1][:80], topic[:80])
         if why is None:
             return True
-        log.warning("latch: refused SET %r (%d refused so far): %s", topic[:80], refused, why)
-        if router is not None:
-            self._send(router, b"", ident, [b"ERR", topic[:1024], why.encode()])
+        self._refuse(router, ident, topic, why)
         return False
+
+    def _refuse(self, router: zmq.Socket[bytes] | None, ident: bytes, topic: bytes, why: str) -> None:
+        """Log a refused request (throttled) and answer its sender ``ERR topic reason``."""
+        self._throttle.event("refused", logging.WARNING, "latch: refused %r (%d refused so far): %s", topic[:80],
+                             self._cache.refused, why)
+        if router is not None:
+            self._send(router, b"", ident, [b"ERR", topic[:MAX_TOPIC_BYTES], why.encode()])
 
     @property
     def latch_refused(self) -> int:
@@ -294,7 +332,7 @@ class Bus:
         try:
             router.send_multipart([ident, *frames], zmq.NOBLOCK)
         except zmq.ZMQError:  # the asker is gone (or not keeping up): forget it
-            self._watchers.get(prefix, set()).discard(ident)
+            self._watchers.discard(prefix, ident)
 
     def cached_topics(self) -> list[str]:
         """Topics with a cached last value."""

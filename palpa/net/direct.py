@@ -41,6 +41,7 @@ import zmq
 from zmq.auth.thread import ThreadAuthenticator
 
 from palpa import env as palpa_env
+from palpa.lograte import LogThrottle
 from palpa.net.address import BusAddress, is_loopback_host
 from palpa.net.wire import Header, encode_header
 
@@ -63,7 +64,6 @@ CLIENT_KEYS_TOPIC = b"_palpa/curve/clients"
 writes under ``_palpa/curve/``."""
 log = logging.getLogger("palpa.net.transport")
 _IPC_MAX = 100  # sun_path holds 107 bytes
-_REFUSAL_LOG_INTERVAL_S = 5.0
 _counter = itertools.count()
 
 
@@ -189,19 +189,15 @@ class _AllowedKeys:
     def __init__(self) -> None:
         self.keys: frozenset[bytes] | None = None
         self.refused = 0
-        self._logged: dict[bytes, float] = {}
+        self._throttle = LogThrottle(log)
 
     def callback(self, domain: str, z85_key: bytes) -> bool:
         if self.keys is not None and z85_key in self.keys:
             return True
         self.refused += 1
-        now = time.monotonic()
-        if now - self._logged.get(z85_key, -_REFUSAL_LOG_INTERVAL_S) >= _REFUSAL_LOG_INTERVAL_S:
-            if len(self._logged) > 1000:  # a client trying many keys must not grow this without bound
-                self._logged.clear()
-            self._logged[z85_key] = now
-            log.warning("direct topic socket: refused a subscriber with key %s (not authorised on the bus; %d "
-                        "refusals so far)", z85_key.decode(errors="replace"), self.refused)
+        self._throttle.event("refused", logging.WARNING, "direct topic socket: refused a subscriber with key %s "
+                             "(not authorised on the bus; %d refusals so far)", z85_key.decode(errors="replace"),
+                             self.refused)
         return False
 
 

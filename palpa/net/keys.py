@@ -7,17 +7,16 @@ import logging
 import os
 import stat
 import threading
-import time
 from pathlib import Path
 
 import zmq.auth
 
 from palpa.errors import BusError, PalpaError
+from palpa.lograte import LogThrottle
 
 __all__ = ["ClientKeys", "create_key_pair", "load_secret_key"]
 
 log = logging.getLogger("palpa.net.bus.auth")
-_DENIAL_LOG_INTERVAL_S = 5.0
 
 
 def create_key_pair(directory: Path, name: str, *, force: bool = False) -> tuple[Path, Path]:
@@ -64,7 +63,7 @@ class ClientKeys:
     def __init__(self, directory: Path) -> None:
         self.directory = directory
         self._keys: frozenset[bytes] = frozenset()
-        self._last_denial: dict[bytes, float] = {}
+        self._throttle = LogThrottle(log)
         self._lock = threading.Lock()
         self.refused = 0
         """Handshakes refused so far."""
@@ -88,16 +87,13 @@ class ClientKeys:
         return b"\n".join(sorted(self._keys))
 
     def callback(self, domain: str, z85_key: bytes) -> bool:
-        """pyzmq's hook: True lets the client in; a refusal is counted and logged (at most every few seconds
-        per key)."""
+        """pyzmq's hook: True lets the client in; a refusal is counted and logged, one line per
+        :data:`palpa.lograte.LOG_INTERVAL_S` whatever the keys (each line says how many it stands for)."""
         if z85_key in self._keys:
             return True
         with self._lock:
             self.refused += 1
-            now = time.monotonic()
-            if now - self._last_denial.get(z85_key, -_DENIAL_LOG_INTERVAL_S) >= _DENIAL_LOG_INTERVAL_S:
-                self._last_denial[z85_key] = now
-                log.warning("CURVE: refused a client with unknown public key %s (%d refusals so far; add its "
-                            ".key file to %s and send the bus SIGHUP to let it in)",
-                            z85_key.decode(errors="replace"), self.refused, self.directory)
+            self._throttle.event("refused", logging.WARNING, "CURVE: refused a client with unknown public key %s "
+                                 "(%d refusals so far; add its .key file to %s and send the bus SIGHUP to let it in)",
+                                 z85_key.decode(errors="replace"), self.refused, self.directory)
         return False

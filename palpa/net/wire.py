@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Annotated, Any
 
@@ -33,15 +34,19 @@ from palpa.errors import DecodeError
 
 __all__ = [
     "COUNTER_MAX",
+    "DECODE_ERRORS",
+    "MAX_NESTING",
     "Envelope",
     "MAX_BATCH",
     "MAX_MSG_BYTES",
     "MAX_TOPIC_BYTES",
     "WIRE_VERSION",
+    "MAX_TRACKED_PUBLISHERS",
     "Header",
     "HeaderTemplate",
     "SequenceTracker",
     "TopicStats",
+    "decode_any",
     "decode_header",
     "encode_header",
     "msgpack_array",
@@ -63,6 +68,53 @@ MAX_BATCH = 10_000
 COUNTER_MAX = 2**63 - 1
 """Receive counters saturate here: any msgpack reader (int64 or uint64) reads them, and no bytes a peer sends
 can push a counter past what a heartbeat encodes."""
+
+
+MAX_NESTING = 64
+"""Deepest nesting of arrays and maps a payload decoded without its type may have (:func:`decode_any`: the bus
+cache's check of every SET, ``bag export``, ``topic echo``, ``service call``'s feedback, viz, the launch's progress
+view); deeper is a :class:`DecodeError`. Typed decodes are bounded by their type; see :data:`DECODE_ERRORS`."""
+
+DECODE_ERRORS = (msgspec.ValidationError, msgspec.DecodeError, RecursionError, UnicodeDecodeError)
+"""What decoding untrusted bytes with msgspec may raise, typed or not; callers treat each as one more malformed
+message. Besides msgspec's own: a string that is not UTF-8 raises UnicodeDecodeError, and a typed decode skips
+unknown fields recursively in C, so one nested deeper than the interpreter's recursion limit (1000) raises
+RecursionError."""
+
+_CONTAINER_BYTES = bytes([*range(0x80, 0xA0), 0xDC, 0xDD, 0xDE, 0xDF])
+_NOT_CONTAINER_BYTES = bytes(b for b in range(256) if b not in _CONTAINER_BYTES)
+_CONTAINER_TYPES = frozenset((dict, list, tuple))
+_any_decoder = msgspec.msgpack.Decoder()
+
+
+def _deeper_than(obj: Any, limit: int) -> bool:
+    """Whether decoded ``obj`` nests containers more than ``limit`` deep (iterative: no recursion to exhaust)."""
+    stack: list[tuple[Any, int]] = [(obj, 1)]
+    while stack:
+        item, depth = stack.pop()
+        children = [*item.keys(), *item.values()] if isinstance(item, dict) else item
+        if _CONTAINER_TYPES.isdisjoint(set(map(type, children))):  # the common leaf: numbers, strings (C speed)
+            continue
+        if depth >= limit:
+            return True
+        stack.extend((child, depth + 1) for child in children if isinstance(child, (dict, list, tuple)))
+    return False
+
+
+def decode_any(data: bytes, limit: int = MAX_NESTING) -> Any:
+    """Decode msgpack without a type (maps, arrays, scalars); raises :class:`DecodeError` when ``data`` is not
+    one msgpack object or nests arrays and maps more than ``limit`` deep (whatever the interpreter's stack)."""
+    try:
+        obj = _any_decoder.decode(data)
+    except RecursionError:
+        raise DecodeError(f"nested deeper than {limit} levels") from None
+    except (msgspec.DecodeError, UnicodeDecodeError) as exc:
+        raise DecodeError(f"not msgpack: {exc}") from None
+    # each level of nesting needs a container header byte: fewer such bytes than the limit cannot be too deep
+    if isinstance(obj, (dict, list)) and len(data.translate(None, _NOT_CONTAINER_BYTES)) > limit \
+            and _deeper_than(obj, limit):
+        raise DecodeError(f"nested deeper than {limit} levels")
+    return obj
 
 
 class Header(msgspec.Struct, frozen=True, omit_defaults=True, gc=False):
@@ -126,7 +178,7 @@ def decode_header(frame: bytes) -> Header:
     """Parse frame 1; raises :class:`DecodeError` naming the problem when it is not a valid header."""
     try:
         return _header_decoder.decode(frame)
-    except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+    except DECODE_ERRORS as exc:
         raise DecodeError(f"bad envelope header: {exc}") from None
 
 
@@ -197,7 +249,7 @@ def parse_envelope(frames: list[bytes]) -> Envelope:
     if kind & 0xF0 == 0x90 or kind == 0xDC or kind == 0xDD:  # a msgpack array: a batch
         try:
             headers = _batch_decoder.decode(head)
-        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        except DECODE_ERRORS as exc:
             raise DecodeError(f"bad batch header: {exc}") from None
         if not headers or len(headers) > MAX_BATCH:
             raise DecodeError(f"batch of {len(headers)} messages (1..{MAX_BATCH})")
@@ -211,7 +263,7 @@ def split_batch(envelope: Envelope) -> list[bytes]:
     """The payload bytes of each message of a batch (each a complete msgpack object)."""
     try:
         items = _raw_items_decoder.decode(envelope.payload)
-    except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+    except DECODE_ERRORS as exc:
         raise DecodeError(f"bad batch payload array: {exc}") from None
     if len(items) != len(envelope.headers):
         raise DecodeError(f"batch header lists {len(envelope.headers)} messages but {len(items)} payloads follow")
@@ -256,13 +308,38 @@ class TopicStats:
         }
 
 
+MAX_TRACKED_PUBLISHERS = 16_384
+"""(topic, publisher) pairs one :class:`SequenceTracker` remembers. Past it the least recently heard pair is
+forgotten (counted in ``forgotten``): its next message counts as its first, so gaps across the forgetting go
+uncounted. A graph has tens of nodes; only a flood of invented publisher names reaches it."""
+
+
 @dataclass
 class SequenceTracker:
-    """Tracks the last sequence number per (topic, publisher) and classifies each arrival."""
+    """Tracks the last sequence number per (topic, publisher) and classifies each arrival. Holds at most
+    ``max_entries`` pairs, forgetting the least recently heard."""
 
     _last: dict[tuple[str, str], int] = field(default_factory=dict)
     _inc: dict[tuple[str, str], int] = field(default_factory=dict)
     """The incarnation last seen per (topic, publisher), where one was given."""
+    max_entries: int = MAX_TRACKED_PUBLISHERS
+    forgotten: int = 0
+    """Pairs forgotten to stay within ``max_entries``."""
+    on_forget: Callable[[str, str], object] | None = None
+    """Told (topic, publisher) of each pair forgotten (a receiver logs it)."""
+
+    def _take(self, key: tuple[str, str]) -> int | None:
+        """Remove and return the last sequence number of ``key`` (the caller puts it back, which makes it the most
+        recently heard); make room for one more pair when ``key`` is new."""
+        last = self._last.pop(key, None)
+        if last is None and len(self._last) >= self.max_entries:
+            oldest = next(iter(self._last))
+            del self._last[oldest]
+            self._inc.pop(oldest, None)
+            self.forgotten += 1
+            if self.on_forget is not None:
+                self.on_forget(*oldest)
+        return last
 
     def observe(self, topic: str, node: str, seq: int, stats: TopicStats, inc: int = 0) -> bool:
         """Record one arrival; returns False when it is a duplicate that should be dropped.
@@ -272,7 +349,7 @@ class SequenceTracker:
         a restart whatever its sequence number.
         """
         key = (topic, node)
-        last = self._last.get(key)
+        last = self._take(key)
         if self._inc.get(key, 0) != inc:
             self._inc[key] = inc
             if last is not None:
@@ -281,6 +358,7 @@ class SequenceTracker:
         if last is not None:
             if seq == last:
                 stats.duplicates = min(COUNTER_MAX, stats.duplicates + 1)
+                self._last[key] = last
                 return False
             if seq < last:
                 stats.restarts = min(COUNTER_MAX, stats.restarts + 1)
@@ -296,13 +374,12 @@ class SequenceTracker:
         incarnation (the caller then goes message by message)."""
         key = (topic, node)
         last = self._last.get(key)
+        if last is not None and (self._inc.get(key, 0) != inc or first <= last):
+            return False
+        self._take(key)
         if self._inc.get(key, 0) != inc:
-            if last is not None:
-                return False
             self._inc[key] = inc
         if last is not None:
-            if first <= last:
-                return False
             stats.gaps = min(COUNTER_MAX, stats.gaps + first - last - 1)
         self._last[key] = first + n - 1
         stats.received += n
@@ -315,3 +392,5 @@ class SequenceTracker:
         last = self._last.get(key)
         return last is not None and last >= seq and self._inc.get(key, 0) == inc
 
+    def __len__(self) -> int:
+        return len(self._last)

@@ -14,14 +14,15 @@ import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
-import msgspec
-
 from palpa.errors import DecodeError
+from palpa.lograte import LogThrottle
 from palpa.net.transport import Delivery
 from palpa.net.wire import (
     COUNTER_MAX,
+    DECODE_ERRORS,
     MAX_MSG_BYTES,
     MAX_TOPIC_BYTES,
+    MAX_TRACKED_PUBLISHERS,
     Envelope,
     Header,
     SequenceTracker,
@@ -67,14 +68,25 @@ class Receiver:
         self.raw: list[_RawSubscription] = []
         self.routes: dict[bytes, _Route | None] = {}
         self.raw_stats: dict[str, TopicStats] = {}
-        self._tracker = SequenceTracker()
-        self._raw_tracker = SequenceTracker()
+        self._throttle = LogThrottle(log)
+        self._tracker = SequenceTracker(on_forget=self._forgot)
+        self._raw_tracker = SequenceTracker(on_forget=self._forgot)
         self._last_error_log: dict[str, int] = {}
         self.max_bytes: int = max_bytes or MAX_MSG_BYTES
         self.on_instant: Callable[[int], object] | None = None
         """Called with ``Header.at`` of every live (not cached) envelope that has one, before it is handled."""
         self.internal_errors = 0
         """Envelopes whose handling raised where nothing should (a receive-path bug): counted, logged, survived."""
+
+    def _forgot(self, topic: str, node: str) -> None:
+        self._throttle.event("forgot", logging.WARNING, "sequence state full (%d publisher-topic pairs): forgot %r "
+                             "on %r, the least recently heard (its next message counts as its first)",
+                             MAX_TRACKED_PUBLISHERS, node, topic)
+
+    @property
+    def publishers_forgotten(self) -> int:
+        """(topic, publisher) pairs whose sequence state was forgotten to stay within MAX_TRACKED_PUBLISHERS."""
+        return self._tracker.forgotten + self._raw_tracker.forgotten
 
     def add(self, key: bytes, sub: Subscription[Any]) -> None:
         """Deliver envelopes on exactly topic ``key`` to ``sub``."""
@@ -188,7 +200,7 @@ class Receiver:
             return False
         try:
             msgs = sub.batch_decoder.decode(env.payload)
-        except (msgspec.ValidationError, msgspec.DecodeError):
+        except DECODE_ERRORS:
             return False
         if len(msgs) != n or not self._tracker.observe_run(topic, first.node, first.seq, n, sub.stats, first.inc):
             return False
@@ -220,7 +232,7 @@ class Receiver:
             return
         try:
             msg = sub.decoder.decode(payload)
-        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        except DECODE_ERRORS as exc:
             self.count_error(topic, sub.stats, f"{header.type}: {exc}")
             return
         # sequence numbers count only once the message is valid: garbage cannot fake gaps or restarts

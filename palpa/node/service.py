@@ -35,7 +35,7 @@ import msgspec
 
 from palpa.errors import PalpaError, ParamError
 from palpa.message import Message
-from palpa.net.wire import Header
+from palpa.net.wire import DECODE_ERRORS, Header
 from palpa.node.endpoints import RawMessage
 
 if TYPE_CHECKING:
@@ -233,7 +233,7 @@ class Service(Generic[Q, R]):
             return
         try:
             request = self._decoder.decode(raw.payload)
-        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        except DECODE_ERRORS as exc:
             responder.fail("bad_request", f"{self.request_type.type_name}: {exc}")
             return
         # a handler waiting on a blocking call may see this service handle another request meanwhile

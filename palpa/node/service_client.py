@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, Generic, TypeVar
 import msgspec
 
 from palpa.message import Message
-from palpa.net.wire import Header
+from palpa.net.wire import DECODE_ERRORS, Header
 from palpa.node.endpoints import RawMessage, Timer
 from palpa.node.service import (
     DEFAULT_TIMEOUT_S,
@@ -187,7 +187,7 @@ class Client(Generic[Q, R]):
             return
         try:
             self._known[self.name] = _info_decoder.decode(raw.payload)
-        except (msgspec.ValidationError, msgspec.DecodeError):
+        except DECODE_ERRORS:
             return
         self._send_unsent()
 
@@ -241,7 +241,7 @@ class Client(Generic[Q, R]):
             else:
                 fut._finish(None, HandlerError(f"service {self.name!r} replied {raw.header.type}, "
                                                f"expected {self.response_type.type_name}"))
-        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        except DECODE_ERRORS as exc:
             fut._finish(None, HandlerError(f"service {self.name!r}: undecodable reply: {exc}"))
 
     def _tick(self) -> None:
@@ -275,7 +275,7 @@ def discover(node: NodeApi, name: str, wait_s: float) -> ServiceInfo:
 
     def on_info(raw: RawMessage) -> None:
         if raw.topic == topic and raw.header.type == ServiceInfo.type_name:
-            with contextlib.suppress(msgspec.ValidationError, msgspec.DecodeError):
+            with contextlib.suppress(*DECODE_ERRORS):
                 known[name] = _info_decoder.decode(raw.payload)
 
     node.subscribe_raw(topic, on_info)

@@ -19,7 +19,9 @@ An MCAP file written by palpa holds:
 * **metadata** records ``palpa.recording`` (palpa version, host, recorder parameters, split index),
   ``palpa.nodes`` (node name -> JSON of its last heartbeat: pid, host, publishes, subscribes; rewritten when the
   graph changes, the last one wins), ``palpa.drops`` (topic -> JSON counters; written when a file is closed, or by
-  ``palpa bag recover``) and ``palpa.recovery`` (only in recovered files);
+  ``palpa bag recover``), ``palpa.refused`` (what the recorder refused or forgot while writing this file, by
+  reason -> count, see docs/limits.md; written when a file is closed) and ``palpa.recovery`` (only in recovered
+  files);
 * the resolved launch file as the attachment ``launch.resolved.yaml`` when the run came from one.
 """
 
@@ -49,6 +51,7 @@ __all__ = [
     "MD_NODES",
     "MD_RECORDING",
     "MD_RECOVERY",
+    "MD_REFUSED",
     "MESSAGE_ENCODING",
     "META_BLOBS_OF",
     "META_LATCHED",
@@ -80,6 +83,7 @@ MD_RECORDING = "palpa.recording"
 MD_NODES = "palpa.nodes"
 MD_DROPS = "palpa.drops"
 MD_RECOVERY = "palpa.recovery"
+MD_REFUSED = "palpa.refused"
 
 LAUNCH_ATTACHMENT = "launch.resolved.yaml"
 BLOBS_TOPIC_PREFIX = "_palpa/blobs/"

@@ -27,7 +27,8 @@ import foxglove
 import msgspec
 from foxglove.websocket import Capability, ChannelView, Client, ClientChannel, ServerListener
 
-from palpa.errors import PalpaError
+from palpa.errors import DecodeError, PalpaError
+from palpa.net.wire import decode_any
 from palpa.viz.schema import foxglove_schema
 
 __all__ = ["ClientStats", "SUBPROTOCOL", "SdkServer", "STATS_TOPIC", "TopicStats"]
@@ -39,7 +40,6 @@ STATS_TOPIC = "_palpa/viz/stats"
 
 log = logging.getLogger("palpa.viz")
 _json = msgspec.json.Encoder()
-_msgpack = msgspec.msgpack.Decoder()
 
 
 @dataclass
@@ -193,8 +193,8 @@ class SdkServer:
     def _log(chan: _Channel, payload: bytes, stamp_ns: int) -> bool:
         """Transcode msgpack -> JSON and hand it to the SDK; False (counted) for a payload that is not msgpack."""
         try:
-            data = _json.encode(_msgpack.decode(payload))
-        except (msgspec.DecodeError, msgspec.EncodeError, TypeError, ValueError):
+            data = _json.encode(decode_any(payload))
+        except (DecodeError, msgspec.EncodeError, TypeError, ValueError):
             chan.stats.decode_errors += 1
             return False
         chan.fox.log(data, log_time=stamp_ns)
