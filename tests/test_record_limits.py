@@ -28,7 +28,13 @@ TEXT = msgspec.msgpack.encode(Text(text="hi"))
 
 def frames(seq: int, stamp: int = 1, node: str = "ext", topic: str = "chatter", latched: bool = False,
            payload: bytes = TEXT, blobs: tuple[bytes, ...] = ()) -> list[bytes]:
-    header = encode_header(Header(type="Text", seq=seq, stamp=stamp, node=node, latched=latched))
+    """A message's frames as any client may send them: a hostile one encodes a negative stamp as a plain msgpack
+    int (palpa's own encode_header writes uint64 only and refuses it)."""
+    if stamp >= 0:
+        header = encode_header(Header(type="Text", seq=seq, stamp=stamp, node=node, latched=latched))
+    else:
+        fields = {"type": "Text", "seq": seq, "stamp": stamp, "node": node, **({"latched": True} if latched else {})}
+        header = msgspec.msgpack.encode(fields)
     return [topic.encode(), header, payload, *blobs]
 
 
