@@ -159,9 +159,10 @@ def test_a_map_written_before_its_scan_is_done_says_how_far_the_scan_got(tmp_pat
     why = "pressure/state silent for more than 500 ms"
     expected = {"done": "", "probes": "",
                 "fault": f"the scan did not finish: it ended fault at 50 % of its path ({why})",
-                "saved": "the scan did not finish: last heard scanning at 50 % of its path"}
+                "saved": "the scan did not finish: last heard scanning at 50 % of its path",
+                "ctrl-c": "the scan did not finish: last heard scanning at 50 % of its path"}
     for out, states in (("done", ("scanning", "done")), ("fault", ("scanning", "fault")), ("probes", ("idle",)),
-                        ("saved", ("scanning",))):
+                        ("saved", ("scanning",)), ("ctrl-c", ("scanning",))):
         h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / out)})
         h.publish("robot/plan", plan)
         for seq in range(1, 11):
@@ -176,6 +177,40 @@ def test_a_map_written_before_its_scan_is_done_says_how_far_the_scan_got(tmp_pat
             h.close()  # the node stops: what no file holds yet is written
         with np.load(tmp_path / out / "map.npz") as grid:
             assert (str(grid["incomplete"]) if "incomplete" in grid else "") == expected[out]
-        assert h.node.exit_code == 0  # what it did receive is all there: the scanner's own exit says the fault
+        # a final map of part of a scan fails the node, whatever stopped the scan (a fault, Ctrl-C): the launch
+        # cannot end clean with it; a map saved mid-scan is not final
+        assert h.node.exit_code == (0 if out in ("done", "probes", "saved") else 1), out
         if out == "saved":
-            h.close()
+            h.close()  # stopped mid-scan after the save: nothing new to write, still only part of the scan
+            assert h.node.exit_code == 1
+
+
+def test_estimates_that_stop_coming_mid_scan_leave_the_map_incomplete_and_failed(tmp_path: Path) -> None:
+    """The estimator killed mid-scan: the scan runs on to its end, but the map holds only its first part. The map
+    notices by the scan's progress (no estimate, valid or not, over a stretch of the path), not by who died: it says
+    over which part of the path none came, and fails. Estimates that keep coming (invalid ones too: the probe off
+    the tissue between lines) are a complete map; a stretch without them that ends is still a hole."""
+    plan = ScanPlan(stamp_ns=0, mode="sweep", region_mm=(0.0, 0.0, 20.0, 20.0), spacing_mm=2.0, speed_mm_s=10.0,
+                    lines=10, estimated_duration_s=20.0, waypoints=[])
+    cases = {"complete": (lambda p: True, ""),
+             "killed": (lambda p: p < 0.195,
+                        "no stiffness estimate came from 19 % to 100 % of the scan's path (did the estimator stop?)"),
+             "hole": (lambda p: not 0.4 <= p < 0.6,
+                      "no stiffness estimate came from 39 % to 60 % of the scan's path (did the estimator stop?)")}
+    for out, (alive, why) in cases.items():
+        h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / out)})
+        h.publish("robot/plan", plan)
+        for i in range(101):  # 20 s of scanning, the status at 5 Hz, estimates at 10 Hz while the estimator lives
+            progress = i / 100
+            h.publish("robot/scan_status", ScanStatus(stamp_ns=h.clock.now_ns(), state="scanning", line=i // 10,
+                                                      lines=10, progress=progress, eta_s=0.0))
+            for _ in range(2):
+                if alive(progress):
+                    h.publish("stiffness/sample", sample(progress * 20, 5.0, 26.0, valid=i % 3 != 0))
+                h.advance(0.1)
+        h.publish("robot/scan_status", ScanStatus(stamp_ns=h.clock.now_ns(), state="done", line=10, lines=10,
+                                                  progress=1.0, eta_s=0.0))
+        with np.load(tmp_path / out / "map.npz") as grid:
+            assert (str(grid["incomplete"]) if "incomplete" in grid else "") == why, out
+        assert h.node.exit_code == (1 if why else 0), out
+        h.close()

@@ -77,7 +77,8 @@ def test_a_respawned_node_or_a_failure_reported_on_stop_never_ends_the_launch_cl
     out = proc.output()
     assert "restarted mid-run (data lost while down): phoenix" in out
     assert re.search(r"! mapper\s+stopped on SIGINT, reporting failure \(exit code 4\)", out), out
-    assert "failed: mapper" in out
+    # the summary says why, in the node's own words (its last ERROR line)
+    assert "failed: mapper (palpa.node.mapper: the map is INCOMPLETE and may be wrong: stopped at 20 %)" in out
 
 
 def test_a_killed_recorder_stops_a_recording_launch_and_leaves_a_readable_file(procs: ProcessGroup,

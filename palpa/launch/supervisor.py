@@ -277,7 +277,7 @@ class Supervisor:
             p.outcome = {1: "stopped on SIGINT", 2: "needed SIGTERM", 3: "needed SIGKILL"}[p.stage]
             if 0 < code < 128:  # it stopped when asked, but reports that its work failed (an incomplete map);
                 # 128+N is the signal's own exit status (stopped before its handler was in place), not a report
-                p.failed = True
+                p.failed, p.why = True, p.last_error()
                 p.outcome += f", reporting failure ({exit_text(code)})"
             self._screen.say(f"{p.spec.name} {p.outcome} ({exit_text(code)})", "WARNING" if p.escalated else "INFO")
             return
@@ -307,6 +307,7 @@ class Supervisor:
             return
         p.state = "done"
         p.failed = code != 0
+        p.why = p.last_error() if p.failed else ""
         gave_up = spec.respawn and code != 0
         if gave_up:
             p.outcome = f"gave up after {p.failures} retries (last: {exit_text(code)})"
