@@ -11,7 +11,9 @@ same way once the others are gone, then the bus. A second Ctrl-C moves every sto
 at once. The launcher names each node that needed SIGTERM or SIGKILL.
 
 Exit code: the required node's exit code when one ended the launch (128+N if killed by signal N); otherwise 0,
-unless a node failed (exited non-zero, or gave up respawning, without being asked to stop): then 1.
+unless a node failed (exited non-zero, or gave up respawning, without being asked to stop): then 1. A simulated
+graph whose time stood still for its clock's ``frozen_after_s`` (wall seconds) is ended with 1, and so is one
+stopped by Ctrl-C while its time stood still (palpa.launch.clockwatch).
 
 This module decides (when to spawn, respawn, stop, escalate, end the launch); palpa.launch.nodeproc keeps each
 node's record, reads its output and carries out its staged stop, palpa.launch.signals brings the signals into the
@@ -34,6 +36,7 @@ from palpa.address import BusAddress
 from palpa.bus import Bus
 from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
+from palpa.launch.clockwatch import ClockWatch
 from palpa.launch.nodeproc import REAP_GRACE_S, NodeProc
 from palpa.launch.output import Screen
 from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
@@ -43,7 +46,7 @@ from palpa.launch.reaper import Reaper
 from palpa.launch.signals import SignalInbox
 from palpa.launch.summary import exit_text, report_hidden, summarize
 from palpa.node import Node, RawMessage
-from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
+from palpa.runtime_msgs import CLOCK_TOPIC, HEARTBEAT_TOPIC, ClockTick, Heartbeat
 
 __all__ = ["Supervisor", "exit_text"]
 
@@ -84,6 +87,7 @@ class Supervisor:
         self._use_reaper = reaper
         self._announce = announce
         self._reaper: Reaper | None = None
+        self._clock_watch = ClockWatch.for_plan(plan)
 
     # -- public ----------------------------------------------------------------------------------------
     def request_stop(self) -> None:
@@ -160,10 +164,13 @@ class Supervisor:
     def _start_observer(self) -> None:
         topic = self.plan.progress_topic
         show = self._progress_opt is not False
-        if self._recorder is None and self.plan.record is None and not (topic and show):
+        if self._recorder is None and self.plan.record is None and not (topic and show) and \
+                self._clock_watch is None:
             return
         self._node = Node(name="_launch", bus=self.address, heartbeat_s=0)
         self._node.subscribe(HEARTBEAT_TOPIC, Heartbeat, self._on_heartbeat)
+        if self._clock_watch is not None:
+            self._node.subscribe(CLOCK_TOPIC, ClockTick, self._clock_watch.on_tick)
         if topic and show:
             self._screen.view = ProgressView(topic, self.out, terminal=self.out.isatty())
             self._node.subscribe_raw(topic, self._on_progress)
@@ -216,6 +223,12 @@ class Supervisor:
                 self._spawn(p)
         if self._node is not None:
             self._node.spin_once(0)
+        if self._clock_watch is not None and not self._stopping:  # a graph whose time stands still
+            verdict, why = self._clock_watch.verdict()
+            if verdict == "frozen":
+                self._request_stop(why, 1)
+            elif verdict == "stalled":
+                self._screen.say(why, "WARNING")
 
     def _all(self) -> list[NodeProc]:
         return self._procs + ([self._recorder] if self._recorder is not None else [])
@@ -225,7 +238,9 @@ class Supervisor:
             sig = self._inbox.pending.pop(0)
             name = signal.Signals(sig).name
             if not self._stopping:
-                self._request_stop(f"stopped by {name}", None)
+                stalled = self._clock_watch.stalled() if self._clock_watch is not None else ""
+                self._request_stop(f"stopped by {name}" + (f" while {stalled}" if stalled else ""),
+                                   1 if stalled else None)
             else:
                 self._screen.say(f"{name} again: moving every stopping node on to the next signal now", "WARNING")
                 for p in self._all():
@@ -378,3 +393,4 @@ class Supervisor:
             p.log.close()
         self._sel.close()
         self._inbox.close()
+
