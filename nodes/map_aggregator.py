@@ -62,6 +62,10 @@ class MapAggregator(palpa.Node):
         """Smallest inclusion reported (0: two cells)."""
         title: str = ""
         """Shown on map.png (e.g. what was scanned); default: the output directory."""
+        max_excluded: palpa.NonNegative = 0.2
+        """Largest fraction of the raster's readings in contact that may be excluded (invalid for any reason but
+        ``no_contact``: the ring off the specimen, the indenter on its stop, stale inputs) before the map counts as
+        untrustworthy: it is then marked incomplete and fails."""
         max_silence_s: palpa.Positive = 2.0
         """Simulated seconds of scanning with no ``stiffness/sample`` at all (valid or not) after which the
         estimates count as missing: the map then says over which part of the scan's path it had none, and fails."""
@@ -91,6 +95,10 @@ class MapAggregator(palpa.Node):
         """The scan's progress then."""
         self.silent_from: float | None = None
         """The scan's progress when the estimates stopped coming (None: they come)."""
+        self.excluded: dict[str, int] = {}
+        """Per reason, the raster's readings in contact that were not stiffness readings (invalid, not no_contact)."""
+        self.in_raster = 0
+        """The raster's valid readings."""
         self.gaps: list[tuple[float, float]] = []
         """Spans of the scan's path (progress from, to) over which no estimate came."""
         self.touching = False
@@ -138,7 +146,14 @@ class MapAggregator(palpa.Node):
 
     def on_sample(self, s: StiffnessSample) -> None:
         self._heard()
-        if not s.valid or self.touching or s.stamp_ns < self.raster_from_ns:
+        if self.touching or s.stamp_ns < self.raster_from_ns:
+            return
+        if self.scan is not None and self.scan.state == "scanning":
+            if s.valid:
+                self.in_raster += 1
+            elif s.reason != "no_contact":
+                self.excluded[s.reason] = self.excluded.get(s.reason, 0) + 1
+        if not s.valid:
             return
         self.unit = s.unit
         self.samples += 1
@@ -260,9 +275,19 @@ class MapAggregator(palpa.Node):
         spans = ", ".join(f"{100 * a:.0f} % to {100 * b:.0f} %" for a, b in gaps)
         return f"no stiffness estimate came from {spans} of the scan's path (did the estimator stop?)"
 
+    def _untrusted(self) -> str:
+        """'' unless more than ``max_excluded`` of the raster's readings in contact were not stiffness readings."""
+        n = sum(self.excluded.values())
+        if not n or n <= self.params.max_excluded * (n + self.in_raster):
+            return ""
+        reasons = ", ".join(f"{why} {k}" for why, k in sorted(self.excluded.items(), key=lambda kv: -kv[1]))
+        return (f"{100 * n / (n + self.in_raster):.0f} % of the raster's readings in contact were not stiffness "
+                f"readings ({reasons}; at most {100 * self.params.max_excluded:.0f} % may be): the map cannot be "
+                "trusted")
+
     def _partial(self) -> str:
-        """Why this map holds only part of its scan ('' when it holds all of it)."""
-        return "; ".join(filter(None, (self.incomplete, self._missing(), self._unfinished())))
+        """Why this map holds only part of its scan, or cannot be trusted ('' when neither)."""
+        return "; ".join(filter(None, (self.incomplete, self._missing(), self._untrusted(), self._unfinished())))
 
     def _check_complete(self) -> None:
         """A final map that holds part of its scan (its estimator restarted or stopped, samples lost on the way,

@@ -214,3 +214,44 @@ def test_estimates_that_stop_coming_mid_scan_leave_the_map_incomplete_and_failed
             assert (str(grid["incomplete"]) if "incomplete" in grid else "") == why, out
         assert h.node.exit_code == (1 if why else 0), out
         h.close()
+
+
+def test_a_map_whose_raster_readings_were_mostly_excluded_cannot_be_trusted(tmp_path: Path) -> None:
+    """The UR recipe's raster ran its ring off the specimen at every line's ends: readings that are not stiffness
+    readings (invalid but for being in the air) are dropped from the map, and when more than ``max_excluded`` of
+    the raster's readings in contact were, the map says why it cannot be trusted and fails. Readings in the air
+    between lines (``no_contact``) and the touch-off's do not count."""
+    for out, off_share in (("ok", 0.1), ("edges", 0.35)):
+        h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / out), "region_mm": [0, 0, 20, 20]})
+        h.publish("robot/scan_status", ScanStatus(stamp_ns=0, state="touching", line=0, lines=10, progress=0.0,
+                                                  eta_s=0.0))
+        for _ in range(50):  # the touch-off's: not the raster's
+            h.publish("stiffness/sample", StiffnessSample(stamp_ns=0, model="airfloat", x_mm=5, y_mm=5, z_mm=0,
+                                                          value=math.nan, unit="kPa", valid=False,
+                                                          reason="at_stroke_end"))
+        h.publish("robot/scan_status", ScanStatus(stamp_ns=1, state="scanning", line=0, lines=10, progress=0.0,
+                                                  eta_s=0.0))
+        for i in range(200):
+            x = (i % 20) + 0.5
+            if i % 20 < 20 * off_share:
+                s = StiffnessSample(stamp_ns=2, model="airfloat", x_mm=x, y_mm=5, z_mm=0, value=math.nan,
+                                    unit="kPa", valid=False, reason="ring_off_specimen")
+            else:
+                s = StiffnessSample(stamp_ns=2, model="airfloat", x_mm=x, y_mm=5, z_mm=0, value=26.0, unit="kPa",
+                                    valid=True)
+            h.publish("stiffness/sample", s)
+            h.publish("stiffness/sample", StiffnessSample(stamp_ns=2, model="airfloat", x_mm=x, y_mm=5, z_mm=0,
+                                                          value=math.nan, unit="kPa", valid=False,
+                                                          reason="no_contact"))  # in the air: not counted
+        h.publish("robot/scan_status", ScanStatus(stamp_ns=3, state="done", line=10, lines=10, progress=1.0,
+                                                  eta_s=0.0))
+        with np.load(tmp_path / out / "map.npz") as grid:
+            why = str(grid["incomplete"]) if "incomplete" in grid else ""
+            assert np.nanmax(grid["stiffness"]) < 30  # what was excluded is not in the map
+        if out == "ok":
+            assert why == "" and h.node.exit_code == 0
+        else:
+            assert why == ("35 % of the raster's readings in contact were not stiffness readings "
+                           "(ring_off_specimen 70; at most 20 % may be): the map cannot be trusted")
+            assert h.node.exit_code == 1
+        h.close()
