@@ -45,27 +45,28 @@ EXIT_CLOCK_LOST = 3
 def clock_timeout_ns(timeout_s: float | None) -> int:
     """Wall ns without a clock tick after which a sim-clock node stops (0: never); None reads
     ``PALPA_SIM_CLOCK_TIMEOUT_S`` (default 30 s)."""
-    if timeout_s is None:
-        text = palpa_env.get(palpa_env.SIM_CLOCK_TIMEOUT_S)
-        try:
-            timeout_s = float(text) if text else _SIM_CLOCK_TIMEOUT_S
-        except ValueError:
-            raise PalpaError(f"{palpa_env.SIM_CLOCK_TIMEOUT_S}={text!r}: expected seconds") from None
-    return int(timeout_s * 1e9)
+    return _seconds_ns(timeout_s, palpa_env.SIM_CLOCK_TIMEOUT_S, _SIM_CLOCK_TIMEOUT_S)
 
 
 def clock_max_jump_ns(max_jump_s: float | None = None) -> int:
     """Simulated ns a tick may move a node's time forward at once (0: no bound); None reads
     ``PALPA_SIM_CLOCK_MAX_JUMP_S`` (default 60 s)."""
-    if max_jump_s is None:
-        text = palpa_env.get(palpa_env.SIM_CLOCK_MAX_JUMP_S)
-        try:
-            max_jump_s = float(text) if text else _SIM_CLOCK_MAX_JUMP_S
-        except ValueError:
-            raise PalpaError(f"{palpa_env.SIM_CLOCK_MAX_JUMP_S}={text!r}: expected seconds") from None
-        if not max_jump_s >= 0 or max_jump_s == float("inf"):
-            raise PalpaError(f"{palpa_env.SIM_CLOCK_MAX_JUMP_S}={text!r}: expected seconds >= 0 (0: no bound)")
-    return int(max_jump_s * 1e9)
+    return _seconds_ns(max_jump_s, palpa_env.SIM_CLOCK_MAX_JUMP_S, _SIM_CLOCK_MAX_JUMP_S)
+
+
+def _seconds_ns(given_s: float | None, variable: str, default_s: float) -> int:
+    """``given_s`` in ns; None: the environment ``variable``'s seconds (``default_s`` when unset), which must be
+    finite and >= 0 (0: off)."""
+    if given_s is not None:
+        return int(given_s * 1e9)
+    text = palpa_env.get(variable)
+    try:
+        seconds = float(text) if text else default_s
+    except ValueError:
+        raise PalpaError(f"{variable}={text!r}: expected seconds") from None
+    if not 0 <= seconds < float("inf"):
+        raise PalpaError(f"{variable}={text!r}: expected seconds >= 0 (0: off)")
+    return int(seconds * 1e9)
 
 
 class Timers:
