@@ -43,6 +43,10 @@ from palpa.service import RequestRefused
 
 __all__ = ["MapAggregator"]
 
+_NOT_IN_CONTACT = ("no_contact", "too few indenters in contact")
+"""Reasons (as they start) of a reading with the probe off the tissue, the air-float's and the camera probe's: a
+raster's moves between presses, not an exclusion."""
+
 
 class MapAggregator(palpa.Node):
     """Bins samples, detects inclusions, writes the scan's outputs."""
@@ -64,7 +68,7 @@ class MapAggregator(palpa.Node):
         """Shown on map.png (e.g. what was scanned); default: the output directory."""
         max_excluded: palpa.NonNegative = 0.2
         """Largest fraction of the raster's readings in contact that may be excluded (invalid for any reason but
-        ``no_contact``: the ring off the specimen, the indenter on its stop, stale inputs) before the map counts as
+        the probe off the tissue: the ring off the specimen, the indenter on its stop, stale inputs) before the map counts as
         untrustworthy: it is then marked incomplete and fails."""
         max_silence_s: palpa.Positive = 2.0
         """Simulated seconds of scanning with no ``stiffness/sample`` at all (valid or not) after which the
@@ -151,7 +155,7 @@ class MapAggregator(palpa.Node):
         if self.scan is not None and self.scan.state == "scanning":
             if s.valid:
                 self.in_raster += 1
-            elif s.reason != "no_contact":
+            elif not s.reason.startswith(_NOT_IN_CONTACT):
                 self.excluded[s.reason] = self.excluded.get(s.reason, 0) + 1
         if not s.valid:
             return

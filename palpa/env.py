@@ -11,8 +11,8 @@ import os
 from collections.abc import Mapping
 
 __all__ = ["BUS", "BUS_SERVER_KEY", "CURRENT", "CURVE_SECRET", "DIRECT_HOST", "MESSAGES", "NAMESPACE", "NODE_MODULES",
-           "NODE_NAME", "PARAMS", "REMAP", "RUN_DIR", "SIM_CLOCK", "SIM_CLOCK_MAX_JUMP_S", "SIM_CLOCK_TIMEOUT_S", "TRANSPORT", "VARIABLES", "flag",
-           "get", "listed"]
+           "NODE_NAME", "PARAMS", "REMAP", "RUN_DIR", "SIM_CLOCK", "SIM_CLOCK_MAX_JUMP_S", "SIM_CLOCK_TIMEOUT_S",
+           "TRANSPORT", "VARIABLES", "flag", "get", "listed"]
 
 BUS = "PALPA_BUS"
 RUN_DIR = "PALPA_RUN_DIR"

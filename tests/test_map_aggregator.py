@@ -243,6 +243,9 @@ def test_a_map_whose_raster_readings_were_mostly_excluded_cannot_be_trusted(tmp_
             h.publish("stiffness/sample", StiffnessSample(stamp_ns=2, model="airfloat", x_mm=x, y_mm=5, z_mm=0,
                                                           value=math.nan, unit="kPa", valid=False,
                                                           reason="no_contact"))  # in the air: not counted
+            h.publish("stiffness/sample", StiffnessSample(  # nor the camera probe's, between its presses
+                stamp_ns=2, model="multi_indenter", x_mm=x, y_mm=5, z_mm=0, value=math.nan, unit="kPa", valid=False,
+                reason="too few indenters in contact (need 4): [] moved more than 1.0 mm"))
         h.publish("robot/scan_status", ScanStatus(stamp_ns=3, state="done", line=10, lines=10, progress=1.0,
                                                   eta_s=0.0))
         with np.load(tmp_path / out / "map.npz") as grid:
