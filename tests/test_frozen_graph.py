@@ -41,7 +41,7 @@ def _frozen_graph(tmp_path: Path, frozen_after_s: float) -> Path:
         python_path: [{json.dumps(str(TESTS))}]
         nodes:
           - name: clock
-            node: palpa.simclock:ClockSource
+            node: palpa.timing.simclock:ClockSource
             params: {{time_scale: 1.0, rate_hz: 100.0, frozen_after_s: {frozen_after_s}}}
           - name: freezer
             node: launch_node_classes:Freezer

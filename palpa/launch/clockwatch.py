@@ -40,9 +40,9 @@ class ClockWatch:
 
     @classmethod
     def for_plan(cls, plan: LaunchPlan) -> ClockWatch | None:
-        """A watch on the file's simulated clock (its ``palpa.simclock:ClockSource`` entry), if it has one; its
+        """A watch on the file's simulated clock (its ``palpa.timing.simclock:ClockSource`` entry), if it has one; its
         bound is that entry's ``frozen_after_s``."""
-        from palpa.simclock import ClockSource
+        from palpa.timing.simclock import ClockSource
 
         for spec in plan.nodes:
             if spec.target == CLOCK_TARGET:
