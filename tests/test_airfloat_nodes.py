@@ -222,3 +222,35 @@ def test_calibration_file_sets_force_line_and_depth_offset(tmp_path) -> None:  #
     with pytest.raises(Exception, match=r"cal.yaml:1:\d+: force.gain: expected `float`, got `str`"):
         cal.write_text("force: {gain: x, offset: 1}\n")
         NodeHarness(AirfloatStiffnessEstimator, {"calibration": str(cal)})
+
+
+def test_a_sample_is_valid_only_as_a_press_of_the_specimen_with_the_ring_on_it(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """``stiffness/sample`` says itself whether it is a stiffness reading of the specimen (docs/custom-node.md): a
+    subscriber that reads only ``valid`` must not map the touch-off's or a line end's lift (the face ~9 mm up, the
+    indenter on its stop: 100-480 kPa came out valid) nor a ring hanging over the specimen's measured edge (tips on
+    the table: the UR recipe's 100-300 kPa edges). The outline is the measured geometry's footprint."""
+    from messages import PressureState
+
+    geometry = tmp_path / "geometry.yaml"
+    geometry.write_text("thickness_mm: 3.0\nfootprint_mm: [0.0, 0.0, 60.0, 60.0]\nerror_mm: 0.2\n")
+    h = NodeHarness(AirfloatStiffnessEstimator, {"geometry": str(geometry)})
+    t0 = h.clock.now_ns()
+    cases = [((30.0, 30.0), (1.0, 1.0, 1.0, 2.2), ""),  # a sweep's press, the ring well inside
+             ((6.0, 54.0), (1.0, 1.0, 1.0, 2.2), ""),  # the ring touching the edge from inside (edge margin 6)
+             ((3.0, 30.0), (1.0, 1.0, 1.0, 2.2), "ring_off_specimen"),
+             ((30.0, 58.0), (1.0, 1.0, 1.0, 2.2), "ring_off_specimen"),
+             ((30.0, 30.0), (9.0, 9.0, 9.0, 9.5), "at_stroke_end")]  # lifted: d_in 0.5 mm, read as E ~ 190 kPa
+    for i, ((x, y), hs, _) in enumerate(cases):
+        t = t0 + i * 100_000_000
+        for k in (0, 20_000_000):
+            h.publish("robot/pose", RobotPose(stamp_ns=t + k, x_mm=x, y_mm=y, z_mm=4.0))
+            h.publish("pressure/state", PressureState(stamp_ns=t + k, setpoint_kpa=36, measured_kpa=36,
+                                                      force_n=0.4, mode="hold", max_kpa=60))
+        h.publish("probe/heights", ProbeHeights(stamp_ns=t + 10_000_000, seq=i + 1, h_mm=hs, raw=(0, 0, 0, 0),
+                                                d_in_mm=0.0, tilt_rad=0.0))
+        h.advance(0.1)
+    out = h.published("stiffness/sample", StiffnessSample)
+    assert [s.reason for s in out] == [why for *_, why in cases]
+    assert [s.valid for s in out] == [not why for *_, why in cases]
+    assert all(math.isnan(s.value) for s in out if not s.valid)
+    h.close()

@@ -7,7 +7,10 @@ scanner lingering, a replay) writes nothing new, and shutdown writes only sample
 stopped half-way), so a node asked to stop after its scan exits at once. The service ``map/save``
 (:class:`Trigger` -> :class:`MapSaved`) writes them now, mid-scan. A map written before its scan is done (saved
 mid-scan, or the scan stopped by a fault) says so: ``map.npz``'s ``incomplete`` and ``map.png``'s title tell how far
-the scan got and how it ended, as they tell of samples lost on the way.
+the scan got and how it ended, as they tell of samples lost on the way, and of a stretch of the scan's path over
+which no estimate came at all (its producer stopped: ``max_silence_s``). A final map that holds only part of its
+scan, whatever stopped it (a fault, Ctrl-C, a dead estimator), fails the node (exit code 1), so the launch cannot
+end clean with it.
 """
 
 from __future__ import annotations
@@ -41,6 +44,10 @@ from palpa.node.service import RequestRefused
 
 __all__ = ["MapAggregator"]
 
+_NOT_IN_CONTACT = ("no_contact", "too few indenters in contact")
+"""Reasons (as they start) of a reading with the probe off the tissue, the air-float's and the camera probe's: a
+raster's moves between presses, not an exclusion."""
+
 
 class MapAggregator(palpa.Node):
     """Bins samples, detects inclusions, writes the scan's outputs."""
@@ -60,6 +67,13 @@ class MapAggregator(palpa.Node):
         """Smallest inclusion reported (0: two cells)."""
         title: str = ""
         """Shown on map.png (e.g. what was scanned); default: the output directory."""
+        max_excluded: palpa.NonNegative = 0.2
+        """Largest fraction of the raster's readings in contact that may be excluded (invalid for any reason but
+        the probe off the tissue: the ring off the specimen, the indenter on its stop, stale inputs) before the map counts as
+        untrustworthy: it is then marked incomplete and fails."""
+        max_silence_s: palpa.Positive = 2.0
+        """Simulated seconds of scanning with no ``stiffness/sample`` at all (valid or not) after which the
+        estimates count as missing: the map then says over which part of the scan's path it had none, and fails."""
 
     params: Params
 
@@ -81,6 +95,18 @@ class MapAggregator(palpa.Node):
         written before it is ``done`` holds only part of the scan and says so."""
         self.unsaved = 0
         """Samples taken since the files were last written."""
+        self.heard_ns = 0
+        """When the latest estimate (valid or not) came, or the raster began: the producer's sign of life."""
+        self.heard_progress = 0.0
+        """The scan's progress then."""
+        self.silent_from: float | None = None
+        """The scan's progress when the estimates stopped coming (None: they come)."""
+        self.excluded: dict[str, int] = {}
+        """Per reason, the raster's readings in contact that were not stiffness readings (invalid, not no_contact)."""
+        self.in_raster = 0
+        """The raster's valid readings."""
+        self.gaps: list[tuple[float, float]] = []
+        """Spans of the scan's path (progress from, to) over which no estimate came."""
         self.touching = False
         self.raster_from_ns = 0
         """Samples measured before the raster began (the scanner's touch-off finding the surface) are not mapped."""
@@ -129,7 +155,15 @@ class MapAggregator(palpa.Node):
             self.log.info("map region from the scan plan: %s mm (cells centred on the raster)", plan.region_mm)
 
     def on_sample(self, s: StiffnessSample) -> None:
-        if not s.valid or self.touching or s.stamp_ns < self.raster_from_ns:
+        self._heard()
+        if self.touching or s.stamp_ns < self.raster_from_ns:
+            return
+        if self.scan is not None and self.scan.state == "scanning":
+            if s.valid:
+                self.in_raster += 1
+            elif not s.reason.startswith(_NOT_IN_CONTACT):
+                self.excluded[s.reason] = self.excluded.get(s.reason, 0) + 1
+        if not s.valid:
             return
         self.unit = s.unit
         self.samples += 1
@@ -148,7 +182,30 @@ class MapAggregator(palpa.Node):
                                "which are lost")
             self.log.error("map INCOMPLETE: %s", self.incomplete)
 
+    def _heard(self) -> None:
+        """An estimate came: the producer is alive; a stretch of the path without estimates ends here."""
+        progress = self.scan.progress if self.scan is not None else 0.0
+        if self.silent_from is not None:
+            self.gaps.append((self.silent_from, progress))
+            self.log.warning("stiffness estimates again at %.0f %% of the scan's path", 100 * progress)
+            self.silent_from = None
+        self.heard_ns, self.heard_progress = self.clock.now_ns(), progress
+
+    def _watch_estimates(self, st: ScanStatus) -> None:
+        """While the raster runs, estimates must keep coming: a stretch of the scan's path without any is missing
+        from the map (module doc), however its producer stopped."""
+        now = self.clock.now_ns()
+        if self.scan is None or self.scan.state != "scanning":
+            self.heard_ns, self.heard_progress = now, st.progress  # the raster (re)starts: count from here
+            return
+        if self.silent_from is None and now - self.heard_ns > self.params.max_silence_s * 1e9:
+            self.silent_from = self.heard_progress
+            self.log.error("no stiffness/sample for %.1f s while scanning (since %.0f %% of the scan's path): the "
+                           "map is missing estimates", (now - self.heard_ns) / 1e9, 100 * self.heard_progress)
+
     def on_status(self, st: ScanStatus) -> None:
+        if st.state == "scanning":
+            self._watch_estimates(st)
         if st.state == "scanning" or self.scan is not None:
             self.scan = st
         if st.state == "touching":
@@ -196,7 +253,7 @@ class MapAggregator(palpa.Node):
         out = Path(self.params.output_dir)
         title = self.params.title or f"stiffness map — {out}"
         title += f"\n{self.samples} samples, {len(found)} inclusion(s), {time.strftime('%Y-%m-%d %H:%M')}"
-        partial = "; ".join(filter(None, (self.incomplete, self._unfinished())))
+        partial = self._partial()
         if partial:
             self.log.warning("the map written holds part of the scan: %s", partial)
         paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title, incomplete=partial)
@@ -217,20 +274,49 @@ class MapAggregator(palpa.Node):
         return (f"the scan did not finish: {how} at {100 * scan.progress:.0f} % of its path"
                 + (f" ({scan.message})" if scan.message else ""))
 
+    def _missing(self) -> str:
+        """'' when estimates came all along the raster; else over which part of the scan's path none came."""
+        gaps = list(self.gaps)
+        if self.silent_from is not None:
+            end = self.scan.progress if self.scan is not None else self.silent_from
+            gaps.append((self.silent_from, 1.0 if self.scan is not None and self.scan.state == "done" else end))
+        if not gaps:
+            return ""
+        spans = ", ".join(f"{100 * a:.0f} % to {100 * b:.0f} %" for a, b in gaps)
+        return f"no stiffness estimate came from {spans} of the scan's path (did the estimator stop?)"
+
+    def _untrusted(self) -> str:
+        """'' unless more than ``max_excluded`` of the raster's readings in contact were not stiffness readings."""
+        n = sum(self.excluded.values())
+        if not n or n <= self.params.max_excluded * (n + self.in_raster):
+            return ""
+        reasons = ", ".join(f"{why} {k}" for why, k in sorted(self.excluded.items(), key=lambda kv: -kv[1]))
+        return (f"{100 * n / (n + self.in_raster):.0f} % of the raster's readings in contact were not stiffness "
+                f"readings ({reasons}; at most {100 * self.params.max_excluded:.0f} % may be): the map cannot be "
+                "trusted")
+
+    def _partial(self) -> str:
+        """Why this map holds only part of its scan, or cannot be trusted ('' when neither)."""
+        return "; ".join(filter(None, (self.incomplete, self._missing(), self._untrusted(), self._unfinished())))
+
     def _check_complete(self) -> None:
-        """A map missing samples (its estimator restarted, samples lost on the way) is declared failed: the
-        node's exit code says so, so the launch cannot end clean."""
+        """A final map that holds part of its scan (its estimator restarted or stopped, samples lost on the way,
+        the scan stopped before its end) is declared failed: the node's exit code says so, so the launch cannot
+        end clean."""
         stats = self.counters().get(self.resolve("stiffness/sample"))
         if not self.incomplete and stats is not None and stats.loss():
             self.incomplete = f"stiffness/sample {stats.loss()}"
-        if self.incomplete:
-            self.log.error("the map is INCOMPLETE and may be wrong: %s", self.incomplete)
+        partial = self._partial()
+        if partial:
+            self.log.error("the map is INCOMPLETE and may be wrong: %s", partial)
             self.exit_code = 1
 
     def on_shutdown(self) -> None:
         if self.grid is not None and self.unsaved:
             self.log.info("stopping with %d samples not yet written: writing the map", self.unsaved)
             self.publish_map(final=True)
+        elif self.written and self.samples:
+            self._check_complete()  # written before (saved mid-scan): what it holds is still only part of it
 
 
 if __name__ == "__main__":

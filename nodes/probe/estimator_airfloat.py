@@ -1,5 +1,11 @@
 """Air-float stiffness estimation (paper eqs. 1-8) as bus-independent logic the estimator node drives.
 
+A sample is ``valid`` only when it is a stiffness reading of the specimen in a press: the SPS ring wholly on the
+measured footprint (``ring_off_specimen`` otherwise: tips over the table tilt eqs. 1-3's plane; the outline comes
+from the measured geometry, never the phantom), the indenter clear of its stroke's end (``at_stroke_end``: the
+face lifted at a line's end or during a touch-off, the indenter on its stop; such readings came out at 100-480 kPa)
+and the usual contact, depth, tilt and force checks. A subscriber needs no other topic to tell them apart.
+
 Every height sample is matched by stamp — never by arrival order — with the probe force (pressure state,
 interpolated) and the robot pose (interpolated); samples wait until both sides have data past their stamp, and
 become invalid ("stale_*") when a side has none near it. Ramp mode additionally fits each pressure ramp's whole
@@ -37,6 +43,11 @@ class AirfloatConfig:
     ramp_fits: bool
     depth_offset_mm: float = 0.0
     """From the calibration: added to eqs. 1-3's d_in (SPS air gap, fibre zero)."""
+    stroke_margin_mm: float = 1.0
+    """An indenter extended within this of its stroke may rest on its stop (with bore friction and fibre noise it
+    reads a little short of it): the force is then not the tissue's, and the sample is ``at_stroke_end``."""
+    ring_tolerance_mm: float = 0.05
+    """How far the SPS ring may reach past the measured footprint and still count as on the specimen."""
 
 
 @dataclass
@@ -104,6 +115,7 @@ class AirfloatEstimator:
         else:
             thick = np.full(len(batch), c.thickness_mm)
         ok_geom = np.isfinite(thick) & (thick > 0)
+        ring_on = self._ring_on_specimen(xyz[:, 0], xyz[:, 1])
         with np.errstate(invalid="ignore", divide="ignore"):
             e = np.asarray(corrected_modulus(f, d_in, c.indenter_radius_mm, np.where(ok_geom, thick, 1.0),
                                              c.poisson_ratio), dtype=float)
@@ -118,6 +130,10 @@ class AirfloatEstimator:
                 reason = "pressure_fault"
             elif max(m.h_mm) >= c.stroke_mm - 1e-6 or f[i] <= c.min_force_n:
                 reason = "no_contact"
+            elif not ring_on[i]:
+                reason = "ring_off_specimen"
+            elif m.h_mm[3] > c.stroke_mm - c.stroke_margin_mm:
+                reason = "at_stroke_end"
             elif not ok_geom[i]:
                 reason = "off_geometry"
             elif tilt[i] > c.max_tilt_rad:
@@ -141,6 +157,18 @@ class AirfloatEstimator:
                 self.ramp_d.append(float(d_in[i]))
                 self.ramp_xy = (x, y)
         return out
+
+    def _ring_on_specimen(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Per pose, whether the SPS ring (radius ``sps_radius_mm`` about the face centre) lies on the measured
+        footprint; all True when the geometry gives none (a constant thickness says nothing of where it ends)."""
+        fp = self.geometry.footprint_mm() if self.geometry is not None else None
+        if fp is None:
+            return np.ones(x.shape, dtype=bool)
+        x0, y0, x1, y1 = fp
+        r = self.cfg.sps_radius_mm - self.cfg.ring_tolerance_mm
+        with np.errstate(invalid="ignore"):
+            on: np.ndarray = (x - r >= x0) & (x + r <= x1) & (y - r >= y0) & (y + r <= y1)
+        return on
 
     def _finish_ramp(self, stamp_ns: int) -> None:
         f, d = self.ramp_f, self.ramp_d

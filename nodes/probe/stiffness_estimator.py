@@ -97,6 +97,9 @@ class AirfloatStiffnessEstimator(_Publishing):
         max_tilt_deg: palpa.Positive = 30.0
         min_force_n: palpa.NonNegative = 0.02
         stroke_mm: palpa.Positive = 10.0
+        stroke_margin_mm: palpa.NonNegative = 1.0
+        """An indenter extended within this of its stroke may rest on its stop: its samples are invalid
+        (``at_stroke_end``)."""
         ramp_fits: bool = False
         """Fit each pressure ramp's force-depth curve with eqs. 6-8 (``stiffness/fit``)."""
 
@@ -115,6 +118,7 @@ class AirfloatStiffnessEstimator(_Publishing):
             max_depth_mm=p.max_depth_mm, max_tilt_rad=math.radians(p.max_tilt_deg),
             min_force_n=p.min_force_n, stroke_mm=p.stroke_mm, max_wait_ns=int(p.max_wait_s * 1e9),
             max_gap_ns=int(p.max_gap_s * 1e9), ramp_fits=p.ramp_fits, depth_offset_mm=offset,
+            stroke_margin_mm=p.stroke_margin_mm,
         ), geometry)
         self.open_outputs()
         self.subscribe("robot/pose", self.on_pose)

@@ -48,7 +48,7 @@ def summarize(screen: Screen, procs: Sequence[NodeProc], run_dir: Path, reason: 
     """Print the summary and the launch's end, close the screen; returns the launch's exit code (``code``: the
     one asked for when the launch was stopped, None if none was)."""
     code = code if code is not None else 0
-    failed = [p.spec.name for p in procs if p.failed]
+    failed = [p.spec.name + (f" ({p.why})" if p.why else "") for p in procs if p.failed]
     restarted = [p.spec.name for p in procs if p.starts > 1 and not p.failed]
     reason = reason or "ended"
     if code == 0 and failed:

@@ -366,6 +366,11 @@ class Node:
             self._sim_time.check_alive()
         self._report_to_clock()
 
+    @property
+    def sim_time(self) -> SimTime | None:
+        """This node's side of a simulation clock (None: not on one): the jumps it refused, among others."""
+        return self._sim_time
+
     def _report_to_clock(self) -> None:
         if self._sim_time is not None and self._set_up:
             self._sim_time.report(self._probe)

@@ -25,7 +25,7 @@ from palpa.node.receive import Receiver
 from palpa.runtime_msgs import CLOCK_ACK_TOPIC, CLOCK_TOPIC, ClockAck, ClockTick, tick_topic
 from palpa.timing.clock import TopicClock
 
-__all__ = ["EXIT_CLOCK_LOST", "SimTime", "Timers", "clock_timeout_ns"]
+__all__ = ["EXIT_CLOCK_LOST", "SimTime", "Timers", "clock_max_jump_ns", "clock_timeout_ns"]
 
 _CLOCK_ACK_TOPIC_B = CLOCK_ACK_TOPIC.encode()
 _TIMER_PASSES = 100
@@ -33,6 +33,11 @@ _TIMER_PASSES = 100
 _LEAD_ACK_NS = 10_000_000  # half a lead-mode clock's default max_lead_s: fewer acks, same bound
 _SIM_CLOCK_TIMEOUT_S = 30.0
 """Wall seconds without a clock tick after which a sim-clock node stops (PALPA_SIM_CLOCK_TIMEOUT_S; 0: never)."""
+_SIM_CLOCK_MAX_JUMP_S = 60.0
+"""Simulated seconds a tick may move time forward at once (PALPA_SIM_CLOCK_MAX_JUMP_S; 0: no bound). The lockstep
+clock moves an idle node's time by at most about ``time_scale`` seconds per wall second (its broadcast), a busy
+one's from deadline to deadline; an hour ahead is a forged or broken tick, which would move every timer of the
+graph an hour on (and a simulated driver would try to produce an hour of samples at once)."""
 EXIT_CLOCK_LOST = 3
 """The exit code of a sim-clock node that stopped because simulated time stopped."""
 
@@ -40,13 +45,28 @@ EXIT_CLOCK_LOST = 3
 def clock_timeout_ns(timeout_s: float | None) -> int:
     """Wall ns without a clock tick after which a sim-clock node stops (0: never); None reads
     ``PALPA_SIM_CLOCK_TIMEOUT_S`` (default 30 s)."""
-    if timeout_s is None:
-        text = palpa_env.get(palpa_env.SIM_CLOCK_TIMEOUT_S)
-        try:
-            timeout_s = float(text) if text else _SIM_CLOCK_TIMEOUT_S
-        except ValueError:
-            raise PalpaError(f"{palpa_env.SIM_CLOCK_TIMEOUT_S}={text!r}: expected seconds") from None
-    return int(timeout_s * 1e9)
+    return _seconds_ns(timeout_s, palpa_env.SIM_CLOCK_TIMEOUT_S, _SIM_CLOCK_TIMEOUT_S)
+
+
+def clock_max_jump_ns(max_jump_s: float | None = None) -> int:
+    """Simulated ns a tick may move a node's time forward at once (0: no bound); None reads
+    ``PALPA_SIM_CLOCK_MAX_JUMP_S`` (default 60 s)."""
+    return _seconds_ns(max_jump_s, palpa_env.SIM_CLOCK_MAX_JUMP_S, _SIM_CLOCK_MAX_JUMP_S)
+
+
+def _seconds_ns(given_s: float | None, variable: str, default_s: float) -> int:
+    """``given_s`` in ns; None: the environment ``variable``'s seconds (``default_s`` when unset), which must be
+    finite and >= 0 (0: off)."""
+    if given_s is not None:
+        return int(given_s * 1e9)
+    text = palpa_env.get(variable)
+    try:
+        seconds = float(text) if text else default_s
+    except ValueError:
+        raise PalpaError(f"{variable}={text!r}: expected seconds") from None
+    if not 0 <= seconds < float("inf"):
+        raise PalpaError(f"{variable}={text!r}: expected seconds >= 0 (0: off)")
+    return int(seconds * 1e9)
 
 
 class Timers:
@@ -123,8 +143,12 @@ class SimTime:
     (:meth:`report`). ``pubs``, ``raw_sent`` and ``rx`` are the node's own: what it sent and took in."""
 
     def __init__(self, node: _Host, clock: TopicClock, timers: Timers, rx: Receiver,
-                 pubs: Mapping[str, Publisher[Any]], raw_sent: Mapping[str, int], timeout_ns: int) -> None:
+                 pubs: Mapping[str, Publisher[Any]], raw_sent: Mapping[str, int], timeout_ns: int,
+                 max_jump_ns: int | None = None) -> None:
         self._node = node
+        self._max_jump_ns = clock_max_jump_ns() if max_jump_ns is None else max_jump_ns
+        self.refused_jumps = 0
+        """Ticks and message instants refused for moving time forward by more than the bound (``max_jump_ns``)."""
         self._clock = clock
         transport = node.transport
         # straight to the clock (palpa.net.direct): one ZeroMQ hop instead of two, at every instant of a lockstep
@@ -173,7 +197,23 @@ class SimTime:
             self._node.log.warning("no simulation time on %s after %.0f s; timers wait for the first tick",
                                    CLOCK_TOPIC, timeout_s)
 
+    def _refused(self, sim_ns: int, what: str) -> bool:
+        """Whether moving time to ``sim_ns`` is a jump past the bound (logged, the first time and every 1000th,
+        and counted in :attr:`refused_jumps`): the node's time stays where it is."""
+        clock = self._clock
+        if not (clock.started and self._max_jump_ns and sim_ns - clock.now_ns() > self._max_jump_ns):
+            return False
+        self.refused_jumps += 1
+        if self.refused_jumps % 1000 == 1:
+            self._node.log.error("%s at %.3f s of simulated time refused: %.0f s ahead of this node's %.3f s, more "
+                                 "than the %g s a tick may jump (%s); %d refused so far", what, sim_ns / 1e9,
+                                 (sim_ns - clock.now_ns()) / 1e9, clock.now_ns() / 1e9, self._max_jump_ns / 1e9,
+                                 palpa_env.SIM_CLOCK_MAX_JUMP_S, self.refused_jumps)
+        return True
+
     def on_clock(self, tick: ClockTick) -> None:
+        if self._refused(tick.sim_ns, f"a tick on {CLOCK_TOPIC}"):
+            return  # not a sign of life either: a clock that only jumps is a dead clock (check_alive)
         clock = self._clock
         if not clock.started:
             # timers declared before time existed count from the first tick
@@ -191,7 +231,8 @@ class SimTime:
         deadlines (palpa.timing.simclock), so it learns any other instant from the messages it handles there (timers due
         by then run first, as at a tick). Not under a lead-mode clock, whose ticks every node gets."""
         clock = self._clock
-        if at > clock.now_ns() and clock.started and not self._time_held and not self._lead_acks:
+        if at > clock.now_ns() and clock.started and not self._time_held and not self._lead_acks and \
+                not self._refused(at, "a message's instant"):
             clock.update(at)
             self._last_tick_wall_ns = time.monotonic_ns()
             self._node.run_timers()

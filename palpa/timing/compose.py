@@ -246,7 +246,8 @@ class Composition:
     def close(self) -> None:
         """Close every node (``on_shutdown`` first, as a stopped process would), each after the others have
         handled what it published while closing (the estimator's last samples reach the map before the map
-        writes its files), then the bridge."""
+        writes its files), then the bridge. A node that reports failure as it closes (its exit code) makes the
+        composition's exit code 1 if it was 0."""
         self.settle()
         for node in self.nodes:
             node.request_shutdown()
@@ -257,6 +258,8 @@ class Composition:
                 node.close(0)
             except Exception:  # one node failing to close must not leave the others open
                 log.exception("closing %s", node.name)
+            if node.exit_code and not self.exit_code:  # it reports, as it stops, that its work failed (an
+                self.exit_code = 1  # incomplete map): as a process of its own it would fail the launch so
             self.settle()
         if self.bridge is not None:
             self.bridge.close(500)

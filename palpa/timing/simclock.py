@@ -88,6 +88,9 @@ class ClockSource(Node):
         on a busy machine) but lets sample phases and noise follow the machine's timing: runs differ."""
         participants: list[str] = []
         """Nodes time waits for before it starts (each joins with its first ack, after its setup)."""
+        frozen_after_s: Positive = 60.0
+        """Wall seconds simulated time may stand still, once started, before the launcher ends the graph as frozen
+        (exit code 1; palpa.launch.clockwatch: it watches this clock from outside, where a frozen graph shows)."""
         join_timeout_s: Positive = 120.0
         """Wall seconds after which time starts without the participants that have not joined (a warning names
         them)."""
