@@ -13,6 +13,8 @@ import traceback
 from collections.abc import Callable
 from typing import Protocol
 
+from palpa.timing.clock import Clock
+
 __all__ = ["Dispatch", "Flushable", "Spinner"]
 
 
@@ -23,7 +25,10 @@ class Flushable(Protocol):
 
 
 class Spinner(Protocol):
-    """What a blocking wait on an endpoint needs from its node: run the loop, and know when to give up."""
+    """What a blocking wait on an endpoint needs from its node: run the loop, read its clock (the wait's deadline is
+    on it), and know when to give up."""
+
+    clock: Clock
 
     @property
     def is_shutdown(self) -> bool: ...

@@ -7,7 +7,6 @@ spinner. Create them through ``Node.publisher``, ``Node.subscribe`` and ``Node.t
 
 from __future__ import annotations
 
-import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any, Generic, NamedTuple, TypeVar, get_type_hints
@@ -18,7 +17,7 @@ from palpa.message import Message
 from palpa.net.transport import Transport
 from palpa.net.wire import Header, HeaderTemplate, TopicStats, msgpack_array
 from palpa.node.dispatch import Dispatch, Spinner
-from palpa.timing.clock import Clock
+from palpa.timing.clock import Clock, Deadline
 
 __all__ = ["DEFAULT_BATCH", "MsgInfo", "Publisher", "RawMessage", "Subscription", "Timer", "handler_type",
            "wants_info"]
@@ -94,12 +93,11 @@ class Publisher(Generic[M]):
 
     def wait_for_subscribers(self, timeout_s: float) -> bool:
         """Spin the node until :attr:`has_subscribers` or ``timeout_s`` passes; returns whether someone listens."""
-        deadline = time.monotonic() + timeout_s
+        deadline = Deadline(self._clock, timeout_s)
         while not self.has_subscribers:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0 or self._spinner.is_shutdown:
+            if deadline.passed() or self._spinner.is_shutdown:
                 return False
-            self._spinner.spin_once(min(0.01, remaining))
+            self._spinner.spin_once(min(0.01, deadline.remaining_s()))
         return True
 
     def publish(self, msg: M, *, blobs: Sequence[bytes] = (), stamp_ns: int | None = None) -> int:
@@ -172,14 +170,11 @@ class Subscription(Generic[M]):
 
     def next(self, timeout_s: float | None = None) -> M | None:
         """The next message, spinning the node while waiting; None on timeout or shutdown."""
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        deadline = Deadline(self._spinner.clock, timeout_s)
         while not self.queue:
-            if self._spinner.is_shutdown:
+            if self._spinner.is_shutdown or deadline.passed():
                 return None
-            remaining = 0.1 if deadline is None else min(0.1, deadline - time.monotonic())
-            if remaining <= 0:
-                return None
-            self._spinner.spin_once(remaining)
+            self._spinner.spin_once(min(0.1, deadline.remaining_s()))
         return self.queue.popleft()
 
     def __iter__(self) -> Iterator[M]:

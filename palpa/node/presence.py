@@ -61,7 +61,7 @@ def confirm_subscriptions(node: NodeApi, rx: Receiver, incarnation: int, timeout
     echoed: list[RawMessage] = []
     rx.add_raw(key, echoed.append)
     t.subscribe_probe(key)
-    header = encode_header(Header(type="", seq=0, stamp=time.time_ns(), node=node.name))
+    header = encode_header(Header(type="", seq=0, stamp=node.clock.now_ns(), node=node.name))
     start = time.monotonic_ns()
     deadline, sent = start + int(timeout_s * 1e9), 0
     try:

@@ -4,14 +4,14 @@ A blocking :meth:`Client.call` waits by spinning its node (``spin_once``), so th
 while it waits: its own services, other topics, timers (a timer is never re-entered). That is why a call from any
 callback completes, including a call to a service of the same node or of a node that calls back (the deadlock of
 rclpy's single-threaded executor, rclpy #1398 and #1181, cannot happen). On the in-memory bus
-(:mod:`palpa.testing`) the wait also runs the harness's other nodes. Every call has a deadline.
+(:mod:`palpa.testing`) the wait also runs the harness's other nodes. Every call has a deadline, on the node's clock
+(:class:`palpa.timing.clock.Deadline`): simulated time when the node runs on it.
 """
 
 from __future__ import annotations
 
 import contextlib
 import secrets
-import time
 import weakref
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
@@ -35,6 +35,7 @@ from palpa.node.service import (
     reply_topic,
     request_topic,
 )
+from palpa.timing.clock import Deadline
 
 if TYPE_CHECKING:
     from palpa.node.nodeapi import NodeApi
@@ -71,7 +72,7 @@ class Future(Generic[R]):
     """The outcome of one :meth:`Client.call_async`: poll :meth:`done`, add a callback, or wait with
     :meth:`result` (which keeps the node dispatching)."""
 
-    def __init__(self, client: Client[Any, R], seq: int, deadline: float) -> None:
+    def __init__(self, client: Client[Any, R], seq: int, deadline: Deadline) -> None:
         self._client = client
         self.seq = seq
         self.deadline = deadline
@@ -98,7 +99,7 @@ class Future(Generic[R]):
         """Wait (dispatching the node's input meanwhile) and return the response, or raise the call's
         :class:`ServiceError`. ``timeout_s`` bounds this wait only; the call's own deadline still applies."""
         node = self._client.node
-        limit = time.monotonic() + timeout_s if timeout_s is not None else self.deadline
+        limit = Deadline(node.clock, timeout_s)  # None: only the call's own deadline ends the wait
         depth = _wait_depth.get(node, 0)
         if not self._done and depth >= _MAX_NESTED_WAITS:
             raise ServiceError(f"{depth} blocking service calls are already waiting in node {node.name!r}; "
@@ -107,12 +108,11 @@ class Future(Generic[R]):
         pump = _pump_of(node)
         try:
             while not self._done:
-                now = time.monotonic()
-                self._client._expire(now)
-                if self._done or now >= limit:
+                self._client._expire()
+                if self._done or limit.passed():
                     break
                 node.flush()
-                node.spin_once(min(0.05, max(0.0, min(limit, self.deadline) - now)))
+                node.spin_once(min(0.05, limit.remaining_s(), self.deadline.remaining_s()))
                 if pump is not None:
                     pump()
         finally:
@@ -174,10 +174,10 @@ class Client(Generic[Q, R]):
 
     def wait_for_service(self, timeout_s: float = DEFAULT_TIMEOUT_S) -> bool:
         """Spin the node until :meth:`ready` or ``timeout_s`` passes; returns :meth:`ready`."""
-        deadline = time.monotonic() + timeout_s
+        deadline = Deadline(self.node.clock, timeout_s)
         pump = _pump_of(self.node)
-        while not self.ready() and time.monotonic() < deadline and not self.node.is_shutdown:
-            self.node.spin_once(min(0.01, max(0.0, deadline - time.monotonic())))
+        while not self.ready() and not deadline.passed() and not self.node.is_shutdown:
+            self.node.spin_once(min(0.01, deadline.remaining_s()))
             if pump is not None:
                 pump()
         return self.ready()
@@ -206,7 +206,7 @@ class Client(Generic[Q, R]):
                             f"not {type(request).__name__}")
         self._seq += 1
         seq = self._seq
-        fut: Future[R] = Future(self, seq, time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s))
+        fut: Future[R] = Future(self, seq, Deadline(self.node.clock, self.timeout_s if timeout_s is None else timeout_s))
         self._pending[seq] = fut
         self._unsent[seq] = ENCODER.encode(request)
         self._send_unsent()
@@ -245,13 +245,12 @@ class Client(Generic[Q, R]):
             fut._finish(None, HandlerError(f"service {self.name!r}: undecodable reply: {exc}"))
 
     def _tick(self) -> None:
-        self._send_unsent()
-        self._expire(time.monotonic())
+        self._expire()
 
-    def _expire(self, now: float) -> None:
+    def _expire(self) -> None:
         self._send_unsent()
         for seq, fut in list(self._pending.items()):
-            if now < fut.deadline:
+            if not fut.deadline.passed():
                 continue
             del self._pending[seq]
             if self._unsent.pop(seq, None) is not None:
@@ -279,9 +278,9 @@ def discover(node: NodeApi, name: str, wait_s: float) -> ServiceInfo:
                 known[name] = _info_decoder.decode(raw.payload)
 
     node.subscribe_raw(topic, on_info)
-    deadline = time.monotonic() + wait_s
-    while not (name in known and known[name].alive) and time.monotonic() < deadline:
-        node.spin_once(0.02)
+    deadline = Deadline(node.clock, wait_s)
+    while not (name in known and known[name].alive) and not deadline.passed():
+        node.spin_once(min(0.02, deadline.remaining_s()))
     info = known.get(name)
     if info is None or not info.alive:
         why = "its server has closed" if info is not None else "no server announced it"

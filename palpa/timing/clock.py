@@ -2,15 +2,17 @@
 
 Stamps on the wire are wall-clock nanoseconds since the Unix epoch (``time.time_ns``) so that processes and
 recordings agree. Timers run on the same clock's notion of time; :class:`MockClock` lets tests move time by hand,
-so node logic with timers is tested without waiting.
+so node logic with timers is tested without waiting. :class:`Deadline` is how every wait and time limit in the
+product reads its node's clock (tests/test_architecture.py holds product code to it).
 """
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Protocol
 
-__all__ = ["Clock", "MockClock", "SystemClock", "TopicClock"]
+__all__ = ["FROZEN_ROUNDS", "Clock", "Deadline", "MockClock", "SystemClock", "TopicClock"]
 
 
 class Clock(Protocol):
@@ -82,3 +84,51 @@ class TopicClock:
         if sim_ns >= self._now or self._now - sim_ns > 1_000_000_000:
             self._now = sim_ns
         self.started = True
+
+
+FROZEN_ROUNDS = 1000
+"""Checks of a :class:`Deadline` on a clock that moves only when its executor moves it (a :class:`MockClock`) after
+which the deadline counts as passed although that clock stood still: a node blocked in a wait is its executor's
+thread, so no time can pass until the wait ends; by then the rest of the graph (pumped by the wait) has had this many
+rounds to answer, which is far more than the hops any in-memory exchange needs. Rounds, not seconds: a busy machine
+cannot end the wait sooner."""
+
+
+class Deadline:
+    """A time limit read on a node's clock: ``Deadline(node.clock, 2.0)`` ends 2 s of that clock from now (None: never).
+
+    On a :class:`SystemClock` durations are measured on the monotonic clock behind it (a wall-clock step by NTP must
+    neither fire nor stretch a limit), so a wall-clock node waits exactly as long as before. On a simulated clock the
+    limit is simulated time: a machine too busy to keep up cannot make it fire early. On a clock that stands still
+    while the waiter blocks (:meth:`Clock.is_real` False) see :data:`FROZEN_ROUNDS`.
+    """
+
+    def __init__(self, clock: Clock, seconds: float | None) -> None:
+        self._read = time.monotonic_ns if isinstance(clock, SystemClock) else clock.now_ns
+        self._frozen = not clock.is_real()
+        self._checks = 0
+        self._last = self._read()
+        self.at_ns: int | None = None if seconds is None else self._last + int(round(seconds * 1e9))
+        """When it passes, on :meth:`now_ns`'s scale (None: never)."""
+
+    def now_ns(self) -> int:
+        """The current reading of the clock the limit is measured on (not necessarily epoch ns)."""
+        return self._read()
+
+    def remaining_s(self) -> float:
+        """Seconds left (0 once passed; ``math.inf`` without a limit); a clock that does not move by itself gives
+        no time to wait for: 0."""
+        if self.at_ns is None:
+            return 0.0 if self._frozen else math.inf
+        return 0.0 if self._frozen else max(0.0, (self.at_ns - self._read()) / 1e9)
+
+    def passed(self) -> bool:
+        """Whether the limit is reached; call it once per round of a wait (the frozen-clock rule counts them)."""
+        now = self._read()
+        if self.at_ns is not None and now >= self.at_ns:
+            return True
+        if not self._frozen:
+            return False
+        self._checks = self._checks + 1 if now == self._last else 0
+        self._last = now
+        return self.at_ns is not None and self._checks >= FROZEN_ROUNDS
