@@ -94,6 +94,10 @@ rounds to answer, which is far more than the hops any in-memory exchange needs. 
 cannot end the wait sooner."""
 
 
+def _monotonic_ns() -> int:
+    return time.monotonic_ns()
+
+
 class Deadline:
     """A time limit read on a node's clock: ``Deadline(node.clock, 2.0)`` ends 2 s of that clock from now (None: never).
 
@@ -104,7 +108,7 @@ class Deadline:
     """
 
     def __init__(self, clock: Clock, seconds: float | None) -> None:
-        self._read = time.monotonic_ns if isinstance(clock, SystemClock) else clock.now_ns
+        self._read = _monotonic_ns if isinstance(clock, SystemClock) else clock.now_ns
         self._frozen = not clock.is_real()
         self._checks = 0
         self._last = self._read()
