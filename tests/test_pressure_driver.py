@@ -167,6 +167,26 @@ def test_unplug_is_reported_and_driver_reconnects(make_emu: Callable[..., Alicat
     assert poll(drv).setpoint_kpa == 20.0  # the controller kept its set-point
 
 
+def test_the_reconnect_back_off_is_timed_on_the_clock_the_node_hands_in(
+        make_emu: Callable[..., AlicatEmulator], make_driver: Callable[..., AlicatPressureDriver]) -> None:
+    """A retry falls due on the driver's clock (the node's: simulated time in a simulation), not the wall clock: with
+    an hour's back-off it reconnects as soon as that clock has moved an hour."""
+    now = [1_700_000_000_000_000_000]
+    emu = make_emu()
+    drv = make_driver(emu.port, clock=lambda: now[0], backoff_s=(3600.0, 3600.0))
+    emu.unplug()
+    assert drv.read(0.1) is None and not drv.status().connected
+    emu.replug()
+    assert drv.read(0.1) is None  # the back-off has not passed on the driver's clock
+
+    def an_hour_later() -> bool:
+        now[0] += 3600 * 10**9
+        return drv.read(0.2) is not None
+
+    wait_until(an_hour_later, what="reconnect once the driver's clock passed the back-off")
+    assert drv.status().counters.reconnects == 1
+
+
 def test_missing_device_raises_or_waits(make_emu: Callable[..., AlicatEmulator], make_driver: Callable[..., AlicatPressureDriver]) -> None:
     emu = make_emu()
     emu.unplug()

@@ -422,11 +422,15 @@ def test_a_path_that_goes_nowhere_is_done_without_being_sent() -> None:
     assert len(rc.sent) == 2, "a path to where the arm is while it moves is sent: it replaces the move"
 
 
-def moving_driver(start_timeout_s: float = 2.0, command_timeout_s: float = 10.0) -> URRtdeDriver:
-    """A driver as move_path leaves it (no robot: its status is driven through _poll_path by fake interfaces)."""
-    drv = URRtdeDriver("127.0.0.1", start_timeout_s=start_timeout_s, command_timeout_s=command_timeout_s)
+def moving_driver(start_timeout_s: float = 2.0, command_timeout_s: float = 10.0,
+                  clock: MockClock | None = None) -> URRtdeDriver:
+    """A driver as move_path leaves it (no robot: its status is driven through _poll_path by fake interfaces), on
+    ``clock`` (the node's, which times the path's start)."""
+    clock = clock or MockClock()
+    drv = URRtdeDriver("127.0.0.1", start_timeout_s=start_timeout_s, command_timeout_s=command_timeout_s,
+                       clock=clock.now_ns)
     drv._status, drv._moving, drv._reg0, drv._count = MotionStatus.MOVING, True, -1, 20
-    drv._t_move = time.monotonic()
+    drv._t_move = clock.now_ns()
     return drv
 
 
@@ -446,11 +450,13 @@ def test_a_kick_gap_near_the_watchdog_s_limit_is_told_as_the_watchdog() -> None:
 
 
 def test_a_path_the_controller_never_starts_latches_a_fault_after_the_start_timeout() -> None:
-    drv = moving_driver(start_timeout_s=2.0)
-    drv._t_move = time.monotonic() - 1.9
+    """The start is timed on the node's clock: what the wall clock does meanwhile (a busy machine) does not count."""
+    clock = MockClock()
+    drv = moving_driver(start_timeout_s=2.0, clock=clock)
+    clock.advance(1.9)
     drv._poll_path(_Control(_Path(False)), _Receive(2))
     assert drv.progress().status is MotionStatus.MOVING  # not yet: 1.9 s < 2 s
-    drv._t_move = time.monotonic() - 2.1
+    clock.advance(0.2)
     drv._poll_path(_Control(_Path(False)), _Receive(2))
     progress = drv.progress()
     assert progress.status is MotionStatus.FAULT and "did not start within 2 s" in progress.message

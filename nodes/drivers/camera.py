@@ -32,6 +32,8 @@ import cv2
 import numpy as np
 import numpy.typing as npt
 
+from nodes.drivers.host_clock import host_ns
+
 __all__ = ["CameraError", "Frame", "FrameSource", "OpenCVSource", "SimSource", "SourceInfo", "parse_device"]
 
 log = logging.getLogger(__name__)
@@ -128,7 +130,7 @@ class OpenCVSource:
         pacing: Pacing = "realtime",
         api_preference: int = cv2.CAP_ANY,
         reconnect_s: tuple[float, float] = (0.5, 5.0),
-        clock: Callable[[], int] = time.time_ns,
+        clock: Callable[[], int] = host_ns,
     ) -> None:
         if pacing not in ("realtime", "fast", "every"):
             raise ValueError(f"OpenCVSource: pacing must be realtime, fast or every, got {pacing!r}")

@@ -17,7 +17,6 @@ import logging
 import math
 import termios
 import threading
-import time
 from collections import deque
 from collections.abc import Callable
 from pathlib import Path
@@ -46,6 +45,7 @@ from nodes.drivers.fibre import (
     FibreSample,
     FibreStatus,
 )
+from nodes.drivers.host_clock import host_ns
 
 log = logging.getLogger(__name__)
 
@@ -69,7 +69,7 @@ class SerialFibreDriver:
         require_device: if True, :meth:`open` raises when the port cannot be opened at
             once; if False it keeps retrying in the background.
         command_timeout_s: how long a command waits for its ``$R`` reply.
-        clock: host clock in ns (default wall clock ``time.time_ns``; inject the node's).
+        clock: host clock in ns (default the host's wall clock; inject the node's).
         clock_window_s: history used by the clock offset filter.
         max_queue: samples kept for :meth:`read`; older ones are discarded (``overruns``).
     """
@@ -83,7 +83,7 @@ class SerialFibreDriver:
         require_device: bool = True,
         command_timeout_s: float = 0.5,
         backoff_s: tuple[float, float] = (0.05, 2.0),
-        clock: Callable[[], int] = time.time_ns,
+        clock: Callable[[], int] = host_ns,
         clock_window_s: float = 10.0,
         max_queue: int = 20000,
     ) -> None:

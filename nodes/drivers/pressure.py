@@ -16,7 +16,6 @@ import contextlib
 import logging
 import math
 import termios
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
@@ -32,6 +31,7 @@ from devices.alicat import (
     parse_text_reply,
     setpoint_command,
 )
+from nodes.drivers.host_clock import host_ns
 
 _IO_ERRORS = (serial.SerialException, OSError, termios.error)  # termios.error is not an OSError
 
@@ -156,7 +156,7 @@ class AlicatPressureDriver:
         setpoint_space: bool = False,
         require_device: bool = True,
         over_max_tolerance_kpa: float = 0.5,
-        clock: Callable[[], int] = time.time_ns,
+        clock: Callable[[], int] = host_ns,
     ) -> None:
         if not (len(unit_id) == 1 and "A" <= unit_id.upper() <= "Z"):
             raise ValueError(f"unit_id must be one letter A..Z, got {unit_id!r}")
@@ -178,7 +178,7 @@ class AlicatPressureDriver:
         self._ser: serial.Serial | None = None
         self._opened = False
         self._ever_connected = False
-        self._next_retry = 0.0
+        self._next_retry = 0
         self._delay = backoff_s[0]
         self._last_error: str | None = None
         self._counts: dict[str, int] = {f: 0 for f in PressureCounters.__dataclass_fields__}
@@ -215,7 +215,7 @@ class AlicatPressureDriver:
         except (*_IO_ERRORS, ValueError) as exc:
             self._ser = None
             self._last_error = f"open {self._port}: {exc}"
-            self._next_retry = time.monotonic() + self._delay
+            self._next_retry = self._clock() + int(self._delay * 1e9)
             self._delay = min(self._delay * 2, self._backoff[1])
             return False
         if self._ever_connected:
@@ -234,14 +234,14 @@ class AlicatPressureDriver:
     def _lost(self, exc: BaseException) -> PressureNotConnectedError:
         self._drop_port()
         self._last_error = f"{self._port}: connection lost: {exc}"
-        self._next_retry = time.monotonic() + self._delay
+        self._next_retry = self._clock() + int(self._delay * 1e9)
         log.warning("pressure controller %s lost: %s", self._port, exc)
         return PressureNotConnectedError(self._last_error)
 
     def _ensure_port(self) -> serial.Serial:
         if not self._opened:
             raise PressureNotConnectedError(f"{self._port}: driver not open (call open() first)")
-        if self._ser is None and time.monotonic() >= self._next_retry:
+        if self._ser is None and self._clock() >= self._next_retry:
             self._connect()
         if self._ser is None:
             raise PressureNotConnectedError(f"{self._port}: not connected ({self._last_error})")

@@ -11,10 +11,10 @@ reports no contact force (the probe drivers simulate the tissue).
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable, Sequence
 
 from models.arm import ArmModel, ArmStatus, ArmTarget
+from nodes.drivers.host_clock import host_ns
 from nodes.drivers.robot import (
     MotionStatus,
     PathPointLike,
@@ -47,7 +47,7 @@ class SimRobotDriver:
         self.tool_rotvec = (float(tool_rotvec[0]), float(tool_rotvec[1]), float(tool_rotvec[2]))
         self.time_scale = float(time_scale)
         self.max_speed_mm_s, self.max_accel_mm_s2 = float(max_speed_mm_s), float(max_accel_mm_s2)
-        self._clock = clock or time.time_ns
+        self._clock = clock or host_ns
         self.arm = ArmModel((*(float(v) for v in home_mm), *self.tool_rotvec),
                             max_speed_mm_s=max_speed_mm_s, max_accel_mm_s2=max_accel_mm_s2)
         self._t0: int | None = None

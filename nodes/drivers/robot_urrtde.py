@@ -29,6 +29,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from nodes.drivers.host_clock import host_ns
 from nodes.drivers.native_stderr import native_stderr
 from nodes.drivers.robot import (
     MotionStatus,
@@ -69,7 +70,7 @@ class URRtdeDriver:
                  tool_rotvec: Sequence[float] = (0.0, math.pi, 0.0), frequency_hz: float = 500.0,
                  watchdog_hz: float | None = 2.0, max_speed_mm_s: float = 250.0,
                  max_accel_mm_s2: float = 2500.0, poll_s: float = 0.01, start_timeout_s: float = 2.0,
-                 command_timeout_s: float = 10.0, clock: Callable[[], int] = time.time_ns) -> None:
+                 command_timeout_s: float = 10.0, clock: Callable[[], int] = host_ns) -> None:
         if len(frame_offset_mm) != 3 or len(tool_rotvec) != 3:
             raise ValueError(f"URRtdeDriver: frame_offset_mm and tool_rotvec need 3 numbers each, "
                              f"got {frame_offset_mm!r}, {tool_rotvec!r}")
@@ -91,9 +92,13 @@ class URRtdeDriver:
         self._count = 0
         self._moving = False
         self._started = False
-        self._script_gone: float | None = None  # when the control stream first showed the script stopped mid-path
+        self._script_gone: int | None = None
+        """When (clock ns) the control stream first showed the script stopped mid-path."""
         self._reg0 = 0
-        self._t_move = 0.0
+        self._t_move = 0
+        """When (clock ns) the current path was sent: its start is timed on the node's clock, as the emulator's
+        controller runs on it in tests (a busy machine must not fail a start that simulated time has not yet
+        reached)."""
         self._stop_requested = False
         self._last_kick = 0.0
         self._kick_gap = 0.0
@@ -217,7 +222,7 @@ class URRtdeDriver:
             self._set_watchdog()  # the path came with a freshly uploaded script
             self._count, self._index = len(path), 0
             self._moving, self._started, self._stop_requested, self._script_gone = True, False, False, None
-            self._t_move = time.monotonic()
+            self._t_move = self._clock()
             self._status, self._message = MotionStatus.MOVING, ""
 
     def _bounded(self, call: Callable[[], bool], what: str) -> bool:
@@ -317,7 +322,7 @@ class URRtdeDriver:
         # any change of it (or a running flag) means ours has started
         self._started = self._started or running or st.value() != self._reg0
         if not self._started:
-            if time.monotonic() - self._t_move > self.start_timeout_s:
+            if self._clock() - self._t_move > self.start_timeout_s * 1e9:
                 self._latch(MotionStatus.FAULT, f"the path did not start within {self.start_timeout_s:g} s")
             return
         if running:
@@ -325,12 +330,12 @@ class URRtdeDriver:
             if not rc.isProgramRunning():
                 # the control and receive interfaces read two streams: until the receive one shows the program
                 # stopped too, its safety bits may not yet say why (a protective stop is checked before this)
-                now = time.monotonic()
+                now = self._clock()
                 self._script_gone = self._script_gone or now
-                if rr.getRuntimeState() == _RUNTIME_PLAYING and now - self._script_gone < self.command_timeout_s:
+                if rr.getRuntimeState() == _RUNTIME_PLAYING and now - self._script_gone < self.command_timeout_s * 1e9:
                     return
                 self._latch(MotionStatus.FAULT, "the control script stopped on the controller while moving "
-                                                f"({self._stop_cause(now)})")
+                                                f"({self._stop_cause()})")
             return
         self._moving = False
         if self._stop_requested:
@@ -353,12 +358,14 @@ class URRtdeDriver:
             self._last_kick = time.monotonic()
             self._kick_gap = 0.0
 
-    def _stop_cause(self, now: float) -> str:
+    def _stop_cause(self, now: float | None = None) -> str:
         """Why the program may have stopped: whether this driver let the watchdog starve (its longest gap between
         kicks since the watchdog was armed: a stalled process or link) or kept it fed (the pendant, the dashboard,
         another client)."""
         if self.watchdog_hz is None:
             return "stopped from the pendant or dashboard; no RTDE watchdog was set"
+        # the controller times its watchdog on its own (wall) clock: so are the kicks, here and in _kick
+        now = time.monotonic() if now is None else now
         gap, allowed = max(self._kick_gap, now - self._last_kick), 1.0 / self.watchdog_hz
         # the controller times a kick from its arrival, this driver from its sending: a kick that left on time can
         # arrive late over a busy link or to a busy controller, so a gap this near the limit may have starved it
