@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import itertools
 import os
-import time
+import secrets
 from collections.abc import Callable, Sequence
 
 import zmq
@@ -55,7 +55,7 @@ class DirectReach:
     def ping(self, to_cache: Callable[[Sequence[bytes]], None]) -> bytes:
         """Ask the cache (through ``to_cache``) for a ``PONG`` after its answers to everything asked so far; returns
         the token :meth:`synced` takes."""
-        token = f"{len(self.pongs)}.{time.monotonic_ns()}".encode()
+        token = f"{len(self.pongs)}.{secrets.token_hex(8)}".encode()  # unique: another transport may see our PONG
         to_cache([b"PING", token])
         return token
 
