@@ -402,17 +402,22 @@ WALL_CLOCK_ALLOWED = {
     "palpa.node.presence:Heartbeats": "heartbeats are wall-clock liveness for launchers and `palpa node list`, "
                                       "whatever the node's clock (a paused replay's node is alive)",
     "palpa.node.receive:Receiver.count_error": "rate-limits a log line for the human reading it",
-    "palpa.net.keys": "rate-limits a log line (refused CURVE keys) for the human reading it",
-    "palpa.net.direct": "rate-limits a log line for a human; stamps the transport's own control frames",
-    "palpa.net.transport": "ZeroMQ poll and busy-poll timeouts bound a blocking socket call, not a decision; "
-                           "the wait for the proxy's handshake is a socket's",
-    "palpa.net.handshake": "retries a refused CURVE handshake with the proxy: socket machinery in wall time",
+    "palpa.net.keys:ClientKeys.callback": "rate-limits a log line (refused CURVE keys) for the human reading it",
+    "palpa.net.direct:_AllowedKeys.callback": "rate-limits a log line (refused keys) for the human reading it",
+    "palpa.net.direct:DirectSocket.drain": "stamps the transport's own reach answers (no node, no node clock)",
+    "palpa.net.transport:ZmqTransport._busy_wait": "a busy-poll timeout bounds a socket read, not a decision",
+    "palpa.net.transport:ZmqTransport._wait_fine": "a sub-ms poll timeout bounds a socket read, not a decision",
+    "palpa.net.transport:ZmqTransport._await_proxy": "the proxy's handshake is a socket's, in wall time",
+    "palpa.net.handshake:HandshakeWatch": "waits for and retries a CURVE handshake with the proxy: sockets",
     "palpa.launch": "the launcher supervises processes, which live in wall time: exit waits, restart back-off, "
                     "the stop grace, the console's time of day",
     "palpa.cli": "command-line tools talk to a user in wall time (echo/hz windows, --timeout, a unique tool "
                  "node name) and say so",
     "palpa.viz.server": "the websocket viewer refreshes a browser in wall time",
-    "palpa.record.recorder:Recorder": "a recording's start and open times are wall-clock metadata of the file",
+    "palpa.record.recorder:Recorder.setup": "a recording's start time is wall-clock metadata of the file",
+    "palpa.record.recorder:Recorder._open_file": "a file's open time is wall-clock metadata of the file",
+    "palpa.record.recorder:Recorder.spin": "after stop, drains what its sockets already hold, bounded in wall "
+                                           "time (a simulated clock may have stopped with the graph)",
     "palpa.node.receive:Receiver._handle": "a raw message's recv_ns is the MCAP log time a recorder writes: when "
                                            "the host received it, on its wall clock (a record, not a decision)",
     "tools.evaluate": "reports the wall time a run took, to a user",
