@@ -436,7 +436,10 @@ WALL_CLOCK_ALLOWED = {
     "emulators.alicat": "an emulated device (its default clock when a test hands it none)",
     "emulators.fibre_daq": "an emulated device streams on its own wall clock, as the DAQ does",
     "emulators.pty_device": "the pseudo-terminal's reader thread and unplug wait",
-    "emulators.ur": "the UR emulator serves ur_rtde over TCP in wall time (the system tier)",
+    "emulators.ur.server": "the UR emulator serves ur_rtde over TCP in wall time (the system tier); its steppable "
+                           "core, emulators.ur.stepper, runs on the clock it is given (the monotonic one here)",
+    "emulators.ur.process": "starts, waits for and stops an emulator process",
+    "emulators.ur.__main__": "palpa-urfake's main thread waits for a signal",
 }
 
 

@@ -24,6 +24,7 @@ from emulators.ur.dashboard import WELCOME
 from emulators.ur.dashboard import reply as dashboard_reply
 from emulators.ur.rtde import HEADER, RtdeSession
 from emulators.ur.script import ScriptReceiver
+from emulators.ur.stepper import ControllerClock
 from models.arm import TICK_S
 
 _LOG = logging.getLogger("palpa.urfake")
@@ -367,23 +368,9 @@ class UrEmulator:
 
     def _tick_loop(self) -> None:
         ctl = self.controller
-        t0 = time.monotonic()
-        done = 0
+        stepper = ControllerClock(ctl, time.monotonic_ns, max_catchup=_MAX_CATCHUP_TICKS)
         while not self._stop.is_set():
-            target = int((time.monotonic() - t0) / TICK_S)
-            n = target - done
-            if n > _MAX_CATCHUP_TICKS:
-                ctl.log(f"controller lagging: skipping {n - _MAX_CATCHUP_TICKS} ticks")
-                n = _MAX_CATCHUP_TICKS
-            done = max(done, target)
-            motion_to = self._motion_to()
-            for start in range(0, n, _TICKS_PER_LOCK):
-                # release the lock between small batches so that client input (commands,
-                # watchdog kicks) is applied while the controller catches up after a stall
-                with ctl.lock:
-                    for _ in range(min(_TICKS_PER_LOCK, n - start)):
-                        ctl.tick(hold=motion_to is not None and ctl.arm_steps >= motion_to)
-                time.sleep(0)
+            n = stepper.step(self._motion_to(), batch=_TICKS_PER_LOCK, between=lambda: time.sleep(0))
             with ctl.lock:
                 paused = ctl.ticks < ctl.stream_paused_until
                 with self._guard:
@@ -393,4 +380,4 @@ class UrEmulator:
                 for p in packages:
                     conn.send_stream(p)
             # never spin: even when late, give the reader threads a moment to take the lock
-            self._stop.wait(max(_MIN_PAUSE_S, t0 + (done + 1) * TICK_S - time.monotonic()))
+            self._stop.wait(max(_MIN_PAUSE_S, (stepper.next_due_ns() - time.monotonic_ns()) / 1e9))
