@@ -96,9 +96,8 @@ class URRtdeDriver:
         """When (clock ns) the control stream first showed the script stopped mid-path."""
         self._reg0 = 0
         self._t_move = 0
-        """When (clock ns) the current path was sent: its start is timed on the node's clock, as the emulator's
-        controller runs on it in tests (a busy machine must not fail a start that simulated time has not yet
-        reached)."""
+        """When (clock ns) the current path was sent: its start is timed on the clock handed in (the node's), so
+        that on a simulated clock a busy machine cannot fail a start that simulated time has not yet reached."""
         self._stop_requested = False
         self._last_kick = 0.0
         self._kick_gap = 0.0

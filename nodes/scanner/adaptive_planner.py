@@ -135,7 +135,8 @@ class AdaptivePlanner(palpa.Node):
         """Re-optimise the GP's hyper-parameters every this many probes (a fit costs seconds, a posterior ms)."""
         retries: int = 2
         call_timeout_s: float = 120.0
-        """Seconds of the node's clock a probe may take before the planner gives it up (simulated time in a simulation)."""
+        """Seconds of the node's clock a probe may take before the planner gives it up (simulated time on a
+        simulated clock)."""
         output_dir: str = "out"
         title: str = ""
 
