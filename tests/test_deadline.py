@@ -11,7 +11,7 @@ import pytest
 import palpa
 from palpa.node.service import Responder, ServiceTimeout
 from palpa.testing import GraphHarness
-from palpa.timing.clock import FROZEN_ROUNDS, Deadline, MockClock, SystemClock
+from palpa.timing.clock import FROZEN_ROUNDS, Deadline, MockClock, SystemClock, TopicClock
 
 
 class Ask(palpa.Message, frozen=True, kw_only=True):
@@ -70,6 +70,18 @@ def test_a_deadline_on_a_clock_that_stands_still_passes_after_frozen_rounds() ->
     assert [deadline.passed() for _ in range(FROZEN_ROUNDS + 1)] == [False] * FROZEN_ROUNDS + [True]
     unlimited = Deadline(clock, None)
     assert not any(unlimited.passed() for _ in range(2 * FROZEN_ROUNDS))
+
+
+def test_a_deadline_on_a_topic_clock_that_stops_passes_after_frozen_rounds() -> None:
+    """A sim-clock node's clock can stop while it waits (a lockstep clock holding time for it, a paused replay):
+    then too the wait ends after FROZEN_ROUNDS checks, and a tick in between starts the count again."""
+    clock = TopicClock()
+    clock.update(1_000_000_000)
+    deadline = Deadline(clock, 5.0)
+    assert deadline.remaining_s() == pytest.approx(5.0)  # this clock moves by itself: there is time to wait for
+    assert not any(deadline.passed() for _ in range(FROZEN_ROUNDS - 1))
+    clock.update(1_001_000_000)
+    assert [deadline.passed() for _ in range(FROZEN_ROUNDS + 1)] == [False] * FROZEN_ROUNDS + [True]
 
 
 def test_an_async_call_expires_on_simulated_time_not_on_a_busy_machine(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -87,11 +87,12 @@ class TopicClock:
 
 
 FROZEN_ROUNDS = 1000
-"""Checks of a :class:`Deadline` on a clock that moves only when its executor moves it (a :class:`MockClock`) after
-which the deadline counts as passed although that clock stood still: a node blocked in a wait is its executor's
-thread, so no time can pass until the wait ends; by then the rest of the graph (pumped by the wait) has had this many
-rounds to answer, which is far more than the hops any in-memory exchange needs. Rounds, not seconds: a busy machine
-cannot end the wait sooner."""
+"""Checks of a :class:`Deadline` on a simulated clock after which the deadline counts as passed although that clock
+stood still through all of them. A :class:`MockClock` moves only when its executor moves it, and a node blocked in a
+wait is that executor's thread, so no time can pass until the wait ends; by then the rest of the graph (pumped by the
+wait) has had this many rounds to answer, far more than the hops any in-memory exchange needs. A
+:class:`TopicClock` that stops (a lockstep clock holding time for the very node that waits, a paused replay) would
+otherwise hold a wait for good. Rounds, not seconds: a busy machine cannot end the wait sooner."""
 
 
 def _monotonic_ns() -> int:
@@ -103,13 +104,16 @@ class Deadline:
 
     On a :class:`SystemClock` durations are measured on the monotonic clock behind it (a wall-clock step by NTP must
     neither fire nor stretch a limit), so a wall-clock node waits exactly as long as before. On a simulated clock the
-    limit is simulated time: a machine too busy to keep up cannot make it fire early. On a clock that stands still
-    while the waiter blocks (:meth:`Clock.is_real` False) see :data:`FROZEN_ROUNDS`.
+    limit is simulated time: a machine too busy to keep up cannot make it fire early; one that stands still while
+    the waiter waits ends it after :data:`FROZEN_ROUNDS` checks.
     """
 
     def __init__(self, clock: Clock, seconds: float | None) -> None:
-        self._read = _monotonic_ns if isinstance(clock, SystemClock) else clock.now_ns
+        wall = isinstance(clock, SystemClock)
+        self._read = _monotonic_ns if wall else clock.now_ns
         self._frozen = not clock.is_real()
+        """Time cannot move while the waiter blocks (a mock clock): nothing to wait for between rounds."""
+        self._counts_rounds = not wall
         self._checks = 0
         self._last = self._read()
         self.at_ns: int | None = None if seconds is None else self._last + int(round(seconds * 1e9))
@@ -131,7 +135,7 @@ class Deadline:
         now = self._read()
         if self.at_ns is not None and now >= self.at_ns:
             return True
-        if not self._frozen:
+        if not self._counts_rounds:
             return False
         self._checks = self._checks + 1 if now == self._last else 0
         self._last = now
