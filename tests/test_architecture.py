@@ -395,13 +395,16 @@ WALL_CLOCK_ALLOWED = {
     "palpa.node.node_time:SimTime.on_instant": "the frozen-time watchdog notes when time moved, in wall time",
     "palpa.node.node_time:SimTime.check_alive": "the frozen-time watchdog: when simulated time stops, only the "
                                                 "wall clock can tell",
-    # the network: sockets and processes live in wall time, and none of it is a decision of a node's logic
+    # sockets, processes, files and the people reading them live in wall time; none of these is a decision of a
+    # node's logic
     "palpa.node.presence:confirm_subscriptions": "ZeroMQ subscriptions travel through the proxy in wall time, and "
                                                  "a lockstep clock holds simulated time until the node is ready: "
                                                  "JOIN_TIMEOUT_S on the node's clock would never pass",
     "palpa.node.presence:Heartbeats": "heartbeats are wall-clock liveness for launchers and `palpa node list`, "
                                       "whatever the node's clock (a paused replay's node is alive)",
     "palpa.node.receive:Receiver.count_error": "rate-limits a log line for the human reading it",
+    "palpa.node.receive:Receiver._handle": "a raw message's recv_ns is the MCAP log time a recorder writes: when "
+                                           "the host received it, on its wall clock (a record, not a decision)",
     "palpa.net.keys:ClientKeys.callback": "rate-limits a log line (refused CURVE keys) for the human reading it",
     "palpa.net.direct:_AllowedKeys.callback": "rate-limits a log line (refused keys) for the human reading it",
     "palpa.net.direct:DirectSocket.drain": "stamps the transport's own reach answers (no node, no node clock)",
@@ -418,8 +421,6 @@ WALL_CLOCK_ALLOWED = {
     "palpa.record.recorder:Recorder._open_file": "a file's open time is wall-clock metadata of the file",
     "palpa.record.recorder:Recorder.spin": "after stop, drains what its sockets already hold, bounded in wall "
                                            "time (a simulated clock may have stopped with the graph)",
-    "palpa.node.receive:Receiver._handle": "a raw message's recv_ns is the MCAP log time a recorder writes: when "
-                                           "the host received it, on its wall clock (a record, not a decision)",
     "tools.evaluate": "reports the wall time a run took, to a user",
     # drivers: hardware lives in wall time; what a node decides about it reads the clock the node hands in
     "nodes.drivers.host_clock": "the clock of a driver used without a node (every node hands in its own)",
