@@ -405,8 +405,7 @@ WALL_CLOCK_ALLOWED = {
     "palpa.node.receive:Receiver.count_error": "rate-limits a log line for the human reading it",
     "palpa.node.receive:Receiver._handle": "a raw message's recv_ns is the MCAP log time a recorder writes: when "
                                            "the host received it, on its wall clock (a record, not a decision)",
-    "palpa.net.keys:ClientKeys.callback": "rate-limits a log line (refused CURVE keys) for the human reading it",
-    "palpa.net.direct:_AllowedKeys.callback": "rate-limits a log line (refused keys) for the human reading it",
+    "palpa.lograte": "rate-limits log lines (what a peer can make happen at will) for the human reading them",
     "palpa.net.direct:DirectSocket.drain": "stamps the transport's own reach answers (no node, no node clock)",
     "palpa.net.transport:ZmqTransport._busy_wait": "a busy-poll timeout bounds a socket read, not a decision",
     "palpa.net.transport:ZmqTransport._wait_fine": "a sub-ms poll timeout bounds a socket read, not a decision",
