@@ -5,7 +5,8 @@ Safety is enforced here whatever the driver: a plan that leaves the workspace bo
 acceleration cap is refused before any motion (naming the waypoint); while moving, a watchdog stops the arm when
 the probe's data goes stale (``watch_topic``), ``pressure/state`` reports a fault or goes quiet, and ``robot/estop``
 stops it at once. Stale data ends a scan as a fault; a probe (a service call) fails instead, with the reason, and
-the scanner stays up and refuses the next probe until the data is fresh again. The arm's pose is published on
+the scanner stays up and refuses the next probe until the data is fresh again. A path the arm's driver refuses ends
+a scan as a fault with the driver's reason (a probe fails with it). The arm's pose is published on
 ``robot/pose``; the plan, latched, on ``robot/plan`` before motion.
 
 Services (nodes.scanner.scan_control): ``scanner/probe_at`` probes one point and answers with the stiffness found there;

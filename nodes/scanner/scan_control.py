@@ -11,8 +11,8 @@ estimates of a wall-clock rig come late, and an answer made without them would b
 path's first part). The reply is deferred: the scanner keeps running (watchdog, pose, status) meanwhile, and
 progress shows on ``robot/scan_status`` (state ``probing``) like a scan's.
 ``scanner/pause`` stops the arm where it is, ``scanner/resume`` goes on from the waypoint it was heading for,
-``scanner/abort`` stops for good: a scan ends as ``stopped`` (the node exits 2), a probe is answered with a
-refusal and the scanner waits for the next request. Stale data stops a probe the same way (the refusal says which
+``scanner/abort`` stops for good: a scan (its touch-off too) ends as ``stopped`` (the node exits 2), a probe is
+answered with a refusal and the scanner waits for the next request. Stale data stops a probe the same way (the refusal says which
 data), and the next probe is refused until it is fresh again; a path the arm's driver refuses fails the probe with
 the driver's reason, the scanner idle again; a probe after a stopped one lifts the arm straight up
 before its path (:func:`lift_first`), so that a probe stopped in the tissue is not dragged across it.
