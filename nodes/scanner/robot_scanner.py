@@ -231,6 +231,7 @@ class RobotScanner(palpa.Node):
         return ""
 
     def stop_arm(self) -> None:
+        """Stop the arm where it is at the acceleration cap (the state is the caller's to change)."""
         self.driver.stop(self.params.max_accel_mm_s2)
 
     def halt(self, event: Event, why: str) -> None:
