@@ -5,7 +5,8 @@ Safety is enforced here whatever the driver: a plan that leaves the workspace bo
 acceleration cap is refused before any motion (naming the waypoint); while moving, a watchdog stops the arm when
 the probe's data goes stale (``watch_topic``), ``pressure/state`` reports a fault or goes quiet, and ``robot/estop``
 stops it at once. Stale data ends a scan as a fault; a probe (a service call) fails instead, with the reason, and
-the scanner stays up and refuses the next probe until the data is fresh again. The arm's pose is published on
+the scanner stays up and refuses the next probe until the data is fresh again. A path the arm's driver refuses ends
+a scan as a fault with the driver's reason (a probe fails with it). The arm's pose is published on
 ``robot/pose``; the plan, latched, on ``robot/plan`` before motion.
 
 Services (nodes.scanner.scan_control): ``scanner/probe_at`` probes one point and answers with the stiffness found there;
@@ -14,15 +15,17 @@ the scanner does not scan but waits, idle, for probe requests; with a touch-off 
 and probes then follow the found surface as a scan's lines would (sweep: the working offset; indent: the press depth
 below it).
 
-This module holds the node: its parameters, its inputs, its state and the actions on the arm (run a path, pause,
-resume, halt). The plan and its checks against the workspace box and caps are in nodes.scanner.scan_plan; the periodic
-supervision pass (watchdogs, the box, the arm's status, advancing the path) in nodes.scanner.scan_supervision.
+This module holds the node: its inputs, its state and the actions on the arm (run a path, pause, resume, halt, follow
+the path). Its states and every change between them are one table, nodes.scanner.states; its parameters are in
+nodes.scanner.scanner_params; the plan and its checks against the workspace box and caps in nodes.scanner.scan_plan;
+the periodic supervision pass (watchdogs, the box, the arm's status, the start-up, the touch-off, holds for stale data)
+in nodes.scanner.scan_supervision. Each collaborator gets what it needs of the node as a Protocol of its own, and none
+imports this module.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Literal
 
 import palpa
 from messages import (
@@ -30,20 +33,33 @@ from messages import (
     IndenterDisplacements,
     PlanWaypoint,
     PressureState,
+    ProbeAt,
     ProbeHeights,
+    ProbeResult,
     RobotPose,
     ScanPlan,
     ScanStatus,
+    StiffnessSample,
+    Trigger,
+    TriggerResult,
 )
 from messages.robot import ScanState
 from models.following import FollowConfig
 from models.raster import RasterPlan, Waypoint
-from nodes.drivers.robot import RobotConnectionError, RobotDriver, RobotDriverError
+from nodes.drivers.robot import (
+    MotionStatus,
+    PathProgress,
+    RobotConnectionError,
+    RobotDriver,
+    RobotDriverError,
+)
 from nodes.scanner.scan_control import ScanControl
 from nodes.scanner.scan_plan import check_path, path_segments, plan_raster
 from nodes.scanner.scan_progress import PathProgressMeter
 from nodes.scanner.scan_supervision import SUPERVISION_MAX_S, ScanSupervision, supervision_period_s
+from nodes.scanner.scanner_params import ScannerParams
 from nodes.scanner.specimen import SpecimenPlanner
+from nodes.scanner.states import ON_PATH, Event, ScanStateMachine, State
 from nodes.scanner.surface_follow import LineFollower
 
 # SUPERVISION_MAX_S and supervision_period_s: importable from here as before the split (nodes.scanner.scan_supervision)
@@ -55,106 +71,16 @@ _STOPPING_FAULTS = {"device_lost", "over_pressure", "tracking_error"}
 class RobotScanner(palpa.Node):
     """Raster scan with a safety envelope."""
 
-    class Params(palpa.Params):
-        driver: Literal["sim", "ur_rtde"] = "sim"
-        mode: Literal["sweep", "indent"] = "sweep"
-        region_mm: list[float] = []
-        """x0, y0, x1, y1 of the raster in the phantom frame; empty: the geometry's footprint less edge_margin_mm."""
-        geometry: str = ""
-        """Measured-geometry file (models.geometry): the specimen's footprint and thickness as someone measured them."""
-        edge_margin_mm: float = 4.0
-        """Default region: the footprint (or the searched extent) less this on every side."""
-        search_box_mm: list[float] = []
-        """xmin, ymin, zmin, xmax, ymax, zmax: without region_mm, find the specimen in this box: touch down from its
-        top towards its floor at a grid of points search_step_mm apart (contact or none, by the touchoff signal);
-        the region is the extent of the points that found it less edge_margin_mm, its surface fitted through them."""
-        search_step_mm: palpa.Positive = 10.0
-        touchoff: Literal["off", "heights", "indenters", "force"] = "off"
-        """Find the surface before the raster (nodes/scanner/touchoff.py) by this contact signal; off: flat contact_z_mm."""
-        touch_grid: int = 3
-        """Touch-off points: a grid x grid lattice over the region (2: corners and centre)."""
-        touch_inset_mm: float = 0.0
-        """Touch-off points this far inside the region (the air-float probe's SPS ring must lie on the specimen)."""
-        touch_threshold: float = 0.0
-        """Contact threshold (heights, indenters: mm; force: N); 0: the signal's default (9 mm, 0.3 mm, 0.5 N)."""
-        search_speed_mm_s: float = 5.0
-        search_clearance_mm: float = 8.0
-        """Touch-off descents start this far above the thickest measured point (the box's top without geometry)."""
-        working_offset_mm: float = 1.0
-        """After a touch-off, sweep: the probe face's height above the found surface."""
-        follow_gain_per_s: palpa.NonNegative = 10.0
-        """Sweep over a found surface with the air-float probe: its heights hold the face's clearance (eq. 2's d_n)
-        at working_offset_mm along each line, taking this fraction of the error out per second (0: no following;
-        nodes/scanner/surface_follow.py)."""
-        follow_step_mm: palpa.Positive = 1.5
-        """Following: the lines' waypoints at most this far apart (a correction acts within one step)."""
-        follow_max_offset_mm: palpa.SafetyLimit[palpa.Positive] = 2.0
-        """Following never moves a line more than this from its plan."""
-        max_press_fraction: palpa.SafetyLimit[float] = 0.6
-        """After a touch-off, indent: never press deeper than this fraction of the thinnest found point."""
-        spacing_mm: palpa.Positive = 2.0
-        speed_mm_s: palpa.Positive = 10.0
-        """Sweep: speed along a line. Indent: press and lift speed."""
-        axis: Literal["x", "y"] = "y"
-        """Lines run parallel to this axis (the paper's Fig. 12 scan: y)."""
-        contact_z_mm: float = 5.0
-        """Probe face height while sweeping (sweep), or the surface height pressed from (indent)."""
-        indent_depth_mm: palpa.Positive = 3.0
-        hold_s: palpa.NonNegative = 0.5
-        point_spacing_mm: palpa.NonNegative = 0.0
-        """Indent mode: spacing of points along a line (0: same as spacing_mm)."""
-        approach_clearance_mm: palpa.NonNegative = 5.0
-        retract_clearance_mm: palpa.NonNegative = 15.0
-        transit_speed_mm_s: palpa.Positive = 40.0
-        approach_speed_mm_s: palpa.Positive = 10.0
-        accel_mm_s2: palpa.Positive = 500.0
-        home_mm: tuple[float, float, float] = (0.0, 0.0, 40.0)
-        """Start pose of the simulated arm (phantom frame)."""
-        workspace_mm: palpa.SafetyLimit[tuple[float, float, float, float, float, float]] = (
-            -10.0, -10.0, 0.5, 70.0, 70.0, 60.0)
-        """xmin, ymin, zmin, xmax, ymax, zmax: the arm never leaves this box."""
-        max_speed_mm_s: palpa.SafetyLimit[palpa.Positive] = 50.0
-        max_accel_mm_s2: palpa.SafetyLimit[palpa.Positive] = 1000.0
-        watch_topic: palpa.SafetyLimit[Literal["probe/heights", "camera/indenters", ""]] = "probe/heights"
-        """Probe data that must stay fresh while moving ('' disables the watchdog: bench tests only)."""
-        watchdog_s: palpa.SafetyLimit[palpa.Positive] = 0.05
-        pressure_watchdog_s: palpa.SafetyLimit[palpa.NonNegative] = 0.5
-        """Once ``pressure/state`` has been heard, it going quiet this long while moving stops the arm like stale
-        probe data (a dead pressure controller means unknown contact force); 0 disables."""
-        stale_hold_s: palpa.SafetyLimit[palpa.NonNegative] = 0.0
-        """A scan stopped by stale data (either watchdog above) holds, paused, this long for the data to come back,
-        then goes on along its line from where it stopped (each hold logged and counted in the final status); still
-        stale after it, the scan ends as a fault. 0: it ends at once (a probe fails instead, for its caller to
-        retry, whatever this is)."""
-        startup_timeout_s: palpa.Positive = 10.0
-        """How long to wait for the probe's first data before giving up."""
-        pose_rate_hz: palpa.Positive = 250.0
-        linger_s: palpa.NonNegative = 0.5
-        """After the scan: keep publishing this long so the last samples reach the map, then exit."""
-        # drivers
-        time_scale: palpa.Positive = 1.0
-        """Sim driver: simulated seconds per clock second (use the graph's sim clock instead when you can)."""
-        robot_host: str = "127.0.0.1"
-        frame_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-        """Phantom frame origin in the robot base frame (mm)."""
-        tool_rotvec: tuple[float, float, float] = (0.0, math.pi, 0.0)
-        """Fixed tool orientation (rotation vector, rad): probe pointing down."""
-        rtde_watchdog_hz: palpa.SafetyLimit[palpa.NonNegative] = 2.0
-        """ur_rtde: the controller stops the program (and the arm) when this process has not kicked its RTDE
-        watchdog for 1/rtde_watchdog_hz s (a stalled PC or a cut cable); 0: no watchdog."""
-        autostart: bool = True
-        """Run the raster at start-up (and exit when it is done); false: stay idle and serve probe_at requests."""
-
-    params: Params
+    Params = ScannerParams
+    params: ScannerParams
 
     def setup(self) -> None:
         p = self.params
         self.pose_pub = self.publisher("robot/pose", RobotPose)
         self.plan_pub = self.publisher("robot/plan", ScanPlan, latched=True)
         self.status_pub = self.publisher("robot/scan_status", ScanStatus, latched=True)
-        self.state: ScanState = "planning"
+        self.machine = ScanStateMachine()  # every change of state goes through its table (nodes.scanner.states)
         self.message = ""
-        self.line = 0
         self.last_probe_ns: int | None = None
         self.last_pressure_ns: int | None = None
         self.segments: list[tuple[int, int]] = []
@@ -166,7 +92,8 @@ class RobotScanner(palpa.Node):
             self.driver.connect()
         except RobotConnectionError as exc:  # an expected failure (robot off, wrong host): one line, no traceback
             raise palpa.PalpaError(f"{self.name}: {' '.join(str(exc).split())}") from None
-        self.specimen = SpecimenPlanner(self)  # refuses a specimen that does not fit, before any motion
+        # refuses a specimen that does not fit, before any motion
+        self.specimen = SpecimenPlanner(p, self.name, self.driver)
         self.follower: LineFollower | None = None
         if p.mode == "sweep" and p.touchoff != "off" and p.watch_topic == "probe/heights" and p.follow_gain_per_s > 0:
             self.follower = LineFollower(FollowConfig(target_gap_mm=p.working_offset_mm,
@@ -179,6 +106,11 @@ class RobotScanner(palpa.Node):
         self.check_plan()  # raises before any motion
         self.resume_index = 0
         self.control = ScanControl(self)
+        self.control.probe = self.service("scanner/probe_at", ProbeAt, ProbeResult, self.control.on_probe_at)
+        self.service("scanner/pause", Trigger, TriggerResult, self.control.on_pause)
+        self.service("scanner/resume", Trigger, TriggerResult, self.control.on_resume)
+        self.service("scanner/abort", Trigger, TriggerResult, self.control.on_abort)
+        self.subscribe("stiffness/sample", StiffnessSample, self.control.on_sample)
         if p.autostart:
             self.publish_plan()
         if p.watch_topic == "probe/heights":
@@ -190,9 +122,9 @@ class RobotScanner(palpa.Node):
         # serving probe_at too, the scanner is idle only once it could probe: the probe's data flows and the
         # surface is found (a request before that would only be refused)
         if p.autostart or self.specimen.touch is not None or p.watch_topic:
-            self.set_state("waiting", f"waiting for probe data on {p.watch_topic}" if p.watch_topic else "")
+            self.change(Event.WAIT, f"waiting for probe data on {p.watch_topic}" if p.watch_topic else "")
         else:
-            self.set_state("idle", "waiting for scanner/probe_at requests")
+            self.change(Event.SERVE, "waiting for scanner/probe_at requests")
         self.timer(1.0 / p.pose_rate_hz, self.publish_pose, first_in_s=0.0)
         self.supervision = ScanSupervision(self)
         self.timer(supervision_period_s(p.pose_rate_hz), self.supervision.supervise)
@@ -239,23 +171,51 @@ class RobotScanner(palpa.Node):
         self.log.info("plan: %s, %d lines, %d waypoints, ~%.0f s", plan.mode, plan.line_count,
                       len(plan.waypoints), plan.duration_s)
 
+    def scan(self, plan: RasterPlan) -> None:
+        """Publish ``plan`` (already checked) as the scan's plan and drive it."""
+        self.plan = plan
+        self.publish_plan()
+        self.run_path(plan, Event.SCAN)
+
     # -- inputs ----------------------------------------------------------------------------------
     def on_probe(self, msg: ProbeHeights | IndenterDisplacements) -> None:
         self.last_probe_ns = self.clock.now_ns()
-        if self.state == "touching":
+        if self.status is State.TOUCHING:
             self.specimen.on_probe(msg)
-        elif self.follower is not None and self.state == "scanning" and isinstance(msg, ProbeHeights):
+        elif self.follower is not None and self.status is State.SCANNING and isinstance(msg, ProbeHeights):
             self.follower.on_heights(msg.stamp_ns, msg.h_mm, msg.valid)
 
     def on_pressure(self, msg: PressureState) -> None:
         self.last_pressure_ns = self.clock.now_ns()
         bad = _STOPPING_FAULTS.intersection(msg.faults)
-        if bad and self.state in ("waiting", "touching", "scanning", "probing", "paused"):
-            self.halt("fault", f"pressure fault {', '.join(sorted(bad))}")
+        if bad and self.machine.can(Event.FAULT):
+            self.halt(Event.FAULT, f"pressure fault {', '.join(sorted(bad))}")
 
     def on_estop(self, msg: EStop) -> None:
-        if msg.engaged and self.state not in ("done", "estop"):
-            self.halt("estop", f"e-stop: {msg.reason or 'engaged'}")
+        if msg.engaged and self.machine.can(Event.ESTOP):
+            self.halt(Event.ESTOP, f"e-stop: {msg.reason or 'engaged'}")
+
+    # -- state -----------------------------------------------------------------------------------
+    @property
+    def status(self) -> State:
+        """The scanner's state (nodes.scanner.states)."""
+        return self.machine.state
+
+    @property
+    def state(self) -> ScanState:
+        """The state's name as published on ``robot/scan_status``."""
+        return self.machine.state.wire
+
+    def can(self, event: Event) -> bool:
+        """Whether ``event`` changes the state now (the table's guard)."""
+        return self.machine.can(event)
+
+    def change(self, event: Event, message: str = "") -> State:
+        """Change the state by ``event`` (raises IllegalTransition if the table has no such change) and say so."""
+        to = self.machine.fire(event)
+        self.message = message
+        self.publish_status()
+        return to
 
     # -- running ---------------------------------------------------------------------------------
     def stale_data(self, now: int) -> str:
@@ -270,59 +230,62 @@ class RobotScanner(palpa.Node):
                     "(the pressure controller died?)")
         return ""
 
-    def halt(self, state: ScanState, why: str) -> None:
-        """Stop the arm now and end the scan as ``state`` (fault, estop, stopped)."""
-        self.control.stale_since = None  # a scan held for stale data ends too: fresh data must not resume it
+    def stop_arm(self) -> None:
+        """Stop the arm where it is at the acceleration cap (the state is the caller's to change)."""
+        self.driver.stop(self.params.max_accel_mm_s2)
+
+    def halt(self, event: Event, why: str) -> None:
+        """Stop the arm now and end the scan by ``event`` (fault, estop, abort, the arm stopping by itself)."""
         try:
-            self.driver.stop(self.params.max_accel_mm_s2)
+            self.stop_arm()
         finally:
             self.control.fail_probe(f"the scanner stopped: {why}")
-            self.log.error("STOP (%s): %s", state, why)
-            self.set_state(state, why)
-            self.finish(1 if state == "fault" else 2)
-
-    def set_state(self, state: ScanState, message: str = "") -> None:
-        self.state, self.message = state, message
-        self.publish_status()
+            to = self.machine.fire(event)
+            self.log.error("STOP (%s): %s", to.wire, why)
+            self.message = why
+            self.publish_status()
+            self.finish(1 if to is State.FAULT else 2)
 
     def finish(self, code: int) -> None:
         self.timer(self.params.linger_s, lambda: self.request_shutdown(code), oneshot=True)
 
-    def run_path(self, plan: RasterPlan, state: ScanState) -> None:
-        """Drive ``plan`` (already checked) from where the arm is, in ``state`` (scanning, probing)."""
+    def run_path(self, plan: RasterPlan, event: Event) -> None:
+        """Drive ``plan`` (already checked) from where the arm is, by ``event`` (SCAN, PROBE)."""
         self.path = plan.waypoints
-        self.segments = path_segments(plan.waypoints, self.follower is not None and state == "scanning")
+        self.segments = path_segments(plan.waypoints, self.follower is not None and event is Event.SCAN)
         self.segment = 0
         self.hold_until_ns = None
         self.meter = PathProgressMeter(plan.waypoints, plan.duration_s)
-        self.set_state(state)
+        self.change(event)
         self.start_segment()
 
-    def pause(self, why: str = "") -> None:
-        """Stop the arm where it is; :meth:`resume` goes on towards the waypoint it was heading for."""
-        self.driver.stop(self.params.max_accel_mm_s2)
+    def pause(self, event: Event, why: str = "") -> None:
+        """Stop the arm where it is (by ``event``: PAUSE, HOLD); :meth:`resume` goes on towards the waypoint it was
+        heading for."""
+        was = self.state
+        self.stop_arm()
         self.resume_index = self.driver.progress().index
-        self.set_state("paused", why or f"paused during {self.control.paused_from}")
+        self.change(event, why or f"paused during {was}")
 
-    def resume(self, state: ScanState) -> None:
-        self.control.stale_since = None
+    def resume(self) -> None:
         a, b = self.segments[self.segment]
         a = min(a + self.resume_index, b)
         self.segments[self.segment] = (a, b)
         self.hold_until_ns = None
-        self.set_state(state)
+        self.change(Event.RESUME)
         self._send(a, b)
 
     def start_segment(self) -> None:
-        if self.segment >= len(self.segments) and self.state == "probing":
+        if self.segment >= len(self.segments) and self.status is State.PROBING:
             self.meter.complete()
             self.control.path_done()
             return
         if self.segment >= len(self.segments):
             self.meter.complete()
-            holds = self.control.stale_holds
+            holds = self.supervision.holds
             held = f" (held {holds} time(s) for stale data)" if holds else ""
-            self.set_state("done", f"scan complete in {(self.clock.now_ns() - self.started_ns) / 1e9:.1f} s{held}")
+            self.change(Event.COMPLETE,
+                        f"scan complete in {(self.clock.now_ns() - self.started_ns) / 1e9:.1f} s{held}")
             if self.follower is not None:
                 self.log.info("surface following: %d corrections, the largest %+.2f mm", self.follower.resends,
                               self.follower.largest_mm)
@@ -330,21 +293,59 @@ class RobotScanner(palpa.Node):
             self.finish(0)
             return
         a, b = self.segments[self.segment]
-        if self.follower is not None and self.state == "scanning":
+        if self.follower is not None and self.status is State.SCANNING:
             self.follower.start_line(self.path[a : b + 1], self.path[b].line, self.specimen.plan_z())
         self._send(a, b)
 
-    def _send(self, a: int, b: int) -> None:
-        """Drive path[a..b] (the current line's heights at the follower's offset while scanning)."""
+    def _send(self, a: int, b: int) -> bool:
+        """Drive path[a..b] (the current line's heights at the follower's offset while scanning); False when the
+        arm's driver refused it (a probe then fails, a scan ends as a fault: both with the driver's reason)."""
         pts = self.path[a : b + 1]
-        if self.follower is not None and self.state == "scanning":
+        scanning = self.status is State.SCANNING
+        if self.follower is not None and scanning:
             pts = self.follower.shifted(pts)
         try:
             self.driver.move_path(pts)
         except (ValueError, RobotDriverError) as exc:
-            if self.state != "probing":
-                raise
-            self.control.driver_refused(exc)
+            if self.status is State.PROBING:
+                self.control.driver_refused(exc)
+            else:
+                self.halt(Event.FAULT, f"the arm's driver refused the scan's path: {exc}")
+            return False
+        return True
+
+    def follow_path(self, prog: PathProgress, tcp: tuple[float, float, float], now: int) -> None:
+        """One supervision pass along the path (after its checks): progress, the probe's measuring window, the
+        surface follower's corrections, the holds at press points and the next segment."""
+        seg_start, seg_end = self.segments[self.segment]
+        self.meter.update(seg_start + prog.index, tcp)
+        if self.status is State.PROBING:
+            self.control.track(seg_start + prog.index, now)
+        if self.follower is not None and self.status is State.SCANNING and prog.status == MotionStatus.MOVING:
+            self.follower.track(self.path, seg_start + prog.index)
+            if self.follower.due(now):
+                self.resend(self.follower, seg_start + prog.index, seg_end, now)
+                return
+        if self.hold_until_ns is not None:
+            if now >= self.hold_until_ns:
+                self.hold_until_ns = None
+                self.segment += 1
+                self.start_segment()
+            return
+        if prog.status == MotionStatus.DONE:
+            hold = self.path[seg_end].hold_s
+            if hold > 0:
+                self.hold_until_ns = now + int(hold * 1e9)
+            else:
+                self.segment += 1
+                self.start_segment()
+        elif prog.status == MotionStatus.STOPPED:
+            self.halt(Event.ARM_STOPPED, prog.message or "the arm stopped")
+
+    @property
+    def on_path(self) -> bool:
+        """The arm follows a path with a segment still to drive or to finish."""
+        return self.status in ON_PATH and self.segment < len(self.segments)
 
     def resend(self, follower: LineFollower, i: int, b: int, now: int) -> None:
         """Surface following: the rest of the line (from the waypoint being approached) again, at the new offset,
@@ -352,11 +353,11 @@ class RobotScanner(palpa.Node):
         try:
             self.check_path(follower.shifted(self.path[i : b + 1]))
         except palpa.ParamError as exc:
-            self.halt("fault", f"surface following: {exc}")
+            self.halt(Event.FAULT, f"surface following: {exc}")
             return
         self.segments[self.segment] = (i, b)
-        self._send(i, b)
-        follower.sent(now)
+        if self._send(i, b):
+            follower.sent(now)
 
     # -- outputs ---------------------------------------------------------------------------------
     def publish_pose(self) -> None:
@@ -378,8 +379,8 @@ class RobotScanner(palpa.Node):
         ))
 
     def on_shutdown(self) -> None:
-        if self.state not in ("done",):
-            self.driver.stop(self.params.max_accel_mm_s2)  # the driver is closed after this (closing() in setup)
+        if self.status is not State.DONE:
+            self.stop_arm()  # the driver is closed after this (closing() in setup)
 
 
 if __name__ == "__main__":

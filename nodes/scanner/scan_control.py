@@ -11,8 +11,8 @@ estimates of a wall-clock rig come late, and an answer made without them would b
 path's first part). The reply is deferred: the scanner keeps running (watchdog, pose, status) meanwhile, and
 progress shows on ``robot/scan_status`` (state ``probing``) like a scan's.
 ``scanner/pause`` stops the arm where it is, ``scanner/resume`` goes on from the waypoint it was heading for,
-``scanner/abort`` stops for good: a scan ends as ``stopped`` (the node exits 2), a probe is answered with a
-refusal and the scanner waits for the next request. Stale data stops a probe the same way (the refusal says which
+``scanner/abort`` stops for good: a scan (its touch-off too) ends as ``stopped`` (the node exits 2), a probe is
+answered with a refusal and the scanner waits for the next request. Stale data stops a probe the same way (the refusal says which
 data), and the next probe is refused until it is fresh again; a path the arm's driver refuses fails the probe with
 the driver's reason, the scanner idle again; a probe after a stopped one lifts the arm straight up
 before its path (:func:`lift_first`), so that a probe stopped in the tissue is not dragged across it.
@@ -21,24 +21,24 @@ before its path (:func:`lift_first`), so that a probe stopped in the tissue is n
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import statistics
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import palpa
 from messages import ProbeAt, ProbeResult, StiffnessSample, Trigger, TriggerResult
-from messages.robot import ScanState
 from models.following import is_slide
 from models.raster import RasterPlan, Waypoint, indent_raster, sweep_raster
-from palpa.node.service import RequestRefused, Responder
+from nodes.drivers.robot import RobotDriver
+from nodes.scanner.scanner_params import ScannerParams
+from nodes.scanner.specimen import SpecimenPlanner
+from nodes.scanner.states import Event, State
+from palpa.node.service import RequestRefused, Responder, Service
 
-if TYPE_CHECKING:
-    from nodes.scanner.robot_scanner import RobotScanner
+__all__ = ["ControlledScanner", "ScanControl", "ScannerCore", "lift_first", "measuring_moves"]
 
-__all__ = ["MOVING", "ScanControl", "lift_first", "measuring_moves"]
-
-MOVING = ("scanning", "probing")
 _SETTLE_S = 0.6
 """After a probe's path: the rest at its end, and time for the estimator to publish the last estimates (its
 max_wait_s is 0.25 s); the earliest answer."""
@@ -49,11 +49,47 @@ _CATCH_UP_S = 10.0
 sends nothing, dead or unplugged, gets the refusal after this)."""
 
 
-class ScanControl:
-    """Serves the scanner's services and keeps the state of the probe in progress."""
+class ScannerCore(Protocol):
+    """What both the services and the supervision pass use of the scanner (nodes.scanner.robot_scanner)."""
 
-    def __init__(self, node: RobotScanner) -> None:
+    @property
+    def params(self) -> ScannerParams: ...
+    @property
+    def clock(self) -> palpa.Clock: ...
+    @property
+    def log(self) -> logging.Logger: ...
+    @property
+    def driver(self) -> RobotDriver: ...
+    @property
+    def specimen(self) -> SpecimenPlanner: ...
+    @property
+    def last_probe_ns(self) -> int | None: ...
+    @property
+    def status(self) -> State: ...
+
+    def change(self, event: Event, message: str = "") -> State: ...
+    def halt(self, event: Event, why: str) -> None: ...
+    def stale_data(self, now: int) -> str: ...
+    def check_path(self, waypoints: tuple[Waypoint, ...]) -> None: ...
+    def pause(self, event: Event, why: str = "") -> None: ...
+    def resume(self) -> None: ...
+
+
+class ControlledScanner(ScannerCore, Protocol):
+    """What the scanner's services use of the scanner."""
+
+    def can(self, event: Event) -> bool: ...
+    def run_path(self, plan: RasterPlan, event: Event) -> None: ...
+    def stop_arm(self) -> None: ...
+
+
+class ScanControl:
+    """The scanner's services' handlers (the node serves them) and the state of the probe in progress."""
+
+    def __init__(self, node: ControlledScanner) -> None:
         self.node = node
+        self.probe: Service[ProbeAt, ProbeResult] | None = None
+        """The ``scanner/probe_at`` service (set by the node that serves it): its answers are deferred."""
         self.request: ProbeAt | None = None
         self.responder: Responder[ProbeResult] | None = None
         self.values: list[tuple[int, float]] = []  # (measured at, value) of the valid estimates near the point
@@ -66,27 +102,18 @@ class ScanControl:
         self.path_end_ns = 0
         self.latest_ns: int | None = None
         """The latest measurement stamp of any estimate (valid or not, anywhere) heard during the probe."""
-        self.paused_from: ScanState = "scanning"  # set by on_pause before anything reads it
         self.stopped_on_path = False
         """The last probe stopped on its path (stale data, an abort): the next one lifts the arm first."""
-        self.stale_since: int | None = None
-        """The scan held for stale data since then (the scanner's stale_hold_s)."""
-        self.stale_holds = 0
-        self.probe = node.service("scanner/probe_at", ProbeAt, ProbeResult, self.on_probe_at)
-        node.service("scanner/pause", Trigger, TriggerResult, self.on_pause)
-        node.service("scanner/resume", Trigger, TriggerResult, self.on_resume)
-        node.service("scanner/abort", Trigger, TriggerResult, self.on_abort)
-        node.subscribe("stiffness/sample", StiffnessSample, self.on_sample)
 
     # -- probe_at --------------------------------------------------------------------------------
     def on_probe_at(self, req: ProbeAt) -> Responder[ProbeResult]:
         node = self.node
         p = node.params
         last = node.last_probe_ns
-        if node.state == "waiting" and p.watch_topic and last is None:
+        if node.status is State.WAITING and p.watch_topic and last is None:
             raise RequestRefused(f"no fresh probe data on {p.watch_topic}: is the probe's reader running?")
-        if node.state not in ("idle", "done"):
-            raise RequestRefused(f"the scanner is {node.state}, not idle (abort first, or wait)")
+        if not node.can(Event.PROBE) or self.probe is None:
+            raise RequestRefused(f"the scanner is {node.status.wire}, not idle (abort first, or wait)")
         if p.watch_topic and last is None:
             raise RequestRefused(f"no fresh probe data on {p.watch_topic}: is the probe's reader running?")
         if stale := node.stale_data(node.clock.now_ns()):
@@ -106,7 +133,7 @@ class ScanControl:
         self.stopped_on_path = False
         node.log.info("probing (%.1f, %.1f) mm: %s, %d waypoints", req.x_mm, req.y_mm, req.mode,
                       len(plan.waypoints))
-        node.run_path(plan, "probing")  # a path the driver refuses is answered at once (driver_refused)
+        node.run_path(plan, Event.PROBE)  # a path the driver refuses is answered at once (driver_refused)
         return responder
 
     def _plan(self, req: ProbeAt) -> RasterPlan:
@@ -168,7 +195,7 @@ class ScanControl:
     def _answer(self) -> None:
         node, req, responder = self.node, self.request, self.responder
         self.request = self.responder = None
-        node.set_state("idle", "probe done")
+        node.change(Event.COMPLETE, "probe done")
         if req is None or responder is None:
             return
         opened, closed = self.opened_ns, self.closed_ns
@@ -191,19 +218,20 @@ class ScanControl:
                                     samples=len(values), mad=mad,
                                     duration_s=(node.clock.now_ns() - self.started_ns) / 1e9))
 
-    def stop_probe(self, why: str, status: str = "", *, asked: bool = False) -> None:
-        """Stop the arm where it is and fail the probe in progress with ``why``; the scanner stays up, idle, for
-        the next request (a call fails, not its server: the caller decides). The next probe lifts the arm straight
-        up first (:func:`lift_first`), and is refused while the data stays stale."""
+    def stop_probe(self, why: str, status: str = "", event: Event = Event.PROBE_FAILED) -> None:
+        """Stop the arm where it is and fail the probe in progress with ``why`` (``event``: PROBE_FAILED, or ABORT
+        when asked for); the scanner stays up, idle, for the next request (a call fails, not its server: the caller
+        decides). The next probe lifts the arm straight up first (:func:`lift_first`), and is refused while the
+        data stays stale."""
         node = self.node
         try:
-            node.driver.stop(node.params.max_accel_mm_s2)
+            node.stop_arm()
         finally:
             self.fail_probe(why)
             self.stopped_on_path = True
-            log = node.log.info if asked else node.log.error  # an abort is asked for, stale data is a fault
+            log = node.log.info if event is Event.ABORT else node.log.error  # stale data is a fault
             log("STOP (the probe failed; the scanner waits for the next): %s", why)
-            node.set_state("idle", status or f"probe stopped: {why}")
+            node.change(event, status or f"probe stopped: {why}")
 
     def driver_refused(self, exc: Exception) -> None:
         """The arm's driver refused a path of the probe (a protective stop, a path it cannot drive): the probe fails
@@ -217,56 +245,37 @@ class ScanControl:
         if responder is not None:
             responder.refuse(why)
 
-    # -- a scan held for stale data -------------------------------------------------------------
-    def hold(self, stale: str, now_ns: int) -> None:
-        """Stale data while scanning, with ``stale_hold_s`` set: stop the arm and hold the scan, paused."""
-        node = self.node
-        self.paused_from = "scanning"
-        node.pause(f"held: {stale}")
-        self.stale_since, self.stale_holds = now_ns, self.stale_holds + 1
-        node.log.error("HOLD: %s; the scan goes on once it is fresh again (at most %g s)", stale,
-                       node.params.stale_hold_s)
-
-    def supervise_hold(self, now_ns: int) -> None:
-        """A scan held for stale data: on when the data is fresh again, a fault when it stays away too long."""
-        node, since = self.node, self.stale_since
-        assert since is not None
-        stale = node.stale_data(now_ns)
-        if not stale:
-            node.log.warning("the data is fresh again after %.2f s: the scan goes on", (now_ns - since) / 1e9)
-            node.resume("scanning")
-        elif (now_ns - since) / 1e9 > node.params.stale_hold_s:
-            node.halt("fault", f"{stale}, and not fresh again within the {node.params.stale_hold_s:g} s hold")
-
     # -- pause, resume, abort --------------------------------------------------------------------
     def on_pause(self, req: Trigger) -> TriggerResult:
         node = self.node
-        if node.state not in MOVING or self.settle_until_ns is not None:
-            raise RequestRefused(f"nothing to pause: the scanner is {node.state}"
+        if not node.can(Event.PAUSE) or self.settle_until_ns is not None:
+            raise RequestRefused(f"nothing to pause: the scanner is {node.status.wire}"
                                  + (" (the arm is back up, the result is coming)" if self.settle_until_ns else ""))
-        self.paused_from = node.state
-        node.pause()
-        return TriggerResult(message=f"paused ({self.paused_from})", state=node.state)
+        was = node.status.wire
+        node.pause(Event.PAUSE)
+        return TriggerResult(message=f"paused ({was})", state=node.status.wire)
 
     def on_resume(self, req: Trigger) -> TriggerResult:
         node = self.node
-        if node.state != "paused":
-            raise RequestRefused(f"nothing to resume: the scanner is {node.state}")
+        if not node.can(Event.RESUME):
+            raise RequestRefused(f"nothing to resume: the scanner is {node.status.wire}")
         if stale := node.stale_data(node.clock.now_ns()):
             raise RequestRefused(f"not resuming on stale data: {stale}")
-        node.resume(self.paused_from)
-        return TriggerResult(message=f"resumed ({node.state})", state=node.state)
+        node.resume()
+        return TriggerResult(message=f"resumed ({node.status.wire})", state=node.status.wire)
 
     def on_abort(self, req: Trigger) -> TriggerResult:
         node = self.node
-        state = self.paused_from if node.state == "paused" else node.state
-        if state == "probing":
-            self.stop_probe("aborted by scanner/abort", "probe aborted", asked=True)
-        elif state in ("scanning", "waiting"):
-            node.halt("stopped", "scan aborted by scanner/abort")
+        status = node.status
+        if not node.can(Event.ABORT):
+            raise RequestRefused(f"nothing to abort: the scanner is {status.wire}")
+        if status in (State.PROBING, State.PROBE_PAUSED):
+            what = "probing"
+            self.stop_probe("aborted by scanner/abort", "probe aborted", Event.ABORT)
         else:
-            raise RequestRefused(f"nothing to abort: the scanner is {node.state}")
-        return TriggerResult(message=f"aborted ({state})", state=node.state)
+            what = "scanning" if status in (State.SCAN_PAUSED, State.SCAN_HELD) else status.wire
+            node.halt(Event.ABORT, "scan aborted by scanner/abort")
+        return TriggerResult(message=f"aborted ({what})", state=node.status.wire)
 
 
 def lift_first(plan: RasterPlan, at: Sequence[float]) -> RasterPlan:

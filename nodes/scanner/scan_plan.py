@@ -10,7 +10,7 @@ from nodes/scanner/robot_scanner.py, which drives the arm along what these plan 
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import palpa
 from models.following import densify_slides
@@ -24,15 +24,13 @@ from models.raster import (
     sweep_raster,
 )
 from nodes.drivers.robot import RobotDriver
+from nodes.scanner.scanner_params import ScannerParams
 from nodes.scanner.specimen import SpecimenPlanner
-
-if TYPE_CHECKING:
-    from nodes.scanner.robot_scanner import RobotScanner
 
 __all__ = ["check_path", "path_segments", "plan_raster"]
 
 
-def plan_raster(p: RobotScanner.Params, specimen: SpecimenPlanner, following: bool) -> RasterPlan:
+def plan_raster(p: ScannerParams, specimen: SpecimenPlanner, following: bool) -> RasterPlan:
     """The scan's raster over the specimen's region at its planned heights (``following``: a sweep's lines are
     followed, their slides cut into steps of ``follow_step_mm``)."""
     x0, y0, x1, y1 = specimen.region
@@ -53,7 +51,7 @@ def plan_raster(p: RobotScanner.Params, specimen: SpecimenPlanner, following: bo
                          press_speed_mm_s=p.speed_mm_s, **common)
 
 
-def check_path(waypoints: tuple[Waypoint, ...], p: RobotScanner.Params, name: str, driver: RobotDriver) -> None:
+def check_path(waypoints: tuple[Waypoint, ...], p: ScannerParams, name: str, driver: RobotDriver) -> None:
     """Raise ParamError naming the first waypoint that leaves the workspace box or exceeds a cap (and when
     the arm itself is outside the box)."""
     x0, y0, z0, x1, y1, z1 = p.workspace_mm

@@ -7,7 +7,6 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
 
 import palpa
 from messages import IndenterDisplacements, ProbeHeights
@@ -23,10 +22,9 @@ from models.surface import (
     search_points,
     touch_points,
 )
+from nodes.drivers.robot import RobotDriver
+from nodes.scanner.scanner_params import ScannerParams
 from nodes.scanner.touchoff import TouchOff, TouchOffConfig
-
-if TYPE_CHECKING:
-    from nodes.scanner.robot_scanner import RobotScanner
 
 __all__ = ["SpecimenPlanner"]
 
@@ -41,27 +39,27 @@ class SpecimenPlanner:
     height the workspace box cannot hold raises ``palpa.ParamError`` naming the box and the extent.
     """
 
-    def __init__(self, node: RobotScanner) -> None:
-        self.node = node
+    def __init__(self, params: ScannerParams, name: str, driver: RobotDriver) -> None:
+        self.params = params
         self.search_box: tuple[float, ...] | None = None
-        p = node.params
+        p = params
         box = p.workspace_mm
         geo = None
         if p.geometry:
             try:
                 geo = load_geometry(p.geometry)
             except GeometryError as exc:
-                raise palpa.ParamError(f"{node.name}: geometry: {exc}") from None
+                raise palpa.ParamError(f"{name}: geometry: {exc}") from None
         footprint = geo.footprint_mm() if geo is not None else None
         try:
             if p.region_mm:
                 if len(p.region_mm) != 4:
-                    raise palpa.ParamError(f"{node.name}: region_mm needs x0, y0, x1, y1, got {p.region_mm}")
+                    raise palpa.ParamError(f"{name}: region_mm needs x0, y0, x1, y1, got {p.region_mm}")
                 self.region = (float(p.region_mm[0]), float(p.region_mm[1]), float(p.region_mm[2]),
                                float(p.region_mm[3]))
                 what = "the scan region (region_mm)"
             elif p.search_box_mm:
-                self.search_box = _search_box(node.name, p.search_box_mm, p.touchoff, box)
+                self.search_box = _search_box(name, p.search_box_mm, p.touchoff, box)
                 sb = self.search_box
                 self.region, what = (sb[0], sb[1], sb[3], sb[4]), "the search box (search_box_mm)"
             elif footprint is not None:
@@ -72,13 +70,13 @@ class SpecimenPlanner:
                 hx, hy = p.home_mm[0], p.home_mm[1]
                 self.region, what = (hx, hy, hx, hy), "the home position"
             else:
-                raise palpa.ParamError(f"{node.name}: no scan region: give region_mm (x0, y0, x1, y1 mm), a "
+                raise palpa.ParamError(f"{name}: no scan region: give region_mm (x0, y0, x1, y1 mm), a "
                                        "search_box_mm to find the specimen in, or a geometry file with its footprint")
             top = geo.top_mm() if geo is not None else None
             clearance = p.search_clearance_mm if p.touchoff != "off" else p.retract_clearance_mm
             check_fits(self.region, box, top_mm=top, clearance_mm=clearance, what=what)
         except (SpecimenDoesNotFit, ValueError) as exc:
-            raise palpa.ParamError(f"{node.name}: refusing the specimen before any motion: {exc}") from None
+            raise palpa.ParamError(f"{name}: refusing the specimen before any motion: {exc}") from None
         self.prior_top = top
         # until the touch-off has run, heights are over a level surface: the flat contact_z_mm, or the thickest
         # measured point (so that the pre-motion check of the plan sees the specimen's real height)
@@ -93,16 +91,16 @@ class SpecimenPlanner:
             if self.search_box is not None:  # from the box's top down to its floor, at every point of a grid
                 sb = self.search_box
                 cfg = dataclasses.replace(cfg, start_z_mm=sb[5], floor_z_mm=sb[2], search=True)
-                self.touch = TouchOff(node.driver, search_points(self.region, p.search_step_mm), cfg)
+                self.touch = TouchOff(driver, search_points(self.region, p.search_step_mm), cfg)
                 return
             i = p.touch_inset_mm
             x0, y0, x1, y1 = self.region
             inner = (x0 + i, y0 + i, x1 - i, y1 - i) if x1 - x0 > 2 * i and y1 - y0 > 2 * i else self.region
-            self.touch = TouchOff(node.driver, touch_points(inner, p.touch_grid), cfg)
+            self.touch = TouchOff(driver, touch_points(inner, p.touch_grid), cfg)
 
     def plan_heights(self) -> dict[str, object]:
         """Keyword arguments of the raster functions for the heights: flat, or over the surface."""
-        p = self.node.params
+        p = self.params
         if self.surface is None:
             return {"contact_z_mm": p.contact_z_mm}
         if p.mode == "sweep":
@@ -111,7 +109,7 @@ class SpecimenPlanner:
 
     def plan_z(self) -> Callable[[float, float], float] | None:
         """A sweep's planned face height at (x, y) over the found surface (None: no surface)."""
-        surface, offset = self.surface, self.node.params.working_offset_mm
+        surface, offset = self.surface, self.params.working_offset_mm
         if surface is None:
             return None
         return lambda x, y: surface.z(x, y) + offset
@@ -119,7 +117,7 @@ class SpecimenPlanner:
     def press_depth_mm(self) -> float:
         """Indent depth: the set depth, but never more than ``max_press_fraction`` of the thinnest found point nor
         closer than 0.2 mm to the workspace box's floor."""
-        p = self.node.params
+        p = self.params
         if self.surface is None or self.touch is None:
             return float(p.indent_depth_mm)
         # before the touch-off the plan is checked over the thickest measured point; after it, the thinnest found
@@ -141,7 +139,7 @@ class SpecimenPlanner:
             raise ValueError("no touch-off ran")
         found = ""
         if self.search_box is not None:
-            sb, p = self.search_box, self.node.params
+            sb, p = self.search_box, self.params
             self.region = region_from_touches(self.touch.touches, p.edge_margin_mm, (sb[0], sb[1], sb[3], sb[4]))
             xs, ys = [t[0] for t in self.touch.touches], [t[1] for t in self.touch.touches]
             found = (f"search: the specimen under {len(xs)} of {len(xs) + len(self.touch.misses)} points, extent x "
