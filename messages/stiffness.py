@@ -61,12 +61,17 @@ class StiffnessMap(Message, frozen=True, kw_only=True):
 
 
 class DetectedInclusion(msgspec.Struct, frozen=True, kw_only=True):
-    """One stiff region: centroid, equivalent radius and contrast (peak / healthy baseline)."""
+    """One stiff region: centroid, equivalent radius and contrast (peak / healthy baseline); the detector's
+    significance ``snr`` (σ of the filtered noise) and ``false_alarm``, the probability that a map without
+    inclusions shows a peak that significant (models.detector). A sender from before issue 37 leaves them
+    at 0 and 1 (not known)."""
 
     x_mm: Finite
     y_mm: Finite
     radius_mm: Finite
     contrast: Finite
+    snr: float = 0.0
+    false_alarm: float = 1.0
 
 
 class Inclusions(Message, frozen=True, kw_only=True):
@@ -77,3 +82,7 @@ class Inclusions(Message, frozen=True, kw_only=True):
     baseline: float
     inclusions: list[DetectedInclusion]
     final: bool = False
+    threshold_snr: float = 0.0
+    """The significance a detection had to exceed on this map (0: not stated)."""
+    false_alarm_per_map: float = 0.0
+    """The detector's false-alarm rate per map without inclusions (0: not stated)."""
