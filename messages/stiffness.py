@@ -29,6 +29,8 @@ class StiffnessSample(Message, frozen=True, kw_only=True):
     pan_rad: float = 0.0
     dt_mm: list[float] = []
     """Tissue displacement under each indenter (multi-indenter model)."""
+    thickness_mm: float = 0.0
+    """The layer thickness eq. 7 used here (air-float model; 0: not stated)."""
 
 
 class StiffnessFit(Message, frozen=True, kw_only=True):
