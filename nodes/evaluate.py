@@ -109,10 +109,18 @@ def scan_facts(recording: Path) -> dict[str, float]:
     }
 
 
-def score_run(spec: RunSpec, phantom: Phantom) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-    """One row for the run and one per true inclusion (raises OSError/ValueError when outputs are missing)."""
+def score_run(spec: RunSpec, phantom: Phantom, redetect: bool = False) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """One row for the run and one per true inclusion (raises OSError/ValueError when outputs are missing);
+    ``redetect``: the map detector (models.detector, the map aggregator's) run on ``map.npz`` again instead of the
+    run's ``inclusions.json``."""
     out = spec.run_dir / "map"
     detections = json.loads((out / "inclusions.json").read_text())
+    if redetect:
+        from models.detector import detect
+        from models.stiffness_map import to_inclusions_json
+        from nodes.map_output import read_map
+
+        detections = to_inclusions_json(detect(read_map(out / "map.npz")).inclusions)
     with np.load(out / "map.npz") as grid:
         score = score_scan(phantom, detections, dict(grid))
     errors = [s.centroid_error_mm for s in score.inclusions if s.found]
@@ -261,6 +269,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                          "the specimen)")
     ap.add_argument("--geometry-error", type=float, default=0.2, help="simulated thickness measurement σ (mm)")
     ap.add_argument("--timeout", type=float, default=900.0, help="seconds before a run is killed")
+    ap.add_argument("--rescore", action="store_true",
+                    help="launch nothing: score the runs an earlier call with the same arguments left in OUT")
+    ap.add_argument("--redetect", action="store_true",
+                    help="score the map detector (models.detector) run on each map.npz again, not its inclusions.json")
     opts = ap.parse_args(argv)
     out: Path = opts.out
     out.mkdir(parents=True, exist_ok=True)
@@ -276,13 +288,42 @@ def main(argv: Sequence[str] | None = None) -> int:
     grid = _parse_grid(opts.arg)
     specs = plan_runs(opts.launch, phantoms, opts.seeds, grid, out, margin_mm=opts.margin,
                       geometry_error_mm=opts.geometry_error)
-    rows, incs = _run_all(opts, specs)
+    rows, incs = _rescore(opts, specs) if opts.rescore else _run_all(opts, specs)
     _write_tables(out, rows, incs)
     summary = summarize(rows, list(grid))
     (out / "summary.txt").write_text("\n".join(summary) + "\n", encoding="utf-8")
     print("\n".join(summary))
     print(f"tables: {out / 'runs.csv'}, {out / 'inclusions.csv'}, {out / 'runs.json'}; runs in {out / 'runs'}")
     return 1 if any(r.get("error") for r in rows) else 0
+
+
+def _score_row(spec: RunSpec, ran: dict[str, Any], redetect: bool) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The run's row (its launch's outcome and, when it ran clean, its score) and its per-inclusion rows."""
+    row: dict[str, Any] = {"run": spec.id, "phantom": str(spec.phantom), "seed": spec.seed, **spec.args,
+                           "exit_code": ran["exit_code"], "wall_s": round(ran["wall_s"], 2), "error": ""}
+    incs: list[dict[str, Any]] = []
+    if ran["exit_code"] != 0:
+        row["error"] = f"launch failed ({ran['exit_code']}): {ran['tail'].strip().splitlines()[-1:]}"
+    else:
+        try:
+            scored, incs = score_run(spec, load_phantom(spec.phantom), redetect)
+            row.update(scored)
+        except (OSError, ValueError, KeyError) as exc:
+            row["error"] = f"cannot score: {exc}"
+    return row, incs
+
+
+def _rescore(opts: argparse.Namespace, specs: list[RunSpec]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Every run's score from what an earlier call left in its run directory (``--rescore``)."""
+    rows: list[dict[str, Any]] = []
+    incs: list[dict[str, Any]] = []
+    for spec in specs:
+        row, per_inclusion = _score_row(spec, {"exit_code": 0, "wall_s": 0.0, "tail": ""}, opts.redetect)
+        if row["error"]:
+            print(f"{spec.id}: {row['error']}", file=sys.stderr)
+        rows.append(row)
+        incs += per_inclusion
+    return rows, incs
 
 
 def _run_all(opts: argparse.Namespace, specs: list[RunSpec]) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
@@ -303,18 +344,8 @@ def _run_all(opts: argparse.Namespace, specs: list[RunSpec]) -> tuple[list[dict[
                                timeout_s=opts.timeout): s for s in specs}
         for fut in as_completed(futures):
             spec = futures[fut]
-            ran = fut.result()
-            row: dict[str, Any] = {"run": spec.id, "phantom": str(spec.phantom), "seed": spec.seed, **spec.args,
-                                   "exit_code": ran["exit_code"], "wall_s": round(ran["wall_s"], 2), "error": ""}
-            if ran["exit_code"] != 0:
-                row["error"] = f"launch failed ({ran['exit_code']}): {ran['tail'].strip().splitlines()[-1:]}"
-            else:
-                try:
-                    scored, per_inclusion = score_run(spec, load_phantom(spec.phantom))
-                    row.update(scored)
-                    incs += per_inclusion
-                except (OSError, ValueError, KeyError) as exc:
-                    row["error"] = f"cannot score: {exc}"
+            row, per_inclusion = _score_row(spec, fut.result(), opts.redetect)
+            incs += per_inclusion
             if row["error"]:
                 bar.console.print(f"[red]{spec.id}: {row['error']}[/red]")
             rows.append(row)

@@ -30,7 +30,22 @@ from messages import DetectedInclusion, Inclusions
 from models.detector import Detection
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, to_inclusions_json
 
-__all__ = ["detection_summary", "inclusions_message", "write_outputs"]
+__all__ = ["detection_summary", "inclusions_message", "read_map", "write_outputs"]
+
+
+def read_map(npz: Path) -> MapSnapshot:
+    """A written ``map.npz`` as the map snapshot it was written from (what models.detector.detect reads); raises
+    OSError, KeyError or ValueError on a file that is not one."""
+    with np.load(npz) as d:
+        x = np.asarray(d["x_mm"], dtype=np.float64)
+        y = np.asarray(d["y_mm"], dtype=np.float64)
+        grid = np.asarray(d["stiffness"], dtype=np.float64)
+        if grid.shape != (y.size, x.size):
+            raise ValueError(f"{npz}: stiffness {grid.shape} is not y_mm x x_mm ({y.size}, {x.size})")
+        step = np.diff(x) if x.size > 1 else np.diff(y)
+        spread = np.asarray(d["spread"], dtype=np.float64) if "spread" in d else np.full(grid.shape, np.nan)
+        return MapSnapshot(grid, x, y, np.asarray(d["count"], dtype=np.int64), spread,
+                           float(step[0]) if step.size else 1.0)
 
 
 def inclusions_message(det: Detection, *, stamp_ns: int, unit: str, false_alarm_per_map: float,
