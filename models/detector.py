@@ -255,7 +255,7 @@ def detect(snapshot: MapSnapshot, cfg: DetectorConfig | None = None, *, threshol
     Non-positive stiffness values are not valid cells (eq. 7 gives none on a sound map). Raises ValueError on a
     config it cannot use."""
     cfg = cfg or DetectorConfig()
-    grid = _drop_spikes(fill_gaps(np.asarray(snapshot.stiffness, dtype=np.float64)), cfg.spike_ratio)
+    grid = fill_gaps(_drop_spikes(np.asarray(snapshot.stiffness, dtype=np.float64), cfg.spike_ratio))
     valid = np.isfinite(grid) & (grid > 0)
     shape = grid.shape
     nan = np.full(shape, np.nan)

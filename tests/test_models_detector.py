@@ -86,7 +86,7 @@ def test_candidates_do_not_raise_the_background_or_the_threshold() -> None:
     finds the weak one and keeps the baseline and noise of the healthy tissue."""
     blobs = [(x, y, 6.5, 2.5) for x in (12.0, 48.0) for y in (12.0, 48.0)] + [(30.0, 12.0, 6.5, 2.5),
                                                                               (30.0, 48.0, 6.5, 2.5)]
-    weak = (30.0, 30.0, 3.5, 1.15)
+    weak = (30.0, 30.0, 3.5, 1.10)
     grid = _field([*blobs, weak], noise=0.03, seed=4)
     det = detect(_snap(grid), CFG)
     assert det.baseline == pytest.approx(BASE, rel=0.03)
@@ -113,6 +113,14 @@ def test_the_threshold_follows_the_false_alarm_rate_and_the_maps_area() -> None:
     p = lax.inclusions[0].false_alarm
     assert detect(_snap(grid), replace(cfg, false_alarm_per_map=p * 0.5)).inclusions == []
     assert len(detect(_snap(grid), replace(cfg, false_alarm_per_map=min(0.99, p * 2))).inclusions) == 1
+
+
+def test_two_close_inclusions_are_two_detections() -> None:
+    """5 mm of tissue between them: the larger discs join their halos into one region, the smallest disc's
+    significance shows the dip between them."""
+    det = detect(_snap(_field([(22.0, 30.0, 4.0, 1.6), (38.0, 30.0, 4.0, 1.6)], noise=0.04, seed=7)), CFG)
+    assert sorted(round(i.x_mm) for i in det.inclusions) == [22, 38]
+    assert all(abs(i.y_mm - 30.0) < 1.0 and abs(i.x_mm - round(i.x_mm)) < 1.0 for i in det.inclusions)
 
 
 def test_a_missed_line_is_bridged_and_an_unscanned_corner_is_no_inclusion() -> None:
