@@ -106,7 +106,7 @@ class PlannerConfig:
     them, as many on phantoms without an inclusion as with one); 0.7 lost weak ones (tuning seeds 121, 134)."""
     fill_mm: float = 4.0
     """detect: the detection map takes the GP mean only this close to a measured cell."""
-    false_alarm_per_map: float = 0.01
+    false_alarm_per_map: float = 0.003
     """detect: the map detector's false-alarm rate per map (models.detector.DetectorConfig); its background and noise
     come from the cells measured by stiffness-blind sweeps."""
     split_prominence: float = 1.5

@@ -62,5 +62,5 @@ def split_detections(det: Detection, snap: MapSnapshot, measured: BoolArray, cfg
         pieces.append(cut if len(cut) > 1 and all(p.sum() >= 2 for p in cut) else [region])
     if all(len(p) == 1 for p in pieces):
         return found
-    out = [describe(det, snap, part, cfg) for cut in pieces for part in cut]
+    out = [describe(det, snap, part, cfg, part=len(cut) > 1) for cut in pieces for part in cut]
     return sorted(out, key=lambda i: -i.snr)

@@ -105,7 +105,7 @@ class AdaptivePlanner(palpa.Node):
         """detect: regions above this fraction of the detector's threshold get their boundary sampled."""
         fill_mm: float = 4.0
         """detect: the detection map takes the GP mean only this close to a measured cell."""
-        false_alarm_per_map: float = 0.01
+        false_alarm_per_map: float = 0.003
         """The map detector's false-alarm rate per map (models.detector), as the map aggregator's."""
         split_prominence: float = 1.5
         """detect: split a detection whose measured cells show two maxima this many noise scales above the measured

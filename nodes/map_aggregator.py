@@ -46,7 +46,7 @@ class MapAggregator(palpa.Node):
         min_count: palpa.PositiveInt = 3
         """Samples a cell needs to count."""
         publish_hz: palpa.Positive = 1.0
-        false_alarm_per_map: palpa.Positive = 0.01
+        false_alarm_per_map: palpa.Positive = 0.003
         """The detector's threshold: the chance that a map without inclusions shows a detection (models.detector)."""
         radii_mm: tuple[float, ...] = (2.5, 3.5, 5.0, 7.0)
         """The inclusion radii the detector's matched filter looks for."""

@@ -331,7 +331,7 @@ def test_decide_measures_a_detections_disc_densely_before_stopping() -> None:
 def _near_miss(b: Belief, fraction: float, cfg: PlannerConfig, fair: npt.NDArray[np.float64]
                ) -> npt.NDArray[np.float64]:
     """Two sweeps 8 mm apart past a weak rise (and the GP's guess between them) whose significance reads ``fraction``
-    of the detector's threshold."""
+    of the detector's threshold (just under it)."""
     counts = np.ones((20, 20), dtype=np.int64)
 
     def rise(level: float) -> npt.NDArray[np.float64]:
@@ -341,9 +341,12 @@ def _near_miss(b: Belief, fraction: float, cfg: PlannerConfig, fair: npt.NDArray
         b.mean[7:14, 9:12] = level
         return measured
 
-    det = detect_candidates(b, rise(10.1), counts, cfg, fair)[1]   # the significance grows with the log-rise
-    unit = float(np.nanmax(det.significance)) / math.log(1.01)
-    return rise(10.0 * math.exp(fraction * det.threshold_snr / unit))
+    lo, hi = 0.0, 0.2   # the log-rise, bisected: the significance grows with it
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        det = detect_candidates(b, rise(10.0 * math.exp(mid)), counts, cfg, fair)[1]
+        lo, hi = (mid, hi) if float(np.nanmax(det.significance)) < fraction * det.threshold_snr else (lo, mid)
+    return rise(10.0 * math.exp(lo))
 
 
 def test_a_near_miss_gets_its_disc_measured_at_its_own_gap_whether_or_not_detections_are() -> None:

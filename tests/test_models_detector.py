@@ -15,6 +15,7 @@ from models.detector import (
     detect,
     false_alarm_probability,
     fit_false_alarm_law,
+    peak_significance,
     threshold_for,
 )
 from models.stiffness_map import MapSnapshot, StiffnessGrid, to_inclusions_json
@@ -48,7 +49,7 @@ def _calibrated() -> DetectorConfig:
     blanks = [_snap(_field([], noise=0.05, seed=s, dome=d)) for s in range(100, 120) for d in (0.0, 0.3)]
     for _ in range(2):
         dets = [detect(b, cfg) for b in blanks]
-        tops = [float(np.nanmax(d.significance)) for d in dets]
+        tops = [peak_significance(d) for d in dets]
         loc, scale = fit_false_alarm_law(tops, [d.area_mm2 for d in dets], 3600.0)
         cfg = replace(cfg, gumbel=(loc, scale, 3600.0))
     return cfg
