@@ -4,7 +4,7 @@ GUMBEL_SCALE and REFERENCE_AREA_MM2.
 Scan the blank specimens once (a flat 3 mm sheet and the demo's dome without tumours, twenty noise draws each: the
 device's errors, the sensor noise and the thickness measurement all drawn from the seed):
 
-    python -m nodes.evaluate launch/scan_sim.yaml --phantom phantoms/blank/flat_3mm.yaml \\
+    python -m tools.evaluate launch/scan_sim.yaml --phantom phantoms/blank/flat_3mm.yaml \\
         --phantom phantoms/blank/dome_4_2.yaml --seeds $(seq 0 19) -o runs/blank --jobs 1
 
 then fit the law of each map's largest significance the detector could report (models.detector.peak_significance:
@@ -42,7 +42,7 @@ from models.detector import (  # noqa: E402
     threshold_for,
 )
 from models.stiffness_map import MapSnapshot  # noqa: E402
-from nodes.map_output import read_map  # noqa: E402
+from nodes.mapping.map_output import read_map  # noqa: E402
 
 
 def peaks(maps: list[MapSnapshot], cfg: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:

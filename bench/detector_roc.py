@@ -1,12 +1,12 @@
 """What could this scan have found: the map detector's sensitivity against its false positives per map (issue 37).
 
-Reads the saved maps of ``nodes.evaluate`` runs on generated phantoms (each folder's ``runs.json`` names every
+Reads the saved maps of ``tools.evaluate`` runs on generated phantoms (each folder's ``runs.json`` names every
 run's phantom), runs models.detector.detect on each map at a range of false-alarm rates per map (the detector's
 one knob: its threshold), scores each with models.scoring, and draws sensitivity (true inclusions found) against
 false positives per map, by inclusion radius, stiffness ratio and depth, the default operating point marked. Blank
 specimens' folders (``--blank``) add their maps to the false positives' count (they have nothing to find).
 
-    python -m nodes.evaluate launch/scan_sim.yaml --generate 40 --phantom-seed 20 -o runs/roc --jobs 2
+    python -m tools.evaluate launch/scan_sim.yaml --generate 40 --phantom-seed 20 -o runs/roc --jobs 2
     .venv/bin/python bench/detector_roc.py runs/eval20 runs/roc --blank runs/blank_flat runs/blank_dome
 
 Writes docs/img/detector_roc.png and prints one JSON line (per group and operating point: found, total, false
@@ -31,7 +31,7 @@ from models.detector import DetectorConfig, detect  # noqa: E402
 from models.phantom import Phantom, load_phantom  # noqa: E402
 from models.scoring import score_scan  # noqa: E402
 from models.stiffness_map import MapSnapshot, to_inclusions_json  # noqa: E402
-from nodes.map_output import read_map  # noqa: E402
+from nodes.mapping.map_output import read_map  # noqa: E402
 
 RATES = (0.9, 0.5, 0.2, 0.1, 0.05, 0.02, 0.01, 3e-3, 1e-3, 1e-4, 1e-6)
 GROUPS: dict[str, tuple[str, list[tuple[float, float]]]] = {
@@ -50,7 +50,8 @@ def runs_of(folder: Path) -> list[tuple[MapSnapshot, dict[str, Any], Phantom | N
             continue
         with np.load(npz) as d:
             arrays = dict(d)
-        out.append((read_map(npz), arrays, load_phantom(Path(row["phantom"]))))
+        phantom = Path(row["phantom"])   # tools.evaluate names a generated one relative to the folder
+        out.append((read_map(npz), arrays, load_phantom(phantom if phantom.exists() else folder / phantom)))
     return out
 
 

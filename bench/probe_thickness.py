@@ -18,7 +18,6 @@ from pathlib import Path
 
 import msgspec
 import numpy as np
-import yaml
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
@@ -26,12 +25,14 @@ sys.path.insert(0, str(REPO))
 from messages import StiffnessSample  # noqa: E402
 from models.phantom import load_phantom  # noqa: E402
 from palpa.record.reader import iter_bag, resolve_bag_paths  # noqa: E402
+from yamlstruct import Source  # noqa: E402
 
 
 def errors(run: Path, phantom: Path | None) -> np.ndarray:
     """Probe thickness less true thickness (mm) of every valid sample of the run that states one."""
     if phantom is None:   # the phantom the launch was given
-        resolved = yaml.safe_load((run / "launch.resolved.yaml").read_text())
+        path = run / "launch.resolved.yaml"
+        resolved = Source.from_text(path.read_text(), str(path)).data
         phantom = Path(next(a["default"] for a in resolved["args"] if a["name"] == "phantom"))
     ph = load_phantom(phantom)
     xs, ys, ts = [], [], []

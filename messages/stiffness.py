@@ -11,7 +11,10 @@ class StiffnessSample(Message, frozen=True, kw_only=True):
     """One stiffness estimate at one place (topic ``stiffness/sample``).
 
     ``model`` is ``airfloat`` (``value`` = Young's modulus E in kPa, eq. 7) or ``multi_indenter`` (``value`` =
-    tissue stiffness K_t in N/mm, eq. 5). Invalid samples carry ``valid=False`` and a ``reason``.
+    tissue stiffness K_t in N/mm, eq. 5). ``valid`` is True only for a stiffness reading of the specimen; every
+    other reading (the probe in the air, the air-float ring off the measured footprint, the indenter on its stop
+    during a lift or a touch-off, stale inputs...) carries ``valid=False``, a NaN ``value`` and a ``reason``
+    (docs/custom-node.md lists them).
     """
 
     stamp_ns: int

@@ -178,6 +178,20 @@ def fill_gaps(stiffness: FloatArray, min_neighbors: int = 4) -> FloatArray:
     return out
 
 
+def spacing_warning(spacing_mm: float, resolution_mm: float) -> str:
+    """Why raster lines ``spacing_mm`` apart leave holes in a map of ``resolution_mm`` cells, and what to use; ''
+    when they do not. Between two lines lie about ``spacing / resolution - 1`` rows of cells no sample falls in;
+    :func:`fill_gaps` bridges one such row, so lines more than two cells apart leave an empty band across every
+    inclusion they cross, which then reads as two (6 mm lines on 2 mm cells split each tumour of the air-float
+    phantom in two)."""
+    if not (spacing_mm > 0 and resolution_mm > 0) or spacing_mm <= 2 * resolution_mm + 1e-9:
+        return ""
+    empty = math.ceil(spacing_mm / resolution_mm - 1e-9) - 1
+    return (f"line spacing {spacing_mm:g} mm leaves {empty} empty rows of {resolution_mm:g} mm cells between raster "
+            f"lines; the map bridges only one, so an inclusion crossing the gap can read as two: use spacing_mm <= "
+            f"{2 * resolution_mm:g} (twice resolution_mm) or resolution_mm >= {spacing_mm / 2:g} (half the spacing)")
+
+
 def background(stiffness: npt.ArrayLike) -> tuple[float, float]:
     """Whole-map statistics: (median, 1.4826 * MAD) over the finite cells, in the map's unit; (nan, nan) for a
     map without data. The detector does not use them (inclusions would count as background): models.detector."""

@@ -42,5 +42,5 @@ def phantom_from_param(path: str, node: str) -> Phantom:
 
 
 def load_probe_calibration(path: str, node: str) -> ProbeCalibration:
-    """Read a camera-probe calibration file (YAML, nodes/camera_calibrate.py writes it)."""
+    """Read a camera-probe calibration file (YAML, tools/camera_calibrate.py writes it)."""
     return _read_as_param(path, node, "calibration", read_probe_calibration, CalibrationError)

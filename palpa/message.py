@@ -16,6 +16,7 @@ from typing import Annotated, Any, ClassVar, TypeVar
 import msgspec
 
 from palpa.errors import RegistryError
+from yamlstruct import did_you_mean
 
 __all__ = ["Finite", "Message", "json_schema", "lookup", "registered"]
 
@@ -56,7 +57,8 @@ def lookup(name: str) -> type[Message]:
         return _REGISTRY[name]
     except KeyError:
         raise RegistryError(
-            f"unknown message type {name!r} (is the module that defines it imported?)"
+            f"unknown message type {name!r}{did_you_mean(name, _REGISTRY)} (is the module that defines it "
+            "imported? `palpa schema --list` lists the known ones)"
         ) from None
 
 

@@ -59,3 +59,25 @@ class Burst(palpa.Node):
         for i in range(self.params.n):
             self.out.publish(Text(text=f"{i} " + "x" * self.params.size))
         self.request_shutdown(0)
+
+
+class Freezer(palpa.Node):
+    """On the simulated clock: a 10 ms timer, and after ``after_s`` simulated seconds a callback that holds the node
+    for ``hold_s`` wall seconds (or until it is asked to stop): a node stuck but alive, which the lockstep clock
+    waits for, so the graph's time stands still."""
+
+    class Params(palpa.Params):
+        after_s: float = 0.5
+        hold_s: float = 60.0
+
+    def setup(self) -> None:
+        self.timer(0.01, lambda: None)
+        self.timer(self.params.after_s, self.freeze, oneshot=True)
+
+    def freeze(self) -> None:
+        import time
+
+        self.log.warning("freezing for %g s (wall clock)", self.params.hold_s)
+        deadline = time.monotonic() + self.params.hold_s
+        while time.monotonic() < deadline and not self.is_shutdown:
+            time.sleep(0.05)

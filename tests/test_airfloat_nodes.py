@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from messages import PressureCommand, ProbeHeights, RobotPose, StiffnessSample
-from nodes.fibre_reader import FibreReader
-from nodes.pressure_controller import PressureController
-from nodes.static_pose import StaticPose
-from nodes.stiffness_estimator import AirfloatStiffnessEstimator
+from nodes.probe.fibre_reader import FibreReader
+from nodes.probe.pressure_controller import PressureController
+from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator
+from nodes.scanner.static_pose import StaticPose
 from palpa.testing import GraphHarness, NodeHarness
 
 
@@ -90,7 +90,7 @@ def test_the_probe_measures_the_thickness_eq7_divides_by(tmp_path) -> None:  # t
                                                        ("phantoms/flat_10k.yaml", 10.8, 33.0)])
 def test_calibration_beats_the_devices_errors(phantom: str, truth: float, kpa: float, tmp_path) -> None:  # type: ignore[no-untyped-def]
     """The realistic simulated probe (device 0: its own force line, hysteresis, SPS gap, fibre errors) read with
-    the paper's eq. 4 line is far off on the Fig. 11 samples; calibrated on the bench (nodes.calibrate_airfloat:
+    the paper's eq. 4 line is far off on the Fig. 11 samples; calibrated on the bench (tools.calibrate_airfloat:
     force sensor + the two reference samples), it is within 10 % (held at one depth; BENCHMARKS.md has the
     Fig. 11 ramp protocol)."""
     from tests.conftest import airfloat_calibration
@@ -192,6 +192,7 @@ def test_fibre_sim_rate_and_no_contact_when_lifted() -> None:
     assert pose.params.z_mm == 40.0
 
 
+@pytest.mark.system
 def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path, calibration) -> None:  # type: ignore[no-untyped-def]
     """Issue 6 acceptance as processes: launch/airfloat_sim.yaml over the 10.8 kPa phantom, the simulated probe
     calibrated on the bench first (uncalibrated it reads about a third low: BENCHMARKS.md)."""
@@ -245,3 +246,35 @@ def test_calibration_file_sets_force_line_and_depth_offset(tmp_path) -> None:  #
     with pytest.raises(Exception, match=r"cal.yaml:1:\d+: force.gain: expected `float`, got `str`"):
         cal.write_text("force: {gain: x, offset: 1}\n")
         NodeHarness(AirfloatStiffnessEstimator, {"calibration": str(cal)})
+
+
+def test_a_sample_is_valid_only_as_a_press_of_the_specimen_with_the_ring_on_it(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """``stiffness/sample`` says itself whether it is a stiffness reading of the specimen (docs/custom-node.md): a
+    subscriber that reads only ``valid`` must not map the touch-off's or a line end's lift (the face ~9 mm up, the
+    indenter on its stop: 100-480 kPa came out valid) nor a ring hanging over the specimen's measured edge (tips on
+    the table: the UR recipe's 100-300 kPa edges). The outline is the measured geometry's footprint."""
+    from messages import PressureState
+
+    geometry = tmp_path / "geometry.yaml"
+    geometry.write_text("thickness_mm: 3.0\nfootprint_mm: [0.0, 0.0, 60.0, 60.0]\nerror_mm: 0.2\n")
+    h = NodeHarness(AirfloatStiffnessEstimator, {"geometry": str(geometry)})
+    t0 = h.clock.now_ns()
+    cases = [((30.0, 30.0), (1.0, 1.0, 1.0, 2.2), ""),  # a sweep's press, the ring well inside
+             ((6.0, 54.0), (1.0, 1.0, 1.0, 2.2), ""),  # the ring touching the edge from inside (edge margin 6)
+             ((3.0, 30.0), (1.0, 1.0, 1.0, 2.2), "ring_off_specimen"),
+             ((30.0, 58.0), (1.0, 1.0, 1.0, 2.2), "ring_off_specimen"),
+             ((30.0, 30.0), (9.0, 9.0, 9.0, 9.5), "at_stroke_end")]  # lifted: d_in 0.5 mm, read as E ~ 190 kPa
+    for i, ((x, y), hs, _) in enumerate(cases):
+        t = t0 + i * 100_000_000
+        for k in (0, 20_000_000):
+            h.publish("robot/pose", RobotPose(stamp_ns=t + k, x_mm=x, y_mm=y, z_mm=4.0))
+            h.publish("pressure/state", PressureState(stamp_ns=t + k, setpoint_kpa=36, measured_kpa=36,
+                                                      force_n=0.4, mode="hold", max_kpa=60))
+        h.publish("probe/heights", ProbeHeights(stamp_ns=t + 10_000_000, seq=i + 1, h_mm=hs, raw=(0, 0, 0, 0),
+                                                d_in_mm=0.0, tilt_rad=0.0))
+        h.advance(0.1)
+    out = h.published("stiffness/sample", StiffnessSample)
+    assert [s.reason for s in out] == [why for *_, why in cases]
+    assert [s.valid for s in out] == [not why for *_, why in cases]
+    assert all(math.isnan(s.value) for s in out if not s.valid)
+    h.close()

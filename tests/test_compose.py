@@ -12,14 +12,14 @@ import pytest
 
 from messages import Text
 from nodes.demo import Listener, Talker
-from palpa.clock import MockClock
-from palpa.compose import Composition
 from palpa.errors import LaunchError
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
-from palpa.node import Node
+from palpa.net.transport import Delivery
+from palpa.node.node import Node
 from palpa.record.reader import iter_bag, resolve_bag_paths
-from palpa.transport import Delivery
+from palpa.timing.clock import MockClock
+from palpa.timing.compose import Composition
 from tests.procs import ProcessGroup
 from tests.test_launch_smoke import REPO, Smoke, smoke
 
@@ -66,6 +66,28 @@ def test_nodes_that_end_are_closed_and_a_required_one_ends_the_composition_with_
     assert listener.heard == 5 and comp.nodes == []
 
 
+class _FailsOnStop(Node):
+    """Reports, as it is stopped, that its work failed (as a map holding part of a scan does)."""
+
+    def setup(self) -> None:
+        self.timer(0.1, lambda: None)
+
+    def on_shutdown(self) -> None:
+        self.exit_code = 1
+
+
+def test_a_node_that_reports_failure_as_it_stops_fails_the_composition() -> None:
+    """Stopped (Ctrl-C, or the required node's clean end), a node that reports failure as it closes makes the
+    composition end non-zero, as its process of its own would have failed the launch."""
+    comp = Composition(clock=MockClock(0), heartbeat_s=0)
+    comp.add(_FailsOnStop, "map")
+    comp.add(Talker, "talker", {"rate_hz": 10.0})
+    assert comp.run(max_sim_s=0.5) == 1
+    comp = Composition(clock=MockClock(0), heartbeat_s=0)
+    comp.add(Talker, "talker", {"rate_hz": 10.0})
+    assert comp.run(max_sim_s=0.5) == 0
+
+
 def test_compose_plan_folds_sim_nodes_clock_and_recorder_into_one_entry(tmp_path: Path) -> None:
     plan = compose_plan(load_launch(REPO / "launch" / "scan_sim.yaml", {}, run_dir=tmp_path))
     assert [n.name for n in plan.nodes] == ["sim"]
@@ -83,7 +105,7 @@ def test_compose_plan_refuses_a_file_without_sim_clock_nodes(tmp_path: Path) -> 
 
 def _scan(tmp: Path) -> tuple[list[dict[str, float]], np.ndarray]:
     """The air-float scan of a small region, composed in memory (no bus)."""
-    from palpa.cli.run import load_node_class
+    from palpa.targets import load_node_class
 
     plan = compose_plan(load_launch(REPO / "launch" / "scan_sim.yaml", parse_overrides(SMALL), run_dir=tmp))
     comp = Composition(clock=MockClock(1_700_000_000_000_000_000), heartbeat_s=0)
@@ -95,6 +117,7 @@ def _scan(tmp: Path) -> tuple[list[dict[str, float]], np.ndarray]:
     return json.loads((out / "inclusions.json").read_text()), np.load(out / "map.npz")["stiffness"]
 
 
+@pytest.mark.system
 def test_the_same_seed_gives_the_same_map(tmp_path: Path) -> None:
     a, grid_a = _scan(tmp_path / "a")
     b, grid_b = _scan(tmp_path / "b")
@@ -102,18 +125,21 @@ def test_the_same_seed_gives_the_same_map(tmp_path: Path) -> None:
     assert np.array_equal(grid_a, grid_b, equal_nan=True)
 
 
+@pytest.mark.system
 def test_in_process_launch_is_seen_on_the_bus_by_outside_tools(procs: ProcessGroup, tmp_path: Path) -> None:
     """`palpa launch scan_sim.yaml --in-process`: a node of our own on the run's bus hears the composed graph's
-    topics and heartbeats (what topic echo/hz and node list use); the scan ends by itself with exit 0."""
+    topics and heartbeats (what topic echo/hz and node list use); the scan ends by itself with exit 0, or, stopped
+    before its end, with 1 (its map holds part of it)."""
     smoke(REPO / "launch" / "scan_sim.yaml",
           Smoke(args=["region_mm:=[20.0, 20.0, 30.0, 30.0]", "spacing_mm:=5.0"],
                 topics=["robot/pose", "probe/heights", "stiffness/sample", "map/inclusions", "_palpa/heartbeat"],
-                timeout=60),
+                timeout=60, scan=True),
           procs, tmp_path, ["--in-process"])
     assert (tmp_path / "run" / "recording.mcap").stat().st_size > 10_000
 
 
 @pytest.mark.timeout(400)
+@pytest.mark.system
 def test_in_process_and_multi_process_find_the_same_inclusions(procs: ProcessGroup, tmp_path: Path) -> None:
     """The same small scan composed and as one process per node: the same inclusions, within 0.05 mm (the event
     lockstep gives the processes the composition's timeline: same timer instants, every message handled at the

@@ -161,3 +161,56 @@ def test_the_sim_regulator_wanders_the_same_however_often_it_is_polled() -> None
     a, b = _pressure_readings(3), _pressure_readings(50)
     assert a.keys() == b.keys() and all(a[k] == pytest.approx(b[k], abs=1e-9) for k in a)  # the plant's float steps
     assert len({round(v, 6) for ms, v in a.items() if ms > 1000}) > 30
+
+
+def test_the_sim_probe_reads_only_as_far_as_it_knows_the_arms_pose() -> None:
+    """On a wall clock a starved node hears the arm's poses late: the probe pressed 5 mm into the tissue at 0.3 s
+    but its node has heard poses only up to 0.1 s (the arm above it) at 0.6 s. The sensor makes its samples only as
+    far as the pose is known (as the simulated camera does, 268f346), never at the arm where it was; once the late
+    poses come in, the samples of the press show it pressed. A pose stream stalled for more than 1 s: the sensor
+    streams on."""
+    now = [0]
+    drv = SimFibreDriver(FLAT, lambda: now[0], errors=ProbeErrors.ideal(), world=HalfSpace(26.4))
+    drv.open()
+    drv.set_pressure(0, 36.0)
+    drv.set_pose(0, 30.0, 30.0, 45.0)  # above the 20 mm thick sample, out of the sensors' reach
+    assert len(drv.read()) == 1  # the sensor starts
+    for ms in range(10, 101, 10):
+        drv.set_pose(ms * 1_000_000, 30.0, 30.0, 45.0)
+    now[0] = 600_000_000
+    early = drv.read()
+    assert early and max(s.stamp_ns for s in early) <= 100_000_000  # not a stale arm at 0.1-0.6 s
+    for ms in range(300, 601, 10):  # the late poses: pressed in from 0.3 s (face 1 mm over the surface)
+        drv.set_pose(ms * 1_000_000, 30.0, 30.0, 21.0)
+    late = drv.read()
+    pressed = [s for s in late if s.stamp_ns >= 300_000_000]
+    assert pressed and max(s.stamp_ns for s in late) == 600_000_000
+    assert all(s.heights_mm[3] < 5.0 for s in pressed)  # the sensors reach the tissue: a press, not air
+    now[0] = 2_000_000_000  # no pose for 1.4 s: the sensor streams on at its last pose (held for 1 s)
+    assert drv.read()
+
+
+def test_a_huge_time_step_is_skipped_not_allocated() -> None:
+    """A clock that jumped (a forged tick an hour ahead, or at 2^63-1) or a node starved for minutes: the sim
+    sensor makes at most 2 s of samples in one read and counts the rest as skipped; the regulator's wander steps
+    the gap at once."""
+    from nodes.drivers.pressure_sim import SimPressureDriver
+
+    now = [1_000_000_000]
+    drv = SimFibreDriver(FLAT, lambda: now[0], errors=ProbeErrors.ideal(), world=HalfSpace(26.4))
+    drv.open()
+    drv.set_pose(now[0], 30.0, 30.0, 45.0)
+    drv.read()
+    for jump in (3600 * 10**9, 2**62):
+        skipped = drv.skipped
+        now[0] += jump
+        drv.set_pose(now[0], 30.0, 30.0, 45.0)
+        got = drv.read()
+        assert 0 < len(got) <= 1001 and 0 <= now[0] - got[-1].stamp_ns < 2_000_000
+        assert abs(drv.skipped - skipped - (jump - 2 * 10**9) // 2_000_000) <= 1  # all but the last 2 s (500 Hz)
+    reg = SimPressureDriver(lambda: now[0], 60.0, noise_kpa=0.05, tracking_kpa=0.25, seed=7)
+    reg.open()
+    reg.set_setpoint(36.0)
+    now[0] += 2**62
+    r = reg.read()
+    assert r is not None and 0.0 <= r.measured_kpa <= 60.0

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from messages import ScanPlan, ScanStatus, StiffnessSample, Trigger
-from nodes.map_aggregator import MapAggregator
+from nodes.mapping.map_aggregator import MapAggregator
 from palpa.testing import MemoryBus, NodeHarness
 
 
@@ -162,9 +162,10 @@ def test_a_map_written_before_its_scan_is_done_says_how_far_the_scan_got(tmp_pat
     why = "pressure/state silent for more than 500 ms"
     expected = {"done": "", "probes": "",
                 "fault": f"the scan did not finish: it ended fault at 50 % of its path ({why})",
-                "saved": "the scan did not finish: last heard scanning at 50 % of its path"}
+                "saved": "the scan did not finish: last heard scanning at 50 % of its path",
+                "ctrl-c": "the scan did not finish: last heard scanning at 50 % of its path"}
     for out, states in (("done", ("scanning", "done")), ("fault", ("scanning", "fault")), ("probes", ("idle",)),
-                        ("saved", ("scanning",))):
+                        ("saved", ("scanning",)), ("ctrl-c", ("scanning",))):
         h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / out)})
         h.publish("robot/plan", plan)
         for seq in range(1, 11):
@@ -179,6 +180,84 @@ def test_a_map_written_before_its_scan_is_done_says_how_far_the_scan_got(tmp_pat
             h.close()  # the node stops: what no file holds yet is written
         with np.load(tmp_path / out / "map.npz") as grid:
             assert (str(grid["incomplete"]) if "incomplete" in grid else "") == expected[out]
-        assert h.node.exit_code == 0  # what it did receive is all there: the scanner's own exit says the fault
+        # a final map of part of a scan fails the node, whatever stopped the scan (a fault, Ctrl-C): the launch
+        # cannot end clean with it; a map saved mid-scan is not final
+        assert h.node.exit_code == (0 if out in ("done", "probes", "saved") else 1), out
         if out == "saved":
-            h.close()
+            h.close()  # stopped mid-scan after the save: nothing new to write, still only part of the scan
+            assert h.node.exit_code == 1
+
+
+def test_estimates_that_stop_coming_mid_scan_leave_the_map_incomplete_and_failed(tmp_path: Path) -> None:
+    """The estimator killed mid-scan: the scan runs on to its end, but the map holds only its first part. The map
+    notices by the scan's progress (no estimate, valid or not, over a stretch of the path), not by who died: it says
+    over which part of the path none came, and fails. Estimates that keep coming (invalid ones too: the probe off
+    the tissue between lines) are a complete map; a stretch without them that ends is still a hole."""
+    plan = ScanPlan(stamp_ns=0, mode="sweep", region_mm=(0.0, 0.0, 20.0, 20.0), spacing_mm=2.0, speed_mm_s=10.0,
+                    lines=10, estimated_duration_s=20.0, waypoints=[])
+    cases = {"complete": (lambda p: True, ""),
+             "killed": (lambda p: p < 0.195,
+                        "no stiffness estimate came from 19 % to 100 % of the scan's path (did the estimator stop?)"),
+             "hole": (lambda p: not 0.4 <= p < 0.6,
+                      "no stiffness estimate came from 39 % to 60 % of the scan's path (did the estimator stop?)")}
+    for out, (alive, why) in cases.items():
+        h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / out)})
+        h.publish("robot/plan", plan)
+        for i in range(101):  # 20 s of scanning, the status at 5 Hz, estimates at 10 Hz while the estimator lives
+            progress = i / 100
+            h.publish("robot/scan_status", ScanStatus(stamp_ns=h.clock.now_ns(), state="scanning", line=i // 10,
+                                                      lines=10, progress=progress, eta_s=0.0))
+            for _ in range(2):
+                if alive(progress):
+                    h.publish("stiffness/sample", sample(progress * 20, 5.0, 26.0, valid=i % 3 != 0))
+                h.advance(0.1)
+        h.publish("robot/scan_status", ScanStatus(stamp_ns=h.clock.now_ns(), state="done", line=10, lines=10,
+                                                  progress=1.0, eta_s=0.0))
+        with np.load(tmp_path / out / "map.npz") as grid:
+            assert (str(grid["incomplete"]) if "incomplete" in grid else "") == why, out
+        assert h.node.exit_code == (1 if why else 0), out
+        h.close()
+
+
+def test_a_map_whose_raster_readings_were_mostly_excluded_cannot_be_trusted(tmp_path: Path) -> None:
+    """The UR recipe's raster ran its ring off the specimen at every line's ends: readings that are not stiffness
+    readings (invalid but for being in the air) are dropped from the map, and when more than ``max_excluded`` of
+    the raster's readings in contact were, the map says why it cannot be trusted and fails. Readings in the air
+    between lines (``no_contact``) and the touch-off's do not count."""
+    for out, off_share in (("ok", 0.1), ("edges", 0.35)):
+        h = NodeHarness(MapAggregator, {"output_dir": str(tmp_path / out), "region_mm": [0, 0, 20, 20]})
+        h.publish("robot/scan_status", ScanStatus(stamp_ns=0, state="touching", line=0, lines=10, progress=0.0,
+                                                  eta_s=0.0))
+        for _ in range(50):  # the touch-off's: not the raster's
+            h.publish("stiffness/sample", StiffnessSample(stamp_ns=0, model="airfloat", x_mm=5, y_mm=5, z_mm=0,
+                                                          value=math.nan, unit="kPa", valid=False,
+                                                          reason="at_stroke_end"))
+        h.publish("robot/scan_status", ScanStatus(stamp_ns=1, state="scanning", line=0, lines=10, progress=0.0,
+                                                  eta_s=0.0))
+        for i in range(200):
+            x = (i % 20) + 0.5
+            if i % 20 < 20 * off_share:
+                s = StiffnessSample(stamp_ns=2, model="airfloat", x_mm=x, y_mm=5, z_mm=0, value=math.nan,
+                                    unit="kPa", valid=False, reason="ring_off_specimen")
+            else:
+                s = StiffnessSample(stamp_ns=2, model="airfloat", x_mm=x, y_mm=5, z_mm=0, value=26.0, unit="kPa",
+                                    valid=True)
+            h.publish("stiffness/sample", s)
+            h.publish("stiffness/sample", StiffnessSample(stamp_ns=2, model="airfloat", x_mm=x, y_mm=5, z_mm=0,
+                                                          value=math.nan, unit="kPa", valid=False,
+                                                          reason="no_contact"))  # in the air: not counted
+            h.publish("stiffness/sample", StiffnessSample(  # nor the camera probe's, between its presses
+                stamp_ns=2, model="multi_indenter", x_mm=x, y_mm=5, z_mm=0, value=math.nan, unit="kPa", valid=False,
+                reason="too few indenters in contact (need 4): [] moved more than 1.0 mm"))
+        h.publish("robot/scan_status", ScanStatus(stamp_ns=3, state="done", line=10, lines=10, progress=1.0,
+                                                  eta_s=0.0))
+        with np.load(tmp_path / out / "map.npz") as grid:
+            why = str(grid["incomplete"]) if "incomplete" in grid else ""
+            assert np.nanmax(grid["stiffness"]) < 30  # what was excluded is not in the map
+        if out == "ok":
+            assert why == "" and h.node.exit_code == 0
+        else:
+            assert why == ("35 % of the raster's readings in contact were not stiffness readings "
+                           "(ring_off_specimen 70; at most 20 % may be): the map cannot be trusted")
+            assert h.node.exit_code == 1
+        h.close()

@@ -11,14 +11,14 @@ import pytest
 
 from messages import Text
 from palpa.errors import ParamError
-from palpa.node import Node, RawMessage
+from palpa.net.transport import Delivery
+from palpa.node.node import Node, RawMessage
 from palpa.record.format import BagError
 from palpa.record.player import Player
 from palpa.record.recorder import Recorder
-from palpa.record.testing import Rec, write_bag
+from palpa.record.testing import Rec, play_in_memory, write_bag
 from palpa.runtime_msgs import CLOCK_TOPIC, ClockTick
 from palpa.testing import MemoryBus, MemoryTransport, NodeHarness
-from palpa.transport import Delivery
 from tests.procs import wait_until
 
 T0 = 1_700_000_000_000_000_000
@@ -37,18 +37,7 @@ def _bag(path: Path) -> Path:
 
 
 def _play(params: dict[str, object]) -> tuple[Player, list[RawMessage]]:
-    bus = MemoryBus()
-    got: list[RawMessage] = []
-    probe = Node(name="probe", transport=bus.transport(), heartbeat_s=0)
-    probe.subscribe_raw("", got.append)
-    player = Player(name="player", params={"exit_delay_s": 0.0, **params}, transport=bus.transport(), heartbeat_s=0)
-    try:
-        player.spin()
-        probe.spin_once(0)
-    finally:
-        player.close(0)
-        probe.close(0)
-    return player, got
+    return play_in_memory(params)
 
 
 def test_identity_payloads_and_timing(tmp_path: Path) -> None:

@@ -31,7 +31,7 @@ class EmulatorProcessError(RuntimeError):
 class UrEmulatorProcess:
     """`python -m emulators.ur --control` on `host`; ready when `start()` returns."""
 
-    def __init__(self, host: str, extra_args: Sequence[str] = (), *, start_timeout_s: float = 10.0,
+    def __init__(self, host: str, extra_args: Sequence[str] = (), *, start_timeout_s: float = 30.0,
                  reply_timeout_s: float = 5.0) -> None:
         self.host = host
         self.extra_args = list(extra_args)

@@ -1,7 +1,7 @@
 """An example of a custom palpa node that lives in its own file, outside the palpa source tree.
 
 It listens to ``chatter`` (Text), and republishes every ``every``-th line in capitals, with ``suffix`` appended,
-on ``shout``. See docs/custom-node.md for the walk-through; test_shouter.py tests it without a bus, and
+on ``shout``; the service ``shouter/reset`` starts its count again. See docs/custom-node.md for the walk-through; test_shouter.py tests it without a bus, and
 launch.yaml runs it next to the demo talker::
 
     palpa launch examples/custom_node/launch.yaml
@@ -12,7 +12,7 @@ It can also run on its own against a running bus: ``python examples/custom_node/
 from __future__ import annotations
 
 import palpa
-from messages import Text
+from messages import Text, Trigger, TriggerResult
 
 
 class Shouter(palpa.Node):
@@ -32,6 +32,12 @@ class Shouter(palpa.Node):
         self.heard = 0
         self.out = self.publisher("shout", Text)
         self.subscribe("chatter", self.on_chatter)
+        self.service("shouter/reset", Trigger, TriggerResult, self.on_reset)
+
+    def on_reset(self, req: Trigger) -> TriggerResult:
+        """Count lines from zero again (the next shout is after ``every`` more)."""
+        heard, self.heard = self.heard, 0
+        return TriggerResult(message=f"reset after {heard} lines", state="ok")
 
     def on_chatter(self, msg: Text) -> None:
         self.heard += 1

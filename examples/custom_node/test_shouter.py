@@ -6,7 +6,7 @@ import pytest
 from shouter import Shouter
 
 import palpa
-from messages import Text
+from messages import Text, Trigger, TriggerResult
 from palpa.testing import NodeHarness
 
 
@@ -22,6 +22,18 @@ def test_every_nth_line() -> None:
         for i in range(7):
             h.publish("chatter", Text(text=f"line {i}"))
         assert [m.text for m in h.published("shout")] == ["LINE 2!", "LINE 5!"]
+
+
+def test_calling_its_service_from_the_test() -> None:
+    with NodeHarness(Shouter, {"every": 2}) as h:
+        h.publish("chatter", Text(text="one"))
+        caller = h.add(palpa.Node, name="caller")  # a second node on the harness's bus makes the call
+        reset = caller.client("shouter/reset", Trigger, TriggerResult)
+        done = reset.call_async(Trigger())
+        h.spin()  # delivers the request, runs the handler, delivers the reply
+        assert done.result() == TriggerResult(message="reset after 1 lines", state="ok")
+        h.publish("chatter", Text(text="two"))  # counting starts again: the 2nd line after the reset shouts
+        assert h.published("shout") == []
 
 
 def test_remap_and_namespace_move_its_topics() -> None:

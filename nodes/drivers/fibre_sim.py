@@ -42,7 +42,14 @@ __all__ = ["IndentationWorld", "SimFibreDriver", "tissue_world"]
 
 log = logging.getLogger(__name__)
 
-_POSE_WAIT_NS = 50_000_000
+_POSE_WAIT_NS = 1_000_000_000
+"""Samples are made only as far as the arm's pose is known, for up to this long (the simulated camera's
+``max_wait_ns``): a pose stream running late (a starved process on a wall clock) delays the samples instead of
+showing them the arm where it was; stalled for longer, the sensor streams on (a real DAQ does not wait for the
+robot)."""
+_MAX_CATCHUP_NS = 2_000_000_000
+"""Simulated ns of samples one read makes at most: after a longer gap (a node starved, a clock that jumped) the
+older samples are skipped (counted in ``skipped``), never allocated all at once."""
 _CELL_MM = 0.5  # lateral resolution of the cached force-depth curves
 _LADDER = np.geomspace(0.01, 1.0, 24)  # depths, as fractions of the world's limit, of each cached curve
 _POSE_HOLD_NS = 1_000_000_000
@@ -103,6 +110,8 @@ class SimFibreDriver:
         self._range_warned = False
         self._curves: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray]] = {}
         self._depth = 0.0  # the indenter's last depth: bore friction makes it stick (hysteresis)
+        self.skipped = 0
+        """Samples never made: due more than ``_MAX_CATCHUP_NS`` before a read."""
 
     # inputs from the bus
     def set_pose(self, stamp_ns: int, x_mm: float, y_mm: float, z_mm: float) -> None:
@@ -142,12 +151,19 @@ class SimFibreDriver:
         now = self._clock()
         if self._next_ns is None:
             self._next_ns = -(-now // self._period_ns) * self._period_ns
-        # wait up to 50 ms for poses so that motion is interpolated, not guessed; past that the sensor streams
-        # on at the last known pose (a real DAQ does not wait for the robot; a stalled pose stream must not
-        # look like a dead sensor)
+        # made only as far as the pose is known (motion interpolated, never a stale arm), for up to _POSE_WAIT_NS;
+        # past that the sensor streams on at the last known pose (a stalled pose stream must not look like a dead
+        # sensor)
         end = now if now - latest_pose > _POSE_WAIT_NS else min(now, latest_pose)
         if end < self._next_ns:
             return []
+        if end - self._next_ns > _MAX_CATCHUP_NS:
+            skip = (end - _MAX_CATCHUP_NS - self._next_ns) // self._period_ns
+            self._next_ns += skip * self._period_ns
+            self.skipped += skip
+            log.warning("sim fibre: %d samples (%.1f s) due before this read skipped (at most %.0f s are made at "
+                        "once); %d skipped in all", skip, skip * self._period_ns / 1e9, _MAX_CATCHUP_NS / 1e9,
+                        self.skipped)
         stamps = np.arange(self._next_ns, end + 1, self._period_ns, dtype=np.int64)
         self._next_ns = int(stamps[-1]) + self._period_ns
         poses: list[tuple[float, ...]] = []

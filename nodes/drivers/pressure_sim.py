@@ -29,6 +29,8 @@ from nodes.drivers.pressure import (
 __all__ = ["SimPressureDriver"]
 
 _WANDER_STEP_NS = 10_000_000
+_MAX_WANDER_STEPS = 100_000
+"""Wander steps drawn one by one at most (1000 s); a longer gap is stepped at once (its exact distribution)."""
 
 
 class SimPressureDriver:
@@ -87,10 +89,14 @@ class SimPressureDriver:
         if n <= 0:
             return
         k = math.exp(-_WANDER_STEP_NS / 1e9 / self._track_tau)
-        kick = self._track_sigma * math.sqrt(1 - k * k)
         w = self._wobble
-        for z in self._rng.standard_normal(int(n)).tolist():
-            w = k * w + kick * z
+        if n > _MAX_WANDER_STEPS:  # a long gap (a clock that jumped): the n steps in one, exactly, in O(1)
+            kn = k ** min(n, 1 << 20)
+            w = kn * w + self._track_sigma * math.sqrt(1 - kn * kn) * float(self._rng.standard_normal())
+        else:
+            kick = self._track_sigma * math.sqrt(1 - k * k)
+            for z in self._rng.standard_normal(int(n)).tolist():
+                w = k * w + kick * z
         self._wobble, self._wobble_t = w, grid
 
     def _reading(self, flags: frozenset[str] = frozenset()) -> PressureReading:

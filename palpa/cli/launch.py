@@ -120,8 +120,8 @@ def _make_run_dir(chosen: Path | None) -> tuple[Path, bool]:
 
 
 def _topics_of(spec: Any) -> dict[str, list[str]] | str:
-    from palpa.cli.run import load_node_class
     from palpa.launch.topics import declared_topics
+    from palpa.targets import load_node_class
 
     try:
         return declared_topics(load_node_class(spec.target), spec.namespace, spec.remap)
@@ -136,6 +136,8 @@ def describe(plan: LaunchPlan) -> str:
         doc["description"] = plan.description
     doc["files"] = list(plan.files)
     doc["args"] = dict(plan.args)
+    if plan.included_args:
+        doc["args set in included files by the command line"] = dict(plan.included_args)
     if plan.python_path:
         doc["python_path"] = list(plan.python_path)
     bus = plan.bus

@@ -17,7 +17,7 @@ __all__ = ["main"]
 
 # verb -> module under palpa.cli; modules that are missing (not yet built) are skipped
 VERBS = ("bus", "topic", "node", "service", "param", "run", "launch", "record", "play", "bag", "keygen",
-         "schema", "viz")
+         "schema", "viz", "graph")
 
 
 def build_parser() -> argparse.ArgumentParser:

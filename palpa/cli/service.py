@@ -1,4 +1,4 @@
-"""``palpa service list|call``: the services of the running graph, and calling one from the shell."""
+"""``palpa service list|type|call``: the services of the running graph, and calling one from the shell."""
 
 from __future__ import annotations
 
@@ -10,12 +10,13 @@ import msgspec
 import yaml
 
 from palpa.cli.common import add_bus_arg, message_from_yaml
-from palpa.cli.topic import _tool_node, collect_heartbeats
-from palpa.errors import PalpaError
+from palpa.cli.topic import collect_heartbeats, tool_node
+from palpa.errors import DecodeError, PalpaError
 from palpa.message import Message, lookup
-from palpa.node import Node, RawMessage
-from palpa.params_runtime import ParamGet  # noqa: F401  (registers the parameter messages for `call`)
-from palpa.service_client import discover
+from palpa.net.wire import decode_any
+from palpa.node.node import Node, RawMessage
+from palpa.node.params_runtime import ParamGet  # noqa: F401  (registers the parameter messages for `call`)
+from palpa.node.service_client import discover
 
 __all__ = ["call_service", "register"]
 
@@ -29,6 +30,12 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     ls.add_argument("-a", "--all", action="store_true", help="also every node's parameter services")
     add_bus_arg(ls)
     ls.set_defaults(func=run_list)
+
+    typ = verbs.add_parser("type", help="a service's request and response types (as its server announces them)")
+    typ.add_argument("name", help="service name, e.g. map/save")
+    typ.add_argument("--wait", type=float, default=5.0, help="seconds to wait for the server to be found")
+    add_bus_arg(typ)
+    typ.set_defaults(func=run_type)
 
     call = verbs.add_parser("call", help="call a service with a request given as YAML; prints the response")
     call.add_argument("name", help="service name, e.g. scanner/probe_at")
@@ -44,15 +51,25 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run_list(args: argparse.Namespace) -> int:
-    with _tool_node(args, "service_list") as node:
+    with tool_node(args, "service_list") as node:
         beats = collect_heartbeats(node, args.wait)
-    rows = sorted((name, types, hb.node) for hb in beats.values() for name, types in hb.services.items()
-                  if args.all or not name.startswith("_palpa/"))
-    if not rows:
+    every = sorted((name, types, hb.node) for hb in beats.values() for name, types in hb.services.items())
+    rows = [row for row in every if args.all or not row[0].startswith("_palpa/")]
+    if not every:
         print("no services (no node heartbeat announced one; is the graph running on this bus?)", file=sys.stderr)
         return 1
     for name, types, server in rows:
         print(f"{name}  [{types}]  server: {server}")
+    if hidden := len(every) - len(rows):
+        print(f"({'and ' if rows else 'no services but '}{hidden} parameter services, _palpa/param/NODE/get|set: "
+              "`palpa service list --all` lists them, `palpa param` uses them)")
+    return 0
+
+
+def run_type(args: argparse.Namespace) -> int:
+    with tool_node(args, "service_type") as node:
+        info = discover(node, args.name, args.wait)
+    print(f"{info.request_type} -> {info.response_type}")
     return 0
 
 
@@ -68,7 +85,7 @@ def call_service(node: Node, name: str, request: Message, *, wait_s: float, time
 
 def run_call(args: argparse.Namespace) -> int:
     request = message_from_yaml(args.type, args.data, "request")
-    with _tool_node(args, "service_call") as node:
+    with tool_node(args, "service_call") as node:
         if args.feedback:
             node.subscribe_raw(args.feedback, lambda raw: _print_feedback(args.feedback, raw))
         response = call_service(node, args.name, request, wait_s=args.wait, timeout_s=args.timeout)
@@ -79,5 +96,8 @@ def run_call(args: argparse.Namespace) -> int:
 
 def _print_feedback(topic: str, raw: RawMessage) -> None:
     if raw.topic == topic and not raw.from_cache:
-        body = msgspec.to_builtins(msgspec.msgpack.decode(raw.payload))
+        try:
+            body = msgspec.to_builtins(decode_any(raw.payload))
+        except DecodeError as exc:
+            body = {"_undecodable": str(exc)}
         print(f"[{topic}] " + yaml.safe_dump(body, default_flow_style=True, width=1_000_000).strip(), flush=True)

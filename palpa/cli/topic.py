@@ -1,10 +1,11 @@
-"""``palpa topic list|echo|hz|pub``: look at and poke the running graph."""
+"""``palpa topic list|info|type|echo|hz|bw|pub``: look at and poke the running graph."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from typing import Any
@@ -13,12 +14,12 @@ import msgspec
 import yaml
 
 from palpa.cli.common import add_bus_arg, bus_and_source, import_message_modules, message_from_yaml
-from palpa.errors import BusError, PalpaError, RegistryError
+from palpa.errors import BusError, DecodeError, PalpaError, RegistryError
 from palpa.launch.validate import did_you_mean
 from palpa.message import lookup
-from palpa.node import Node, RawMessage
+from palpa.net.wire import DECODE_ERRORS, SequenceTracker, TopicStats, decode_any
+from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
-from palpa.wire import TopicStats
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -30,6 +31,23 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_bus_arg(ls)
     ls.set_defaults(func=run_list)
 
+    info = verbs.add_parser("info", help="a topic's type, publishers and subscribers (from heartbeats)")
+    info.add_argument("topic")
+    info.add_argument("-v", "--verbose", action="store_true", help="each publisher and subscriber, with counters")
+    typ = verbs.add_parser("type", help="the message type a topic carries (from heartbeats)")
+    typ.add_argument("topic")
+    for verb, fn in ((info, run_info), (typ, run_type)):
+        verb.add_argument("--wait", type=float, default=WAIT_S, help=WAIT_HELP)
+        add_bus_arg(verb)
+        verb.set_defaults(func=fn)
+
+    bw = verbs.add_parser("bw", help="bandwidth of a topic: bytes per wall second, message sizes")
+    bw.add_argument("topic")
+    bw.add_argument("--window", type=int, default=100, help="messages in the rolling window")
+    bw.add_argument("--duration", type=float, default=0.0, help="stop after S seconds (0: never)")
+    add_bus_arg(bw)
+    bw.set_defaults(func=run_bw)
+
     echo = verbs.add_parser("echo", help="print messages on a topic")
     echo.add_argument("topic", help="topic name as on the bus, e.g. chatter (no leading slash)")
     echo.add_argument("--raw", action="store_true", help="print the envelope header and payload bytes")
@@ -38,7 +56,8 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_bus_arg(echo)
     echo.set_defaults(func=run_echo)
 
-    hz = verbs.add_parser("hz", help="rate from publish stamps, gaps from sequence numbers")
+    hz = verbs.add_parser("hz", help="rate from publish stamps (simulated or wall time, said on each line), gaps "
+                                     "from sequence numbers")
     hz.add_argument("topic", help="topic name as on the bus (no leading slash)")
     hz.add_argument("--window", type=int, default=1000, help="stamps in the rolling window")
     hz.add_argument("--duration", type=float, default=0.0, help="stop after S seconds (0: never)")
@@ -63,7 +82,7 @@ WAIT_S = 1.5
 WAIT_HELP = "seconds to listen for heartbeats (every node sends one a second; default %(default)s)"
 
 
-def _tool_node(args: argparse.Namespace, name: str) -> Node:
+def tool_node(args: argparse.Namespace, name: str) -> Node:
     """A heartbeat-less node on the verb's bus; ``args.bus_where`` names that bus and why it was chosen."""
     import_message_modules()
     address, source = bus_and_source(args)
@@ -128,7 +147,8 @@ class GraphWatch:
 
 
 def collect_heartbeats(node: Node, wait_s: float) -> dict[str, Heartbeat]:
-    """Listen for ``wait_s`` seconds and return the latest heartbeat of every node."""
+    """Listen for ``wait_s`` seconds and return the latest heartbeat of every node (not of a node whose latest
+    said it is leaving)."""
     sub = node.subscribe(HEARTBEAT_TOPIC, Heartbeat)
     seen: dict[str, Heartbeat] = {}
     deadline = time.monotonic() + wait_s
@@ -136,11 +156,11 @@ def collect_heartbeats(node: Node, wait_s: float) -> dict[str, Heartbeat]:
         hb = sub.next(remaining)
         if hb is not None:
             seen[hb.node] = hb
-    return seen
+    return {name: hb for name, hb in seen.items() if hb.state != "leaving"}
 
 
 def run_list(args: argparse.Namespace) -> int:
-    with _tool_node(args, "topic_list") as node:
+    with tool_node(args, "topic_list") as node:
         beats = collect_heartbeats(node, args.wait)
     topics = graph_topics(beats)
     if not topics:
@@ -152,41 +172,144 @@ def run_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def topic_info_lines(topic: str, beats: dict[str, Heartbeat], verbose: bool = False) -> list[str]:
+    """What ``topic info`` prints (ros2 topic info): type, publisher and subscription counts, with -v each node.
+    Raises :class:`PalpaError` naming close topics when no node heard publishes or subscribes to it."""
+    entry = graph_topics(beats).get(topic)
+    if entry is None:
+        raise PalpaError(f"no node heard publishes or subscribes to {topic!r}"
+                         f"{did_you_mean(topic, list(graph_topics(beats)))} ({len(beats)} nodes heard)")
+    lines = [f"Type: {'/'.join(sorted(entry['types'])) or entry['type']}",
+             f"Publisher count: {len(entry['pub'])}", f"Subscription count: {len(entry['sub'])}"]
+    if verbose:
+        for name in sorted(entry["pub"]):
+            hb = beats[name.removesuffix(" (direct)")]
+            lines.append(f"  publisher  {name}  pid {hb.pid} on {hb.host}  sent {hb.sent.get(topic, 0)}")
+        for name in sorted(entry["sub"]):
+            c = beats[name].counters.get(topic)
+            extra = f"  received {c.received} gaps {c.gaps} bad {c.decode_errors}" if c else ""
+            lines.append(f"  subscriber {name}  pid {beats[name].pid} on {beats[name].host}{extra}")
+    return lines
+
+
+def run_info(args: argparse.Namespace) -> int:
+    topic = bare_topic(args.topic)
+    with tool_node(args, "topic_info") as node:
+        beats = collect_heartbeats(node, args.wait)
+    print("\n".join(topic_info_lines(topic, beats, args.verbose)))
+    return 0
+
+
+def run_type(args: argparse.Namespace) -> int:
+    topic = bare_topic(args.topic)
+    with tool_node(args, "topic_type") as node:
+        beats = collect_heartbeats(node, args.wait)
+    print(topic_info_lines(topic, beats)[0].removeprefix("Type: "))
+    return 0
+
+
+def bw_line(sizes: list[tuple[int, int]]) -> str:
+    """Bandwidth from (receive time ns, bytes) pairs: bytes per second of wall time over the window, with the
+    message sizes (ros2 topic bw)."""
+    if len(sizes) < 2:
+        return f"no bandwidth yet ({len(sizes)} received)"
+    span = (sizes[-1][0] - sizes[0][0]) / 1e9
+    nbytes = [n for _, n in sizes]
+    rate = sum(nbytes[1:]) / span if span > 0 else math.inf
+    return (f"{_size(rate)}/s from {len(sizes)} messages (wall time)  mean {_size(sum(nbytes) / len(nbytes))}  "
+            f"min {_size(min(nbytes))}  max {_size(max(nbytes))}")
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "KB", "MB"):
+        if n < 1000 or unit == "MB":
+            return f"{n:.2f} {unit}" if unit != "B" else f"{n:.0f} B"
+        n /= 1000
+    return f"{n:.2f} MB"
+
+
+def run_bw(args: argparse.Namespace) -> int:
+    topic = bare_topic(args.topic)
+    sizes: list[tuple[int, int]] = []
+
+    def on_raw(raw: RawMessage) -> None:
+        if raw.topic == topic and not raw.from_cache:
+            sizes.append((raw.recv_ns, len(raw.payload) + sum(map(len, raw.blobs))))
+            del sizes[: -args.window]
+
+    started = last_print = time.monotonic()
+    with tool_node(args, "bw") as node:
+        node.subscribe_raw(topic, on_raw)
+        watch = GraphWatch(node, args, topic)
+        while not args.duration or time.monotonic() - started < args.duration:
+            node.spin_once(0.1)
+            if not sizes:
+                watch.check()
+            if time.monotonic() - last_print >= 1.0:
+                last_print = time.monotonic()
+                print(bw_line(sizes), flush=True)
+    print(bw_line(sizes), flush=True)
+    return 0
+
+
 def _to_builtins(raw: RawMessage) -> Any:
     try:
         cls = lookup(raw.header.type)
         return msgspec.to_builtins(msgspec.msgpack.decode(raw.payload, type=cls))
-    except (RegistryError, msgspec.ValidationError, msgspec.DecodeError):
-        return msgspec.msgpack.decode(raw.payload)  # unknown type: still readable
+    except (RegistryError, *DECODE_ERRORS):
+        pass
+    try:
+        return decode_any(raw.payload)  # unknown type: still readable
+    except DecodeError as exc:
+        return {"_undecodable": str(exc), "payload_bytes": len(raw.payload)}
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null once its reader is gone, so that no later flush (at exit) fails again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # not a real file (a test's stand-in): nothing to redirect
+        pass
 
 
 def run_echo(args: argparse.Namespace) -> int:
     count = 0
     deadline = time.monotonic() + args.timeout if args.timeout > 0 else math.inf
 
+    bus_and_source(args)  # which bus, said first
     topic = bare_topic(args.topic)
 
+    closed = False
+
     def on_raw(raw: RawMessage) -> None:
-        nonlocal count
-        if raw.topic != topic:
+        nonlocal count, closed
+        if raw.topic != topic or closed:
             return
         count += 1
-        if args.raw:
-            print(json.dumps({"topic": raw.topic, "header": msgspec.to_builtins(raw.header),
-                              "payload_hex": raw.payload.hex(), "blobs": [len(b) for b in raw.blobs]}))
-        else:
-            body = _to_builtins(raw)
-            print(f"--- {raw.topic} [{raw.header.type}] seq={raw.header.seq} from {raw.header.node}")
-            print(yaml.safe_dump(body, sort_keys=False, default_flow_style=None, width=120).rstrip())
-        sys.stdout.flush()
+        try:
+            if args.raw:
+                print(json.dumps({"topic": raw.topic, "header": msgspec.to_builtins(raw.header),
+                                  "payload_hex": raw.payload.hex(), "blobs": [len(b) for b in raw.blobs]}))
+            else:
+                body = _to_builtins(raw)
+                print(f"--- {raw.topic} [{raw.header.type}] seq={raw.header.seq} from {raw.header.node}")
+                print(yaml.safe_dump(body, sort_keys=False, default_flow_style=None, width=120).rstrip())
+            sys.stdout.flush()
+        except BrokenPipeError:  # the reader went away (`| head`): done, as any CLI tool would be
+            closed = True
+            _silence_stdout()
 
-    with _tool_node(args, "echo") as node:
+    with tool_node(args, "echo") as node:
         node.subscribe_raw(topic, on_raw)
         watch = GraphWatch(node, args, topic)
-        while (not args.count or count < args.count) and time.monotonic() < deadline:
+        while (not args.count or count < args.count) and time.monotonic() < deadline and not closed:
             node.spin_once(0.1)
             if not count:
                 watch.check()
+    if closed:
+        return 0
     if args.count and count < args.count:
         raise PalpaError(f"{topic}: got {count} of {args.count} messages before the timeout")
     return 0
@@ -195,22 +318,23 @@ def run_echo(args: argparse.Namespace) -> int:
 def run_hz(args: argparse.Namespace) -> int:
     stamps: list[int] = []
     stats = TopicStats()
-    from palpa.wire import SequenceTracker
-
     tracker = SequenceTracker()
+    base = {"simulated": 0, "wall": 0}
     started = time.monotonic()
     last_print = started
 
+    bus_and_source(args)  # which bus, said first
     topic = bare_topic(args.topic)
 
     def on_raw(raw: RawMessage) -> None:
         if raw.topic != topic or raw.from_cache:
             return
-        if tracker.observe(raw.topic, raw.header.node, raw.header.seq, stats):
+        if tracker.observe(raw.topic, raw.header.node, raw.header.seq, stats, raw.header.inc):
             stamps.append(raw.header.stamp)
             del stamps[: -args.window]
+            base["simulated" if raw.header.at else "wall"] += 1
 
-    with _tool_node(args, "hz") as node:
+    with tool_node(args, "hz") as node:
         node.subscribe_raw(topic, on_raw)
         watch = GraphWatch(node, args, topic)
         while not args.duration or time.monotonic() - started < args.duration:
@@ -219,21 +343,32 @@ def run_hz(args: argparse.Namespace) -> int:
                 watch.check()
             if time.monotonic() - last_print >= 1.0:
                 last_print = time.monotonic()
-                print(hz_line(stamps, stats), flush=True)
-    print(hz_line(stamps, stats), flush=True)
+                print(hz_line(stamps, stats, time_base(base)), flush=True)
+    print(hz_line(stamps, stats, time_base(base)), flush=True)
     return 0
 
 
-def hz_line(stamps: list[int], stats: TopicStats) -> str:
-    """One line of rate statistics from publish stamps (ns) and sequence counters."""
+def time_base(counts: dict[str, int]) -> str:
+    """The clock ``topic hz`` measures by: the publishers' stamps are simulated time when the publisher follows a
+    simulation clock (its envelopes carry the simulated instant, ``at``), else wall time (a replay re-stamps what
+    it plays with the wall clock)."""
+    if counts["simulated"] and counts["wall"]:
+        return "mixed: simulated and wall stamps"
+    return "simulated time" if counts["simulated"] else "wall time"
+
+
+def hz_line(stamps: list[int], stats: TopicStats, base: str = "wall time") -> str:
+    """One line of rate statistics from publish stamps (ns) on the clock ``base`` names, and the losses the
+    sequence numbers show (gaps: numbers skipped; restarts: a publisher that started again)."""
+    losses = f"gaps {stats.gaps}" + (f"  restarts {stats.restarts}" if stats.restarts else "")
     if len(stamps) < 2:
-        return f"no rate yet ({stats.received} received)"
+        return f"no rate yet ({stats.received} received, {losses})"
     dts = [(b - a) / 1e9 for a, b in zip(stamps, stamps[1:], strict=False)]
     mean = sum(dts) / len(dts)
     std = math.sqrt(sum((d - mean) ** 2 for d in dts) / len(dts))
     rate = 1.0 / mean if mean > 0 else math.inf
-    return (f"rate {rate:.2f} Hz  min {min(dts) * 1e3:.2f} ms  max {max(dts) * 1e3:.2f} ms  "
-            f"std {std * 1e3:.2f} ms  window {len(stamps)}  received {stats.received}  gaps {stats.gaps}")
+    return (f"rate {rate:.2f} Hz ({base})  min {min(dts) * 1e3:.2f} ms  max {max(dts) * 1e3:.2f} ms  "
+            f"std {std * 1e3:.2f} ms  window {len(stamps)}  received {stats.received}  {losses} (by sequence number)")
 
 
 def _check_graph(node: Node, topic: str, type_name: str, where: str) -> None:
@@ -252,8 +387,9 @@ def _check_graph(node: Node, topic: str, type_name: str, where: str) -> None:
 def run_pub(args: argparse.Namespace) -> int:
     import_message_modules()
     msg = message_from_yaml(args.type, args.data)
+    bus_and_source(args)  # which bus, said first
     topic = bare_topic(args.topic)
-    with _tool_node(args, "pub") as node:
+    with tool_node(args, "pub") as node:
         if not getattr(node.transport, "connected", True):
             raise BusError(f"no bus answered on {args.bus_where}: nothing was sent (is the launch running? "
                            "--bus or --run DIR choose another)")

@@ -4,7 +4,7 @@ Order of work for each file: read the YAML with marks; validate and resolve ``ar
 else an error); apply substitutions to everything else; validate the result against
 :class:`~palpa.launch.schema.LaunchFile`; load includes (paths relative to the including file, cycles refused);
 collect the nodes. When every file is in, each ``node:`` class is imported and its params are validated with
-:func:`palpa.params.convert_params`. Every error reads ``file:line:col: what was expected``.
+:func:`palpa.node.params.convert_params`. Every error reads ``file:line:col: what was expected``.
 
 Substitutions are applied by :mod:`palpa.launch.subst`; validation errors are worded by
 :mod:`palpa.launch.validate`.
@@ -12,7 +12,6 @@ Substitutions are applied by :mod:`palpa.launch.subst`; validation errors are wo
 
 from __future__ import annotations
 
-import importlib
 import json
 import os
 import re
@@ -25,7 +24,6 @@ from typing import Any
 
 import msgspec
 
-from palpa.address import is_loopback_host
 from palpa.errors import BusError, LaunchError, ParamError
 from palpa.launch.compose import name_clock_participants
 from palpa.launch.hazards import check_hazards
@@ -34,8 +32,10 @@ from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, Reco
 from palpa.launch.source import Mark, Path_, Source, display_path
 from palpa.launch.subst import substitute
 from palpa.launch.validate import convert, did_you_mean, kind, lower_first
-from palpa.node import Node
-from palpa.params import convert_params, input_paths
+from palpa.net.address import is_loopback_host
+from palpa.node.node import Node
+from palpa.node.params import convert_params, input_paths
+from palpa.targets import TargetError, load_node_class
 
 __all__ = ["load_launch", "parse_overrides"]
 
@@ -65,11 +65,13 @@ def _parse_value(text: str, where: str) -> Any:
 
 @dataclass
 class _Given:
-    """Values handed to a file's args, and where they came from (for errors)."""
+    """Values handed to a file's args, and where they came from (for errors). ``inherited`` are the command line's
+    values, which set the same-named args of every file that declares them unless its include sets them."""
 
     values: dict[str, Any]
     marks: dict[str, Mark | None]
     origin: str  # "the command line" or "the include at file:line:col"
+    inherited: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -83,6 +85,15 @@ class _Collected:
     """bus/record/progress -> the file whose setting is used (the top file's, else the first include's)."""
     args_of: dict[str, tuple[dict[str, Any], _Given]] = field(default_factory=dict)
     """File name -> its resolved args and what gave them (to name the arg behind a bad param)."""
+    declared: dict[str, list[str]] = field(default_factory=dict)
+    """File name -> the args it declares (a command-line arg must be declared by one of them)."""
+    command_line: dict[str, Any] = field(default_factory=dict)
+    from_command_line: dict[str, list[str]] = field(default_factory=dict)
+    """Included file -> its args set by the command line (shown by ``--check``)."""
+    used: set[str] = field(default_factory=set)
+    """Command-line args some file took."""
+    set_by_include: dict[str, str] = field(default_factory=dict)
+    """Arg name -> the include that set it explicitly (where a command-line value would not reach)."""
 
 
 def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
@@ -93,13 +104,16 @@ def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
     under the working directory)."""
     path = Path(file)
     if not path.is_file():
-        raise LaunchError(f"{display_path(path)}: no such launch file")
+        siblings = sorted(display_path(p) for p in path.parent.glob("*.yaml")) if path.parent.is_dir() else []
+        raise LaunchError(f"{display_path(path)}: no such launch file{did_you_mean(display_path(path), siblings)}")
     if run_dir is None:  # what the run directory will be called (the supervisor makes it)
         run_dir = Path("runs") / time.strftime("%Y%m%d-%H%M%S")
     plan = LaunchPlan(file=path.resolve(), run_dir=Path(os.path.abspath(run_dir)))
-    given = _Given(dict(overrides or {}), {k: None for k in overrides or {}}, "the command line")
-    col = _Collected(plan)
+    given = _Given({}, {k: None for k in overrides or {}}, "the command line", dict(overrides or {}))
+    col = _Collected(plan, command_line=dict(overrides or {}))
     _load_file(path.resolve(), given, "", col, top=True)
+    _check_command_line(overrides or {}, col)
+    plan.included_args = dict(col.from_command_line)
     names = [n.name for n in plan.nodes]
     for name in plan.progress_report:
         if name not in names:
@@ -127,7 +141,7 @@ def _load_file(path: Path, given: _Given, namespace: str, col: _Collected, *, to
     if not isinstance(src.data, dict):
         raise src.error((), f"a launch file is a mapping (nodes:, args:, ...), not a {kind(src.data)}")
     data: dict[str, Any] = dict(src.data)
-    args = _resolve_args(src, data.pop("args", []), given, col.plan.run_dir)
+    args = _resolve_args(src, data.pop("args", []), given, col)
     col.args_of[src.name] = (args, given)
     if top:
         col.plan.args = dict(args)
@@ -203,23 +217,31 @@ def _viz(src: Source, decl: LaunchFile, plan: LaunchPlan) -> None:
     plan.viz = viz
 
 
-def _resolve_args(src: Source, raw: Any, given: _Given, run_dir: Path) -> dict[str, Any]:
+def _resolve_args(src: Source, raw: Any, given: _Given, col: _Collected) -> dict[str, Any]:
     decls = convert(src, raw, list[ArgDecl], ("args",))
     values: dict[str, Any] = {}
     declared: dict[str, int] = {}
+    from_command_line: set[str] = set()
     for i, decl in enumerate(decls):
         if decl.name in declared:
             raise src.error(("args", i, "name"), f"arg {decl.name!r} is declared twice")
         declared[decl.name] = i
         if decl.name in given.values:
             values[decl.name] = given.values[decl.name]
+        elif decl.name in given.inherited:
+            values[decl.name] = given.inherited[decl.name]
+            from_command_line.add(decl.name)
         elif decl.default is not msgspec.UNSET:
-            values[decl.name] = substitute(src, decl.default, ("args", i, "default"), values, run_dir)
+            values[decl.name] = substitute(src, decl.default, ("args", i, "default"), values, col.plan.run_dir)
         else:
             how = (f"pass {decl.name}:=VALUE" if given.origin == "the command line"
-                   else f"add {decl.name}: VALUE to the include's args")
+                   else f"add {decl.name}: VALUE to the include's args, or pass {decl.name}:=VALUE")
             raise src.error(("args", i), f"arg {decl.name!r} has no default and was not given by {given.origin} "
                                          f"({how})")
+    col.declared[src.name] = list(declared)
+    col.used.update(from_command_line)
+    if from_command_line and given.origin != "the command line":
+        col.from_command_line[src.name] = sorted(from_command_line)
     for name in given.values:
         if name not in declared:
             hint = did_you_mean(name, declared)
@@ -231,6 +253,23 @@ def _resolve_args(src: Source, raw: Any, given: _Given, run_dir: Path) -> dict[s
     return values
 
 
+def _check_command_line(overrides: Mapping[str, Any], col: _Collected) -> None:
+    """Every command-line arg must have been taken by some file: one no file declares is a misspelling, and one
+    that only included files declare whose includes set it themselves would be silently ignored."""
+    every = list(dict.fromkeys(a for names in col.declared.values() for a in names))
+    top = col.plan.files[0] if col.plan.files else str(col.plan.file)
+    for name in overrides:
+        if name in col.used:
+            continue
+        if name in every:
+            raise LaunchError(f"{top}: arg {name!r} given by the command line reaches no file: the include at "
+                              f"{col.set_by_include.get(name, '?')} sets it itself, which wins (declare {name!r} "
+                              f"in {top} and pass it on as {name}: $(arg {name}) to make it settable)")
+        files = "; ".join(f"{f}: {', '.join(a) or 'none'}" for f, a in col.declared.items())
+        raise LaunchError(f"{top}: unknown arg {name!r} given by the command line{did_you_mean(name, every)} "
+                          f"(no file declares it; args of {files})")
+
+
 def _include(src: Source, i: int, inc: IncludeDecl, namespace: str, col: _Collected) -> None:
     target = Path(inc.file)
     target = (target if target.is_absolute() else src.path.parent / target).resolve()
@@ -240,7 +279,11 @@ def _include(src: Source, i: int, inc: IncludeDecl, namespace: str, col: _Collec
         chain = " -> ".join(display_path(p) for p in [*col.stack[col.stack.index(target):], target])
         raise src.error(("include", i, "file"), f"include cycle: {chain}")
     marks = {k: src.mark(("include", i, "args", k), key=True) for k in inc.args}
-    given = _Given(dict(inc.args), dict(marks), f"the include at {src.mark(('include', i))}")
+    # the command line's args reach every file that declares them; this include's own args win (_resolve_args)
+    for k in inc.args:
+        col.set_by_include.setdefault(k, str(src.mark(("include", i, "args", k), key=True)))
+    given = _Given(dict(inc.args), dict(marks), f"the include at {src.mark(('include', i))}",
+                   dict(col.command_line))
     ns = "/".join(filter(None, [namespace.strip("/"), inc.namespace.strip("/")]))
     _load_file(target, given, ns, col, top=False)
 
@@ -308,12 +351,9 @@ def _validate_nodes(col: _Collected) -> None:
 
 def _validate_recorder(col: _Collected, rec: NodeSpec) -> None:
     try:
-        module = importlib.import_module(RECORDER_TARGET.partition(":")[0])
-    except ImportError:
+        cls = load_node_class(RECORDER_TARGET)
+    except TargetError:
         col.plan.recorder_available = False  # --check still passes; launching says so
-        return
-    cls = getattr(module, RECORDER_TARGET.partition(":")[2], None)
-    if not (isinstance(cls, type) and issubclass(cls, Node)):
         return
     col.plan.recorder_available = True
     src = col.top if col.top is not None else Source.read(col.plan.file)
@@ -324,22 +364,10 @@ def _validate_recorder(col: _Collected, rec: NodeSpec) -> None:
 
 
 def _import_node_class(src: Source, where: Path_, target: str) -> type[Node]:
-    module_name, _, class_name = target.partition(":")
     try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        extra = "" if exc.name == module_name else f" (while importing it: {exc})"
-        raise src.error(where, f"cannot import module {module_name!r}{extra}: is it installed, or in the "
-                               "launch file's python_path?") from None
-    except Exception as exc:  # any error raised by the module's own code at import time
-        raise src.error(where, f"importing {module_name!r} failed: {type(exc).__name__}: {exc}") from None
-    cls = getattr(module, class_name, None)
-    if cls is None:
-        names = [n for n, v in vars(module).items() if isinstance(v, type) and issubclass(v, Node) and v is not Node]
-        raise src.error(where, f"module {module_name!r} has no {class_name!r}{did_you_mean(class_name, names)}")
-    if not (isinstance(cls, type) and issubclass(cls, Node)):
-        raise src.error(where, f"{target!r} is not a palpa.Node subclass")
-    return cls
+        return load_node_class(target)
+    except TargetError as exc:
+        raise src.error(where, exc.reason) from None
 
 
 def _arg_note(col: _Collected, src: Source, path: Path_) -> str:
@@ -353,6 +381,8 @@ def _arg_note(col: _Collected, src: Source, path: Path_) -> str:
             mark = given.marks.get(name)
             notes.append(f"arg {name!r} = {json.dumps(args.get(name))}, given by {given.origin}"
                          + (f" at {mark}" if mark is not None else f" ({name}:=...)"))
+        elif given is not None and name in given.inherited:
+            notes.append(f"arg {name!r} = {json.dumps(args.get(name))}, given by the command line ({name}:=...)")
         elif name in args:
             notes.append(f"arg {name!r} = {json.dumps(args.get(name))} (its default)")
     return f"; from {'; '.join(notes)}" if notes else ""

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 from typing import TextIO
 
 from palpa.launch.output import Screen
-from palpa.launch.plan import NodeSpec
+from palpa.launch.plan import VIZ_READY, VIZ_TARGET, NodeSpec
 from palpa.launch.process import Child
 
 __all__ = ["REAP_GRACE_S", "NodeProc"]
@@ -29,7 +29,8 @@ __all__ = ["REAP_GRACE_S", "NodeProc"]
 REAP_GRACE_S = 3.0  # after SIGKILL, how long to wait for the kernel before giving up on a process
 
 _MAX_LINE = 65536
-_REPORT_LINES = 12
+_REPORT_LINES = 40  # a composed process's lines are every member's: room for the reported one's
+_WHY_CHARS = 300
 
 
 @dataclass
@@ -51,7 +52,18 @@ class NodeProc:
     """Lines the progress bar kept off the screen (for ``progress: {report: [...]}``)."""
     outcome: str = "not started"
     failed: bool = False
+    why: str = ""
+    """Why it failed in its own words: its last ERROR line (for the summary), '' if it said none."""
     escalated: str | None = None
+
+    def last_error(self) -> str:
+        """Its last ERROR or CRITICAL log line kept in the tail, without the level ('' if none), cut to 300
+        characters: what the summary gives as the reason it failed."""
+        for text in reversed(self.tail):
+            level, _, rest = text.partition(" ")
+            if level in ("ERROR", "CRITICAL") and rest:
+                return rest if len(rest) <= _WHY_CHARS else rest[:_WHY_CHARS - 3] + "..."
+        return ""
 
     def read(self, screen: Screen, sel: selectors.BaseSelector) -> None:
         """Take what the pipe has now (the selector said it is readable); at its end, :meth:`drop_output`."""
@@ -68,6 +80,10 @@ class NodeProc:
         with contextlib.suppress(OSError, ValueError):
             self.log.write(text + "\n")
         self.tail.append(text)
+        if self.spec.target == VIZ_TARGET and text.startswith(VIZ_READY):
+            url = text[len(VIZ_READY):].split(" ", 1)[0]
+            screen.say(f"Foxglove: open {url} in the Foxglove app (Open connection -> Foxglove WebSocket; "
+                       "docs/foxglove.md)", "NOTICE")
         if not screen.node_line(self.spec.name, self.color, self.spec.output, text) and self.spec.output == "screen":
             self.hidden.append(text)
 

@@ -14,12 +14,12 @@ from typing import Any
 import yaml
 
 from palpa import env as palpa_env
-from palpa.address import BusAddress, private_dir
 from palpa.errors import BusError
 from palpa.launch.schema import BusDecl, RecordDecl, VizDecl
-from palpa.options import TransportOptions
+from palpa.net.address import BusAddress, private_dir
+from palpa.net.options import TransportOptions
 
-__all__ = ["RECORDER_NAME", "RECORDER_TARGET", "VIZ_NAME", "VIZ_TARGET", "LaunchPlan", "NodeSpec"]
+__all__ = ["RECORDER_NAME", "RECORDER_TARGET", "VIZ_NAME", "VIZ_READY", "VIZ_TARGET", "LaunchPlan", "NodeSpec"]
 
 _FRESH = itertools.count()
 """Numbers this process's fresh bus paths (LaunchPlan.bus_request)."""
@@ -28,6 +28,9 @@ RECORDER_NAME = "recorder"
 RECORDER_TARGET = "palpa.record.recorder:Recorder"
 VIZ_NAME = "viz"
 VIZ_TARGET = "palpa.viz.bridge:Bridge"
+VIZ_READY = "palpa viz ready "
+"""How the bridge's line announcing its URL begins (``palpa viz ready ws://HOST:PORT ...``): the launcher shows
+the URL even under a progress bar."""
 
 
 @dataclass
@@ -125,6 +128,8 @@ class LaunchPlan:
     """Node name -> every parameter of a ``node:`` entry, defaults included (filled by the loader)."""
     files: list[str] = field(default_factory=list)
     """Every launch file read, the top-level one first."""
+    included_args: dict[str, list[str]] = field(default_factory=dict)
+    """Included file -> the args the command line set in it (docs/launch.md, "Includes")."""
     in_process: bool = False
     """The file asks for its simulated-clock nodes in one process (see :mod:`palpa.launch.compose`)."""
     composed_from: str | None = None
@@ -165,7 +170,7 @@ class LaunchPlan:
 
     def bus_request(self, override: str | None = None) -> BusAddress:
         """The endpoints the launcher binds: ``override`` (``--bus-address``), else the ``bus`` section, else a
-        fresh ipc path ``<private dir>/<pid>-<n>-<4 hex>`` (palpa.address.private_dir; n counts the process's
+        fresh ipc path ``<private dir>/<pid>-<n>-<4 hex>`` (palpa.net.address.private_dir; n counts the process's
         requests, so two are never the same in one process, and the hex part keeps a reused pid's apart)."""
         if override:
             return _tcp_any(override) if _is_host_only(override) else BusAddress.parse(override)

@@ -31,10 +31,16 @@ def exit_text(code: int) -> str:
 
 
 def report_hidden(screen: Screen, procs: Sequence[NodeProc], report: Collection[str]) -> None:
-    """After the progress view: what the ``report`` nodes said under it (where the results went)."""
+    """After the progress view: what the ``report`` nodes said under it (where the results went). An entry
+    ``PROC:NODE`` names a node composed into process PROC (``--in-process``): of PROC's lines, those NODE's logger
+    wrote (``palpa.node.NODE:``)."""
     for p in procs:
-        if p.spec.name in report:
-            for line in p.hidden:
+        members = [r.partition(":")[2] for r in report if r.partition(":")[0] == p.spec.name]
+        if not members:
+            continue
+        loggers = tuple(f"palpa.node.{m}:" for m in members if m)
+        for line in p.hidden:
+            if not loggers or any(lg in line for lg in loggers):
                 screen.show(f"[{p.spec.name}] {line}", loud=False)
 
 
@@ -42,7 +48,7 @@ def summarize(screen: Screen, procs: Sequence[NodeProc], run_dir: Path, reason: 
     """Print the summary and the launch's end, close the screen; returns the launch's exit code (``code``: the
     one asked for when the launch was stopped, None if none was)."""
     code = code if code is not None else 0
-    failed = [p.spec.name for p in procs if p.failed]
+    failed = [p.spec.name + (f" ({p.why})" if p.why else "") for p in procs if p.failed]
     restarted = [p.spec.name for p in procs if p.starts > 1 and not p.failed]
     reason = reason or "ended"
     if code == 0 and failed:

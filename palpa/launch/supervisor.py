@@ -11,7 +11,9 @@ same way once the others are gone, then the bus. A second Ctrl-C moves every sto
 at once. The launcher names each node that needed SIGTERM or SIGKILL.
 
 Exit code: the required node's exit code when one ended the launch (128+N if killed by signal N); otherwise 0,
-unless a node failed (exited non-zero, or gave up respawning, without being asked to stop): then 1.
+unless a node failed (exited non-zero, or gave up respawning, without being asked to stop): then 1. A simulated
+graph whose time stood still for its clock's ``frozen_after_s`` (wall seconds) is ended with 1, and so is one
+stopped by Ctrl-C while its time stood still (palpa.launch.clockwatch).
 
 This module decides (when to spawn, respawn, stop, escalate, end the launch); palpa.launch.nodeproc keeps each
 node's record, reads its output and carries out its staged stop, palpa.launch.signals brings the signals into the
@@ -28,12 +30,12 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TextIO
 
-from palpa.address import BusAddress
-from palpa.bus import Bus
 from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
+from palpa.launch.clockwatch import ClockWatch
 from palpa.launch.nodeproc import REAP_GRACE_S, NodeProc
 from palpa.launch.output import Screen
 from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
@@ -42,8 +44,10 @@ from palpa.launch.progress import ProgressView, progress_fields
 from palpa.launch.reaper import Reaper
 from palpa.launch.signals import SignalInbox
 from palpa.launch.summary import exit_text, report_hidden, summarize
-from palpa.node import Node, RawMessage
-from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
+from palpa.node.node import Node, RawMessage
+from palpa.runtime_msgs import CLOCK_TOPIC, HEARTBEAT_TOPIC, ClockTick, Heartbeat
 
 __all__ = ["Supervisor", "exit_text"]
 
@@ -59,7 +63,7 @@ class Supervisor:
     OS-chosen ports); ``progress`` False hides the progress view (default: a bar on a terminal, plain lines
     every 5 % elsewhere);
     ``reaper`` False leaves only PR_SET_PDEATHSIG to clean up after a killed launcher (tests use it to prove
-    that mechanism alone); ``announce`` makes this the current launch the CLI tools find (palpa.current)."""
+    that mechanism alone); ``announce`` lists this launch among the running ones the CLI tools find (palpa.current)."""
 
     def __init__(self, plan: LaunchPlan, *, bus_address: str | None = None, out: TextIO | None = None,
                  err: TextIO | None = None, progress: bool | None = None, reaper: bool = True,
@@ -83,7 +87,10 @@ class Supervisor:
         self.address: BusAddress | None = None
         self._use_reaper = reaper
         self._announce = announce
+        self._entry: Path | None = None
+        """This launch's entry among the running launches (palpa.current), while it runs."""
         self._reaper: Reaper | None = None
+        self._clock_watch = ClockWatch.for_plan(plan)
 
     # -- public ----------------------------------------------------------------------------------------
     def request_stop(self) -> None:
@@ -115,7 +122,7 @@ class Supervisor:
             tmp.write_text(f"{self.address}\n", encoding="utf-8")
             os.replace(tmp, plan.run_dir / "bus.address")
             if self._announce:
-                announce(self.address, plan.run_dir)
+                self._entry = announce(self.address, plan.run_dir)
             self._screen.say(f"bus at {self.address}; run directory {plan.run_dir}")
             self._start_observer()
             for i, spec in enumerate(plan.nodes):
@@ -160,10 +167,13 @@ class Supervisor:
     def _start_observer(self) -> None:
         topic = self.plan.progress_topic
         show = self._progress_opt is not False
-        if self._recorder is None and self.plan.record is None and not (topic and show):
+        if self._recorder is None and self.plan.record is None and not (topic and show) and \
+                self._clock_watch is None:
             return
         self._node = Node(name="_launch", bus=self.address, heartbeat_s=0)
         self._node.subscribe(HEARTBEAT_TOPIC, Heartbeat, self._on_heartbeat)
+        if self._clock_watch is not None:
+            self._node.subscribe(CLOCK_TOPIC, ClockTick, self._clock_watch.on_tick)
         if topic and show:
             self._screen.view = ProgressView(topic, self.out, terminal=self.out.isatty())
             self._node.subscribe_raw(topic, self._on_progress)
@@ -216,6 +226,12 @@ class Supervisor:
                 self._spawn(p)
         if self._node is not None:
             self._node.spin_once(0)
+        if self._clock_watch is not None and not self._stopping:  # a graph whose time stands still
+            verdict, why = self._clock_watch.verdict()
+            if verdict == "frozen":
+                self._request_stop(why, 1)
+            elif verdict == "stalled":
+                self._screen.say(why, "WARNING")
 
     def _all(self) -> list[NodeProc]:
         return self._procs + ([self._recorder] if self._recorder is not None else [])
@@ -225,7 +241,9 @@ class Supervisor:
             sig = self._inbox.pending.pop(0)
             name = signal.Signals(sig).name
             if not self._stopping:
-                self._request_stop(f"stopped by {name}", None)
+                stalled = self._clock_watch.stalled() if self._clock_watch is not None else ""
+                self._request_stop(f"stopped by {name}" + (f" while {stalled}" if stalled else ""),
+                                   1 if stalled else None)
             else:
                 self._screen.say(f"{name} again: moving every stopping node on to the next signal now", "WARNING")
                 for p in self._all():
@@ -277,7 +295,7 @@ class Supervisor:
             p.outcome = {1: "stopped on SIGINT", 2: "needed SIGTERM", 3: "needed SIGKILL"}[p.stage]
             if 0 < code < 128:  # it stopped when asked, but reports that its work failed (an incomplete map);
                 # 128+N is the signal's own exit status (stopped before its handler was in place), not a report
-                p.failed = True
+                p.failed, p.why = True, p.last_error()
                 p.outcome += f", reporting failure ({exit_text(code)})"
             self._screen.say(f"{p.spec.name} {p.outcome} ({exit_text(code)})", "WARNING" if p.escalated else "INFO")
             return
@@ -307,6 +325,7 @@ class Supervisor:
             return
         p.state = "done"
         p.failed = code != 0
+        p.why = p.last_error() if p.failed else ""
         gave_up = spec.respawn and code != 0
         if gave_up:
             p.outcome = f"gave up after {p.failures} retries (last: {exit_text(code)})"
@@ -348,7 +367,7 @@ class Supervisor:
             return
         fields = progress_fields(raw.payload)
         if fields is not None:
-            view.update(fields)
+            view.update(fields, raw.recv_ns)
 
     # -- teardown ----------------------------------------------------------------------------------------
     def _teardown(self, bus: Bus | None, old: dict[int, Any]) -> None:
@@ -364,8 +383,8 @@ class Supervisor:
         self._screen.close_view()  # the summary goes to stderr like every launcher message
         if had_view:
             report_hidden(self._screen, self._all(), self.plan.progress_report)
-        if self._announce:
-            withdraw()
+        if self._entry is not None:
+            withdraw(self._entry)
         if self._node is not None:
             self._node.close(0)
         if bus is not None:
@@ -377,3 +396,4 @@ class Supervisor:
             p.log.close()
         self._sel.close()
         self._inbox.close()
+

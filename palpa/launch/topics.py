@@ -1,4 +1,5 @@
-"""The topics a node class declares, read from its source without running it (``palpa launch --check``).
+"""The topics and services a node class declares, read from its source without running it (``palpa launch
+--check``, ``palpa graph launch FILE``).
 
 Starting a node to ask it would open its hardware, so ``--check`` reads the class's code instead: every
 ``self.publisher("topic", ...)``, ``self.subscribe("topic", ...)`` and ``self.subscribe_raw("prefix", ...)`` with a
@@ -14,10 +15,10 @@ import inspect
 import textwrap
 from collections.abc import Mapping
 
-from palpa.naming import resolve_topic
-from palpa.node import Node
+from palpa.node.naming import resolve_topic
+from palpa.node.node import Node
 
-__all__ = ["declared_topics"]
+__all__ = ["declared_services", "declared_topics"]
 
 _PUB = {"publisher"}
 _SUB = {"subscribe", "subscribe_raw"}
@@ -35,12 +36,11 @@ def _runtime_topic_of(fn: object, n_args: int) -> str | None:
     return name if isinstance(name, str) and name.startswith("_palpa/") else None
 
 
-def declared_topics(cls: type[Node], namespace: str = "",
-                    remap: Mapping[str, str] | None = None) -> dict[str, list[str]]:
-    """``{"publishes": [...], "subscribes": [...]}`` as the node will name them on the bus (remapped and
-    namespaced); runtime topics (``_palpa/...``) are left out."""
-    pubs: set[str] = set()
-    subs: set[str] = set()
+def _declared(cls: type[Node], namespace: str, remap: Mapping[str, str] | None,
+              kinds: Mapping[str, str]) -> dict[str, set[str]]:
+    """Names given as the first argument of ``self.<method>(...)`` calls in the class and its palpa bases, sorted
+    by ``kinds`` (method -> result key), resolved as the node will; ``subscribe_raw`` prefixes end in ``*``."""
+    found: dict[str, set[str]] = {k: set() for k in dict.fromkeys(kinds.values())}
     for klass in cls.__mro__:
         if klass is Node or not issubclass(klass, Node):
             continue
@@ -52,8 +52,8 @@ def declared_topics(cls: type[Node], namespace: str = "",
             if not (isinstance(call, ast.Call) and isinstance(call.func, ast.Attribute)
                     and isinstance(call.func.value, ast.Name) and call.func.value.id == "self"):
                 continue
-            kind = pubs if call.func.attr in _PUB else subs if call.func.attr in _SUB else None
-            if kind is None or not call.args:
+            key = kinds.get(call.func.attr)
+            if key is None or not call.args:
                 continue
             arg = call.args[0]
             literal = arg.value if isinstance(arg, ast.Constant) else None
@@ -67,7 +67,23 @@ def declared_topics(cls: type[Node], namespace: str = "",
                 if call.func.attr == "subscribe_raw":
                     name += "*"
                 if not name.startswith("_palpa/"):
-                    kind.add(name)
+                    found[key].add(name)
             else:
-                kind.add("(computed)")
-    return {"publishes": sorted(pubs), "subscribes": sorted(subs)}
+                found[key].add("(computed)")
+    return found
+
+
+def declared_topics(cls: type[Node], namespace: str = "",
+                    remap: Mapping[str, str] | None = None) -> dict[str, list[str]]:
+    """``{"publishes": [...], "subscribes": [...]}`` as the node will name them on the bus (remapped and
+    namespaced); runtime topics (``_palpa/...``) are left out."""
+    found = _declared(cls, namespace, remap, {**dict.fromkeys(_PUB, "publishes"), **dict.fromkeys(_SUB, "subscribes")})
+    return {k: sorted(v) for k, v in found.items()}
+
+
+def declared_services(cls: type[Node], namespace: str = "",
+                      remap: Mapping[str, str] | None = None) -> dict[str, list[str]]:
+    """``{"serves": [...], "calls": [...]}``: the services the node declares (``self.service``) and those it makes a
+    client for (``self.client``), named as on the bus."""
+    found = _declared(cls, namespace, remap, {"service": "serves", "client": "calls"})
+    return {k: sorted(v) for k, v in found.items()}

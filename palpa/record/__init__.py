@@ -4,6 +4,8 @@ Layering inside this package (imports point downwards only)::
 
     recorder, player     Nodes: the bus side (subscribe_raw -> file, file -> publish_raw)
     info, export, recover  offline tools over finished or damaged files
+    tables, table_export   a recording as DataFrames, CSV or Parquet (palpa.bag.read, bag export --format)
+    edit                   filter, cut, merge: new recordings from old ones
     reader               streams a bag (one file or a split set) back as BagMessage items
     writer               BagWriter: one MCAP file, chunked, indexed, crash-tolerant
     format               the conventions every layer above shares (names, metadata keys, schemas)

@@ -5,6 +5,10 @@ msgpack payload is decoded without the message code and re-encoded as JSON (bina
 as the msgspec JSON Schemas say; NaN/inf become null). Schemas are the recorded ones with ``$ref``s inlined
 (viewers handle plain nested objects best). Blob frames are dropped with a note by default, or exported as base64
 on ``_palpa/blobs/<topic>`` channels. The output is written with the official ``mcap`` Writer.
+
+A payload that is not msgpack, nests deeper than ``palpa.net.wire.MAX_NESTING`` or has no JSON form is exported as a
+placeholder ``{"_palpa_error", "_palpa_index", "_palpa_msgpack_base64"}`` and listed in the report; everything
+else is exported all the same, and ``palpa bag export`` then ends with status 1.
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ import copy
 import json
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +27,8 @@ from mcap.records import Attachment, McapRecord, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
 import palpa
+from palpa.errors import DecodeError
+from palpa.net.wire import decode_any
 from palpa.record.format import (
     BLOBS_TOPIC_PREFIX,
     META_LATCHED,
@@ -42,19 +48,34 @@ _BLOBS_JSON_SCHEMA = json.dumps({
 }).encode()
 
 
+_PLACEHOLDERS_LISTED = 10
+
+
 @dataclass
 class ExportReport:
+    """What :func:`export_json` wrote. ``placeholders``: (index in the recording, topic, why) of every message
+    exported as a placeholder instead of its fields."""
+
     output: Path
     messages: int = 0
     blobs_dropped: int = 0
-    undecodable: int = 0
+    placeholders: list[tuple[int, str, str]] = field(default_factory=list)
+
+    @property
+    def complete(self) -> bool:
+        """Whether every message was exported field by field (what viewers show)."""
+        return not self.placeholders
 
     def text(self) -> str:
         notes = []
         if self.blobs_dropped:
             notes.append(f"{self.blobs_dropped} blob frames dropped (use --blobs base64 to keep them)")
-        if self.undecodable:
-            notes.append(f"{self.undecodable} payloads were not plain msgpack and are exported as base64")
+        if self.placeholders:
+            listed = ", ".join(f"#{i} on {topic!r} ({why})" for i, topic, why in
+                               self.placeholders[:_PLACEHOLDERS_LISTED])
+            more = len(self.placeholders) - _PLACEHOLDERS_LISTED
+            notes.append(f"{len(self.placeholders)} message(s) exported as placeholders (their msgpack as base64 "
+                         f"under _palpa_msgpack_base64): {listed}" + (f" and {more} more" if more > 0 else ""))
         return f"exported {self.messages} messages to {self.output}" + (f"; {'; '.join(notes)}" if notes else "")
 
 
@@ -84,11 +105,14 @@ def inline_refs(schema: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _to_json(payload: bytes) -> bytes | None:
+def _to_json(payload: bytes) -> tuple[bytes | None, str]:
+    """The payload as JSON, or (None, why not)."""
     try:
-        return msgspec.json.encode(msgspec.msgpack.decode(payload))
-    except (msgspec.DecodeError, msgspec.EncodeError, TypeError, ValueError):
-        return None
+        return msgspec.json.encode(decode_any(payload)), ""
+    except DecodeError as exc:
+        return None, str(exc)
+    except (msgspec.EncodeError, TypeError, ValueError) as exc:
+        return None, f"not representable as JSON: {exc}"
 
 
 def export_json(paths: Sequence[Path], out: str | os.PathLike[str], *, blobs: str = "drop",
@@ -137,11 +161,12 @@ def export_json(paths: Sequence[Path], out: str | os.PathLike[str], *, blobs: st
                         META_TYPE: type_name, META_PUBLISHER: node, META_LATCHED: "true" if latched else "false"})
                 return channel_ids[key]
 
-            for m in iter_bag(paths, on_record=on_record):
-                data = _to_json(m.payload)
+            for index, m in enumerate(iter_bag(paths, on_record=on_record)):
+                data, why = _to_json(m.payload)
                 if data is None:
-                    report.undecodable += 1
-                    data = msgspec.json.encode({"_palpa_msgpack_base64": base64.b64encode(m.payload).decode()})
+                    report.placeholders.append((index, m.topic, why))
+                    data = msgspec.json.encode({"_palpa_error": why, "_palpa_index": index,
+                                                "_palpa_msgpack_base64": base64.b64encode(m.payload).decode()})
                 cid = channel_for(m.topic, m.type, m.node, m.latched)
                 w.add_message(cid, log_time=m.log_time, data=data, publish_time=m.publish_time,
                               sequence=m.seq & 0xFFFF_FFFF)

@@ -19,7 +19,9 @@ An MCAP file written by palpa holds:
 * **metadata** records ``palpa.recording`` (palpa version, host, recorder parameters, split index),
   ``palpa.nodes`` (node name -> JSON of its last heartbeat: pid, host, publishes, subscribes; rewritten when the
   graph changes, the last one wins), ``palpa.drops`` (topic -> JSON counters; written when a file is closed, or by
-  ``palpa bag recover``) and ``palpa.recovery`` (only in recovered files);
+  ``palpa bag recover``), ``palpa.refused`` (what the recorder refused or forgot while writing this file, by
+  reason -> count, see docs/limits.md; written when a file is closed) and ``palpa.recovery`` (only in recovered
+  files);
 * the resolved launch file as the attachment ``launch.resolved.yaml`` when the run came from one.
 """
 
@@ -38,6 +40,7 @@ from typing import Any
 from palpa import env as palpa_env
 from palpa.errors import PalpaError, RegistryError
 from palpa.message import json_schema, lookup
+from palpa.targets import import_message_modules
 
 __all__ = [
     "BLOBS_TOPIC_PREFIX",
@@ -48,6 +51,7 @@ __all__ = [
     "MD_NODES",
     "MD_RECORDING",
     "MD_RECOVERY",
+    "MD_REFUSED",
     "MESSAGE_ENCODING",
     "META_BLOBS_OF",
     "META_LATCHED",
@@ -79,6 +83,7 @@ MD_RECORDING = "palpa.recording"
 MD_NODES = "palpa.nodes"
 MD_DROPS = "palpa.drops"
 MD_RECOVERY = "palpa.recovery"
+MD_REFUSED = "palpa.refused"
 
 LAUNCH_ATTACHMENT = "launch.resolved.yaml"
 BLOBS_TOPIC_PREFIX = "_palpa/blobs/"
@@ -91,21 +96,6 @@ RUNTIME_PREFIX = "_palpa/"
 
 class BagError(PalpaError):
     """A recording cannot be written, read, recovered or played; the message names the file and the problem."""
-
-
-_imported = False
-
-
-def import_message_modules() -> None:
-    """Import ``messages`` and the modules named in ``PALPA_MESSAGES`` (comma-separated) so their types are in
-    the registry; modules that do not import are skipped (their channels are then recorded without a schema)."""
-    global _imported
-    if _imported:
-        return
-    _imported = True
-    for name in ["messages", *palpa_env.listed(palpa_env.MESSAGES)]:
-        with contextlib.suppress(ImportError):
-            importlib.import_module(name)
 
 
 NODE_MODULES_ENV = palpa_env.NODE_MODULES

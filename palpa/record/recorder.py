@@ -15,6 +15,7 @@ are not recorded by default but feed the node list stored in the file.
 from __future__ import annotations
 
 import contextlib
+import logging
 import socket
 import time
 from collections.abc import Mapping
@@ -26,9 +27,11 @@ import msgspec
 
 import palpa
 from palpa.errors import ParamError
-from palpa.node import Node, RawMessage
-from palpa.params import convert_params
-from palpa.params_runtime import PARAMS_TOPIC
+from palpa.lograte import LogThrottle
+from palpa.net.wire import DECODE_ERRORS
+from palpa.node.node import Node, RawMessage
+from palpa.node.params import convert_params
+from palpa.node.params_runtime import PARAMS_TOPIC
 from palpa.record.format import (
     BLOBS_SCHEMA,
     BLOBS_SCHEMA_NAME,
@@ -37,6 +40,7 @@ from palpa.record.format import (
     MD_DROPS,
     MD_NODES,
     MD_RECORDING,
+    MD_REFUSED,
     MESSAGE_ENCODING,
     META_BLOBS_OF,
     META_LATCHED,
@@ -52,10 +56,18 @@ from palpa.record.format import (
     split_path,
     split_pieces,
 )
-from palpa.record.writer import COMPRESSIONS, BagWriter
+from palpa.record.lastvalues import LastValues
+from palpa.record.writer import COMPRESSIONS, MAX_CHANNELS, BagWriter
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat
 
-__all__ = ["RecorderParams", "Recorder"]
+__all__ = ["MAX_LATCHED_BYTES", "RESERVED_CHANNELS", "RecorderParams", "Recorder"]
+
+RESERVED_CHANNELS = 1024
+"""Of a file's MAX_CHANNELS channels, the last this many go only to publishers the recorder has heard a heartbeat
+from (the graph's own nodes), so a flood of invented publisher names or sequence epochs cannot lock them out."""
+MAX_LATCHED_BYTES = 64 * 2**20
+"""Bytes of last latched values the recorder keeps to open each split piece with; past it the least recently
+updated values are forgotten (logged and counted in ``palpa.refused``)."""
 
 _ChannelKey = tuple[str, str, str, bool, int]  # topic, publisher, type, latched, sequence epoch (seq >> 32)
 _blobs_encoder = msgspec.msgpack.Encoder()
@@ -68,7 +80,7 @@ def _well_formed(payload: bytes) -> bool:
         return False
     try:
         _any_decoder.decode(payload)
-    except msgspec.DecodeError:
+    except DECODE_ERRORS:  # not msgpack, a string not UTF-8, or nested past the interpreter's stack
         return False
     return True
 
@@ -143,7 +155,12 @@ class Recorder(Node):
         self._blob_ids: dict[int, int] = {}
         self._schema_ids: dict[str, int] = {}
         self._schema_cache: dict[str, bytes | None] = {}
-        self._latched: dict[_ChannelKey, RawMessage] = {}
+        self._latched: LastValues[_ChannelKey] = LastValues(MAX_LATCHED_BYTES)
+        self._throttle = LogThrottle(self.log, now=lambda: self.clock.now_ns() / 1e9)
+        self._refused: dict[str, int] = {}
+        """Refusals (and forgotten latched values) of the open file, by reason; written as palpa.refused."""
+        self.refused: dict[str, int] = {}
+        """What was refused (or forgotten) so far, by reason, over all files (each file's own in palpa.refused)."""
         self._bus_latched: set[str] = set()
         self._nodes: dict[str, str] = {}
         self._nodes_dirty = False
@@ -205,6 +222,7 @@ class Recorder(Node):
         if self._nodes:
             writer.add_metadata(MD_NODES, self._nodes)
         self._counter_base = {t: s.as_dict() for t, s in self.counters().items()}
+        self._refused = {}
         # a split piece must stand alone: the last value of every latched topic opens it
         for key, raw in self._latched.items():
             cid = self._channel_for(key)
@@ -230,6 +248,7 @@ class Recorder(Node):
             if any(delta.values()):
                 drops[topic] = dumps(delta)
         w.add_metadata(MD_DROPS, drops)
+        w.add_metadata(MD_REFUSED, {k: str(v) for k, v in sorted(self._refused.items())})
         w.add_metadata(MD_NODES, self._nodes)
         w.finish()
         self.recorded += w.message_count
@@ -254,11 +273,17 @@ class Recorder(Node):
         self._schema_ids[type_name] = sid
         return sid
 
-    def _channel_for(self, key: _ChannelKey) -> int:
+    def _channel_for(self, key: _ChannelKey) -> int | None:
+        """The channel id of ``key`` (registered now if new); 0 for a topic not recorded; None when the file has no
+        room for it and a blob channel it may need within MAX_CHANNELS (less RESERVED_CHANNELS for a publisher
+        not heard in heartbeats)."""
         topic, node, type_name, latched, epoch = key
         if not self._filter(topic):
             self._ids[key] = 0
             return 0
+        room = MAX_CHANNELS - len(self._writer.channels) - (0 if node in self._nodes else RESERVED_CHANNELS)
+        if room < 2:  # the channel and, should its messages carry blobs, their companion channel
+            return None
         sid = self._schema_id(type_name)
         md = {META_TYPE: type_name, META_PUBLISHER: node, META_LATCHED: "true" if latched else "false"}
         if epoch:
@@ -268,6 +293,12 @@ class Recorder(Node):
         cid = self._writer.register_channel(topic, MESSAGE_ENCODING, sid, md)
         self._ids[key] = cid
         return cid
+
+    def _refuse(self, reason: str, text: str, *args: object) -> None:
+        """Count one message (or latched value) not kept, for the file's palpa.refused, and log it (throttled)."""
+        self._refused[reason] = self._refused.get(reason, 0) + 1
+        self.refused[reason] = self.refused.get(reason, 0) + 1
+        self._throttle.event(reason, logging.WARNING, text, *args)
 
     def _write_blobs(self, cid: int, raw: RawMessage, log_time: int) -> None:
         bid = self._blob_ids.get(cid)
@@ -286,6 +317,10 @@ class Recorder(Node):
         topic, h, payload, blobs, cached, recv_ns = raw.topic, raw.header, raw.payload, raw.blobs, raw.from_cache, \
             raw.recv_ns
         seq = h.seq
+        if h.stamp < 0:  # MCAP's publish time is a uint64 (and msgpack carries nothing above one)
+            self._refuse("stamp_out_of_range", "refused a message on %r from %r: stamp %d ns is before 1970 (MCAP "
+                         "times are 0..2**64-1 ns)", topic, h.node, h.stamp)
+            return
         key = (topic, h.node, h.type, h.latched, seq >> 32)
         cid = self._ids.get(key)
         try:
@@ -293,9 +328,18 @@ class Recorder(Node):
                 if self._failed:
                     return
                 cid = self._channel_for(key)
+                if cid is None:
+                    self._refuse("channel_limit", "refused a message on %r from %r: %s holds %d channels, the most "
+                                 "it takes (%d, the last %d kept for nodes with heartbeats)", topic, h.node,
+                                 self._writer.path, len(self._writer.channels), MAX_CHANNELS, RESERVED_CHANNELS)
+                    return
             if not cid:
                 return
             w = self._writer
+            if blobs and cid not in self._blob_ids and len(w.channels) >= MAX_CHANNELS:
+                self._refuse("channel_limit", "refused a message with blobs on %r from %r: %s has no room for its "
+                             "blob channel (%d channels)", topic, h.node, w.path, MAX_CHANNELS)
+                return
             if blobs:  # before the message, so a reader has them when the message comes
                 self._write_blobs(cid, raw, recv_ns)
             w.add_message(cid, recv_ns, h.stamp, seq & 0xFFFF_FFFF, payload)
@@ -304,7 +348,10 @@ class Recorder(Node):
             if h.latched or cached or (self._bus_latched and topic in self._bus_latched):
                 if cached:
                     self._bus_latched.add(topic)
-                self._latched[key] = raw
+                for gone in self._latched.put(key, raw):
+                    self._refuse("latched_forgotten", "latched values over %d bytes: forgot the last value of %r "
+                                 "from %r (later split pieces do not start with it)", MAX_LATCHED_BYTES, gone[0],
+                                 gone[1])
             if w.written >= self._split_bytes:
                 self._roll()
         except (OSError, BagError) as exc:
@@ -358,7 +405,7 @@ class Recorder(Node):
         except (OSError, BagError) as exc:
             self._fail(exc)
             return
-        lost = any(d["gaps"] for d in self.drops().values())
+        lost = any(d["gaps"] for d in self.drops().values()) or bool(self.refused)
         (self.log.warning if lost else self.log.info)("%s", self.report())
 
     def drops(self) -> dict[str, dict[str, int]]:
@@ -379,4 +426,8 @@ class Recorder(Node):
         text += ("; DROPS " + "; ".join(lost)) if lost else "; no drops (no sequence gaps)"
         other = [f"{t}: " + ", ".join(f"{d[k]} {k.replace('_', ' ')}" for k in ("restarts", "decode_errors") if d[k])
                  for t, d in counters if d["restarts"] or d["decode_errors"]]
-        return text + ("; also " + "; ".join(other) if other else "")
+        text += ("; also " + "; ".join(other) if other else "")
+        if self.refused:
+            text += "; REFUSED " + ", ".join(f"{n} {reason.replace('_', ' ')}" for reason, n in
+                                            sorted(self.refused.items())) + " (see docs/limits.md)"
+        return text

@@ -2,7 +2,8 @@
 
 * :func:`write_bag` makes a recording with exact times, as the recorder would have written it;
 * :func:`check_official` opens a file with the official ``mcap`` reader (both the seeking and the streaming
-  reader, CRCs validated) and returns what it saw, so a test fails if any file we write is not valid MCAP.
+  reader, CRCs validated) and returns what it saw, so a test fails if any file we write is not valid MCAP;
+* :func:`play_in_memory` plays a recording with the Player node on an in-memory bus and returns what was sent.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from mcap.reader import NonSeekingReader, make_reader
 
@@ -27,7 +28,11 @@ from palpa.record.format import (
 )
 from palpa.record.writer import BagWriter
 
-__all__ = ["OfficialView", "Rec", "check_official", "write_bag"]
+if TYPE_CHECKING:
+    from palpa.node.node import RawMessage
+    from palpa.record.player import Player
+
+__all__ = ["OfficialView", "Rec", "check_official", "play_in_memory", "write_bag"]
 
 
 @dataclass(frozen=True)
@@ -116,3 +121,25 @@ def check_official(path: str | os.PathLike[str]) -> OfficialView:
         if sid == 0:
             raise AssertionError(f"{path}: schema id 0 is reserved")
     return view
+
+
+def play_in_memory(params: Mapping[str, object]) -> tuple[Player, list[RawMessage]]:
+    """Run the Player node with ``params`` (``file`` and the rest of ``palpa play``'s; ``exit_delay_s`` 0 unless
+    given) on a :class:`~palpa.testing.MemoryBus` until it is done; returns it (exit code, lateness) and every
+    message it sent, as a subscriber of every topic received them."""
+    from palpa.node.node import Node
+    from palpa.record.player import Player
+    from palpa.testing import MemoryBus
+
+    bus = MemoryBus()
+    got: list[RawMessage] = []
+    probe = Node(name="probe", transport=bus.transport(), heartbeat_s=0)
+    probe.subscribe_raw("", got.append)
+    player = Player(name="player", params={"exit_delay_s": 0.0, **params}, transport=bus.transport(), heartbeat_s=0)
+    try:
+        player.spin()
+        probe.spin_once(0)
+    finally:
+        player.close(0)
+        probe.close(0)
+    return player, got

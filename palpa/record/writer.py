@@ -13,11 +13,13 @@ are registered, and :meth:`BagWriter.flush` closes the open chunk and hands ever
 outside a chunk's buffer ends with a provisional tail (DataEnd, a Footer without summary, the closing magic)
 that the next write overwrites: a process killed between writes leaves a complete, footer-terminated MCAP file
 without a summary section (the spec allows one), which the official ``mcap`` readers read as it is, up to the
-last complete chunk; ``palpa bag recover`` adds the summary (indexes, statistics).
+last complete chunk; ``palpa bag recover`` adds the summary (indexes, statistics). While it writes, a BagWriter
+holds an exclusive ``flock`` on its file, so ``recover --in-place`` can tell a live file from a dead writer's.
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import struct
 import sys
@@ -50,7 +52,10 @@ from mcap.records import (
 
 from palpa.record.format import MAGIC, BagError
 
-__all__ = ["COMPRESSIONS", "BagWriter"]
+__all__ = ["COMPRESSIONS", "MAX_CHANNELS", "BagWriter", "lock_exclusive"]
+
+MAX_CHANNELS = 0xFFFF
+"""Channels one MCAP file can hold (its channel ids are uint16, 0 is reserved)."""
 
 _MESSAGE = struct.Struct("<BQHIQQ")  # opcode, record length, channel id, sequence, log time, publish time
 _MESSAGE_INDEX = struct.Struct("<BQHI")  # opcode, record length, channel id, byte length of the entries
@@ -79,6 +84,16 @@ def _pack_index(entries: list[int]) -> bytes:
     if not _LITTLE:
         arr.byteswap()
     return arr.tobytes()
+
+
+def lock_exclusive(fh: BinaryIO) -> bool:
+    """Take the advisory lock (``flock``) a live :class:`BagWriter` holds on its file, without waiting; False when
+    someone (a recorder, in this or another process) holds it. Released when ``fh`` is closed."""
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
 
 
 class BagWriter:
@@ -112,6 +127,8 @@ class BagWriter:
             raise BagError(f"{self.path} already exists (use --force / force: true to overwrite)") from None
         except OSError as exc:
             raise BagError(f"cannot create {self.path}: {exc}") from None
+        # held while the file is written: `palpa bag recover --in-place` must not replace a file in use
+        lock_exclusive(self._file)
         self._pos = 0
         self.written = 0
         """Bytes handed to the file so far (updated when a chunk closes; cheap to poll per message)."""
@@ -181,8 +198,8 @@ class BagWriter:
                          metadata: Mapping[str, str]) -> int:
         """Write a Channel record now and return its id (1, 2, ...). ``schema_id`` 0 means no schema."""
         channel_id = len(self._channels) + 1
-        if channel_id > 0xFFFF:
-            raise BagError(f"{self.path}: more than 65535 channels")
+        if channel_id > MAX_CHANNELS:
+            raise BagError(f"{self.path}: more than {MAX_CHANNELS} channels")
         if schema_id and schema_id not in self._schemas:
             raise BagError(f"{self.path}: channel {topic!r} refers to unknown schema id {schema_id}")
         channel = Channel(id=channel_id, topic=topic, message_encoding=message_encoding, schema_id=schema_id,
@@ -195,7 +212,14 @@ class BagWriter:
     # -- data ----------------------------------------------------------------------------------------
     def add_message(self, channel_id: int, log_time: int, publish_time: int, sequence: int,
                     data: bytes | bytearray | memoryview) -> None:
-        """Append one message to the open chunk (the hot path: no validation beyond what struct checks)."""
+        """Append one message to the open chunk (the hot path: no validation beyond what struct checks). A time or
+        sequence out of MCAP's range raises :class:`BagError` and changes nothing."""
+        try:  # packed before anything changes: a value out of range leaves the chunk and its index as they were
+            head = _MESSAGE.pack(Opcode.MESSAGE, _MESSAGE_FIXED + len(data), channel_id, sequence, log_time,
+                                 publish_time)
+        except struct.error:
+            raise BagError(f"{self.path}: message not written: log_time {log_time}, publish_time {publish_time} "
+                           f"(both 0..2**64-1 ns) or sequence {sequence} (0..2**32-1) out of range") from None
         buf = self._buf
         entries = self._index.get(channel_id)
         if entries is None:
@@ -203,8 +227,7 @@ class BagWriter:
                 raise BagError(f"{self.path}: message on unregistered channel id {channel_id}")
             entries = self._index[channel_id] = []
         entries += (log_time, len(buf))
-        buf += _MESSAGE.pack(Opcode.MESSAGE, _MESSAGE_FIXED + len(data), channel_id, sequence, log_time,
-                             publish_time)
+        buf += head
         buf += data
         if len(buf) >= self._chunk_size:
             self._close_chunk()

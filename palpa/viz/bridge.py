@@ -27,11 +27,12 @@ import msgspec
 
 import palpa
 from palpa import env as palpa_env
-from palpa.address import is_loopback_host
 from palpa.errors import ParamError, RegistryError
+from palpa.launch.plan import VIZ_READY
 from palpa.message import Message, lookup
-from palpa.node import Node, Publisher, RawMessage
-from palpa.params import convert_params
+from palpa.net.address import is_loopback_host
+from palpa.node.node import Node, Publisher, RawMessage
+from palpa.node.params import convert_params
 from palpa.record.format import TopicFilter, import_message_modules
 from palpa.runtime_msgs import LOG_TOPIC
 from palpa.viz.server import SUBPROTOCOL, Key, SdkServer
@@ -104,7 +105,7 @@ class Bridge(Node):
         self.subscribe_raw("", self._on_raw)
         if p.client_publish:
             self.timer(0.02, self._drain_inbox)
-        print(f"palpa viz ready {self.url} (subprotocol {SUBPROTOCOL})", flush=True)
+        print(f"{VIZ_READY}{self.url} (subprotocol {SUBPROTOCOL})", flush=True)
 
     def _write_address(self) -> None:
         run_dir = palpa_env.get(palpa_env.RUN_DIR)

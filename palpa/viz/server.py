@@ -27,6 +27,8 @@ import foxglove
 import msgspec
 from foxglove.websocket import Capability, ChannelView, Client, ClientChannel, ServerListener
 
+from palpa.errors import DecodeError, PalpaError
+from palpa.net.wire import decode_any
 from palpa.viz.schema import foxglove_schema
 
 __all__ = ["ClientStats", "SUBPROTOCOL", "SdkServer", "STATS_TOPIC", "TopicStats"]
@@ -38,7 +40,6 @@ STATS_TOPIC = "_palpa/viz/stats"
 
 log = logging.getLogger("palpa.viz")
 _json = msgspec.json.Encoder()
-_msgpack = msgspec.msgpack.Decoder()
 
 
 @dataclass
@@ -110,10 +111,15 @@ class SdkServer:
         caps = [Capability.ClientPublish] if client_topics and on_client_message else []
         if services:
             caps.append(Capability.Services)
-        self._server = foxglove.start_server(
-            name=name, host=host, port=port, context=self._context, capabilities=caps,
-            supported_encodings=["json"] if caps else None, server_listener=_Listener(self),
-            services=services or None, message_backlog_size=backlog)
+        try:
+            self._server = foxglove.start_server(
+                name=name, host=host, port=port, context=self._context, capabilities=caps,
+                supported_encodings=["json"] if caps else None, server_listener=_Listener(self),
+                services=services or None, message_backlog_size=backlog)
+        except RuntimeError as exc:  # the SDK reports an OS error as RuntimeError("FoxgloveError: ...")
+            reason = str(exc).removeprefix("FoxgloveError: ")
+            hint = " (--port 0, or port: 0 under a launch file's viz:, lets the OS choose a free one)" if "in use" in reason else ""
+            raise PalpaError(f"cannot listen on {host}:{port}: {reason}{hint}") from None
         self.port = self._server.port
         self._stats_channel = foxglove.Channel(STATS_TOPIC, message_encoding="json", context=self._context)
         self._thread = threading.Thread(target=self._run, name="palpa-viz-sender", daemon=True)
@@ -187,8 +193,8 @@ class SdkServer:
     def _log(chan: _Channel, payload: bytes, stamp_ns: int) -> bool:
         """Transcode msgpack -> JSON and hand it to the SDK; False (counted) for a payload that is not msgpack."""
         try:
-            data = _json.encode(_msgpack.decode(payload))
-        except (msgspec.DecodeError, msgspec.EncodeError, TypeError, ValueError):
+            data = _json.encode(decode_any(payload))
+        except (DecodeError, msgspec.EncodeError, TypeError, ValueError):
             chan.stats.decode_errors += 1
             return False
         chan.fox.log(data, log_time=stamp_ns)
