@@ -98,8 +98,9 @@ def map_curve(spec: RunSpec, topic: str) -> list[tuple[float, float, int]]:
     import msgspec
 
     from messages import StiffnessMap
+    from models.detector import detect
     from models.scoring import score_scan
-    from models.stiffness_map import MapSnapshot, detect_inclusions
+    from models.stiffness_map import MapSnapshot, to_inclusions_json
     from palpa.record.reader import iter_bag, resolve_bag_paths
 
     ph = load_phantom(spec.phantom)
@@ -112,11 +113,7 @@ def map_curve(spec: RunSpec, topic: str) -> list[tuple[float, float, int]]:
         grid = np.array(b.stiffness).reshape(len(ys), len(xs))
         snap = MapSnapshot(grid, xs, ys, np.array(b.count).reshape(grid.shape), np.array(b.spread).reshape(grid.shape),
                            float(xs[1] - xs[0]))
-        try:
-            found = detect_inclusions(snap)
-        except ValueError:
-            found = []
-        dets = [{"x_mm": i.x_mm, "y_mm": i.y_mm, "radius_mm": i.radius_mm, "contrast": i.contrast} for i in found]
+        dets = to_inclusions_json(detect(snap).inclusions)
         s = score_scan(ph, dets, {"stiffness": grid, "x_mm": xs, "y_mm": ys, "count": np.array(b.count).reshape(grid.shape)})
         errs = [x.centroid_error_mm for x in s.inclusions if x.found]
         out.append((float(b.samples), float(np.mean(errs)) if errs else math.nan, s.found))

@@ -4,8 +4,9 @@ Full scans are too slow for a sweep of radius x ratio x depth, so this asks the 
 (``models.world.TissueWorld``) what the probe would read: at the sweep's force (the paper's eq. 4 line at
 ``--pressure-kpa``) the indenter sinks d_bg into plain tissue and d_inc over an inclusion's axis (and 2 mm off
 it); the estimator's eq. 7 turns both into moduli, and their ratio is the contrast the map would show. An inclusion
-is *detectable* when that contrast exceeds the map's own threshold (``detect_inclusions``: 1 + max(0.2,
-k_mad x the map's robust relative noise)) on its axis and 2 mm off it (two 2 mm cells, the smallest region the
+is *detectable* when that contrast exceeds a fixed-ratio threshold (the rule of the detector before issue 37: 1 +
+max(0.2, k_mad x the map's robust relative noise); what today's detector finds on scans is bench/detector_roc.py's
+chart) on its axis and 2 mm off it (two 2 mm cells, the smallest region the
 detector keeps). The layer is 3.68 mm thick (the dome at the paper's tumours) unless ``--thickness-mm``.
 Writes docs/img/detectability_airfloat.png and prints one JSON line.
 

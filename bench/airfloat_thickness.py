@@ -50,7 +50,7 @@ def main() -> int:
                                       default_flow_style=None))
         cmd = [sys.executable, "-m", "palpa.cli.main", "launch", str(REPO / "launch" / "replay_scan.yaml"),
                "--run-dir", str(out / "run"), "--no-progress", f"bag:={args.run_dir / 'recording.mcap'}",
-               f"geometry:={geo}", "rate:=4.0"]
+               f"geometry:={geo}", "thickness:=geometry", "rate:=4.0"]
         if cal.exists():
             cmd.append(f"calibration:={cal}")
         subprocess.run(cmd, check=True, cwd=REPO, stdout=subprocess.DEVNULL)

@@ -32,6 +32,8 @@ class StiffnessSample(Message, frozen=True, kw_only=True):
     pan_rad: float = 0.0
     dt_mm: list[float] = []
     """Tissue displacement under each indenter (multi-indenter model)."""
+    thickness_mm: float = 0.0
+    """The layer thickness eq. 7 used here (air-float model; 0: not stated)."""
 
 
 class StiffnessFit(Message, frozen=True, kw_only=True):
@@ -64,12 +66,17 @@ class StiffnessMap(Message, frozen=True, kw_only=True):
 
 
 class DetectedInclusion(msgspec.Struct, frozen=True, kw_only=True):
-    """One stiff region: centroid, equivalent radius and contrast (peak / healthy baseline)."""
+    """One stiff region: centroid, equivalent radius and contrast (peak / healthy baseline); the detector's
+    significance ``snr`` (σ of the filtered noise) and ``false_alarm``, the probability that a map without
+    inclusions shows a peak that significant (models.detector). A sender from before issue 37 leaves them
+    at 0 and 1 (not known)."""
 
     x_mm: Finite
     y_mm: Finite
     radius_mm: Finite
     contrast: Finite
+    snr: float = 0.0
+    false_alarm: float = 1.0
 
 
 class Inclusions(Message, frozen=True, kw_only=True):
@@ -80,3 +87,7 @@ class Inclusions(Message, frozen=True, kw_only=True):
     baseline: float
     inclusions: list[DetectedInclusion]
     final: bool = False
+    threshold_snr: float = 0.0
+    """The significance a detection had to exceed on this map (0: not stated)."""
+    false_alarm_per_map: float = 0.0
+    """The detector's false-alarm rate per map without inclusions (0: not stated)."""

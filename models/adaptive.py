@@ -106,20 +106,16 @@ class PlannerConfig:
     them, as many on phantoms without an inclusion as with one); 0.7 lost weak ones (tuning seeds 121, 134)."""
     fill_mm: float = 4.0
     """detect: the detection map takes the GP mean only this close to a measured cell."""
-    lower_spread: bool = True
-    """detect: the baseline's noise scale from the blind cells below their median, mirrored
-    (models.adaptive_detect.reference): inclusions only stiffen, so a few blind sweeps on them do not widen it."""
-    neighbour_cap: float = 4.0
-    """detect: the baseline's noise scale is at most this many times that of the differences between neighbouring
-    blind cells along a sweep (models.adaptive_detect.reference; 0: off): a crowded specimen's blind cells are
-    mostly raised, and their lower half is no longer healthy tissue's scatter."""
+    false_alarm_per_map: float = 0.003
+    """detect: the map detector's false-alarm rate per map (models.detector.DetectorConfig); its background and noise
+    come from the cells measured by stiffness-blind sweeps."""
     split_prominence: float = 1.5
-    """detect: a detection whose measured cells show two maxima, each standing this many times the baseline's noise
-    scale above the measured level joining them, is two inclusions (models.adaptive_split; 0: off). One inclusion
-    gives one maximum; the lower noise scale's threshold lets two neighbours' halos join (tuning seeds 112, 124)."""
+    """detect: a detection whose measured cells show two maxima, each standing this many times the map's relative
+    noise above the measured level joining them, is two inclusions (models.adaptive_split; 0: off). One inclusion
+    gives one maximum; the matched filter lets two neighbours' halos join (tuning seeds 112, 124)."""
     near_miss: float = 0.8
-    """detect: a suspect that is no detection but whose highest cell came this fraction of the way from the baseline
-    to the detector's threshold has its disc measured at the raster's density (``near_miss_gap_mm``; 0: off).
+    """detect: a suspect that is no detection but whose significance came this fraction of the way to the
+    detector's threshold has its disc measured at the raster's density (``near_miss_gap_mm``; 0: off).
     Whether a weak inclusion's map crosses the threshold turns on how many of its cells were measured near its
     middle: the raster's lines measure most, the planner's sweeps a few. (Tuning seeds 100-139, three noise draws
     each: 37 such sweeps in 126 runs, 1 % more probes; 171 inclusions found against 168, 5 of the raster's missed

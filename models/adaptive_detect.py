@@ -18,14 +18,15 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   ``miss_probability``. (Garg et al. 2016 and Gotovos et al. 2013 stop on the belief alone; a GP with a length scale
   shorter than that reach cannot vouch for it, which is why the LSE rule costs coverage.)
 * **every candidate is resolved.** A candidate is a region of the detection map above ``suspect`` times the
-  detector's thresholds (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
+  detector's threshold (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
   resolved when the points on the edge of its disc on all four sides (one cell out for a small one:
   :func:`open_sides`) have been measured: its boundary is sampled, so its centroid and extent are the map's and
   not the kernel's guess; when a side is still stiff the candidate grows and opens the next side out.
   A *detected* inclusion is resolved only once its disc is measured densely (every cell within ``interior_gap_mm``
   of a measured one, columns 6 mm apart by default: :func:`interior_gaps`): between sparse sweeps the map is the
   GP's guess, which joins two neighbours into one blob and shows no dip it never measured.
-  A *near miss* (a suspect whose peak came ``near_miss`` of the way to the detector's threshold, no detection:
+  A *near miss* (a suspect whose significance came ``near_miss`` of the way to the detector's threshold, no
+  detection:
   :func:`near_misses`) is resolved only once its disc is measured at the raster's density (``near_miss_gap_mm``):
   whether a weak inclusion crosses the threshold turns on whether a cell near its middle was measured.
 
@@ -34,21 +35,21 @@ of the staggered covering lattice that still reveals hidden area (models.adaptiv
 there), the most of it, ties to the nearest, and once none does, the sweep anywhere that leaves the least area where
 an inclusion could hide (:func:`coverage_gain`, a greedy set cover; with ``near_best`` < 1 the nearest of the
 near-best). Seed grid and covering sweeps are chosen without looking at stiffness, so their cells are a fair sample
-of the tissue: the detector's baseline comes from them (:func:`reference`), not from every measured cell (the
-resolving sweeps go where it is stiff), its noise scale from the blind cells below their median (inclusions only
-stiffen).
+of the tissue: the detector's background and noise come from them (:func:`detect_candidates`), not from every
+measured cell (the resolving sweeps go where it is stiff), and of those only from the cells that are no candidates
+(models.detector).
 
 Detection uses measured cells where they exist (the per-cell median of the sweeps' samples) and the GP mean only
 within ``fill_mm`` of a measured cell (:func:`detection_map`): the smoothed mean alone widens and merges blobs, and
 far from data it only repeats the prior. A detection whose measured cells show two maxima with a measured dip between
-them is two inclusions (models.adaptive_split, ``split_prominence``): the lower-half noise scale's threshold can sit
-under the dip between two neighbours' halos. Our own code, written from the papers' ideas.
+them is two inclusions (models.adaptive_split, ``split_prominence``): the matched filter can join two neighbours'
+halos. Our own code, written from the papers' ideas.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import numpy.typing as npt
@@ -73,10 +74,11 @@ from models.adaptive_cover import (
     seed_design,
 )
 from models.adaptive_split import split_detections
-from models.stiffness_map import Inclusion, MapSnapshot, background, detect_inclusions
+from models.detector import Detection, DetectorConfig, detect
+from models.stiffness_map import Inclusion, MapSnapshot
 
-__all__ = ["Decision", "decide", "detect_candidates", "detection_map", "interior_gaps", "near_misses",
-           "open_sides", "reference", "swept_cells", "unsensed"]
+__all__ = ["Decision", "decide", "detect_candidates", "detection_map", "detector_config", "interior_gaps",
+           "near_misses", "open_sides", "swept_cells", "unsensed"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -91,80 +93,44 @@ def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, 
     return np.where(ok, meas, np.where(near, np.asarray(mean, dtype=np.float64), np.nan))
 
 
-def reference(fair: FloatArray | None, min_cells: int = 9, lower: bool = False,
-              neighbour_cap: float = 0.0) -> tuple[float, float] | None:
-    """The healthy baseline and its scale (models.stiffness_map.background) from the cells measured by
-    stiffness-blind sweeps (the seed grid and the covering sweeps), None with fewer than ``min_cells`` of them. The
-    resolving sweeps go where the map is stiff: a median over every measured cell would count the inclusions'
-    cells as background, raise the detector's threshold and lose a weak inclusion (tuning set).
-
-    ``lower``: the scale from the cells at or below the median only, mirrored about it (inclusions and their halos
-    only ever stiffen the tissue, so the lower half is healthy tissue's own scatter), the median itself unchanged:
-    a few blind sweeps on inclusions spread the MAD over the two modes and raised the detector's noise threshold
-    over a 2x inclusion (tuning seed 111), while the median stays where the raster detector's calibration has it.
-
-    ``neighbour_cap`` (> 0, with ``fair`` a grid whose rows run along the sweeps): the scale is at most this many
-    times the scale of the differences between neighbouring measured cells along a sweep (robust, divided by sqrt 2:
-    an inclusion's level shifts them only at its edges). When inclusions and their halos cover more than half of the
-    blind cells, the median sits in their tail and the lower half spans healthy tissue and halo: on such a crowded
-    specimen the scale came out 21 % of the baseline, 7.3 times its neighbours' (fresh seed 10010), where the
-    healthy cells scatter 3-5 %, and a 3.6x inclusion read +59 % under a threshold of +91 %. On the tuning seeds
-    100-139 the ratio is 1.1-4.0."""
-    if fair is None:
-        return None
-    grid = np.asarray(fair, dtype=np.float64)
-    values = grid[np.isfinite(grid)]
-    if values.size < min_cells:
-        return None
-    base, sigma = background(values)
-    if lower and base > 0:
-        below = values[values <= base]
-        sigma = background(np.concatenate([below, 2.0 * base - below]))[1]
-    if neighbour_cap > 0 and grid.ndim == 2:
-        steps = np.diff(grid, axis=0)
-        steps = steps[np.isfinite(steps)]
-        step_scale = 1.4826 * float(np.median(np.abs(steps))) / np.sqrt(2.0) if steps.size >= min_cells else 0.0
-        if step_scale > 0:   # 0: most neighbours read alike (a synthetic or quantised grid), which says nothing
-            sigma = min(sigma, neighbour_cap * step_scale)
-    return (base, sigma) if base > 0 else None
+def detector_config(cfg: PlannerConfig) -> DetectorConfig:
+    """The map detector's settings the planner detects with (the raster's own, its false-alarm rate the planner's)."""
+    return DetectorConfig(false_alarm_per_map=cfg.false_alarm_per_map)
 
 
 def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], cfg: PlannerConfig,
-                      fair: FloatArray | None = None, suspect: bool = False) -> tuple[MapSnapshot, list[Inclusion]]:
-    """The detection map (:func:`detection_map`) as a map snapshot, and the inclusions the map detector
-    (models.stiffness_map.detect_inclusions, the raster's own) finds on it, its baseline from ``fair``
-    (:func:`reference`) when given, a detection whose measured cells show two maxima split in two
-    (``cfg.split_prominence``: models.adaptive_split). ``suspect``: with the detector's thresholds scaled by
-    ``cfg.suspect``, the regions worth a closer look (a weak inclusion seen from a sweep that passed its edge rises
-    less than the detector's threshold; resolving it samples nearer its centre), never split (the split would only
-    add sides to sample)."""
+                      fair: FloatArray | None = None, suspect: bool = False) -> tuple[MapSnapshot, Detection]:
+    """The detection map (:func:`detection_map`) as a map snapshot, and what the map detector
+    (models.detector.detect, the raster's own) finds on it, its background and noise from the cells of ``fair``
+    (measured by stiffness-blind sweeps: the resolving sweeps go where it is stiff, and the GP's guesses are smoother
+    than any measurement) when it has any, else from the measured cells; a detection whose measured cells show two
+    maxima split in two (``cfg.split_prominence``: models.adaptive_split). ``suspect``: with the detector's
+    threshold scaled by ``cfg.suspect``, the regions worth a closer look (a weak inclusion seen from a sweep that
+    passed its edge rises less than the detector's threshold; resolving it samples nearer its centre), never split
+    (the split would only add sides to sample)."""
     grid = detection_map(measured, belief.mean, cfg.resolution_mm, cfg.fill_mm)
     snap = MapSnapshot(stiffness=grid, x_mm=belief.x_mm, y_mm=belief.y_mm, count=counts, spread=belief.std,
                        resolution_mm=cfg.resolution_mm)
-    scale = cfg.suspect if suspect else 1.0
-    ref = reference(fair, lower=cfg.lower_spread, neighbour_cap=cfg.neighbour_cap)
-    try:
-        found = detect_inclusions(snap, rel_threshold=scale * cfg.rel_threshold, k_mad=scale * 4.0, reference=ref)
-    except ValueError:   # no positive baseline yet: nothing to call stiff
-        return snap, []
+    observed = np.isfinite(measured)
+    blind = observed if fair is None else np.isfinite(np.asarray(fair, dtype=np.float64))
+    dcfg = detector_config(cfg)
+    det = detect(snap, dcfg, threshold_scale=cfg.suspect if suspect else 1.0,
+                 estimate_from=blind if blind.any() else observed)
     if cfg.split_prominence > 0 and not suspect:
-        found = split_detections(snap, np.isfinite(measured), ref, found, rel_threshold=cfg.rel_threshold, k_mad=4.0,
-                                 prominence_k=cfg.split_prominence)
-    return snap, found
+        det = replace(det, inclusions=split_detections(det, snap, observed, dcfg, prominence_k=cfg.split_prominence))
+    return snap, det
 
 
-def near_misses(suspects: Sequence[Inclusion], detected: Sequence[Inclusion], fair: FloatArray | None,
-                cfg: PlannerConfig) -> list[Inclusion]:
-    """The suspects that are no detection but came close (``cfg.near_miss``): their peak at least that fraction of
-    the way from the baseline to the detector's threshold (against the stiffness-blind cells' :func:`reference`),
-    and no detection's centre inside their disc (a detection's halo is no inclusion of its own)."""
-    ref = reference(fair, lower=cfg.lower_spread, neighbour_cap=cfg.neighbour_cap)
-    if ref is None or cfg.near_miss <= 0:
+def near_misses(suspects: Sequence[Inclusion], detected: Detection, cfg: PlannerConfig) -> list[Inclusion]:
+    """The suspects that are no detection but came close (``cfg.near_miss``): their significance at least that
+    fraction of the detector's threshold on the map of ``detected``, and no detection's centre inside their disc (a
+    detection's halo is no inclusion of its own)."""
+    if cfg.near_miss <= 0 or not np.isfinite(detected.threshold_snr):
         return []
-    base, scale = ref
-    bar = base + cfg.near_miss * max(4.0 * scale, cfg.rel_threshold * base)
-    return [c for c in suspects if c.peak >= bar
-            and not any((d.x_mm - c.x_mm) ** 2 + (d.y_mm - c.y_mm) ** 2 <= c.radius_mm**2 for d in detected)]
+    bar = cfg.near_miss * detected.threshold_snr
+    return [c for c in suspects if c.snr >= bar
+            and not any((d.x_mm - c.x_mm) ** 2 + (d.y_mm - c.y_mm) ** 2 <= c.radius_mm**2
+                        for d in detected.inclusions)]
 
 
 def open_sides(candidates: Sequence[Inclusion], observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray,
@@ -250,7 +216,7 @@ class Decision:
     point: tuple[float, float] | None
     blind: bool
     """The point was chosen without looking at stiffness (a covering sweep): its cells are a fair sample of the
-    tissue for the detector's baseline (:func:`reference`)."""
+    tissue for the detector's background (:func:`detect_candidates`)."""
     miss: float
     """The probability that an inclusion of the smallest radius of interest hides (:func:`miss_probability`)."""
     open_sides: int
@@ -267,14 +233,15 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     """The detection stop rule and acquisition (module doc). ``measured``: the per-cell measured value (NaN where
     no sample landed), ``counts`` its sample counts, ``probed``: the points probed or given up so far, ``last``:
     where the probe is now (the nearest of the near-best coverage sweeps is taken), ``fair``: the cells measured by
-    stiffness-blind sweeps (:func:`reference`), ``given_up``: points the scanner refused for good (also in
+    stiffness-blind sweeps (:func:`detect_candidates`), ``given_up``: points the scanner refused for good (also in
     ``probed``): the cells their sweep would have crossed count as covered (as do those of every sweep made, its
     samples or not), or the planner would ask for the unreachable tissue until its budget ran out."""
     n = len(probed)
     observed = np.isfinite(measured)
     covered = swept_cells(observed, belief.x_mm, belief.y_mm, probed, cfg)
     miss = miss_probability(covered, cfg.resolution_mm, cfg.reaches())
-    _, found = detect_candidates(belief, measured, counts, cfg, fair, suspect=True)
+    _, suspects = detect_candidates(belief, measured, counts, cfg, fair, suspect=True)
+    found = suspects.inclusions
 
     def unprobed(points: list[tuple[float, float]]) -> list[tuple[float, float]]:
         return [p for p in points
@@ -287,8 +254,8 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
 
     sides = unprobed(open_sides(found, observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm))
     _, detected = detect_candidates(belief, measured, counts, cfg, fair)
-    interior = disc_gaps(detected, cfg.interior_gap_mm) if cfg.interior_gap_mm > 0 else []
-    second = disc_gaps(near_misses(found, detected, fair, cfg), cfg.near_miss_gap_mm)   # near_miss 0: none
+    interior = disc_gaps(detected.inclusions, cfg.interior_gap_mm) if cfg.interior_gap_mm > 0 else []
+    second = disc_gaps(near_misses(found, detected, cfg), cfg.near_miss_gap_mm)   # near_miss 0: none
     n_open = len(sides) + len(interior) + len(second)
     state = f"miss probability {miss:.3f}, {len(found)} candidates, {n_open} boundary sides open"
     if n >= cfg.max_probes:

@@ -1,11 +1,9 @@
 """Two inclusions joined into one blob: split a detection where its *measured* cells show two maxima with a
 measured dip between them.
 
-The map detector (:func:`models.stiffness_map.detect_inclusions`) calls every connected region above its threshold
-one inclusion. On the raster's map that threshold sits above the dip between two close neighbours often enough; the
-adaptive planner's baseline takes its noise scale from the blind cells below their median (smaller: it must not
-hide a weak inclusion), and with that threshold the halos of two inclusions 5 mm apart edge to edge can join, though
-the planner measured the dip between them. One inclusion gives one maximum: its excess stiffness falls off from its
+The map detector (:func:`models.detector.detect`) calls every connected region above its threshold one inclusion.
+Its matched filter averages over discs of the inclusion sizes of interest, so the halos of two inclusions 5 mm apart
+edge to edge can join into one region, though the planner measured the dip between them. One inclusion gives one maximum: its excess stiffness falls off from its
 middle through its halo (the tissue spreads a stiff body's load, it does not ring), so a second maximum inside the
 same region that stands above the lowest level joining the two by more than the noise does is a second body.
 
@@ -19,13 +17,13 @@ so the split is deterministic. Our own code (a watershed on the superlevel sets,
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import numpy.typing as npt
 from scipy import ndimage
 
-from models.stiffness_map import Inclusion, MapSnapshot, detect_inclusions, fill_gaps
+from models.detector import Detection, DetectorConfig, describe
+from models.peaks import peak_parts
+from models.stiffness_map import Inclusion, MapSnapshot
 
 __all__ = ["bridge_levels", "peak_parts", "split_detections"]
 
@@ -43,76 +41,20 @@ def bridge_levels(grid: FloatArray, measured: BoolArray) -> FloatArray:
     return np.where(measured, vals, np.where(np.isfinite(near), near, np.inf))
 
 
-def peak_parts(level: FloatArray, region: BoolArray, peaks: BoolArray, prominence: float) -> list[BoolArray]:
-    """The region (8-connected) split into one part per maximum that stands ``prominence`` or more above the level
-    at which it joins a higher one (persistence of the superlevel sets), only ``peaks`` cells counting as maxima.
-    Cells are flooded from the highest level down; a cell touching two or more parts whose maxima both stand
-    ``prominence`` above it keeps them apart and joins the highest of them; otherwise the parts it touches merge.
-    One part (the region itself) when no second maximum stands out."""
-    idx = np.flatnonzero(region)
-    if idx.size == 0:
-        return []
-    lv = level.ravel()
-    order = idx[np.lexsort((idx, -lv[idx]))]   # highest first, ties by index
-    ny, nx = region.shape
-    parent: dict[int, int] = {}
-    peak: dict[int, float] = {}   # root -> its highest measured value (-inf: none yet)
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    pk = peaks.ravel()
-    for c in order:
-        c = int(c)
-        y, x = divmod(c, nx)
-        roots = {root(n) for n in (yy * nx + xx for yy in range(max(0, y - 1), min(ny, y + 2))
-                                   for xx in range(max(0, x - 1), min(nx, x + 2))) if n in parent}
-        own = float(lv[c]) if pk[c] else -math.inf
-        f = float(lv[c])
-        ranked = sorted(roots, key=lambda r: (-peak[r], r))
-        apart = [r for r in ranked if peak[r] - f >= prominence]
-        parent[c] = c
-        peak[c] = own
-        target = ranked[0] if ranked else c
-        keep = set(apart) if len(apart) >= 2 else set()
-        for r in ranked:
-            if r != target and r not in keep:
-                parent[r] = target
-                peak[target] = max(peak[target], peak[r])
-        if target != c:
-            parent[c] = target
-            peak[target] = max(peak[target], own)
-    labels: dict[int, int] = {}
-    out = np.zeros(region.size, dtype=np.int64)
-    for c in idx:
-        out[c] = labels.setdefault(root(int(c)), len(labels) + 1)
-    flat = out.reshape(region.shape)
-    return [flat == k for k in range(1, len(labels) + 1)]
-
-
-def split_detections(snap: MapSnapshot, measured: BoolArray, reference: tuple[float, float] | None,
-                     found: list[Inclusion], *, rel_threshold: float, k_mad: float,
+def split_detections(det: Detection, snap: MapSnapshot, measured: BoolArray, cfg: DetectorConfig, *,
                      prominence_k: float) -> list[Inclusion]:
-    """``found`` (detect_inclusions on ``snap`` with these thresholds and ``reference``) with every region whose
-    measured cells show two or more maxima standing ``prominence_k`` times the baseline's noise scale above the
-    level joining them (:func:`peak_parts` over :func:`bridge_levels`) replaced by one inclusion per part, each
-    measured exactly as the detector measures a region (it is handed the part alone); a part under the detector's
-    two cells leaves its region whole. Most contrasted first, as the detector's; ``found`` itself when nothing
-    splits."""
-    grid = fill_gaps(np.asarray(snap.stiffness, dtype=np.float64))
-    valid = np.isfinite(grid)
-    if not found or valid.sum() < 9:
+    """``det``'s inclusions (models.detector.detect on ``snap`` with ``cfg``) with every region whose measured cells
+    show two or more maxima standing ``prominence_k`` times the map's relative noise above the level joining them
+    (:func:`peak_parts` over :func:`bridge_levels` of the log-residual against the background) replaced by one
+    inclusion per part, each measured as the detector measures a region (models.detector.describe); a part under
+    two cells leaves its region whole. Most significant first, as the detector's; ``det.inclusions`` itself when
+    nothing splits."""
+    found = det.inclusions
+    if not found or not det.noise_rel > 0:
         return found
-    base, sigma = reference if reference is not None else (float(np.median(grid[valid])), math.nan)
-    if reference is None or not (base > 0 and sigma > 0):
-        return found
-    threshold = base + max(k_mad * sigma, rel_threshold * base)
-    labels, n = ndimage.label(valid & (grid > threshold), structure=_EIGHT)
-    level = bridge_levels(grid, measured)
-    step = prominence_k * sigma
+    labels, n = ndimage.label(np.nan_to_num(det.significance, nan=-np.inf) > det.threshold_snr, structure=_EIGHT)
+    level = bridge_levels(det.residual, measured)
+    step = prominence_k * det.noise_rel
     pieces: list[list[BoolArray]] = []
     for k in range(1, n + 1):
         region = labels == k
@@ -120,10 +62,5 @@ def split_detections(snap: MapSnapshot, measured: BoolArray, reference: tuple[fl
         pieces.append(cut if len(cut) > 1 and all(p.sum() >= 2 for p in cut) else [region])
     if all(len(p) == 1 for p in pieces):
         return found
-    out: list[Inclusion] = []
-    for part in (p for cut in pieces for p in cut):   # each region or part alone: measured as the detector does
-        alone = MapSnapshot(np.where(part, grid, np.nan), snap.x_mm, snap.y_mm, snap.count, snap.spread,
-                            snap.resolution_mm)
-        out += detect_inclusions(alone, rel_threshold=rel_threshold, k_mad=k_mad, gap_fill=False, min_valid_cells=1,
-                                 reference=reference)
-    return sorted(out, key=lambda i: -i.contrast)
+    out = [describe(det, snap, part, cfg, part=len(cut) > 1) for cut in pieces for part in cut]
+    return sorted(out, key=lambda i: -i.snr)

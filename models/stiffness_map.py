@@ -6,7 +6,7 @@ cell, the **median** of its samples (robust to the odd outlier a probe produces 
 on lift-off), the sample count and the spread ``1.4826 * MAD`` (a robust standard deviation).
 Cells with fewer than ``min_count`` samples are NaN.
 
-:func:`detect_inclusions` finds regions significantly stiffer than the healthy background;
+:func:`models.detector.detect` finds the inclusions on it (one detector for every map);
 :func:`to_inclusions_json` turns them into the ``inclusions.json`` records of DESIGN.md.
 """
 
@@ -19,7 +19,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
-from scipy import ndimage
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -29,7 +28,6 @@ __all__ = [
     "background",
     "MapSnapshot",
     "StiffnessGrid",
-    "detect_inclusions",
     "fill_gaps",
     "to_inclusions_json",
 ]
@@ -195,9 +193,8 @@ def spacing_warning(spacing_mm: float, resolution_mm: float) -> str:
 
 
 def background(stiffness: npt.ArrayLike) -> tuple[float, float]:
-    """Healthy-tissue baseline of a map: (median, 1.4826 * MAD) over its finite cells, in
-    the map's unit; (nan, nan) for a map without data. This is the ``baseline`` that
-    :func:`detect_inclusions` compares against (before its optional gap fill/smoothing)."""
+    """Whole-map statistics: (median, 1.4826 * MAD) over the finite cells, in the map's unit; (nan, nan) for a
+    map without data. The detector does not use them (inclusions would count as background): models.detector."""
     values = np.asarray(stiffness, dtype=np.float64)
     values = values[np.isfinite(values)]
     if values.size == 0:
@@ -209,7 +206,9 @@ def background(stiffness: npt.ArrayLike) -> tuple[float, float]:
 @dataclass(frozen=True, slots=True)
 class Inclusion:
     """A region stiffer than the background: excess-weighted centroid (mm), equivalent radius
-    sqrt(area/pi) (mm), contrast = peak / baseline, peak value, area (mm^2), cell count."""
+    sqrt(area/pi) (mm), contrast = peak / local background, peak value, area (mm^2), cell count; the detector's
+    significance (``snr``: σ of the filtered noise) and the per-map false-alarm probability of a peak that high
+    (``false_alarm``: the chance a map without inclusions shows one), NaN when not known."""
 
     x_mm: float
     y_mm: float
@@ -218,82 +217,17 @@ class Inclusion:
     peak: float
     area_mm2: float
     cells: int
-
-
-def detect_inclusions(
-    snapshot: MapSnapshot,
-    *,
-    k_mad: float = 4.0,
-    rel_threshold: float = 0.2,
-    min_area_mm2: float | None = None,
-    gap_fill: bool = True,
-    smooth: bool = False,
-    min_valid_cells: int = 9,
-    reference: tuple[float, float] | None = None,
-) -> list[Inclusion]:
-    """Regions of cells significantly stiffer than the healthy background, most contrasted first.
-
-    Baseline b = median of the valid cells, scale = their MAD; a cell is stiff when
-    ``value > b + max(k_mad * 1.4826 * MAD, rel_threshold * b)`` (noise-driven on noisy maps,
-    at least 20 % above the background by default). Stiff cells are grouped with
-    8-connectivity (scipy.ndimage.label); regions smaller than ``min_area_mm2`` (default two
-    cells) are dropped as noise. Before thresholding, ``gap_fill`` bridges isolated NaN cells
-    (:func:`fill_gaps`) and ``smooth`` applies a 3x3 median filter over valid cells (off by
-    default: it erases features under about 2x2 cells). Returns [] with fewer than
-    ``min_valid_cells`` valid cells; raises ValueError if the baseline is not > 0.
-    ``reference``: (baseline, scale) to use instead of the map's own, when the map's cells are
-    not a fair sample of the tissue (an adaptive planner probes the stiff places more).
-    """
-    grid = np.array(snapshot.stiffness, dtype=np.float64)
-    if gap_fill:
-        grid = fill_gaps(grid)
-    if smooth:
-        smoothed = _nanmedian(_neighbourhood(grid))
-        grid = np.where(np.isfinite(grid), smoothed, np.nan)
-    valid = np.isfinite(grid)
-    if valid.sum() < min_valid_cells:
-        return []
-    base, sigma = background(grid) if reference is None else reference
-    if not base > 0:
-        raise ValueError(f"detect_inclusions: baseline stiffness must be > 0, got {base}")
-    threshold = base + max(k_mad * sigma, rel_threshold * base)
-    stiff = valid & (grid > threshold)
-    labels, n = ndimage.label(stiff, structure=np.ones((3, 3), dtype=bool))
-    if n == 0:
-        return []
-    r = snapshot.resolution_mm
-    min_cells = 2 if min_area_mm2 is None else max(1, math.ceil(min_area_mm2 / (r * r) - 1e-9))
-    lab = labels[stiff]
-    excess = grid[stiff] - base
-    yy, xx = np.meshgrid(snapshot.y_mm, snapshot.x_mm, indexing="ij")
-    cells = np.bincount(lab, minlength=n + 1)
-    weight = np.bincount(lab, excess, minlength=n + 1)
-    cx = np.bincount(lab, excess * xx[stiff], minlength=n + 1)
-    cy = np.bincount(lab, excess * yy[stiff], minlength=n + 1)
-    peak = ndimage.maximum(grid, labels, index=np.arange(n + 1))
-    found = []
-    for i in range(1, n + 1):
-        if cells[i] < min_cells:
-            continue
-        area = float(cells[i]) * r * r
-        found.append(
-            Inclusion(
-                x_mm=float(cx[i] / weight[i]),
-                y_mm=float(cy[i] / weight[i]),
-                radius_mm=math.sqrt(area / math.pi),
-                contrast=float(peak[i]) / base,
-                peak=float(peak[i]),
-                area_mm2=area,
-                cells=int(cells[i]),
-            )
-        )
-    found.sort(key=lambda inc: -inc.contrast)
-    return found
+    snr: float = math.nan
+    false_alarm: float = math.nan
 
 
 def to_inclusions_json(inclusions: Sequence[Inclusion]) -> list[dict[str, float]]:
-    """``inclusions.json`` records per DESIGN.md: ``{x_mm, y_mm, radius_mm, contrast}``."""
-    return [
-        {"x_mm": i.x_mm, "y_mm": i.y_mm, "radius_mm": i.radius_mm, "contrast": i.contrast}
-        for i in inclusions
-    ]
+    """``inclusions.json`` records per DESIGN.md: ``{x_mm, y_mm, radius_mm, contrast}``, plus the detector's ``snr``
+    and per-map ``false_alarm`` probability where known (a reader of the four keys is unaffected)."""
+    out = []
+    for i in inclusions:
+        rec = {"x_mm": i.x_mm, "y_mm": i.y_mm, "radius_mm": i.radius_mm, "contrast": i.contrast}
+        if math.isfinite(i.snr):
+            rec |= {"snr": i.snr, "false_alarm": i.false_alarm}
+        out.append(rec)
+    return out

@@ -62,6 +62,30 @@ def test_eq7_on_a_thin_layer_within_3_percent_of_the_fe_world(tmp_path) -> None:
     assert abs(d - 1.0) < 0.05 and abs(e / 26.4 - 1) < 0.03, (d, e)
 
 
+def test_the_probe_measures_the_thickness_eq7_divides_by(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The estimator told a 5 mm layer is 4 mm thick (a bad measured-geometry file): with ``thickness: probe`` it
+    takes the thickness from the probe's own heights over the table (5 mm, stated on every sample) and E stays
+    within 3 % of the truth; with the file's thickness E is far off. Ignoring the probe's thickness turns this red."""
+    import yaml
+
+    from models.phantom import load_phantom
+    from models.world import TissueWorld
+
+    phantom, geometry = tmp_path / "thin.yaml", tmp_path / "wrong.yaml"
+    phantom.write_text(yaml.safe_dump({"size_mm": [60, 60], "thickness_mm": 5.0, "youngs_modulus_kpa": 26.4}))
+    geometry.write_text("thickness_mm: 4.0\n")
+    force = float(TissueWorld(load_phantom(phantom)).force_n(30.0, 30.0, 1.0, indenter_radius_mm=4.0))
+    kpa = (force + 2.34) / 7.59 * 100.0  # the ideal device's law: the paper's line
+    g = held_probe(str(phantom), kpa, z_mm=6.0, geometry=str(geometry), thickness="probe")
+    g.advance(1.5)
+    stated = [m.thickness_mm for m in g.published("stiffness/sample", StiffnessSample) if m.valid]
+    assert stated and abs(float(np.median(stated)) - 5.0) < 0.02
+    _, e = held_estimate(g)
+    assert abs(e / 26.4 - 1) < 0.03, e
+    _, e_file = held_estimate(held_probe(str(phantom), kpa, z_mm=6.0, geometry=str(geometry)))
+    assert abs(e_file / 26.4 - 1) > 0.1, e_file   # the file's 4 mm: eq. 7 is 14 % off
+
+
 @pytest.mark.parametrize(("phantom", "truth", "kpa"), [("phantoms/flat_26k.yaml", 26.4, 36.0),
                                                        ("phantoms/flat_10k.yaml", 10.8, 33.0)])
 def test_calibration_beats_the_devices_errors(phantom: str, truth: float, kpa: float, tmp_path) -> None:  # type: ignore[no-untyped-def]

@@ -17,7 +17,7 @@ FILES = sorted((REPO / "launch").glob("*.yaml"))
 # Nodes with no hardware counterpart behind a driver switch: the camera paper's evaluation stage is a simulated
 # fixture (on the rig the stage is given surface_z_mm).
 SIM_ONLY = {"nodes.scanner.linear_stage:LinearStage"}
-REQUIRED_ARGS = {"replay_scan.yaml": {"bag": "/tmp/a-recording.mcap", "calibration": "",
+REQUIRED_ARGS = {"replay_scan.yaml": {"bag": "/tmp/a-recording.mcap", "calibration": "", "thickness": "geometry",
                                       "geometry": str(MEASURED / "airfloat_tumours.yaml")}}
 
 

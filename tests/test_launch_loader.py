@@ -249,7 +249,7 @@ def test_a_shipped_scan_can_be_included_with_one_more_node(tmp_path: Path) -> No
 
 
 def test_replay_takes_the_geometry_from_the_recording(tmp_path: Path) -> None:
-    """launch/replay_scan.yaml's defaults (measured geometry, calibration) come from the launch file the recording
+    """launch/replay_scan.yaml's defaults (measured geometry, thickness source, calibration) come from the launch file the recording
     carries, not the demo's."""
     from palpa.record.recorder import Recorder
     from palpa.testing import NodeHarness
@@ -257,20 +257,22 @@ def test_replay_takes_the_geometry_from_the_recording(tmp_path: Path) -> None:
     geo = REPO / "phantoms" / "measured" / "flat_26k.yaml"
     scanned = tmp_path / "scan.resolved.yaml"
     scanned.write_text("nodes:\n  - name: estimator\n    node: nodes.probe.stiffness_estimator:AirfloatStiffnessEstimator\n"
-                       f"    params: {{geometry: {geo}, calibration: ''}}\n")
+                       f"    params: {{geometry: {geo}, thickness: geometry, calibration: ''}}\n")
     bag = tmp_path / "run" / "recording.mcap"
     bag.parent.mkdir()
     NodeHarness(Recorder, {"output": str(bag), "launch_file": str(scanned)}).close()
     plan = load_launch(REPO / "launch" / "replay_scan.yaml", {"bag": str(bag.parent)}, run_dir=tmp_path / "r")
     assert plan.node_params["estimator"]["geometry"] == str(geo)
     assert plan.node_params["estimator"]["calibration"] == ""
+    assert plan.node_params["estimator"]["thickness"] == "geometry"
 
     bare = tmp_path / "bare.mcap"
     NodeHarness(Recorder, {"output": str(bare)}).close()  # `palpa record`: no launch file in it
     with pytest.raises(LaunchError, match=r"carries no launch file .*give geometry:=VALUE instead"):
         load_launch(REPO / "launch" / "replay_scan.yaml", {"bag": str(bare)}, run_dir=tmp_path / "r")
     plan = load_launch(REPO / "launch" / "replay_scan.yaml", {"bag": str(bare), "geometry": str(geo),
-                                                                "calibration": ""}, run_dir=tmp_path / "r")
+                                                                "thickness": "geometry", "calibration": ""},
+                       run_dir=tmp_path / "r")
     assert plan.node_params["estimator"]["geometry"] == str(geo)
 
 

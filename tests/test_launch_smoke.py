@@ -79,8 +79,8 @@ def synthetic_scan_bag(tmp: Path) -> list[str]:
             recs.append(Rec(raw.topic, raw.header.stamp, raw.payload, seq[raw.topic], raw.header.type, raw.header.node))
     g.close()
     bag = write_bag(tmp / "synthetic.mcap", recs)
-    return [f"bag:={bag}", f"geometry:={REPO / 'phantoms' / 'measured' / 'flat_26k.yaml'}", "calibration:=",
-            "rate:=1.0"]
+    return [f"bag:={bag}", f"geometry:={REPO / 'phantoms' / 'measured' / 'flat_26k.yaml'}", "thickness:=geometry",
+            "calibration:=", "rate:=1.0"]
 
 
 SMOKE: dict[str, Smoke] = {

@@ -36,13 +36,16 @@ def test_map_from_plan_region_detects_blob_and_writes_files(tmp_path: Path) -> N
     assert final.final and abs(final.baseline - 26.4) < 0.5
     inc = final.inclusions[0]
     assert math.hypot(inc.x_mm - 12, inc.y_mm - 25) < 1.0 and inc.contrast > 2.5
+    # its significance and false-alarm probability, and the threshold it passed, ride on map/inclusions
+    assert inc.snr > final.threshold_snr > 0 and 0 <= inc.false_alarm < 1e-6 and final.false_alarm_per_map == 0.003
 
     data = np.load(tmp_path / "map.npz")
     # the plan's region plus half a cell each side, so that samples on the region's edges sit in cell centres
     assert data["stiffness"].shape == (21, 21) and data["x_mm"][0] == 0.0 and data["x_mm"][-1] == 40.0
     assert data["count"].sum() == 1600 and str(data["unit"]) == "kPa"
     records = json.loads((tmp_path / "inclusions.json").read_text())
-    assert list(records[0]) == ["x_mm", "y_mm", "radius_mm", "contrast"]
+    assert list(records[0]) == ["x_mm", "y_mm", "radius_mm", "contrast", "snr", "false_alarm"]
+    assert records[0]["snr"] == inc.snr
     assert (tmp_path / "map.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     m = h.published("map/stiffness")[-1]
     assert len(m.stiffness) == 441 and m.samples == 1600

@@ -21,7 +21,8 @@ from models.adaptive import (
     should_stop,
     unresolved,
 )
-from models.stiffness_map import MapSnapshot, detect_inclusions
+from models.detector import detect
+from models.stiffness_map import MapSnapshot
 
 CFG = PlannerConfig((0.0, 0.0, 40.0, 40.0), initial=3, max_probes=40, stop_area_mm2=16.0)
 
@@ -131,7 +132,7 @@ def test_closed_loop_finds_the_disc_and_classifies_it_with_fewer_probes_than_a_r
     assert len(probed) <= CFG.max_probes
     snap = MapSnapshot(belief.mean, belief.x_mm, belief.y_mm, np.ones_like(belief.mean, dtype=np.int64),
                        belief.std, 2.0)
-    found = detect_inclusions(snap)
+    found = detect(snap).inclusions
     assert len(found) == 1 and math.dist((found[0].x_mm, found[0].y_mm), (28.0, 12.0)) < 2.0
     assert belief.mean[6, 14] > belief.level > belief.mean[19, 0]   # (29, 13) inside, (1, 39) far away
     assert _closed_loop(0)[0] == probed

@@ -20,10 +20,10 @@ from models.adaptive_detect import (
     interior_gaps,
     near_misses,
     open_sides,
-    reference,
     unsensed,
 )
-from models.stiffness_map import Inclusion, MapSnapshot, detect_inclusions
+from models.detector import DetectorConfig, threshold_for
+from models.stiffness_map import Inclusion
 
 REGION = (0.0, 0.0, 40.0, 40.0)   # 20 x 20 cells of 2 mm
 SEEDS = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
@@ -121,22 +121,21 @@ def test_detection_map_is_measured_where_measured_and_the_mean_only_near_it() ->
     assert np.isnan(m[0, 3:]).all()                                # farther: neither measured nor near
 
 
-def test_the_fair_reference_finds_an_inclusion_the_biased_median_hides() -> None:
-    # an adaptive planner measured half its cells on a 1.3x inclusion: their median is no background
-    grid = np.full((10, 10), 10.0)
-    grid[:, 5:] = 13.0
-    grid[:, 4] = 10.5
-    xs = np.arange(10, dtype=np.float64) * 2.0 + 1.0
-    snap = MapSnapshot(grid, xs, xs, np.ones((10, 10), dtype=np.int64), np.zeros((10, 10)), 2.0)
-    assert detect_inclusions(snap) == []
-    fair = np.full((10, 10), np.nan)
-    fair[:, :4] = 10.0   # the stiffness-blind sweeps saw the background
-    fair[0, 0] = 10.4
-    ref = reference(fair)
-    assert ref is not None and ref[0] == 10.0
-    found = detect_inclusions(snap, reference=ref)
-    assert len(found) == 1 and abs(found[0].x_mm - 15.0) < 0.1
-    assert reference(fair[:1, :4]) is None   # too few cells to say
+def test_the_blind_cells_give_the_background_where_the_resolving_sweeps_went_stiff() -> None:
+    # an adaptive planner measured half its cells on a 1.3x inclusion: their median is no background, the cells of
+    # the stiffness-blind sweeps are
+    cfg = _cfg(reach_mm=40.0)
+    measured = np.full((20, 20), 10.0)
+    measured[:, 10:] = 13.0
+    measured[:, 9] = 10.5
+    counts = np.ones((20, 20), dtype=np.int64)
+    fair = np.full((20, 20), np.nan)
+    fair[:, :8] = 10.0   # the stiffness-blind sweeps saw the background
+    _, det = detect_candidates(_belief(cfg), measured, counts, cfg, fair)
+    assert det.baseline == pytest.approx(10.0, rel=1e-6)
+    assert len(det.inclusions) == 1 and det.inclusions[0].x_mm > 20.0
+    _, biased = detect_candidates(_belief(cfg), measured, counts, cfg)   # every measured cell: the 13s count
+    assert biased.baseline > 10.5
 
 
 def test_open_sides_are_the_unsampled_points_just_past_a_candidate() -> None:
@@ -159,12 +158,12 @@ def test_a_sweep_through_a_candidates_middle_splits_two_inclusions_the_mean_brid
     measured[:, 6:15] = np.nan
     measured[8:13, 8] = measured[8:13, 12] = 20.0   # two sweeps, each through one inclusion
     counts = np.ones((20, 20), dtype=np.int64)
-    _, found = detect_candidates(b, measured, counts, cfg, suspect=True)
+    found = detect_candidates(b, measured, counts, cfg, suspect=True)[1].inclusions
     assert len(found) == 1 and abs(found[0].x_mm - 21.0) < 0.5
     edge = decide(b, measured, counts, SEEDS, cfg).point   # its edges are what the planner samples
     assert edge is not None and abs(edge[0] - found[0].x_mm) > 1.0
     measured[:, 10] = 10.0   # the sweep there: soft
-    assert len(detect_candidates(b, measured, counts, cfg, suspect=True)[1]) == 2
+    assert len(detect_candidates(b, measured, counts, cfg, suspect=True)[1].inclusions) == 2
 
 
 def test_decide_covers_until_nothing_can_hide_then_stops() -> None:
@@ -205,7 +204,7 @@ def test_decide_samples_a_candidates_boundary_before_stopping() -> None:
     measured[:, 8] = measured[:, 12] = np.nan
     counts = np.ones((20, 20), dtype=np.int64)
     probed = SEEDS
-    _, found = detect_candidates(b, measured, counts, cfg, suspect=True)
+    found = detect_candidates(b, measured, counts, cfg, suspect=True)[1].inclusions
     assert len(found) == 1
     d = decide(b, measured, counts, probed, cfg)
     assert not d.stop and not d.blind and d.point is not None
@@ -214,21 +213,29 @@ def test_decide_samples_a_candidates_boundary_before_stopping() -> None:
     assert decide(b, measured, counts, probed, cfg).stop
 
 
+def _column_rise(fraction: float) -> float:
+    """The ratio a three-cell stretch of one measured column (its sides unmeasured) must rise by, on a map without
+    noise (the detector's noise floor), to read ``fraction`` of the detector's threshold on the 40 mm region."""
+    cfg = DetectorConfig()
+    snr = fraction * threshold_for(400 * 4.0, cfg)
+    return float(np.exp(snr * cfg.noise_floor_rel / np.sqrt(3.0)))
+
+
 def test_a_weak_rise_is_a_suspect_to_resolve_but_not_a_detection() -> None:
     cfg = _cfg(reach_mm=40.0, suspect=0.5)
     b = _belief(cfg)
     measured = np.full((20, 20), 10.0)
-    measured[8:13, 10] = 11.5   # 1.15x: under the detector's 20 %, over half of it
+    measured[8:13, 10] = 10.0 * _column_rise(0.75)   # 3/4 of the detector's threshold: over half of it
     measured[:, [8, 9, 11, 12]] = np.nan   # its sides unmeasured
     counts = np.ones((20, 20), dtype=np.int64)
-    assert detect_candidates(b, measured, counts, cfg)[1] == []
-    assert len(detect_candidates(b, measured, counts, cfg, suspect=True)[1]) == 1
+    assert detect_candidates(b, measured, counts, cfg)[1].inclusions == []
+    assert len(detect_candidates(b, measured, counts, cfg, suspect=True)[1].inclusions) == 1
     probed = SEEDS
     assert not decide(b, measured, counts, probed, cfg).stop
     assert decide(b, measured, counts, probed, _cfg(reach_mm=40.0, suspect=1.0)).stop
 
 
-def test_a_point_given_up_is_not_chosen_again_and_a_bad_baseline_is_no_reference() -> None:
+def test_a_point_given_up_is_not_chosen_again() -> None:
     cfg = _cfg(reach_mm=4.0, near_best=1.0, miss_probability=0.0)   # cover to the last cell
     b = _belief(cfg)
     measured = np.full((20, 20), 10.0)
@@ -240,7 +247,6 @@ def test_a_point_given_up_is_not_chosen_again_and_a_bad_baseline_is_no_reference
     # the scanner refused it every time: the planner's probed list holds it, its cells unmeasured
     again = decide(b, measured, counts, [*seeds, first], cfg).point
     assert again is not None and math.dist(again, first) >= cfg.min_separation_mm
-    assert reference(np.zeros((4, 4))) is None
 
 
 def test_tissue_only_a_refused_point_reaches_counts_as_covered() -> None:
@@ -312,94 +318,61 @@ def test_decide_measures_a_detections_disc_densely_before_stopping() -> None:
     measured[7:14, 9:12] = np.nan
     b.mean[7:14, 9:12] = 20.0   # the GP's guess between them: one blob
     counts = np.ones((20, 20), dtype=np.int64)
-    _, found = detect_candidates(b, measured, counts, cfg)
+    found = detect_candidates(b, measured, counts, cfg)[1].inclusions
     assert len(found) == 1
     d = decide(b, measured, counts, SEEDS, cfg)
     assert not d.stop and not d.blind and d.point == (21.0, 21.0)   # the unmeasured column between them, middle
     assert decide(b, measured, counts, SEEDS, _cfg(reach_mm=40.0)).stop   # the rule off: its sides suffice
     measured[7:14, 10] = 10.0   # measured there: soft (two inclusions), every disc cell within 2 mm of a measured one
     assert decide(b, measured, counts, SEEDS, cfg).stop
-    assert len(detect_candidates(b, measured, counts, cfg)[1]) == 2
+    assert len(detect_candidates(b, measured, counts, cfg)[1].inclusions) == 2
+
+
+def _near_miss(b: Belief, fraction: float, cfg: PlannerConfig, fair: npt.NDArray[np.float64]
+               ) -> npt.NDArray[np.float64]:
+    """Two sweeps 8 mm apart past a weak rise (and the GP's guess between them) whose significance reads ``fraction``
+    of the detector's threshold (just under it)."""
+    counts = np.ones((20, 20), dtype=np.int64)
+
+    def rise(level: float) -> npt.NDArray[np.float64]:
+        measured = np.full((20, 20), 10.0)
+        measured[7:14, 8] = measured[7:14, 12] = level
+        measured[7:14, 9:12] = np.nan
+        b.mean[7:14, 9:12] = level
+        return measured
+
+    lo, hi = 0.0, 0.2   # the log-rise, bisected: the significance grows with it
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        det = detect_candidates(b, rise(10.0 * math.exp(mid)), counts, cfg, fair)[1]
+        lo, hi = (mid, hi) if float(np.nanmax(det.significance)) < fraction * det.threshold_snr else (lo, mid)
+    return rise(10.0 * math.exp(lo))
 
 
 def test_a_near_miss_gets_its_disc_measured_at_its_own_gap_whether_or_not_detections_are() -> None:
     cfg = _cfg(reach_mm=40.0, interior_gap_mm=2.0, near_miss=0.8, near_miss_gap_mm=2.0)   # coverage: no concern
     b = _belief(cfg)
-    measured = np.full((20, 20), 10.0)
-    fair = measured.copy()   # the blind cells: 10, no spread, so the detector's threshold is 10 * 1.2 = 12
-    measured[7:14, 8] = measured[7:14, 12] = 11.8   # two sweeps 8 mm apart past a weak rise: 0.9 of the way to 12
-    measured[7:14, 9:12] = np.nan
-    b.mean[7:14, 9:12] = 11.8
+    fair = np.full((20, 20), 10.0)   # the blind cells: 10, no spread (the detector's noise floor)
+    measured = _near_miss(b, 0.9, cfg, fair)   # 0.9 of the way to the threshold
     counts = np.ones((20, 20), dtype=np.int64)
-    assert detect_candidates(b, measured, counts, cfg, fair)[1] == []   # no detection
+    detected = detect_candidates(b, measured, counts, cfg, fair)[1]
+    assert detected.inclusions == []   # no detection
     d = decide(b, measured, counts, SEEDS, cfg, fair=fair)
     assert not d.stop and d.point == (21.0, 21.0) and d.kind == "measuring a near miss's disc"
     assert decide(b, measured, counts, SEEDS, replace(cfg, interior_gap_mm=0.0), fair=fair).point == d.point   # on its own
     assert decide(b, measured, counts, SEEDS, _cfg(reach_mm=40.0, interior_gap_mm=2.0), fair=fair).stop   # off
     assert decide(b, measured, counts, SEEDS, replace(cfg, near_miss=0.95), fair=fair).stop   # not close enough
-    measured[7:14, 10] = 11.8   # its middle measured: still under the threshold, and nothing left unmeasured
+    measured[7:14, 10] = measured[7, 8]   # its middle measured: still under the threshold, nothing left unmeasured
+    assert detect_candidates(b, measured, counts, cfg, fair)[1].inclusions == []
     assert decide(b, measured, counts, SEEDS, cfg, fair=fair).stop
     finer = decide(b, measured, counts, SEEDS, replace(cfg, near_miss_gap_mm=1.5), fair=fair)
     assert not finer.stop and finer.point is not None and finer.point[0] in (19.0, 23.0)   # every column, as a raster
     assert decide(b, measured, counts, SEEDS, replace(cfg, near_miss=0.0, near_miss_gap_mm=1.5), fair=fair).stop
-    _, suspects = detect_candidates(b, measured, counts, cfg, fair, suspect=True)
-    assert len(near_misses(suspects, [], fair, cfg)) == 1
-    assert near_misses(suspects, suspects, fair, cfg) == []   # a detection's own halo is no near miss
-    assert near_misses(suspects, [], None, cfg) == []   # no baseline yet: nothing to come near to
+    suspects = detect_candidates(b, measured, counts, cfg, fair, suspect=True)[1].inclusions
+    detected = detect_candidates(b, measured, counts, cfg, fair)[1]
+    assert len(near_misses(suspects, detected, cfg)) == 1
+    assert near_misses(suspects, replace(detected, inclusions=suspects), cfg) == []   # a detection's own halo
+    assert near_misses(suspects, replace(detected, threshold_snr=math.nan), cfg) == []   # no map to detect on yet
     for bad in ({"near_miss": -0.1}, {"near_miss": 1.0}, {"near_miss_gap_mm": 0.0}):   # 1: the detections themselves
         with pytest.raises(ValueError, match="near_miss"):
             _cfg(**bad)
-
-
-def _crowded_sweeps(rng: np.random.Generator) -> npt.NDArray[np.float64]:
-    """Ten blind sweeps (columns, 10 cells along y) on a crowded specimen: 40 % of the cells healthy (10, 3 %
-    scatter), then along each sweep a halo cell (1.2x) and five cells over an inclusion (1.3-2x, one level per
-    sweep): 60 % raised, the median among them."""
-    grid = 10.0 * (1 + 0.03 * rng.standard_normal((10, 10)))
-    grid[4, :] *= 1.2
-    grid[5:, :] *= np.linspace(1.3, 2.0, 10)[None, :]
-    return grid
-
-
-def test_the_spread_of_a_crowded_specimens_blind_cells_is_capped_by_their_neighbours_differences() -> None:
-    rng = np.random.default_rng(7)
-    fair = _crowded_sweeps(rng)
-    low = reference(fair, lower=True)
-    capped = reference(fair, lower=True, neighbour_cap=4.0)
-    assert low is not None and capped is not None and capped[0] == low[0]   # the median as it was
-    # the lower half spans healthy tissue and halo: its spread is far over healthy tissue's 3 %, and the detector's
-    # threshold (4 spreads, at least 20 %) over a 2.2x inclusion's reading; the neighbours' differences know better
-    assert capped[1] < 0.5 * low[1]
-    assert low[0] + max(4 * low[1], 0.2 * low[0]) > 22.0 > capped[0] + max(4 * capped[1], 0.2 * capped[0])
-    # healthy tissue alone, or the cells of one blind sweep each (no neighbours along a sweep): no cap
-    healthy = 10.0 * (1 + 0.03 * rng.standard_normal((10, 10)))
-    assert reference(healthy, lower=True, neighbour_cap=4.0) == reference(healthy, lower=True)
-    sparse = np.full((10, 10), np.nan)
-    sparse[::2, :] = fair[::2, :]
-    assert reference(sparse, lower=True, neighbour_cap=4.0) == reference(sparse, lower=True)
-    sparse[1, :4] = fair[1, :4]   # 8 differences, fewer than the 9 cells a reference needs: too few to say
-    assert reference(sparse, lower=True, neighbour_cap=4.0) == reference(sparse, lower=True)
-    alike = np.repeat(fair[:1, :], 10, axis=0)   # every sweep reads one value all along: no scatter to go by
-    assert reference(alike, lower=True, neighbour_cap=4.0) == reference(alike, lower=True)
-
-
-def test_the_baseline_spread_is_read_below_the_median_where_inclusions_cannot_widen_it() -> None:
-    # of the blind sweeps' cells 45 % on inclusions and halos (1.3-2.1x): the MAD spans both modes
-    rng = np.random.default_rng(5)
-    fair = np.concatenate([10.0 * (1 + 0.03 * rng.standard_normal(55)), 10.0 * (1.3 + 0.8 * rng.random(45))])
-    full, low = reference(fair.reshape(10, 10)), reference(fair.reshape(10, 10), lower=True)
-    assert full is not None and low is not None
-    assert low[0] == full[0] and low[1] < 0.6 * full[1]   # the median kept, the spread healthy tissue's
-    healthy = 10.0 * (1 + 0.03 * rng.standard_normal(100)).reshape(10, 10)
-    h_full, h_low = reference(healthy), reference(healthy, lower=True)
-    assert h_full is not None and h_low is not None and abs(h_low[1] - h_full[1]) < 0.1 * h_full[1]
-    # a 1.3x inclusion under the two-mode spread's threshold (1.38x), over the healthy one's (the 20 % floor)
-    measured = np.full((20, 20), full[0])
-    measured[8:13, 8:13] = 1.3 * full[0]
-    counts = np.ones((20, 20), dtype=np.int64)
-    grid = np.full((20, 20), np.nan)
-    grid.flat[:100] = fair
-    cfg = _cfg(reach_mm=40.0)
-    assert len(detect_candidates(_belief(cfg), measured, counts, cfg, grid)[1]) == 1
-    off = _cfg(reach_mm=40.0, lower_spread=False)
-    assert detect_candidates(_belief(off), measured, counts, off, grid)[1] == []

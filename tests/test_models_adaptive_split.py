@@ -3,6 +3,9 @@ them, never on a dip only the GP's guess shows, never on one inclusion's noise."
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
+
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -10,10 +13,13 @@ import pytest
 from models.adaptive import Belief, PlannerConfig
 from models.adaptive_detect import detect_candidates
 from models.adaptive_split import bridge_levels, peak_parts, split_detections
-from models.stiffness_map import MapSnapshot, detect_inclusions
+from models.detector import Detection, DetectorConfig, detect
+from models.stiffness_map import MapSnapshot
 
 BASE, SIGMA = 20.0, 1.0
-REF = (BASE, SIGMA)   # threshold: 20 + max(4 x 1, 0.2 x 20) = 24
+NOISE = SIGMA / BASE
+"""The maps here are smooth; their detections are given this relative noise, the scale a prominence counts in."""
+CFG = DetectorConfig(split_snr=math.inf)   # the detector's own cut off: what is tested here is the planner's
 YS, XS = np.mgrid[0:20, 0:20].astype(np.float64) * 2.0 + 1.0   # 2 mm cells, centres 1..39 mm
 
 
@@ -25,10 +31,13 @@ def _snap(grid: npt.NDArray[np.float64]) -> MapSnapshot:
     return MapSnapshot(grid, XS[0], YS[:, 0], np.ones(grid.shape, dtype=np.int64), np.zeros(grid.shape), 2.0)
 
 
+def _detect(snap: MapSnapshot) -> Detection:
+    return replace(detect(snap, CFG), noise_rel=NOISE)
+
+
 def _split(grid: npt.NDArray[np.float64], measured: npt.NDArray[np.bool_], k: float = 2.0) -> int:
     snap = _snap(grid)
-    found = detect_inclusions(snap, reference=REF)
-    return len(split_detections(snap, measured, REF, found, rel_threshold=0.2, k_mad=4.0, prominence_k=k))
+    return len(split_detections(_detect(snap), snap, measured, CFG, prominence_k=k))
 
 
 def _plateau() -> npt.NDArray[np.float64]:
@@ -45,16 +54,15 @@ def _pair() -> npt.NDArray[np.float64]:
 def test_two_maxima_with_a_measured_dip_between_are_two_inclusions() -> None:
     grid = _pair()
     snap = _snap(grid)
-    found = detect_inclusions(snap, reference=REF)
-    assert len(found) == 1   # the detector's threshold sits under the dip: one blob
+    det = _detect(snap)
+    found = det.inclusions
+    assert len(found) == 1   # the matched filter joins the two halos: one blob
     dip = float(grid[9:11, 10].min())
-    assert 24.0 < dip < 34.0 - 2 * SIGMA
-    split = split_detections(snap, np.ones(grid.shape, dtype=bool), REF, found, rel_threshold=0.2, k_mad=4.0,
-                             prominence_k=2.0)
+    assert dip < 34.0 - 2 * SIGMA
+    split = split_detections(det, snap, np.ones(grid.shape, dtype=bool), CFG, prominence_k=2.0)
     assert len(split) == 2
     lo, hi = sorted(i.y_mm for i in split)   # each part's centroid by its own peak (the other's tail pulls it in)
     assert abs(lo - 15.0) < 2.0 and abs(hi - 25.0) < 2.0 and all(abs(i.x_mm - 21.0) < 0.5 for i in split)
-    assert sum(i.cells for i in split) == found[0].cells   # every cell of the blob in one part
     # the dip stands 6-7 noise scales under the peaks: asking for 8 leaves the blob whole
     assert _split(grid, np.ones(grid.shape, dtype=bool), k=8.0) == 1
 
@@ -109,14 +117,15 @@ def test_the_planner_splits_its_detections_but_not_its_suspects() -> None:
     counts = np.ones(grid.shape, dtype=np.int64)
     fair = np.full(grid.shape, np.nan)
     fair[0:2, :] = BASE + SIGMA * np.tile([-1.0, 1.0], 20).reshape(2, 20)   # blind cells: median 20, scale ~1
-    assert len(detect_candidates(b, grid, counts, cfg, fair)[1]) == 2
+    assert len(detect_candidates(b, grid, counts, cfg, fair)[1].inclusions) == 2
     off = PlannerConfig(region, sweep_mm=6.0, seed_spacing_mm=40.0, split_prominence=0.0)
-    assert len(detect_candidates(b, grid, counts, off, fair)[1]) == 1
-    assert len(detect_candidates(b, grid, counts, cfg, fair, suspect=True)[1]) == 1
+    # the suspects go through the detector alone, never the planner's split (it would only add sides to sample)
+    suspects = detect_candidates(b, grid, counts, cfg, fair, suspect=True)[1].inclusions
+    assert suspects == detect_candidates(b, grid, counts, off, fair, suspect=True)[1].inclusions
     plateau = _plateau()
     b = Belief(xs, ys, plateau.copy(), np.full(grid.shape, 0.5), BASE, BASE * 1.2)
     # a stiff plateau scattering 3x as much as healthy tissue is cut too: the known cost of an absolute prominence
-    assert len(detect_candidates(b, plateau, counts, cfg, fair)[1]) == 2
+    assert len(detect_candidates(b, plateau, counts, cfg, fair)[1].inclusions) == 2
 
 
 def test_a_maximum_only_the_gp_shows_is_no_second_inclusion() -> None:
@@ -133,11 +142,10 @@ def test_a_one_cell_maximum_leaves_its_region_whole() -> None:
     grid[11, 10] = 30.0   # one stiff cell (a spike) 2 mm past the flank, joined to the blob by cells over the threshold
     grid[10, 10] = 25.0
     snap = _snap(grid)
-    found = detect_inclusions(snap, reference=REF)
-    assert len(found) == 1
-    split = split_detections(snap, np.ones(grid.shape, dtype=bool), REF, found, rel_threshold=0.2, k_mad=4.0,
-                             prominence_k=1.5)
-    assert split == found   # not a blob less its spike's cell
+    det = _detect(snap)
+    assert len(det.inclusions) == 1
+    split = split_detections(det, snap, np.ones(grid.shape, dtype=bool), CFG, prominence_k=1.5)
+    assert split == det.inclusions   # not a blob less its spike's cell
 
 
 def test_a_negative_prominence_is_refused() -> None:

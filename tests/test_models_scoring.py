@@ -110,6 +110,31 @@ def test_scan_report_scores_a_run_against_its_phantom(tmp_path, capsys) -> None:
     assert "centroid error 0.50 mm" in out and "false positive at (25.0, 5.0)" in out
 
 
+def test_scan_report_redetects_with_the_map_detector(tmp_path, capsys) -> None:  # type: ignore[no-untyped-def]
+    """``--redetect`` runs models.detector on map.npz (a map whose inclusions.json says nothing) and lists each
+    detection's SNR."""
+    import yaml
+
+    from tools.scan_report import main
+
+    rng = np.random.default_rng(1)
+    xs = np.arange(20) * 2.0 + 1.0
+    gy, gx = np.meshgrid(xs, xs, indexing="ij")
+    stiff = 20.0 * np.exp(0.03 * rng.standard_normal(gx.shape)) * np.where(np.hypot(gx - 10, gy - 10) <= 4, 3.0, 1.0)
+    (tmp_path / "map").mkdir()
+    np.savez(tmp_path / "map" / "map.npz", stiffness=stiff, x_mm=xs, y_mm=xs, count=np.ones(gx.shape, dtype=int))
+    (tmp_path / "map" / "inclusions.json").write_text("[]")
+    ph = tmp_path / "ph.yaml"
+    ph.write_text(yaml.safe_dump({
+        "size_mm": [40, 40], "thickness_mm": 10, "youngs_modulus_kpa": 20.0,
+        "inclusions": [{"center_mm": [10, 10], "radius_mm": 4, "depth_mm": 2, "youngs_modulus_kpa": 60.0}]}))
+    assert main([str(tmp_path), "--phantom", str(ph)]) == 0
+    assert "0 inclusion(s) found" in capsys.readouterr().out
+    assert main([str(tmp_path), "--redetect", "--phantom", str(ph)]) == 0
+    out = capsys.readouterr().out
+    assert "1 inclusion(s) found" in out and "SNR" in out and "1 of 1 found, 0 false positive(s)" in out
+
+
 def test_redraw_misses_counts_a_coin_flip_inclusion_lost_to_its_own_redraw() -> None:
     from models.scoring import redraw_misses
 

@@ -127,12 +127,19 @@ def score_run(spec: RunSpec, phantom: Phantom) -> tuple[dict[str, Any], list[dic
     return row, incs
 
 
-def score_outputs(spec: RunSpec, phantom: Phantom) -> tuple[dict[str, Any], list[dict[str, Any]],
-                                                             list[dict[str, Any]]]:
+def score_outputs(spec: RunSpec, phantom: Phantom, redetect: bool = False
+                  ) -> tuple[dict[str, Any], list[dict[str, Any]], list[dict[str, Any]]]:
     """:func:`score_run`'s row and inclusions, and one row per detection (``inclusion``: the true one it matched,
-    -1 for a false positive)."""
+    -1 for a false positive). ``redetect``: the map detector (models.detector, the map aggregator's) run on
+    ``map.npz`` again instead of the run's ``inclusions.json``."""
     out = spec.run_dir / "map"
     detections = json.loads((out / "inclusions.json").read_text())
+    if redetect:
+        from models.detector import detect
+        from models.stiffness_map import to_inclusions_json
+        from nodes.mapping.map_output import read_map
+
+        detections = to_inclusions_json(detect(read_map(out / "map.npz")).inclusions)
     with np.load(out / "map.npz") as grid:
         score = score_scan(phantom, detections, dict(grid))
     errors = [s.centroid_error_mm for s in score.inclusions if s.found]
@@ -283,6 +290,16 @@ def run_and_score(job: RunJob) -> dict[str, Any]:
     return {"row": {**row, **scored}, "inclusions": incs, "detections": dets, "error": ""}
 
 
+def redetected(spec: RunSpec) -> dict[str, Any]:
+    """A record as :func:`run_tasks` gives one, for a run an earlier sweep left in its run directory, scored with
+    the map detector run on its ``map.npz`` again (``--redetect``: nothing is launched)."""
+    try:
+        scored, incs, dets = score_outputs(spec, load_phantom(spec.phantom), redetect=True)
+    except (OSError, ValueError, KeyError) as exc:
+        return {"key": "", "ok": False, "error": f"cannot score: {exc}", "result": {}}
+    return {"key": "", "ok": True, "error": "", "result": {"row": scored, "inclusions": incs, "detections": dets}}
+
+
 def run_tasks(jobs: Sequence[RunJob], out: Path, where: Cluster, *, rerun: bool = False,
               progress: bool | None = None) -> list[dict[str, Any]]:
     """Run ``jobs`` as one sweep (``tools.sweep``), their results kept under ``OUT/results``: every job's record
@@ -320,6 +337,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="vary a launch arg over these values (repeatable: the runs take every combination)")
     add_cluster_args(ap)
     ap.add_argument("--rerun", action="store_true", help="run every run again, even those with a result")
+    ap.add_argument("--redetect", action="store_true", help="launch nothing: score the runs already in OUT with the "
+                    "map detector (models.detector) run on each map.npz again (the detector is cheap, scans are not)")
     ap.add_argument("--multi-process", action="store_true", help="one process per node instead of --in-process")
     ap.add_argument("--margin", type=float, default=None,
                     help="raster margin inside the phantom's true edges (mm); default: the launch file's own region "
@@ -355,8 +374,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     launch = opts.launch.resolve()
     specs = plan_runs(launch, list(phantoms), opts.seeds, grid, out, margin_mm=opts.margin,
                       geometry_error_mm=opts.geometry_error)
-    jobs = [RunJob(launch, s, not opts.multi_process, opts.timeout) for s in specs]
-    records = run_tasks(jobs, out, cluster_of(opts), rerun=opts.rerun)
+    if opts.redetect:
+        records = [redetected(s) for s in specs]
+    else:
+        jobs = [RunJob(launch, s, not opts.multi_process, opts.timeout) for s in specs]
+        records = run_tasks(jobs, out, cluster_of(opts), rerun=opts.rerun)
     tables = tables_of(specs, records, {s.id: phantoms[s.phantom] for s in specs})
     write_tables(out, tables, list(grid))
     summary = summarize(tables["runs"], list(grid))

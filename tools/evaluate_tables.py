@@ -125,7 +125,7 @@ def summarize(rows: list[dict[str, Any]], varied: Sequence[str]) -> list[str]:
         errors = [r["mean_centroid_error_mm"] for r in ok if math.isfinite(r["mean_centroid_error_mm"])]
         lines.append(
             f"{label}: {len(ok)} of {len(group)} runs scored; inclusions found {found}/{total}"
-            f" ({100 * found / total:.0f} %)" * bool(total) + ("; no inclusions in these phantoms" if not total else "")
+            + (f" ({100 * found / total:.0f} %)" if total else "; no inclusions in these phantoms")
             + f"; false positives {sum(int(r['false_positives']) for r in ok)}"
             f"; sensitivity {mean('sensitivity'):.2f}, specificity {mean('specificity'):.3f}, IoU {mean('iou'):.2f}"
             f"; centroid error {np.mean(errors) if errors else math.nan:.2f} mm"

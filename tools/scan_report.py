@@ -1,5 +1,9 @@
 """Print where a scan wrote its map and what it found: ``python -m tools.scan_report RUN_DIR [--phantom FILE]``.
 
+Each inclusion is listed with the detector's significance (SNR) and per-map false-alarm probability when the map
+states them. ``--redetect`` runs the map detector (models.detector.detect, the map aggregator's own) on ``map.npz``
+again instead of reading ``inclusions.json``: what today's detector finds on a map written earlier.
+
 With ``--phantom`` (simulation: the truth, read here after the run and never by the graph) the scan is scored by
 ``models.scoring.score_scan``: each true inclusion found or missed with its centroid and radius errors, false
 positives, and the sensitivity/specificity of the map's inclusion cells against the phantom's inclusion mask.
@@ -20,6 +24,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("run_dir", type=Path)
     ap.add_argument("--map-dir", type=Path, help="default: RUN_DIR/map")
     ap.add_argument("--phantom", type=Path, help="score the scan against this phantom's true inclusions")
+    ap.add_argument("--redetect", action="store_true", help="detect on map.npz again (models.detector)")
     args = ap.parse_args(argv)
     out = args.map_dir or args.run_dir / "map"
     inc_file = out / "inclusions.json"
@@ -27,6 +32,18 @@ def main(argv: list[str] | None = None) -> int:
         print(f"scan_report: no {inc_file}: did the scan finish? (logs in {args.run_dir})", file=sys.stderr)
         return 1
     found = json.loads(inc_file.read_text())
+    if args.redetect:
+        from models.detector import detect
+        from models.stiffness_map import to_inclusions_json
+        from nodes.mapping.map_output import read_map
+
+        try:
+            det = detect(read_map(out / "map.npz"))
+        except (OSError, KeyError, ValueError) as exc:
+            print(f"scan_report: cannot detect on {out / 'map.npz'}: {exc}", file=sys.stderr)
+            return 1
+        found = to_inclusions_json(det.inclusions)
+        print(f"redetected on map.npz: threshold {det.threshold_snr:.2f} σ, noise {100 * det.noise_rel:.1f} % a cell")
     print(f"map:        {out / 'map.png'}")
     print(f"grid:       {out / 'map.npz'}")
     print(f"inclusions: {inc_file}")
@@ -35,8 +52,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"recording:  {rec}  (palpa bag info {rec})")
     print(f"{len(found)} inclusion(s) found:")
     for i, inc in enumerate(found, 1):
+        sig = f"  SNR {inc['snr']:.1f}, false alarm {inc['false_alarm']:.1g} a map" if "snr" in inc else ""
         print(f"  {i}. at ({inc['x_mm']:5.1f}, {inc['y_mm']:5.1f}) mm  radius {inc['radius_mm']:4.1f} mm  "
-              f"contrast {inc['contrast']:.2f}")
+              f"contrast {inc['contrast']:.2f}{sig}")
     if args.phantom:
         from models.phantom import PhantomError, load_phantom
         from models.scoring import score_scan

@@ -22,7 +22,6 @@ import numpy as np
 
 import palpa
 from messages import (
-    DetectedInclusion,
     Inclusions,
     MapSaved,
     ScanPlan,
@@ -31,15 +30,9 @@ from messages import (
     StiffnessSample,
     Trigger,
 )
-from models.stiffness_map import (
-    Inclusion,
-    MapSnapshot,
-    StiffnessGrid,
-    background,
-    detect_inclusions,
-    spacing_warning,
-)
-from nodes.mapping.map_output import write_outputs
+from models.detector import Detection, DetectorConfig, detect
+from models.stiffness_map import MapSnapshot, StiffnessGrid, spacing_warning
+from nodes.mapping.map_output import detection_summary, inclusions_message, write_outputs
 from palpa.node.service import RequestRefused
 
 __all__ = ["MapAggregator"]
@@ -60,11 +53,10 @@ class MapAggregator(palpa.Node):
         min_count: palpa.PositiveInt = 3
         """Samples a cell needs to count."""
         publish_hz: palpa.Positive = 1.0
-        k_mad: palpa.NonNegative = 4.0
-        rel_threshold: palpa.NonNegative = 0.2
-        """A cell is stiff above baseline + max(k_mad * robust σ, rel_threshold * baseline)."""
-        min_area_mm2: palpa.NonNegative = 0.0
-        """Smallest inclusion reported (0: two cells)."""
+        false_alarm_per_map: palpa.Positive = 0.003
+        """The detector's threshold: the chance that a map without inclusions shows a detection (models.detector)."""
+        radii_mm: tuple[float, ...] = (2.5, 3.5, 5.0, 7.0)
+        """The inclusion radii the detector's matched filter looks for."""
         title: str = ""
         """Shown on map.png (e.g. what was scanned); default: the output directory."""
         max_excluded: palpa.NonNegative = 0.2
@@ -127,7 +119,7 @@ class MapAggregator(palpa.Node):
             raise RequestRefused("no map to save yet (no valid stiffness sample received)")
         self._bin_pending()
         snap = self.grid.snapshot()
-        paths = self.write(snap, self._detect(snap)[0])
+        paths = self.write(snap, self._detect(snap))
         return MapSaved(paths=[str(p) for p in paths], samples=self.samples)
 
     def _make_grid(self, x0: float, y0: float, x1: float, y1: float) -> None:
@@ -216,15 +208,9 @@ class MapAggregator(palpa.Node):
             self.log.info("scan done: writing the map")
             self.publish_map(final=True)
 
-    def _detect(self, snap: MapSnapshot) -> tuple[list[Inclusion], float]:
+    def _detect(self, snap: MapSnapshot) -> Detection:
         p = self.params
-        try:
-            found = detect_inclusions(snap, k_mad=p.k_mad, rel_threshold=p.rel_threshold,
-                                      min_area_mm2=p.min_area_mm2 or None)
-        except ValueError as exc:
-            self.log.warning("no inclusion detection: %s", exc)
-            found = []
-        return found, background(snap.stiffness)[0]
+        return detect(snap, DetectorConfig(radii_mm=tuple(p.radii_mm), false_alarm_per_map=p.false_alarm_per_map))
 
     def publish_map(self, final: bool = False) -> None:
         if self.grid is None or (not self.changed and not final):
@@ -234,25 +220,24 @@ class MapAggregator(palpa.Node):
         self.changed = False
         self._bin_pending()
         snap = self.grid.snapshot()
-        found, base = self._detect(snap)
+        det = self._detect(snap)
         now = self.clock.now_ns()
         self.map_pub.publish(StiffnessMap(
             stamp_ns=now, unit=self.unit, x_mm=snap.x_mm.tolist(), y_mm=snap.y_mm.tolist(),
             stiffness=snap.stiffness.ravel().tolist(), count=snap.count.ravel().astype(int).tolist(),
             spread=snap.spread.ravel().tolist(), samples=self.samples, final=final,
         ))
-        self.inc_pub.publish(Inclusions(
-            stamp_ns=now, unit=self.unit, baseline=float(base), final=final,
-            inclusions=[DetectedInclusion(x_mm=i.x_mm, y_mm=i.y_mm, radius_mm=i.radius_mm, contrast=i.contrast)
-                        for i in found],
-        ))
+        self.inc_pub.publish(inclusions_message(det, stamp_ns=now, unit=self.unit,
+                                                false_alarm_per_map=self.params.false_alarm_per_map, final=final))
         if final:
-            self.write(snap, found)
+            self.write(snap, det)
 
-    def write(self, snap: MapSnapshot, found: list[Inclusion]) -> list[Path]:
+    def write(self, snap: MapSnapshot, det: Detection) -> list[Path]:
         out = Path(self.params.output_dir)
+        found = det.inclusions
         title = self.params.title or f"stiffness map — {out}"
-        title += f"\n{self.samples} samples, {len(found)} inclusion(s), {time.strftime('%Y-%m-%d %H:%M')}"
+        title += f"\n{self.samples} samples, {time.strftime('%Y-%m-%d %H:%M')}; "
+        title += detection_summary(det, self.params.false_alarm_per_map)
         partial = self._partial()
         if partial:
             self.log.warning("the map written holds part of the scan: %s", partial)
@@ -260,8 +245,9 @@ class MapAggregator(palpa.Node):
         self.written += 1
         self.unsaved = 0
         for inc in found:
-            self.log.info("inclusion at (%.1f, %.1f) mm, radius %.1f mm, contrast %.2f",
-                          inc.x_mm, inc.y_mm, inc.radius_mm, inc.contrast)
+            self.log.info("inclusion at (%.1f, %.1f) mm, radius %.1f mm, contrast %.2f, SNR %.1f, false-alarm "
+                          "probability %.2g per map", inc.x_mm, inc.y_mm, inc.radius_mm, inc.contrast, inc.snr,
+                          inc.false_alarm)
         self.log.info("map written: %s", ", ".join(str(p) for p in paths))
         return list(paths)
 

@@ -4,7 +4,9 @@
   ``count`` (ny, nx) samples per cell; plus ``spread`` (robust σ per cell) and ``unit`` (a 0-d string).
 * ``map.png``: heat map with axes in mm, detected inclusions circled, a title naming the run (cells between
   raster lines are shown as their neighbours' median; ``map.npz`` keeps them NaN).
-* ``inclusions.json``: a list of ``{x_mm, y_mm, radius_mm, contrast}``.
+* ``inclusions.json``: a list of ``{x_mm, y_mm, radius_mm, contrast}``, each with the detector's ``snr`` (σ of the
+  filtered noise) and ``false_alarm`` (the chance that a map without inclusions shows a peak that significant) when
+  known (models.detector).
 
 An adaptive scan also passes ``unsensed`` (the cells where an inclusion of the smallest size of interest could lie
 unseen when it stopped: models.adaptive_detect.unsensed): ``map.npz`` keeps it as a bool grid of that name and
@@ -14,6 +16,7 @@ unseen when it stopped: models.adaptive_detect.unsensed): ``map.npz`` keeps it a
 from __future__ import annotations
 
 import json
+import math
 import os
 import textwrap
 from collections.abc import Sequence
@@ -23,9 +26,47 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from messages import DetectedInclusion, Inclusions
+from models.detector import Detection
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, to_inclusions_json
 
-__all__ = ["write_outputs"]
+__all__ = ["detection_summary", "inclusions_message", "read_map", "write_outputs"]
+
+
+def read_map(npz: Path) -> MapSnapshot:
+    """A written ``map.npz`` as the map snapshot it was written from (what models.detector.detect reads); raises
+    OSError, KeyError or ValueError on a file that is not one."""
+    with np.load(npz) as d:
+        x = np.asarray(d["x_mm"], dtype=np.float64)
+        y = np.asarray(d["y_mm"], dtype=np.float64)
+        grid = np.asarray(d["stiffness"], dtype=np.float64)
+        if grid.shape != (y.size, x.size):
+            raise ValueError(f"{npz}: stiffness {grid.shape} is not y_mm x x_mm ({y.size}, {x.size})")
+        step = np.diff(x) if x.size > 1 else np.diff(y)
+        spread = np.asarray(d["spread"], dtype=np.float64) if "spread" in d else np.full(grid.shape, np.nan)
+        return MapSnapshot(grid, x, y, np.asarray(d["count"], dtype=np.int64), spread,
+                           float(step[0]) if step.size else 1.0)
+
+
+def inclusions_message(det: Detection, *, stamp_ns: int, unit: str, false_alarm_per_map: float,
+                       final: bool) -> Inclusions:
+    """The ``map/inclusions`` message of a detection (the raster's map and the adaptive planner's alike)."""
+    return Inclusions(
+        stamp_ns=stamp_ns, unit=unit, baseline=float(det.baseline), final=final,
+        threshold_snr=float(det.threshold_snr) if math.isfinite(det.threshold_snr) else 0.0,
+        false_alarm_per_map=false_alarm_per_map,
+        inclusions=[DetectedInclusion(x_mm=i.x_mm, y_mm=i.y_mm, radius_mm=i.radius_mm, contrast=i.contrast,
+                                      snr=i.snr, false_alarm=i.false_alarm) for i in det.inclusions])
+
+
+def detection_summary(det: Detection, false_alarm_per_map: float) -> str:
+    """One line for a map's title: how many inclusions, each one's significance, and the threshold they passed."""
+    n = len(det.inclusions)
+    if not math.isfinite(det.threshold_snr):
+        return f"{n} inclusion(s) (too little map to detect on)"
+    snrs = ", ".join(f"{i.snr:.1f}" for i in det.inclusions)
+    return (f"{n} inclusion(s)" + (f" at SNR {snrs}" if n else "")
+            + f"; threshold {det.threshold_snr:.1f} σ ({100 * false_alarm_per_map:g} % false alarms per blank map)")
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
@@ -88,7 +129,8 @@ def _render_png(snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str
                   "interest could lie there unsensed")
     for i, inc in enumerate(inclusions, 1):
         ax.add_patch(Circle((inc.x_mm, inc.y_mm), inc.radius_mm, fill=False, color="red", lw=1.5))
-        ax.annotate(f"{i}: ×{inc.contrast:.1f}", (inc.x_mm, inc.y_mm + inc.radius_mm + 0.8), color="red",
+        label = f"{i}: ×{inc.contrast:.2f}" + (f", {inc.snr:.1f} σ" if math.isfinite(inc.snr) else "")
+        ax.annotate(label, (inc.x_mm, inc.y_mm + inc.radius_mm + 0.8), color="red",
                     ha="center", fontsize=8)
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")

@@ -24,7 +24,7 @@ from models.contact import corrected_modulus, fit_force_depth
 from models.geometry import MeasuredGeometry
 from models.timeseries import StampedBuffer
 
-__all__ = ["AirfloatConfig", "AirfloatEstimator"]
+__all__ = ["AirfloatConfig", "AirfloatEstimator", "probe_thickness"]
 
 
 @dataclass(frozen=True)
@@ -48,6 +48,19 @@ class AirfloatConfig:
     reads a little short of it): the force is then not the tissue's, and the sample is ``at_stroke_end``."""
     ring_tolerance_mm: float = 0.05
     """How far the SPS ring may reach past the measured footprint and still count as on the specimen."""
+    thickness_from_probe: bool = False
+    """Eq. 7's thickness at each sample from the probe itself (:func:`probe_thickness`) instead of the measured
+    geometry or ``thickness_mm``."""
+
+
+def probe_thickness(z_face_mm: np.ndarray, heights_mm: np.ndarray) -> np.ndarray:
+    """The layer's thickness under the probe as the probe measures it: the height of the tissue surface under the
+    face centre (the face's height less the mean of the three SPS extensions, which is the SPS plane's distance
+    along the axis at the centre) above the table, which is z = 0 of the phantom frame (the frame is registered by
+    touching the table beside the specimen: docs/robot.md). Its error is the SPS's (noise, air gap) and the arm's
+    height error, not a calliper's: BENCHMARKS.md "Finding all four"."""
+    surface: np.ndarray = np.asarray(z_face_mm, dtype=float) - np.mean(np.asarray(heights_mm, dtype=float)[:, :3], axis=1)
+    return surface
 
 
 @dataclass
@@ -63,6 +76,7 @@ class AirfloatEstimator:
     faults_until_ns: int = 0
     ramp_f: list[float] = field(default_factory=list)
     ramp_d: list[float] = field(default_factory=list)
+    ramp_t: list[float] = field(default_factory=list)
     ramp_xy: tuple[float, float] = (0.0, 0.0)
     in_ramp: bool = False
     fits: list[StiffnessFit] = field(default_factory=list)
@@ -110,7 +124,9 @@ class AirfloatEstimator:
         xyz = np.array([p if p is not None else (np.nan,) * 3 for p in poses])
         f = np.array([x[0] if x is not None else np.nan for x in forces])
         fault = np.array([x is not None and x[1] > 0 for x in forces])
-        if self.geometry is not None:
+        if c.thickness_from_probe:
+            thick = probe_thickness(xyz[:, 2], h)
+        elif self.geometry is not None:
             thick = np.asarray(self.geometry.thickness(xyz[:, 0], xyz[:, 1]), dtype=float)
         else:
             thick = np.full(len(batch), c.thickness_mm)
@@ -150,11 +166,12 @@ class AirfloatEstimator:
                 stamp_ns=m.stamp_ns, model="airfloat", x_mm=x, y_mm=y, z_mm=z,
                 value=float(e[i]) if valid else float("nan"), unit="kPa", valid=valid, reason=reason,
                 d_in_mm=float(d_in[i]), force_n=float(f[i]) if np.isfinite(f[i]) else 0.0,
-                tilt_rad=float(tilt[i]),
+                tilt_rad=float(tilt[i]), thickness_mm=float(thick[i]) if ok_geom[i] else 0.0,
             ))
             if valid and self.in_ramp:
                 self.ramp_f.append(float(f[i]))
                 self.ramp_d.append(float(d_in[i]))
+                self.ramp_t.append(float(thick[i]))
                 self.ramp_xy = (x, y)
         return out
 
@@ -171,12 +188,14 @@ class AirfloatEstimator:
         return on
 
     def _finish_ramp(self, stamp_ns: int) -> None:
-        f, d = self.ramp_f, self.ramp_d
-        self.ramp_f, self.ramp_d = [], []
+        f, d, t = self.ramp_f, self.ramp_d, self.ramp_t
+        self.ramp_f, self.ramp_d, self.ramp_t = [], [], []
         if len(f) < 5:
             return
         thick = self.cfg.thickness_mm
-        if self.geometry is not None:
+        if self.cfg.thickness_from_probe:
+            thick = float(np.median(t))
+        elif self.geometry is not None:
             thick = float(self.geometry.thickness(*self.ramp_xy))
         fit = fit_force_depth(np.array(f), np.array(d), self.cfg.indenter_radius_mm, thick, self.cfg.poisson_ratio)
         self.fits.append(StiffnessFit(

@@ -89,6 +89,10 @@ class AirfloatStiffnessEstimator(_Publishing):
         """Calibration YAML (``python -m tools.calibrate_airfloat``): its depth offset is added to eqs. 1-3's d_in."""
         geometry: palpa.InputPath = ""
         """Measured-geometry YAML (a thickness map or constant, docs/physics.md); overrides ``thickness_mm``."""
+        thickness: Literal["probe", "geometry"] = "geometry"
+        """Where eq. 7's thickness comes from: ``geometry`` (the file above, else ``thickness_mm``) or ``probe``
+        (the surface under the probe above the table, measured at every sample: estimator_airfloat.probe_thickness;
+        no file needed)."""
         poisson_ratio: float = 0.5
         sps_radius_mm: palpa.Positive = DEFAULT_SPS_RADIUS_MM
         indenter_radius_mm: palpa.Positive = DEFAULT_INDENTER_RADIUS_MM
@@ -119,6 +123,7 @@ class AirfloatStiffnessEstimator(_Publishing):
             min_force_n=p.min_force_n, stroke_mm=p.stroke_mm, max_wait_ns=int(p.max_wait_s * 1e9),
             max_gap_ns=int(p.max_gap_s * 1e9), ramp_fits=p.ramp_fits, depth_offset_mm=offset,
             stroke_margin_mm=p.stroke_margin_mm,
+            thickness_from_probe=p.thickness == "probe",
         ), geometry)
         self.open_outputs()
         self.subscribe("robot/pose", self.on_pose)

@@ -36,7 +36,6 @@ import numpy.typing as npt
 
 import palpa
 from messages import (
-    DetectedInclusion,
     Inclusions,
     ProbeAt,
     ProbeResult,
@@ -53,11 +52,12 @@ from models.adaptive import (
     should_stop,
 )
 from models.adaptive_cover import seed_design
-from models.adaptive_detect import decide, detect_candidates, reference, unsensed
+from models.adaptive_detect import decide, detect_candidates, detector_config, unsensed
+from models.detector import Detection, detect
 from models.geometry import GeometryError, load_geometry
-from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, detect_inclusions
+from models.stiffness_map import MapSnapshot, StiffnessGrid
 from models.surface import region_in_footprint
-from nodes.mapping.map_output import write_outputs
+from nodes.mapping.map_output import detection_summary, inclusions_message, write_outputs
 from palpa.node.service import ServiceError
 from palpa.node.service_client import Future
 
@@ -102,20 +102,17 @@ class AdaptivePlanner(palpa.Node):
         miss_probability: float = 0.01
         """detect: the chance, below which the planner may stop, that such an inclusion hides unsensed."""
         suspect: float = 0.6
-        """detect: regions above this fraction of the detector's thresholds get their boundary sampled."""
+        """detect: regions above this fraction of the detector's threshold get their boundary sampled."""
         fill_mm: float = 4.0
         """detect: the detection map takes the GP mean only this close to a measured cell."""
-        lower_spread: bool = True
-        """detect: the baseline's noise scale from the blind cells below their median (PlannerConfig)."""
-        neighbour_cap: float = 4.0
-        """detect: the baseline's noise scale at most this many times that of neighbouring blind cells' differences
-        along a sweep (PlannerConfig; 0: off)."""
+        false_alarm_per_map: float = 0.003
+        """The map detector's false-alarm rate per map (models.detector), as the map aggregator's."""
         split_prominence: float = 1.5
         """detect: split a detection whose measured cells show two maxima this many noise scales above the measured
         level joining them (PlannerConfig; 0: off)."""
         near_miss: float = 0.8
-        """detect, > 0: a suspect whose peak came this fraction of the way to the detector's threshold gets its disc
-        measured at the raster's density (PlannerConfig)."""
+        """detect, > 0: a suspect whose significance came this fraction of the way to the detector's threshold gets
+        its disc measured at the raster's density (PlannerConfig)."""
         near_miss_gap_mm: float = 1.5
         """detect: a near miss's disc is measured until every cell is within this of a measured one (PlannerConfig)."""
         near_best: float = 1.0
@@ -157,8 +154,8 @@ class AdaptivePlanner(palpa.Node):
                                      reach_spread_mm=tuple(float(v) for v in p.reach_spread_mm),
                                      interior_gap_mm=p.interior_gap_mm,
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
-                                     suspect=p.suspect, lower_spread=p.lower_spread,
-                                     neighbour_cap=p.neighbour_cap, near_miss=p.near_miss,
+                                     suspect=p.suspect, false_alarm_per_map=p.false_alarm_per_map,
+                                     near_miss=p.near_miss,
                                      near_miss_gap_mm=p.near_miss_gap_mm, split_prominence=p.split_prominence,
                                      near_best=p.near_best, cover_column_mm=p.cover_column_mm,
                                      cover_period_mm=p.cover_period_mm,
@@ -343,32 +340,28 @@ class AdaptivePlanner(palpa.Node):
         return stop, why
 
     # -- output ------------------------------------------------------------------------------------
-    def _detection(self, b: Belief) -> tuple[MapSnapshot, list[Inclusion]]:
-        """The map the inclusions are detected on and what is detected: with the detect rule the measured cells
-        and the GP mean near them, against the stiffness-blind probes' baseline (models.adaptive_detect); with
-        lse the GP mean (the belief alone)."""
+    def _detection(self, b: Belief) -> tuple[MapSnapshot, Detection]:
+        """The map the inclusions are detected on and what the map detector (models.detector, the raster's own)
+        finds: with the detect rule the measured cells and the GP mean near them, the background and noise from the
+        stiffness-blind probes' cells (models.adaptive_detect); with lse the GP mean (the belief alone)."""
         counts = self.grid.snapshot().count
         if self.cfg.stop_rule == "detect":
             return detect_candidates(b, self.grid.snapshot().stiffness, counts, self.cfg,
                                      self.fair.snapshot().stiffness)
         snap = MapSnapshot(stiffness=b.mean, x_mm=b.x_mm, y_mm=b.y_mm, count=counts, spread=b.std,
                            resolution_mm=self.params.resolution_mm)
-        try:
-            return snap, detect_inclusions(snap, rel_threshold=self.params.rel_threshold)
-        except ValueError as exc:
-            self.log.warning("no inclusion detection: %s", exc)
-            return snap, []
+        return snap, detect(snap, detector_config(self.cfg))
 
-    def _publish_belief(self, final: bool) -> tuple[MapSnapshot, list[Inclusion]]:
+    def _publish_belief(self, final: bool) -> tuple[MapSnapshot, Detection]:
         b = self.belief
         assert b is not None
-        snap, found = self._detection(b)
+        snap, det = self._detection(b)
         now = self.clock.now_ns()
         for pub, grid in ((self.mean_pub, b.mean), (self.std_pub, b.std), (self.map_pub, snap.stiffness)):
             pub.publish(StiffnessMap(stamp_ns=now, unit=self.unit, x_mm=b.x_mm.tolist(), y_mm=b.y_mm.tolist(),
                                      stiffness=grid.ravel().tolist(), count=snap.count.ravel().tolist(),
                                      spread=b.std.ravel().tolist(), samples=len(self.probed), final=final))
-        return snap, found
+        return snap, det
 
     def _unsensed(self) -> tuple[list[tuple[float, float]], npt.NDArray[np.bool_]]:
         """Where an inclusion of the sizes of interest could still lie unseen (models.adaptive_detect.unsensed),
@@ -389,24 +382,21 @@ class AdaptivePlanner(palpa.Node):
         elapsed = (self.clock.now_ns() - (self.started_ns or 0)) / 1e9
         self.log.info("stopping: %s (%d probes, %d refusals, %.1f s)", why, len(self.probed), self.refused, elapsed)
         out = Path(p.output_dir)
-        found: list[Inclusion] = []
-        detect = self.cfg.stop_rule == "detect"
-        hiding, mask = self._unsensed() if detect else ([], None)
+        hiding, mask = self._unsensed() if self.cfg.stop_rule == "detect" else ([], None)
         lost = self._losses()
         if lost:
             self.log.error("the map is INCOMPLETE: %s", lost)
         if self.belief is not None:
-            snap, found = self._publish_belief(final=True)
-            title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
-            write_outputs(out, snap, found, unit=self.unit or "?", title=title, unsensed=mask, incomplete=lost)
-        ref = (reference(self.fair.snapshot().stiffness, lower=self.cfg.lower_spread,
-                          neighbour_cap=self.cfg.neighbour_cap)
-               if detect else None)
-        self.inc_pub.publish(Inclusions(
-            stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,   # the baseline the contrasts are against
-            baseline=ref[0] if ref else self.belief.baseline if self.belief is not None else float("nan"),
-            inclusions=[DetectedInclusion(x_mm=i.x_mm, y_mm=i.y_mm, radius_mm=i.radius_mm, contrast=i.contrast)
-                        for i in found]))
+            snap, det = self._publish_belief(final=True)
+            title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes; "
+            title += detection_summary(det, p.false_alarm_per_map)
+            write_outputs(out, snap, det.inclusions, unit=self.unit or "?", title=title, unsensed=mask,
+                          incomplete=lost)
+            self.inc_pub.publish(inclusions_message(det, stamp_ns=self.clock.now_ns(), unit=self.unit,
+                                                    false_alarm_per_map=p.false_alarm_per_map, final=True))
+        else:
+            self.inc_pub.publish(Inclusions(stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,
+                                            baseline=float("nan"), inclusions=[]))
         out.mkdir(parents=True, exist_ok=True)
         (out / "planner.json").write_text(json.dumps({
             "probes": len(self.probed), "refused": self.refused, "sim_s": elapsed, "stop": why,

@@ -1,0 +1,91 @@
+"""The detector's false-alarm law, measured on blank specimens (issue 37): derives models.detector's GUMBEL_LOC,
+GUMBEL_SCALE and REFERENCE_AREA_MM2.
+
+Scan the blank specimens once (a flat 3 mm sheet and the demo's dome without tumours, twenty noise draws each: the
+device's errors, the sensor noise and the thickness measurement all drawn from the seed):
+
+    python -m tools.evaluate launch/scan_sim.yaml --phantom phantoms/blank/flat_3mm.yaml \\
+        --phantom phantoms/blank/dome_4_2.yaml --seeds $(seq 0 19) -o runs/blank --jobs 1
+
+then fit the law of each map's largest significance the detector could report (models.detector.peak_significance:
+the matched filter's largest output over its scales and the map's cells, an edge row off the specimen left out) on
+the saved maps:
+
+    .venv/bin/python bench/detector_calibration.py runs/blank
+
+The largest of many weakly dependent significances follows a Gumbel law whose location grows as
+``scale * ln(area)``; the fit is maximum likelihood with each map's valid area as an offset. The candidates the
+detector leaves out of its background depend on its threshold, so the fit is repeated with the constants it found
+until they stop moving. Prints the constants, the per-map maxima, the threshold at the detector's default
+false-alarm rate and how many of these blank maps it would call anything on; the constants go into
+models/detector.py by hand (the printed result goes into BENCHMARKS.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from models.detector import (  # noqa: E402
+    DetectorConfig,
+    detect,
+    fit_false_alarm_law,
+    peak_significance,
+    threshold_for,
+)
+from models.stiffness_map import MapSnapshot  # noqa: E402
+from nodes.mapping.map_output import read_map  # noqa: E402
+
+
+def peaks(maps: list[MapSnapshot], cfg: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Each map's largest significance and its valid area (mm²)."""
+    top, area = [], []
+    for snap in maps:
+        det = detect(snap, cfg)
+        top.append(peak_significance(det))
+        area.append(float(np.isfinite(det.significance).sum()) * snap.resolution_mm**2)
+    return np.array(top), np.array(area)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("runs", type=Path, nargs="+", help="evaluate output folders (their runs/*/map/map.npz)")
+    ap.add_argument("--rounds", type=int, default=4, help="refits with the constants found (candidates move)")
+    args = ap.parse_args()
+    files = sorted(p for r in args.runs for p in r.glob("runs/*/map/map.npz") if p.parent.parent.name != "latest")
+    if not files:
+        raise SystemExit(f"no runs/*/map/map.npz under {', '.join(map(str, args.runs))}")
+    maps = [read_map(f) for f in files]
+    cfg = DetectorConfig()
+    ref_area = cfg.gumbel[2]
+    for _ in range(args.rounds):
+        top, area = peaks(maps, cfg)
+        ref_area = float(np.median(area))
+        loc, scale = fit_false_alarm_law(top, area, ref_area)
+        cfg = replace(cfg, gumbel=(loc, scale, ref_area))
+    top, area = peaks(maps, cfg)
+    calls = sum(bool(detect(m, cfg).inclusions) for m in maps)
+    print(f"{len(maps)} blank maps; largest significance per map: median {np.median(top):.2f}, "
+          f"range {top.min():.2f}..{top.max():.2f} σ; valid area {area.min():.0f}..{area.max():.0f} mm²")
+    for f, t in zip(files, top, strict=True):
+        print(f"  {f.parent.parent.name:24s} {t:5.2f}")
+    print(f"GUMBEL_LOC = {cfg.gumbel[0]:.3f}\nGUMBEL_SCALE = {cfg.gumbel[1]:.3f}\nREFERENCE_AREA_MM2 = {ref_area:.0f}")
+    for p in (0.05, 0.01, 0.001):
+        print(f"threshold at {100 * p:g} % false alarms per map of the reference area: "
+              f"{threshold_for(ref_area, replace(cfg, false_alarm_per_map=p)):.2f} σ")
+    print(f"blank maps with any detection at the default {100 * cfg.false_alarm_per_map:g} %: {calls} of {len(maps)}")
+    print(json.dumps({"loc": cfg.gumbel[0], "scale": cfg.gumbel[1], "ref_area_mm2": ref_area,
+                      "maxima": [round(float(t), 3) for t in top], "maps_with_detection": calls}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,371 @@
+"""The inclusion detector every map goes through (issue 37): a matched filter against a robust local background,
+with a threshold set by a false-alarm rate per map measured on blank specimens.
+
+A cell reading far above all its neighbours (:attr:`DetectorConfig.spike_ratio`) is dropped first: no tissue under
+the probe's footprint reads so, a probe half off the specimen's edge can. A map's noise is multiplicative (eq. 7 turns
+a thickness error into a relative stiffness error; an inclusion multiplies the local stiffness), so the detector
+works on ``log(stiffness)``:
+
+1. **Background.** A smooth surface (a quadratic in x and y, :data:`BACKGROUND_DEGREE`) fitted by iteratively
+   reweighted least squares (Tukey's biweight) to the cells that are *not candidates*, so a dome's slope or an
+   edge's drift is followed while an inclusion's cells do not pull the baseline up. The residual is the
+   log-contrast.
+2. **Matched filter.** The residual summed over a disc of each radius of interest (:attr:`DetectorConfig.radii_mm`:
+   the sizes of inclusions the scan should find), over the valid cells only, divided by the square root of how many
+   valid cells the disc holds, less that quantity's median and in units of its robust scale (1.4826 MAD) over the
+   non-candidate cells: the output is in σ units of the *filtered* noise (which is spatially correlated), and a disc
+   over the map's edge, holding fewer cells, is no more significant than one inside it.
+3. **Candidates.** Cells whose significance at any scale exceeds :attr:`DetectorConfig.candidate_snr` and whose own
+   residual exceeds a cell's noise are masked out and steps 1-2 repeated (``iterations`` times): the background and
+   the noise scale come from the rest of the map.
+4. **Threshold.** The largest significance on a map with no inclusion follows a Gumbel law (the maximum of many
+   weakly dependent cells); its location grows with the map's area as ``scale * ln(area / reference area)``.
+   :data:`GUMBEL_LOC`, :data:`GUMBEL_SCALE` and :data:`REFERENCE_AREA_MM2` were fitted by
+   ``bench/detector_calibration.py`` on blank specimens (a flat 3 mm sheet and the demo's dome without tumours,
+   twenty noise draws each; BENCHMARKS.md "The detector's false-alarm rate"). The threshold is the significance a
+   blank map of this area exceeds with probability :attr:`DetectorConfig.false_alarm_per_map`.
+5. **Detections.** Each 8-connected region above the threshold is one inclusion (unless its raised cells all lie
+   in the map's first or last row or column: the SPS ring over the specimen's edge), or one per maximum of the
+   smallest disc's significance standing :attr:`DetectorConfig.split_snr` above the level joining it to a higher
+   one (two neighbours' halos join in the larger discs). Each carries its significance (SNR: its peak, in σ of the
+   filtered noise) and its per-map false-alarm probability (the chance that a blank map of this area shows a peak
+   that high), its centroid weighted by the excess over the background, its extent (the cells raised by at least
+   half its peak excess that join it, within the smallest disc of it) and its contrast (peak over the local
+   background).
+
+Our own code; the background / matched filter / extreme-value recipe is the standard one of source detection.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage, optimize
+
+from models.peaks import peak_parts
+from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps
+
+__all__ = ["BACKGROUND_DEGREE", "GUMBEL_LOC", "GUMBEL_SCALE", "REFERENCE_AREA_MM2", "DetectorConfig", "Detection",
+           "describe", "detect", "false_alarm_probability", "fit_false_alarm_law", "peak_significance", "significance",
+           "threshold_for"]
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+_MAD_TO_SIGMA = 1.4826
+_EIGHT = np.ones((3, 3), dtype=bool)
+
+BACKGROUND_DEGREE = 2
+"""Degree of the background surface in x and y (2: a dome, a tilt, a drift towards an edge)."""
+# fitted by bench/detector_calibration.py on 40 blank scans (runs of 28 Nov 2026, BENCHMARKS.md "Finding all four")
+GUMBEL_LOC = 2.447
+"""Location (σ) of the Gumbel law of a blank map's largest significance, at :data:`REFERENCE_AREA_MM2`."""
+GUMBEL_SCALE = 0.344
+"""Scale (σ) of that Gumbel law."""
+REFERENCE_AREA_MM2 = 2500.0
+"""The valid area of the blank maps the law was fitted on (their raster's cells: 48 mm squares)."""
+
+
+@dataclass(frozen=True, slots=True)
+class DetectorConfig:
+    """What the detector looks for and how sure it must be (module doc)."""
+
+    radii_mm: tuple[float, ...] = (2.5, 3.5, 5.0, 7.0)
+    """Matched-filter disc radii: the inclusion sizes of interest."""
+    false_alarm_per_map: float = 0.003
+    """Probability that a map without inclusions (of the calibration's kind) shows a detection: 0.3 % (threshold
+    4.4 σ on a 48 mm square). On the tuning sets 0.5 % called one of the forty blank maps and 0.2 % found no more."""
+    candidate_snr: float = 4.0
+    """Cells whose significance exceeds this (σ) at any scale, and that are raised by more than a cell's noise, are
+    candidates, left out of the background and noise. A level of its own, not a fraction of the threshold: the blank maps' law
+    (step 4) must not depend on the threshold it sets, and a lower level masks the upper tail of a blank map's
+    noise, which shifts its median down and makes the rest look more significant."""
+    iterations: int = 3
+    min_valid_cells: int = 12
+    """Fewer valid cells than this: no detection (too little map to tell background from noise)."""
+    gumbel: tuple[float, float, float] = (GUMBEL_LOC, GUMBEL_SCALE, REFERENCE_AREA_MM2)
+    """(location, scale, reference area) of the blank maps' largest significance."""
+    spike_ratio: float = 2.5
+    """A cell reading more than this times the median of its neighbours is no tissue under the probe's footprint
+    (the indenter, 4 mm in radius, is wider than a cell, so a reading cannot jump so far in one cell: it is the
+    probe at an edge reading the table, or a fault) and is left out as if unmeasured."""
+    split_snr: float = 3.0
+    """A region above the threshold is cut into one inclusion per maximum of the smallest disc's significance that
+    stands this much (σ) above the level joining it to a higher one (models.peaks): two neighbours' halos join in
+    the larger discs."""
+    noise_floor_rel: float = 0.01
+    """The filtered noise scale is at least this (relative): a map smoother than the probe can measure (a synthetic
+    one, a quantised one) does not make every wrinkle significant."""
+
+    def __post_init__(self) -> None:
+        if not self.radii_mm or min(self.radii_mm) <= 0:
+            raise ValueError(f"DetectorConfig.radii_mm: need positive radii, got {self.radii_mm}")
+        if not 0 < self.false_alarm_per_map < 1:
+            raise ValueError(f"DetectorConfig.false_alarm_per_map: need 0 < p < 1, got {self.false_alarm_per_map}")
+        if not self.candidate_snr > 0:
+            raise ValueError(f"DetectorConfig.candidate_snr: need > 0, got {self.candidate_snr}")
+        if not self.noise_floor_rel > 0:
+            raise ValueError(f"DetectorConfig.noise_floor_rel: need > 0, got {self.noise_floor_rel}")
+        if self.iterations < 1:
+            raise ValueError(f"DetectorConfig.iterations: need >= 1, got {self.iterations}")
+
+
+@dataclass(frozen=True, slots=True)
+class Detection:
+    """What the detector found and what it compared against."""
+
+    inclusions: list[Inclusion]
+    baseline: float
+    """Median of the background surface over the valid cells (the map's unit); NaN without a map."""
+    noise_rel: float
+    """Robust relative noise of one cell against the background (σ of the log-residual)."""
+    threshold_snr: float
+    """The significance a detection had to exceed on this map."""
+    significance: FloatArray = field(repr=False)
+    """(ny, nx) largest significance over the scales (NaN where no filter had enough cells)."""
+    background: FloatArray = field(repr=False)
+    """(ny, nx) the background surface (the map's unit), NaN outside the valid cells."""
+    candidates: BoolArray = field(repr=False)
+    """(ny, nx) cells left out of the background and noise estimates."""
+    grid: FloatArray = field(repr=False)
+    """(ny, nx) the map detected on (gaps of one cell filled: models.stiffness_map.fill_gaps), NaN where invalid."""
+    residual: FloatArray = field(repr=False)
+    """(ny, nx) log(map / background), NaN where invalid."""
+    area_mm2: float = math.nan
+    """The map's valid area (the false-alarm law's)."""
+
+
+def threshold_for(area_mm2: float, cfg: DetectorConfig) -> float:
+    """The significance a blank map of ``area_mm2`` exceeds with probability ``cfg.false_alarm_per_map``."""
+    loc, scale, ref = cfg.gumbel
+    shift = scale * math.log(max(area_mm2, 1e-9) / ref)
+    return loc + shift - scale * math.log(-math.log1p(-cfg.false_alarm_per_map))
+
+
+def false_alarm_probability(snr: float, area_mm2: float, cfg: DetectorConfig) -> float:
+    """The chance that a blank map of ``area_mm2`` shows a peak significance of ``snr`` or more."""
+    loc, scale, ref = cfg.gumbel
+    z = (snr - loc - scale * math.log(max(area_mm2, 1e-9) / ref)) / scale
+    return -math.expm1(-math.exp(-z))
+
+
+def fit_false_alarm_law(maxima: npt.ArrayLike, areas_mm2: npt.ArrayLike, reference_area_mm2: float) -> tuple[float, float]:
+    """Maximum-likelihood (location at ``reference_area_mm2``, scale) of the Gumbel law of blank maps' largest
+    significance, ``maxima[i] ~ Gumbel(loc + scale * ln(areas[i] / reference), scale)`` (module doc, step 4)."""
+    top = np.asarray(maxima, dtype=np.float64)
+    off = np.log(np.asarray(areas_mm2, dtype=np.float64) / reference_area_mm2)
+    if top.size < 2 or not np.all(np.isfinite(top)) or not np.all(np.isfinite(off)):
+        raise ValueError(f"fit_false_alarm_law: need two or more finite maxima and positive areas, got {top.size}")
+
+    def nll(p: FloatArray) -> float:
+        scale = math.exp(float(p[1]))
+        z = (top - float(p[0])) / scale - off
+        return float(np.sum(math.log(scale) + z + np.exp(-z)))
+
+    start = np.array([float(np.mean(top - off)), math.log(max(float(np.std(top)), 1e-3))])
+    res = optimize.minimize(nll, start, method="Nelder-Mead", options={"xatol": 1e-7, "fatol": 1e-10})
+    return float(res.x[0]), float(math.exp(float(res.x[1])))
+
+
+def _disc(radius_mm: float, cell_mm: float) -> FloatArray:
+    n = max(0, int(math.floor(radius_mm / cell_mm + 1e-9)))
+    yy, xx = np.mgrid[-n : n + 1, -n : n + 1] * cell_mm
+    return np.asarray(xx**2 + yy**2 <= radius_mm**2 + 1e-9, dtype=np.float64)
+
+
+def _fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArray) -> FloatArray:
+    """A quadratic surface fitted to ``logs`` on the ``use`` cells by Tukey-biweight IRLS, evaluated everywhere;
+    no slope or curve along an axis the ``use`` cells span less than half the map of (it would be extrapolated
+    from nothing), a constant (the median) when too few cells support the surface."""
+    gy, gx = np.meshgrid(y, x, indexing="ij")
+    sx = max(float(np.ptp(x)), 1e-9) / 2
+    sy = max(float(np.ptp(y)), 1e-9) / 2
+    u, v = (gx - float(np.mean(x))) / sx, (gy - float(np.mean(y))) / sy
+    along_x = float(np.ptp(gx[use])) >= sx if use.any() else False
+    along_y = float(np.ptp(gy[use])) >= sy if use.any() else False
+    terms = [np.ones_like(u)] + [u**i * v**j for d in range(1, BACKGROUND_DEGREE + 1) for i in range(d + 1)
+                                 for j in [d - i] if (along_x or i == 0) and (along_y or j == 0)]
+    design = np.stack([t[use] for t in terms], axis=1)
+    target = logs[use]
+    if target.size < 3 * len(terms):
+        return np.full(logs.shape, float(np.median(target)) if target.size else math.nan)
+    w: FloatArray = np.ones(target.size)
+    coef: FloatArray = np.zeros(len(terms))
+    for _ in range(8):
+        sw = np.sqrt(w)
+        coef = np.asarray(np.linalg.lstsq(design * sw[:, None], target * sw, rcond=None)[0], dtype=np.float64)
+        r = target - design @ coef
+        s = _MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r))))
+        if not s > 0:
+            break
+        t = r / (4.685 * s)
+        w = np.asarray(np.where(np.abs(t) < 1, (1 - t**2) ** 2, 0.0), dtype=np.float64)
+    return np.asarray(sum(c * t for c, t in zip(coef, terms, strict=True)), dtype=np.float64)
+
+
+def _drop_spikes(grid: FloatArray, ratio: float) -> FloatArray:
+    """``grid`` with NaN where a cell reads more than ``ratio`` times the median of its valid neighbours (module
+    doc); a copy."""
+    padded = np.pad(grid, 1, constant_values=np.nan)
+    ny, nx = grid.shape
+    stack = np.stack([padded[dy : dy + ny, dx : dx + nx] for dy in range(3) for dx in range(3) if (dy, dx) != (1, 1)])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)   # a cell without valid neighbours: no median, kept
+        around = np.nanmedian(stack, axis=0)
+    spike = np.isfinite(grid) & (around > 0) & (grid > ratio * around)
+    return np.where(spike, np.nan, grid)
+
+
+def _spread(values: FloatArray) -> tuple[float, float]:
+    """(median, 1.4826 MAD): the centre and robust σ of the cells left once the candidates are masked."""
+    centre = float(np.median(values))
+    return centre, _MAD_TO_SIGMA * float(np.median(np.abs(values - centre)))
+
+
+def significance(residual: FloatArray, valid: BoolArray, use: BoolArray, cell_mm: float,
+                 radii_mm: tuple[float, ...], floor: float) -> list[FloatArray]:
+    """Per radius, the residual's disc mean times sqrt(valid cells in the disc), less that quantity's median over the
+    ``use`` cells, in units of its robust scale there (at least ``floor``); NaN where the disc holds fewer than a
+    third of its cells."""
+    r = np.where(valid, residual, 0.0)
+    ok = valid.astype(np.float64)
+    out = []
+    for radius in radii_mm:
+        k = _disc(radius, cell_mm)
+        n = ndimage.convolve(ok, k, mode="constant")
+        total = ndimage.convolve(r, k, mode="constant")
+        with np.errstate(invalid="ignore", divide="ignore"):
+            stat = np.where(n >= max(1.0, k.sum() / 3), total / np.sqrt(n), np.nan)
+        ref = stat[use & np.isfinite(stat)]
+        if ref.size < 5:
+            out.append(np.full(stat.shape, np.nan))
+            continue
+        centre, scale = _spread(ref)
+        out.append((stat - centre) / max(scale, floor))
+    return out
+
+
+def detect(snapshot: MapSnapshot, cfg: DetectorConfig | None = None, *, threshold_scale: float = 1.0,
+           estimate_from: BoolArray | None = None) -> Detection:
+    """The inclusions of a map (module doc), most significant first.
+
+    ``threshold_scale`` multiplies the threshold (below 1: the suspects worth a closer look, as an adaptive planner
+    asks for). ``estimate_from``: the cells whose values are a fair sample of the tissue, the only ones the
+    background and noise may be estimated from (an adaptive planner's blind sweeps; default: every valid cell).
+    Non-positive stiffness values are not valid cells (eq. 7 gives none on a sound map). Raises ValueError on a
+    config it cannot use."""
+    cfg = cfg or DetectorConfig()
+    grid = fill_gaps(_drop_spikes(np.asarray(snapshot.stiffness, dtype=np.float64), cfg.spike_ratio))
+    valid = np.isfinite(grid) & (grid > 0)
+    shape = grid.shape
+    nan = np.full(shape, np.nan)
+    empty = Detection([], math.nan, math.nan, math.nan, nan, nan, np.zeros(shape, dtype=bool), nan, nan)
+    fair = valid if estimate_from is None else valid & np.asarray(estimate_from, dtype=bool)
+    if fair.sum() < cfg.min_valid_cells:
+        return empty
+    cell = float(snapshot.resolution_mm)
+    logs = np.where(valid, np.log(np.where(valid, grid, 1.0)), np.nan)
+    area = float(valid.sum()) * cell * cell
+    threshold = threshold_scale * threshold_for(area, cfg)
+    candidates = np.zeros(shape, dtype=bool)
+    for _ in range(cfg.iterations):
+        use = fair & ~candidates
+        if use.sum() < cfg.min_valid_cells:
+            use = fair
+        bg = _fit_background(logs, use, snapshot.x_mm, snapshot.y_mm)
+        residual = logs - bg
+        sig = significance(residual, valid, use, cell, cfg.radii_mm, cfg.noise_floor_rel)
+        hot = np.zeros(shape, dtype=bool)
+        for s in sig:
+            hot |= np.nan_to_num(s, nan=-np.inf) > cfg.candidate_snr
+        # of a significant region, the cells raised by more than a cell's noise: the inclusion and its halo, not
+        # the healthy cells a large disc reaches past it
+        spread = max(_spread(residual[use])[1], cfg.noise_floor_rel)
+        new = hot & valid & (np.nan_to_num(residual, nan=-np.inf) > spread)
+        if np.array_equal(new, candidates):
+            break
+        candidates = new
+    best = np.full(shape, -np.inf)
+    for s in sig:
+        best = np.fmax(best, np.nan_to_num(s, nan=-np.inf))
+    best = np.where(np.isfinite(best) & valid, best, np.nan)
+    use = fair & ~candidates
+    noise = _spread(residual[use] if use.any() else residual[fair])[1]
+    background = np.where(valid, np.exp(bg), np.nan)
+    baseline = float(np.median(background[valid]))
+    det = Detection([], baseline, noise, threshold, best, background, candidates, grid, residual, area)
+    labels, n = ndimage.label(np.nan_to_num(best, nan=-np.inf) > threshold, structure=_EIGHT)
+    # the smallest disc's significance separates neighbours whose larger discs' halos join
+    finest = np.nan_to_num(sig[int(np.argmin(cfg.radii_mm))], nan=-np.inf)
+    found = []
+    for k in range(1, n + 1):
+        region = labels == k
+        parts = peak_parts(finest, region, region, cfg.split_snr)
+        if len(parts) < 2 or any(p.sum() < 2 for p in parts):
+            parts = [region]
+        found += [describe(det, snapshot, p, cfg, part=len(parts) > 1) for p in parts if not _edge_row(det, p)]
+    return replace(det, inclusions=sorted(found, key=lambda inc: -inc.snr))
+
+
+def peak_significance(det: Detection, floor: float = 2.0) -> float:
+    """The largest significance on the map that the detector could report: the highest peak of the regions above
+    ``floor`` that are not an edge row (:func:`detect`), else the map's largest significance. A blank map's false
+    alarm is this exceeding the threshold; bench/detector_calibration.py fits the law of it."""
+    sig = np.nan_to_num(det.significance, nan=-np.inf)
+    labels, n = ndimage.label(sig > floor, structure=_EIGHT)
+    tops = [float(sig[labels == k].max()) for k in range(1, n + 1) if not _edge_row(det, labels == k)]
+    return max(tops) if tops else min(floor, float(sig.max()))
+
+
+def _edge_row(det: Detection, region: BoolArray) -> bool:
+    """Whether the cells raised by half the region's peak or more all lie in the map's first or last row or column:
+    the SPS ring hanging over the specimen's edge reads the table there (one row, the next one healthy), which an
+    inclusion under the probe's 4 mm indenter cannot do (it raises two cells or more across)."""
+    excess = np.expm1(np.nan_to_num(det.residual, nan=-np.inf))
+    peak = float(excess[region].max())
+    core = np.argwhere(region & (excess >= 0.5 * peak))
+    if core.size == 0 or peak <= 0:
+        return False
+    ny, nx = region.shape
+    rows, cols = core[:, 0], core[:, 1]
+    return bool((rows == 0).all() or (rows == ny - 1).all() or (cols == 0).all() or (cols == nx - 1).all())
+
+
+def describe(det: Detection, snapshot: MapSnapshot, region: BoolArray, cfg: DetectorConfig,
+             part: bool = False) -> Inclusion:
+    """One detected region (non-empty ``region`` cells of ``det``'s grid) as an inclusion (module doc, step 5).
+    ``part``: the region is one part of a region cut in two or more, and its extent stays within the smallest disc
+    of it (the raised cells past the cut are the other part's)."""
+    valid = np.isfinite(det.residual)
+    cell = float(snapshot.resolution_mm)
+    gy, gx = np.meshgrid(snapshot.y_mm, snapshot.x_mm, indexing="ij")
+    excess = np.where(valid, np.expm1(np.where(valid, det.residual, 0.0)), 0.0)
+    peak_excess = float(excess[region].max())
+    core = region
+    if peak_excess > 0:   # the cells raised by half the peak or more that join the region
+        half, _ = ndimage.label(excess >= 0.5 * peak_excess, structure=_EIGHT)
+        core = np.isin(half, np.unique(half[region & (half > 0)]))
+        if part:
+            core &= ndimage.binary_dilation(region, structure=_disc(min(cfg.radii_mm), cell) > 0)
+    own = core & region if (core & region).any() else core   # the centroid from this region's own raised cells
+    w = np.clip(excess[own], 0.0, None)
+    if not w.sum() > 0:
+        w = np.ones(int(own.sum()))
+    snr = float(np.nanmax(np.where(region, det.significance, np.nan)))
+    i_peak = np.unravel_index(int(np.argmax(np.where(region, excess, -np.inf))), region.shape)
+    cells = int(core.sum())
+    return Inclusion(
+        x_mm=float(np.sum(w * gx[own]) / w.sum()),
+        y_mm=float(np.sum(w * gy[own]) / w.sum()),
+        radius_mm=math.sqrt(cells * cell * cell / math.pi),
+        contrast=1.0 + peak_excess,
+        peak=float(det.grid[i_peak]),
+        area_mm2=cells * cell * cell,
+        cells=cells,
+        snr=snr,
+        false_alarm=false_alarm_probability(snr, det.area_mm2, cfg),
+    )
