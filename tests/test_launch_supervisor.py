@@ -279,13 +279,13 @@ def test_progress_lines_off_a_terminal_by_default_then_the_reported_nodes_result
         nodes:
           - name: ticker
             node: launch_node_classes:ProgressTicker
-            params: {{steps: 20, period_s: 0.1}}
+            params: {{steps: 60, period_s: 0.05}}
             required: true
     """)
     proc = launch(procs, file, tmp_path / "run")
     assert proc.wait(60) == 0, proc.output()
     out = proc.output()
-    assert re.search(r"^progress +\d+% scanning  line \d+/20", out, re.M), out
+    assert re.search(r"^progress +\d+% scanning  line \d+/60", out, re.M), out
     last_progress = max(m.end() for m in re.finditer(r"^progress .*$", out, re.M))
-    assert out.index("[ticker] INFO palpa.node.ticker: step 20 of 20", last_progress) > last_progress
-    assert "step 3 of 20" not in out  # only the last lines: the results, not the whole run
+    assert out.index("[ticker] INFO palpa.node.ticker: step 60 of 60", last_progress) > last_progress
+    assert "step 3 of 60" not in out  # only the last lines (nodeproc._REPORT_LINES): the results, not the whole run
