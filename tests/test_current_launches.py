@@ -100,7 +100,7 @@ def test_palpa_run_refuses_run_with_bus_or_run_twice(runs: Path, monkeypatch: py
     started: list[list[str]] = []
     monkeypatch.setattr("palpa.cli.run.run_node_code", lambda cls, rest, prog: started.append(list(rest)) or 0)
     assert main(["run", "nodes.demo:Talker", "--run", "a", "--bus", str(B)]) == 1
-    assert "give --run or --bus, not both" in capsys.readouterr().err
+    assert capsys.readouterr().err == "palpa run: give --run or --bus, not both\n"  # one line, said once
     assert main(["run", "--run", "a", "nodes.demo:Talker", "--run", "b"]) == 1
     assert "--run given 2 times (a, b)" in capsys.readouterr().err
     assert main(["run", "nodes.demo:Talker", "--run"]) == 1

@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     run_dir, rest = _take_run(list(args.rest), args.run)
     bus_named = any(a == "--bus" or a.startswith("--bus=") for a in rest)
     if bus_named and run_dir is not None:
-        raise PalpaError("palpa run: give --run or --bus, not both")
+        raise PalpaError("give --run or --bus, not both")
     named = bus_named or (run_dir is None and palpa_env.get(palpa_env.BUS))
     if not named and not {"-h", "--help"} & set(rest):  # a launched node has $PALPA_BUS: nothing to choose or say
         address, source = find_bus(run=run_dir)  # refuses to guess among several running launches
@@ -58,7 +58,7 @@ def _take_run(rest: list[str], run: Path | None) -> tuple[Path | None, list[str]
         if arg == "--run":
             value = next(items, None)
             if value is None:
-                raise PalpaError("palpa run: --run needs a run directory or a run's name")
+                raise PalpaError("--run needs a run directory or a run's name")
             found.append(value)
         elif arg.startswith("--run="):
             found.append(arg.partition("=")[2])
@@ -67,5 +67,5 @@ def _take_run(rest: list[str], run: Path | None) -> tuple[Path | None, list[str]
     if run is not None:
         found.insert(0, str(run))
     if len(found) > 1:
-        raise PalpaError(f"palpa run: --run given {len(found)} times ({', '.join(found)}); give it once")
+        raise PalpaError(f"--run given {len(found)} times ({', '.join(found)}); give it once")
     return (Path(found[0]) if found else None), kept
