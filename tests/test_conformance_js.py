@@ -6,6 +6,7 @@ launch/talker_listener.yaml: subscribe, publish, latch, parameters, heartbeat. T
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 from pathlib import Path
@@ -14,6 +15,8 @@ from typing import Any
 import pytest
 
 from palpa.cli.main import main
+from palpa.current import announce, withdraw
+from palpa.net.address import BusAddress
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from tests.launching import launched, spin_until
 from tests.procs import REPO, ProcessGroup
@@ -101,3 +104,27 @@ def test_the_client_refuses_a_bad_command_line() -> None:
     assert done.returncode == 2 and "--deadline must be a positive number" in done.stderr
     done = subprocess.run([node_exe, str(CLIENT), "--bus", "udp://x"], capture_output=True, text=True, timeout=30)
     assert done.returncode == 2 and "expected ipc://PATH, tcp://HOST:PORT" in done.stderr
+
+
+def test_the_client_does_not_guess_among_several_running_launches(tmp_path: Path) -> None:
+    """As palpa's tools (palpa.current): two live launches' entries, no --bus: it names both and acts on neither."""
+    node_exe = _node_or_fail()
+    launches = tmp_path / "launches"
+    runs = [tmp_path / "runs" / name for name in ("a", "b")]
+    for run in runs:
+        run.mkdir(parents=True)
+    env = {k: v for k, v in os.environ.items() if k != "PALPA_BUS"}
+    env["PALPA_CURRENT"] = str(launches)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("PALPA_CURRENT", str(launches))
+        entries = [announce(BusAddress.parse(f"ipc://{tmp_path}/{run.name}/bus"), run) for run in runs]  # this pid
+    try:
+        done = subprocess.run([node_exe, str(CLIENT), "--deadline", "5"], capture_output=True, text=True,
+                              timeout=30, env=env, cwd=str(CLIENT.parent))
+    finally:
+        for entry in entries:
+            withdraw(entry)
+    assert done.returncode == 2, done
+    assert done.stderr.strip() == (f"client.mjs: 2 launches are running ({runs[0].resolve()}, {runs[1].resolve()}): "
+                                   "say which with --bus"), done.stderr
+    assert done.stdout == ""  # no bus line: it joined nothing

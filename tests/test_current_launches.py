@@ -78,3 +78,33 @@ def test_palpa_bus_in_the_environment_is_explicit_and_wins(runs: Path, monkeypat
     announce(B, runs / "b")
     monkeypatch.setenv("PALPA_BUS", str(B))
     assert find_bus() == (B, "$PALPA_BUS")
+
+
+@pytest.mark.parametrize("argv", [["run", "--run", "b", "nodes.demo:Talker", "-p", "rate_hz=2"],
+                                  ["run", "nodes.demo:Talker", "--run", "b", "-p", "rate_hz=2"],
+                                  ["run", "nodes.demo:Talker", "-p", "rate_hz=2", "--run=b"]])
+def test_palpa_run_takes_run_like_the_other_tools(runs: Path, monkeypatch: pytest.MonkeyPatch,
+                                                  capsys: pytest.CaptureFixture[str], argv: list[str]) -> None:
+    announce(A, runs / "a")
+    announce(B, runs / "b")
+    monkeypatch.setenv("PALPA_BUS", str(A))  # --run names the graph: it wins over the environment, as for the tools
+    started: list[list[str]] = []
+    monkeypatch.setattr("palpa.cli.run.run_node_code", lambda cls, rest, prog: started.append(list(rest)) or 0)
+    assert main(argv) == 0
+    assert started == [["--bus", str(B), "-p", "rate_hz=2"]]  # the node's parser never sees --run
+    assert capsys.readouterr().err.splitlines()[0] == f"palpa run: joining bus {B} (the launch in {runs / 'b'})"
+
+
+def test_palpa_run_refuses_run_with_bus_or_run_twice(runs: Path, monkeypatch: pytest.MonkeyPatch,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    started: list[list[str]] = []
+    monkeypatch.setattr("palpa.cli.run.run_node_code", lambda cls, rest, prog: started.append(list(rest)) or 0)
+    assert main(["run", "nodes.demo:Talker", "--run", "a", "--bus", str(B)]) == 1
+    assert capsys.readouterr().err == "palpa run: give --run or --bus, not both\n"  # one line, said once
+    assert main(["run", "--run", "a", "nodes.demo:Talker", "--run", "b"]) == 1
+    assert "--run given 2 times (a, b)" in capsys.readouterr().err
+    assert main(["run", "nodes.demo:Talker", "--run"]) == 1
+    assert "--run needs a run directory" in capsys.readouterr().err
+    assert main(["run", "nodes.demo:Talker", "--run", "c"]) == 1  # not a run: said, not the default bus
+    assert "--run c: no c/bus.address" in capsys.readouterr().err
+    assert started == []

@@ -42,6 +42,9 @@ def test_the_model_of_a_launch_file_has_its_edges_and_direct_topics(tmp_path: Pa
     assert ("fibre", "probe/heights") in g.publishes and ("estimator", "probe/heights") in g.subscribes
     assert ("scanner", "robot/pose") in g.publishes and ("fibre", "robot/pose") in g.subscribes
     assert ("map", "map/save") in g.serves and not g.direct
+    # the scanner registers its services itself (since its state machine): they are read from its class too
+    assert {s for n, s in g.serves if n == "scanner"} == {"scanner/probe_at", "scanner/pause", "scanner/resume",
+                                                         "scanner/abort"}
     launch = tmp_path / "direct.yaml"
     launch.write_text("nodes:\n"
                       "  - {name: talker, node: nodes.demo:Talker, transport: {direct: [chatter]}}\n"
@@ -55,6 +58,14 @@ def test_declared_services() -> None:
     from nodes.mapping.map_aggregator import MapAggregator
 
     assert declared_services(MapAggregator, "left") == {"serves": ["left/map/save"], "calls": []}
+    from nodes.scanner.adaptive_planner import AdaptivePlanner
+    from nodes.scanner.robot_scanner import RobotScanner
+
+    # probe_at's service is kept (self.control.probe = self.service(...)): found in an assignment too
+    assert declared_services(RobotScanner) == {
+        "serves": ["scanner/abort", "scanner/pause", "scanner/probe_at", "scanner/resume"], "calls": []}
+    assert declared_services(AdaptivePlanner, remap={"scanner/probe_at": "arm/probe_at"})["calls"] == [
+        "arm/probe_at"]
 
 
 def _beat(node: str, pub: dict[str, str], sub: dict[str, str], **kw: object) -> Heartbeat:

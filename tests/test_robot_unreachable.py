@@ -1,5 +1,6 @@
 """An unreachable robot (issue 39): the scanner on the ur_rtde driver with nothing listening at its host ends with
-one line naming the host, not a traceback."""
+one line naming the host, not a traceback; the same when the RTDE stream answers but the control interface's
+ports (dashboard, script) do not."""
 
 from __future__ import annotations
 
@@ -21,3 +22,18 @@ def test_an_unreachable_robot_is_one_line_naming_the_host(ipc_bus: BusAddress,
     assert code == 2, err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert f"cannot reach the UR controller at {nobody}" in err and err.startswith("nodes.scanner.robot_scanner:")
+
+
+@pytest.mark.parametrize("ports", [["--script-port", "30009"], ["--dashboard-port", "29998"]],
+                         ids=["script-port", "dashboard"])
+def test_a_robot_unreachable_at_the_control_interface_is_one_line_naming_the_host(
+        ipc_bus: BusAddress, capfd: pytest.CaptureFixture[str], ports: list[str]) -> None:
+    # the RTDE stream answers (the receive interface connects), but nothing listens where the control interface
+    # connects next (ur_rtde's fixed script or dashboard port): refused, and ur_rtde prints to fd 2 on the way
+    with UrEmulatorProcess.on_random_loopback(ports) as emu:
+        code = main(["run", "nodes.scanner.robot_scanner:RobotScanner", "-p", "driver=ur_rtde",
+                     "-p", f"robot_host={emu.host}", "-p", "autostart=false", "--bus", str(ipc_bus)])
+    err = capfd.readouterr().err
+    assert code == 2, err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert f"cannot reach the UR controller at {emu.host}" in err and err.startswith("nodes.scanner.robot_scanner:")

@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 
 import palpa
-from messages import ProbeAt, ProbeResult, StiffnessSample
+from messages import EStop, ProbeAt, ProbeResult, StiffnessSample
 from nodes.drivers.robot import MotionStatus
 from nodes.scanner.robot_scanner import RobotScanner
 from palpa.node.params_runtime import PARAMS_TOPIC, ParamSet, ParamValues, param_service
@@ -116,3 +116,49 @@ def test_a_refusal_of_a_later_segment_of_the_probe_ends_it_too() -> None:
     with pytest.raises(RequestRefused, match="driver refused the probe's path: move_path: waypoint 0"):
         fut.result()
     assert len(sent) == 2 and g.published("robot/scan_status")[-1].state == "idle" and not scanner.is_shutdown
+
+
+def finished_scan() -> tuple[GraphHarness, RobotScanner, palpa.Node]:
+    """A small raster scanned to the end: the scanner is ``done`` and lingers (2 s) before it exits 0."""
+    g = GraphHarness()
+    scanner = g.add(RobotScanner, {"region_mm": [10, 10, 20, 20], "spacing_mm": 5, "speed_mm_s": 20,
+                                   "home_mm": [10, 10, 20], "watch_topic": "", "linger_s": 2.0}, name="scanner")
+    op = g.add(palpa.Node, name="operator")
+    for _ in range(2000):
+        g.advance(0.05)
+        if g.published("robot/scan_status")[-1].state == "done":
+            break
+    assert g.published("robot/scan_status")[-1].state == "done" and not scanner.is_shutdown
+    return g, scanner, op
+
+
+def test_a_finished_scan_refuses_a_probe_saying_why_and_exits_as_it_would_have() -> None:
+    """A probe asked for during the linger was accepted, and the node exited mid-probe (the arm left on its way)."""
+    g, scanner, op = finished_scan()
+    before = scanner.driver.state().pose[:3]
+    fut = probe(g, op, 15.0, 15.0)
+    with pytest.raises(RequestRefused, match=r"the scanner has ended \(done\) and exits after linger_s: a probe "
+                                             "would be cut off mid-path"):
+        fut.result()
+    g.advance(0.5)
+    assert g.published("robot/scan_status")[-1].state == "done" and scanner.driver.state().pose[:3] == before
+    g.advance(2.0)
+    assert scanner.is_shutdown and scanner.exit_code == 0
+
+
+def test_an_estop_while_done_is_acknowledged_and_latched() -> None:
+    """It was ignored: the status stayed ``done`` and the node exited 0 as if nothing had been pressed."""
+    g, scanner, op = finished_scan()
+    stops: list[float] = []
+    stop = scanner.driver.stop
+    scanner.driver.stop = lambda decel: (stops.append(decel), stop(decel))[1]  # type: ignore[method-assign]
+    g.advance(1.0)  # half the linger gone: the e-stop's exit code must replace the scan's on the first timer
+    g.publish("robot/estop", EStop(stamp_ns=g.clock.now_ns(), engaged=True, reason="operator"))
+    g.advance(0.05)
+    st = g.published("robot/scan_status")[-1]
+    assert st.state == "estop" and st.message == "e-stop: operator" and stops
+    g.publish("robot/estop", EStop(stamp_ns=g.clock.now_ns(), engaged=False))
+    g.advance(0.05)
+    assert g.published("robot/scan_status")[-1].state == "estop"  # latched: a release does not undo it
+    g.advance(3.0)
+    assert scanner.is_shutdown and scanner.exit_code == 2

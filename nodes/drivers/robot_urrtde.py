@@ -56,6 +56,17 @@ _ARRIVED_MM = 0.01
 sent (move_path)."""
 _WATCHDOG_LATENCY_S = 0.05
 """The least slack granted between a kick's sending and its arrival when telling a watchdog stop (_stop_cause)."""
+_UNREACHABLE = ("connection refused", "timeout connecting", "timed out", "no route to host", "network is unreachable",
+                "connection reset", "host is unreachable")
+"""ur_rtde's words (its RuntimeError, or what it printed) for a controller that does not answer on a port: all it
+raises is RuntimeError, so only the text tells an unreachable robot from a refused script."""
+
+
+def _unreachable(host: str, ports: str, why: str, said: list[str]) -> RobotConnectionError:
+    """The one-line error of a robot that does not answer at ``host`` on ``ports``, with ur_rtde's own words."""
+    why = why + (f" ({said[0]})" if said and said[0] else "")
+    return RobotConnectionError(f"cannot reach the UR controller at {host} ({ports}): {why}. "
+                                "Check the network, the robot's IP and that it is powered on.")
 
 
 def _vec6(values: Sequence[float]) -> Vec6:
@@ -121,19 +132,21 @@ class URRtdeDriver:
                 with native_stderr() as said:  # ur_rtde prints 'connect: Connection refused': into the one line
                     self._rr = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz, _RECEIVE_FIELDS)
             except RuntimeError as e:
-                why = f"{e}" + (f" ({said[0]})" if said and said[0] else "")
-                raise RobotConnectionError(f"cannot reach the UR controller at {self.host} (RTDE port 30004): {why}. "
-                                           "Check the network, the robot's IP and that it is powered on.") from e
+                raise _unreachable(self.host, "RTDE port 30004", str(e), said) from e
             if self._rr.isProtectiveStopped():
                 self._teardown_locked()
                 raise RobotConnectionError(
                     f"the UR at {self.host} is in a protective stop: find the cause, unlock it on the teach pendant "
                     "(or dashboard 'unlock protective stop'), then connect again")
             try:
-                self._rc = rtde_control.RTDEControlInterface(self.host, self.frequency_hz)
+                with native_stderr() as said:
+                    self._rc = rtde_control.RTDEControlInterface(self.host, self.frequency_hz)
             except RuntimeError as e:
                 self._teardown_locked()
                 text = str(e)
+                if any(word in f"{text} {said[0] if said else ''}".lower() for word in _UNREACHABLE):
+                    raise _unreachable(self.host, "control interface: RTDE 30004, dashboard 29999, script 30003",
+                                       text, said) from e
                 if "remote control" in text.lower():
                     raise RobotConnectionError(
                         f"the UR at {self.host} refuses remote control ({text}): on the teach pendant enable "

@@ -81,6 +81,8 @@ class RobotScanner(palpa.Node):
         self.status_pub = self.publisher("robot/scan_status", ScanStatus, latched=True)
         self.machine = ScanStateMachine()  # every change of state goes through its table (nodes.scanner.states)
         self.message = ""
+        self.end_code = 0
+        """The exit code of the latest end (finish)."""
         self.last_probe_ns: int | None = None
         self.last_pressure_ns: int | None = None
         self.segments: list[tuple[int, int]] = []
@@ -247,7 +249,10 @@ class RobotScanner(palpa.Node):
             self.finish(1 if to is State.FAULT else 2)
 
     def finish(self, code: int) -> None:
-        self.timer(self.params.linger_s, lambda: self.request_shutdown(code), oneshot=True)
+        """End the node after ``linger_s`` with exit ``code``; a later end (an e-stop while done) replaces the code,
+        so the first linger's exit reports it."""
+        self.end_code = code
+        self.timer(self.params.linger_s, lambda: self.request_shutdown(self.end_code), oneshot=True)
 
     def run_path(self, plan: RasterPlan, event: Event) -> None:
         """Drive ``plan`` (already checked) from where the arm is, by ``event`` (SCAN, PROBE)."""

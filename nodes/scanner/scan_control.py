@@ -34,7 +34,7 @@ from models.raster import RasterPlan, Waypoint, indent_raster, sweep_raster
 from nodes.drivers.robot import RobotDriver
 from nodes.scanner.scanner_params import ScannerParams
 from nodes.scanner.specimen import SpecimenPlanner
-from nodes.scanner.states import Event, State
+from nodes.scanner.states import FINAL, Event, State
 from palpa.node.service import RequestRefused, Responder, Service
 
 __all__ = ["ControlledScanner", "ScanControl", "ScannerCore", "lift_first", "measuring_moves"]
@@ -112,6 +112,9 @@ class ScanControl:
         last = node.last_probe_ns
         if node.status is State.WAITING and p.watch_topic and last is None:
             raise RequestRefused(f"no fresh probe data on {p.watch_topic}: is the probe's reader running?")
+        if node.status in FINAL:
+            raise RequestRefused(f"the scanner has ended ({node.status.wire}) and exits after linger_s: a probe would "
+                                 "be cut off mid-path; probes are served by a scanner started with autostart: false")
         if not node.can(Event.PROBE) or self.probe is None:
             raise RequestRefused(f"the scanner is {node.status.wire}, not idle (abort first, or wait)")
         if p.watch_topic and last is None:

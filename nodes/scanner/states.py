@@ -131,9 +131,9 @@ TRANSITIONS: Final[tuple[tuple[State, Event, State], ...]] = (
     (S.PROBE_PAUSED, E.FAULT, S.FAULT),
     (S.PROBE_PAUSED, E.ESTOP, S.ESTOP),
 
-    # done: the node lingers, then exits 0; a probe requested meanwhile is served (as it always was)
-    (S.DONE, E.PROBE, S.PROBING),
-    # stopped and fault: the node exits; an e-stop meanwhile still says so
+    # done, stopped and fault: the node lingers, then exits. No probe starts meanwhile (the exit would cut it off
+    # mid-path: scanner/probe_at refuses it, saying why); an e-stop is always acknowledged and latched (exit 2)
+    (S.DONE, E.ESTOP, S.ESTOP),
     (S.STOPPED, E.ESTOP, S.ESTOP),
     (S.FAULT, E.ESTOP, S.ESTOP),
 )

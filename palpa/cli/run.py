@@ -5,9 +5,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from pathlib import Path
 
 from palpa import env as palpa_env
 from palpa.current import find_bus
+from palpa.errors import PalpaError
 from palpa.node.runner import node_arg_parser, run_node_code
 from palpa.targets import load_node_class
 
@@ -19,8 +21,11 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Run a palpa node class as a process. MODULE is imported as `python -m` would: from the "
                     "working directory first, then PYTHONPATH. Without --bus or $PALPA_BUS the node joins the "
-                    "running launch's bus (else the default bus; with several launches running, give --bus).",
+                    "running launch's bus (else the default bus; with several launches running, give --run or --bus).",
         epilog=f"node options (after MODULE:CLASS; `palpa run MODULE:CLASS --help` adds its parameters):{options}")
+    p.add_argument("--run", type=Path, metavar="RUN",
+                   help="join the bus of the launch running in this run directory (e.g. runs/latest), or of the "
+                        "running launch whose run directory has this name (also accepted after MODULE:CLASS)")
     p.add_argument("target", metavar="MODULE:CLASS", help="e.g. nodes.demo:Talker, or shouter:Shouter in its folder")
     p.add_argument("rest", nargs=argparse.REMAINDER, help="node options")
     p.set_defaults(func=run)
@@ -31,10 +36,36 @@ def run(args: argparse.Namespace) -> int:
     if cwd not in sys.path and "" not in sys.path:
         sys.path.insert(0, cwd)  # as `python -m` does: a node's own folder is importable
     cls = load_node_class(args.target)  # a TargetError is a PalpaError: the CLI prints it as one line
-    rest = list(args.rest)
-    named = any(a == "--bus" or a.startswith("--bus=") for a in rest) or palpa_env.get(palpa_env.BUS)
+    run_dir, rest = _take_run(list(args.rest), args.run)
+    bus_named = any(a == "--bus" or a.startswith("--bus=") for a in rest)
+    if bus_named and run_dir is not None:
+        raise PalpaError("give --run or --bus, not both")
+    named = bus_named or (run_dir is None and palpa_env.get(palpa_env.BUS))
     if not named and not {"-h", "--help"} & set(rest):  # a launched node has $PALPA_BUS: nothing to choose or say
-        address, source = find_bus()  # refuses to guess among several running launches
+        address, source = find_bus(run=run_dir)  # refuses to guess among several running launches
         print(f"palpa run: joining bus {address} ({source})", file=sys.stderr)
         rest = ["--bus", str(address), *rest]
     return run_node_code(cls, rest, prog=args.target)
+
+
+def _take_run(rest: list[str], run: Path | None) -> tuple[Path | None, list[str]]:
+    """``--run RUN`` (or ``--run=RUN``) taken out of the node options, where the other tools' habit puts it after
+    MODULE:CLASS; the node's own parser does not know it. Given twice (before and after), refused."""
+    kept: list[str] = []
+    found: list[str] = []
+    items = iter(rest)
+    for arg in items:
+        if arg == "--run":
+            value = next(items, None)
+            if value is None:
+                raise PalpaError("--run needs a run directory or a run's name")
+            found.append(value)
+        elif arg.startswith("--run="):
+            found.append(arg.partition("=")[2])
+        else:
+            kept.append(arg)
+    if run is not None:
+        found.insert(0, str(run))
+    if len(found) > 1:
+        raise PalpaError(f"--run given {len(found)} times ({', '.join(found)}); give it once")
+    return (Path(found[0]) if found else None), kept
