@@ -172,3 +172,18 @@ def test_edit_errors_say_what_is_wrong_and_write_nothing(tmp_path: Path, capsys:
     damaged.write_bytes(src.read_bytes()[: src.stat().st_size // 2])
     assert main(["bag", "filter", str(damaged), "--topics", "chatter", "-o", str(tmp_path / "o.mcap")]) == 1
     assert "bag recover" in capsys.readouterr().err and not (tmp_path / "o.mcap").exists()
+
+
+def test_a_recording_cut_anywhere_is_refused_with_a_message_not_a_traceback(tmp_path: Path,
+                                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """A damaged input (a recorder killed mid-write) is refused wherever it was cut: within a record's length field
+    too, which the official reader reports as a bare struct.error (seen as a flaky half-file cut above)."""
+    (src,) = _record(tmp_path / "a.mcap", count=2)
+    data = src.read_bytes()
+    out = tmp_path / "o.mcap"
+    for cut in range(8, len(data), max(1, len(data) // 60)):
+        damaged = tmp_path / "d.mcap"
+        damaged.write_bytes(data[:cut])
+        assert main(["bag", "filter", str(damaged), "--topics", "chatter", "-o", str(out)]) == 1, cut
+        assert "palpa bag recover" in capsys.readouterr().err or not out.exists(), cut
+        assert not out.exists(), cut

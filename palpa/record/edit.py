@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import heapq
 import os
+import struct
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -102,7 +103,7 @@ def _side_records(path: Path) -> tuple[list[Attachment], list[Metadata]]:
                     attachments.append(rec)
                 elif isinstance(rec, Metadata):
                     metadata.append(rec)
-    except (OSError, McapError, ValueError, EOFError) as exc:
+    except (OSError, McapError, ValueError, EOFError, struct.error) as exc:  # struct: a record cut mid-length
         raise BagError(f"{path}: cannot read ({type(exc).__name__}: {exc}); a file whose recorder was killed "
                        f"needs `palpa bag recover {path}` first") from None
     return attachments, metadata
