@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from hard_spot import HardSpots
 
 from messages import StiffnessSample
@@ -48,6 +49,7 @@ def _recorder_finds_schema(node_modules: str) -> str:
                           timeout=60).stdout.strip()
 
 
+@pytest.mark.system  # starts a process: make test-system
 def test_a_launched_recorder_finds_the_custom_type_with_no_setting() -> None:
     assert _recorder_finds_schema("nodes.demo,hard_spot") == "True"
     assert _recorder_finds_schema("") == "False"  # what the recorder had before: no schema for HardSpot
