@@ -215,8 +215,6 @@ class Composition:
         # clock does (palpa.simclock): the order of nodes in the composition then does not matter
         for node in ready:
             node.run_timers()
-        for node in ready:
-            node.spin_once(0)
         self.settle()
         self._reap()
         return True
