@@ -193,7 +193,8 @@ class Phantom(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=T
         z = 0.5 * (z0 + z1) + half * _GL_NODES
         dens = (1.0 - z**3 / (z * z + cc * cc) ** 1.5) / (2.0 * cc)
         var = cc * cc / 4.0 + z * z
-        from scipy.special import chndtr  # here: scipy.special costs every importer ~0.1 s, few call this
+        # imported here: scipy.special costs every importer ~0.1 s, and few call this
+        from scipy.special import chndtr
 
         lateral = chndtr(radius**2 / var, 2.0, lat2 / var)
         integral = half[..., 0] * np.sum(_GL_WEIGHTS * dens * lateral, axis=-1)
