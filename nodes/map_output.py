@@ -36,6 +36,8 @@ from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, to_inclusion
 __all__ = ["PngHelper", "write_outputs"]
 
 log = logging.getLogger(__name__)
+_REPO = Path(__file__).resolve().parents[len(__name__.split(".")) - 1]
+"""Where ``python -m`` finds this module (the helper runs it by its own name, wherever it lives)."""
 _HELPER_TIMEOUT_S = 60.0
 """Wall seconds the helper may take to draw (it is then killed, and the picture drawn here)."""
 
@@ -47,13 +49,13 @@ def _atomic_write(path: Path, data: bytes) -> None:
 
 
 class PngHelper:
-    """A process that has imported matplotlib and waits to draw one ``map.png`` (``python -m nodes.map_output``
+    """A process that has imported matplotlib and waits to draw one ``map.png`` (this module run with ``python -m``,
     reading one JSON request on stdin). Started at once; :meth:`close` ends it if it was not used."""
 
     def __init__(self) -> None:
         self._proc: subprocess.Popen[str] | None = subprocess.Popen(
-            [sys.executable, "-m", "nodes.map_output"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-            cwd=Path(__file__).resolve().parent.parent)
+            [sys.executable, "-m", __name__], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+            cwd=_REPO)
 
     def render(self, npz: Path, png: Path, inclusions: Sequence[Inclusion], *, unit: str, title: str,
                resolution_mm: float) -> bool:
