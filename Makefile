@@ -5,7 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint typecheck bench clean lock
+.PHONY: demo test test-system lint typecheck bench clean lock conformance-js
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
@@ -28,22 +28,35 @@ lock:
 # (as on the bench), scan with that calibration, then score the map against the phantom's truth
 demo: $(STAMP)
 	@run=runs/demo-$$(date +%Y%m%d-%H%M%S); mkdir -p $$run && \
-	$(BIN)/python -m nodes.calibrate_airfloat -o $$run/calibration.yaml && \
+	$(BIN)/python -m tools.calibrate_airfloat -o $$run/calibration.yaml && \
 	$(BIN)/palpa launch launch/scan_sim.yaml --run-dir $$run calibration:=$$run/calibration.yaml $(DEMO_ARGS) && \
-	$(BIN)/python -m nodes.scan_report $$run --phantom phantoms/airfloat_tumours.yaml
+	$(BIN)/python -m tools.scan_report $$run --phantom phantoms/airfloat_tumours.yaml
 
-# three workers (pytest-xdist): the process tests spend much of their time waiting on wall-clock motion. The UR
-# emulator's tests (xdist_group "ur-emulator") run one at a time on one worker (--dist loadgroup; pytest < 9.2, see
-# pyproject.toml): they move in real time and starve each other under load. 2.7 min on two idle cores in session 13,
-# 3.5-4 min on the same machine slower since; 5.3 min with both cores kept busy by two other CPU-bound processes
-# (BENCHMARKS.md, "The test suite"). `make test TEST_JOBS=0`
-# runs serially.
-TEST_JOBS ?= 3
+# Two tiers (tests/conftest.py): `make test` is the in-process tier (pure, harness, composition): no process, socket,
+# pty or namespace (a guard stops an unmarked test that reaches for one), nothing that waits on the wall clock, so a
+# busy machine slows it but cannot fail it. `make test-system` runs the tests marked `system`: processes, sockets,
+# ur_rtde and its emulator, ptys, network namespaces. There the UR emulator's tests (xdist_group "ur-emulator") run
+# one at a time on one worker (--dist loadgroup; pytest < 9.2, see pyproject.toml): they move in real time.
+# TEST_JOBS=0 runs serially.
+TEST_JOBS ?= 2
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n $(TEST_JOBS) --dist loadgroup
+	$(BIN)/python -m pytest -q -n $(TEST_JOBS) -m "not system"
+
+SYSTEM_JOBS ?= 3
+test-system: $(STAMP) conformance-js
+	$(BIN)/python -m pytest -q -n $(SYSTEM_JOBS) --dist loadgroup -m system
+
+# the Node.js conformance client (conformance/js, tests/test_conformance_js.py): its packages from the npm registry at
+# the versions of its package-lock.json. --ignore-scripts: zeromq's install script would build or download a binary;
+# zeromq 6 ships its prebuilt addon (linux/darwin/win32, glibc and musl) inside the npm package itself
+JS_CLIENT := conformance/js
+$(JS_CLIENT)/node_modules/.installed: $(JS_CLIENT)/package.json $(JS_CLIENT)/package-lock.json
+	cd $(JS_CLIENT) && npm ci --ignore-scripts --no-audit --no-fund
+	touch $@
+conformance-js: $(JS_CLIENT)/node_modules/.installed
 
 lint: $(STAMP)
-	$(BIN)/ruff check palpa messages devices models nodes emulators tests
+	$(BIN)/ruff check palpa messages devices models nodes emulators tools tests
 	$(BIN)/mypy
 
 typecheck: $(STAMP)
@@ -56,4 +69,4 @@ bench: $(STAMP)
 	$(BIN)/python bench/record.py
 
 clean:
-	rm -rf $(VENV) $(LOCK_VENV) runs out .pytest_cache .mypy_cache
+	rm -rf $(VENV) $(LOCK_VENV) runs out .pytest_cache .mypy_cache $(JS_CLIENT)/node_modules

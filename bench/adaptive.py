@@ -1,10 +1,12 @@
-"""Raster against adaptive palpation (issue 20), through the batch runner's pieces (nodes.evaluate).
+"""Raster against adaptive palpation (issue 20), through the batch runner's pieces (tools.evaluate).
 
-    .venv/bin/python bench/adaptive.py -o runs/bench_adaptive --generate 20 --jobs 2
+    .venv/bin/python bench/adaptive.py -o runs/bench_adaptive --generate 20 --workers 2
 
 Runs ``launch/scan_sim.yaml`` (the 3 mm sweep raster) and ``launch/scan_adaptive_sim.yaml`` (the GP planner) on the
 shipped phantom and N generated ones (``models.phantom_gen`` seeds 0..N-1), each ``palpa launch --in-process`` in
-its own run directory (a run whose ``map/inclusions.json`` exists is not run again: ``--rerun`` to force), scores
+its own run directory, all of them one sweep of the batch runner's engine (``tools.evaluate.run_tasks``,
+``tools.sweep``: a local Dask cluster, ``--workers`` processes, or ``--scheduler tcp://HOST:8786``; a run whose
+result is kept under ``OUT/results`` with the same content key is not run again: ``--rerun`` to force), scores
 every map with ``models.scoring`` against its phantom, and compares per phantom:
 
 * probes: the adaptive planner's probes (``planner.json``) against the raster's *probe equivalents*, its swept
@@ -50,7 +52,6 @@ import json
 import math
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -63,7 +64,16 @@ sys.path.insert(0, str(REPO))
 from models.phantom import load_phantom  # noqa: E402
 from models.phantom_gen import PhantomRanges, random_phantom  # noqa: E402
 from models.scoring import redraw_misses  # noqa: E402
-from nodes.evaluate import RunSpec, launch_one, plan_runs, score_run  # noqa: E402
+from tools.evaluate import (  # noqa: E402
+    RunJob,
+    RunSpec,
+    add_cluster_args,
+    cluster_of,
+    launch_one,
+    plan_runs,
+    run_tasks,
+    score_run,
+)
 from yamlstruct import Source  # noqa: E402
 
 RASTER = REPO / "launch" / "scan_sim.yaml"
@@ -143,8 +153,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--generate", type=int, default=20)
     ap.add_argument("--first-seed", type=int, default=0, help="seed of the first generated phantom (a set to tune "
                     "settings on must not be the set they are judged on)")
-    ap.add_argument("--jobs", type=int, default=2)
-    ap.add_argument("--rerun", action="store_true", help="run again even where a run's outputs exist")
+    add_cluster_args(ap)
+    ap.add_argument("--rerun", action="store_true", help="run again even the runs with a result under OUT/results")
     ap.add_argument("--adaptive-arg", action="append", default=[], metavar="NAME=VALUE",
                     help="an arg of the adaptive launch file (repeatable), e.g. epsilon=0.2")
     ap.add_argument("--no-run", action="store_true", help="only score and compare the runs already made")
@@ -161,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     opts = ap.parse_args(argv)
     if opts.noise_seeds < 1:
         ap.error(f"--noise-seeds: at least 1 draw, got {opts.noise_seeds}")
-    out: Path = opts.out
+    out: Path = opts.out.resolve()  # a worker's working directory is its own
     (out / "phantoms").mkdir(parents=True, exist_ok=True)
     phantoms = [REPO / "phantoms" / "airfloat_tumours.yaml"]
     for seed in range(opts.first_seed, opts.first_seed + opts.generate):
@@ -176,16 +186,15 @@ def main(argv: list[str] | None = None) -> int:
         name, _, value = item.partition("=")
         for s in specs["adaptive"]:
             s.overrides[name] = Source.from_text(value, f"--adaptive-arg {name}").data
-    # phantom by phantom, both methods: a bench cut short still compares what it ran
-    todo = [(launch, s) for pair in zip(specs["raster"], specs["adaptive"], strict=True)
+    # phantom by phantom, both methods: a bench cut short and run again runs only what it had not finished
+    jobs = [RunJob(launch, s, True, opts.timeout) for pair in zip(specs["raster"], specs["adaptive"], strict=True)
             for launch, s in zip((RASTER, ADAPTIVE), pair, strict=True)
-            if not opts.no_run and launch.stem in opts.only
-            and (opts.rerun or not (s.run_dir / "map" / "inclusions.json").exists())]
+            if not opts.no_run and launch.stem in opts.only]
     t0 = time.monotonic()
-    with ThreadPoolExecutor(max(1, opts.jobs)) as pool:
-        for (launch, spec), ran in zip(todo, pool.map(
-                lambda job: launch_one(job[0], job[1], in_process=True, timeout_s=opts.timeout), todo), strict=True):
-            print(f"{launch.stem} {spec.id}: exit {ran['exit_code']}, {ran['wall_s']:.0f} s", file=sys.stderr)
+    for job, rec in zip(jobs, run_tasks(jobs, out, cluster_of(opts), rerun=opts.rerun) if jobs else [],
+                        strict=True):
+        print(f"{job.launch.stem} {job.spec.id}: {rec['error'] or 'done'}, "
+              f"{rec['result'].get('row', {}).get('wall_s', math.nan):.0f} s", file=sys.stderr)
     wall = time.monotonic() - t0
     deterministic = _same_again(specs["adaptive"][0], opts.timeout) if opts.determinism else None
     same_as = _same_as(specs["adaptive"], opts.same_as) if opts.same_as else None
@@ -270,7 +279,7 @@ def main(argv: list[str] | None = None) -> int:
         return round(redraw_misses([v[method] for v in over.values() if v["runs"] == opts.noise_seeds],
                                    opts.noise_seeds), 1)
 
-    print(f"{len(rows)} runs scored, runs took {wall:.0f} s wall ({len(todo)} launches)")
+    print(f"{len(rows)} runs scored, the sweep took {wall:.0f} s wall ({len(jobs)} launches in it)")
     print(json.dumps({"probe_ratio": pooled("probes_adaptive", complete),
                       "probe_ratio_all": pooled("probes_adaptive", rows),
                       "probe_ratio_localise": pooled("probes_to_localise", localised),

@@ -4,7 +4,7 @@ The paper tested each silicone sample (26.4 and 10.8 kPa, 20 mm) at four locatio
 and reports eq. 7 averages of 25 +- 5 kPa and 10 +- 4 kPa. Here the same protocol runs through the real nodes
 (regulator, fibre reader, estimator with ``ramp_fits``) in-process on a simulated clock, over the FE-grounded world
 with the simulated probe's drawn errors (``--device-seed``); each ramp has its own regulator seed. Before: eq. 4's
-paper line and no depth offset. After: the file written by ``nodes.calibrate_airfloat`` for the same probe.
+paper line and no depth offset. After: the file written by ``tools.calibrate_airfloat`` for the same probe.
 
     .venv/bin/python bench/airfloat_flat.py [--device-seed 0] [--calibration FILE]
 """
@@ -24,12 +24,12 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from messages import PressureCommand, StiffnessFit  # noqa: E402
-from nodes.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate  # noqa: E402
-from nodes.fibre_reader import FibreReader  # noqa: E402
-from nodes.pressure_controller import PressureController  # noqa: E402
-from nodes.static_pose import StaticPose  # noqa: E402
-from nodes.stiffness_estimator import AirfloatStiffnessEstimator  # noqa: E402
+from nodes.probe.fibre_reader import FibreReader  # noqa: E402
+from nodes.probe.pressure_controller import PressureController  # noqa: E402
+from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator  # noqa: E402
+from nodes.scanner.static_pose import StaticPose  # noqa: E402
 from palpa.testing import GraphHarness  # noqa: E402
+from tools.calibrate_airfloat import DEFAULT_REFERENCES, Reference, calibrate  # noqa: E402
 
 SAMPLES = [("flat_26k", 26.4, 42.5), ("flat_10k", 10.8, 35.6)]  # name, truth, ramp target (kPa): ~3 mm deep
 LOCATIONS = [(20.0, 20.0), (40.0, 20.0), (20.0, 40.0), (40.0, 40.0)]
@@ -56,7 +56,7 @@ def ramp_fit(sample: str, xy: tuple[float, float], target: float, device_seed: i
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device-seed", type=int, default=0)
-    ap.add_argument("--calibration", type=Path, help="default: calibrate now (nodes.calibrate_airfloat)")
+    ap.add_argument("--calibration", type=Path, help="default: calibrate now (tools.calibrate_airfloat)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     cal_path = args.calibration

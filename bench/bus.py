@@ -7,7 +7,7 @@ Each contender: a publisher process sends N 100-byte typed messages as fast as i
 decodes and counts them (losses = N - received). Then 1 kHz latency (publish stamp -> receive, p50/p99).
 palpa runs publisher -> proxy (`palpa bus`, its own process) -> subscriber, once unbatched and once with
 publisher-side batching, and publisher -> subscriber for a topic published direct (the bus only as the
-directory, palpa.direct); raw pyzmq runs PUB -> SUB direct with [topic, msgpack] frames; zenoh runs peer to peer
+directory, palpa.net.direct); raw pyzmq runs PUB -> SUB direct with [topic, msgpack] frames; zenoh runs peer to peer
 over loopback tcp with blocking congestion control. Latency also runs with busy-polling subscribers (raw pyzmq
 spinning on a non-blocking receive; palpa with ``busy_poll_us``) and a sleep loop alone (how late this machine
 wakes a thread, the floor under every blocking contender), and reports the CPU time the hypervisor took during
@@ -39,8 +39,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from machine import sleep_loop_lateness_ns, steal_ticks  # noqa: E402
 
 import palpa  # noqa: E402
-from palpa.address import BusAddress  # noqa: E402
-from palpa.transport import TransportOptions  # noqa: E402
+from palpa.net.address import BusAddress  # noqa: E402
+from palpa.net.transport import TransportOptions  # noqa: E402
 
 
 class Blob(palpa.Message, frozen=True, kw_only=True):

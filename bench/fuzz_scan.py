@@ -24,13 +24,13 @@ import msgpack
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from nodes.fibre_reader import FibreReader  # noqa: E402  (after the sys.path line)
-from nodes.map_aggregator import MapAggregator  # noqa: E402
-from nodes.pressure_controller import PressureController  # noqa: E402
-from nodes.robot_scanner import RobotScanner  # noqa: E402
-from nodes.stiffness_estimator import AirfloatStiffnessEstimator  # noqa: E402
+from nodes.mapping.map_aggregator import MapAggregator  # noqa: E402
+from nodes.probe.fibre_reader import FibreReader  # noqa: E402  (after the sys.path line)
+from nodes.probe.pressure_controller import PressureController  # noqa: E402
+from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator  # noqa: E402
+from nodes.scanner.robot_scanner import RobotScanner  # noqa: E402
+from palpa.net.wire import COUNTER_MAX, msgpack_array  # noqa: E402
 from palpa.testing import GraphHarness  # noqa: E402
-from palpa.wire import COUNTER_MAX, msgpack_array  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 PHANTOM = str(REPO / "phantoms" / "airfloat_tumours.yaml")

@@ -10,7 +10,7 @@ receive; both namespaces share this machine's clock; the first 10 % is warm-up).
 --rounds rounds; each reports its median throughput and the percentiles of all its latency samples pooled:
 
 * raw pyzmq PUB -> SUB, host 2 -> host 3, in plaintext and with CURVE (the SUB is the CURVE server);
-* palpa, a topic published direct (host 2 -> host 3, the publisher's own CURVE socket, palpa.direct);
+* palpa, a topic published direct (host 2 -> host 3, the publisher's own CURVE socket, palpa.net.direct);
 * palpa through the bus (host 2 -> host 1 -> host 3, two crossings of the link, CURVE on both).
 
 palpa has no plaintext contender: its bus refuses to listen beyond loopback without CURVE, and a node publishes
@@ -39,7 +39,7 @@ sys.path[:0] = [str(HERE), str(HERE.parent)]
 from bus import HWM, Blob, Counter, make_msg, pace  # noqa: E402
 
 import palpa  # noqa: E402
-from palpa.transport import TransportOptions  # noqa: E402
+from palpa.net.transport import TransportOptions  # noqa: E402
 
 PORT = 47000
 IDLE_S = 2.0
@@ -161,7 +161,7 @@ def summary(rounds: list[tuple[dict[str, Any], dict[str, Any]]]) -> dict[str, An
 
 
 def main_run(args: argparse.Namespace) -> None:
-    from palpa.keys import create_key_pair
+    from palpa.net.keys import create_key_pair
     from tests.netns import Hosts, why_no_netns
 
     why = why_no_netns()

@@ -35,11 +35,11 @@ import zmq
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from palpa.address import BusAddress  # noqa: E402
-from palpa.bus import Bus  # noqa: E402
-from palpa.node import Node  # noqa: E402
+from palpa.net.address import BusAddress  # noqa: E402
+from palpa.net.bus import Bus  # noqa: E402
+from palpa.net.wire import HeaderTemplate, decode_header, msgpack_array  # noqa: E402
+from palpa.node.node import Node  # noqa: E402
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat  # noqa: E402
-from palpa.wire import HeaderTemplate, decode_header, msgpack_array  # noqa: E402
 
 MAX_LAG_S = 0.1
 SMALL_RATES = [25_000, 50_000, 75_000, 100_000, 125_000, 150_000, 200_000]

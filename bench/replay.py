@@ -31,9 +31,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from machine import sleep_loop_lateness_ns, steal_ticks  # noqa: E402
 
 from messages import Text  # noqa: E402
-from palpa.address import BusAddress  # noqa: E402
-from palpa.bus import Bus  # noqa: E402
-from palpa.node import Node, RawMessage  # noqa: E402
+from palpa.net.address import BusAddress  # noqa: E402
+from palpa.net.bus import Bus  # noqa: E402
+from palpa.node.node import Node, RawMessage  # noqa: E402
 from palpa.record.testing import Rec, write_bag  # noqa: E402
 
 MS = 1_000_000

@@ -25,10 +25,10 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import palpa  # noqa: E402
-from palpa.address import BusAddress  # noqa: E402
-from palpa.bus import Bus  # noqa: E402
+from palpa.net.address import BusAddress  # noqa: E402
+from palpa.net.bus import Bus  # noqa: E402
+from palpa.net.transport import TransportOptions  # noqa: E402
 from palpa.testing import GraphHarness  # noqa: E402
-from palpa.transport import TransportOptions  # noqa: E402
 
 
 class Ping(palpa.Message, frozen=True, kw_only=True):

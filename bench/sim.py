@@ -29,7 +29,7 @@ from typing import Any
 
 from machine import steal_ticks
 
-from nodes.evaluate import scan_facts
+from tools.evaluate import scan_facts
 
 REPO = Path(__file__).resolve().parent.parent
 

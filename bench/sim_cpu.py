@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from nodes.evaluate import scan_facts
+from tools.evaluate import scan_facts
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -3,7 +3,7 @@
     nice python -m bench.table_i [--probes 7 11] [--poses all|flat] [--out table_i.json]
 
 For each simulated probe (``device_seed``: its springs, marker scales, friction and lens as built): calibrate it on
-the rigid flat and reference springs (nodes/camera_calibrate.py), then press every Table I spring sample once at
+the rigid flat and reference springs (tools/camera_calibrate.py), then press every Table I spring sample once at
 each inclination (pan, tilt) in POSES_DEG, 8 mm deep at 3 mm/s with a 1.5 s hold, in-process (GraphHarness), with
 the nominal probe constants (before) and with the calibration file (after). Per spring (inclinations pooled) and
 per press: mean K over the valid samples, sigma, RMSE and two accuracies:
@@ -25,11 +25,11 @@ import numpy as np
 import yaml
 
 from messages import StiffnessSample
-from nodes.camera_calibrate import REFERENCES, calibrate, press_reference
-from nodes.camera_tracker import CameraTracker
-from nodes.linear_stage import LinearStage
-from nodes.stiffness_estimator import MultiIndenterStiffnessEstimator
+from nodes.probe.camera_tracker import CameraTracker
+from nodes.probe.stiffness_estimator import MultiIndenterStiffnessEstimator
+from nodes.scanner.linear_stage import LinearStage
 from palpa.testing import GraphHarness
+from tools.camera_calibrate import REFERENCES, calibrate, press_reference
 
 SPRINGS = {0.29: "phantoms/springs_029.yaml", 0.37: "phantoms/springs_037.yaml",
            0.62: "phantoms/springs_062.yaml", 0.63: "phantoms/springs_063.yaml"}

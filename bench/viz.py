@@ -43,7 +43,7 @@ from foxglove_client import FoxgloveClient  # noqa: E402
 
 import messages  # noqa: E402, F401
 from messages import RobotPose, ScanStatus  # noqa: E402
-from palpa.node import Node  # noqa: E402
+from palpa.node.node import Node  # noqa: E402
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat  # noqa: E402
 
 QUICK = ["spacing_mm:=6.0", "region_mm:=[2.0, 2.0, 38.0, 38.0]"]

@@ -4,7 +4,7 @@ Every type is a frozen, keyword-only ``palpa.Message`` encoded as a msgpack map;
 by the name carried in the envelope header. Stamps (``stamp_ns``) are host wall-clock ns since the Unix epoch,
 taken when the measurement was made (not when it was published).
 
-``messages.foxglove`` mirrors Foxglove's own schemas (metres, not mm) for the live views (nodes/foxglove_views.py).
+``messages.foxglove`` mirrors Foxglove's own schemas (metres, not mm) for the live views (nodes/mapping/foxglove_views.py).
 
 Evolution policy: add fields only with defaults; never reuse, rename or retype a field; a new meaning gets a new
 type name. See docs/wire.md.

@@ -1,4 +1,4 @@
-"""Requests and responses of the graph's services (palpa.service): probe a point, control a scan, change the
+"""Requests and responses of the graph's services (palpa.node.service): probe a point, control a scan, change the
 pressure set-point, tare the fibre sensors, save the map."""
 
 from __future__ import annotations

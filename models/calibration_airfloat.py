@@ -104,7 +104,7 @@ def fit_references(line: ForceCalibration, ramps: list[ReferenceRamp], *, indent
     # absolute force residuals (N): near contact a few hundredths of a newton of hysteresis and regulator
     # wander would dominate relative ones
     # imported here: scipy.optimize costs every estimator and pressure process 0.3 s at start-up, and only the
-    # calibration fit (python -m nodes.calibrate_airfloat) needs it
+    # calibration fit (python -m tools.calibrate_airfloat) needs it
     from scipy.optimize import least_squares
 
     sol = least_squares(residual, x0=[0.0, 0.0], bounds=([-0.5, -0.2], [0.5, 0.2]))

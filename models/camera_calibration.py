@@ -1,6 +1,6 @@
 """Calibrating the camera probe from what a rig observes (issue 14, item 6): the fits and the file.
 
-The procedure (``nodes/camera_calibrate.py`` runs it; docs/camera.md "Calibration"): the linear
+The procedure (``tools/camera_calibrate.py`` runs it; docs/camera.md "Calibration"): the linear
 stage presses the probe, flat and slowly, into references and back out while the camera tracker
 publishes each marker's filtered image x. Observed: the stage's travel t (mm, from the pose), its
 direction of motion, each marker's pixel offset u = direction * (x - x_rest) from its zero
@@ -110,7 +110,7 @@ def _probe_calibration(src: Source) -> ProbeCalibration:
 
 
 def load_probe_calibration(path: str | Path) -> ProbeCalibration:
-    """Read a camera-probe calibration file (``nodes/camera_calibrate.py`` writes it).
+    """Read a camera-probe calibration file (``tools/camera_calibrate.py`` writes it).
 
     Raises:
         CalibrationError: ``file:line:col: what is wrong`` (unreadable, malformed, an unknown or missing key, a

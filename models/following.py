@@ -20,7 +20,7 @@ also kept ``min_sps`` clear of the highest point under the ring. A sample is not
 The indentation's working range (:func:`in_working_range`): the SPS ring floats clear of the face (each SPS above
 ``min_sps_mm``; at 0 the face itself rests on the tissue and eqs. 1-3 see the face, not the tissue's plane) and the
 indenter's extension h4 stays ``stroke_margin_mm`` inside its stroke (beyond it the indenter no longer reaches the
-depth the force would give). Pure functions; the scanner (nodes/robot_scanner.py) feeds them the probe's samples.
+depth the force would give). Pure functions; the scanner (nodes/scanner/robot_scanner.py) feeds them the probe's samples.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Scoring a scan's outputs against the phantom's truth (pure; used only outside the graph).
 
-The graph never sees the truth: tests, bench scripts, ``nodes.scan_report`` and the evaluation runner call
+The graph never sees the truth: tests, bench scripts, ``tools.scan_report`` and the evaluation runner call
 :func:`score_scan` after a run with the phantom, the detected inclusions (``inclusions.json`` records) and the map
 grid (``map.npz`` arrays).
 

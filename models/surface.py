@@ -9,7 +9,7 @@ The region comes from the specimen: by default its footprint (as someone measure
 (:func:`region_in_footprint`), or, given only a box to search, the extent of the points of a coarse grid
 (:func:`search_points`) where the touch-off found the specimen, less the margin (:func:`region_from_touches`); :func:`check_fits` refuses, before any motion, a region or a specimen height that the
 workspace box cannot hold, naming the box and the extent. Units mm, phantom frame (origin at a corner, z up, table
-at z = 0). Pure functions; the scanner (nodes/touchoff.py) supplies the measurements.
+at z = 0). Pure functions; the scanner (nodes/scanner/touchoff.py) supplies the measurements.
 """
 
 from __future__ import annotations

@@ -43,7 +43,7 @@ def phantom_from_param(path: str, node: str) -> Phantom:
 
 
 def load_probe_calibration(path: str, node: str) -> ProbeCalibration:
-    """Read a camera-probe calibration file (YAML, nodes/camera_calibrate.py writes it)."""
+    """Read a camera-probe calibration file (YAML, tools/camera_calibrate.py writes it)."""
     # imported here: it brings OpenCV (~0.1 s), which every node importing this module paid at start-up
     from models.camera_calibration import CalibrationError
     from models.camera_calibration import load_probe_calibration as read_probe_calibration

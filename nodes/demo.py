@@ -10,10 +10,11 @@ class Talker(palpa.Node):
     """Publishes ``Text`` on ``chatter`` at ``rate_hz``; stops by itself after ``count`` messages if set."""
 
     class Params(palpa.Params):
-        rate_hz: palpa.Positive = 10.0
-        text: str = "hello"
-        count: int = 0
-        """Stop (exit 0) after this many messages; 0 runs until stopped."""
+        rate_hz: palpa.RunTime[palpa.Positive] = 10.0
+        """Applied at once when changed at run time (on_params_changed re-times the timer)."""
+        text: palpa.RunTime[str] = "hello"
+        count: palpa.RunTime[int] = 0
+        """Stop (exit 0) after this many messages; 0 runs until stopped. Text and count are read at every tick."""
 
     params: Params  # typed: mypy checks every self.params.<name>
 

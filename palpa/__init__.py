@@ -5,24 +5,32 @@ Layering (imports point downwards only)::
     palpa.cli        command-line verbs (bus, topic, node, service, param, launch, record, play, bag)
     palpa.launch     launch files and the process supervisor
     palpa.record     MCAP recording and replay
-    palpa.node       the Node API: publishers, subscriptions, timers, parameters (its time and lockstep side in
-                     palpa.node_time; readiness, heartbeats and bus logging in palpa.presence)
-    palpa.service    services (request/reply over the bus; callers in palpa.service_client), run-time
-                     parameters on top of them (palpa.params_runtime)
-    palpa.transport  ZeroMQ (and, in palpa.testing, in-memory) transports
-    palpa.bus        the XSUB/XPUB proxy and latched-value cache
-    palpa.wire       the envelope; palpa.message the typed-message base and registry
+    palpa.node.node       the Node API: publishers, subscriptions, timers, parameters (its time and lockstep side in
+                     palpa.node.node_time; readiness, heartbeats and bus logging in palpa.node.presence)
+    palpa.node.service    services (request/reply over the bus; callers in palpa.node.service_client), run-time
+                     parameters on top of them (palpa.node.params_runtime)
+    palpa.net.transport  ZeroMQ (and, in palpa.testing, in-memory) transports
+    palpa.net.bus        the XSUB/XPUB proxy and latched-value cache
+    palpa.net.wire       the envelope; palpa.message the typed-message base and registry
 
 This package knows nothing about palpation: the domain lives in ``messages``, ``models`` and ``nodes``.
 """
 
-from palpa.address import BusAddress
-from palpa.clock import Clock, MockClock, SystemClock
 from palpa.errors import BusError, DecodeError, LaunchError, PalpaError, ParamError, RegistryError
 from palpa.message import Finite, Message, json_schema, lookup, registered
-from palpa.node import MsgInfo, Node, Publisher, RawMessage, Subscription, Timer
-from palpa.params import InputPath, NonNegative, Params, Positive, PositiveInt
-from palpa.runner import run_node
+from palpa.net.address import BusAddress
+from palpa.node.node import MsgInfo, Node, Publisher, RawMessage, Subscription, Timer
+from palpa.node.params import (
+    InputPath,
+    NonNegative,
+    Params,
+    Positive,
+    PositiveInt,
+    RunTime,
+    SafetyLimit,
+)
+from palpa.node.runner import run_node
+from palpa.timing.clock import Clock, MockClock, SystemClock
 
 __version__ = "0.1.0"
 
@@ -47,6 +55,8 @@ __all__ = [
     "MsgInfo",
     "RawMessage",
     "RegistryError",
+    "RunTime",
+    "SafetyLimit",
     "Subscription",
     "SystemClock",
     "Timer",

@@ -31,7 +31,7 @@ CURVE_SECRET = "PALPA_CURVE_SECRET"
 DIRECT_HOST = "PALPA_DIRECT_HOST"
 
 VARIABLES: dict[str, str] = {
-    BUS: "the bus address a node or tool joins (else the current launch's, else the default bus)",
+    BUS: "the bus address a node or tool joins (else the one running launch's, else the default bus)",
     RUN_DIR: "set by the launcher: the run directory (logs, recordings, the viz address)",
     NODE_NAME: "set by the launcher: the node's name in the launch file",
     PARAMS: "set by the launcher on `cmd:` entries: the parameters as a JSON object",
@@ -39,11 +39,11 @@ VARIABLES: dict[str, str] = {
     NAMESPACE: "set by the launcher on `cmd:` entries: the node's namespace",
     SIM_CLOCK: "1: follow simulated time on _palpa/clock (as --sim-clock)",
     SIM_CLOCK_TIMEOUT_S: "wall seconds without a clock tick after which a sim-clock node stops (0: never)",
-    TRANSPORT: "the node's transport options as one JSON object (palpa.options.TransportOptions; the launcher "
+    TRANSPORT: "the node's transport options as one JSON object (palpa.net.options.TransportOptions; the launcher "
                "sets it from `transport:`)",
     MESSAGES: "extra message modules, comma-separated (for tools, the recorder and viz)",
     NODE_MODULES: "set by the launcher on its recorder: the launched node classes' modules, comma-separated",
-    CURRENT: "the file naming the running launch (default: in the private runtime directory)",
+    CURRENT: "the directory of running launches the tools choose from (default: in the private runtime directory)",
     BUS_SERVER_KEY: "the CURVE server's public key (Z85 text or a .key file) of an encrypted bus",
     CURVE_SECRET: "the path to this client's .key_secret file on an encrypted bus",
     DIRECT_HOST: "the address this node's direct topics are served on when the bus is on another host (default: "

@@ -24,7 +24,7 @@ def tick_topic(node: str) -> str:
 
 
 class TopicCounters(msgspec.Struct, frozen=True, kw_only=True):
-    """Receive counters of one subscribed topic (see palpa.wire.TopicStats)."""
+    """Receive counters of one subscribed topic (see palpa.net.wire.TopicStats)."""
 
     received: int = 0
     gaps: int = 0
@@ -45,13 +45,16 @@ class Heartbeat(Message, frozen=True, kw_only=True):
     """Topic -> message type name ('*' for raw/prefix subscriptions)."""
     counters: dict[str, TopicCounters]
     sent: dict[str, int]
-    """Topic -> messages published so far."""
+    """Topic -> the ``seq`` of the last message published on it (this heartbeat's own included)."""
     uptime_s: float
     state: str = "running"
+    """``running``; ``leaving`` in the last heartbeat a node sends, as it closes."""
     direct: list[str] = []
-    """Published topics sent straight to their subscribers, past the proxy (palpa.direct)."""
+    """Published topics sent straight to their subscribers, past the proxy (palpa.net.direct)."""
     services: dict[str, str] = {}
-    """Service name -> 'Request -> Response' (palpa.service)."""
+    """Service name -> 'Request -> Response' (palpa.node.service)."""
+    wire: int = 1
+    """The wire protocol version the node speaks (palpa.net.wire.WIRE_VERSION; absent: 1, a node from before it)."""
 
 
 class LogRecord(Message, frozen=True, kw_only=True):
@@ -78,18 +81,18 @@ class ClockTick(Message, frozen=True, kw_only=True):
 class ClockAck(Message, frozen=True, kw_only=True):
     """A sim-clock node's report that it has handled everything up to ``sim_ns`` (topic ``_palpa/lockstep``).
 
-    With ``next_ns`` (>= 0) the report is an event-lockstep one (palpa.simclock): the node has run its timers due
+    With ``next_ns`` (>= 0) the report is an event-lockstep one (palpa.timing.simclock): the node has run its timers due
     at ``sim_ns`` and handled every message it counted in ``recv``; its next timer is due at ``next_ns`` (0: none).
     ``sent``/``recv`` count the messages it published / took in per topic since it started (runtime ``_palpa/``
     topics excepted), ``subs`` names what it subscribes to (a prefix ends in ``*``): the clock moves on only when
     every message sent at this time has been taken in by every subscriber. Without ``next_ns`` (-1, an older or
     hand-written client) the clock only stays within a small lead of ``sim_ns``. ``leaving``: the node's last ack,
     sent as it closes: it no longer holds simulated time back. ``probe``: the readiness probe that confirmed the
-    node's subscriptions through the bus (``<node>/<pid>.<incarnation>``, palpa.presence; empty on a bus without
+    node's subscriptions through the bus (``<node>/<pid>.<incarnation>``, palpa.node.presence; empty on a bus without
     one); the other participants must say they have ``heard`` it (``heard``: the probes this node's publisher socket
     heard since its previous ack) before the clock counts on them to reach it. ``direct``/``direct_at``: the topics it
-    publishes straight to their subscribers (palpa.direct) and the endpoint they leave from; ``reached``: the
-    direct endpoints that answered this node's direct probes since its previous ack (palpa.reach): the clock
+    publishes straight to their subscribers (palpa.net.direct) and the endpoint they leave from; ``reached``: the
+    direct endpoints that answered this node's direct probes since its previous ack (palpa.net.reach): the clock
     counts on a subscriber of a direct topic only once it has reached every participant publishing it."""
 
     node: str

@@ -16,11 +16,11 @@ from typing import Any, Generic, TypeVar
 
 import msgspec
 
-from palpa.clock import MockClock
 from palpa.message import Message, lookup
-from palpa.node import Node, Publisher, RawMessage
-from palpa.params import Params
-from palpa.transport import Delivery, SendFn
+from palpa.net.transport import Delivery, SendFn
+from palpa.node.node import Node, Publisher, RawMessage
+from palpa.node.params import Params
+from palpa.timing.clock import MockClock
 
 __all__ = ["GraphHarness", "MemoryBus", "MemoryTransport", "NodeHarness"]
 

@@ -54,7 +54,7 @@ def run_adaptive_on_ur_emulator(procs: ProcessGroup, run: Path, launch: str, hom
     assert plan["probes"] == probes and not plan["given_up"], f"{plan}\n{logs}"
     planner_log = (run / "planner.log").read_text() if (run / "planner.log").exists() else ""
     refusals = [line for line in planner_log.splitlines() if " refused" in line]
-    # late estimates refuse nothing: the scanner's answer waits for the estimator to catch up (nodes/scan_control.py);
+    # late estimates refuse nothing: the scanner's answer waits for the estimator to catch up (nodes/scanner/scan_control.py);
     # a starved camera can drop the frames of a press, so that none of its estimates there is valid: refused too; a
     # starved sensor or pressure controller stops the arm on the probe's path (the scanner's watchdog), and the
     # scanner stays up. Each must be retried and the point then answered

@@ -65,6 +65,18 @@ class Hosts:
             _ip("-n", self.bridge, "link", "set", outer, "master", "br0")
             _ip("-n", self.bridge, "link", "set", outer, "up")
 
+    def __enter__(self) -> Hosts:
+        """:meth:`up` (what it made is deleted again if it fails half-way)."""
+        try:
+            self.up()
+        except BaseException:
+            self.down()
+            raise
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.down()
+
     def addr(self, i: int) -> str:
         """Host i's address."""
         return f"{self.subnet}.{i}"

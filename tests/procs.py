@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from emulators.ur.process import UrEmulatorProcess
-from palpa.address import BusAddress
+from palpa.net.address import BusAddress
 
 T = TypeVar("T")
 REPO = Path(__file__).resolve().parent.parent

@@ -13,7 +13,7 @@ from tests.adaptive_ur import run_adaptive_on_ur_emulator
 from tests.procs import ProcessGroup
 
 # the UR emulator moves in real time: its tests run one at a time on one xdist worker (make test, --dist loadgroup)
-pytestmark = pytest.mark.xdist_group("ur-emulator")
+pytestmark = [pytest.mark.system, pytest.mark.xdist_group("ur-emulator")]
 
 CONTACT_Z = 5.0    # touchoff:=off: the probe face's height while sweeping (the phantom's top is 2-4 mm)
 REGION = (10.0, 12.0, 22.0, 24.0)   # around the 6 mm tumour at (15, 18)

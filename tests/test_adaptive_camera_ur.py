@@ -12,7 +12,7 @@ from tests.adaptive_ur import run_adaptive_on_ur_emulator
 from tests.procs import ProcessGroup
 
 # the UR emulator moves in real time: its tests run one at a time on one xdist worker (make test, --dist loadgroup)
-pytestmark = pytest.mark.xdist_group("ur-emulator")
+pytestmark = [pytest.mark.system, pytest.mark.xdist_group("ur-emulator")]
 
 SURFACE_Z = 10.0   # flat_26k_tumours is 10 mm thick (touchoff:=off: the rig's operator gives the surface height)
 DEPTH = 3.0

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from messages import RobotPose, ScanStatus, StiffnessMap
-from palpa.clock import MockClock
-from palpa.compose import Composition
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
-from palpa.node import Node
+from palpa.node.node import Node
+from palpa.timing.clock import MockClock
+from palpa.timing.compose import Composition
 from tests.procs import REPO
 
 # contact_z_mm is the flat height a probe would sweep at without a touch-off: far above the dome (3-4 mm thick here)
@@ -27,7 +27,7 @@ BOX_X_MAX = 46.0
 
 
 def _adaptive(tmp: Path) -> tuple[dict[str, Any], list[dict[str, float]], list[StiffnessMap], list[float]]:
-    from palpa.cli.run import load_node_class
+    from palpa.targets import load_node_class
 
     plan = compose_plan(load_launch(REPO / "launch" / "scan_adaptive_sim.yaml", parse_overrides(SMALL),
                                     run_dir=tmp))
@@ -53,6 +53,7 @@ def _adaptive(tmp: Path) -> tuple[dict[str, Any], list[dict[str, float]], list[S
             beliefs, probing_z)
 
 
+@pytest.mark.system
 def test_planner_probes_through_the_scanner_carries_on_after_refusals_and_is_deterministic(tmp_path: Path) -> None:
     """Requests outside the scanner's box are refused by the scanner (the planner never checks the box itself);
     the planner gives those points up and spends its budget on the rest; it publishes its belief after each
@@ -99,7 +100,7 @@ def test_the_planners_knobs_default_alike_in_the_model_the_node_and_the_launch_f
     from dataclasses import fields
 
     from models.adaptive import PlannerConfig
-    from nodes.adaptive_planner import AdaptivePlanner
+    from nodes.scanner.adaptive_planner import AdaptivePlanner
 
     model = PlannerConfig((0.0, 0.0, 40.0, 40.0))
     node = AdaptivePlanner.Params()
@@ -124,8 +125,8 @@ def test_a_probes_late_estimates_count_as_that_probes_not_the_next_ones(tmp_path
     one point, so the planner resolves it, then covers the rest blind."""
     import palpa
     from messages import ProbeAt, ProbeResult, StiffnessSample
-    from nodes.adaptive_planner import AdaptivePlanner
-    from palpa.service import Responder
+    from nodes.scanner.adaptive_planner import AdaptivePlanner
+    from palpa.node.service import Responder
     from palpa.testing import GraphHarness
 
     g = GraphHarness()
@@ -187,7 +188,7 @@ def test_where_two_probes_lines_overlap_a_sample_is_the_one_measuring_at_its_sta
     """An estimate on both the last sweep's line and the one in flight is the one in flight's only when measured
     after it was asked for (the resting probe's estimates of the last sweep arrive late)."""
     from messages import StiffnessSample
-    from nodes.adaptive_planner import AdaptivePlanner
+    from nodes.scanner.adaptive_planner import AdaptivePlanner
     from palpa.testing import NodeHarness
 
     h = NodeHarness(AdaptivePlanner, {"region_mm": [0.0, 0.0, 30.0, 30.0], "output_dir": str(tmp_path)})
@@ -210,7 +211,7 @@ def test_estimates_lost_on_the_way_or_none_at_all_make_the_planners_run_incomple
     sequence), or none reaching it at all, and its run cannot end clean, whatever it probed."""
     import msgspec
 
-    from nodes.adaptive_planner import AdaptivePlanner
+    from nodes.scanner.adaptive_planner import AdaptivePlanner
     from palpa.testing import NodeHarness
     from tests.test_map_aggregator import sample
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from messages import PressureCommand, ProbeHeights, RobotPose, StiffnessSample
-from nodes.fibre_reader import FibreReader
-from nodes.pressure_controller import PressureController
-from nodes.static_pose import StaticPose
-from nodes.stiffness_estimator import AirfloatStiffnessEstimator
+from nodes.probe.fibre_reader import FibreReader
+from nodes.probe.pressure_controller import PressureController
+from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator
+from nodes.scanner.static_pose import StaticPose
 from palpa.testing import GraphHarness, NodeHarness
 
 
@@ -66,7 +66,7 @@ def test_eq7_on_a_thin_layer_within_3_percent_of_the_fe_world(tmp_path) -> None:
                                                        ("phantoms/flat_10k.yaml", 10.8, 33.0)])
 def test_calibration_beats_the_devices_errors(phantom: str, truth: float, kpa: float, tmp_path) -> None:  # type: ignore[no-untyped-def]
     """The realistic simulated probe (device 0: its own force line, hysteresis, SPS gap, fibre errors) read with
-    the paper's eq. 4 line is far off on the Fig. 11 samples; calibrated on the bench (nodes.calibrate_airfloat:
+    the paper's eq. 4 line is far off on the Fig. 11 samples; calibrated on the bench (tools.calibrate_airfloat:
     force sensor + the two reference samples), it is within 10 % (held at one depth; BENCHMARKS.md has the
     Fig. 11 ramp protocol)."""
     from tests.conftest import airfloat_calibration
@@ -168,6 +168,7 @@ def test_fibre_sim_rate_and_no_contact_when_lifted() -> None:
     assert pose.params.z_mm == 40.0
 
 
+@pytest.mark.system
 def test_airfloat_sim_launch_estimates_10k_phantom(procs, tmp_path, calibration) -> None:  # type: ignore[no-untyped-def]
     """Issue 6 acceptance as processes: launch/airfloat_sim.yaml over the 10.8 kPa phantom, the simulated probe
     calibrated on the bench first (uncalibrated it reads about a third low: BENCHMARKS.md)."""

@@ -1,5 +1,6 @@
 """The layering rules that code review keeps forgetting, checked on the source: no import cycles between files of
-palpa/ or emulators/, no module reading another module's underscore names, emulators that import nothing from
+the product (nodes/ has one left: the scanner's, issue 38's scanner wing), no module reading or importing another
+module's underscore names, emulators that import nothing from
 nodes/ (an emulator tested against its driver's own codec proves nothing), and node classes whose ``params`` is
 typed as their own ``Params``."""
 
@@ -15,7 +16,7 @@ from typing import Any
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("palpa", "emulators", "yamlstruct")
+PACKAGES = ("palpa", "emulators", "yamlstruct", "models", "messages", "devices", "tools")
 ALLOWED_PRIVATE = {"argparse._SubParsersAction"}  # the stdlib's only name for a subparsers annotation
 
 
@@ -118,12 +119,24 @@ def foreign_private_access(packages: tuple[str, ...]) -> list[str]:
     return bad
 
 
-def test_no_import_cycles_in_palpa_or_emulators() -> None:
+def private_imports(packages: tuple[str, ...]) -> list[str]:
+    """``from m import _name``: a module taking another module's private name (``obj._x`` reads are the other check)."""
+    bad = []
+    for path in _modules(packages).values():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom):
+                bad += [f"{path.relative_to(ROOT)}:{node.lineno}: from {node.module} import {a.name}" for a in node.names
+                        if a.name.startswith("_") and not a.name.startswith("__")]
+    return bad
+
+
+def test_no_import_cycles_in_the_product() -> None:
     assert import_cycles(PACKAGES) == []
 
 
 def test_no_module_reads_another_modules_private_names() -> None:
     assert foreign_private_access(PACKAGES) == []
+    assert private_imports(PACKAGES + ("nodes",)) == []
 
 
 def test_emulators_import_nothing_from_nodes() -> None:
@@ -143,8 +156,8 @@ WORLD = ("models.world", "models.airfloat_device", "models.camera_world", "model
 # encodes with as the real one does (fibre_sim's world adds the sensor's gain and bow errors on top)
 ESTIMATORS = {"models.contact", "models.multi_indenter_solve", "models.stiffness_map", "models.calibration_airfloat",
               "models.camera_calibration", "models.tracker", "models.kalman",
-              "models.adaptive", "models.scoring", "nodes.stiffness_estimator", "nodes.estimator_multi",
-              "nodes.map_aggregator"}
+              "models.adaptive", "models.scoring", "nodes.probe.stiffness_estimator", "nodes.probe.estimator_multi",
+              "nodes.mapping.map_aggregator"}
 AIRFLOAT_GEOMETRY = {"DEFAULT_INDENTER_RADIUS_MM", "DEFAULT_SPS_RADIUS_MM", "heights_over_phantom"}
 
 
@@ -184,9 +197,11 @@ def test_the_checks_see_a_cycle_and_a_private_read(tmp_path: Path, monkeypatch: 
     (pkg / "a.py").write_text("from fakepkg import b\n")
     (pkg / "b.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from fakepkg.a import x\n"
                               "def f(node):\n    return node._depth\n")
+    (pkg / "c.py").write_text("from fakepkg.a import _secret\n")
     monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
     assert import_cycles(("fakepkg",)) == [["fakepkg.a", "fakepkg.b"]]
     assert foreign_private_access(("fakepkg",)) == ["fakepkg/b.py:5: node._depth"]
+    assert private_imports(("fakepkg",)) == ["fakepkg/c.py:1: from fakepkg.a import _secret"]
 
 
 def test_only_palpa_env_names_palpa_variables() -> None:
@@ -223,14 +238,14 @@ def test_yamlstruct_and_models_do_not_import_the_runtime() -> None:
 def untyped_params(classes: list[type[Any]]) -> list[str]:
     """The node classes whose ``params`` is not annotated as their own ``Params`` (mypy would then check no
     ``self.params.<name>``: the base class declares only :class:`palpa.Params`)."""
-    from palpa.node import Node
+    from palpa.node.node import Node
 
     return [f"{c.__module__}.{c.__qualname__}" for c in classes
             if c.Params is not Node.Params and typing.get_type_hints(c).get("params") is not c.Params]
 
 
 def _project_node_classes() -> list[type[Any]]:
-    from palpa.node import Node
+    from palpa.node.node import Node
 
     for name in _modules(("palpa", "nodes")):
         if not name.endswith("__main__"):
@@ -246,7 +261,7 @@ def _project_node_classes() -> list[type[Any]]:
 
 def test_every_node_class_types_its_params() -> None:
     classes = _project_node_classes()
-    assert {"nodes.stiffness_estimator.AirfloatStiffnessEstimator", "palpa.record.player.Player"} <= {
+    assert {"nodes.probe.stiffness_estimator.AirfloatStiffnessEstimator", "palpa.record.player.Player"} <= {
         f"{c.__module__}.{c.__qualname__}" for c in classes}
     assert untyped_params(classes) == []
 

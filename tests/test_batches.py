@@ -10,8 +10,8 @@ import pytest
 import palpa
 from messages import Text
 from nodes.demo import Listener
+from palpa.net.wire import Header, HeaderTemplate, msgpack_array, split_envelope
 from palpa.testing import GraphHarness, NodeHarness
-from palpa.wire import Header, HeaderTemplate, msgpack_array, split_envelope
 
 
 def batch(topic: bytes, items: list[tuple[str, int, str, object]]) -> list[bytes]:

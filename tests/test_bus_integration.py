@@ -17,9 +17,11 @@ import zmq
 
 import palpa
 from messages import Text
-from palpa.address import BusAddress
+from palpa.net.address import BusAddress
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from tests.procs import ProcessGroup, drain, palpa_cmd, short_ipc_base, wait_until
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 
 def heartbeats(node: palpa.Node) -> palpa.Subscription[Heartbeat]:
@@ -258,7 +260,7 @@ def test_curve_bus_rejects_unknown_clients(tmp_path, procs: ProcessGroup) -> Non
     clients = tmp_path / "clients"
     clients.mkdir()
     keys.mkdir()
-    from palpa.keys import create_key_pair
+    from palpa.net.keys import create_key_pair
 
     for who in ("server", "good", "evil"):
         create_key_pair(keys, who)  # secret keys 0600: palpa refuses to load one others can read
@@ -328,7 +330,9 @@ def test_bus_process_ready_line_and_clean_stop(procs: ProcessGroup) -> None:
 def test_cli_expected_failure_is_one_line(ipc_bus: BusAddress, procs: ProcessGroup, env_for, verb) -> None:  # type: ignore[no-untyped-def]
     p = procs.start(palpa_cmd(*verb), env=env_for(ipc_bus))
     assert p.wait(10) == 1
-    assert p.output().strip().splitlines() == ["palpa topic: nope: got 0 of 1 messages before the timeout"]
+    # the bus it addressed ($PALPA_BUS: not on the command line, so said first), then the one line of the failure
+    assert p.output().strip().splitlines() == [f"palpa topic: bus {ipc_bus} ($PALPA_BUS)",
+                                               "palpa topic: nope: got 0 of 1 messages before the timeout"]
 
 
 def test_topic_cli_tools(ipc_bus: BusAddress, procs: ProcessGroup, env_for) -> None:  # type: ignore[no-untyped-def]

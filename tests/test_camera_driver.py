@@ -24,7 +24,7 @@ from nodes.drivers.camera import (
     parse_device,
 )
 from nodes.drivers.camera_sim import SimCameraSource
-from palpa.clock import MockClock
+from palpa.timing.clock import MockClock
 from tests.procs import wait_until
 
 N_FRAMES = 40

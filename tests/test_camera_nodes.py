@@ -14,10 +14,10 @@ import pytest
 import palpa
 from messages import IndenterDisplacements, RobotPose, ScanStatus
 from models.camera_render import CameraModel, Renderer
-from nodes.camera_tracker import CameraTracker
-from nodes.linear_stage import LinearStage, StageProfile
-from nodes.static_pose import StaticPose
-from nodes.stiffness_estimator import MultiIndenterStiffnessEstimator
+from nodes.probe.camera_tracker import CameraTracker
+from nodes.probe.stiffness_estimator import MultiIndenterStiffnessEstimator
+from nodes.scanner.linear_stage import LinearStage, StageProfile
+from nodes.scanner.static_pose import StaticPose
 from palpa.testing import GraphHarness, NodeHarness
 from tests.procs import wait_until
 
@@ -203,7 +203,7 @@ def test_stage_node_waits_for_its_topic_then_presses_and_exits() -> None:
 
 # ------------------------------------------------------------------------------- acceptance: Table I, in-process
 
-CALIBRATION = str(Path(__file__).parent / "data" / "camera_probe6.yaml")  # python -m nodes.camera_calibrate
+CALIBRATION = str(Path(__file__).parent / "data" / "camera_probe6.yaml")  # python -m tools.camera_calibrate
 
 
 def table_row(k: float, values: np.ndarray) -> tuple[float, float, float, float]:

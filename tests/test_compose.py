@@ -12,14 +12,14 @@ import pytest
 
 from messages import Text
 from nodes.demo import Listener, Talker
-from palpa.clock import MockClock
-from palpa.compose import Composition
 from palpa.errors import LaunchError
 from palpa.launch import load_launch, parse_overrides
 from palpa.launch.compose import compose_plan
-from palpa.node import Node
+from palpa.net.transport import Delivery
+from palpa.node.node import Node
 from palpa.record.reader import iter_bag, resolve_bag_paths
-from palpa.transport import Delivery
+from palpa.timing.clock import MockClock
+from palpa.timing.compose import Composition
 from tests.procs import ProcessGroup
 from tests.test_launch_smoke import REPO, Smoke, smoke
 
@@ -83,7 +83,7 @@ def test_compose_plan_refuses_a_file_without_sim_clock_nodes(tmp_path: Path) -> 
 
 def _scan(tmp: Path) -> tuple[list[dict[str, float]], np.ndarray]:
     """The air-float scan of a small region, composed in memory (no bus)."""
-    from palpa.cli.run import load_node_class
+    from palpa.targets import load_node_class
 
     plan = compose_plan(load_launch(REPO / "launch" / "scan_sim.yaml", parse_overrides(SMALL), run_dir=tmp))
     comp = Composition(clock=MockClock(1_700_000_000_000_000_000), heartbeat_s=0)
@@ -95,6 +95,7 @@ def _scan(tmp: Path) -> tuple[list[dict[str, float]], np.ndarray]:
     return json.loads((out / "inclusions.json").read_text()), np.load(out / "map.npz")["stiffness"]
 
 
+@pytest.mark.system
 def test_the_same_seed_gives_the_same_map(tmp_path: Path) -> None:
     a, grid_a = _scan(tmp_path / "a")
     b, grid_b = _scan(tmp_path / "b")
@@ -102,6 +103,7 @@ def test_the_same_seed_gives_the_same_map(tmp_path: Path) -> None:
     assert np.array_equal(grid_a, grid_b, equal_nan=True)
 
 
+@pytest.mark.system
 def test_in_process_launch_is_seen_on_the_bus_by_outside_tools(procs: ProcessGroup, tmp_path: Path) -> None:
     """`palpa launch scan_sim.yaml --in-process`: a node of our own on the run's bus hears the composed graph's
     topics and heartbeats (what topic echo/hz and node list use); the scan ends by itself with exit 0."""
@@ -114,6 +116,7 @@ def test_in_process_launch_is_seen_on_the_bus_by_outside_tools(procs: ProcessGro
 
 
 @pytest.mark.timeout(400)
+@pytest.mark.system
 def test_in_process_and_multi_process_find_the_same_inclusions(procs: ProcessGroup, tmp_path: Path) -> None:
     """The same small scan composed and as one process per node: the same inclusions, within 0.05 mm (the event
     lockstep gives the processes the composition's timeline: same timer instants, every message handled at the

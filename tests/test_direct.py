@@ -1,4 +1,4 @@
-"""Direct topics (palpa.direct): published straight to subscribers, found through the bus's directory, never
+"""Direct topics (palpa.net.direct): published straight to subscribers, found through the bus's directory, never
 through the proxy; and the publisher-side subscriber check every topic has."""
 
 from __future__ import annotations
@@ -14,19 +14,21 @@ import zmq
 
 import palpa
 from messages import Text
-from palpa.address import BusAddress
-from palpa.direct import (
+from palpa.launch import load_launch
+from palpa.net.address import BusAddress
+from palpa.net.direct import (
     SubscriberSet,
     bind_candidates,
     directory_entry,
     directory_key,
     directory_value,
 )
-from palpa.endpoints import RawMessage
-from palpa.launch import load_launch
+from palpa.net.transport import TransportOptions, ZmqTransport
+from palpa.node.endpoints import RawMessage
 from palpa.testing import MemoryBus
-from palpa.transport import TransportOptions, ZmqTransport
 from tests.procs import ProcessGroup, palpa_cmd, wait_until
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 
 def _texts(n: int, start: int = 0) -> list[str]:
@@ -235,7 +237,7 @@ def test_direct_falls_back_to_the_bus_where_it_cannot_bind(ipc_bus: BusAddress,
     with palpa.Node(name="pub", bus=ipc_bus, heartbeat_s=0) as node:
         transport = _direct(node)
         transport._address = BusAddress.parse("tcp://10.1.2.3:7000")  # as if the bus were on another host
-        with caplog.at_level(logging.WARNING, logger="palpa.transport"):
+        with caplog.at_level(logging.WARNING, logger="palpa.net.transport"):
             pub = node.publisher("fast", Text, direct=True)
         assert pub._send == transport.send
         assert "fast goes through the bus, not direct" in caplog.text and "10.1.2.3" in caplog.text

@@ -14,13 +14,15 @@ import zmq.auth
 
 import palpa
 from messages import Text
-from palpa.address import BusAddress
-from palpa.bus import Bus, CurveServer
-from palpa.direct import CLIENT_KEYS_TOPIC
-from palpa.keys import create_key_pair
-from palpa.latch import LatchCache
-from palpa.transport import ZmqTransport
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus, CurveServer
+from palpa.net.direct import CLIENT_KEYS_TOPIC
+from palpa.net.keys import create_key_pair
+from palpa.net.latch import LatchCache
+from palpa.net.transport import ZmqTransport
 from tests.procs import wait_until
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 TCP = BusAddress("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*")
 
@@ -88,7 +90,7 @@ def test_a_direct_topic_on_a_curve_bus_is_encrypted_and_open_only_to_the_bus_s_c
         # a client the bus does not know, and one without CURVE, hear nothing from the direct socket
         server_key = direct.server_key
         assert server_key is not None
-        with caplog.at_level(logging.WARNING, logger="palpa.transport"):
+        with caplog.at_level(logging.WARNING, logger="palpa.net.transport"):
             strangers = [_raw_sub(keys, "other", server_key, direct.endpoint),
                          _raw_sub(keys, "other", None, direct.endpoint)]
             wait_until(lambda: "refused a subscriber with key" in caplog.text, 10, "the refusal to be logged",

@@ -22,13 +22,13 @@ from messages import (
     TriggerResult,
 )
 from models.phantom import load_phantom
-from nodes.fibre_reader import FibreReader
-from nodes.map_aggregator import MapAggregator
-from nodes.pressure_controller import PressureController
-from nodes.robot_scanner import RobotScanner
-from nodes.stiffness_estimator import AirfloatStiffnessEstimator
-from palpa.service import BadRequestError, RequestRefused
-from palpa.service_client import Future
+from nodes.mapping.map_aggregator import MapAggregator
+from nodes.probe.fibre_reader import FibreReader
+from nodes.probe.pressure_controller import PressureController
+from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator
+from nodes.scanner.robot_scanner import RobotScanner
+from palpa.node.service import BadRequestError, RequestRefused
+from palpa.node.service_client import Future
 from palpa.testing import GraphHarness, NodeHarness
 from tests.test_robot_scanner import SMALL, run_with_probe
 
@@ -293,6 +293,7 @@ def test_tare_and_save_map_now(tmp_path: Path) -> None:
     g.close()
 
 
+@pytest.mark.system
 def test_tare_over_the_serial_driver_zeroes_the_heights() -> None:
     """probe/tare on the real serial driver against the DAQ emulator ($ZERO): the current pose then reads the
     calibration's zero heights (0 mm), where it read 1.5/1.5/1.5/3.5 mm before."""

@@ -16,8 +16,8 @@ import pytest
 from messages import RobotPose, ScanStatus, StiffnessSample
 from models.phantom import load_phantom, parse_phantom
 from models.phantom_gen import PhantomRanges, random_phantom
-from nodes.evaluate import RunSpec, scan_facts, score_run, summarize
 from palpa.record.testing import Rec, write_bag
+from tools.evaluate import RunSpec, scan_facts, score_outputs, score_run, summarize
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -101,18 +101,31 @@ def test_a_run_is_scored_against_its_phantom_and_its_recording(tmp_path: Path) -
     assert row["sensitivity"] > 0.9 and 0.9 < row["specificity"] < 1.0  # the false detection's cells
     assert incs == [{"run": "r0", "inclusion": 0, "radius_mm": 5.0, "ratio": 4.0, "depth_mm": 1.0, "found": True,
                      "centroid_error_mm": pytest.approx(0.5), "radius_error_mm": pytest.approx(0.0)}]
+    # the detections: the first matched the true inclusion, the second matched nothing
+    assert score_outputs(spec, load_phantom(spec.phantom))[2] == [
+        {"run": "r0", "detection": 0, "x_mm": 20.5, "y_mm": 20.0, "radius_mm": 5.0, "contrast": 3.0, "inclusion": 0},
+        {"run": "r0", "detection": 1, "x_mm": 5.0, "y_mm": 35.0, "radius_mm": 2.0, "contrast": 1.5, "inclusion": -1}]
     lines = summarize([{**row, "run": "r0", "spacing_mm": 3, "error": ""},
                        {"run": "r1", "spacing_mm": 3, "error": "launch failed"}], ["spacing_mm"])
     assert len(lines) == 1
     assert lines[0].startswith("spacing_mm=3: 1 of 2 runs scored; inclusions found 1/1 (100 %); false positives 1")
 
 
+def test_two_equal_detections_of_one_inclusion_are_one_match_and_one_false_positive(tmp_path: Path) -> None:
+    spec = _fake_run(tmp_path)
+    twice = {"x_mm": 20.5, "y_mm": 20.0, "radius_mm": 5.0, "contrast": 3.0}
+    (spec.run_dir / "map" / "inclusions.json").write_text(json.dumps([twice, twice]))
+    row, _, dets = score_outputs(spec, load_phantom(spec.phantom))
+    assert row["false_positives"] == 1 and [d["inclusion"] for d in dets] == [0, -1]
+
+
 @pytest.mark.timeout(300)
+@pytest.mark.system
 def test_evaluate_runs_a_generated_phantom_end_to_end(tmp_path: Path) -> None:
-    """`python -m nodes.evaluate` on one generated phantom, a small raster: tables and a summary."""
+    """`python -m tools.evaluate` on one generated phantom, a small raster: tables and a summary."""
     out = tmp_path / "eval"
     proc = subprocess.run(
-        [sys.executable, "-m", "nodes.evaluate", str(REPO / "launch" / "scan_sim.yaml"), "--generate", "1",
+        [sys.executable, "-m", "tools.evaluate", str(REPO / "launch" / "scan_sim.yaml"), "--generate", "1",
          "--phantom-seed", "3", "--jobs", "1", "-o", str(out), "--arg", "region_mm=[[8.0, 24.0, 20.0, 36.0]]",
          "--arg", "spacing_mm=4.0"], capture_output=True, text=True, timeout=280, cwd=REPO)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]

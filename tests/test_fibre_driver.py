@@ -160,6 +160,7 @@ def test_clock_estimator_tracks_offset_and_drift_through_latency_spikes() -> Non
 # --- driver against the emulator -------------------------------------------------------
 
 
+@pytest.mark.system
 def test_streams_calibrated_heights(make_emu: Callable[..., FibreDaqEmulator], make_driver: Callable[..., SerialFibreDriver], cal: FibreCalibration) -> None:
     heights = (1.0, 1.2, 0.9, 2.5)
     emu = make_emu(source=source_from_heights(cal, lambda _t: heights))
@@ -176,6 +177,7 @@ def test_streams_calibrated_heights(make_emu: Callable[..., FibreDaqEmulator], m
     assert drv.status().connected
 
 
+@pytest.mark.system
 def test_garbage_bytes_resync_without_losing_lines(make_emu: Callable[..., FibreDaqEmulator], make_driver: Callable[..., SerialFibreDriver]) -> None:
     emu = make_emu()
     drv = make_driver(emu.port)
@@ -189,6 +191,7 @@ def test_garbage_bytes_resync_without_losing_lines(make_emu: Callable[..., Fibre
     assert (c.resyncs - base.resyncs, c.corrupt - base.corrupt, c.dropped - base.dropped) == (2, 0, 0)
 
 
+@pytest.mark.system
 def test_dropped_lines_are_counted_as_sequence_gap(make_emu: Callable[..., FibreDaqEmulator], make_driver: Callable[..., SerialFibreDriver]) -> None:
     emu = make_emu()
     drv = make_driver(emu.port)
@@ -203,6 +206,7 @@ def test_dropped_lines_are_counted_as_sequence_gap(make_emu: Callable[..., Fibre
     assert (c.dropped - base.dropped, c.corrupt - base.corrupt, c.resyncs - base.resyncs) == (3, 0, 0)
 
 
+@pytest.mark.system
 def test_corrupt_checksum_is_rejected_and_counted(make_emu: Callable[..., FibreDaqEmulator], make_driver: Callable[..., SerialFibreDriver]) -> None:
     emu = make_emu()
     drv = make_driver(emu.port)
@@ -215,6 +219,7 @@ def test_corrupt_checksum_is_rejected_and_counted(make_emu: Callable[..., FibreD
     assert "checksum" in (drv.status().last_error or "")
 
 
+@pytest.mark.system
 def test_partial_line_resyncs_on_next_start_marker(make_emu: Callable[..., FibreDaqEmulator], make_driver: Callable[..., SerialFibreDriver]) -> None:
     emu = make_emu()
     drv = make_driver(emu.port)
@@ -226,6 +231,7 @@ def test_partial_line_resyncs_on_next_start_marker(make_emu: Callable[..., Fibre
     assert (c.resyncs - base.resyncs, c.dropped - base.dropped, c.corrupt - base.corrupt) == (1, 1, 0)
 
 
+@pytest.mark.system
 def test_unplug_replug_recovers_same_driver(make_emu: Callable[..., FibreDaqEmulator], make_driver: Callable[..., SerialFibreDriver]) -> None:
     emu = make_emu()
     drv = make_driver(emu.port)
@@ -249,6 +255,7 @@ def test_unplug_replug_recovers_same_driver(make_emu: Callable[..., FibreDaqEmul
     assert after[-1].seq < 1000
 
 
+@pytest.mark.system
 def test_driver_waits_for_device_that_appears_later(make_emu: Callable[..., FibreDaqEmulator], make_driver: Callable[..., SerialFibreDriver], cal: FibreCalibration) -> None:
     emu = make_emu()
     emu.unplug()
@@ -262,6 +269,7 @@ def test_driver_waits_for_device_that_appears_later(make_emu: Callable[..., Fibr
     assert drv.status().connected
 
 
+@pytest.mark.system
 def test_command_channel(make_emu: Callable[..., FibreDaqEmulator], make_driver: Callable[..., SerialFibreDriver], cal: FibreCalibration) -> None:
     emu = make_emu(source=fixed_pose((20000.0, 21000.0, 22000.0, 30000.0)))
     drv = make_driver(emu.port)
@@ -285,6 +293,7 @@ def test_command_channel(make_emu: Callable[..., FibreDaqEmulator], make_driver:
     assert emu.commands[0] == "START" and emu.commands[-1] == "STOP"
 
 
+@pytest.mark.system
 def test_clock_offset_converges_across_32bit_wrap(make_emu: Callable[..., FibreDaqEmulator], make_driver: Callable[..., SerialFibreDriver]) -> None:
     emu = make_emu(clock_start_us=(1 << 32) - 300_000, drift_ppm=400.0)  # wraps after 0.3 s
     drv = make_driver(emu.port)
@@ -322,6 +331,7 @@ def test_clock_offset_converges_across_32bit_wrap(make_emu: Callable[..., FibreD
     assert abs(st.clock_drift_ppm + 400.0) < slack_ppm, (st.clock_drift_ppm, slack_ppm)
 
 
+@pytest.mark.system
 def test_overrun_when_caller_does_not_read(make_emu: Callable[..., FibreDaqEmulator], make_driver: Callable[..., SerialFibreDriver]) -> None:
     emu = make_emu()
     drv = make_driver(emu.port, max_queue=10)
@@ -335,6 +345,7 @@ def test_overrun_when_caller_does_not_read(make_emu: Callable[..., FibreDaqEmula
 # --- command-line emulator ----------------------------------------------------------
 
 
+@pytest.mark.system
 def test_cli_prints_port_and_stops_on_ctrl_c(make_driver: Callable[..., SerialFibreDriver],
                                              procs: ProcessGroup) -> None:
     # started with SIGINT ignored, as a shell starts a background job: the emulator must still stop on Ctrl-C

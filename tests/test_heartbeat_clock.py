@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from palpa.node import Node
+from palpa.node.node import Node
 from palpa.record.recorder import Recorder
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.testing import MemoryBus

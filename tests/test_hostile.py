@@ -13,11 +13,11 @@ from hypothesis import strategies as st
 
 import palpa
 from messages import PressureCommand, PressureState, Text
-from nodes.map_aggregator import MapAggregator
-from nodes.pressure_controller import PressureController
+from nodes.mapping.map_aggregator import MapAggregator
+from nodes.probe.pressure_controller import PressureController
+from palpa.net.wire import COUNTER_MAX, msgpack_array
 from palpa.runtime_msgs import Heartbeat
 from palpa.testing import GraphHarness, NodeHarness
-from palpa.wire import COUNTER_MAX, msgpack_array
 
 U64 = 2**64 - 1
 
@@ -213,6 +213,6 @@ def test_incarnation_is_optional_on_the_wire_and_ignored_by_plain_readers() -> N
                                                        "inc": inc}), msgpack.packb({"text": f"inc {inc}"})])
         assert h.node.texts == ["old", "inc 7", "inc 8"]
         assert h.node.counters()["chatter"].restarts == 1
-    tpl = palpa.wire.HeaderTemplate("Text", "n", True, 42)
+    tpl = palpa.net.wire.HeaderTemplate("Text", "n", True, 42)
     assert msgpack.unpackb(tpl.pack(3, 4)) == {"type": "Text", "node": "n", "latched": True, "inc": 42, "seq": 3,
                                               "stamp": 4}

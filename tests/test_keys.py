@@ -12,12 +12,12 @@ import pytest
 
 import palpa
 from messages import Text
-from palpa.address import BusAddress, default_address, private_dir
-from palpa.bus import Bus, is_loopback_endpoint
 from palpa.cli.main import main
 from palpa.errors import BusError
-from palpa.keys import load_secret_key
-from palpa.transport import ZmqTransport
+from palpa.net.address import BusAddress, default_address, private_dir
+from palpa.net.bus import Bus, is_loopback_endpoint
+from palpa.net.keys import load_secret_key
+from palpa.net.transport import ZmqTransport
 from tests.procs import ProcessGroup, palpa_cmd, wait_until
 
 
@@ -44,9 +44,27 @@ def test_keygen_writes_a_private_secret_and_loading_refuses_a_readable_one(tmp_p
         load_secret_key(secret)
     with pytest.raises(BusError, match="accessible by others"):
         Bus(BusAddress("tcp://127.0.0.1:*", "tcp://127.0.0.1:*", "tcp://127.0.0.1:*"),
-            curve=palpa.bus.CurveServer(secret, tmp_path)).start()
+            curve=palpa.net.bus.CurveServer(secret, tmp_path)).start()
 
 
+def test_keygen_refuses_to_overwrite_a_pair_unless_forced(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["keygen", str(tmp_path), "server"]) == 0
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    capsys.readouterr()
+    assert main(["keygen", str(tmp_path), "server"]) == 1
+    err = capsys.readouterr().err
+    assert "server.key" in err and "already exist" in err and "--force" in err and len(err.splitlines()) == 1
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    (tmp_path / "server.key").unlink()  # half a pair is refused too: its secret is someone's
+    assert main(["keygen", str(tmp_path), "server"]) == 1
+    assert (tmp_path / "server.key_secret").read_bytes() == before["server.key_secret"]
+    assert main(["keygen", str(tmp_path), "server", "--force"]) == 0
+    assert (tmp_path / "server.key_secret").read_bytes() != before["server.key_secret"]
+    assert stat.S_IMODE((tmp_path / "server.key_secret").stat().st_mode) == 0o600
+
+
+@pytest.mark.system
 def test_ipc_sockets_live_in_a_checked_private_directory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     runtime = tmp_path / "run"
     runtime.mkdir(mode=0o700)
@@ -65,6 +83,7 @@ def test_ipc_sockets_live_in_a_checked_private_directory(tmp_path: Path, monkeyp
     assert private_dir() == Path(f"/tmp/palpa-{os.getuid()}")
 
 
+@pytest.mark.system
 def test_a_node_refuses_another_users_ipc_socket(tmp_path: Path) -> None:
     if os.getuid() != 0:
         pytest.skip("needs root to make a socket owned by another user")
@@ -76,9 +95,10 @@ def test_a_node_refuses_another_users_ipc_socket(tmp_path: Path) -> None:
             ZmqTransport(bus.address)
 
 
+@pytest.mark.system
 def test_curve_refusals_are_logged_on_both_sides_and_sighup_lets_a_new_key_in(
         tmp_path: Path, procs: ProcessGroup, caplog: pytest.LogCaptureFixture) -> None:
-    from palpa.keys import create_key_pair
+    from palpa.net.keys import create_key_pair
 
     keys, clients = tmp_path / "keys", tmp_path / "clients"
     clients.mkdir()
@@ -100,7 +120,7 @@ def test_curve_refusals_are_logged_on_both_sides_and_sighup_lets_a_new_key_in(
             os.environ.update(old)
 
     with make("good_pub", "good") as pub_node:
-        with caplog.at_level("ERROR", logger="palpa.transport"):
+        with caplog.at_level("ERROR", logger="palpa.net.transport"):
             late = make("late_sub", "late")
         assert "refused this node's handshake (authentication refused)" in caplog.text
         bus.wait_for_output("CURVE: refused a client with unknown public key", 10)

@@ -55,6 +55,7 @@ def _cli(*args: str) -> subprocess.CompletedProcess[str]:
                           text=True, timeout=60, cwd=CORPUS, env={**os.environ, "PYTHONPATH": str(CORPUS.parents[1])})
 
 
+@pytest.mark.system
 def test_cli_prints_one_line_and_exits_1_and_debug_shows_traceback() -> None:
     plain = _cli("--check", "param_wrong_type.yaml")
     assert plain.returncode == 1
@@ -64,12 +65,14 @@ def test_cli_prints_one_line_and_exits_1_and_debug_shows_traceback() -> None:
     assert debug.returncode != 0 and "Traceback" in debug.stderr
 
 
+@pytest.mark.system
 def test_cli_unknown_override_names_the_declared_args() -> None:
     res = _cli("--check", "included/talker_rate.yaml", "rat:=3")
     assert res.returncode == 1
     assert "unknown arg 'rat' given by the command line (did you mean 'rate'?)" in res.stderr
 
 
+@pytest.mark.system
 def test_cli_wrong_typed_override_names_the_param_line_and_the_arg() -> None:
     res = _cli("--check", "included/talker_rate.yaml", "rate:=fast")
     assert res.returncode == 1
@@ -78,6 +81,7 @@ def test_cli_wrong_typed_override_names_the_param_line_and_the_arg() -> None:
     assert "from arg 'rate' = \"fast\", given by the command line (rate:=...)" in res.stderr
 
 
+@pytest.mark.system
 def test_cli_missing_phantom_given_on_the_command_line_fails_the_check() -> None:
     res = _cli("--check", str(CORPUS.parents[1] / "launch" / "scan_sim.yaml"), "phantom:=nowhere.yaml")
     assert res.returncode == 1

@@ -16,7 +16,7 @@ MEASURED = PHANTOMS / "measured"
 FILES = sorted((REPO / "launch").glob("*.yaml"))
 # Nodes with no hardware counterpart behind a driver switch: the camera paper's evaluation stage is a simulated
 # fixture (on the rig the stage is given surface_z_mm).
-SIM_ONLY = {"nodes.linear_stage:LinearStage"}
+SIM_ONLY = {"nodes.scanner.linear_stage:LinearStage"}
 REQUIRED_ARGS = {"replay_scan.yaml": {"bag": "/tmp/a-recording.mcap", "calibration": "",
                                       "geometry": str(MEASURED / "airfloat_tumours.yaml")}}
 
@@ -51,12 +51,12 @@ def test_only_simulated_drivers_get_a_phantom(file: Path) -> None:
 def test_the_rig_file_with_simulated_probe_drivers_gives_the_phantom_to_them_only() -> None:
     over = {"fibre_driver": "sim", "pressure_driver": "sim", "phantom": "phantoms/airfloat_tumours.yaml"}
     assert given_a_phantom(REPO / "launch" / "scan_ur.yaml", over) == {
-        "fibre": ("nodes.fibre_reader:FibreReader", "sim")}
+        "fibre": ("nodes.probe.fibre_reader:FibreReader", "sim")}
 
 
 def test_the_check_sees_a_phantom_under_any_name(tmp_path: Path) -> None:
     """The check itself can fail: an estimator handed the phantom as its 'geometry' is caught."""
     f = tmp_path / "bad.yaml"
-    f.write_text(f"nodes:\n  - name: estimator\n    node: nodes.stiffness_estimator:AirfloatStiffnessEstimator\n"
+    f.write_text(f"nodes:\n  - name: estimator\n    node: nodes.probe.stiffness_estimator:AirfloatStiffnessEstimator\n"
                  f"    params: {{geometry: {PHANTOMS / 'flat_26k.yaml'}}}\n")
-    assert given_a_phantom(f, {}) == {"estimator": ("nodes.stiffness_estimator:AirfloatStiffnessEstimator", None)}
+    assert given_a_phantom(f, {}) == {"estimator": ("nodes.probe.stiffness_estimator:AirfloatStiffnessEstimator", None)}

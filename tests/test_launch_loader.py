@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from palpa.address import BusAddress
 from palpa.cli.launch import describe
 from palpa.errors import LaunchError
 from palpa.launch import json_schema, load_launch, parse_overrides
 from palpa.launch.plan import RECORDER_TARGET
+from palpa.net.address import BusAddress
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -194,6 +194,7 @@ def test_record_section(tmp_path: Path) -> None:
         load_launch(write(tmp_path / "clash.yaml", "record: true\nnodes: [{name: recorder, cmd: [x]}]\n"))
 
 
+@pytest.mark.system
 def test_json_schema_comes_from_the_same_definitions() -> None:
     schema = json_schema()
     defs = schema["$defs"]
@@ -255,7 +256,7 @@ def test_replay_takes_the_geometry_from_the_recording(tmp_path: Path) -> None:
 
     geo = REPO / "phantoms" / "measured" / "flat_26k.yaml"
     scanned = tmp_path / "scan.resolved.yaml"
-    scanned.write_text("nodes:\n  - name: estimator\n    node: nodes.stiffness_estimator:AirfloatStiffnessEstimator\n"
+    scanned.write_text("nodes:\n  - name: estimator\n    node: nodes.probe.stiffness_estimator:AirfloatStiffnessEstimator\n"
                        f"    params: {{geometry: {geo}, calibration: ''}}\n")
     bag = tmp_path / "run" / "recording.mcap"
     bag.parent.mkdir()

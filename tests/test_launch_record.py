@@ -14,8 +14,8 @@ from tests.procs import ProcessGroup, palpa_cmd
 
 REPO = Path(__file__).resolve().parent.parent
 
-pytestmark = pytest.mark.skipif(importlib.util.find_spec("palpa.record.recorder") is None,
-                                reason="palpa.record.recorder (the recorder node) is not available")
+pytestmark = [pytest.mark.system, pytest.mark.skipif(importlib.util.find_spec("palpa.record.recorder") is None,
+                                reason="palpa.record.recorder (the recorder node) is not available")]
 
 
 def test_recorder_starts_first_and_stops_last(procs: ProcessGroup, tmp_path: Path) -> None:

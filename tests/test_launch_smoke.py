@@ -19,8 +19,10 @@ import pytest
 
 import palpa
 from palpa.cli.main import main as cli_main
-from palpa.node import RawMessage
+from palpa.node.node import RawMessage
 from tests.procs import ProcessGroup, palpa_cmd, wait_until
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 REPO = Path(__file__).resolve().parent.parent
 LAUNCH_DIR = REPO / "launch"
@@ -45,9 +47,9 @@ class Smoke:
 
 def synthetic_scan_bag(tmp: Path) -> list[str]:
     """A 3 s recording of a probe held over the flat 26.4 kPa phantom, made with the real sim nodes."""
-    from nodes.fibre_reader import FibreReader
-    from nodes.pressure_controller import PressureController
-    from nodes.static_pose import StaticPose
+    from nodes.probe.fibre_reader import FibreReader
+    from nodes.probe.pressure_controller import PressureController
+    from nodes.scanner.static_pose import StaticPose
     from palpa.record.testing import Rec, write_bag
     from palpa.testing import GraphHarness
 

@@ -18,10 +18,12 @@ from pathlib import Path
 
 import pytest
 
-from palpa.address import BusAddress
 from palpa.launch import load_launch
 from palpa.launch.process import process_alive
+from palpa.net.address import BusAddress
 from tests.procs import Proc, ProcessGroup, palpa_cmd, wait_until
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 TESTS = Path(__file__).resolve().parent
 HELPER = TESTS / "launch_nodes.py"

@@ -5,12 +5,14 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from messages import Text
 from nodes.demo import Listener, Talker
-from nodes.fibre_reader import FibreReader
+from nodes.probe.fibre_reader import FibreReader
 from palpa import Node
 from palpa.launch.topics import declared_topics
-from palpa.simclock import ClockSource
+from palpa.timing.simclock import ClockSource
 from tests.test_launch_smoke import REPO
 
 
@@ -40,6 +42,7 @@ def test_a_computed_topic_is_said_to_be_computed() -> None:
     assert declared_topics(ComputedTopics) == {"publishes": ["(computed)"], "subscribes": []}
 
 
+@pytest.mark.system
 def test_check_prints_topics() -> None:
     out = subprocess.run([sys.executable, "-m", "palpa.cli.main", "launch", "--check",
                           str(REPO / "launch" / "talker_listener.yaml")], capture_output=True, text=True,

@@ -15,16 +15,16 @@ import zmq
 
 import palpa
 from messages import Text
-from palpa.address import BusAddress
-from palpa.bus import Bus
 from palpa.cli.main import main
-from palpa.node import LOG_TEXT_MAX
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
+from palpa.net.transport import TransportOptions, ZmqTransport
+from palpa.node.node import LOG_TEXT_MAX
 from palpa.record.format import MD_DROPS
 from palpa.record.recorder import Recorder
 from palpa.record.testing import check_official
 from palpa.runtime_msgs import LogRecord
 from palpa.testing import NodeHarness
-from palpa.transport import TransportOptions, ZmqTransport
 from tests.procs import bus_spec, wait_until
 
 
@@ -50,6 +50,7 @@ def ask(sock: zmq.Socket[bytes], *frames: bytes) -> list[bytes]:
     return sock.recv_multipart()
 
 
+@pytest.mark.system
 def test_latch_cache_refuses_malformed_unlatched_and_oversized_sets(dealer: zmq.Socket[bytes]) -> None:
     with Bus(bus_spec("ipc"), latched_topics=["graph/cal"], latch_max_entries=2, latch_max_bytes=4096) as bus:
         assert bus.address is not None
@@ -80,6 +81,7 @@ def test_latch_cache_refuses_malformed_unlatched_and_oversized_sets(dealer: zmq.
         assert ask(dealer, b"GET", b"a/")[3] == text  # the refused value did not replace the stored one
 
 
+@pytest.mark.system
 def test_graph_latched_topic_is_cached_with_no_subscriber_ever() -> None:
     with Bus(bus_spec("ipc"), latched_topics=["graph/cal"]) as bus:
         assert bus.address is not None
@@ -93,6 +95,7 @@ def test_graph_latched_topic_is_cached_with_no_subscriber_ever() -> None:
             assert late.subscribe("graph/cal", Text).next(5.0) == Text(text="calibration")
 
 
+@pytest.mark.system
 def test_a_message_over_the_bus_limit_disconnects_its_sender_and_reaches_nobody(ipc_bus: BusAddress) -> None:
     with Bus(bus_spec("ipc"), max_msg_bytes=4096) as bus:
         assert bus.address is not None
@@ -110,6 +113,7 @@ def test_a_message_over_the_bus_limit_disconnects_its_sender_and_reaches_nobody(
             assert not sub.queue
 
 
+@pytest.mark.system
 def test_a_node_refuses_and_counts_messages_over_its_limit(ipc_bus: BusAddress) -> None:
     options = TransportOptions(max_msg_bytes=2048)
     with palpa.Node(name="small", transport=ZmqTransport(ipc_bus, options), heartbeat_s=0) as node, \
@@ -118,7 +122,7 @@ def test_a_node_refuses_and_counts_messages_over_its_limit(ipc_bus: BusAddress) 
         pub = talker.publisher("chatter", Text, batch=1)
         assert pub.wait_for_subscribers(5.0)
         # every frame under the limit, the message over it: refused by the node and counted
-        talker.publish_raw("chatter", msgspec.msgpack.decode(header(1), type=palpa.wire.Header),
+        talker.publish_raw("chatter", msgspec.msgpack.decode(header(1), type=palpa.net.wire.Header),
                            msgpack.packb({"text": "a"}), [b"b" * 1500, b"c" * 1500])
         pub.publish(Text(text="fits"))
         assert sub.next(5.0) == Text(text="fits")

@@ -1,4 +1,4 @@
-"""The event lockstep (palpa.lockstep, palpa.simclock): processes get a composition's timeline."""
+"""The event lockstep (palpa.timing.lockstep, palpa.timing.simclock): processes get a composition's timeline."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import time
 import palpa
 from messages import Text
 from nodes.demo import Talker
-from palpa.lockstep import EventLockstep, InFlight
 from palpa.runtime_msgs import ClockAck
-from palpa.simclock import ClockSource
 from palpa.testing import MemoryBus
+from palpa.timing.lockstep import EventLockstep, InFlight
+from palpa.timing.simclock import ClockSource
 
 
 def _ack(node: str, next_ns: int, sent: dict[str, int] | None = None, recv: dict[str, int] | None = None,
@@ -128,8 +128,8 @@ def test_a_node_reports_what_it_handled_before_it_blocks_for_input() -> None:
     """Input a sim-clock node took in is reported before it blocks for more: the clock waits for that report (it once
     waited for the blocking poll's timeout at every simulated instant). A sim-clock node waits for input in its
     blocking poll only (which returns at once when input is there): one poll per wake-up."""
+    from palpa.net.transport import Delivery, SendFn
     from palpa.testing import MemoryTransport
-    from palpa.transport import Delivery, SendFn
 
     events: list[str] = []
 

@@ -1,5 +1,5 @@
 """A lockstep's own traffic (ticks to the nodes, acks to the clock) goes straight between the clock and its nodes
-(palpa.direct): not through the proxy, and not to a recorder that takes every topic but those."""
+(palpa.net.direct): not through the proxy, and not to a recorder that takes every topic but those."""
 
 from __future__ import annotations
 
@@ -10,16 +10,18 @@ import pytest
 
 import palpa
 from messages import Text
-from palpa.address import BusAddress
-from palpa.bus import Bus
-from palpa.direct import DIRECTORY_PREFIX
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
+from palpa.net.direct import DIRECTORY_PREFIX
+from palpa.net.transport import Delivery, ZmqTransport
 from palpa.record.reader import iter_bag
 from palpa.record.recorder import Recorder
 from palpa.runtime_msgs import CLOCK_ACK_TOPIC
-from palpa.simclock import ClockSource
-from palpa.transport import Delivery, ZmqTransport
+from palpa.timing.simclock import ClockSource
 from tests.procs import short_ipc_base, wait_until
 from tests.test_readiness import REACH_PROBES, SubscriptionGate, through_gate
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 LOCKSTEP_EXCLUDE = ["_palpa/clock.*", "_palpa/tick/.*", "_palpa/lockstep"]  # launch/scan_sim.yaml's record:
 

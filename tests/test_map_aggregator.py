@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from messages import ScanPlan, ScanStatus, StiffnessSample, Trigger
-from nodes.map_aggregator import MapAggregator
+from nodes.mapping.map_aggregator import MapAggregator
 from palpa.testing import MemoryBus, NodeHarness
 
 

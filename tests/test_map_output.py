@@ -1,4 +1,4 @@
-"""The scan's output files (nodes.map_output): the adaptive planner's unsensed grid beside the map."""
+"""The scan's output files (nodes.mapping.map_output): the adaptive planner's unsensed grid beside the map."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from models.stiffness_map import Inclusion, MapSnapshot
-from nodes.map_output import write_outputs
+from nodes.mapping.map_output import write_outputs
 
 
 def _snap() -> MapSnapshot:

@@ -1,4 +1,4 @@
-"""map.png drawn by a helper process (nodes.map_output.PngHelper): the same picture, a fallback, no process left."""
+"""map.png drawn by a helper process (nodes.mapping.map_output.PngHelper): the same picture, a fallback, no process left."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from models.stiffness_map import Inclusion
-from nodes.map_output import PngHelper, write_outputs
+from nodes.mapping.map_output import PngHelper, write_outputs
 from tests.test_map_output import _snap
 
 pytestmark = pytest.mark.system  # starts a process

@@ -28,7 +28,7 @@ def strategy(t: mi.Type) -> st.SearchStrategy[Any]:
         return st.text(max_size=20)
     if isinstance(t, mi.BytesType):
         return st.binary(max_size=20)
-    if isinstance(t, mi.AnyType):  # parameter values (palpa.params_runtime): what YAML gives
+    if isinstance(t, mi.AnyType):  # parameter values (palpa.node.params_runtime): what YAML gives
         return st.one_of(st.floats(allow_nan=False, allow_infinity=False), st.integers(-(2**63), 2**63 - 1),
                          st.text(max_size=10), st.booleans(), st.lists(st.integers(0, 9), max_size=3))
     if isinstance(t, mi.LiteralType):

@@ -92,7 +92,7 @@ def test_scan_report_scores_a_run_against_its_phantom(tmp_path, capsys) -> None:
 
     import yaml
 
-    from nodes.scan_report import main
+    from tools.scan_report import main
 
     g = grid()
     (tmp_path / "map").mkdir()

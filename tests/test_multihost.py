@@ -18,15 +18,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from palpa.keys import create_key_pair
 from palpa.launch import load_launch
 from palpa.launch.loader import parse_overrides
+from palpa.net.keys import create_key_pair
 from palpa.record.reader import iter_bag
 from tests.netns import Hosts, why_no_netns
 from tests.procs import REPO, Proc, ProcessGroup, wait_until
 
 _WHY = why_no_netns()
-pytestmark = pytest.mark.skipif(bool(_WHY), reason=_WHY or "ok")
+pytestmark = [pytest.mark.system, pytest.mark.skipif(bool(_WHY), reason=_WHY or "ok")]
 GEOMETRY = REPO / "phantoms" / "measured" / "airfloat_tumours.yaml"
 HOST_OF = {"clock": 1, "pressure": 2, "fibre": 2, "estimator": 3, "map": 3, "scanner": 3}
 """Where each node of launch/scan_sim.yaml runs; the bus and the recorder are on host 1, the tools on host 4."""
@@ -75,7 +75,7 @@ class Graph:
 
 def test_a_direct_topic_across_hosts_with_curve_survives_a_link_going_down(
         hosts: Hosts, procs: ProcessGroup, tmp_path: Path) -> None:
-    """A talker on host 2 publishes ``chatter`` direct (its own CURVE socket on its own address, palpa.direct), a
+    """A talker on host 2 publishes ``chatter`` direct (its own CURVE socket on its own address, palpa.net.direct), a
     listener on host 3 and the recorder on host 1 connect to it there; host 2's link goes down and comes back."""
     g = Graph(hosts, procs, tmp_path, "calibration")
     rec_file = tmp_path / "run.mcap"

@@ -9,10 +9,14 @@ import signal
 import time
 from pathlib import Path
 
+import pytest
+
 import palpa
 from palpa.runtime_msgs import ClockTick
 from palpa.testing import MemoryBus
 from tests.procs import ProcessGroup, wait_until
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 
 class Ticker(palpa.Node):
@@ -109,7 +113,7 @@ def test_a_node_process_that_stops_still_delivers_what_it_had_queued(procs: Proc
     the linger before exiting, or the tail of a burst is lost where no sequence gap shows it (found across hosts,
     bench/multihost.py)."""
     from messages import Text
-    from palpa.bus import Bus
+    from palpa.net.bus import Bus
     from tests.procs import bus_spec, palpa_cmd
 
     with Bus(bus_spec("ipc")) as bus, palpa.Node(name="sink", bus=bus.address, heartbeat_s=0) as sink:

@@ -16,13 +16,13 @@ import palpa
 from emulators.alicat import AlicatEmulator
 from emulators.fibre_daq import FibreDaqEmulator, source_from_heights
 from models.fibre_calibration import load_calibration
-from nodes.camera_tracker import CameraTracker
 from nodes.drivers.robot import PathPoint, RobotDriver, RobotDriverError
-from nodes.fibre_reader import FibreReader
-from nodes.pressure_controller import PressureController
-from nodes.robot_scanner import RobotScanner
-from palpa.clock import MockClock
+from nodes.probe.camera_tracker import CameraTracker
+from nodes.probe.fibre_reader import FibreReader
+from nodes.probe.pressure_controller import PressureController
+from nodes.scanner.robot_scanner import RobotScanner
 from palpa.testing import MemoryBus, NodeHarness
+from palpa.timing.clock import MockClock
 from tests.procs import ur_emulator
 
 SMALL: dict[str, Any] = {"region_mm": [10, 10, 20, 20], "spacing_mm": 5, "speed_mm_s": 20, "home_mm": [10, 10, 20]}
@@ -74,6 +74,7 @@ def test_an_accepted_plan_keeps_the_driver_until_the_node_closes() -> None:
 
 @pytest.mark.xdist_group("ur-emulator")  # real-time emulator: one at a time (make test)
 @pytest.mark.slow
+@pytest.mark.system
 def test_refused_plan_disconnects_from_the_ur_emulator() -> None:
     pytest.importorskip("rtde_control")
     with ur_emulator([]) as emu:
@@ -123,6 +124,7 @@ def _threads_named(name: str) -> list[str]:
     return [t.name for t in threading.enumerate() if t.name == name and t.is_alive()]
 
 
+@pytest.mark.system
 def test_a_refused_setup_closes_the_serial_fibre_driver() -> None:
     cal = "tests/data/fibre_calibration.yaml"
     with FibreDaqEmulator(source_from_heights(load_calibration(cal), lambda t: (1.5, 1.5, 1.5, 3.5))) as emu:
@@ -131,6 +133,7 @@ def test_a_refused_setup_closes_the_serial_fibre_driver() -> None:
         assert _threads_named(f"fibre:{emu.port}") == []  # its acquisition thread is gone too
 
 
+@pytest.mark.system
 def test_a_refused_setup_closes_the_alicat_regulator_port() -> None:
     with AlicatEmulator() as emu:
         driver = _refused(_RefusingRegulator, {"driver": "alicat", "port": emu.port, "max_kpa": 30.0})

@@ -24,7 +24,7 @@ from nodes.drivers.pressure import (
 )
 from tests.procs import ProcessGroup, wait_until
 
-pytestmark = pytest.mark.timeout(30)
+pytestmark = [pytest.mark.system, pytest.mark.timeout(30)]
 
 REPO = Path(__file__).resolve().parents[1]
 MAX_KPA = 40.0

@@ -6,14 +6,18 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+import pytest
+
 from emulators.alicat import AlicatEmulator
 from emulators.fibre_daq import FibreDaqEmulator, source_from_heights
 from messages import PressureCommand
 from models.fibre_calibration import load_calibration
-from nodes.fibre_reader import FibreReader
-from nodes.pressure_controller import PressureController
+from nodes.probe.fibre_reader import FibreReader
+from nodes.probe.pressure_controller import PressureController
 from palpa.testing import NodeHarness
 from tests.procs import wait_until
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 CAL = "tests/data/fibre_calibration.yaml"
 

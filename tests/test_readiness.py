@@ -1,5 +1,5 @@
 """A node counts as ready (heartbeats, its first lockstep ack, a player's ``wait_for``) only once its subscriptions
-are live end to end: nothing published to it afterwards is dropped by ZeroMQ for lack of a route (palpa.presence)."""
+are live end to end: nothing published to it afterwards is dropped by ZeroMQ for lack of a route (palpa.node.presence)."""
 
 from __future__ import annotations
 
@@ -13,11 +13,13 @@ import zmq
 
 import palpa
 from messages import Text
-from palpa.address import BusAddress
-from palpa.direct import JOIN_PROBE_PREFIX
+from palpa.net.address import BusAddress
+from palpa.net.direct import JOIN_PROBE_PREFIX
+from palpa.net.transport import ZmqTransport
 from palpa.runtime_msgs import HEARTBEAT_TOPIC
-from palpa.transport import ZmqTransport
 from tests.procs import short_ipc_base, wait_until
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 
 class _Gate:
@@ -152,9 +154,9 @@ def through_gate(monkeypatch: pytest.MonkeyPatch, publisher: str, gate: Subscrip
     """Make subscribers in this process (or the one reading on socket ``only``) connect to ``gate`` where the
     directory names ``publisher``: the directory still says ``publisher`` (so does the publisher's answer to a
     probe); only the connection goes round."""
-    import palpa.transport
+    import palpa.net.transport
 
-    follow = palpa.transport.follow_directory
+    follow = palpa.net.transport.follow_directory
 
     def via_gate(sub: zmq.Socket[bytes], peers: set[str], key: bytes, payload: bytes,
                  bus_key: bytes | None) -> str | None:
@@ -164,7 +166,7 @@ def through_gate(monkeypatch: pytest.MonkeyPatch, publisher: str, gate: Subscrip
             return publisher if follow(sub, peers, key, payload, bus_key) else None  # the name, not the way round
         return follow(sub, peers, key, payload, bus_key)
 
-    monkeypatch.setattr(palpa.transport, "follow_directory", via_gate)
+    monkeypatch.setattr(palpa.net.transport, "follow_directory", via_gate)
 
 
 def listener_behind(gate: _Gate, bus: BusAddress, talker: palpa.Node, held: Callable[[], bool],

@@ -12,13 +12,15 @@ import msgspec
 import pytest
 
 from messages import Text
-from palpa.address import BusAddress
-from palpa.bus import Bus
-from palpa.node import Node, RawMessage
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
+from palpa.node.node import Node, RawMessage
 from palpa.record.reader import iter_bag
 from palpa.record.testing import Rec, check_official, write_bag
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from tests.procs import ProcessGroup, palpa_cmd, short_ipc_base, wait_until
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 MS = 1_000_000
 

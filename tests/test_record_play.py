@@ -11,14 +11,14 @@ import pytest
 
 from messages import Text
 from palpa.errors import ParamError
-from palpa.node import Node, RawMessage
+from palpa.net.transport import Delivery
+from palpa.node.node import Node, RawMessage
 from palpa.record.format import BagError
 from palpa.record.player import Player
 from palpa.record.recorder import Recorder
 from palpa.record.testing import Rec, write_bag
 from palpa.runtime_msgs import CLOCK_TOPIC, ClockTick
 from palpa.testing import MemoryBus, MemoryTransport, NodeHarness
-from palpa.transport import Delivery
 from tests.procs import wait_until
 
 T0 = 1_700_000_000_000_000_000

@@ -12,7 +12,8 @@ import pytest
 from messages import Text
 from palpa.errors import ParamError
 from palpa.message import json_schema
-from palpa.node import Node
+from palpa.net.wire import Header, encode_header
+from palpa.node.node import Node
 from palpa.record.format import (
     LAUNCH_ATTACHMENT,
     MD_DROPS,
@@ -28,7 +29,6 @@ from palpa.record.recorder import Recorder
 from palpa.record.testing import check_official
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat, LogRecord
 from palpa.testing import NodeHarness
-from palpa.wire import Header, encode_header
 
 
 def _frames(topic: str, type_name: str, seq: int, payload: bytes, node: str = "ext", latched: bool = False,

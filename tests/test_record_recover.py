@@ -14,8 +14,8 @@ from mcap.records import Message as McapMessage
 from mcap.stream_reader import StreamReader
 
 from messages import Text
-from palpa.address import BusAddress
-from palpa.node import Node
+from palpa.net.address import BusAddress
+from palpa.node.node import Node
 from palpa.record.format import MD_DROPS, MD_NODES, MD_RECORDING, MD_RECOVERY, BagError
 from palpa.record.info import bag_info
 from palpa.record.reader import iter_file
@@ -102,6 +102,7 @@ def test_recover_refuses_to_overwrite_its_source(tmp_path: Path) -> None:
     assert not (tmp_path / "n2.mcap").exists()
 
 
+@pytest.mark.system
 def test_kill_9_then_recover(ipc_bus: BusAddress, procs: ProcessGroup, env_for, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
     """A real recorder process SIGKILLed mid-run loses at most its last second; recover makes the file whole."""
     out = tmp_path / "killed.mcap"

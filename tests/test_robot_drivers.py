@@ -25,7 +25,7 @@ from nodes.drivers.robot import (
     RobotDriverError,
 )
 from nodes.drivers.robot_sim import SimRobotDriver
-from palpa.clock import MockClock
+from palpa.timing.clock import MockClock
 from tests.procs import EMULATOR_START_S, ChildSteps, ur_emulator, wait_until
 
 pytest.importorskip("rtde_control")
@@ -161,6 +161,7 @@ def emu_args(*args: str) -> pytest.MarkDecorator:
 
 
 @pytest.mark.timeout(15)
+@pytest.mark.system
 def test_ur_driver_runs_a_raster_and_ends_where_the_sim_does(emu: UrEmulatorProcess, ur: URRtdeDriver) -> None:
     ur.connect()
     assert ur.state().pose[:3] == pytest.approx(HOME, abs=1e-6)  # phantom frame, offset removed
@@ -192,6 +193,7 @@ def test_ur_driver_runs_a_raster_and_ends_where_the_sim_does(emu: UrEmulatorProc
 
 @pytest.mark.timeout(15)
 @emu_args("--pstop-after-waypoints", "5")
+@pytest.mark.system
 def test_ur_driver_reports_a_protective_stop_and_only_reconnects_when_asked(
         emu: UrEmulatorProcess, ur: URRtdeDriver) -> None:
     ur.connect()
@@ -249,6 +251,7 @@ def _driver_through_a_drop(host: str, pipe: Connection) -> None:
 
 
 @pytest.mark.timeout(40)
+@pytest.mark.system
 def test_ur_driver_reports_a_lost_connection_without_retrying(emu: UrEmulatorProcess) -> None:
     with ChildSteps(_driver_through_a_drop, emu.host, what="the driver's process") as child:
         child.said("moving", 15.0, "the driver to connect and move")
@@ -265,6 +268,7 @@ def test_ur_driver_reports_a_lost_connection_without_retrying(emu: UrEmulatorPro
 
 
 @pytest.mark.timeout(20)
+@pytest.mark.system
 def test_a_program_stopped_by_the_watchdog_is_told_from_one_stopped_by_hand(emu: UrEmulatorProcess) -> None:
     """The fault says why the control script stopped: this process stopped kicking the RTDE watchdog (a stall,
     played here by holding the driver's lock: nothing can kick), or it kicked on time and someone stopped the
@@ -296,6 +300,7 @@ def test_a_program_stopped_by_the_watchdog_is_told_from_one_stopped_by_hand(emu:
 
 
 @pytest.mark.timeout(15)
+@pytest.mark.system
 def test_ur_driver_stop_mid_path(emu: UrEmulatorProcess, ur: URRtdeDriver) -> None:
     ur.connect()
     ur.move_path([PathPoint(5.0, 60.0, 40.0, 50.0, 1000.0)])
@@ -317,6 +322,7 @@ def test_ur_driver_stop_mid_path(emu: UrEmulatorProcess, ur: URRtdeDriver) -> No
 
 @pytest.mark.timeout(15)
 @emu_args("--local-control")
+@pytest.mark.system
 def test_ur_driver_explains_a_refused_remote_control(emu: UrEmulatorProcess, ur: URRtdeDriver) -> None:
     with pytest.raises(RobotConnectionError, match="refuses remote control.*Remote Control"):
         ur.connect()

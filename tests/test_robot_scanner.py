@@ -18,8 +18,8 @@ from messages import (
     Trigger,
     TriggerResult,
 )
-from nodes.robot_scanner import RobotScanner
-from palpa.service import RequestRefused
+from nodes.scanner.robot_scanner import RobotScanner
+from palpa.node.service import RequestRefused
 from palpa.testing import NodeHarness
 
 SMALL: dict[str, Any] = {"region_mm": [10, 10, 20, 20], "spacing_mm": 5, "speed_mm_s": 20, "home_mm": [10, 10, 20]}

@@ -13,6 +13,8 @@ import pytest
 import palpa
 from tests.procs import ProcessGroup, palpa_cmd, short_ipc_base, wait_until
 
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
+
 
 class _Marker:
     """A resource whose close() leaves a file behind, so the test can see it was closed."""

@@ -11,10 +11,10 @@ import pytest
 import palpa
 from messages import Text
 from nodes.demo import Listener, Talker
-from palpa.address import BusAddress
 from palpa.errors import BusError, ParamError
+from palpa.net.address import BusAddress
+from palpa.net.wire import Header, SequenceTracker, TopicStats, encode_header
 from palpa.testing import MemoryBus, NodeHarness
-from palpa.wire import Header, SequenceTracker, TopicStats, encode_header
 
 
 def test_address_forms() -> None:
@@ -230,7 +230,7 @@ def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.Mo
 
 def _clock_source(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], MemoryBus, Any]:
     """A clock source (2x, 20 ms lead, simulated time from 1 s) on a memory bus, its wall clock ``wall[0]``."""
-    from palpa import simclock
+    from palpa.timing import simclock
 
     wall = [0]
     monkeypatch.setattr(simclock.time, "monotonic_ns", lambda: wall[0])

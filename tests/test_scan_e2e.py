@@ -18,10 +18,10 @@ import palpa
 from emulators.clock_file import ClockWriter
 from messages import RobotPose
 from models.phantom import load_phantom
-from nodes.robot_scanner import RobotScanner
-from palpa.clock import MockClock
+from nodes.scanner.robot_scanner import RobotScanner
 from palpa.launch import load_launch, parse_overrides
 from palpa.testing import GraphHarness
+from palpa.timing.clock import MockClock
 from tests.followed_clock import FollowedClock
 from tests.procs import ProcessGroup, palpa_cmd, ur_emulator
 from tests.test_launch_smoke import REPO
@@ -89,7 +89,7 @@ def stiff_centre(m: Any) -> tuple[float, float]:
 
 
 # whole simulated scans: each launch is bounded by its own wait (run_launch's timeout), not the suite's 120 s
-pytestmark = pytest.mark.timeout(900)
+pytestmark = [pytest.mark.system, pytest.mark.timeout(900)]
 
 
 def run_launch(procs: ProcessGroup, run_dir: Path, file: str, *args: str, timeout: float = 240) -> str:
@@ -193,11 +193,11 @@ def test_airfloat_scan_finds_the_tumours_and_its_recording_replays(procs: Proces
 def test_no_inclusion_on_a_flat_phantom(phantom: str, tmp_path: Path, calibration: Path) -> None:
     """The same nodes in-process (mock clock), realistic calibrated probe: a phantom without inclusions gives no
     detection at all, and the map's median is within 6 % of the truth."""
-    from nodes.fibre_reader import FibreReader
-    from nodes.map_aggregator import MapAggregator
-    from nodes.pressure_controller import PressureController
-    from nodes.robot_scanner import RobotScanner
-    from nodes.stiffness_estimator import AirfloatStiffnessEstimator
+    from nodes.mapping.map_aggregator import MapAggregator
+    from nodes.probe.fibre_reader import FibreReader
+    from nodes.probe.pressure_controller import PressureController
+    from nodes.probe.stiffness_estimator import AirfloatStiffnessEstimator
+    from nodes.scanner.robot_scanner import RobotScanner
     from palpa.testing import GraphHarness
 
     path = str(REPO / "phantoms" / phantom)

@@ -8,7 +8,7 @@ from typing import Any
 import pytest
 
 from messages import ProbeHeights
-from nodes.robot_scanner import SUPERVISION_MAX_S, RobotScanner, supervision_period_s
+from nodes.scanner.robot_scanner import SUPERVISION_MAX_S, RobotScanner, supervision_period_s
 from palpa.testing import NodeHarness
 
 SMALL: dict[str, Any] = {"region_mm": [10, 10, 20, 20], "spacing_mm": 5, "speed_mm_s": 20, "home_mm": [10, 10, 20]}

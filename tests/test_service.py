@@ -7,8 +7,9 @@ import msgspec
 import pytest
 
 import palpa
-from palpa.node import RawMessage
-from palpa.service import (
+from palpa.net.wire import Header
+from palpa.node.node import RawMessage
+from palpa.node.service import (
     BadRequestError,
     HandlerError,
     NoServerError,
@@ -19,9 +20,8 @@ from palpa.service import (
     reply_topic,
     request_topic,
 )
-from palpa.service_client import Future, set_wait_pump
+from palpa.node.service_client import Future, set_wait_pump
 from palpa.testing import GraphHarness, MemoryBus
-from palpa.wire import Header
 
 
 class AddRequest(palpa.Message, frozen=True, kw_only=True):
@@ -37,7 +37,7 @@ class Adder(palpa.Node):
     """Adds; refuses negative totals; raises on a == 13; answers a == 99 later (deferred)."""
 
     class Params(palpa.Params):
-        offset: float = 0.0
+        offset: palpa.RunTime[float] = 0.0
         """Not used by the handler: a parameter to change at run time."""
 
     def setup(self) -> None:

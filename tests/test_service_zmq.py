@@ -12,10 +12,12 @@ import pytest
 import zmq
 
 import palpa
-from palpa.address import BusAddress
-from palpa.service import RequestRefused
+from palpa.net.address import BusAddress
+from palpa.node.service import RequestRefused
 from tests.procs import wait_until
 from tests.test_service import Adder, AddReply, AddRequest
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 
 @pytest.fixture

@@ -25,12 +25,12 @@ from models.following import (
 )
 from models.phantom import load_phantom
 from models.raster import sweep_raster
-from nodes.fibre_reader import FibreReader
-from nodes.pressure_controller import PressureController
-from nodes.robot_scanner import RobotScanner
-from nodes.surface_follow import LineFollower
-from palpa.clock import MockClock
+from nodes.probe.fibre_reader import FibreReader
+from nodes.probe.pressure_controller import PressureController
+from nodes.scanner.robot_scanner import RobotScanner
+from nodes.scanner.surface_follow import LineFollower
 from palpa.testing import GraphHarness, NodeHarness
+from palpa.timing.clock import MockClock
 
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm: 6 mm on the centre line y = 20, 3 mm at the y edges
 # With a real-time driver (the UR emulator) the harness's clock follows the wall clock, at most MAX_STEP_S per pass

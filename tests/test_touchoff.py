@@ -22,7 +22,7 @@ from models.surface import (
     region_in_footprint,
     touch_points,
 )
-from nodes.robot_scanner import RobotScanner
+from nodes.scanner.robot_scanner import RobotScanner
 from palpa.testing import NodeHarness
 
 REPO = Path(__file__).resolve().parent.parent
@@ -158,6 +158,7 @@ def test_the_camera_probe_presses_the_set_depth_below_the_surface_it_found(tmp_p
 
 
 
+@pytest.mark.system
 def test_the_launch_refuses_a_specimen_wider_than_the_box_before_any_motion(tmp_path: Path) -> None:
     """The one launch-level check: phantom:= alone, the sim measurer's footprint (the launch's prepare step), the
     scanner's refusal naming the box and the extent, the launch's exit code 2, and no plan ever published (nothing

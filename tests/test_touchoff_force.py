@@ -17,7 +17,7 @@ from models.surface import contact_onset_z, touch_points
 from models.world import TissueWorld
 from nodes.drivers.robot import TcpState
 from nodes.drivers.robot_sim import SimRobotDriver
-from nodes.touchoff import TouchOff, TouchOffConfig
+from nodes.scanner.touchoff import TouchOff, TouchOffConfig
 
 DOME = "phantoms/specimens/dome_6_3.yaml"
 POWERS = tuple(1.0 + 0.05 * k for k in range(31))
@@ -122,6 +122,7 @@ def test_the_force_touch_finds_the_dome_however_rarely_it_is_stepped(step_s: flo
         assert touch.reapproaches >= 9  # every point at least once
 
 
+@pytest.mark.system
 def test_a_wrist_sensor_s_noise_is_read_at_rest_and_the_rise_fitted_above_it() -> None:
     """A wrist F/T sensor (sigma 3 mN, as the UR test's), four noise draws, stepped every 2, 20 and 50 ms: its spread
     is read at rest and the rise fitted from 0.015 N up; 108 touches within 0.12 mm, rms 0.034 mm. The exponent's

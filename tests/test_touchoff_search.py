@@ -14,13 +14,15 @@ import pytest
 
 from emulators.clock_file import ClockWriter
 from models.surface import region_from_touches, search_points
-from nodes.fibre_reader import FibreReader
-from nodes.pressure_controller import PressureController
-from nodes.robot_scanner import RobotScanner
-from palpa.clock import MockClock
+from nodes.probe.fibre_reader import FibreReader
+from nodes.probe.pressure_controller import PressureController
+from nodes.scanner.robot_scanner import RobotScanner
 from palpa.testing import GraphHarness
+from palpa.timing.clock import MockClock
 from tests.followed_clock import FollowedClock
 from tests.procs import ur_emulator
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 SMALL = "phantoms/specimens/small_40x30_8mm.yaml"  # 40 x 30 mm, 8 mm thick, at the origin of the phantom frame
 BOX = [-10.0, -6.0, 0.5, 50.0, 36.0, 16.0]  # 60 x 42 mm of table around it, searched from 16 mm down
@@ -123,7 +125,7 @@ def test_a_probe_sample_counts_for_the_point_it_was_measured_over_not_where_the_
     on the way there, over the specimen: it must not make that point a touch (the ur_rtde search once took a point
     whose ring hangs over the specimen's edge for one, its region 12 mm too wide)."""
     from nodes.drivers.robot_sim import SimRobotDriver
-    from nodes.touchoff import TouchOff, TouchOffConfig
+    from nodes.scanner.touchoff import TouchOff, TouchOffConfig
 
     clock = MockClock(0)
     arm = SimRobotDriver(home_mm=(26.0, 8.0, 16.0), clock=clock.now_ns)

@@ -16,12 +16,12 @@ from models.raster import sweep_raster
 from models.surface import fit_surface, touch_points
 from nodes.drivers.robot import MotionStatus
 from nodes.drivers.robot_urrtde import URRtdeDriver
-from nodes.touchoff import TouchOff, TouchOffConfig
+from nodes.scanner.touchoff import TouchOff, TouchOffConfig
 from tests.procs import EMULATOR_START_S, ur_emulator
 from tests.test_surface_follow import check_following, sweep_over_the_dome
 
 # the UR emulator moves in real time: its tests run one at a time on one xdist worker (make test, --dist loadgroup)
-pytestmark = pytest.mark.xdist_group("ur-emulator")
+pytestmark = [pytest.mark.system, pytest.mark.xdist_group("ur-emulator")]
 
 DOME = "phantoms/specimens/dome_6_3.yaml"  # 70 x 40 mm, 6 mm on the centre line, 3 mm at the y edges
 

@@ -11,13 +11,15 @@ import pytest
 
 import palpa
 from messages import Text
-from palpa.address import BusAddress
-from palpa.bus import Bus
 from palpa.errors import BusError, LaunchError
 from palpa.launch import load_launch
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
+from palpa.net.transport import TransportOptions, ZmqTransport
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
-from palpa.transport import TransportOptions, ZmqTransport
 from tests.procs import ProcessGroup, bus_spec, palpa_cmd, wait_until
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 
 def test_options_from_defaults_environment_and_flags() -> None:

@@ -32,7 +32,7 @@ from models.world import TissueWorld
 from tests.procs import ChildSteps, ur_emulator, wait_until
 
 # the UR emulator moves in real time: its tests run one at a time on one xdist worker (make test, --dist loadgroup)
-pytestmark = pytest.mark.xdist_group("ur-emulator")
+pytestmark = [pytest.mark.system, pytest.mark.xdist_group("ur-emulator")]
 
 REPO = Path(__file__).resolve().parent.parent
 

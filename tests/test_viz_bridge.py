@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import socket
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -17,14 +18,16 @@ import messages  # noqa: F401
 import palpa
 from messages import EStop, Inclusions, ProbeHeights, RobotPose, ScanPlan, StiffnessMap
 from messages.robot import PlanWaypoint
-from nodes.foxglove_views import ScanViews
-from palpa.address import BusAddress
+from nodes.mapping.foxglove_views import ScanViews
 from palpa.errors import ParamError
+from palpa.net.address import BusAddress
 from palpa.testing import GraphHarness
 from palpa.viz import SUBPROTOCOL, Bridge
 from tests.foxglove_client import FoxgloveClient
 from tests.procs import ProcessGroup, palpa_cmd, wait_until
 from tests.test_launch_smoke import REPO
+
+pytestmark = pytest.mark.system  # processes, sockets or ur_rtde: make test-system
 
 
 @pytest.fixture
@@ -192,6 +195,20 @@ def test_loopback_only_unless_asked() -> None:
         Bridge(params={"host": "0.0.0.0", "port": 0}, transport=GraphHarness().bus.transport())
 
 
+def test_a_port_in_use_is_one_line_with_the_hint() -> None:
+    """`palpa viz` with its port taken printed a 30-line traceback (issue 39): now one line (the CLI prints a
+    PalpaError so) that names the address and says --port 0."""
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(palpa.PalpaError) as info:
+            Bridge(params={"port": port}, transport=GraphHarness().bus.transport())
+    text = str(info.value)
+    assert f"cannot listen on 127.0.0.1:{port}" in text and "in use" in text and "--port 0" in text
+    assert "\n" not in text and "Traceback" not in text
+
+
 def test_palpa_viz_serves_a_running_graph_and_survives_a_vanished_client(
         ipc_bus: BusAddress, procs: ProcessGroup, env_for: Callable[..., dict[str, str]]) -> None:
     """The CLI as a user runs it, on a real bus beside a talker process."""
@@ -221,11 +238,11 @@ def test_a_viewer_joins_a_simulated_scan_midway(tmp_path: Path) -> None:
     stops advancing simulated time once the first map is out, so the late client joins a graph that is still
     running, however loaded the machine), getting the latched plan and map, then vanishing; the scan then ends
     normally and the watcher still gets what came after."""
-    from palpa.cli.run import load_node_class
-    from palpa.clock import MockClock
-    from palpa.compose import Composition
     from palpa.launch import load_launch, parse_overrides
-    from palpa.simclock import ClockSource
+    from palpa.targets import load_node_class
+    from palpa.timing.clock import MockClock
+    from palpa.timing.compose import Composition
+    from palpa.timing.simclock import ClockSource
 
     plan = load_launch(REPO / "launch" / "scan_sim.yaml", parse_overrides([
         "viz:=true", "viz_port:=0", "spacing_mm:=4.0", "region_mm:=[10.0, 14.0, 22.0, 22.0]",

@@ -1,4 +1,4 @@
-"""The scan views for Foxglove (nodes/foxglove_views.py) and the launch file's ``viz:`` section and ``if:``."""
+"""The scan views for Foxglove (nodes/mapping/foxglove_views.py) and the launch file's ``viz:`` section and ``if:``."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from messages import Inclusions, RobotPose, ScanPlan, StiffnessMap
 from messages.foxglove import FrameTransform, Grid, ImageAnnotations, RawImage, SceneUpdate
 from messages.robot import PlanWaypoint
 from messages.stiffness import DetectedInclusion
-from nodes.foxglove_views import ScanViews, viridis_lut
+from nodes.mapping.foxglove_views import ScanViews, viridis_lut
 from palpa.errors import LaunchError
 from palpa.launch import load_launch
 from palpa.testing import NodeHarness

@@ -141,6 +141,7 @@ def test_shallow_indentation_of_a_thick_layer_is_hertzian(nu: float) -> None:
     np.testing.assert_allclose(np.asarray(world.force_n(100, 100, d)), hertz, rtol=0.025)
 
 
+@pytest.mark.system
 def test_the_cli_runs_as_a_module(tmp_path: Path) -> None:
     path = _write(tmp_path, "cli", thickness_mm=20.0)
     done = subprocess.run(

@@ -10,8 +10,8 @@ import pytest
 
 from nodes.demo import Talker
 from palpa.errors import ParamError
-from palpa.params import parse_param_value, read_params_file
-from palpa.runner import run_node_code
+from palpa.node.params import parse_param_value, read_params_file
+from palpa.node.runner import run_node_code
 from yamlstruct import YamlError, load
 
 

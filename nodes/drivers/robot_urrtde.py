@@ -29,6 +29,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from nodes.drivers.native_stderr import native_stderr
 from nodes.drivers.robot import (
     MotionStatus,
     PathPointLike,
@@ -113,9 +114,11 @@ class URRtdeDriver:
             raise RobotConnectionError(f"ur_rtde is not installed ({e}); pip install ur-rtde") from e
         with self._lock:
             try:
-                self._rr = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz, _RECEIVE_FIELDS)
+                with native_stderr() as said:  # ur_rtde prints 'connect: Connection refused': into the one line
+                    self._rr = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz, _RECEIVE_FIELDS)
             except RuntimeError as e:
-                raise RobotConnectionError(f"cannot reach the UR controller at {self.host} (RTDE port 30004): {e}. "
+                why = f"{e}" + (f" ({said[0]})" if said and said[0] else "")
+                raise RobotConnectionError(f"cannot reach the UR controller at {self.host} (RTDE port 30004): {why}. "
                                            "Check the network, the robot's IP and that it is powered on.") from e
             if self._rr.isProtectiveStopped():
                 self._teardown_locked()

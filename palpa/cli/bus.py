@@ -9,11 +9,11 @@ import threading
 from pathlib import Path
 from types import FrameType
 
-from palpa.address import BusAddress, default_address
-from palpa.bus import Bus, CurveServer
 from palpa.errors import BusError
-from palpa.latch import DEFAULT_LATCH_MAX_BYTES, DEFAULT_LATCH_MAX_ENTRIES
-from palpa.wire import MAX_MSG_BYTES
+from palpa.net.address import BusAddress, default_address
+from palpa.net.bus import Bus, CurveServer
+from palpa.net.latch import DEFAULT_LATCH_MAX_BYTES, DEFAULT_LATCH_MAX_ENTRIES
+from palpa.net.wire import MAX_MSG_BYTES
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -3,23 +3,22 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
-import importlib
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import msgspec
 
-from palpa import env as palpa_env
-from palpa.address import BusAddress
 from palpa.current import find_bus
 from palpa.errors import PalpaError
 from palpa.launch.validate import did_you_mean
 from palpa.message import Message, lookup
-from palpa.node import Node
-from palpa.runner import run_node_code
+from palpa.net.address import BusAddress
+from palpa.node.node import Node
+from palpa.node.runner import run_node_code
+from palpa.targets import import_message_modules
 from yamlstruct import Source, YamlError
 
 __all__ = ["add_bus_arg", "bus_address", "bus_and_source", "import_message_modules", "message_from_yaml",
@@ -27,27 +26,29 @@ __all__ = ["add_bus_arg", "bus_address", "bus_and_source", "import_message_modul
 
 
 def add_bus_arg(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--bus", help="bus address (default: --run's, else $PALPA_BUS, else the running launch's, "
-                                 "else ipc://$XDG_RUNTIME_DIR/palpa/bus or ipc:///tmp/palpa-<uid>/bus)")
-    p.add_argument("--run", type=Path, metavar="DIR",
-                   help="use the bus of the launch running in DIR (e.g. runs/latest)")
+    p.add_argument("--bus", help="bus address (default: --run's, else $PALPA_BUS, else the one running launch's "
+                                 "(with several running, say which), else ipc://$XDG_RUNTIME_DIR/palpa/bus or "
+                                 "ipc:///tmp/palpa-<uid>/bus)")
+    p.add_argument("--run", type=Path, metavar="RUN",
+                   help="use the bus of the launch running in this run directory (e.g. runs/latest), or of the "
+                        "running launch whose run directory has this name")
 
 
 def bus_and_source(args: argparse.Namespace) -> tuple[BusAddress, str]:
-    """The bus the verb uses and where that came from (see palpa.current)."""
-    return find_bus(getattr(args, "bus", None), getattr(args, "run", None))
+    """The bus the verb uses and where that came from (see palpa.current); the first time, says so on stderr
+    (``palpa node: bus ... (the running launch in runs/x)``) before the verb does anything on it, unless the
+    command line names it (``--bus``: the user typed it, and an expected failure stays one line)."""
+    chosen: tuple[BusAddress, str] | None = getattr(args, "bus_chosen", None)
+    if chosen is None:  # chosen once per command: the line said and the bus used are the same
+        chosen = args.bus_chosen = find_bus(getattr(args, "bus", None), getattr(args, "run", None))
+        if chosen[1] != "--bus":
+            print(f"palpa {getattr(args, 'verb', None) or 'tool'}: bus {chosen[0]} ({chosen[1]})", file=sys.stderr,
+                  flush=True)
+    return chosen
 
 
 def bus_address(args: argparse.Namespace) -> BusAddress:
     return bus_and_source(args)[0]
-
-
-def import_message_modules() -> None:
-    """Import the message packages so their types are in the registry (``PALPA_MESSAGES`` adds more,
-    comma-separated module names)."""
-    for name in ["messages", *palpa_env.listed(palpa_env.MESSAGES)]:
-        with contextlib.suppress(ImportError):
-            importlib.import_module(name)
 
 
 def message_from_yaml(type_name: str, text: str, what: str = "data", *, stamp: bool = True) -> Message:

@@ -120,8 +120,8 @@ def _make_run_dir(chosen: Path | None) -> tuple[Path, bool]:
 
 
 def _topics_of(spec: Any) -> dict[str, list[str]] | str:
-    from palpa.cli.run import load_node_class
     from palpa.launch.topics import declared_topics
+    from palpa.targets import load_node_class
 
     try:
         return declared_topics(load_node_class(spec.target), spec.namespace, spec.remap)

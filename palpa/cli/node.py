@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from palpa.cli.common import add_bus_arg
-from palpa.cli.topic import WAIT_HELP, WAIT_S, _tool_node, collect_heartbeats
+from palpa.cli.topic import WAIT_HELP, WAIT_S, collect_heartbeats, tool_node
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -20,7 +20,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run_list(args: argparse.Namespace) -> int:
-    with _tool_node(args, "node_list") as node:
+    with tool_node(args, "node_list") as node:
         beats = collect_heartbeats(node, args.wait)
     if not beats:
         print(f"no nodes heard in {args.wait:g} s on {args.bus_where}", file=sys.stderr)

@@ -11,11 +11,11 @@ import yaml
 
 from palpa.cli.common import add_bus_arg
 from palpa.cli.service import call_service
-from palpa.cli.topic import _tool_node
+from palpa.cli.topic import tool_node
 from palpa.errors import PalpaError
 from palpa.message import Message
-from palpa.params import parse_param_value, read_params_file
-from palpa.params_runtime import ParamGet, ParamSet, ParamValues, param_service
+from palpa.node.params import parse_param_value, read_params_file
+from palpa.node.params_runtime import ParamGet, ParamSet, ParamValues, param_service
 
 __all__ = ["register"]
 
@@ -23,12 +23,14 @@ __all__ = ["register"]
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("param", help="list, read, change or dump a running node's parameters")
     verbs = p.add_subparsers(dest="param_verb", metavar="VERB", required=True)
-    ls = verbs.add_parser("list", help="parameters with type, default and current value")
+    ls = verbs.add_parser("list", help="parameters with type, default, current value and whether each may change "
+                                       "at run time")
     ls.add_argument("node")
-    get = verbs.add_parser("get", help="one parameter's value (YAML)")
+    get = verbs.add_parser("get", help="one parameter's value (YAML), then whether it may change at run time")
     get.add_argument("node")
     get.add_argument("name")
-    set_ = verbs.add_parser("set", help="change one parameter (VALUE is YAML: 20, 2.5, true, [1, 2])")
+    set_ = verbs.add_parser("set", help="change one parameter the node applies at run time (VALUE is YAML: 20, 2.5, "
+                                        "true, [1, 2]); others are refused")
     set_.add_argument("node")
     set_.add_argument("name")
     set_.add_argument("value")
@@ -45,7 +47,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def _ask(args: argparse.Namespace, verb: str, request: Message) -> ParamValues:
-    with _tool_node(args, f"param_{verb}") as node:
+    with tool_node(args, f"param_{verb}") as node:
         reply = call_service(node, param_service(args.node, verb), request, wait_s=args.timeout,
                              timeout_s=args.timeout)
     assert isinstance(reply, ParamValues)
@@ -56,10 +58,20 @@ def _yaml(value: Any) -> str:
     return yaml.safe_dump(value, sort_keys=False, default_flow_style=None, width=120).rstrip()
 
 
+_CHANGE_TEXT = {"run time": "changeable at run time", "launch": "fixed at launch",
+                "safety limit": "safety limit, fixed at launch"}
+
+
+def change_text(got: ParamValues, name: str) -> str:
+    """When parameter ``name`` may change, in words (``param list``, ``param get``)."""
+    rule = got.change.get(name)
+    return _CHANGE_TEXT.get(rule, f"may change: {rule}") if rule else "run-time rule unknown (an older node)"
+
+
 def run_list(args: argparse.Namespace) -> int:
     got = _ask(args, "get", ParamGet())
     for name, value in got.values.items():
-        print(f"{name}: {got.types.get(name, '?')}  (now {value!r})")
+        print(f"{name}: {got.types.get(name, '?')}  (now {value!r}; {change_text(got, name)})")
     return 0
 
 
@@ -68,6 +80,7 @@ def run_get(args: argparse.Namespace) -> int:
     if args.name not in got.values:
         raise PalpaError(f"node {args.node!r} has no parameter {args.name!r} (has: {', '.join(got.values)})")
     print(_yaml(got.values[args.name]).removesuffix("\n..."))
+    print(f"# {change_text(got, args.name)}")  # a YAML comment: the output still reads as the value
     return 0
 
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 import argparse
 
 from palpa.cli.common import add_bus_arg, run_with_params
+from palpa.node.runner import parse_remaps
 from palpa.record.player import Player
-from palpa.runner import parse_remaps
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -10,12 +10,12 @@ import msgspec
 import yaml
 
 from palpa.cli.common import add_bus_arg, message_from_yaml
-from palpa.cli.topic import _tool_node, collect_heartbeats
+from palpa.cli.topic import collect_heartbeats, tool_node
 from palpa.errors import PalpaError
 from palpa.message import Message, lookup
-from palpa.node import Node, RawMessage
-from palpa.params_runtime import ParamGet  # noqa: F401  (registers the parameter messages for `call`)
-from palpa.service_client import discover
+from palpa.node.node import Node, RawMessage
+from palpa.node.params_runtime import ParamGet  # noqa: F401  (registers the parameter messages for `call`)
+from palpa.node.service_client import discover
 
 __all__ = ["call_service", "register"]
 
@@ -44,15 +44,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def run_list(args: argparse.Namespace) -> int:
-    with _tool_node(args, "service_list") as node:
+    with tool_node(args, "service_list") as node:
         beats = collect_heartbeats(node, args.wait)
-    rows = sorted((name, types, hb.node) for hb in beats.values() for name, types in hb.services.items()
-                  if args.all or not name.startswith("_palpa/"))
-    if not rows:
+    every = sorted((name, types, hb.node) for hb in beats.values() for name, types in hb.services.items())
+    rows = [row for row in every if args.all or not row[0].startswith("_palpa/")]
+    if not every:
         print("no services (no node heartbeat announced one; is the graph running on this bus?)", file=sys.stderr)
         return 1
     for name, types, server in rows:
         print(f"{name}  [{types}]  server: {server}")
+    if hidden := len(every) - len(rows):
+        print(f"({'and ' if rows else 'no services but '}{hidden} parameter services, _palpa/param/NODE/get|set: "
+              "`palpa service list --all` lists them, `palpa param` uses them)")
     return 0
 
 
@@ -68,7 +71,7 @@ def call_service(node: Node, name: str, request: Message, *, wait_s: float, time
 
 def run_call(args: argparse.Namespace) -> int:
     request = message_from_yaml(args.type, args.data, "request")
-    with _tool_node(args, "service_call") as node:
+    with tool_node(args, "service_call") as node:
         if args.feedback:
             node.subscribe_raw(args.feedback, lambda raw: _print_feedback(args.feedback, raw))
         response = call_service(node, args.name, request, wait_s=args.wait, timeout_s=args.timeout)

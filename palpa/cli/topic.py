@@ -16,9 +16,9 @@ from palpa.cli.common import add_bus_arg, bus_and_source, import_message_modules
 from palpa.errors import BusError, PalpaError, RegistryError
 from palpa.launch.validate import did_you_mean
 from palpa.message import lookup
-from palpa.node import Node, RawMessage
+from palpa.net.wire import TopicStats
+from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
-from palpa.wire import TopicStats
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -63,7 +63,7 @@ WAIT_S = 1.5
 WAIT_HELP = "seconds to listen for heartbeats (every node sends one a second; default %(default)s)"
 
 
-def _tool_node(args: argparse.Namespace, name: str) -> Node:
+def tool_node(args: argparse.Namespace, name: str) -> Node:
     """A heartbeat-less node on the verb's bus; ``args.bus_where`` names that bus and why it was chosen."""
     import_message_modules()
     address, source = bus_and_source(args)
@@ -128,7 +128,8 @@ class GraphWatch:
 
 
 def collect_heartbeats(node: Node, wait_s: float) -> dict[str, Heartbeat]:
-    """Listen for ``wait_s`` seconds and return the latest heartbeat of every node."""
+    """Listen for ``wait_s`` seconds and return the latest heartbeat of every node (not of a node whose latest
+    said it is leaving)."""
     sub = node.subscribe(HEARTBEAT_TOPIC, Heartbeat)
     seen: dict[str, Heartbeat] = {}
     deadline = time.monotonic() + wait_s
@@ -136,11 +137,11 @@ def collect_heartbeats(node: Node, wait_s: float) -> dict[str, Heartbeat]:
         hb = sub.next(remaining)
         if hb is not None:
             seen[hb.node] = hb
-    return seen
+    return {name: hb for name, hb in seen.items() if hb.state != "leaving"}
 
 
 def run_list(args: argparse.Namespace) -> int:
-    with _tool_node(args, "topic_list") as node:
+    with tool_node(args, "topic_list") as node:
         beats = collect_heartbeats(node, args.wait)
     topics = graph_topics(beats)
     if not topics:
@@ -164,6 +165,7 @@ def run_echo(args: argparse.Namespace) -> int:
     count = 0
     deadline = time.monotonic() + args.timeout if args.timeout > 0 else math.inf
 
+    bus_and_source(args)  # which bus, said first
     topic = bare_topic(args.topic)
 
     def on_raw(raw: RawMessage) -> None:
@@ -180,7 +182,7 @@ def run_echo(args: argparse.Namespace) -> int:
             print(yaml.safe_dump(body, sort_keys=False, default_flow_style=None, width=120).rstrip())
         sys.stdout.flush()
 
-    with _tool_node(args, "echo") as node:
+    with tool_node(args, "echo") as node:
         node.subscribe_raw(topic, on_raw)
         watch = GraphWatch(node, args, topic)
         while (not args.count or count < args.count) and time.monotonic() < deadline:
@@ -195,12 +197,13 @@ def run_echo(args: argparse.Namespace) -> int:
 def run_hz(args: argparse.Namespace) -> int:
     stamps: list[int] = []
     stats = TopicStats()
-    from palpa.wire import SequenceTracker
+    from palpa.net.wire import SequenceTracker
 
     tracker = SequenceTracker()
     started = time.monotonic()
     last_print = started
 
+    bus_and_source(args)  # which bus, said first
     topic = bare_topic(args.topic)
 
     def on_raw(raw: RawMessage) -> None:
@@ -210,7 +213,7 @@ def run_hz(args: argparse.Namespace) -> int:
             stamps.append(raw.header.stamp)
             del stamps[: -args.window]
 
-    with _tool_node(args, "hz") as node:
+    with tool_node(args, "hz") as node:
         node.subscribe_raw(topic, on_raw)
         watch = GraphWatch(node, args, topic)
         while not args.duration or time.monotonic() - started < args.duration:
@@ -252,8 +255,9 @@ def _check_graph(node: Node, topic: str, type_name: str, where: str) -> None:
 def run_pub(args: argparse.Namespace) -> int:
     import_message_modules()
     msg = message_from_yaml(args.type, args.data)
+    bus_and_source(args)  # which bus, said first
     topic = bare_topic(args.topic)
-    with _tool_node(args, "pub") as node:
+    with tool_node(args, "pub") as node:
         if not getattr(node.transport, "connected", True):
             raise BusError(f"no bus answered on {args.bus_where}: nothing was sent (is the launch running? "
                            "--bus or --run DIR choose another)")

@@ -1,9 +1,9 @@
 """``palpa launch --in-process``: a plan whose simulated-clock nodes run composed in one process.
 
 The nodes a launch file runs on simulated time (``env: {PALPA_SIM_CLOCK: "1"}``), its clock source
-(``palpa.simclock:ClockSource``, replaced by the composition's event-to-event clock) and its recorder (which then
+(``palpa.timing.simclock:ClockSource``, replaced by the composition's event-to-event clock) and its recorder (which then
 hears every message in process, however fast the simulation goes, instead of through the proxy's queues) become one
-``cmd`` entry running ``python -m palpa.compose <run_dir>/composed.json``. Every other entry (a real device, a
+``cmd`` entry running ``python -m palpa.timing.compose <run_dir>/composed.json``. Every other entry (a real device, a
 ``cmd``) stays a process of its own on the bus, where the composed graph publishes everything it does.
 """
 
@@ -19,7 +19,7 @@ from palpa.launch.plan import LaunchPlan, NodeSpec
 
 __all__ = ["CLOCK_TARGET", "COMPOSED_NAME", "compose_plan", "is_composable", "name_clock_participants"]
 
-CLOCK_TARGET = "palpa.simclock:ClockSource"
+CLOCK_TARGET = "palpa.timing.simclock:ClockSource"
 COMPOSED_NAME = "sim"
 _SIM_ENV = palpa_env.SIM_CLOCK
 
@@ -67,7 +67,7 @@ def compose_plan(plan: LaunchPlan) -> LaunchPlan:
         n += 1
         name = f"{COMPOSED_NAME}-{n}"
     entry = NodeSpec(
-        name=name, cmd=[sys.executable, "-m", "palpa.compose", "--json", json.dumps(graph)],
+        name=name, cmd=[sys.executable, "-m", "palpa.timing.compose", "--json", json.dumps(graph)],
         env=env, required=any(s.required for s in composed),
         sigterm_timeout=max(s.sigterm_timeout for s in members),
         sigkill_timeout=max(s.sigkill_timeout for s in members),

@@ -12,10 +12,10 @@ import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
-from palpa.bus import is_loopback_endpoint
 from palpa.errors import BusError
 from palpa.launch.plan import LaunchPlan, NodeSpec
 from palpa.launch.source import Path_, Source
+from palpa.net.bus import is_loopback_endpoint
 
 __all__ = ["TOPIC_NAME", "check_bus_exposure", "check_cmd_program", "check_hazards", "check_remap"]
 

@@ -4,7 +4,7 @@ Order of work for each file: read the YAML with marks; validate and resolve ``ar
 else an error); apply substitutions to everything else; validate the result against
 :class:`~palpa.launch.schema.LaunchFile`; load includes (paths relative to the including file, cycles refused);
 collect the nodes. When every file is in, each ``node:`` class is imported and its params are validated with
-:func:`palpa.params.convert_params`. Every error reads ``file:line:col: what was expected``.
+:func:`palpa.node.params.convert_params`. Every error reads ``file:line:col: what was expected``.
 
 Substitutions are applied by :mod:`palpa.launch.subst`; validation errors are worded by
 :mod:`palpa.launch.validate`.
@@ -12,7 +12,6 @@ Substitutions are applied by :mod:`palpa.launch.subst`; validation errors are wo
 
 from __future__ import annotations
 
-import importlib
 import json
 import os
 import re
@@ -25,7 +24,6 @@ from typing import Any
 
 import msgspec
 
-from palpa.address import is_loopback_host
 from palpa.errors import BusError, LaunchError, ParamError
 from palpa.launch.compose import name_clock_participants
 from palpa.launch.hazards import check_hazards
@@ -34,8 +32,10 @@ from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, Reco
 from palpa.launch.source import Mark, Path_, Source, display_path
 from palpa.launch.subst import substitute
 from palpa.launch.validate import convert, did_you_mean, kind, lower_first
-from palpa.node import Node
-from palpa.params import convert_params, input_paths
+from palpa.net.address import is_loopback_host
+from palpa.node.node import Node
+from palpa.node.params import convert_params, input_paths
+from palpa.targets import TargetError, load_node_class
 
 __all__ = ["load_launch", "parse_overrides"]
 
@@ -308,12 +308,9 @@ def _validate_nodes(col: _Collected) -> None:
 
 def _validate_recorder(col: _Collected, rec: NodeSpec) -> None:
     try:
-        module = importlib.import_module(RECORDER_TARGET.partition(":")[0])
-    except ImportError:
+        cls = load_node_class(RECORDER_TARGET)
+    except TargetError:
         col.plan.recorder_available = False  # --check still passes; launching says so
-        return
-    cls = getattr(module, RECORDER_TARGET.partition(":")[2], None)
-    if not (isinstance(cls, type) and issubclass(cls, Node)):
         return
     col.plan.recorder_available = True
     src = col.top if col.top is not None else Source.read(col.plan.file)
@@ -324,22 +321,10 @@ def _validate_recorder(col: _Collected, rec: NodeSpec) -> None:
 
 
 def _import_node_class(src: Source, where: Path_, target: str) -> type[Node]:
-    module_name, _, class_name = target.partition(":")
     try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        extra = "" if exc.name == module_name else f" (while importing it: {exc})"
-        raise src.error(where, f"cannot import module {module_name!r}{extra}: is it installed, or in the "
-                               "launch file's python_path?") from None
-    except Exception as exc:  # any error raised by the module's own code at import time
-        raise src.error(where, f"importing {module_name!r} failed: {type(exc).__name__}: {exc}") from None
-    cls = getattr(module, class_name, None)
-    if cls is None:
-        names = [n for n, v in vars(module).items() if isinstance(v, type) and issubclass(v, Node) and v is not Node]
-        raise src.error(where, f"module {module_name!r} has no {class_name!r}{did_you_mean(class_name, names)}")
-    if not (isinstance(cls, type) and issubclass(cls, Node)):
-        raise src.error(where, f"{target!r} is not a palpa.Node subclass")
-    return cls
+        return load_node_class(target)
+    except TargetError as exc:
+        raise src.error(where, exc.reason) from None
 
 
 def _arg_note(col: _Collected, src: Source, path: Path_) -> str:

@@ -14,10 +14,10 @@ from typing import Any
 import yaml
 
 from palpa import env as palpa_env
-from palpa.address import BusAddress, private_dir
 from palpa.errors import BusError
 from palpa.launch.schema import BusDecl, RecordDecl, VizDecl
-from palpa.options import TransportOptions
+from palpa.net.address import BusAddress, private_dir
+from palpa.net.options import TransportOptions
 
 __all__ = ["RECORDER_NAME", "RECORDER_TARGET", "VIZ_NAME", "VIZ_TARGET", "LaunchPlan", "NodeSpec"]
 
@@ -165,7 +165,7 @@ class LaunchPlan:
 
     def bus_request(self, override: str | None = None) -> BusAddress:
         """The endpoints the launcher binds: ``override`` (``--bus-address``), else the ``bus`` section, else a
-        fresh ipc path ``<private dir>/<pid>-<n>-<4 hex>`` (palpa.address.private_dir; n counts the process's
+        fresh ipc path ``<private dir>/<pid>-<n>-<4 hex>`` (palpa.net.address.private_dir; n counts the process's
         requests, so two are never the same in one process, and the hex part keeps a reused pid's apart)."""
         if override:
             return _tcp_any(override) if _is_host_only(override) else BusAddress.parse(override)

@@ -30,7 +30,7 @@ from typing import Annotated, Any, Literal
 import msgspec
 from msgspec import UNSET, Meta, Struct, UnsetType, field
 
-from palpa.options import TransportOptions
+from palpa.net.options import TransportOptions
 
 __all__ = [
     "NAME_PATTERN",
@@ -172,7 +172,7 @@ class LaunchFile(_Decl):
                                                     "ws://127.0.0.1:8765")] | None = None
     in_process: Annotated[bool, Meta(description="run the simulated-clock nodes (env PALPA_SIM_CLOCK=1), the clock "
                                                  "and the recorder in one process whose clock jumps from event to "
-                                                 "event (palpa.compose); also palpa launch --in-process")] = False
+                                                 "event (palpa.timing.compose); also palpa launch --in-process")] = False
 
 
 def json_schema() -> dict[str, Any]:

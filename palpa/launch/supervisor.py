@@ -28,10 +28,9 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TextIO
 
-from palpa.address import BusAddress
-from palpa.bus import Bus
 from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
 from palpa.launch.nodeproc import REAP_GRACE_S, NodeProc
@@ -42,7 +41,9 @@ from palpa.launch.progress import ProgressView, progress_fields
 from palpa.launch.reaper import Reaper
 from palpa.launch.signals import SignalInbox
 from palpa.launch.summary import exit_text, report_hidden, summarize
-from palpa.node import Node, RawMessage
+from palpa.net.address import BusAddress
+from palpa.net.bus import Bus
+from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 
 __all__ = ["Supervisor", "exit_text"]
@@ -59,7 +60,7 @@ class Supervisor:
     OS-chosen ports); ``progress`` False hides the progress view (default: a bar on a terminal, plain lines
     every 5 % elsewhere);
     ``reaper`` False leaves only PR_SET_PDEATHSIG to clean up after a killed launcher (tests use it to prove
-    that mechanism alone); ``announce`` makes this the current launch the CLI tools find (palpa.current)."""
+    that mechanism alone); ``announce`` lists this launch among the running ones the CLI tools find (palpa.current)."""
 
     def __init__(self, plan: LaunchPlan, *, bus_address: str | None = None, out: TextIO | None = None,
                  err: TextIO | None = None, progress: bool | None = None, reaper: bool = True,
@@ -83,6 +84,8 @@ class Supervisor:
         self.address: BusAddress | None = None
         self._use_reaper = reaper
         self._announce = announce
+        self._entry: Path | None = None
+        """This launch's entry among the running launches (palpa.current), while it runs."""
         self._reaper: Reaper | None = None
 
     # -- public ----------------------------------------------------------------------------------------
@@ -115,7 +118,7 @@ class Supervisor:
             tmp.write_text(f"{self.address}\n", encoding="utf-8")
             os.replace(tmp, plan.run_dir / "bus.address")
             if self._announce:
-                announce(self.address, plan.run_dir)
+                self._entry = announce(self.address, plan.run_dir)
             self._screen.say(f"bus at {self.address}; run directory {plan.run_dir}")
             self._start_observer()
             for i, spec in enumerate(plan.nodes):
@@ -364,8 +367,8 @@ class Supervisor:
         self._screen.close_view()  # the summary goes to stderr like every launcher message
         if had_view:
             report_hidden(self._screen, self._all(), self.plan.progress_report)
-        if self._announce:
-            withdraw()
+        if self._entry is not None:
+            withdraw(self._entry)
         if self._node is not None:
             self._node.close(0)
         if bus is not None:

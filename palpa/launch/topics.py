@@ -14,8 +14,8 @@ import inspect
 import textwrap
 from collections.abc import Mapping
 
-from palpa.naming import resolve_topic
-from palpa.node import Node
+from palpa.node.naming import resolve_topic
+from palpa.node.node import Node
 
 __all__ = ["declared_topics"]
 

@@ -38,6 +38,7 @@ from typing import Any
 from palpa import env as palpa_env
 from palpa.errors import PalpaError, RegistryError
 from palpa.message import json_schema, lookup
+from palpa.targets import import_message_modules
 
 __all__ = [
     "BLOBS_TOPIC_PREFIX",
@@ -91,21 +92,6 @@ RUNTIME_PREFIX = "_palpa/"
 
 class BagError(PalpaError):
     """A recording cannot be written, read, recovered or played; the message names the file and the problem."""
-
-
-_imported = False
-
-
-def import_message_modules() -> None:
-    """Import ``messages`` and the modules named in ``PALPA_MESSAGES`` (comma-separated) so their types are in
-    the registry; modules that do not import are skipped (their channels are then recorded without a schema)."""
-    global _imported
-    if _imported:
-        return
-    _imported = True
-    for name in ["messages", *palpa_env.listed(palpa_env.MESSAGES)]:
-        with contextlib.suppress(ImportError):
-            importlib.import_module(name)
 
 
 NODE_MODULES_ENV = palpa_env.NODE_MODULES

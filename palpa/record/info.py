@@ -18,9 +18,9 @@ from mcap.opcode import Opcode
 from mcap.reader import make_reader
 from mcap.records import Attachment, Channel, ChunkIndex, McapRecord, Metadata
 
+from palpa.net.wire import SequenceTracker, TopicStats
 from palpa.record.format import MD_DROPS, MD_NODES, MD_RECORDING, MD_RECOVERY, META_SCHEMA, BagError
 from palpa.record.reader import channel_info, iter_file
-from palpa.wire import SequenceTracker, TopicStats
 
 __all__ = ["bag_info", "format_info"]
 
@@ -175,7 +175,7 @@ def bag_info(paths: Sequence[Path]) -> dict[str, Any]:
 
 
 def _services(topics: dict[str, dict[str, Any]], faults: dict[str, int]) -> dict[str, dict[str, Any]]:
-    """Service calls in the recording, from the request and reply topics (palpa.service): per service, the
+    """Service calls in the recording, from the request and reply topics (palpa.node.service): per service, the
     request and response types, requests, replies, failed replies and callers."""
     out: dict[str, dict[str, Any]] = {}
     for topic, t in topics.items():

@@ -26,13 +26,13 @@ from typing import Any, Literal
 
 import palpa
 from palpa.errors import ParamError
-from palpa.node import Node
-from palpa.params import convert_params
+from palpa.net.transport import ZmqTransport
+from palpa.net.wire import Header
+from palpa.node.node import Node
+from palpa.node.params import convert_params
 from palpa.record.format import TopicFilter
 from palpa.record.reader import BagMessage, iter_bag, resolve_bag_paths
 from palpa.runtime_msgs import CLOCK_TOPIC, HEARTBEAT_TOPIC, ClockTick, Heartbeat
-from palpa.transport import ZmqTransport
-from palpa.wire import Header
 
 __all__ = ["PlayerParams", "Player"]
 
@@ -62,7 +62,7 @@ class PlayerParams(palpa.Params):
     """Publish the recording's time on _palpa/clock (ClockTick)."""
     clock_hz: float = 1000.0
     """Clock ticks per second of playback (the time resolution sim-clock nodes' timers get, as with
-    palpa.simclock.ClockSource)."""
+    palpa.timing.simclock.ClockSource)."""
     exit_when_done: bool = True
     """Stop the node (exit 0) after the last message; otherwise keep running until stopped."""
     exit_delay_s: float = 0.5
@@ -133,7 +133,7 @@ class Player(Node):
 
     def _not_ready(self) -> list[str]:
         """The ``wait_for`` nodes not ready for the first message: not heard (a heartbeat: set up) or, on a real
-        bus, their subscriptions not yet heard by our publisher socket (their readiness probe, palpa.presence)."""
+        bus, their subscriptions not yet heard by our publisher socket (their readiness probe, palpa.node.presence)."""
         t = self.transport
         return sorted(n for n in self.params.wait_for
                       if n in self._waiting or (isinstance(t, ZmqTransport) and not t.heard_join(n)))

@@ -26,9 +26,9 @@ import msgspec
 
 import palpa
 from palpa.errors import ParamError
-from palpa.node import Node, RawMessage
-from palpa.params import convert_params
-from palpa.params_runtime import PARAMS_TOPIC
+from palpa.node.node import Node, RawMessage
+from palpa.node.params import convert_params
+from palpa.node.params_runtime import PARAMS_TOPIC
 from palpa.record.format import (
     BLOBS_SCHEMA,
     BLOBS_SCHEMA_NAME,

@@ -17,10 +17,10 @@ from typing import BinaryIO
 from mcap.opcode import Opcode
 from mcap.records import Attachment, Channel, DataEnd, Metadata, Schema
 
+from palpa.net.wire import SequenceTracker, TopicStats
 from palpa.record.format import MD_DROPS, MD_RECOVERY, META_BLOBS_OF, BagError, dumps
 from palpa.record.reader import ChannelInfo, RawRecord, ReadableRecords, channel_info
 from palpa.record.writer import BagWriter
-from palpa.wire import SequenceTracker, TopicStats
 
 _FOOTER = struct.Struct("<BQQ")  # opcode, record length, summary start
 

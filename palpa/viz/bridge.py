@@ -27,11 +27,11 @@ import msgspec
 
 import palpa
 from palpa import env as palpa_env
-from palpa.address import is_loopback_host
 from palpa.errors import ParamError, RegistryError
 from palpa.message import Message, lookup
-from palpa.node import Node, Publisher, RawMessage
-from palpa.params import convert_params
+from palpa.net.address import is_loopback_host
+from palpa.node.node import Node, Publisher, RawMessage
+from palpa.node.params import convert_params
 from palpa.record.format import TopicFilter, import_message_modules
 from palpa.runtime_msgs import LOG_TOPIC
 from palpa.viz.server import SUBPROTOCOL, Key, SdkServer

@@ -27,6 +27,7 @@ import foxglove
 import msgspec
 from foxglove.websocket import Capability, ChannelView, Client, ClientChannel, ServerListener
 
+from palpa.errors import PalpaError
 from palpa.viz.schema import foxglove_schema
 
 __all__ = ["ClientStats", "SUBPROTOCOL", "SdkServer", "STATS_TOPIC", "TopicStats"]
@@ -110,10 +111,15 @@ class SdkServer:
         caps = [Capability.ClientPublish] if client_topics and on_client_message else []
         if services:
             caps.append(Capability.Services)
-        self._server = foxglove.start_server(
-            name=name, host=host, port=port, context=self._context, capabilities=caps,
-            supported_encodings=["json"] if caps else None, server_listener=_Listener(self),
-            services=services or None, message_backlog_size=backlog)
+        try:
+            self._server = foxglove.start_server(
+                name=name, host=host, port=port, context=self._context, capabilities=caps,
+                supported_encodings=["json"] if caps else None, server_listener=_Listener(self),
+                services=services or None, message_backlog_size=backlog)
+        except RuntimeError as exc:  # the SDK reports an OS error as RuntimeError("FoxgloveError: ...")
+            reason = str(exc).removeprefix("FoxgloveError: ")
+            hint = " (--port 0, or port: 0 under a launch file's viz:, lets the OS choose a free one)" if "in use" in reason else ""
+            raise PalpaError(f"cannot listen on {host}:{port}: {reason}{hint}") from None
         self.port = self._server.port
         self._stats_channel = foxglove.Channel(STATS_TOPIC, message_encoding="json", context=self._context)
         self._thread = threading.Thread(target=self._run, name="palpa-viz-sender", daemon=True)

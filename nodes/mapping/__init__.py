@@ -1,0 +1,1 @@
+"""The map: the aggregator that builds the stiffness map and finds inclusions, its outputs, Foxglove views."""

@@ -1,0 +1,429 @@
+"""Adaptive palpation planner (issue 20): probes where the map is still ambiguous, stops when it is not.
+
+Drives the scanner through ``scanner/probe_at`` (the scanner on ``autostart: false``), one request at a time with
+the non-blocking call form: the reply arrives in a callback, the node keeps running meanwhile. The scanner checks
+every request against its workspace box, speed caps and watchdog; a refused request is logged, the point is
+retried up to ``retries`` times (the scanner may be busy or still waiting for probe data) and then given up, and
+the planner carries on with the next best point.
+
+What it learns from: every valid ``stiffness/sample`` binned into the belief grid (the per-cell median, as the map
+aggregator's), so a sweep teaches it the cells it crossed, not one number. The belief is
+:func:`models.adaptive.fit_belief` (GP regression). With ``stop_rule: detect`` (default) the next point and the end
+are :func:`models.adaptive_detect.decide`'s: cover the region until an inclusion of the smallest size of interest is
+unlikely to hide, sample every candidate's boundary, then stop; inclusions are detected on the measured cells (GP
+mean only near them) against the baseline of the stiffness-blind probes. With ``stop_rule: lse`` the straddle /
+ILS-UCB acquisition (:func:`models.adaptive.next_probe`) and LSE's ambiguous area (:func:`models.adaptive.should_stop`)
+on the GP mean.
+
+Publishes ``planner/mean``, ``planner/std`` and ``planner/map`` (the map inclusions are detected on; StiffnessMap,
+latched) after every probe, and at the end writes the same files as a raster scan's map (``map.npz`` of that map,
+``map.png``, ``inclusions.json``: nodes.mapping.map_output) plus ``planner.json`` (probes, refusals, simulated time, why it
+stopped, and with the detect rule ``unsensed``: per reach of interest the fraction of the region where an inclusion
+sensed from that far could still lie unseen; the smallest's cells are ``map.npz``'s ``unsensed`` and ``map.png``'s
+grey), publishes ``map/inclusions`` and exits: it is the launch's required node. It exits 0 only when nothing was
+lost: a probe given up after the scanner's refusals, or estimates lost on the way, make the run incomplete (exit 1,
+``incomplete`` in planner.json, and the given-up sweeps' area counts as unsensed).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+
+import palpa
+from messages import (
+    DetectedInclusion,
+    Inclusions,
+    ProbeAt,
+    ProbeResult,
+    ScanStatus,
+    StiffnessMap,
+    StiffnessSample,
+)
+from models.adaptive import (
+    Belief,
+    PlannerConfig,
+    fit_belief,
+    initial_design,
+    next_probe,
+    should_stop,
+)
+from models.adaptive_cover import seed_design
+from models.adaptive_detect import decide, detect_candidates, reference, unsensed
+from models.geometry import GeometryError, load_geometry
+from models.stiffness_map import Inclusion, MapSnapshot, StiffnessGrid, detect_inclusions
+from models.surface import region_in_footprint
+from nodes.mapping.map_output import write_outputs
+from palpa.node.service import ServiceError
+from palpa.node.service_client import Future
+
+__all__ = ["AdaptivePlanner"]
+
+
+class AdaptivePlanner(palpa.Node):
+    """Picks probe points from a GP belief of stiffness and sends them to the scanner (module doc)."""
+
+    class Params(palpa.Params):
+        region_mm: list[float] = []
+        """x0, y0, x1, y1 the planner probes in (the scanner refuses what is outside its own box); empty: the
+        measured footprint (``geometry``) less ``edge_margin_mm``."""
+        geometry: str = ""
+        """Measured-geometry file (models.geometry), for the footprint when no region is given."""
+        edge_margin_mm: float = 6.0
+        resolution_mm: float = 2.0
+        initial: int = 4
+        """An initial x initial grid of probes first (unless seed_spacing_mm)."""
+        seed_spacing_mm: float = 0.0
+        """> 0: the initial grid's points about this far apart instead (a seed that scales with the specimen)."""
+        max_length_scale_mm: float = 3.0
+        """Upper bound of the GP kernel's length scale (models.adaptive.PlannerConfig.length_scale_mm)."""
+        beta: float = 2.0
+        implicit_fraction: float = 0.0
+        rel_threshold: float = 0.2
+        stop_area_mm2: float = 16.0
+        epsilon: float = 0.1
+        """LSE's accuracy, a fraction of the baseline (models.adaptive.PlannerConfig)."""
+        max_probes: int = 60
+        stop_rule: Literal["detect", "lse"] = "detect"
+        """detect: stop when an inclusion of the sizes of interest is unlikely to hide, every candidate's boundary is
+        sampled and every detection's disc measured densely (models.adaptive_detect); lse: LSE's ambiguous area."""
+        reach_mm: float = 4.0
+        """detect: a measurement within this of an inclusion's centre senses it (smallest radius + sensing reach)."""
+        radius_span_mm: float = 4.5
+        """detect: the radii of interest span this much above the smallest; the reach grows with them (PlannerConfig)."""
+        reach_spread_mm: tuple[float, ...] = (0.0,)
+        """detect: how far an inclusion's reach strays from that, as equally likely offsets (PlannerConfig)."""
+        interior_gap_mm: float = 3.0
+        """detect: every cell of a detected inclusion's disc within this of a measured cell before stopping (0: off)."""
+        miss_probability: float = 0.01
+        """detect: the chance, below which the planner may stop, that such an inclusion hides unsensed."""
+        suspect: float = 0.6
+        """detect: regions above this fraction of the detector's thresholds get their boundary sampled."""
+        fill_mm: float = 4.0
+        """detect: the detection map takes the GP mean only this close to a measured cell."""
+        lower_spread: bool = True
+        """detect: the baseline's noise scale from the blind cells below their median (PlannerConfig)."""
+        neighbour_cap: float = 4.0
+        """detect: the baseline's noise scale at most this many times that of neighbouring blind cells' differences
+        along a sweep (PlannerConfig; 0: off)."""
+        split_prominence: float = 1.5
+        """detect: split a detection whose measured cells show two maxima this many noise scales above the measured
+        level joining them (PlannerConfig; 0: off)."""
+        near_miss: float = 0.8
+        """detect, > 0: a suspect whose peak came this fraction of the way to the detector's threshold gets its disc
+        measured at the raster's density (PlannerConfig)."""
+        near_miss_gap_mm: float = 1.5
+        """detect: a near miss's disc is measured until every cell is within this of a measured one (PlannerConfig)."""
+        near_best: float = 1.0
+        """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
+        cover_column_mm: float = 8.0
+        """detect: the covering sweeps on a staggered lattice with columns this far apart (PlannerConfig; 0: off)."""
+        cover_period_mm: float = 12.0
+        """detect: along a lattice column a sweep every this far, the next column's half a period along."""
+        mode: Literal["sweep", "indent"] = "sweep"
+        """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
+        length_mm: float = 6.0
+        radius_mm: float = 3.0
+        """Samples within this distance of the point make the scanner's answer (the planner bins them all)."""
+        min_count: int = 1
+        """Samples a cell needs to count as observed."""
+        refit_every: int = 8
+        """Re-optimise the GP's hyper-parameters every this many probes (a fit costs seconds, a posterior ms)."""
+        retries: int = 2
+        call_timeout_s: float = 120.0
+        """Wall seconds a probe may take before the planner gives it up."""
+        output_dir: str = "out"
+        title: str = ""
+
+    params: Params
+
+    def setup(self) -> None:
+        p = self.params
+        if p.mode not in ("sweep", "indent"):
+            raise palpa.ParamError(f"{self.name}: mode must be sweep or indent, got {p.mode!r}")
+        try:
+            region = self._region()
+            self.cfg = PlannerConfig(region, resolution_mm=p.resolution_mm, initial=p.initial,
+                                     beta=p.beta, implicit_fraction=p.implicit_fraction, epsilon=p.epsilon,
+                                     rel_threshold=p.rel_threshold, stop_area_mm2=p.stop_area_mm2,
+                                     max_probes=p.max_probes, seed_spacing_mm=p.seed_spacing_mm,
+                                     length_scale_mm=(1.0, p.max_length_scale_mm), stop_rule=p.stop_rule,
+                                     reach_mm=p.reach_mm, radius_span_mm=p.radius_span_mm,
+                                     reach_spread_mm=tuple(float(v) for v in p.reach_spread_mm),
+                                     interior_gap_mm=p.interior_gap_mm,
+                                     miss_probability=p.miss_probability, fill_mm=p.fill_mm,
+                                     suspect=p.suspect, lower_spread=p.lower_spread,
+                                     neighbour_cap=p.neighbour_cap, near_miss=p.near_miss,
+                                     near_miss_gap_mm=p.near_miss_gap_mm, split_prominence=p.split_prominence,
+                                     near_best=p.near_best, cover_column_mm=p.cover_column_mm,
+                                     cover_period_mm=p.cover_period_mm,
+                                     sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
+        except (ValueError, GeometryError) as exc:
+            raise palpa.ParamError(f"{self.name}: {exc}") from None
+        x0, y0, x1, y1 = region
+        self.grid = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
+        self.fair = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
+        """The cells measured by stiffness-blind probes (seed grid, covering sweeps): the detector's baseline."""
+        self.pending: list[tuple[float, float, float, bool]] = []
+        """Samples not yet in the grids: (x, y, value, measured by a stiffness-blind probe)."""
+        self.unit = ""
+        seeds = seed_design(self.cfg) if self.cfg.stop_rule == "detect" else initial_design(self.cfg)
+        self.queue = [(pt, True, "seed") for pt in seeds]
+        """(point, blind, why): the points to probe next; blind when chosen without looking at stiffness; why: what
+        the acquisition meant it for (seed, covering, resolving a candidate, ...)."""
+        self.why: list[str] = []
+        """For every probe made, why it was chosen (planner.json)."""
+        self.probed: list[tuple[float, float]] = []
+        self.blind: list[bool] = []
+        """For every probe made, whether it was stiffness-blind (its samples go to the baseline's grid)."""
+        self.given_up: list[tuple[float, float]] = []
+        """Points the scanner refused every time: never chosen again, not counted as probes."""
+        self.tries: dict[tuple[float, float], int] = {}
+        self.refused = 0
+        self.inflight: tuple[float, float] | None = None
+        self.inflight_blind = False
+        self.inflight_why = ""
+        self.inflight_since_ns = 0
+        self.retry_at_ns = 0
+        self.started_ns: int | None = None
+        self.belief: Belief | None = None
+        self.done = False
+        self.probe_at = self.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=p.call_timeout_s)
+        self.mean_pub = self.publisher("planner/mean", StiffnessMap, latched=True)
+        self.std_pub = self.publisher("planner/std", StiffnessMap, latched=True)
+        self.map_pub = self.publisher("planner/map", StiffnessMap, latched=True)
+        self.inc_pub = self.publisher("map/inclusions", Inclusions, latched=True)
+        self.scanner_state = ""
+        self.subscribe("stiffness/sample", StiffnessSample, self.on_sample)
+        self.subscribe("robot/scan_status", ScanStatus, self.on_status)
+        self.timer(0.05, self.step)
+
+    def _region(self) -> tuple[float, float, float, float]:
+        p = self.params
+        if p.region_mm:
+            if len(p.region_mm) != 4:
+                raise ValueError(f"region_mm needs x0, y0, x1, y1, got {p.region_mm}")
+            x0, y0, x1, y1 = (float(v) for v in p.region_mm)
+            return x0, y0, x1, y1
+        footprint = load_geometry(p.geometry).footprint_mm() if p.geometry else None
+        if footprint is None:
+            raise ValueError("no region: give region_mm, or a geometry file with the specimen's footprint")
+        return region_in_footprint(footprint, p.edge_margin_mm)
+
+    def on_status(self, s: ScanStatus) -> None:
+        self.scanner_state = s.state
+
+    def on_sample(self, s: StiffnessSample) -> None:
+        # only what its probes measured where they were sent: the touch-off presses and the transit from the last
+        # of them still in contact read 3-20x the tissue's stiffness (a false inclusion at each touch point)
+        if not s.valid:
+            return
+        blind = self._measured_by(s)
+        if blind is not None:
+            self.unit = s.unit
+            self.pending.append((s.x_mm, s.y_mm, s.value, blind))
+
+    def _measured_by(self, s: StiffnessSample) -> bool | None:
+        """Whether the probe that measured ``s`` was stiffness-blind; None when ``s`` lies on neither the probe in
+        flight (measured since its request) nor the last one made (its sweep's line, or the press's radius, within
+        one belief cell). By where and when it was measured, not when it arrived: the scanner answers a while after
+        the path ends and the probe rests on the tissue meanwhile, so estimates of the last probe keep arriving after
+        the next one was asked for; counted as the next probe's, a resolving sweep's stiff end went into the blind
+        baseline whenever a covering sweep followed, raised the detector's threshold and lost a weak inclusion
+        (fresh seed 5019, draw 2)."""
+        if self.inflight is not None and s.stamp_ns >= self.inflight_since_ns and self._on(self.inflight, s):
+            return self.inflight_blind
+        if self.probed and self._on(self.probed[-1], s):
+            return self.blind[-1]
+        return None
+
+    def _on(self, probe: tuple[float, float], s: StiffnessSample) -> bool:
+        tol = self.params.resolution_mm
+        half = 0.5 * self.params.length_mm if self.params.mode == "sweep" else 0.0
+        reach = tol if self.params.mode == "sweep" else max(tol, self.params.radius_mm)
+        dy = max(0.0, abs(s.y_mm - probe[1]) - half)
+        return (s.x_mm - probe[0]) ** 2 + dy**2 <= reach**2
+
+    # -- the loop ----------------------------------------------------------------------------------
+    def step(self) -> None:
+        """Send the next request when none is in flight and the scanner is there."""
+        if self.done or self.inflight is not None or self.clock.now_ns() < self.retry_at_ns:
+            return
+        # the scanner may first be finding the surface (touch-off): a request would only be refused
+        if not self.probe_at.ready() or self.scanner_state not in ("idle", "done"):
+            return
+        if self.started_ns is None:
+            self.started_ns = self.clock.now_ns()
+        if len(self.probed) >= self.cfg.max_probes:   # the initial design too stays within the budget
+            self.finish(f"probe budget spent ({len(self.probed)} probes)")
+            return
+        if not self.queue:
+            stop, why = self._decide()
+            if stop:
+                self.finish(why)
+                return
+        (x, y), self.inflight_blind, self.inflight_why = self.queue.pop(0)
+        self.inflight, self.inflight_since_ns = (x, y), self.clock.now_ns()
+        req = ProbeAt(x_mm=x, y_mm=y, mode=self.params.mode,
+                      length_mm=self.params.length_mm, radius_mm=self.params.radius_mm)
+        self.probe_at.call_async(req).add_done_callback(self.on_result)
+
+    def on_result(self, fut: Future[ProbeResult]) -> None:
+        point, self.inflight = self.inflight, None
+        assert point is not None
+        err = fut.exception()
+        if err is None:
+            r = fut.result()
+            self.probed.append(point)
+            self.blind.append(self.inflight_blind)
+            self.why.append(self.inflight_why)
+            self.log.info("probe %d at (%.1f, %.1f) mm (%s): %.2f %s from %d estimates", len(self.probed), *point,
+                          self.inflight_why, r.value, r.unit, r.samples)
+            self._update_belief()
+            return
+        self._refused(point, err)
+
+    def _refused(self, point: tuple[float, float], err: ServiceError) -> None:
+        self.refused += 1
+        n = self.tries[point] = self.tries.get(point, 0) + 1
+        if n <= self.params.retries:
+            self.log.warning("probe at (%.1f, %.1f) mm refused (%s): retrying", *point, err)
+            self.queue.insert(0, (point, self.inflight_blind, self.inflight_why))
+            self.retry_at_ns = self.clock.now_ns() + 500_000_000
+        else:
+            self.log.warning("probe at (%.1f, %.1f) mm refused %d times (%s): giving it up", *point, n, err)
+            self.given_up.append(point)
+
+    def _observations(self) -> tuple[list[tuple[float, float]], list[float]]:
+        if self.pending:
+            xs, ys, vs, blind = (np.array(v) for v in zip(*self.pending, strict=True))
+            self.grid.add(xs, ys, vs)
+            if blind.any():
+                self.fair.add(xs[blind], ys[blind], vs[blind])
+            self.pending.clear()
+        snap = self.grid.snapshot()
+        ok = np.isfinite(snap.stiffness)
+        gx, gy = np.meshgrid(snap.x_mm, snap.y_mm)
+        return list(zip(gx[ok].tolist(), gy[ok].tolist(), strict=True)), snap.stiffness[ok].tolist()
+
+    def _update_belief(self) -> None:
+        pts, vals = self._observations()
+        if len(pts) < 2:
+            return
+        # hyper-parameters re-optimised every refit_every probes; in between only the posterior is updated
+        old = self.belief
+        reuse = old is not None and len(self.probed) % self.params.refit_every != 0
+        self.belief = fit_belief(pts, vals, self.cfg, kernel=old.kernel if reuse and old else None)
+        self._publish_belief(final=False)
+
+    def _decide(self) -> tuple[bool, str]:
+        """Stop, or queue the acquisition's next point."""
+        b = self.belief
+        if len(self.given_up) >= self.cfg.max_probes:
+            return True, f"{len(self.given_up)} points refused by the scanner"
+        if b is None:
+            return True, "no stiffness estimate from the initial probes"
+        snap = self.grid.snapshot()
+        if self.cfg.stop_rule == "detect":
+            last = self.probed[-1] if self.probed else None
+            d = decide(b, snap.stiffness, snap.count, self.probed + self.given_up, self.cfg, last,
+                       self.fair.snapshot().stiffness, self.given_up)
+            if not d.stop and d.point is not None:
+                self.queue.append((d.point, d.blind, d.kind))
+            return d.stop, d.why
+        observed = snap.count >= self.params.min_count
+        stop, why = should_stop(b, len(self.probed), self.cfg, observed)
+        if not stop:
+            self.queue.append((next_probe(b, self.probed + self.given_up, self.cfg, observed), False, "straddle"))
+        return stop, why
+
+    # -- output ------------------------------------------------------------------------------------
+    def _detection(self, b: Belief) -> tuple[MapSnapshot, list[Inclusion]]:
+        """The map the inclusions are detected on and what is detected: with the detect rule the measured cells
+        and the GP mean near them, against the stiffness-blind probes' baseline (models.adaptive_detect); with
+        lse the GP mean (the belief alone)."""
+        counts = self.grid.snapshot().count
+        if self.cfg.stop_rule == "detect":
+            return detect_candidates(b, self.grid.snapshot().stiffness, counts, self.cfg,
+                                     self.fair.snapshot().stiffness)
+        snap = MapSnapshot(stiffness=b.mean, x_mm=b.x_mm, y_mm=b.y_mm, count=counts, spread=b.std,
+                           resolution_mm=self.params.resolution_mm)
+        try:
+            return snap, detect_inclusions(snap, rel_threshold=self.params.rel_threshold)
+        except ValueError as exc:
+            self.log.warning("no inclusion detection: %s", exc)
+            return snap, []
+
+    def _publish_belief(self, final: bool) -> tuple[MapSnapshot, list[Inclusion]]:
+        b = self.belief
+        assert b is not None
+        snap, found = self._detection(b)
+        now = self.clock.now_ns()
+        for pub, grid in ((self.mean_pub, b.mean), (self.std_pub, b.std), (self.map_pub, snap.stiffness)):
+            pub.publish(StiffnessMap(stamp_ns=now, unit=self.unit, x_mm=b.x_mm.tolist(), y_mm=b.y_mm.tolist(),
+                                     stiffness=grid.ravel().tolist(), count=snap.count.ravel().tolist(),
+                                     spread=b.std.ravel().tolist(), samples=len(self.probed), final=final))
+        return snap, found
+
+    def _unsensed(self) -> tuple[list[tuple[float, float]], npt.NDArray[np.bool_]]:
+        """Where an inclusion of the sizes of interest could still lie unseen (models.adaptive_detect.unsensed),
+        said in the log: the stop rule bounds it, a user should still see where it is."""
+        snap = self.grid.snapshot()
+        # the points given up were never measured: where only they would have sensed, the report says unsensed
+        hiding, mask = unsensed(np.isfinite(snap.stiffness), snap.x_mm, snap.y_mm, self.probed, self.cfg)
+        (r0, f0), (r1, f1) = hiding[0], hiding[-1]
+        self.log.info("unsensed: an inclusion sensed from at most %.1f mm away (the smallest of interest) could lie "
+                      "unseen in %.1f %% of the region, one sensed from %.1f mm (the largest) in %.1f %% (map.png's "
+                      "grey; the reach is a model: a small deep inclusion is sensed only from nearer)",
+                      r0, 100 * f0, r1, 100 * f1)
+        return hiding, mask
+
+    def finish(self, why: str) -> None:
+        self.done = True
+        p = self.params
+        elapsed = (self.clock.now_ns() - (self.started_ns or 0)) / 1e9
+        self.log.info("stopping: %s (%d probes, %d refusals, %.1f s)", why, len(self.probed), self.refused, elapsed)
+        out = Path(p.output_dir)
+        found: list[Inclusion] = []
+        detect = self.cfg.stop_rule == "detect"
+        hiding, mask = self._unsensed() if detect else ([], None)
+        lost = self._losses()
+        if lost:
+            self.log.error("the map is INCOMPLETE: %s", lost)
+        if self.belief is not None:
+            snap, found = self._publish_belief(final=True)
+            title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes, {len(found)} found"
+            write_outputs(out, snap, found, unit=self.unit or "?", title=title, unsensed=mask, incomplete=lost)
+        ref = (reference(self.fair.snapshot().stiffness, lower=self.cfg.lower_spread,
+                          neighbour_cap=self.cfg.neighbour_cap)
+               if detect else None)
+        self.inc_pub.publish(Inclusions(
+            stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,   # the baseline the contrasts are against
+            baseline=ref[0] if ref else self.belief.baseline if self.belief is not None else float("nan"),
+            inclusions=[DetectedInclusion(x_mm=i.x_mm, y_mm=i.y_mm, radius_mm=i.radius_mm, contrast=i.contrast)
+                        for i in found]))
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "planner.json").write_text(json.dumps({
+            "probes": len(self.probed), "refused": self.refused, "sim_s": elapsed, "stop": why,
+            "points": self.probed, "why": self.why, "given_up": self.given_up, "incomplete": lost,
+            "unsensed": [{"reach_mm": r, "fraction": round(f, 4)} for r, f in hiding]}, indent=1) + "\n")
+        self.timer(0.2, lambda: self.request_shutdown(1 if lost else 0), oneshot=True)
+
+    def _losses(self) -> str:
+        """What the map lacks of what was asked for or measured ('' when nothing): the map itself, probes given up
+        after the scanner's refusals, estimates lost on the way or a restarted estimator. Then the run is not clean: the
+        node exits 1 and planner.json's ``incomplete`` says why."""
+        lost = []
+        if self.belief is None:
+            lost.append("no valid stiffness estimate reached the planner: there is no map")
+        if self.given_up:
+            lost.append(f"{len(self.given_up)} probe(s) given up after refusals, at "
+                        + ", ".join(f"({x:.1f}, {y:.1f})" for x, y in self.given_up) + " mm: not in the map")
+        stats = self.counters().get(self.resolve("stiffness/sample"))
+        if stats is not None and stats.loss():
+            lost.append(f"stiffness/sample {stats.loss()}")
+        return "; ".join(lost)

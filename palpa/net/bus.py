@@ -1,0 +1,332 @@
+"""The bus: one XSUB/XPUB proxy per graph plus a last-value cache for latched topics.
+
+Publishers connect to the proxy's XSUB (``pub`` endpoint), subscribers to its XPUB (``sub``); the proxy itself runs
+in libzmq (``zmq.proxy_steerable``), so no Python touches the hot path. Latched topics (a calibration, the scan
+plan, the map) are kept by a small ROUTER service on the ``latch`` endpoint: a publisher that declares a topic
+latched sends each message there as well (``SET``), and a subscriber asks for the last value when it subscribes
+(``GET``), so a late joiner gets it without disturbing anyone else. Topics the *graph* declares latched (launch
+``bus.latched``) are cached from a capture of the proxy stream, filtered by prefix inside libzmq.
+
+Latch protocol (DEALER -> ROUTER), every frame bytes:
+    SET topic header payload [blobs...]      no reply
+    GET prefix                                -> VAL topic header payload [blobs...], one per cached topic that
+                                                 starts with prefix (none when nothing matches); later SETs on
+                                                 matching topics are pushed to the asker too, so a value set
+                                                 while its subscription is still propagating is not lost
+    UNWATCH prefix                            no reply: SETs on topics under prefix are no longer pushed to the
+                                                 asker (what its GET of that prefix started; wire version 2)
+    PING token                                -> PONG token: every reply to the asker's earlier requests came
+                                                 before it (a node waits for its directory answers, palpa.net.reach)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import threading
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import zmq
+import zmq.auth
+from zmq.auth.thread import ThreadAuthenticator
+
+from palpa.errors import BusError
+from palpa.net.address import BusAddress, is_loopback_host
+from palpa.net.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
+from palpa.net.keys import ClientKeys, load_secret_key
+from palpa.net.latch import DEFAULT_LATCH_MAX_BYTES, DEFAULT_LATCH_MAX_ENTRIES, LatchCache
+from palpa.net.wire import MAX_MSG_BYTES
+
+__all__ = ["Bus", "CurveServer", "is_loopback_endpoint"]
+
+log = logging.getLogger("palpa.net.bus")
+
+def is_loopback_endpoint(endpoint: str) -> bool:
+    """True for ipc/inproc endpoints and tcp endpoints on a loopback address: ``localhost`` itself or a
+    literal loopback IP (127.0.0.0/8, ::1). Any other name (``localhost.example.com``, ``127.0.0.1.nip.io``)
+    resolves through DNS and may be anything: not loopback."""
+    if not endpoint.startswith("tcp://"):
+        return True
+    return is_loopback_host(endpoint[len("tcp://") :].rpartition(":")[0])
+
+
+@dataclass(frozen=True)
+class CurveServer:
+    """CURVE settings of a bus: its secret key file and the folder of authorised client public keys."""
+
+    secret_key_file: Path
+    authorized_clients_dir: Path
+
+
+class Bus:
+    """A running proxy + last-value cache. ``start()`` binds and returns the resolved address; ``stop()`` ends it."""
+
+    def __init__(
+        self,
+        address: BusAddress,
+        *,
+        latched_topics: Iterable[str] = (),
+        hwm: int = 10_000,
+        curve: CurveServer | None = None,
+        max_msg_bytes: int = MAX_MSG_BYTES,
+        latch_max_bytes: int = DEFAULT_LATCH_MAX_BYTES,
+        latch_max_entries: int = DEFAULT_LATCH_MAX_ENTRIES,
+    ) -> None:
+        self._requested = address
+        self._latched_topics = sorted(set(latched_topics))
+        self._hwm = hwm
+        self._curve = curve
+        self._max_msg_bytes = max_msg_bytes
+        self._ctx = zmq.Context()
+        self._auth: ThreadAuthenticator | None = None
+        self._threads: list[threading.Thread] = []
+        self._stop = threading.Event()
+        self._cache = LatchCache(frozenset(t.encode() for t in self._latched_topics), latch_max_bytes,
+                                 latch_max_entries)
+        self._cache_lock = threading.Lock()
+        self._watchers: dict[bytes, set[bytes]] = {}
+        self.address: BusAddress | None = None
+        self.clients: ClientKeys | None = None
+        """The authorised CURVE client keys (None without CURVE); ``clients.reload()`` rereads the folder."""
+
+    def _secure(self, sock: zmq.Socket[bytes]) -> None:
+        if self._curve is None:
+            return
+        public, secret = load_secret_key(self._curve.secret_key_file)
+        sock.curve_secretkey = secret
+        sock.curve_publickey = public
+        sock.curve_server = True
+
+    def _bind(self, sock: zmq.Socket[bytes], endpoint: str) -> str:
+        if not is_loopback_endpoint(endpoint) and self._curve is None:
+            raise BusError(
+                f"refusing to bind {endpoint} without CURVE keys: binding beyond loopback needs "
+                "--curve-secret and --curve-clients (see docs/wire.md)"
+            )
+        self._secure(sock)
+        try:
+            sock.bind(endpoint)
+        except zmq.ZMQError as exc:
+            raise BusError(f"cannot bind {endpoint}: {exc}") from None
+        if endpoint.startswith("ipc://"):  # only this user may connect (connecting needs write permission)
+            with contextlib.suppress(OSError):
+                os.chmod(endpoint[len("ipc://") :], 0o600)
+        return str(sock.getsockopt_string(zmq.LAST_ENDPOINT))
+
+    def start(self) -> BusAddress:
+        """Bind all three endpoints and start the proxy and cache threads."""
+        if self._curve is not None:
+            self.clients = ClientKeys(self._curve.authorized_clients_dir)
+            self._auth = ThreadAuthenticator(self._ctx, log=logging.getLogger("palpa.net.bus.zap"))
+            self._auth.start()
+            self._auth.configure_curve_callback(domain="*", credentials_provider=self.clients)
+        xsub = self._ctx.socket(zmq.XSUB)
+        xpub = self._ctx.socket(zmq.XPUB)
+        router = self._ctx.socket(zmq.ROUTER)
+        for sock in (xsub, xpub):
+            sock.sndhwm = self._hwm
+            sock.rcvhwm = self._hwm
+            sock.linger = 0
+        router.linger = 0
+        router.router_mandatory = True
+        # a frame over the limit makes libzmq drop the connection of the peer that sent it: it never reaches
+        # Python, the proxy or any subscriber (nodes count what still exceeds their own limit)
+        for sock in (xsub, router):
+            sock.maxmsgsize = self._max_msg_bytes
+        try:
+            pub = self._bind(xsub, self._requested.pub)
+            sub = self._bind(xpub, self._requested.sub)
+            latch = self._bind(router, self._requested.latch)
+        except BusError:
+            for sock in (xsub, xpub, router):
+                sock.close(0)
+            self._shutdown_ctx()
+            raise
+        self.address = BusAddress(pub, sub, latch)
+        # subscribe the proxy itself to the graph's latched topics: XSUB forwards subscriptions to every
+        # publisher (and to later ones), so they send these topics even when no subscriber exists yet, which is
+        # when the late joiner the cache exists for most needs them
+        for topic in self._latched_topics:
+            xsub.send(b"\x01" + topic.encode())
+
+        capture: zmq.Socket[bytes] | None = None
+        capture_sub: zmq.Socket[bytes] | None = None
+        if self._latched_topics:
+            capture = self._ctx.socket(zmq.PUB)
+            capture.linger = 0
+            capture.bind("inproc://palpa-capture")
+            capture_sub = self._ctx.socket(zmq.SUB)
+            capture_sub.linger = 0
+            capture_sub.connect("inproc://palpa-capture")
+            for topic in self._latched_topics:
+                capture_sub.setsockopt(zmq.SUBSCRIBE, topic.encode())
+        control = self._ctx.socket(zmq.PAIR)
+        control.linger = 0
+        control.bind("inproc://palpa-proxy-control")
+        self._control = self._ctx.socket(zmq.PAIR)
+        self._control.linger = 0
+        self._control.connect("inproc://palpa-proxy-control")
+
+        def proxy() -> None:
+            try:
+                zmq.proxy_steerable(xsub, xpub, capture, control)
+            except zmq.ZMQError as exc:  # context terminated
+                log.debug("proxy ended: %s", exc)
+            finally:
+                for sock in (xsub, xpub, control):
+                    sock.close(0)
+                if capture is not None:
+                    capture.close(0)
+
+        def cache() -> None:
+            try:
+                self._serve_cache(router, capture_sub)
+            finally:
+                router.close(0)
+                if capture_sub is not None:
+                    capture_sub.close(0)
+
+        for target, name in ((proxy, "palpa-proxy"), (cache, "palpa-lvc")):
+            thread = threading.Thread(target=target, name=name, daemon=True)
+            thread.start()
+            self._threads.append(thread)
+        return self.address
+
+    def _serve_cache(self, router: zmq.Socket[bytes], capture_sub: zmq.Socket[bytes] | None) -> None:
+        poller = zmq.Poller()
+        poller.register(router, zmq.POLLIN)
+        exact = {t.encode() for t in self._latched_topics}
+        if capture_sub is not None:
+            poller.register(capture_sub, zmq.POLLIN)
+        keys_generation = 0
+        while not self._stop.is_set():
+            if self.clients is not None and self.clients.generation != keys_generation:
+                keys_generation = self.clients.generation
+                self._publish_client_keys(router, self.clients.listing())
+            events = dict(poller.poll(100))
+            if capture_sub is not None and capture_sub in events:
+                while True:
+                    try:
+                        frames = capture_sub.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    if len(frames) >= 3 and frames[0] in exact:
+                        self._store(None, frames[0], frames[1:])
+            if router in events:
+                while True:
+                    try:
+                        frames = router.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    self._handle_latch(router, frames)
+
+    def _handle_latch(self, router: zmq.Socket[bytes], frames: list[bytes]) -> None:
+        if len(frames) < 2:
+            log.warning("latch: ignoring a request of %d frame(s)", len(frames))
+            return
+        ident, verb = frames[0], frames[1]
+        topic = frames[2] if len(frames) > 2 else b""
+        if verb == b"SET":
+            if not self._store(router, topic, frames[3:], ident):
+                return
+            for prefix, idents in list(self._watchers.items()):
+                if topic.startswith(prefix):
+                    for watcher in list(idents):
+                        if watcher != ident:
+                            self._send(router, prefix, watcher, [b"VAL", topic, *frames[3:]])
+        elif verb == b"GET":
+            self._watchers.setdefault(topic, set()).add(ident)
+            with self._cache_lock:
+                hits = self._cache.matching(topic)
+            for cached_topic, value in hits:
+                self._send(router, topic, ident, [b"VAL", cached_topic, *value])
+        elif verb == b"UNWATCH":
+            watching = self._watchers.get(topic)
+            if watching is not None:
+                watching.discard(ident)
+                if not watching:
+                    del self._watchers[topic]
+        elif verb == b"PING":
+            self._send(router, b"", ident, [b"PONG", topic])
+        else:
+            log.warning("latch: ignoring unknown request %r (%d frames)", verb[:16], len(frames))
+            self._send(router, b"", ident, [b"ERR", b"", b"unknown request (expected SET, GET, UNWATCH or PING)"])
+
+    def _publish_client_keys(self, router: zmq.Socket[bytes], listing: bytes) -> None:
+        """Cache the authorised client keys (read at start and on every reload) and push them to whoever asked:
+        direct CURVE publishers let in exactly these (palpa.net.direct)."""
+        value = [b"", listing]
+        with self._cache_lock:
+            why = self._cache.put(CLIENT_KEYS_TOPIC, value)
+        if why is not None:
+            log.error("latch: cannot cache the authorised client keys: %s", why)
+            return
+        for prefix, idents in list(self._watchers.items()):
+            if CLIENT_KEYS_TOPIC.startswith(prefix):
+                for watcher in list(idents):
+                    self._send(router, prefix, watcher, [b"VAL", CLIENT_KEYS_TOPIC, *value])
+
+    def _store(self, router: zmq.Socket[bytes] | None, topic: bytes, value: list[bytes], ident: bytes = b"") -> bool:
+        """Check and cache one value; a refusal is counted, logged and (to a SET's sender) answered with
+        ``ERR topic reason``."""
+        with self._cache_lock:
+            why = self._cache.check(topic, value) or self._cache.put(topic, value)
+            if why is not None:
+                self._cache.refused += 1
+                refused = self._cache.refused
+        if why is None:
+            return True
+        log.warning("latch: refused SET %r (%d refused so far): %s", topic[:80], refused, why)
+        if router is not None:
+            self._send(router, b"", ident, [b"ERR", topic[:1024], why.encode()])
+        return False
+
+    @property
+    def latch_refused(self) -> int:
+        """SETs (and captured values) the cache refused: malformed, not latched, or over its bounds."""
+        with self._cache_lock:
+            return self._cache.refused
+
+    def _send(self, router: zmq.Socket[bytes], prefix: bytes, ident: bytes, frames: list[bytes]) -> None:
+        try:
+            router.send_multipart([ident, *frames], zmq.NOBLOCK)
+        except zmq.ZMQError:  # the asker is gone (or not keeping up): forget it
+            self._watchers.get(prefix, set()).discard(ident)
+
+    def cached_topics(self) -> list[str]:
+        """Topics with a cached last value."""
+        with self._cache_lock:
+            return sorted(t.decode(errors="replace") for t in self._cache.values
+                          if not t.startswith(DIRECTORY_PREFIX) and t != CLIENT_KEYS_TOPIC)
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """Stop the proxy and the cache, close every socket and remove ipc socket files."""
+        self._stop.set()
+        if self.address is not None:
+            with contextlib.suppress(zmq.ZMQError):
+                self._control.send(b"TERMINATE")
+        for thread in self._threads:
+            thread.join(timeout_s)
+        if self.address is not None:
+            self._control.close(0)
+        self._shutdown_ctx()
+        if self.address is not None:
+            for endpoint in (self.address.pub, self.address.sub, self.address.latch):
+                if endpoint.startswith("ipc://"):
+                    Path(endpoint[len("ipc://") :]).unlink(missing_ok=True)
+
+    def _shutdown_ctx(self) -> None:
+        if self._auth is not None:
+            self._auth.stop()
+            self._auth = None
+        self._ctx.term()
+
+    def __enter__(self) -> Bus:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()

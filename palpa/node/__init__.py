@@ -1,0 +1,1 @@
+"""The node: its publishers, subscriptions and timers (endpoints), receiving and dispatch, its time side, presence (readiness, heartbeats), services and run-time parameters, and the runner that hosts it."""

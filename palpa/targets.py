@@ -1,0 +1,77 @@
+"""The one place that imports user code by name: ``MODULE:Class`` node targets and the message modules.
+
+Message modules are found through the ``palpa.messages`` entry-point group (a package declares its message module
+in its ``pyproject.toml``; this project declares ``messages``) plus ``PALPA_MESSAGES`` for modules that are not
+installed, so the runtime names no domain package. A launch file, ``palpa run``, the in-process composition and the
+tools all load a node class through :func:`load_node_class`, so every one of them says the same thing about a
+target that does not load.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib
+from importlib.metadata import entry_points
+
+from palpa import env as palpa_env
+from palpa.errors import PalpaError
+from palpa.node.node import Node
+from yamlstruct.convert import did_you_mean
+
+__all__ = ["MESSAGES_GROUP", "TargetError", "import_message_modules", "load_node_class", "message_modules"]
+
+MESSAGES_GROUP = "palpa.messages"
+"""The entry-point group a package uses to declare its message module(s): ``name = "package.module"``."""
+
+
+class TargetError(PalpaError):
+    """A ``MODULE:Class`` target that does not name a loadable node class: ``reason`` says which part failed
+    (a launch file puts it after the line and column of the target; the CLI after the target itself)."""
+
+    def __init__(self, target: str, reason: str) -> None:
+        super().__init__(reason if reason.startswith(repr(target)) else f"{target!r}: {reason}")
+        self.target = target
+        self.reason = reason
+
+
+def message_modules() -> list[str]:
+    """The message modules to import: the installed ``palpa.messages`` entry points, then ``PALPA_MESSAGES``."""
+    declared = sorted({ep.value for ep in entry_points(group=MESSAGES_GROUP)})
+    return [*declared, *(m for m in palpa_env.listed(palpa_env.MESSAGES) if m not in declared)]
+
+
+_imported: set[str] = set()
+
+
+def import_message_modules() -> None:
+    """Import every message module (once each) so its types are in the registry. One that does not import is
+    skipped: its topics then show without a schema, as they would on a machine without that package."""
+    for name in message_modules():
+        if name not in _imported:
+            _imported.add(name)
+            with contextlib.suppress(ImportError):
+                importlib.import_module(name)
+
+
+def load_node_class(target: str) -> type[Node]:
+    """Import ``package.module:Class`` and check it is a Node subclass; a :class:`TargetError` says what failed
+    (the module's own import error, a class that is not there with the closest names, or not a node)."""
+    module_name, sep, class_name = target.partition(":")
+    if not sep or not module_name or not class_name:
+        raise TargetError(target, "expected package.module:Class")
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name is not None and module_name.startswith(exc.name):
+            raise TargetError(target, f"cannot import module {module_name!r}: is it installed, in the working "
+                                      "directory, on PYTHONPATH, or in the launch file's python_path?") from None
+        raise TargetError(target, f"importing {module_name!r} failed: {exc}") from None
+    except Exception as exc:  # any error raised by the module's own code at import time
+        raise TargetError(target, f"importing {module_name!r} failed: {type(exc).__name__}: {exc}") from None
+    cls = getattr(module, class_name, None)
+    if cls is None:
+        names = [n for n, v in vars(module).items() if isinstance(v, type) and issubclass(v, Node) and v is not Node]
+        raise TargetError(target, f"module {module_name!r} has no {class_name!r}{did_you_mean(class_name, names)}")
+    if not (isinstance(cls, type) and issubclass(cls, Node)):
+        raise TargetError(target, f"{target!r} is not a palpa.Node subclass")
+    return cls
