@@ -30,10 +30,10 @@ import msgspec
 
 from palpa.errors import DecodeError, PalpaError
 from palpa.net.address import from_env
+from palpa.net.memory import MemoryBus, MemoryTransport
 from palpa.net.transport import Delivery, SendFn, Transport, TransportOptions, ZmqTransport
 from palpa.net.wire import parse_envelope
 from palpa.node.node import Node
-from palpa.testing import MemoryBus, MemoryTransport
 from palpa.timing.clock import MockClock
 
 __all__ = ["Composition", "ComposedNode", "GraphSpec", "main"]
