@@ -1,4 +1,5 @@
-"""map.png drawn by a helper process (nodes.mapping.map_output.PngHelper): the same picture, a fallback, no process left."""
+"""map.png drawn by a helper process (nodes.mapping.map_output.PngHelper): the same picture, a fallback, no
+process left."""
 
 from __future__ import annotations
 

@@ -63,7 +63,8 @@ class PngHelper:
         proc, self._proc = self._proc, None
         if proc is None:
             return False
-        request = {"npz": str(npz.absolute()), "png": str(png.absolute()), "unit": unit, "title": title, "resolution_mm": resolution_mm,
+        request = {"npz": str(npz.absolute()), "png": str(png.absolute()), "unit": unit, "title": title,
+                   "resolution_mm": resolution_mm,
                    "inclusions": [[float(i.x_mm), float(i.y_mm), float(i.radius_mm), float(i.contrast)]
                                   for i in inclusions]}
         try:
