@@ -2,6 +2,7 @@
 
     python bench/sim_cpu.py                                  # a third of the demo at time_scale 20
     python bench/sim_cpu.py --region 30,6,54,30 --repo ../main  # the same with another checkout's code (paired runs)
+    python bench/sim_cpu.py --in-process --region ''          # the whole demo composed: what its one process costs
 
 Every Python process of the launch writes its own ``getrusage(RUSAGE_SELF)`` (user + system, every thread) at
 exit, through a ``sitecustomize`` put first on its ``PYTHONPATH``; the table names each process by its node (the
@@ -46,6 +47,11 @@ def _name(argv: list[str]) -> str:
             return a.split(":=", 1)[1]
     if any(a == "launch" for a in argv):
         return "proxy (launcher)"
+    script = Path(argv[0]).name if argv else ""
+    for file, what in (("compose.py", "composed nodes"), ("map_output.py", "map.png helper"),
+                       ("geometry.py", "prepare (measurer)")):
+        if script == file:
+            return what
     return " ".join(argv)[:40]
 
 
@@ -55,6 +61,7 @@ def main() -> None:
     ap.add_argument("--time-scale", type=float, default=20.0)
     ap.add_argument("--repo", type=Path, default=REPO, help="the checkout whose code runs (default: this one)")
     ap.add_argument("--keep", type=Path, help="keep the run directory here")
+    ap.add_argument("--in-process", action="store_true", help="compose the nodes in one process (--in-process)")
     opts = ap.parse_args()
     repo = opts.repo.resolve()
     work = Path(tempfile.mkdtemp(prefix="palpa-sim-cpu-"))
@@ -68,6 +75,8 @@ def main() -> None:
            "--run-dir", str(run_dir), "--no-progress", f"time_scale:={opts.time_scale:g}"]
     if opts.region:
         cmd.append(f"region_mm:=[{opts.region}]")
+    if opts.in_process:
+        cmd.append("--in-process")
     load0 = os.getloadavg()[0]
     t0 = time.monotonic()
     proc = subprocess.run(cmd, cwd=repo, env=env, capture_output=True, text=True, timeout=900)

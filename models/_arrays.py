@@ -19,6 +19,8 @@ def as_f64(x: ArrayLike) -> FloatArray:
 
 def scalar_or_array(value: FloatArray, *inputs: object) -> ArrayLike:
     """A Python float when every input was a scalar, else the array."""
-    if all(np.ndim(a) == 0 for a in inputs):  # type: ignore[arg-type]
-        return float(value)
-    return value
+    for a in inputs:
+        # plain Python numbers first: the scalar callers of the hot paths pass them, and np.ndim costs ~1 us each
+        if type(a) is not float and type(a) is not int and np.ndim(a) != 0:  # type: ignore[arg-type]
+            return value
+    return float(value)

@@ -88,7 +88,10 @@ class Primitive:
         self.rotvec0 = quat_to_rotvec(rot0) if rotvec0 is None else rotvec0
         self.dw = turn(rot0, rot1)  # rotation to apply over the whole primitive
         self.accel, self.index = accel, index
+        self._turns = bool(np.any(self.dw))
+        self._line_twist: tuple[np.ndarray, np.ndarray] | None = None
         angle_mm = float(np.linalg.norm(self.dw)) * MM_PER_RAD
+        self._delta = p1 - p0
         if ctrl is None:
             self.lin = float(np.linalg.norm(p1 - p0))
             self.length = self.lin if self.lin > EPS_MM else angle_mm
@@ -113,21 +116,24 @@ class Primitive:
         if self.ctrl is None:
             if self.lin <= EPS_MM:
                 return self.p0
-            return np.asarray(self.p0 + (self.p1 - self.p0) * (u / self.length), float)
+            return np.asarray(self.p0 + self._delta * (u / self.length), float)
         t = self._tau_of(u)
         return np.asarray((1 - t) ** 2 * self.p0 + 2 * (1 - t) * t * self.ctrl + t**2 * self.p1, float)
 
     def rotvec(self, u: float) -> np.ndarray:
-        if not np.any(self.dw):
+        if not self._turns:
             return self.rotvec0
         return quat_to_rotvec(qmul(quat(self.dw * (u / self.length)), self.rot0))
 
     def twist_per_mm(self, u: float) -> tuple[np.ndarray, np.ndarray]:
-        """(linear direction, angular rate) per mm of path at u."""
-        ang = self.dw / self.length
+        """(linear direction, angular rate) per mm of path at u (arrays the caller must not change: a line's are
+        the same at every u, and made once)."""
         if self.ctrl is None:
-            lin = (self.p1 - self.p0) / self.length if self.lin > EPS_MM else np.zeros(3)
-            return lin, ang
+            if self._line_twist is None:
+                lin = (self.p1 - self.p0) / self.length if self.lin > EPS_MM else np.zeros(3)
+                self._line_twist = (lin, self.dw / self.length)
+            return self._line_twist
+        ang = self.dw / self.length
         t = self._tau_of(u)
         d = 2 * (1 - t) * (self.ctrl - self.p0) + 2 * t * (self.p1 - self.ctrl)
         return d / max(float(np.linalg.norm(d)), 1e-300), ang

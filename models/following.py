@@ -4,7 +4,7 @@ by its own heights, whatever the fitted surface got wrong.
 The touch-off fits a smooth surface through a few points; a raster planned over it is only as right as the fit
 (a coarse grid on a dome can be a millimetre off between its points). While the probe slides along a line its
 three surface-profile sensors measure the face's normal distance to the tissue, eq. 2's d_n
-(``models.airfloat.surface_plane_from_heights``). The law here moves the line's heights by an offset ``u``
+(``models.airfloat.surface_distance``). The law here moves the line's heights by an offset ``u``
 (mm, added to every remaining height of the line as planned) so that d_n stays at the working clearance:
 
     e = min(d_n - target, min(h1, h2, h3) - min_sps)
@@ -29,7 +29,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from models.airfloat import DEFAULT_SPS_RADIUS_MM, surface_plane_from_heights
+from models.airfloat import DEFAULT_SPS_RADIUS_MM, surface_distance
 from models.raster import Waypoint
 
 __all__ = ["FollowConfig", "clearance_error", "densify_slides", "follow_step", "gap_from_heights", "in_working_range",
@@ -70,8 +70,7 @@ def gap_from_heights(h_mm: Sequence[float], cfg: FollowConfig) -> float | None:
         return None
     if max(h) - min(h) > cfg.max_spread_mm or max(h) >= cfg.stroke_mm - 1e-6:
         return None
-    d_n, _, _ = surface_plane_from_heights(h[0], h[1], h[2], cfg.sps_radius_mm)
-    return float(d_n)
+    return surface_distance(h[0], h[1], h[2], cfg.sps_radius_mm)
 
 
 def clearance_error(h_mm: Sequence[float], cfg: FollowConfig) -> float | None:

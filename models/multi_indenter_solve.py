@@ -21,7 +21,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
-from scipy.optimize import least_squares
 
 from models.multi_indenter import PAPER_GEOMETRY, ProbeGeometry, geometry_columns
 
@@ -315,6 +314,10 @@ def solve_lm(
 
     kt0 = max(geometry.k_n_per_mm) if k_t_guess_n_per_mm is None else k_t_guess_n_per_mm
     p0 = np.concatenate([kd / kt0, [0.0, 0.0, kt0]])
+    # imported here: scipy.optimize costs ~0.1 s at start-up, and every process importing the estimator paid it
+    # (the air-float estimator never calls this)
+    from scipy.optimize import least_squares
+
     res = least_squares(fun, p0, jac=jacobian, method="lm", xtol=tol, ftol=tol, gtol=tol)
     resid = float(np.linalg.norm(res.fun))
     if not (res.status > 0 and resid <= max_residual):

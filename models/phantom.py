@@ -25,7 +25,6 @@ from typing import Annotated, Any, ClassVar
 import msgspec
 import numpy as np
 import numpy.typing as npt
-from scipy.special import chndtr
 
 from models._arrays import ArrayLike, FloatArray
 from models._arrays import as_f64 as _f64
@@ -194,6 +193,9 @@ class Phantom(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=T
         z = 0.5 * (z0 + z1) + half * _GL_NODES
         dens = (1.0 - z**3 / (z * z + cc * cc) ** 1.5) / (2.0 * cc)
         var = cc * cc / 4.0 + z * z
+        # imported here: scipy.special costs every importer ~0.1 s, and few call this
+        from scipy.special import chndtr
+
         lateral = chndtr(radius**2 / var, 2.0, lat2 / var)
         integral = half[..., 0] * np.sum(_GL_WEIGHTS * dens * lateral, axis=-1)
         norm = _bulb_cdf(z_max[..., 0], cc[..., 0])

@@ -33,7 +33,7 @@ class StampedBuffer:
 
     def add(self, stamp_ns: int, values: Sequence[float]) -> None:
         """Append a sample; one older than the newest is inserted in order; a repeated stamp replaces."""
-        v = tuple(float(x) for x in values)
+        v = tuple(map(float, values))
         if not self._t or stamp_ns > self._t[-1]:
             self._t.append(stamp_ns)
             self._v.append(v)
@@ -68,4 +68,4 @@ class StampedBuffer:
             return None
         w = (stamp_ns - t0) / (t1 - t0)
         a, b = self._v[i - 1], self._v[i]
-        return tuple(x + w * (y - x) for x, y in zip(a, b, strict=True))
+        return tuple([x + w * (y - x) for x, y in zip(a, b, strict=True)])  # a list first: faster than a generator

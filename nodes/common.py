@@ -5,12 +5,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
-from models.camera_calibration import CalibrationError, ProbeCalibration
-from models.camera_calibration import load_probe_calibration as read_probe_calibration
 from models.phantom import Phantom, PhantomError, load_phantom
 from palpa.errors import ParamError
+
+if TYPE_CHECKING:
+    from models.camera_calibration import ProbeCalibration
 
 __all__ = ["load_probe_calibration", "phantom_from_param"]
 
@@ -43,4 +44,8 @@ def phantom_from_param(path: str, node: str) -> Phantom:
 
 def load_probe_calibration(path: str, node: str) -> ProbeCalibration:
     """Read a camera-probe calibration file (YAML, tools/camera_calibrate.py writes it)."""
+    # imported here: it brings OpenCV (~0.1 s), which every node importing this module paid at start-up
+    from models.camera_calibration import CalibrationError
+    from models.camera_calibration import load_probe_calibration as read_probe_calibration
+
     return _read_as_param(path, node, "calibration", read_probe_calibration, CalibrationError)

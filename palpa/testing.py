@@ -1,4 +1,5 @@
-"""Test helpers shipped with the runtime: an in-memory bus and a harness that drives one node on a mock clock.
+"""Test helpers shipped with the runtime: harnesses that drive nodes on the in-memory bus (:mod:`palpa.net.memory`,
+whose classes are re-exported here) and a mock clock.
 
     h = NodeHarness(MyNode, params={"gain": 2.0})
     h.publish("probe/heights", ProbeHeights(...))
@@ -10,14 +11,13 @@ No sockets, no processes, no sleeps: everything runs in the calling thread, in m
 
 from __future__ import annotations
 
-from collections import deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, Generic, TypeVar
 
 import msgspec
 
 from palpa.message import Message, lookup
-from palpa.net.transport import Delivery, SendFn
+from palpa.net.memory import MemoryBus, MemoryTransport
 from palpa.node.node import Node, Publisher, RawMessage
 from palpa.node.params import Params
 from palpa.timing.clock import MockClock
@@ -26,93 +26,6 @@ __all__ = ["GraphHarness", "MemoryBus", "MemoryTransport", "NodeHarness"]
 
 N = TypeVar("N", bound=Node)
 M = TypeVar("M", bound=Message)
-
-
-class MemoryBus:
-    """Routes envelopes between in-process transports with ZeroMQ's prefix semantics and a latched cache."""
-
-    def __init__(self) -> None:
-        self._transports: list[MemoryTransport] = []
-        self._cache: dict[bytes, list[bytes]] = {}
-        self._listeners: dict[bytes, list[MemoryTransport]] = {}
-        self.pump: Callable[[], None] | None = None
-        """Lets the other nodes run while one waits on a service call (set by :class:`GraphHarness`)."""
-
-    def transport(self) -> MemoryTransport:
-        t = MemoryTransport(self)
-        self._add(t)
-        return t
-
-    def _add(self, t: MemoryTransport) -> None:
-        self._transports.append(t)
-        self.changed()
-
-    def changed(self) -> None:
-        """Forget who listens to what (a transport subscribed, unsubscribed or closed)."""
-        self._listeners.clear()
-
-    def _route(self, frames: list[bytes], latched: bool) -> None:
-        if latched:
-            self._cache[frames[0]] = frames[1:]
-        for t in self.listeners(frames[0]):
-            t.inbox.append(Delivery(list(frames), False))
-
-    def listeners(self, topic: bytes) -> list[MemoryTransport]:
-        """The open transports with a subscription matching ``topic`` (ZeroMQ's prefix rule)."""
-        found = self._listeners.get(topic)
-        if found is None:
-            found = self._listeners[topic] = [t for t in self._transports
-                                              if not t.closed and any(topic.startswith(p) for p in t.prefixes)]
-        return found
-
-    def pending(self) -> bool:
-        return any(t.inbox for t in self._transports if not t.closed)
-
-
-class MemoryTransport:
-    """One node's connection to a :class:`MemoryBus`."""
-
-    def __init__(self, bus: MemoryBus) -> None:
-        self.bus = bus
-        self.prefixes: list[bytes] = []
-        self.inbox: deque[Delivery] = deque()
-        self.closed = False
-
-    def send(self, frames: Sequence[bytes], latched: bool) -> None:
-        self.bus._route([bytes(f) for f in frames], latched)
-
-    def sender(self, topic: bytes, direct: bool | None) -> SendFn:
-        return self.send  # in memory every topic is direct
-
-    def has_subscribers(self, topic: bytes) -> bool:
-        return bool(self.bus.listeners(topic))
-
-    def subscribe(self, prefix: bytes, request_latched: bool, wants: Callable[[str], bool] | None = None) -> None:
-        self.prefixes.append(prefix)
-        self.bus.changed()
-        if request_latched:
-            for topic, rest in self.bus._cache.items():
-                if topic.startswith(prefix):
-                    self.inbox.append(Delivery([topic, *rest], True))
-
-    def unsubscribe(self, prefix: bytes) -> None:
-        if prefix in self.prefixes:
-            self.prefixes.remove(prefix)
-            self.bus.changed()
-
-    def pump(self) -> None:
-        """Run the rest of the graph once (a node blocked in a service call waits for the others this way)."""
-        if self.bus.pump is not None:
-            self.bus.pump()
-
-    def poll(self, timeout_s: float) -> list[Delivery]:
-        out = list(self.inbox)
-        self.inbox.clear()
-        return out
-
-    def close(self, linger_ms: int) -> None:
-        self.closed = True
-        self.bus.changed()
 
 
 class GraphHarness:
@@ -173,7 +86,7 @@ class GraphHarness:
 
     def publish_raw(self, frames: Sequence[bytes]) -> None:
         """Send arbitrary frames (malformed ones included) and let the nodes handle them."""
-        self.bus._route([bytes(f) for f in frames], False)
+        self.bus.route(frames)
         self.spin()
 
     def advance(self, seconds: float) -> None:

@@ -135,6 +135,14 @@ def test_no_import_cycles_in_the_product() -> None:
     assert import_cycles(PACKAGES) == []
 
 
+def test_the_in_process_executor_imports_neither_the_test_kit_nor_the_cli() -> None:
+    """``palpa launch --in-process`` runs on the composition: product code, whose in-memory bus is palpa.net.memory
+    (issue 38), not the test kit's."""
+    mods = _modules(PACKAGES)
+    used = _imports("palpa.timing.compose", mods["palpa.timing.compose"], set(mods))
+    assert not {m for m in used if m == "palpa.testing" or m == "palpa.cli" or m.startswith("palpa.cli.")}
+
+
 def test_no_module_reads_another_modules_private_names() -> None:
     assert foreign_private_access(PACKAGES) == []
     assert private_imports(PACKAGES) == []

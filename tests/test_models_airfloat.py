@@ -19,6 +19,7 @@ from models.airfloat import (
     heights_over_phantom,
     indentation_from_heights,
     sps_positions,
+    surface_distance,
     surface_plane_from_heights,
 )
 from models.phantom import Phantom, parse_phantom
@@ -205,3 +206,12 @@ def test_force_calibration_rejects_bad_parameters() -> None:
         ForceCalibration(gain=0.0)
     with pytest.raises(ValueError, match="offset must be finite"):
         ForceCalibration(offset=float("nan"))
+
+
+def test_surface_distance_is_eq2s_d_n_to_the_bit() -> None:
+    """The follower's scalar d_n (plain floats) is the scalar path of surface_plane_from_heights, bit for bit: a
+    last-bit change moves the scan's timeline (x * x for ** 2 differs in ~1 sample in 10 000)."""
+    rng = np.random.default_rng(7)
+    for h1, h2, h3, a in np.column_stack([rng.uniform(0.0, 10.0, (60_000, 3)),
+                                          rng.choice([5.0, 6.0, 6.5], 60_000)]).tolist():
+        assert surface_distance(h1, h2, h3, a) == float(surface_plane_from_heights(h1, h2, h3, a)[0])

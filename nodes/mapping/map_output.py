@@ -8,6 +8,10 @@
   filtered noise) and ``false_alarm`` (the chance that a map without inclusions shows a peak that significant) when
   known (models.detector).
 
+``map.png`` costs matplotlib's import (~0.3 s) and a render: a node that knows it will write one can start a
+:class:`PngHelper` at set-up, a process that imports matplotlib while the scan runs (on another core) and later
+draws the picture from ``map.npz``; the picture is the same to the byte, and drawn here if the helper fails.
+
 An adaptive scan also passes ``unsensed`` (the cells where an inclusion of the smallest size of interest could lie
 unseen when it stopped: models.adaptive_detect.unsensed): ``map.npz`` keeps it as a bool grid of that name and
 ``map.png`` greys those cells over the map.
@@ -15,13 +19,17 @@ unseen when it stopped: models.adaptive_detect.unsensed): ``map.npz`` keeps it a
 
 from __future__ import annotations
 
+import contextlib
 import json
+import logging
 import math
 import os
+import subprocess
+import sys
 import textwrap
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 import numpy.typing as npt
@@ -30,7 +38,7 @@ from messages import DetectedInclusion, Inclusions
 from models.detector import Detection
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, to_inclusions_json
 
-__all__ = ["detection_summary", "inclusions_message", "read_map", "write_outputs"]
+__all__ = ["PngHelper", "detection_summary", "inclusions_message", "read_map", "write_outputs"]
 
 
 def read_map(npz: Path) -> MapSnapshot:
@@ -68,6 +76,12 @@ def detection_summary(det: Detection, false_alarm_per_map: float) -> str:
     return (f"{n} inclusion(s)" + (f" at SNR {snrs}" if n else "")
             + f"; threshold {det.threshold_snr:.1f} σ ({100 * false_alarm_per_map:g} % false alarms per blank map)")
 
+log = logging.getLogger(__name__)
+_REPO = Path(__file__).resolve().parents[len(__name__.split(".")) - 1]
+"""Where ``python -m`` finds this module (the helper runs it by its own name, wherever it lives)."""
+_HELPER_TIMEOUT_S = 60.0
+"""Wall seconds the helper may take to draw (it is then killed, and the picture drawn here)."""
+
 
 def _atomic_write(path: Path, data: bytes) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
@@ -75,12 +89,87 @@ def _atomic_write(path: Path, data: bytes) -> None:
     os.replace(tmp, path)
 
 
+class PngHelper:
+    """A process that has imported matplotlib and waits to draw one ``map.png`` (this module run with ``python -m``,
+    reading one JSON request on stdin). Started at once; :meth:`close` ends it if it was not used."""
+
+    def __init__(self) -> None:
+        self._proc: subprocess.Popen[str] | None = subprocess.Popen(
+            [sys.executable, "-m", __name__], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+            cwd=_REPO)
+
+    def render(self, npz: Path, png: Path, inclusions: Sequence[Inclusion], *, unit: str, title: str,
+               resolution_mm: float) -> bool:
+        """Have the helper draw ``png`` from ``npz`` (written before); whether it did (it serves once)."""
+        proc, self._proc = self._proc, None
+        if proc is None:
+            return False
+        request = {"npz": str(npz.absolute()), "png": str(png.absolute()), "unit": unit, "title": title,
+                   "resolution_mm": resolution_mm,
+                   "inclusions": [[float(i.x_mm), float(i.y_mm), float(i.radius_mm), float(i.contrast)]
+                                  for i in inclusions]}
+        try:
+            out, _ = proc.communicate(json.dumps(request) + "\n", timeout=_HELPER_TIMEOUT_S)
+        except (OSError, subprocess.TimeoutExpired) as exc:
+            log.warning("map.png helper failed (%s): drawing it here", exc)
+            _end(proc)
+            return False
+        if proc.returncode != 0 or out.strip() != "ok":
+            log.warning("map.png helper failed (exit code %s): drawing it here", proc.returncode)
+            return False
+        return True
+
+    def close(self) -> None:
+        """End the helper if it is still waiting."""
+        proc, self._proc = self._proc, None
+        if proc is not None:
+            _end(proc)
+
+
+def _end(proc: subprocess.Popen[str]) -> None:
+    stdin: IO[str] | None = proc.stdin
+    if stdin is not None:
+        with contextlib.suppress(OSError):
+            stdin.close()  # end of input: an idle helper exits by itself
+    try:
+        proc.wait(5)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def _serve() -> int:
+    """The helper's side: import matplotlib now, then draw the one picture asked for on stdin."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot  # noqa: F401  (the cost paid ahead, while the scan runs)
+    from matplotlib.patches import Circle  # noqa: F401
+
+    line = sys.stdin.readline()
+    if not line:
+        return 0  # the node closed without a map to draw
+    req = json.loads(line)
+    with np.load(req["npz"]) as z:
+        snap = MapSnapshot(stiffness=z["stiffness"], x_mm=z["x_mm"], y_mm=z["y_mm"], count=z["count"],
+                           spread=z["spread"], resolution_mm=float(req["resolution_mm"]))
+        unsensed = z.get("unsensed")
+    found = [Inclusion(x_mm=x, y_mm=y, radius_mm=r, contrast=c, peak=0.0, area_mm2=0.0, cells=0)
+             for x, y, r, c in req["inclusions"]]
+    _atomic_write(Path(req["png"]), _render_png(snap, found, unit=req["unit"], title=req["title"],
+                                                unsensed=unsensed))
+    print("ok", flush=True)
+    return 0
+
+
 def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str,
-                  title: str, unsensed: npt.NDArray[np.bool_] | None = None, incomplete: str = "") -> list[Path]:
+                  title: str, unsensed: npt.NDArray[np.bool_] | None = None, incomplete: str = "",
+                  helper: PngHelper | None = None) -> list[Path]:
     """Write the three files (each atomically: a reader never sees half a file); returns their paths.
     ``unsensed``: a bool grid of the map's shape, kept in ``map.npz`` and greyed in ``map.png`` (module doc).
     ``incomplete``: why the map lacks part of what it was to hold ('' when it does not): kept in ``map.npz``
-    (``incomplete``) and written over ``map.png``'s title, so that a partial map read later says so."""
+    (``incomplete``) and written over ``map.png``'s title, so that a partial map read later says so.
+    ``helper``: draws ``map.png`` if it can (:class:`PngHelper`)."""
     if unsensed is not None and np.shape(unsensed) != np.shape(snap.stiffness):
         raise ValueError(f"unsensed: shape {np.shape(unsensed)} is not the map's {np.shape(snap.stiffness)}")
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -99,7 +188,9 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
     js = out_dir / "inclusions.json"
     _atomic_write(js, (json.dumps(to_inclusions_json(inclusions), indent=2) + "\n").encode())
     png = out_dir / "map.png"
-    _atomic_write(png, _render_png(snap, inclusions, unit=unit, title=title, unsensed=unsensed))
+    if helper is None or not helper.render(npz, png, inclusions, unit=unit, title=title,
+                                           resolution_mm=snap.resolution_mm):
+        _atomic_write(png, _render_png(snap, inclusions, unit=unit, title=title, unsensed=unsensed))
     return [npz, png, js]
 
 
@@ -139,3 +230,7 @@ def _render_png(snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str
     fig.savefig(buf, format="png", bbox_inches="tight")
     plt.close(fig)
     return buf.getvalue()
+
+
+if __name__ == "__main__":
+    sys.exit(_serve())

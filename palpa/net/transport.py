@@ -1,6 +1,6 @@
 """Transports move envelopes between a node and the bus; the node never touches sockets itself.
 
-:class:`ZmqTransport` talks to a real bus; :class:`palpa.testing.MemoryBus` provides an in-memory one so node
+:class:`ZmqTransport` talks to a real bus; :class:`palpa.net.memory.MemoryBus` provides an in-memory one so node
 logic is tested without sockets. Both deliver ``Delivery`` items: the frames of one envelope
 ``[topic, header, payload, *blobs]`` and whether it came from the latched cache.
 """

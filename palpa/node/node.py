@@ -350,6 +350,11 @@ class Node:
             self.run_timers()
         if self._set_up:  # a heartbeat says "ready": set up, subscriptions confirmed (what a launcher waits for)
             self._heartbeats.beat()
+        if not skipped and timeout_s <= 0:  # no wait (an executor's pass over its nodes): nothing below to block
+            if self._sim_time is not None:
+                self._sim_time.check_alive()
+                self._report_to_clock()
+            return
         if not self.clock.is_real():
             timeout_s = 0.0 if self._timers else timeout_s
         elif self._topic_clock is None and (due := self.next_timer_due_ns()) is not None:

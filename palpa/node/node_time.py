@@ -86,8 +86,11 @@ class Timers:
 
     def next_due_ns(self) -> int | None:
         """When the earliest live timer fires, or None."""
-        live = [t.due_ns for t in self._timers if not t.cancelled]
-        return min(live) if live else None
+        best = None
+        for t in self._timers:  # an executor asks every node at every instant: no list, no min()
+            if not t.cancelled and (best is None or t.due_ns < best):
+                best = t.due_ns
+        return best
 
     def shift(self, ns: int) -> None:
         """Move every timer ``ns`` later (timers declared before simulated time existed count from its first
@@ -105,6 +108,11 @@ class Timers:
 
     def _pass(self, now: int) -> bool:
         """Run the timers due at ``now`` once each; whether any ran."""
+        for t in self._timers:  # most passes find nothing to do: look before copying the list
+            if t.due_ns <= now or t.cancelled:
+                break
+        else:
+            return False
         ran = False
         for t in list(self._timers):
             if t.cancelled:

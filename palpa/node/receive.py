@@ -145,7 +145,8 @@ class Receiver:
 
     def _handle(self, delivery: Delivery) -> None:
         frames = delivery.frames
-        route = self._route(frames[0])
+        topic_b, routes = frames[0], self.routes
+        route = routes[topic_b] if topic_b in routes else self._route(topic_b)  # no call for the cached route
         if route is None:
             return
         topic, sub, raws, rstats = route

@@ -30,10 +30,10 @@ import msgspec
 
 from palpa.errors import DecodeError, PalpaError
 from palpa.net.address import from_env
+from palpa.net.memory import MemoryBus, MemoryTransport
 from palpa.net.transport import Delivery, SendFn, Transport, TransportOptions, ZmqTransport
 from palpa.net.wire import parse_envelope
 from palpa.node.node import Node
-from palpa.testing import MemoryBus, MemoryTransport
 from palpa.timing.clock import MockClock
 
 __all__ = ["Composition", "ComposedNode", "GraphSpec", "main"]
@@ -204,8 +204,14 @@ class Composition:
     def step(self, limit_ns: int | None = None) -> bool:
         """Advance to the next timer deadline and run what is due there; False (time unmoved) when no node has a
         timer left or the next deadline is past ``limit_ns``."""
-        dues = [(d, n) for n in self.nodes if (d := n.next_timer_due_ns()) is not None]
-        due = min(d for d, _ in dues) if dues else None
+        dues: list[tuple[int, Node]] = []
+        due: int | None = None
+        for n in self.nodes:  # one pass: this runs at every instant (~250 a simulated second in the demo)
+            d = n.next_timer_due_ns()
+            if d is not None:
+                dues.append((d, n))
+                if due is None or d < due:
+                    due = d
         if due is None or (limit_ns is not None and due > limit_ns):
             return False
         self.clock.set(max(due, self.clock.now_ns()))
@@ -215,8 +221,6 @@ class Composition:
         # clock does (palpa.timing.simclock): the order of nodes in the composition then does not matter
         for node in ready:
             node.run_timers()
-        for node in ready:
-            node.spin_once(0)
         self.settle()
         self._reap()
         return True
@@ -284,6 +288,8 @@ class Composition:
 
     def _reap(self) -> None:
         """Nodes that asked to stop (a scanner that finished) are closed; a required one ends the composition."""
+        if not any(n.is_shutdown for n in self.nodes):
+            return
         for node in [n for n in self.nodes if n.is_shutdown]:
             self.nodes.remove(node)
             self._inbox_list = None
