@@ -398,6 +398,8 @@ WALL_CLOCK_ALLOWED = {
     "palpa.timing.compose:Composition._take_outside": "rate-limits a syscall: how often a busy composition looks "
                                                       "at the real bus through its bridge",
     "palpa.timing.compose:main": "reports how many times faster than real time a composition ran",
+    "nodes.mapping.map_output:_end": "a helper process's exit lives in wall time: the wait bounds it, then kills it "
+                                     "(the map node draws the picture itself when the helper fails)",
     "palpa.node.node_time:SimTime.await_first_tick": "before the first tick simulated time does not exist: only "
                                                      "wall time can bound the wait for it",
     "palpa.node.node_time:SimTime.on_clock": "the frozen-time watchdog notes when a tick came, in wall time",
