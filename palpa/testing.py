@@ -21,6 +21,7 @@ from palpa.net.memory import MemoryBus, MemoryTransport
 from palpa.node.node import Node, Publisher, RawMessage
 from palpa.node.params import Params
 from palpa.timing.clock import MockClock
+from palpa.timing.compose import Composition
 
 __all__ = ["GraphHarness", "MemoryBus", "MemoryTransport", "NodeHarness"]
 
@@ -35,45 +36,45 @@ class GraphHarness:
         g.advance(2.0)
         g.published("pressure/state")
 
-    Everything published is recorded (``raw``, ``published(topic)``); ``advance`` stops at every timer deadline
-    of every node, so no tick is skipped.
+    A thin facade over :class:`~palpa.timing.compose.Composition` (``.composition``), the executor of
+    ``palpa launch --in-process``: ``advance`` moves its clock from timer deadline to timer deadline, and at each
+    instant every due timer runs before any message sent at that instant is handled, so a test runs the timeline
+    the composed graph runs. Everything published is recorded (``raw``, ``published(topic)``).
     """
 
     def __init__(self, nodes: Sequence[tuple[type[Node], Mapping[str, Any] | None]] = (),
                  clock: MockClock | None = None, bus: MemoryBus | None = None) -> None:
-        self.bus = bus or MemoryBus()
         self.clock = clock or MockClock()
-        self.bus.pump = self._pump
+        self.composition = Composition(clock=self.clock, heartbeat_s=0, bus=bus)
+        self.bus = self.composition.bus
         self._probe = Node(name="harness", transport=self.bus.transport(), clock=self.clock, heartbeat_s=0)
         self.raw: list[RawMessage] = []
         self._probe.subscribe_raw("", self.raw.append)
         self._pubs: dict[str, Publisher[Any]] = {}
-        self.nodes: list[Node] = []
+        self.composition.adopt(self._probe)
         for cls, params in nodes:
             self.add(cls, params)
+
+    @property
+    def nodes(self) -> list[Node]:
+        """The nodes under test, in the order they were added (not the harness's own probe; not those that ended)."""
+        return [n for n in self.composition.nodes if n is not self._probe]
 
     def add(self, cls: type[N], params: Mapping[str, Any] | Params | None = None, **kwargs: Any) -> N:
         """Start a node of ``cls`` on the harness's bus and clock (no heartbeats unless asked)."""
         kwargs.setdefault("heartbeat_s", 0)
         node = cls(params=params, transport=self.bus.transport(), clock=self.clock, **kwargs)
-        self.nodes.append(node)
+        self.composition.adopt(node)
         self.spin()
         return node
 
-    def spin(self, max_rounds: int = 10_000) -> None:
-        """Deliver everything in flight between the nodes until the bus is quiet."""
-        for _ in range(max_rounds):
-            for node in self.nodes:
-                node.spin_once(0)
-            self._probe.spin_once(0)
-            if not self.bus.pending():
-                return
-        raise RuntimeError("the bus did not go quiet: a publish loop between callbacks?")
-
-    def _pump(self) -> None:
-        for node in self.nodes:
-            node.spin_once(0)
-        self._probe.spin_once(0)
+    def spin(self) -> None:
+        """Run the timers due now, then deliver everything in flight between the nodes until the bus is quiet
+        (the composition's step at the current instant; time does not move)."""
+        now = self.clock.now_ns()
+        while self.composition.step(now):
+            pass
+        self.composition.settle()
 
     def publish(self, topic: str, msg: Message, *, stamp_ns: int | None = None, latched: bool = False,
                 blobs: Sequence[bytes] = ()) -> None:
@@ -90,16 +91,12 @@ class GraphHarness:
         self.spin()
 
     def advance(self, seconds: float) -> None:
-        """Move time forward, stopping at every timer deadline of every node."""
+        """Move time forward by ``seconds``, stopping at every timer deadline of every node (the composition's
+        steps), then let the nodes handle what is in flight at the end."""
         end = self.clock.now_ns() + int(round(seconds * 1e9))
-        while True:
-            dues = [d for n in self.nodes if (d := n.next_timer_due_ns()) is not None]
-            due = min(dues) if dues else None
-            if due is None or due > end:
-                break
-            self.clock.set(max(due, self.clock.now_ns()))
-            self.spin()
-        self.clock.set(end)
+        while self.composition.step(end):
+            pass
+        self.clock.set(max(end, self.clock.now_ns()))
         self.spin()
 
     def published(self, topic: str, msg_type: type[M] | None = None) -> list[Any]:
@@ -115,9 +112,9 @@ class GraphHarness:
         self.raw.clear()
 
     def close(self) -> None:
-        for node in self.nodes:
-            node.close(0)
-        self._probe.close(0)
+        """Close every node as the composition does (``on_shutdown`` first, each after the others handled what it
+        published while closing)."""
+        self.composition.close()
 
     def __enter__(self) -> GraphHarness:
         return self

@@ -143,11 +143,18 @@ class Composition:
     """
 
     def __init__(self, *, bridge: Transport | None = None, clock: MockClock | None = None,
-                 heartbeat_s: float = 1.0) -> None:
+                 heartbeat_s: float = 1.0, bus: MemoryBus | None = None) -> None:
         # on a whole second: time grids of the sim drivers (multiples of their periods) then fall at the same
         # offsets from the start in every run, and the same seed gives the same output
         self.clock = clock or MockClock(time.time_ns() // 1_000_000_000 * 1_000_000_000)
-        self.bus = _HubBus(bridge)
+        if bus is not None and bridge is not None:
+            raise ValueError("a composition with a bridge runs on its own bus (bus= is for a closed world)")
+        self._hub: _HubBus | None = None
+        self.bus: MemoryBus
+        if bus is None:
+            self.bus = self._hub = _HubBus(bridge)
+        else:
+            self.bus = bus
         self.bridge = bridge
         self.heartbeat_s = heartbeat_s
         self.nodes: list[Node] = []
@@ -267,7 +274,9 @@ class Composition:
             self.settle()
         if self.bridge is not None:
             self.bridge.close(500)
-            self.bridge = self.bus.bridge = None
+            self.bridge = None
+            if self._hub is not None:
+                self._hub.bridge = None
 
     # -- internals -------------------------------------------------------------------------------------
     def _pump(self) -> None:
@@ -308,7 +317,8 @@ class Composition:
                 log.info("%s ended (exit code %d); the others keep running", node.name, node.exit_code)
 
     def _take_outside(self) -> None:
-        self.bus.sync_bridge()
+        if self._hub is not None:
+            self._hub.sync_bridge()
         if self.bridge is not None:
             now = time.monotonic_ns()
             if now - self._outside_polled_ns >= _OUTSIDE_POLL_NS:  # a syscall: not at each of ~300 steps a second
