@@ -12,6 +12,7 @@ No sockets, no processes, no sleeps: everything runs in the calling thread, in m
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 import msgspec
@@ -55,17 +56,44 @@ class GraphHarness:
         for cls, params in nodes:
             self.add(cls, params)
 
+    @classmethod
+    def from_launch(cls, file: str | Path, *, run_dir: str | Path | None = None,
+                    clock: MockClock | None = None, **args: Any) -> GraphHarness:
+        """The simulated-clock nodes of a launch file, composed on the mock clock in this process as
+        ``palpa launch FILE --in-process`` composes them (same classes, names, parameters, namespaces, remaps and
+        order; no process, no socket). ``args`` override the file's args (native values, as ``name:=value`` would
+        give). Not run here: the file's ``prepare`` commands (processes: pass args naming their outputs instead),
+        its recorder (the harness records everything itself, in ``raw``), its clock source (the harness's clock
+        replaces it) and its entries off the simulated clock. A :class:`~palpa.errors.LaunchError` says what is
+        wrong with the file or the args."""
+        from palpa.launch.compose import composable_nodes
+        from palpa.launch.loader import load_launch
+        from palpa.targets import load_node_class
+
+        plan = load_launch(file, args, run_dir=run_dir)
+        specs = composable_nodes(plan)
+        classes = [load_node_class(s.target) for s in specs if s.target is not None]
+        g = cls(clock=clock)
+        try:
+            for spec, node_cls in zip(specs, classes, strict=True):
+                g.add(node_cls, spec.params, name=spec.name, namespace=spec.namespace, remap=spec.remap)
+        except BaseException:
+            g.close()
+            raise
+        return g
+
     @property
     def nodes(self) -> list[Node]:
         """The nodes under test, in the order they were added (not the harness's own probe; not those that ended)."""
         return [n for n in self.composition.nodes if n is not self._probe]
 
     def add(self, cls: type[N], params: Mapping[str, Any] | Params | None = None, **kwargs: Any) -> N:
-        """Start a node of ``cls`` on the harness's bus and clock (no heartbeats unless asked)."""
+        """Start a node of ``cls`` on the harness's bus and clock (no heartbeats unless asked): its ``setup`` runs
+        now and what it published is handled, as :meth:`Composition.adopt` does; its timers run from the next
+        :meth:`advance` or :meth:`spin`."""
         kwargs.setdefault("heartbeat_s", 0)
         node = cls(params=params, transport=self.bus.transport(), clock=self.clock, **kwargs)
         self.composition.adopt(node)
-        self.spin()
         return node
 
     def spin(self) -> None:

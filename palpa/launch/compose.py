@@ -17,7 +17,9 @@ from palpa import env as palpa_env
 from palpa.errors import LaunchError
 from palpa.launch.plan import LaunchPlan, NodeSpec
 
-__all__ = ["CLOCK_TARGET", "COMPOSED_NAME", "compose_plan", "is_composable", "name_clock_participants"]
+__all__ = [
+    "CLOCK_TARGET", "COMPOSED_NAME", "composable_nodes", "compose_plan", "is_composable", "name_clock_participants",
+]
 
 CLOCK_TARGET = "palpa.timing.simclock:ClockSource"
 COMPOSED_NAME = "sim"
@@ -38,15 +40,23 @@ def name_clock_participants(plan: LaunchPlan) -> None:
             spec.params["participants"] = names
 
 
+def composable_nodes(plan: LaunchPlan) -> list[NodeSpec]:
+    """The plan's nodes on the simulated clock, in the file's order (what a composition runs, besides the
+    recorder); a :class:`LaunchError` if there is none."""
+    composed = [s for s in plan.nodes if is_composable(s)]
+    if not composed:
+        where = plan.files[0] if plan.files else str(plan.file)
+        raise LaunchError(f"{where}: --in-process: no node runs on the simulated clock (an entry with "
+                          f"env {{{_SIM_ENV}: \"1\"}}); nothing to compose")
+    return composed
+
+
 def compose_plan(plan: LaunchPlan) -> LaunchPlan:
     """``plan`` with its sim-clock nodes, clock source and recorder replaced by one composed entry (named ``sim``,
     or ``sim-1``... if that name is taken). Writes nothing: the graph description goes into the entry's command
     line; the recorder's parameters come from ``plan.recorder()``."""
     where = plan.files[0] if plan.files else str(plan.file)
-    composed = [s for s in plan.nodes if is_composable(s)]
-    if not composed:
-        raise LaunchError(f"{where}: --in-process: no node runs on the simulated clock (an entry with "
-                          f"env {{{_SIM_ENV}: \"1\"}}); nothing to compose")
+    composed = composable_nodes(plan)
     rest = [s for s in plan.nodes if not is_composable(s) and s.target != CLOCK_TARGET]
     members = list(composed)
     rec = plan.recorder()
