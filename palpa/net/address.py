@@ -40,6 +40,9 @@ class BusAddress:
     def parse(cls, text: str) -> BusAddress:
         """Parse any of the three spellings in the module docstring; raises :class:`BusError` otherwise."""
         text = text.strip()
+        if text.startswith("memq://"):
+            raise BusError(f"bus address {text!r}: an in-memory bus is reached only by nodes of the process it lives "
+                           "in (Node(bus=...), PALPA_BUS in that process); a launch or a tool needs ipc:// or tcp://")
         if "=" in text:
             parts: dict[str, str] = {}
             for item in filter(None, text.split(";")):

@@ -1,15 +1,43 @@
 """An in-memory bus: envelopes routed between transports in one process, with ZeroMQ's prefix semantics and a
 latched cache, and no sockets. :class:`palpa.timing.compose.Composition` runs a simulated graph on it (``palpa launch
---in-process``); the test harnesses of :mod:`palpa.testing` drive nodes on it."""
+--in-process``); the test harnesses of :mod:`palpa.testing` drive nodes on it.
+
+A bus address ``memq://NAME`` (as LCM's) names one of these in the process: a node built with ``bus="memq://NAME"``
+(or under ``PALPA_BUS=memq://NAME``) joins :func:`named_bus` ``(NAME)``, where an executor built on that bus (a
+``Composition(bus=named_bus(NAME))``, a ``GraphHarness(bus=named_bus(NAME))``) runs it with the others."""
 
 from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Sequence
 
+from palpa.errors import BusError
 from palpa.net.transport import Delivery, SendFn
 
-__all__ = ["MemoryBus", "MemoryTransport"]
+__all__ = ["MEMQ_SCHEME", "MemoryBus", "MemoryTransport", "memq_name", "named_bus"]
+
+MEMQ_SCHEME = "memq://"
+_named: dict[str, MemoryBus] = {}
+
+
+def memq_name(address: str) -> str | None:
+    """The bus name of a ``memq://NAME`` address, None for any other address; a :class:`BusError` for
+    ``memq://`` without a name."""
+    if not address.strip().startswith(MEMQ_SCHEME):
+        return None
+    name = address.strip()[len(MEMQ_SCHEME):]
+    if not name:
+        raise BusError(f"bus address {address!r}: memq:// needs a name (memq://NAME: an in-memory bus of this "
+                       "process)")
+    return name
+
+
+def named_bus(name: str) -> MemoryBus:
+    """The process's in-memory bus called ``name`` (``memq://NAME``), made at its first use."""
+    bus = _named.get(name)
+    if bus is None:
+        bus = _named[name] = MemoryBus()
+    return bus
 
 
 class MemoryBus:

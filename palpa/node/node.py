@@ -36,6 +36,7 @@ from palpa import env as palpa_env
 from palpa.errors import PalpaError
 from palpa.message import Message
 from palpa.net.address import BusAddress, from_env
+from palpa.net.memory import memq_name, named_bus
 from palpa.net.transport import Transport, TransportOptions, ZmqTransport
 from palpa.net.wire import Header, TopicStats, encode_header
 from palpa.node.dispatch import Dispatch
@@ -123,8 +124,7 @@ class Node:
         self.namespace = namespace.strip("/")
         self.remap = dict(remap or {})
         if transport is None:
-            address = bus if isinstance(bus, BusAddress) else (BusAddress.parse(bus) if bus else from_env())
-            transport = ZmqTransport(address, transport_options or TransportOptions.from_env())
+            transport = _bus_transport(bus, transport_options)
         self._transport = transport
         self._resources = contextlib.ExitStack()
         self.log = logging.getLogger(f"palpa.node.{self.name}")
@@ -450,6 +450,17 @@ class Node:
     def _heartbeat(self) -> None:
         """Send this node's heartbeat now (they go out by themselves every ``heartbeat_s`` once it is set up)."""
         self._heartbeats.send()
+
+
+def _bus_transport(bus: str | BusAddress | None, options: TransportOptions | None) -> Transport:
+    """The transport to the bus ``bus`` names (else ``PALPA_BUS``, else the default bus): the process's in-memory
+    bus for ``memq://NAME``, ZeroMQ sockets otherwise."""
+    if not isinstance(bus, BusAddress):
+        text = bus or palpa_env.get(palpa_env.BUS) or ""
+        if (name := memq_name(text)) is not None:
+            return named_bus(name).transport()
+    address = bus if isinstance(bus, BusAddress) else (BusAddress.parse(bus) if bus else from_env())
+    return ZmqTransport(address, options or TransportOptions.from_env())
 
 
 def _own_state(node: Node, theirs: set[str]) -> dict[str, object]:
