@@ -89,3 +89,13 @@ def test_from_launch_refuses_a_file_without_sim_clock_nodes(tmp_path: Path) -> N
 def test_from_launch_refuses_node_params_for_a_node_it_does_not_compose(tmp_path: Path) -> None:
     with pytest.raises(LaunchError, match="node_params for clock: no such simulated-clock node"):
         GraphHarness.from_launch(REPO / "launch" / "scan_sim.yaml", run_dir=tmp_path, node_params={"clock": {}})
+
+
+def test_a_composition_with_a_bridge_refuses_a_bus_of_the_callers() -> None:
+    """Its bridge forwards what its own bus carries: a bus given by the caller would not go out."""
+    from palpa.net.memory import MemoryBus
+    from palpa.timing.compose import Composition
+    from tests.test_compose import _LateEchoBus
+
+    with pytest.raises(ValueError, match="runs on its own bus"):
+        Composition(bridge=_LateEchoBus(), bus=MemoryBus())  # type: ignore[arg-type]
