@@ -98,6 +98,21 @@ def test_the_foxglove_url_is_shown_even_under_a_progress_bar() -> None:
         "docs/foxglove.md)"]
 
 
+def test_the_reason_a_node_failed_survives_a_traceback_printed_after_it() -> None:
+    """Seen in CI: Ctrl-C reached the map's picture helper too, whose 30-line traceback pushed the map's ERROR out
+    of the kept tail, and the summary said only 'failed: sim'. The last ERROR line is kept apart from the tail."""
+    screen = Screen(io.StringIO(), io.StringIO())
+    sim = NodeProc(NodeSpec(name="sim"), io.StringIO())
+    sim.line("ERROR palpa.node.map: the map is INCOMPLETE and may be wrong: the scan did not finish", screen)
+    for i in range(40):
+        sim.line(f'  File "scipy/sparse/_base.py", line {i}, in <module>', screen)
+    sim.line("WARNING nodes.mapping.map_output: map.png helper failed (exit code -2): drawing it here", screen)
+    assert sim.last_error() == "palpa.node.map: the map is INCOMPLETE and may be wrong: the scan did not finish"
+    sim.line("CRITICAL palpa.node.scanner: " + "x" * 400, screen)
+    assert sim.last_error().startswith("palpa.node.scanner: xxx") and len(sim.last_error()) == 300
+    assert NodeProc(NodeSpec(name="quiet"), io.StringIO()).last_error() == ""
+
+
 def test_did_you_mean_for_a_launch_file_and_a_message_type() -> None:
     with pytest.raises(LaunchError, match=r"scan_sm.yaml: no such launch file \(did you mean '.*launch/scan_sim.yaml'"
                                           r"\?\)"):

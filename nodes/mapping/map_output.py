@@ -96,7 +96,8 @@ class PngHelper:
     def __init__(self) -> None:
         self._proc: subprocess.Popen[str] | None = subprocess.Popen(
             [sys.executable, "-m", __name__], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-            cwd=_REPO)
+            cwd=_REPO, process_group=0)  # its own group: the Ctrl-C that asks the node to write its map must not
+        # kill the helper that draws it (it ends by itself at the end of its input if the node dies)
 
     def render(self, npz: Path, png: Path, inclusions: Sequence[Inclusion], *, unit: str, title: str,
                resolution_mm: float) -> bool:

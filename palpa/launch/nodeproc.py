@@ -55,15 +55,15 @@ class NodeProc:
     why: str = ""
     """Why it failed in its own words: its last ERROR line (for the summary), '' if it said none."""
     escalated: str | None = None
+    error_line: str = ""
+    """Its last ERROR or CRITICAL line, without the level: kept apart from the tail, since a traceback printed
+    after it (a helper of the node's dying on the same Ctrl-C) may push it out of the tail."""
 
     def last_error(self) -> str:
-        """Its last ERROR or CRITICAL log line kept in the tail, without the level ('' if none), cut to 300
-        characters: what the summary gives as the reason it failed."""
-        for text in reversed(self.tail):
-            level, _, rest = text.partition(" ")
-            if level in ("ERROR", "CRITICAL") and rest:
-                return rest if len(rest) <= _WHY_CHARS else rest[:_WHY_CHARS - 3] + "..."
-        return ""
+        """Its last ERROR or CRITICAL log line, without the level ('' if none), cut to 300 characters: what the
+        summary gives as the reason it failed."""
+        rest = self.error_line
+        return rest if len(rest) <= _WHY_CHARS else rest[:_WHY_CHARS - 3] + "..."
 
     def read(self, screen: Screen, sel: selectors.BaseSelector) -> None:
         """Take what the pipe has now (the selector said it is readable); at its end, :meth:`drop_output`."""
@@ -80,6 +80,9 @@ class NodeProc:
         with contextlib.suppress(OSError, ValueError):
             self.log.write(text + "\n")
         self.tail.append(text)
+        level, _, rest = text.partition(" ")
+        if level in ("ERROR", "CRITICAL") and rest:
+            self.error_line = rest
         if self.spec.target == VIZ_TARGET and text.startswith(VIZ_READY):
             url = text[len(VIZ_READY):].split(" ", 1)[0]
             screen.say(f"Foxglove: open {url} in the Foxglove app (Open connection -> Foxglove WebSocket; "
