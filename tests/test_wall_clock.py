@@ -1,6 +1,9 @@
 """The wall-clock census: every wait and deadline of the product reads the node's clock (palpa.timing.clock), except
 in the places listed here, each with why. A wait or a decision on the wall clock fires early when the machine is
-busy and the node runs on simulated time."""
+busy and the node runs on simulated time. The census is an AST walk: it sees a ``time`` function read or handed on,
+today's date, and every blocking wait bounded by a timeout (``Event.wait(t)``, ``Thread.join(t)``, ``Queue.get``,
+``Popen.wait``/``communicate``, ``subprocess.run(timeout=)``, ZeroMQ ``poll`` and ``RCVTIMEO``/``SNDTIMEO``,
+``select``/``selectors``, ``Condition.wait_for``, ``threading.Timer``, ``settimeout``, any ``timeout=``)."""
 
 from __future__ import annotations
 
@@ -33,9 +36,54 @@ def _scopes(tree: ast.AST) -> dict[ast.AST, str]:
     return where
 
 
+_BOUNDED_BY_ARG = {"wait": 0, "join": 0, "poll": 0, "select": 0, "wait_for": 1, "communicate": 1, "get": 1}
+"""Blocking calls whose timeout may come positionally, and where (0-based): ``Event.wait(t)``, ``Popen.wait(t)``,
+``Thread.join(t)``, ``zmq`` ``Socket.poll(ms)``/``Poller.poll(ms)``, ``Selector.select(t)``,
+``Condition.wait_for(pred, t)``, ``Popen.communicate(input, t)``, ``Queue.get(block, t)``."""
+_NOT_A_TIMEOUT = (ast.List, ast.Tuple, ast.Set, ast.ListComp, ast.SetComp, ast.GeneratorExp, ast.Starred,
+                  ast.JoinedStr, ast.Dict, ast.DictComp, ast.Lambda)
+"""A positional argument of these kinds is not a timeout (``", ".join([...])``, ``sep.join(x for x in ...)``)."""
+_SOCKET_TIMEOUTS = {"RCVTIMEO", "SNDTIMEO"}
+
+
+def _bounded_wait(node: ast.Call) -> str | None:
+    """The blocking wait ``node`` bounds by a wall-clock timeout, if it does: any call with a ``timeout=`` keyword
+    (``subprocess.run``, ``Popen.communicate``, ``Queue.get``, ``Thread.join``, ``serial.Serial``...), a known
+    blocking call with its timeout given positionally (:data:`_BOUNDED_BY_ARG`; a zero timeout does not wait), a
+    ``select.select`` with its fourth argument, a ``threading.Timer``, a socket's ``settimeout``, or a ZeroMQ socket's
+    receive or send timeout set by ``setsockopt``."""
+    func = node.func
+    name = func.attr if isinstance(func, ast.Attribute) else func.id if isinstance(func, ast.Name) else ""
+    shown = ast.unparse(func)
+    timeout = next((k.value for k in node.keywords if k.arg == "timeout"), None)
+    if timeout is not None:
+        return None if isinstance(timeout, ast.Constant) and timeout.value is None else f"{shown}(timeout=)"
+    if shown in ("select.select", "select") and len(node.args) == 4:
+        return f"{shown}(timeout)"
+    if shown == "threading.Timer":
+        return f"{shown}(interval)"
+    if name == "settimeout" and node.args:
+        return f"{shown}(timeout)"
+    if name == "setsockopt" and node.args and any(s in ast.unparse(node.args[0]) for s in _SOCKET_TIMEOUTS):
+        return f"{shown}({ast.unparse(node.args[0])})"
+    at = _BOUNDED_BY_ARG.get(name)
+    if at is None or len(node.args) <= at or (name == "get" and len(node.args) != 2):
+        return None
+    arg = node.args[at]
+    if isinstance(arg, _NOT_A_TIMEOUT) or (isinstance(arg, ast.Constant) and arg.value in (0, None)):
+        return None
+    if name == "join" and isinstance(func, ast.Attribute) and (
+            isinstance(func.value, ast.Constant) or ast.unparse(func.value) in ("os.path", "os.pathsep", "os.sep")):
+        return None  # str.join, os.path.join
+    if name == "get" and not (isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, bool)):
+        return None  # dict.get(key, default); Queue.get(True, t) says block
+    return f"{shown}(timeout)"
+
+
 def _wall_clock_use(node: ast.AST, time_names: set[str]) -> str | None:
     """What ``node`` reads of the wall clock, if anything: a ``time`` function (called or handed on as a clock),
-    one imported from ``time``, today's date, or a blocking wait bounded by a timeout."""
+    one imported from ``time``, today's date, a blocking wait bounded by a timeout (:func:`_bounded_wait`), or a
+    ZeroMQ socket's timeout set as an attribute (``sock.rcvtimeo = 100``)."""
     if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in time_names \
             and node.attr in WALL_CLOCK:
         return f"time.{node.attr}"
@@ -45,12 +93,10 @@ def _wall_clock_use(node: ast.AST, time_names: set[str]) -> str | None:
     if isinstance(node, ast.Attribute) and node.attr in WALL_DATES and \
             ast.unparse(node.value) in ("datetime", "date", "datetime.datetime", "datetime.date"):
         return f"{ast.unparse(node.value)}.{node.attr}"
-    if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute):
-        timeout = any(k.arg == "timeout" for k in node.keywords)
-        if node.func.attr == "wait" and (node.args or timeout):
-            return f"{ast.unparse(node.func)}(timeout)"
-        if node.func.attr == "get" and timeout:
-            return f"{ast.unparse(node.func)}(timeout=)"
+    if isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store) and node.attr.upper() in _SOCKET_TIMEOUTS:
+        return f"{ast.unparse(node)} ="
+    if isinstance(node, ast.Call):
+        return _bounded_wait(node)
     return None
 
 
@@ -106,6 +152,19 @@ WALL_CLOCK_ALLOWED = {
                                            "the host received it, on its wall clock (a record, not a decision)",
     "palpa.lograte": "rate-limits log lines (what a peer can make happen at will) for the human reading them",
     "palpa.net.direct:DirectSocket.drain": "stamps the transport's own reach answers (no node, no node clock)",
+    "palpa.net.bus:Bus._serve_cache": "the cache thread's socket poll wakes every 100 ms to see a stop: sockets",
+    "palpa.net.bus:Bus.stop": "bounds the join of the proxy's threads at shutdown (threads over sockets)",
+    "palpa.net.exitflush:_flush": "at exit, after every node, bounds ZeroMQ's linger flush of unsent messages",
+    "palpa.net.transport:ZmqTransport._accepted": "a socket's grace for the subscriptions the proxy forwards on "
+                                                  "attach (the handshake's, like _await_proxy)",
+    "palpa.net.transport:ZmqTransport.poll": "blocks on the sockets for as long as the node asks (the node "
+                                             "derives that from its clock: Node.spin_once)",
+    "palpa.node.node:Node.spin_once": "blocks in its transport until input comes or, on a wall clock, its next "
+                                      "timer falls due (a length read on the node's clock; a simulated-clock node "
+                                      "waits for input, its tick; the in-memory transport never blocks)",
+    "palpa.timing.compose:Composition._wait_outside": "an idle composition (nothing due) waits on its bridge's "
+                                                      "socket for input from outside processes; its simulated "
+                                                      "time does not move meanwhile",
     "palpa.net.transport:ZmqTransport._busy_wait": "a busy-poll timeout bounds a socket read, not a decision",
     "palpa.net.transport:ZmqTransport._wait_fine": "a sub-ms poll timeout bounds a socket read, not a decision",
     "palpa.net.transport:ZmqTransport._await_proxy": "the proxy's handshake is a socket's, in wall time",
@@ -119,14 +178,26 @@ WALL_CLOCK_ALLOWED = {
     "palpa.record.recorder:Recorder._open_file": "a file's open time is wall-clock metadata of the file",
     "palpa.record.recorder:Recorder.spin": "after stop, drains what its sockets already hold, bounded in wall "
                                            "time (a simulated clock may have stopped with the graph)",
-    "tools.evaluate": "reports the wall time a run took, to a user",
+    "tools.evaluate": "reports the wall time a run took, to a user; bounds each run's process",
+    "tools.sweep": "a Dask cluster lives in wall time: connecting to its scheduler, the progress thread's end",
     # drivers: hardware lives in wall time; what a node decides about it reads the clock the node hands in
     "nodes.drivers.host_clock": "the clock of a driver used without a node (every node hands in its own)",
-    "nodes.drivers.camera:OpenCVSource._run": "the capture thread of a camera (or of a video paced as one): frames "
-                                              "come in wall time, and a thread blocks in wall time between them",
+    "nodes.drivers.camera:OpenCVSource": "a camera (or a video paced as one) delivers frames in wall time: its "
+                                         "capture thread blocks between them, read() waits for the next one, "
+                                         "close() bounds the thread's end",
     "nodes.drivers.camera:SimSource.read": "the realtime pacing its docstring reserves for a wall clock",
-    "nodes.drivers.fibre_serial:SerialFibreDriver._run": "the serial reader thread's reconnect back-off: a port",
+    "nodes.drivers.fibre_serial:SerialFibreDriver": "a serial port lives in wall time: the port's read timeout, "
+                                                    "the wait for a line or a command's reply from the reader "
+                                                    "thread, its reconnect back-off, its end at close",
+    "nodes.drivers.pressure:AlicatPressureDriver._connect": "the serial port's read and write timeouts bound a "
+                                                            "device's answer on the wire",
     "nodes.drivers.robot_urrtde:URRtdeDriver._monitor_loop": "paces the thread that polls the controller",
+    "nodes.drivers.robot_urrtde:URRtdeDriver._teardown": "bounds the join of that thread at close",
+    "nodes.drivers.robot_urrtde:URRtdeDriver._bounded": "bounds a blocking ur_rtde call: the node's executor is "
+                                                        "stuck in it, so the node's clock (simulated or not) cannot "
+                                                        "tell how long; only the wall can",
+    "nodes.mapping.map_output:PngHelper.render": "the picture helper is a process: its answer is bounded in wall "
+                                                 "time, then the node draws the picture itself",
     "nodes.drivers.robot_urrtde:URRtdeDriver._kick": "the controller times the RTDE watchdog on its own wall "
                                                      "clock: the kicks that feed it, and the gaps between them, too",
     "nodes.drivers.robot_urrtde:URRtdeDriver._set_watchdog": "arms the RTDE watchdog (see _kick)",
@@ -166,9 +237,39 @@ def test_the_wall_clock_census_sees_each_kind_of_read(tmp_path: Path, monkeypatc
         "import time as t\nimport queue\nfrom time import monotonic, strftime\nfrom datetime import datetime\n"
         "class A:\n    def f(self, ev, q, clock=t.time_ns):\n        t.sleep(0.1)\n        ev.wait(0.5)\n"
         "        q.get(timeout=1)\n        return datetime.now(), ev.wait(), q.get(), ', '.join([strftime('%H')])\n")
+    (pkg / "waits.py").write_text("""\
+import os, select, subprocess, threading, zmq, serial
+def g(th, proc, sock, poller, sel, cond, q, d, s, parts, sep):
+    th.join(5.0)
+    proc.communicate(b"x", timeout=3)
+    proc.communicate(b"x", 3)
+    proc.wait(2)
+    subprocess.run(["true"], timeout=9)
+    sock.poll(100)
+    poller.poll(timeout=50)
+    sock.setsockopt(zmq.RCVTIMEO, 100)
+    sock.sndtimeo = 50
+    sel.select(0.5)
+    select.select([sock], [], [], 1.0)
+    cond.wait_for(lambda: True, 2.0)
+    q.get(True, 2.0)
+    threading.Timer(1.0, print)
+    s.settimeout(3.0)
+    serial.Serial("/dev/x", timeout=0.05)
+    return (", ".join(parts), sep.join(p for p in parts), os.path.join("a", "b"), os.pathsep.join([sep]),
+            poller.poll(0), sock.poll(), d.get("k", 0), q.get(), cond.wait_for(bool), th.join(),
+            serial.Serial("/dev/x", timeout=None), sel.select(), proc.communicate(b"x"))
+""")
     monkeypatch.setattr(arch, "ROOT", tmp_path)
     assert wall_clock_reads(("fakepkg",)) == {
         "fakepkg": ["3: from time import monotonic"],
         "fakepkg:A.f": ["6: time.time_ns", "7: time.sleep", "8: ev.wait(timeout)", "9: q.get(timeout=)",
-                        "10: datetime.now"]}
+                        "10: datetime.now"],
+        "fakepkg.waits:g": [
+            "3: th.join(timeout)", "4: proc.communicate(timeout=)", "5: proc.communicate(timeout)",
+            "6: proc.wait(timeout)", "7: subprocess.run(timeout=)", "8: sock.poll(timeout)",
+            "9: poller.poll(timeout=)", "10: sock.setsockopt(zmq.RCVTIMEO)", "11: sock.sndtimeo =",
+            "12: sel.select(timeout)", "13: select.select(timeout)", "14: cond.wait_for(timeout)",
+            "15: q.get(timeout)", "16: threading.Timer(interval)", "17: s.settimeout(timeout)",
+            "18: serial.Serial(timeout=)"]}
     assert _listed("fakepkg:A.f", {"fakepkg:A": ""}) and not _listed("fakepkg:A.f", {"fakepkg:A.g": ""})
