@@ -57,3 +57,17 @@ def test_a_controller_that_falls_behind_skips_cycles_and_says_so() -> None:
     assert any("skipping 450 ticks" in m for m in ctl.messages)
     clock.advance(0.01)
     assert stepper.step() == 5  # on from the clock's now: the skipped cycles are not run later
+
+
+def test_cycles_run_ahead_of_the_clock_count_as_its_next_ones() -> None:
+    """A blocking client call runs the controller until it answers (emulators.ur.local): those cycles are not run
+    again when the clock reaches them."""
+    clock = MockClock()
+    ctl = UrController()
+    stepper = ControllerClock(ctl, clock.now_ns)
+    assert stepper.run_ahead(lambda: ctl.ticks >= 7, 100) == 7 and ctl.ticks == 7
+    clock.advance(0.01)  # 5 cycles: already run
+    assert stepper.step() == 0 and ctl.ticks == 7
+    clock.advance(0.006)  # 8 cycles in all
+    assert stepper.step() == 1 and ctl.ticks == 8
+    assert stepper.run_ahead(lambda: False, 3) is None and ctl.ticks == 11  # never answered: gives up

@@ -36,6 +36,21 @@ class ControllerClock:
         """When (on the clock) the next cycle falls due."""
         return self._t0 + (self._done + 1) * TICK_NS
 
+    def run_ahead(self, done: Callable[[], bool], max_ticks: int) -> int | None:
+        """Run cycles beyond the clock's now until ``done()`` holds, at most ``max_ticks``: a blocking client call
+        that waits on the controller while its caller's clock cannot move (emulators.ur.local). They count as the
+        clock's next cycles: :meth:`step` runs none until the clock has passed them. How many ran, or None if
+        ``done()`` never held."""
+        ctl = self.controller
+        for n in range(max_ticks + 1):
+            if done():
+                return n
+            if n < max_ticks:
+                with ctl.lock:
+                    ctl.tick()
+                self._done += 1
+        return None
+
     def step(self, hold_at: int | None = None, *, batch: int = 5,
              between: Callable[[], object] | None = None) -> int:
         """Run the cycles due by the clock's now; returns how many ran. The arm is held once it has moved
