@@ -437,16 +437,19 @@ def moving_driver(start_timeout_s: float = 2.0, command_timeout_s: float = 10.0,
 def test_a_kick_gap_near_the_watchdog_s_limit_is_told_as_the_watchdog() -> None:
     """The controller times a kick from its arrival, the driver from its sending: a loaded run stopped by the
     watchdog when the driver had measured 0.99 s of its 1 s (the test above), and was told 'not the watchdog'."""
-    drv = URRtdeDriver("127.0.0.1", watchdog_hz=1.0)
-    now = time.monotonic()
+    clock = MockClock()
+    drv = URRtdeDriver("127.0.0.1", watchdog_hz=1.0, clock=clock.now_ns)  # kicks are timed on the node's clock
+    now = clock.now_ns()
     for gap, watchdog in ((1.2, True), (0.99, True), (0.91, True), (0.85, False), (0.3, False)):
-        drv._last_kick, drv._kick_gap = now - 0.1, gap
+        drv._last_kick, drv._kick_gap = now - 100_000_000, round(gap * 1e9)
         cause = drv._stop_cause(now)
         assert cause.startswith("RTDE watchdog") is watchdog and f"{gap:.2f} s" in cause, (gap, cause)
-    drv._kick_gap = 0.99
+    drv._kick_gap = 990_000_000
     assert "within 0.1 s of the 1 s it allows" in drv._stop_cause(now)
-    drv._kick_gap = 1.2
+    drv._kick_gap = 1_200_000_000
     assert "over the 1 s it allows" in drv._stop_cause(now)
+    clock.advance(1.5)  # and a stall since the last kick counts, read on the same clock
+    assert drv._stop_cause().startswith("RTDE watchdog: this driver did not kick it for 1.60 s")
 
 
 def test_a_path_the_controller_never_starts_latches_a_fault_after_the_start_timeout() -> None:
@@ -506,3 +509,29 @@ class _BurstingReceive:
 def test_the_ur_state_is_one_package_s_even_while_packages_burst_in(burst: int) -> None:
     pose, _, force = URRtdeDriver._snapshot(_BurstingReceive(burst))
     assert pose[2] * 1000 == pytest.approx(force[2])  # pose and force from the same package
+
+
+class _Kicked:
+    """A control interface that counts the watchdog's kicks."""
+
+    def __init__(self) -> None:
+        self.kicks = 0
+
+    def kickWatchdog(self) -> None:  # noqa: N802 - ur_rtde's name
+        self.kicks += 1
+
+
+def test_the_watchdog_is_kicked_four_times_per_period_of_the_node_s_clock_and_at_once_if_it_steps_back() -> None:
+    """The node's clock is the wall's on the rig (it can step back, NTP): a kick is never held back by a clock that
+    went backwards, or the controller would starve meanwhile."""
+    now = [10_000_000_000]
+    drv = URRtdeDriver("127.0.0.1", watchdog_hz=2.0, clock=lambda: now[0])
+    rc = _Kicked()
+    for _ in range(101):  # 1 s in 10 ms steps: a kick at the first step 125 ms or more after the last (130 ms)
+        drv._kick(rc)
+        now[0] += 10_000_000
+    assert rc.kicks == 8
+    now[0] -= 3_600_000_000_000  # an hour back
+    drv._kick(rc)
+    drv._kick(rc)
+    assert rc.kicks == 9

@@ -198,10 +198,6 @@ WALL_CLOCK_ALLOWED = {
                                                         "tell how long; only the wall can",
     "nodes.mapping.map_output:PngHelper.render": "the picture helper is a process: its answer is bounded in wall "
                                                  "time, then the node draws the picture itself",
-    "nodes.drivers.robot_urrtde:URRtdeDriver._kick": "the controller times the RTDE watchdog on its own wall "
-                                                     "clock: the kicks that feed it, and the gaps between them, too",
-    "nodes.drivers.robot_urrtde:URRtdeDriver._set_watchdog": "arms the RTDE watchdog (see _kick)",
-    "nodes.drivers.robot_urrtde:URRtdeDriver._stop_cause": "tells a starved RTDE watchdog (see _kick)",
     # emulators stand in for hardware in another thread or process, which lives in wall time
     "emulators.alicat": "an emulated device (its default clock when a test hands it none)",
     "emulators.fibre_daq": "an emulated device streams on its own wall clock, as the DAQ does",

@@ -8,6 +8,12 @@ Paths go out as one asynchronous ``moveL(path)`` (ur_rtde re-uploads its control
 one movel per waypoint); progress comes from the script's async progress register. A monitor
 thread polls the robot every ``poll_s`` and kicks an RTDE watchdog: if this process stalls or
 the link drops, the controller stops the program (and so the arm) within ``1/watchdog_hz`` s.
+The kicks are timed on the clock handed in (the node's), which is the controller's too: the wall
+for a robot, the graph's for an emulated controller stepped on it.
+
+``interfaces`` makes the two interfaces: ur_rtde's by default; emulators.ur.local's stand-ins run
+an emulated controller in process on the node's clock (no thread of theirs moves between calls,
+so the driver starts no monitor thread either: its caller's progress() and state() poll and kick).
 
 Faults are latched, reported through progress() with a message, and never retried silently:
 a protective stop, a lost connection, or a control script that stopped under us all end the
@@ -25,9 +31,8 @@ from __future__ import annotations
 import logging
 import math
 import threading
-import time
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, Protocol
 
 from nodes.drivers.host_clock import host_ns
 from nodes.drivers.native_stderr import native_stderr
@@ -42,7 +47,7 @@ from nodes.drivers.robot import (
     checked_path,
 )
 
-__all__ = ["URRtdeDriver"]
+__all__ = ["RtdeInterfaces", "URRtdeDriver"]
 
 log = logging.getLogger(__name__)
 
@@ -60,6 +65,43 @@ _UNREACHABLE = ("connection refused", "timeout connecting", "timed out", "no rou
                 "connection reset", "host is unreachable")
 """ur_rtde's words (its RuntimeError, or what it printed) for a controller that does not answer on a port: all it
 raises is RuntimeError, so only the text tells an unreachable robot from a refused script."""
+
+
+class RtdeInterfaces(Protocol):
+    """What makes ur_rtde's two interfaces (or stand-ins answering the same methods)."""
+
+    threaded: bool
+    """Whether the interfaces move on threads of their own in wall time (ur_rtde's receive stream), so the driver
+    polls them between its caller's calls from a monitor thread; False: they move only when called."""
+
+    def receive(self, host: str, frequency_hz: float, fields: list[str]) -> Any:
+        """rtde_receive.RTDEReceiveInterface(host, frequency_hz, fields); RuntimeError if unreachable."""
+        ...
+
+    def control(self, host: str, frequency_hz: float) -> Any:
+        """rtde_control.RTDEControlInterface(host, frequency_hz); RuntimeError if it cannot start its script."""
+        ...
+
+
+class _UrRtde:
+    """ur_rtde's own interfaces (imported at the first connection: a project dependency, with a clear error)."""
+
+    threaded = True
+
+    @staticmethod
+    def _modules() -> tuple[Any, Any]:
+        try:
+            import rtde_control
+            import rtde_receive
+        except ImportError as e:  # pragma: no cover - ur_rtde is a project dependency
+            raise RobotConnectionError(f"ur_rtde is not installed ({e}); pip install ur-rtde") from e
+        return rtde_control, rtde_receive
+
+    def receive(self, host: str, frequency_hz: float, fields: list[str]) -> Any:
+        return self._modules()[1].RTDEReceiveInterface(host, frequency_hz, fields)
+
+    def control(self, host: str, frequency_hz: float) -> Any:
+        return self._modules()[0].RTDEControlInterface(host, frequency_hz)
 
 
 def _unreachable(host: str, ports: str, why: str, said: list[str]) -> RobotConnectionError:
@@ -81,7 +123,8 @@ class URRtdeDriver:
                  tool_rotvec: Sequence[float] = (0.0, math.pi, 0.0), frequency_hz: float = 500.0,
                  watchdog_hz: float | None = 2.0, max_speed_mm_s: float = 250.0,
                  max_accel_mm_s2: float = 2500.0, poll_s: float = 0.01, start_timeout_s: float = 2.0,
-                 command_timeout_s: float = 10.0, clock: Callable[[], int] = host_ns) -> None:
+                 command_timeout_s: float = 10.0, clock: Callable[[], int] = host_ns,
+                 interfaces: RtdeInterfaces | None = None) -> None:
         if len(frame_offset_mm) != 3 or len(tool_rotvec) != 3:
             raise ValueError(f"URRtdeDriver: frame_offset_mm and tool_rotvec need 3 numbers each, "
                              f"got {frame_offset_mm!r}, {tool_rotvec!r}")
@@ -94,6 +137,7 @@ class URRtdeDriver:
         self.max_speed_mm_s, self.max_accel_mm_s2 = max_speed_mm_s, max_accel_mm_s2
         self.poll_s, self.start_timeout_s, self.command_timeout_s = poll_s, start_timeout_s, command_timeout_s
         self._clock = clock
+        self._interfaces: RtdeInterfaces = interfaces if interfaces is not None else _UrRtde()
         self._lock = threading.RLock()  # serialises every ur_rtde call
         self._rc: Any = None  # rtde_control.RTDEControlInterface
         self._rr: Any = None  # rtde_receive.RTDEReceiveInterface
@@ -110,9 +154,10 @@ class URRtdeDriver:
         """When (clock ns) the current path was sent: its start is timed on the clock handed in (the node's), so
         that on a simulated clock a busy machine cannot fail a start that simulated time has not yet reached."""
         self._stop_requested = False
-        self._last_kick = 0.0
-        self._kick_gap = 0.0
-        """The longest time between two watchdog kicks since it was last armed (s)."""
+        self._last_kick = 0
+        """When (clock ns) the watchdog was last kicked or armed."""
+        self._kick_gap = 0
+        """The longest time between two watchdog kicks since it was last armed (clock ns)."""
         self._last = TcpState(0, (0.0,) * 6, (0.0,) * 6, (0.0,) * 6)  # stamp 0: never read
 
     # ------------------------------------------------------------ connection
@@ -122,15 +167,10 @@ class URRtdeDriver:
         Raises RobotConnectionError naming the cause: unreachable, remote control disabled,
         protective stop still active, or ur_rtde missing."""
         self._teardown()
-        try:
-            import rtde_control
-            import rtde_receive
-        except ImportError as e:  # pragma: no cover - ur_rtde is a project dependency
-            raise RobotConnectionError(f"ur_rtde is not installed ({e}); pip install ur-rtde") from e
         with self._lock:
             try:
                 with native_stderr() as said:  # ur_rtde prints 'connect: Connection refused': into the one line
-                    self._rr = rtde_receive.RTDEReceiveInterface(self.host, self.frequency_hz, _RECEIVE_FIELDS)
+                    self._rr = self._interfaces.receive(self.host, self.frequency_hz, _RECEIVE_FIELDS)
             except RuntimeError as e:
                 raise _unreachable(self.host, "RTDE port 30004", str(e), said) from e
             if self._rr.isProtectiveStopped():
@@ -140,7 +180,7 @@ class URRtdeDriver:
                     "(or dashboard 'unlock protective stop'), then connect again")
             try:
                 with native_stderr() as said:
-                    self._rc = rtde_control.RTDEControlInterface(self.host, self.frequency_hz)
+                    self._rc = self._interfaces.control(self.host, self.frequency_hz)
             except RuntimeError as e:
                 self._teardown_locked()
                 text = str(e)
@@ -156,8 +196,9 @@ class URRtdeDriver:
             self._status, self._index, self._message = MotionStatus.IDLE, 0, ""
             self._moving = self._stop_requested = False
         self._halt.clear()
-        self._monitor = threading.Thread(target=self._monitor_loop, name=f"ur-monitor-{self.host}", daemon=True)
-        self._monitor.start()
+        if self._interfaces.threaded:
+            self._monitor = threading.Thread(target=self._monitor_loop, name=f"ur-monitor-{self.host}", daemon=True)
+            self._monitor.start()
         log.info("connected to the UR at %s", self.host)
 
     def close(self) -> None:
@@ -356,10 +397,11 @@ class URRtdeDriver:
             self._status, self._index = MotionStatus.DONE, self._count - 1
 
     def _kick(self, rc: Any) -> None:
+        """Kick the RTDE watchdog at four times the rate it asks for (a clock that stepped back kicks at once)."""
         if self.watchdog_hz is None:
             return
-        now = time.monotonic()
-        if now - self._last_kick >= 0.25 / self.watchdog_hz:
+        now = self._clock()
+        if not 0 <= now - self._last_kick < 0.25e9 / self.watchdog_hz:
             self._kick_gap = max(self._kick_gap, now - self._last_kick)
             rc.kickWatchdog()
             self._last_kick = now
@@ -367,18 +409,19 @@ class URRtdeDriver:
     def _set_watchdog(self) -> None:
         if self.watchdog_hz is not None and self._rc is not None:
             self._rc.setWatchdog(self.watchdog_hz)
-            self._last_kick = time.monotonic()
-            self._kick_gap = 0.0
+            self._last_kick = self._clock()
+            self._kick_gap = 0
 
-    def _stop_cause(self, now: float | None = None) -> str:
+    def _stop_cause(self, now: int | None = None) -> str:
         """Why the program may have stopped: whether this driver let the watchdog starve (its longest gap between
         kicks since the watchdog was armed: a stalled process or link) or kept it fed (the pendant, the dashboard,
         another client)."""
         if self.watchdog_hz is None:
             return "stopped from the pendant or dashboard; no RTDE watchdog was set"
-        # the controller times its watchdog on its own (wall) clock: so are the kicks, here and in _kick
-        now = time.monotonic() if now is None else now
-        gap, allowed = max(self._kick_gap, now - self._last_kick), 1.0 / self.watchdog_hz
+        # the controller times its watchdog on its own clock, which the clock handed in follows (the wall for a
+        # robot): so are the kicks, here and in _kick
+        now = self._clock() if now is None else now
+        gap, allowed = max(self._kick_gap, now - self._last_kick) / 1e9, 1.0 / self.watchdog_hz
         # the controller times a kick from its arrival, this driver from its sending: a kick that left on time can
         # arrive late over a busy link or to a busy controller, so a gap this near the limit may have starved it
         near = max(_WATCHDOG_LATENCY_S, 0.1 * allowed)
