@@ -1,4 +1,5 @@
-"""The one place that imports user code by name: ``MODULE:Class`` node targets and the message modules.
+"""The one place that imports user code by name: ``MODULE:Class`` node targets, other ``MODULE:name`` objects a node
+is told to use, and the message modules.
 
 Message modules are found through the ``palpa.messages`` entry-point group (a package declares its message module
 in its ``pyproject.toml``; this project declares ``messages``) plus ``PALPA_MESSAGES`` for modules that are not
@@ -12,13 +13,15 @@ from __future__ import annotations
 import contextlib
 import importlib
 from importlib.metadata import entry_points
+from types import ModuleType
 
 from palpa import env as palpa_env
 from palpa.errors import PalpaError
 from palpa.node.node import Node
 from yamlstruct.convert import did_you_mean
 
-__all__ = ["MESSAGES_GROUP", "TargetError", "import_message_modules", "load_node_class", "message_modules"]
+__all__ = ["MESSAGES_GROUP", "TargetError", "import_message_modules", "load_node_class", "load_object",
+           "message_modules"]
 
 MESSAGES_GROUP = "palpa.messages"
 """The entry-point group a package uses to declare its message module(s): ``name = "package.module"``."""
@@ -53,12 +56,12 @@ def import_message_modules() -> None:
                 importlib.import_module(name)
 
 
-def load_node_class(target: str) -> type[Node]:
-    """Import ``package.module:Class`` and check it is a Node subclass; a :class:`TargetError` says what failed
-    (the module's own import error, a class that is not there with the closest names, or not a node)."""
-    module_name, sep, class_name = target.partition(":")
-    if not sep or not module_name or not class_name:
-        raise TargetError(target, "expected package.module:Class")
+def _import_target(target: str, expected: str) -> tuple[ModuleType, str, str]:
+    """The module ``target`` (``package.module:name``) names, with its two parts; a :class:`TargetError` if the
+    target is malformed or the module does not import (its own error, or not found where it was looked for)."""
+    module_name, sep, name = target.partition(":")
+    if not sep or not module_name or not name:
+        raise TargetError(target, f"expected {expected}")
     try:
         module = importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
@@ -68,6 +71,23 @@ def load_node_class(target: str) -> type[Node]:
         raise TargetError(target, f"importing {module_name!r} failed: {exc}") from None
     except Exception as exc:  # any error raised by the module's own code at import time
         raise TargetError(target, f"importing {module_name!r} failed: {type(exc).__name__}: {exc}") from None
+    return module, module_name, name
+
+
+def load_object(target: str) -> object:
+    """Import ``package.module:name`` and return that attribute (an object a node is told to use by name, such as
+    a driver's stand-in); a :class:`TargetError` says what failed, with the closest names."""
+    module, module_name, name = _import_target(target, "package.module:name")
+    if not hasattr(module, name):
+        names = [n for n in vars(module) if not n.startswith("_")]
+        raise TargetError(target, f"module {module_name!r} has no {name!r}{did_you_mean(name, names)}")
+    return getattr(module, name)
+
+
+def load_node_class(target: str) -> type[Node]:
+    """Import ``package.module:Class`` and check it is a Node subclass; a :class:`TargetError` says what failed
+    (the module's own import error, a class that is not there with the closest names, or not a node)."""
+    module, module_name, class_name = _import_target(target, "package.module:Class")
     cls = getattr(module, class_name, None)
     if cls is None:
         names = [n for n, v in vars(module).items() if isinstance(v, type) and issubclass(v, Node) and v is not Node]

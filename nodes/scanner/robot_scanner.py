@@ -26,6 +26,7 @@ imports this module.
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import palpa
 from messages import (
@@ -61,6 +62,7 @@ from nodes.scanner.scanner_params import ScannerParams
 from nodes.scanner.specimen import SpecimenPlanner
 from nodes.scanner.states import ON_PATH, Event, ScanStateMachine, State
 from nodes.scanner.surface_follow import LineFollower
+from palpa.targets import TargetError, load_object
 
 # SUPERVISION_MAX_S and supervision_period_s: importable from here as before the split (nodes.scanner.scan_supervision)
 __all__ = ["SUPERVISION_MAX_S", "RobotScanner", "supervision_period_s"]
@@ -139,13 +141,19 @@ class RobotScanner(palpa.Node):
             from nodes.drivers.robot_sim import SimRobotDriver
 
             return SimRobotDriver(home_mm=tuple(p.home_mm), clock=self.clock.now_ns, time_scale=p.time_scale)
-        from nodes.drivers.robot_urrtde import URRtdeDriver
+        from nodes.drivers.robot_urrtde import RtdeInterfaces, URRtdeDriver
 
+        interfaces: RtdeInterfaces | None = None
+        if p.rtde_interfaces:
+            try:
+                interfaces = cast(RtdeInterfaces, load_object(p.rtde_interfaces))
+            except TargetError as exc:
+                raise palpa.ParamError(f"{self.name}: rtde_interfaces: {exc}") from None
         # the poses it reads are stamped by the node's clock, like the sim arm's (the probe's samples are matched to
         # them by stamp: a graph on another clock than the wall's, e.g. a test harness's, must not see a gap)
         return URRtdeDriver(p.robot_host, frame_offset_mm=tuple(p.frame_offset_mm),
                             tool_rotvec=tuple(p.tool_rotvec), watchdog_hz=p.rtde_watchdog_hz or None,
-                            clock=self.clock.now_ns)
+                            clock=self.clock.now_ns, interfaces=interfaces)
 
     def make_plan(self) -> RasterPlan:
         """The scan's raster from the parameters over the specimen (nodes.scanner.scan_plan)."""

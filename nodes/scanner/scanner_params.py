@@ -97,6 +97,10 @@ class ScannerParams(palpa.Params):
     """Phantom frame origin in the robot base frame (mm)."""
     tool_rotvec: tuple[float, float, float] = (0.0, math.pi, 0.0)
     """Fixed tool orientation (rotation vector, rad): probe pointing down."""
+    rtde_interfaces: str = ""
+    """ur_rtde: ``MODULE:name`` of what makes its two interfaces instead of ur_rtde itself
+    (nodes.drivers.robot_urrtde.RtdeInterfaces); ``emulators.ur.local:hosts`` drives an emulated controller served
+    at ``robot_host`` in this process, on the node's clock (the in-process tests). Empty: ur_rtde over TCP."""
     rtde_watchdog_hz: palpa.SafetyLimit[palpa.NonNegative] = 2.0
     """ur_rtde: the controller stops the program (and the arm) when this process has not kicked its RTDE
     watchdog for 1/rtde_watchdog_hz s (a stalled PC or a cut cable); 0: no watchdog."""
