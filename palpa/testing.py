@@ -58,25 +58,30 @@ class GraphHarness:
 
     @classmethod
     def from_launch(cls, file: str | Path, *, run_dir: str | Path | None = None, clock: MockClock | None = None,
-                    node_params: Mapping[str, Mapping[str, Any]] | None = None, **args: Any) -> GraphHarness:
+                    node_params: Mapping[str, Mapping[str, Any]] | None = None, every_node: bool = False,
+                    **args: Any) -> GraphHarness:
         """The simulated-clock nodes of a launch file, composed on the mock clock in this process as
         ``palpa launch FILE --in-process`` composes them (same classes, names, parameters, namespaces, remaps and
         order; no process, no socket). ``args`` override the file's args (native values, as ``name:=value`` would
         give). Not run here: the file's ``prepare`` commands (processes: pass args naming their outputs instead),
         its recorder (the harness records everything itself, in ``raw``), its clock source (the harness's clock
         replaces it) and its entries off the simulated clock. ``node_params`` overrides parameters the file fixes,
-        by node name (``{"map": {"png_helper": False}}``: no helper process). A
+        by node name (``{"map": {"png_helper": False}}``: no helper process). ``every_node``
+        composes the file's wall-clock node entries too, on the harness's clock (a rig's graph whose drivers have
+        in-process stand-ins, such as launch/scan_ur.yaml on the emulated UR controller of emulators.ur.local). A
         :class:`~palpa.errors.LaunchError` says what is wrong with the file, the args or ``node_params``."""
         from palpa.errors import LaunchError
-        from palpa.launch.compose import composable_nodes
+        from palpa.launch.compose import CLOCK_TARGET, composable_nodes
         from palpa.launch.loader import load_launch
+        from palpa.launch.plan import NodeSpec
         from palpa.targets import load_node_class
 
         plan = load_launch(file, args, run_dir=run_dir)
-        specs = composable_nodes(plan)
+        specs: list[NodeSpec] = [s for s in plan.nodes if s.target not in (None, CLOCK_TARGET)] if every_node else \
+            composable_nodes(plan)
         extra = dict(node_params or {})
         if unknown := sorted(set(extra) - {s.name for s in specs}):
-            raise LaunchError(f"{file}: node_params for {', '.join(unknown)}: no such simulated-clock node "
+            raise LaunchError(f"{file}: node_params for {', '.join(unknown)}: no such {'' if every_node else 'simulated-clock '}node "
                               f"(there are {', '.join(s.name for s in specs)})")
         classes = [load_node_class(s.target) for s in specs if s.target is not None]
         g = cls(clock=clock)
