@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+import palpa
 from emulators.ur.controller import ControllerConfig, FaultPlan, UrController
 from emulators.ur.local import LocalUr, hosts
 from messages import RobotPose, ScanPlan
@@ -284,3 +285,12 @@ def test_an_arm_pushed_out_of_the_workspace_box_is_stopped_as_a_fault(
         # stopped from 100 mm/s at the cap's deceleration, within a supervision pass and a few cycles of leaving
         stop_mm = 100.0**2 / (2 * scanner.params.max_accel_mm_s2) + 100.0 * (SUPERVISION_MAX_S + 0.006)
         assert not ctl.arm.is_moving and top + 0.5 < ctl.arm.pose[2] < top + 0.5 + stop_mm
+
+
+def test_a_misspelt_rtde_interfaces_is_a_parameter_error_naming_the_closest(ur: tuple[MockClock, UrController]) -> None:
+    clock, _ = ur
+    g = GraphHarness(clock=clock)
+    with pytest.raises(palpa.ParamError, match=r"scanner: rtde_interfaces: .*has no 'host'.*did you mean 'hosts'"):
+        g.add(RobotScanner, {"driver": "ur_rtde", "robot_host": "ur-local", "rtde_interfaces": "emulators.ur.local:host",
+                             "home_mm": list(HOME[:3])}, name="scanner")
+    g.close()
