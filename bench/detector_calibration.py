@@ -1,5 +1,6 @@
 """The detector's false-alarm law, measured on blank specimens (issue 37): derives models.detector's GUMBEL_LOC,
-GUMBEL_SCALE and REFERENCE_AREA_MM2.
+GUMBEL_SCALE and REFERENCE_AREA_MM2 (the air-float probe's sweep maps), or CAMERA_GUMBEL_* (the camera probe's
+press grids): each probe's law from its own blank maps (models.detector.FALSE_ALARM_LAWS).
 
 Scan the blank specimens once (a flat 3 mm sheet and the demo's dome without tumours, twenty noise draws each: the
 device's errors, the sensor noise and the thickness measurement all drawn from the seed):
@@ -12,6 +13,14 @@ the matched filter's largest output over its scales and the map's cells, an edge
 the saved maps:
 
     .venv/bin/python bench/detector_calibration.py runs/blank
+
+The camera probe's, the same way on its blank specimens (its scan target without tumours, and a 12-8 mm dome):
+
+    python -m tools.evaluate launch/scan_camera_sim.yaml --phantom phantoms/blank/camera_flat_10mm.yaml \
+        --phantom phantoms/blank/camera_dome_12_8.yaml --seeds $(seq 0 19) -o runs/camblank --serial
+    .venv/bin/python bench/detector_calibration.py runs/camblank
+
+Which probe's law is fitted is read from the maps (map.npz's ``model``, else its unit); all maps must agree.
 
 The largest of many weakly dependent significances follows a Gumbel law whose location grows as
 ``scale * ln(area)``; the fit is maximum likelihood with each map's valid area as an offset. The candidates the
@@ -37,12 +46,16 @@ sys.path.insert(0, str(REPO))
 from models.detector import (  # noqa: E402
     DetectorConfig,
     detect,
+    false_alarm_law,
     fit_false_alarm_law,
     peak_significance,
     threshold_for,
 )
 from models.stiffness_map import MapSnapshot  # noqa: E402
-from nodes.mapping.map_output import read_map  # noqa: E402
+from nodes.mapping.map_output import map_model, read_map  # noqa: E402
+
+_NAMES = {"airfloat": "", "multi_indenter": "CAMERA_"}
+"""Prefix of each probe's constants in models/detector.py."""
 
 
 def peaks(maps: list[MapSnapshot], cfg: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -63,8 +76,13 @@ def main() -> int:
     files = sorted(p for r in args.runs for p in r.glob("runs/*/map/map.npz") if p.parent.parent.name != "latest")
     if not files:
         raise SystemExit(f"no runs/*/map/map.npz under {', '.join(map(str, args.runs))}")
+    models = {map_model(f) for f in files}
+    if len(models) != 1 or next(iter(models)) not in _NAMES:
+        raise SystemExit(f"the maps must all be of one probe with a law in models.detector ({', '.join(_NAMES)}): "
+                         f"they are of {', '.join(sorted(m or '?' for m in models))}")
+    model = models.pop()
     maps = [read_map(f) for f in files]
-    cfg = DetectorConfig()
+    cfg = DetectorConfig(gumbel=false_alarm_law(model) or DetectorConfig().gumbel)
     ref_area = cfg.gumbel[2]
     for _ in range(args.rounds):
         top, area = peaks(maps, cfg)
@@ -73,16 +91,18 @@ def main() -> int:
         cfg = replace(cfg, gumbel=(loc, scale, ref_area))
     top, area = peaks(maps, cfg)
     calls = sum(bool(detect(m, cfg).inclusions) for m in maps)
-    print(f"{len(maps)} blank maps; largest significance per map: median {np.median(top):.2f}, "
+    print(f"{len(maps)} blank {model} maps; largest significance per map: median {np.median(top):.2f}, "
           f"range {top.min():.2f}..{top.max():.2f} σ; valid area {area.min():.0f}..{area.max():.0f} mm²")
     for f, t in zip(files, top, strict=True):
         print(f"  {f.parent.parent.name:24s} {t:5.2f}")
-    print(f"GUMBEL_LOC = {cfg.gumbel[0]:.3f}\nGUMBEL_SCALE = {cfg.gumbel[1]:.3f}\nREFERENCE_AREA_MM2 = {ref_area:.0f}")
+    pre = _NAMES[model]
+    print(f"{pre}GUMBEL_LOC = {cfg.gumbel[0]:.3f}\n{pre}GUMBEL_SCALE = {cfg.gumbel[1]:.3f}\n"
+          f"{pre}REFERENCE_AREA_MM2 = {ref_area:.0f}")
     for p in (0.05, 0.01, 0.001):
         print(f"threshold at {100 * p:g} % false alarms per map of the reference area: "
               f"{threshold_for(ref_area, replace(cfg, false_alarm_per_map=p)):.2f} σ")
     print(f"blank maps with any detection at the default {100 * cfg.false_alarm_per_map:g} %: {calls} of {len(maps)}")
-    print(json.dumps({"loc": cfg.gumbel[0], "scale": cfg.gumbel[1], "ref_area_mm2": ref_area,
+    print(json.dumps({"model": model, "loc": cfg.gumbel[0], "scale": cfg.gumbel[1], "ref_area_mm2": ref_area,
                       "maxima": [round(float(t), 3) for t in top], "maps_with_detection": calls}))
     return 0
 

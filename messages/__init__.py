@@ -19,7 +19,7 @@ from messages.probe import (
     PressureState,
     ProbeHeights,
 )
-from messages.robot import EStop, PlanWaypoint, RobotPose, ScanPlan, ScanStatus
+from messages.robot import EStop, PlanWaypoint, RobotPose, ScanPlan, ScanStatus, TableHeight
 from messages.services import (
     MapSaved,
     PressureAck,
@@ -69,6 +69,7 @@ __all__ = [
     "StiffnessFit",
     "StiffnessMap",
     "StiffnessSample",
+    "TableHeight",
     "Text",
     "Trigger",
     "TriggerResult",

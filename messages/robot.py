@@ -57,6 +57,17 @@ class ScanPlan(Message, frozen=True, kw_only=True):
     waypoints: list[PlanWaypoint]
 
 
+class TableHeight(Message, frozen=True, kw_only=True):
+    """The table's height beside the specimen as the probe touched it (topic ``scanner/table``, latched): what the
+    estimator's ``thickness: probe`` counts the layer's thickness from. Published by the scanner's table touch
+    (``table_point_mm``) before its touch-off; without one, the table is z = 0 of the phantom frame."""
+
+    stamp_ns: int
+    x_mm: Finite
+    y_mm: Finite
+    z_mm: Finite
+
+
 class ScanStatus(Message, frozen=True, kw_only=True):
     """Scan progress (topic ``robot/scan_status``)."""
 

@@ -22,8 +22,10 @@ works on ``log(stiffness)``:
    weakly dependent cells); its location grows with the map's area as ``scale * ln(area / reference area)``.
    :data:`GUMBEL_LOC`, :data:`GUMBEL_SCALE` and :data:`REFERENCE_AREA_MM2` were fitted by
    ``bench/detector_calibration.py`` on blank specimens (a flat 3 mm sheet and the demo's dome without tumours,
-   twenty noise draws each; BENCHMARKS.md "The detector's false-alarm rate"). The threshold is the significance a
-   blank map of this area exceeds with probability :attr:`DetectorConfig.false_alarm_per_map`.
+   twenty noise draws each; BENCHMARKS.md "The detector's false-alarm rate"), the camera probe's
+   (``CAMERA_*``) on its own blank scans: each probe's maps are detected with their own law
+   (:data:`FALSE_ALARM_LAWS`, :func:`false_alarm_law`). The threshold is the significance a blank map of this area
+   exceeds with probability :attr:`DetectorConfig.false_alarm_per_map`.
 5. **Detections.** Each 8-connected region above the threshold is one inclusion (unless its raised cells all lie
    in the map's first or last row or column: the SPS ring over the specimen's edge), or one per maximum of the
    smallest disc's significance standing :attr:`DetectorConfig.split_snr` above the level joining it to a higher
@@ -49,8 +51,9 @@ from scipy import ndimage, optimize
 from models.peaks import peak_parts
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps
 
-__all__ = ["BACKGROUND_DEGREE", "GUMBEL_LOC", "GUMBEL_SCALE", "REFERENCE_AREA_MM2", "DetectorConfig", "Detection",
-           "describe", "detect", "false_alarm_probability", "fit_false_alarm_law", "peak_significance", "significance",
+__all__ = ["BACKGROUND_DEGREE", "CAMERA_GUMBEL_LOC", "CAMERA_GUMBEL_SCALE", "CAMERA_REFERENCE_AREA_MM2",
+           "FALSE_ALARM_LAWS", "GUMBEL_LOC", "GUMBEL_SCALE", "REFERENCE_AREA_MM2", "DetectorConfig", "Detection",
+           "describe", "detect", "false_alarm_law", "false_alarm_probability", "fit_false_alarm_law", "peak_significance", "significance",
            "threshold_for"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -68,6 +71,22 @@ GUMBEL_SCALE = 0.344
 """Scale (σ) of that Gumbel law."""
 REFERENCE_AREA_MM2 = 2500.0
 """The valid area of the blank maps the law was fitted on (their raster's cells: 48 mm squares)."""
+# the camera probe's: fitted by bench/detector_calibration.py on 40 blank camera scans (its 10 mm sheet and a 12-8 mm
+# dome, image-noise seeds 0-19 each; runs of 28 Nov 2026, BENCHMARKS.md "The camera probe's false-alarm law")
+CAMERA_GUMBEL_LOC = 2.118
+"""Location (σ) of the Gumbel law of a blank camera-probe map's largest significance, at
+:data:`CAMERA_REFERENCE_AREA_MM2`."""
+CAMERA_GUMBEL_SCALE = 0.321
+"""Scale (σ) of that Gumbel law."""
+CAMERA_REFERENCE_AREA_MM2 = 2112.0
+"""The valid area of the blank camera maps it was fitted on (their 4 mm grid of presses over a 60 mm specimen)."""
+FALSE_ALARM_LAWS: dict[str, tuple[float, float, float]] = {
+    "airfloat": (GUMBEL_LOC, GUMBEL_SCALE, REFERENCE_AREA_MM2),
+    "multi_indenter": (CAMERA_GUMBEL_LOC, CAMERA_GUMBEL_SCALE, CAMERA_REFERENCE_AREA_MM2),
+}
+"""The false-alarm law (:attr:`DetectorConfig.gumbel`) measured for each probe, by the ``model`` its estimator
+states on ``stiffness/sample``: the air-float's sweep maps (2 mm cells, E in kPa) and the camera probe's press grids
+(4 mm cells, K_t in N/mm) differ in noise, cell size and correlation, so one's law says nothing of the other's rate."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -88,7 +107,8 @@ class DetectorConfig:
     min_valid_cells: int = 12
     """Fewer valid cells than this: no detection (too little map to tell background from noise)."""
     gumbel: tuple[float, float, float] = (GUMBEL_LOC, GUMBEL_SCALE, REFERENCE_AREA_MM2)
-    """(location, scale, reference area) of the blank maps' largest significance."""
+    """(location, scale, reference area) of the blank maps' largest significance; default: the air-float probe's
+    (another probe's maps take theirs from :func:`false_alarm_law`)."""
     spike_ratio: float = 2.5
     """A cell reading more than this times the median of its neighbours is no tissue under the probe's footprint
     (the indenter, 4 mm in radius, is wider than a cell, so a reading cannot jump so far in one cell: it is the
@@ -137,6 +157,12 @@ class Detection:
     """(ny, nx) log(map / background), NaN where invalid."""
     area_mm2: float = math.nan
     """The map's valid area (the false-alarm law's)."""
+
+
+def false_alarm_law(model: str) -> tuple[float, float, float] | None:
+    """The false-alarm law measured for the probe whose estimator states ``model`` (:data:`FALSE_ALARM_LAWS`);
+    None for a probe no law was measured for (the caller says so and falls back on the default's)."""
+    return FALSE_ALARM_LAWS.get(model)
 
 
 def threshold_for(area_mm2: float, cfg: DetectorConfig) -> float:

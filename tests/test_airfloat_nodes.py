@@ -86,6 +86,29 @@ def test_the_probe_measures_the_thickness_eq7_divides_by(tmp_path) -> None:  # t
     assert abs(e_file / 26.4 - 1) > 0.1, e_file   # the file's 4 mm: eq. 7 is 14 % off
 
 
+def test_the_probe_s_thickness_counts_from_the_table_the_scanner_touched(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """Until the scanner's table touch says otherwise the table is z = 0 of the frame; once ``scanner/table`` says
+    it lies 0.5 mm lower (a frame registered 0.5 mm above it), every later sample states a layer 0.5 mm thicker."""
+    import yaml
+
+    from messages import TableHeight
+
+    phantom = tmp_path / "thin.yaml"
+    phantom.write_text(yaml.safe_dump({"size_mm": [60, 60], "thickness_mm": 5.0, "youngs_modulus_kpa": 26.4}))
+    geometry = tmp_path / "measured.yaml"
+    geometry.write_text("thickness_mm: 5.0\nfootprint_mm: [0, 0, 60, 60]\n")
+    g = held_probe(str(phantom), 36.0, z_mm=6.0, geometry=str(geometry), thickness="probe")
+    g.advance(1.0)
+    before = [m.thickness_mm for m in g.published("stiffness/sample", StiffnessSample)]
+    touched = g.clock.now_ns()
+    g.publish("scanner/table", TableHeight(stamp_ns=touched, x_mm=-8.0, y_mm=30.0, z_mm=-0.5), latched=True)
+    g.advance(1.0)
+    after = [m.thickness_mm for m in g.published("stiffness/sample", StiffnessSample) if m.stamp_ns > touched]
+    g.close()
+    assert len(before) > 100 and len(after) > 100
+    assert abs(float(np.median(before)) - 5.0) < 0.02 and abs(float(np.median(after)) - 5.5) < 0.02
+
+
 @pytest.mark.parametrize(("phantom", "truth", "kpa"), [("phantoms/flat_26k.yaml", 26.4, 36.0),
                                                        ("phantoms/flat_10k.yaml", 10.8, 33.0)])
 def test_calibration_beats_the_devices_errors(phantom: str, truth: float, kpa: float, tmp_path) -> None:  # type: ignore[no-untyped-def]

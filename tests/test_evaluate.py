@@ -135,3 +135,40 @@ def test_evaluate_runs_a_generated_phantom_end_to_end(tmp_path: Path) -> None:
     assert float(rows[0]["scan_s"]) > 5 and float(rows[0]["path_mm"]) > 40
     assert (out / "summary.txt").read_text().startswith("region_mm=[8.0, 24.0, 20.0, 36.0], spacing_mm=4.0: 1 of 1")
     assert json.loads((out / "runs.json").read_text())[0]["run"] == "random_3-s0"
+
+
+def test_evaluate_redetect_scores_the_runs_left_in_out_with_the_map_detector(tmp_path: Path) -> None:
+    """``--redetect`` launches nothing: it plans the sweep's runs as a launch would, runs models.detector on each
+    run's map.npz again (its stale inclusions.json is ignored) and writes the tables from those detections; a run
+    with no map in OUT is an error row and the exit code 1."""
+    from tools.evaluate import main
+
+    spec = _fake_run(tmp_path)
+    out = tmp_path / "eval"
+    run_dir = out / "runs" / "ph-s0"  # where the sweep put the run of phantom ph.yaml, seed 0
+    run_dir.parent.mkdir(parents=True)
+    spec.run_dir.rename(run_dir)
+    # the map: a noisy background with one disc of the phantom's inclusion three times stiffer; the run's own
+    # inclusions.json names two wrong places (an older detector's)
+    rng = np.random.default_rng(3)
+    axis = np.arange(1.0, 40.0, 2.0)
+    yy, xx = np.meshgrid(axis, axis, indexing="ij")
+    stiff = 20.0 * np.exp(0.03 * rng.standard_normal(xx.shape)) * np.where(np.hypot(xx - 20, yy - 20) <= 5, 3.0, 1.0)
+    np.savez(run_dir / "map" / "map.npz", stiffness=stiff, x_mm=axis, y_mm=axis, count=np.full(stiff.shape, 5))
+    (run_dir / "map" / "inclusions.json").write_text(json.dumps([
+        {"x_mm": 5.0, "y_mm": 35.0, "radius_mm": 2.0, "contrast": 1.5},
+        {"x_mm": 35.0, "y_mm": 5.0, "radius_mm": 2.0, "contrast": 1.5}]))
+    launch = str(REPO / "launch" / "scan_sim.yaml")
+    assert main([launch, "--phantom", str(spec.phantom), "--seeds", "0", "-o", str(out), "--redetect"]) == 0
+    runs = list(csv.DictReader((out / "runs.csv").open()))
+    assert [(r["run"], r["error"], r["found"], r["false_positives"]) for r in runs] == [("ph-s0", "", "1", "0")]
+    assert float(runs[0]["probes"]) == 4  # the run's recording read as a launched run's
+    dets = list(csv.DictReader((out / "detections.csv").open()))
+    assert len(dets) == 1 and dets[0]["inclusion"] == "0"
+    assert math.hypot(float(dets[0]["x_mm"]) - 20, float(dets[0]["y_mm"]) - 20) < 1.0
+    assert json.loads((run_dir / "map" / "inclusions.json").read_text())[0]["x_mm"] == 5.0  # the run is read only
+    # seed 1 was never run: nothing is launched for it, its row says why, and the sweep fails
+    assert main([launch, "--phantom", str(spec.phantom), "--seeds", "0", "1", "-o", str(out), "--redetect"]) == 1
+    runs = list(csv.DictReader((out / "runs.csv").open()))
+    assert [r["run"] for r in runs] == ["ph-s0", "ph-s1"]
+    assert runs[0]["found"] == "1" and runs[1]["error"].startswith("cannot score") and not (out / "runs" / "ph-s1").exists()

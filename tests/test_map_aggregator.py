@@ -261,3 +261,36 @@ def test_a_map_whose_raster_readings_were_mostly_excluded_cannot_be_trusted(tmp_
                            "(ring_off_specimen 70; at most 20 % may be): the map cannot be trusted")
             assert h.node.exit_code == 1
         h.close()
+
+
+def test_each_probe_s_maps_are_detected_with_that_probe_s_false_alarm_law(tmp_path: Path, caplog) -> None:  # type: ignore[no-untyped-def]
+    """The camera probe's samples (model multi_indenter) are thresholded with the law measured on its blank scans,
+    not the air-float's; map.npz keeps the model, so a redetection (tools' --redetect) uses the same law; a probe
+    with no measured law gets the air-float's, with a warning that says so."""
+    from dataclasses import replace
+
+    from models.detector import DetectorConfig, detect, false_alarm_law
+    from nodes.mapping.map_output import map_model, read_map, redetect
+
+    rng = np.random.default_rng(5)
+    thresholds = {}
+    for model in ("multi_indenter", "airfloat", "someone_elses"):
+        out = tmp_path / model
+        caplog.clear()
+        h = NodeHarness(MapAggregator, {"output_dir": str(out), "region_mm": [0, 0, 48, 48], "resolution_mm": 4.0})
+        for x in np.arange(2.0, 48, 4.0):
+            for y in np.arange(2.0, 48, 4.0):
+                for _ in range(3):
+                    h.publish("stiffness/sample", StiffnessSample(
+                        stamp_ns=0, model=model, x_mm=float(x), y_mm=float(y), z_mm=0.0,
+                        value=0.15 * math.exp(rng.normal(0, 0.03)), unit="N/mm", valid=True))
+        h.publish("robot/scan_status", ScanStatus(stamp_ns=0, state="done", line=1, lines=1, progress=1.0, eta_s=0))
+        thresholds[model] = h.published("map/inclusions")[-1].threshold_snr
+        h.close()
+        assert map_model(out / "map.npz") == model
+        own = false_alarm_law(model) or DetectorConfig().gumbel
+        assert thresholds[model] == detect(read_map(out / "map.npz"), replace(DetectorConfig(), gumbel=own)).threshold_snr
+        assert redetect(out / "map.npz").threshold_snr == thresholds[model]
+        warned = "no false-alarm law was measured for 'someone_elses' maps" in caplog.text
+        assert warned == (model == "someone_elses")
+    assert thresholds["multi_indenter"] != thresholds["airfloat"] == thresholds["someone_elses"]

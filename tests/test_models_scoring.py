@@ -133,6 +133,24 @@ def test_scan_report_redetects_with_the_map_detector(tmp_path, capsys) -> None: 
     assert main([str(tmp_path), "--redetect", "--phantom", str(ph)]) == 0
     out = capsys.readouterr().out
     assert "1 inclusion(s) found" in out and "SNR" in out and "1 of 1 found, 0 false positive(s)" in out
+    # the map's probe picks the false-alarm law: a map of the camera probe's (its unit; or map.npz's model) is
+    # thresholded with the camera's, as the map aggregator detected it
+    from dataclasses import replace
+
+    from models.detector import DetectorConfig, detect, false_alarm_law
+    from nodes.mapping.map_output import read_map
+
+    thresholds = {}
+    for unit, model in (("kPa", "airfloat"), ("N/mm", "multi_indenter")):
+        np.savez(tmp_path / "map" / "map.npz", stiffness=stiff, x_mm=xs, y_mm=xs, count=np.ones(gx.shape, dtype=int),
+                 unit=np.array(unit))
+        assert main([str(tmp_path), "--redetect"]) == 0
+        first = capsys.readouterr().out.splitlines()[0]
+        assert first.startswith(f"redetected on map.npz ({model} probe's false-alarm law): threshold "), first
+        thresholds[model] = first.split("threshold ")[1].split(" ")[0]
+        law = replace(DetectorConfig(), gumbel=false_alarm_law(model) or DetectorConfig().gumbel)
+        assert thresholds[model] == f"{detect(read_map(tmp_path / 'map' / 'map.npz'), law).threshold_snr:.2f}"
+    assert thresholds["airfloat"] != thresholds["multi_indenter"]
 
 
 def test_redraw_misses_counts_a_coin_flip_inclusion_lost_to_its_own_redraw() -> None:

@@ -200,3 +200,43 @@ def test_an_indenter_held_in_by_guide_friction_after_a_press_does_not_count_as_c
     touch = h.node.specimen.touch
     assert touch is not None and touch.done, h.node.message
     assert len(touch.touches) == 5 and [round(z, 1) for _, _, z in touch.touches] == [surface] * 5
+
+
+def test_the_table_touch_finds_the_table_beside_the_specimen_first_and_publishes_its_height(tmp_path: Path) -> None:
+    """``table_point_mm``: before the touch-off the SPS read the table beside the specimen (here 0.3 mm below the
+    frame's z = 0, a registration that much high), latched on ``scanner/table``; the specimen's touches and the
+    plan are as without it."""
+    def world(x: float, y: float) -> float:
+        return dome(x, y) if 0 <= x <= 80 and 0 <= y <= 50 else -0.3
+
+    h = NodeHarness(RobotScanner, touch_params(write_geometry(tmp_path, [0, 0, 80, 50]), table_point_mm=[-8, 25],
+                                               workspace_mm=[-10, -10, 0.5, 100, 100, 60]))
+    run_until_plan(h, world)
+    assert h.node.state == "scanning", h.node.message
+    (table,) = h.published("scanner/table")
+    assert (table.x_mm, table.y_mm) == (-8, 25) and abs(table.z_mm + 0.3) < 0.05
+    touches = h.node.specimen.touch.touches  # type: ignore[union-attr]
+    assert len(touches) == 9 and max(abs(z - dome(x, y)) for x, y, z in touches) < 0.05
+
+
+def test_no_table_under_the_table_point_is_a_fault_naming_it(tmp_path: Path) -> None:
+    h = NodeHarness(RobotScanner, touch_params(write_geometry(tmp_path, [0, 0, 80, 50]), table_point_mm=[-8, 25],
+                                               workspace_mm=[-10, -10, 0.5, 100, 100, 60]))
+    run_until_plan(h, lambda x, y: dome(x, y) if x >= 0 else -30.0)  # the table's edge: nothing within the SPS' reach
+    assert h.node.state == "fault" and not h.published("scanner/table")
+    assert "the table touch at (-8, 25) mm found no bare table" in h.node.message, h.node.message
+
+
+def test_a_table_point_the_arm_may_not_reach_or_on_the_specimen_is_refused_before_motion(tmp_path: Path) -> None:
+    geo = write_geometry(tmp_path, [0, 0, 50, 50])
+    with pytest.raises(palpa.ParamError, match=r"refusing the table touch before any motion: table_point_mm "
+                                               r"\(-15, 25\) mm lies outside the workspace box \(x -10\.\.70, "
+                                               r"y -10\.\.70 mm\): the arm may not go there"):
+        NodeHarness(RobotScanner, touch_params(geo, table_point_mm=[-15, 25]))
+    with pytest.raises(palpa.ParamError, match=r"table_point_mm \(-4, 25\) mm is 4\.0 mm from the specimen \(x 0\.\.50, "
+                                               r"y 0\.\.50 mm\); the SPS ring needs 7 mm of bare table"):
+        NodeHarness(RobotScanner, touch_params(geo, table_point_mm=[-4, 25]))
+    with pytest.raises(palpa.ParamError, match=r"table_point_mm needs touchoff: heights .* touchoff is force"):
+        NodeHarness(RobotScanner, touch_params(geo, table_point_mm=[-8, 25], touchoff="force"))
+    with pytest.raises(palpa.ParamError, match=r"table_point_mm needs x, y"):
+        NodeHarness(RobotScanner, touch_params(geo, table_point_mm=[-8]))

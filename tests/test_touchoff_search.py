@@ -107,6 +107,29 @@ def test_the_scanner_finds_a_small_specimen_in_a_big_box_through_ur_rtde(tmp_pat
     check_found(scanner)
 
 
+@pytest.mark.xdist_group("ur-emulator")  # real-time emulator: one at a time (make test)
+@pytest.mark.timeout(180)
+def test_the_table_touch_beside_the_specimen_through_ur_rtde(tmp_path: Path) -> None:
+    """The rig's table touch (table_point_mm) is a real move through ur_rtde: 8 mm left of SMALL's edge the SPS find
+    the table (z 0 of the emulator's world) before the specimen's nine touches, and the scanner publishes it."""
+    geometry = tmp_path / "small.yaml"
+    geometry.write_text("thickness_mm: 8.0\nfootprint_mm: [0, 0, 40, 30]\n")
+    writer = ClockWriter(tmp_path / "clock")
+    try:
+        with ur_emulator(["--unlock-delay", "0", "--home", f"0,0,16,0,{math.pi},0", "--phantom", SMALL,
+                          "--clock-file", str(writer.path)]) as emu:
+            scanner = search({"driver": "ur_rtde", "robot_host": emu.host, "search_box_mm": [],
+                              "geometry": str(geometry), "region_mm": [8, 8, 32, 22], "table_point_mm": [-8, 15]},
+                             timeout_s=150, clock=writer)
+    finally:
+        writer.close()
+    assert scanner.state == "scanning", scanner.message
+    assert scanner.specimen.table_z_mm is not None and abs(scanner.specimen.table_z_mm) < 0.1
+    touch = scanner.specimen.touch
+    assert touch is not None and touch.points[0] == (-8, 15) and len(touch.touches) == 9
+    assert all(abs(z - 8.0) < 0.1 for _, _, z in touch.touches)
+
+
 def test_a_search_box_outside_the_workspace_or_without_a_contact_signal_is_refused_before_motion() -> None:
     import palpa
     from palpa.testing import NodeHarness

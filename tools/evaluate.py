@@ -130,16 +130,15 @@ def score_run(spec: RunSpec, phantom: Phantom) -> tuple[dict[str, Any], list[dic
 def score_outputs(spec: RunSpec, phantom: Phantom, redetect: bool = False
                   ) -> tuple[dict[str, Any], list[dict[str, Any]], list[dict[str, Any]]]:
     """:func:`score_run`'s row and inclusions, and one row per detection (``inclusion``: the true one it matched,
-    -1 for a false positive). ``redetect``: the map detector (models.detector, the map aggregator's) run on
-    ``map.npz`` again instead of the run's ``inclusions.json``."""
+    -1 for a false positive). ``redetect``: the map detector (models.detector, the map aggregator's, with the map's
+    probe's false-alarm law) run on ``map.npz`` again instead of the run's ``inclusions.json``."""
     out = spec.run_dir / "map"
     detections = json.loads((out / "inclusions.json").read_text())
     if redetect:
-        from models.detector import detect
         from models.stiffness_map import to_inclusions_json
-        from nodes.mapping.map_output import read_map
+        from nodes.mapping.map_output import redetect as detect_again
 
-        detections = to_inclusions_json(detect(read_map(out / "map.npz")).inclusions)
+        detections = to_inclusions_json(detect_again(out / "map.npz").inclusions)
     with np.load(out / "map.npz") as grid:
         score = score_scan(phantom, detections, dict(grid))
     errors = [s.centroid_error_mm for s in score.inclusions if s.found]

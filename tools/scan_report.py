@@ -1,8 +1,9 @@
 """Print where a scan wrote its map and what it found: ``python -m tools.scan_report RUN_DIR [--phantom FILE]``.
 
 Each inclusion is listed with the detector's significance (SNR) and per-map false-alarm probability when the map
-states them. ``--redetect`` runs the map detector (models.detector.detect, the map aggregator's own) on ``map.npz``
-again instead of reading ``inclusions.json``: what today's detector finds on a map written earlier.
+states them. ``--redetect`` runs the map detector (models.detector.detect, the map aggregator's own, with the
+false-alarm law of the probe that made the map) on ``map.npz`` again instead of reading ``inclusions.json``: what
+today's detector finds on a map written earlier.
 
 With ``--phantom`` (simulation: the truth, read here after the run and never by the graph) the scan is scored by
 ``models.scoring.score_scan``: each true inclusion found or missed with its centroid and radius errors, false
@@ -33,17 +34,17 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     found = json.loads(inc_file.read_text())
     if args.redetect:
-        from models.detector import detect
         from models.stiffness_map import to_inclusions_json
-        from nodes.mapping.map_output import read_map
+        from nodes.mapping.map_output import map_model, redetect
 
         try:
-            det = detect(read_map(out / "map.npz"))
+            det, model = redetect(out / "map.npz"), map_model(out / "map.npz")
         except (OSError, KeyError, ValueError) as exc:
             print(f"scan_report: cannot detect on {out / 'map.npz'}: {exc}", file=sys.stderr)
             return 1
         found = to_inclusions_json(det.inclusions)
-        print(f"redetected on map.npz: threshold {det.threshold_snr:.2f} σ, noise {100 * det.noise_rel:.1f} % a cell")
+        print(f"redetected on map.npz ({model or 'unknown'} probe's false-alarm law): threshold "
+              f"{det.threshold_snr:.2f} σ, noise {100 * det.noise_rel:.1f} % a cell")
     print(f"map:        {out / 'map.png'}")
     print(f"grid:       {out / 'map.npz'}")
     print(f"inclusions: {inc_file}")

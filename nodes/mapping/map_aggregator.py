@@ -16,6 +16,7 @@ end clean with it.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +31,7 @@ from messages import (
     StiffnessSample,
     Trigger,
 )
-from models.detector import Detection, DetectorConfig, detect
+from models.detector import Detection, DetectorConfig, detect, false_alarm_law
 from models.stiffness_map import MapSnapshot, StiffnessGrid, spacing_warning
 from nodes.mapping.map_output import PngHelper, detection_summary, inclusions_message, write_outputs
 from palpa.node.service import RequestRefused
@@ -79,6 +80,9 @@ class MapAggregator(palpa.Node):
         self.grid: StiffnessGrid | None = None
         self.warned_spacing = 0.0
         self.unit = ""
+        self.model = ""
+        """The estimator's model (``stiffness/sample``'s): it picks the detector's false-alarm law."""
+        self.detector = DetectorConfig(radii_mm=tuple(p.radii_mm), false_alarm_per_map=p.false_alarm_per_map)
         self.samples = 0
         self.pending: list[tuple[float, float, float]] = []
         self.written = 0
@@ -162,6 +166,8 @@ class MapAggregator(palpa.Node):
         if not s.valid:
             return
         self.unit = s.unit
+        if s.model != self.model:
+            self._take_model(s.model)
         self.samples += 1
         self.unsaved += 1
         self.changed = True
@@ -212,9 +218,19 @@ class MapAggregator(palpa.Node):
             self.log.info("scan done: writing the map")
             self.publish_map(final=True)
 
+    def _take_model(self, model: str) -> None:
+        """The samples come from ``model``'s estimator: detect with the false-alarm law measured for that probe."""
+        self.model = model
+        law = false_alarm_law(model)
+        if law is None:
+            law = DetectorConfig().gumbel
+            self.log.warning("no false-alarm law was measured for %r maps (models.detector.FALSE_ALARM_LAWS): the "
+                             "air-float probe's is used, so the stated false-alarm rate is not this map's "
+                             "(bench/detector_calibration.py measures one on blank scans)", model)
+        self.detector = replace(self.detector, gumbel=law)
+
     def _detect(self, snap: MapSnapshot) -> Detection:
-        p = self.params
-        return detect(snap, DetectorConfig(radii_mm=tuple(p.radii_mm), false_alarm_per_map=p.false_alarm_per_map))
+        return detect(snap, self.detector)
 
     def publish_map(self, final: bool = False) -> None:
         if self.grid is None or (not self.changed and not final):
@@ -246,7 +262,7 @@ class MapAggregator(palpa.Node):
         if partial:
             self.log.warning("the map written holds part of the scan: %s", partial)
         paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title, incomplete=partial,
-                              helper=self.png_helper)
+                              helper=self.png_helper, model=self.model)
         self.written += 1
         self.unsaved = 0
         for inc in found:

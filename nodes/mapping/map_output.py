@@ -1,7 +1,8 @@
 """Writing a scan's outputs (the file formats are a contract other tools read, see DESIGN.md):
 
 * ``map.npz``: ``stiffness`` (ny, nx) grid (NaN = no data), ``x_mm`` (nx) and ``y_mm`` (ny) cell centres,
-  ``count`` (ny, nx) samples per cell; plus ``spread`` (robust σ per cell) and ``unit`` (a 0-d string).
+  ``count`` (ny, nx) samples per cell; plus ``spread`` (robust σ per cell), ``unit`` and ``model`` (0-d strings:
+  the estimator's model, ``airfloat`` or ``multi_indenter``, which picks the detector's false-alarm law).
 * ``map.png``: heat map with axes in mm, detected inclusions circled, a title naming the run (cells between
   raster lines are shown as their neighbours' median; ``map.npz`` keeps them NaN).
 * ``inclusions.json``: a list of ``{x_mm, y_mm, radius_mm, contrast}``, each with the detector's ``snr`` (σ of the
@@ -28,6 +29,7 @@ import subprocess
 import sys
 import textwrap
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import IO, Any
 
@@ -35,10 +37,10 @@ import numpy as np
 import numpy.typing as npt
 
 from messages import DetectedInclusion, Inclusions
-from models.detector import Detection
+from models.detector import Detection, DetectorConfig, detect, false_alarm_law
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, to_inclusions_json
 
-__all__ = ["PngHelper", "detection_summary", "inclusions_message", "read_map", "write_outputs"]
+__all__ = ["PngHelper", "detection_summary", "inclusions_message", "map_model", "read_map", "redetect", "write_outputs"]
 
 
 def read_map(npz: Path) -> MapSnapshot:
@@ -54,6 +56,28 @@ def read_map(npz: Path) -> MapSnapshot:
         spread = np.asarray(d["spread"], dtype=np.float64) if "spread" in d else np.full(grid.shape, np.nan)
         return MapSnapshot(grid, x, y, np.asarray(d["count"], dtype=np.int64), spread,
                            float(step[0]) if step.size else 1.0)
+
+
+_MODEL_OF_UNIT = {"kPa": "airfloat", "N/mm": "multi_indenter"}
+"""A map written before ``model`` was stored is told by its unit: the air-float's E, the camera probe's K_t."""
+
+
+def map_model(npz: Path) -> str:
+    """The model of the estimator whose samples a written ``map.npz`` holds (``model``, else told by ``unit``); ''
+    when neither says."""
+    with np.load(npz) as d:
+        if "model" in d:
+            return str(d["model"])
+        return _MODEL_OF_UNIT.get(str(d["unit"]), "") if "unit" in d else ""
+
+
+def redetect(npz: Path, cfg: DetectorConfig | None = None) -> Detection:
+    """The map detector (models.detector.detect, the map aggregator's) run on a written ``map.npz`` again, with the
+    false-alarm law of the probe that made the map (:func:`map_model`; a probe without one: ``cfg``'s). Raises
+    OSError, KeyError or ValueError on a file that is not a map."""
+    cfg = cfg or DetectorConfig()
+    law = false_alarm_law(map_model(npz))
+    return detect(read_map(npz), cfg if law is None else replace(cfg, gumbel=law))
 
 
 def inclusions_message(det: Detection, *, stamp_ns: int, unit: str, false_alarm_per_map: float,
@@ -165,8 +189,9 @@ def _serve() -> int:
 
 def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str,
                   title: str, unsensed: npt.NDArray[np.bool_] | None = None, incomplete: str = "",
-                  helper: PngHelper | None = None) -> list[Path]:
+                  helper: PngHelper | None = None, model: str = "") -> list[Path]:
     """Write the three files (each atomically: a reader never sees half a file); returns their paths.
+    ``model``: the estimator's model (kept in ``map.npz`` when given: it picks the false-alarm law a redetection uses).
     ``unsensed``: a bool grid of the map's shape, kept in ``map.npz`` and greyed in ``map.png`` (module doc).
     ``incomplete``: why the map lacks part of what it was to hold ('' when it does not): kept in ``map.npz``
     (``incomplete``) and written over ``map.png``'s title, so that a partial map read later says so.
@@ -179,6 +204,8 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
     arrays: dict[str, Any] = {
         "stiffness": snap.stiffness, "x_mm": snap.x_mm, "y_mm": snap.y_mm, "count": snap.count,
         "spread": snap.spread, "unit": np.array(unit)}
+    if model:
+        arrays["model"] = np.array(model)
     if unsensed is not None:
         arrays["unsensed"] = np.asarray(unsensed, dtype=bool)
     if incomplete:

@@ -57,8 +57,9 @@ class AirfloatConfig:
 def probe_thickness(z_face_mm: np.ndarray, heights_mm: np.ndarray) -> np.ndarray:
     """The layer's thickness under the probe as the probe measures it: the height of the tissue surface under the
     face centre (the face's height less the mean of the three SPS extensions, which is the SPS plane's distance
-    along the axis at the centre) above the table, which is z = 0 of the phantom frame (the frame is registered by
-    touching the table beside the specimen: docs/robot.md). Its error is the SPS's (noise, air gap) and the arm's
+    along the axis at the centre) above z = 0 of the phantom frame, the table as the frame is registered (touching
+    the table beside the specimen: docs/robot.md; the estimator subtracts the height the scanner's table touch
+    found, :attr:`AirfloatEstimator.table_z_mm`). Its error is the SPS's (noise, air gap) and the arm's
     height error, not a calliper's: BENCHMARKS.md "Finding all four"."""
     surface: np.ndarray = np.asarray(z_face_mm, dtype=float) - np.mean(np.asarray(heights_mm, dtype=float)[:, :3], axis=1)
     return surface
@@ -71,6 +72,9 @@ class AirfloatEstimator:
     cfg: AirfloatConfig
     geometry: MeasuredGeometry | None = None
     """The measured thickness (map or constant); None: ``cfg.thickness_mm`` everywhere."""
+    table_z_mm: float = 0.0
+    """With ``thickness_from_probe``: the table's height in the phantom frame (0 as the frame is registered; the
+    scanner's table touch, ``scanner/table``, measures it)."""
     pose: StampedBuffer = field(init=False)
     force: StampedBuffer = field(init=False)
     pending: list[ProbeHeights] = field(default_factory=list)
@@ -126,7 +130,7 @@ class AirfloatEstimator:
         f = np.array([x[0] if x is not None else np.nan for x in forces])
         fault = np.array([x is not None and x[1] > 0 for x in forces])
         if c.thickness_from_probe:
-            thick = probe_thickness(xyz[:, 2], h)
+            thick = probe_thickness(xyz[:, 2], h) - self.table_z_mm
         elif self.geometry is not None:
             thick = np.asarray(self.geometry.thickness(xyz[:, 0], xyz[:, 1]), dtype=float)
         else:

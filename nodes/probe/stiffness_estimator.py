@@ -21,6 +21,7 @@ from messages import (
     RobotPose,
     StiffnessFit,
     StiffnessSample,
+    TableHeight,
 )
 from models.airfloat import DEFAULT_INDENTER_RADIUS_MM, DEFAULT_SPS_RADIUS_MM
 from models.calibration_airfloat import CalibrationError, load_calibration
@@ -92,7 +93,8 @@ class AirfloatStiffnessEstimator(_Publishing):
         thickness: Literal["probe", "geometry"] = "geometry"
         """Where eq. 7's thickness comes from: ``geometry`` (the file above, else ``thickness_mm``) or ``probe``
         (the surface under the probe above the table, measured at every sample: estimator_airfloat.probe_thickness;
-        no file needed)."""
+        no file needed; the table is z = 0 of the frame until the scanner's table touch says where it is on
+        ``scanner/table``)."""
         poisson_ratio: float = 0.5
         sps_radius_mm: palpa.Positive = DEFAULT_SPS_RADIUS_MM
         indenter_radius_mm: palpa.Positive = DEFAULT_INDENTER_RADIUS_MM
@@ -129,7 +131,15 @@ class AirfloatStiffnessEstimator(_Publishing):
         self.subscribe("robot/pose", self.on_pose)
         self.subscribe("probe/heights", self.on_heights)
         self.subscribe("pressure/state", self.on_pressure)
+        if p.thickness == "probe":
+            self.subscribe("scanner/table", self.on_table)
         self.timer(1.0 / p.rate_hz, self.flush_ready)
+
+    def on_table(self, m: TableHeight) -> None:
+        """The scanner touched the table: the probe's thickness counts from its height from now on."""
+        self.air.table_z_mm = m.z_mm
+        self.log.info("thickness from the probe above the table at z %.2f mm (touched at (%g, %g) mm)",
+                      m.z_mm, m.x_mm, m.y_mm)
 
     def on_pose(self, m: RobotPose) -> None:
         self.air.add_pose(m)

@@ -41,6 +41,7 @@ from messages import (
     ScanPlan,
     ScanStatus,
     StiffnessSample,
+    TableHeight,
     Trigger,
     TriggerResult,
 )
@@ -80,6 +81,7 @@ class RobotScanner(palpa.Node):
         p = self.params
         self.pose_pub = self.publisher("robot/pose", RobotPose)
         self.plan_pub = self.publisher("robot/plan", ScanPlan, latched=True)
+        self.table_pub = self.publisher("scanner/table", TableHeight, latched=True)
         self.status_pub = self.publisher("robot/scan_status", ScanStatus, latched=True)
         self.machine = ScanStateMachine()  # every change of state goes through its table (nodes.scanner.states)
         self.message = ""
@@ -180,6 +182,12 @@ class RobotScanner(palpa.Node):
         ))
         self.log.info("plan: %s, %d lines, %d waypoints, ~%.0f s", plan.mode, plan.line_count,
                       len(plan.waypoints), plan.duration_s)
+
+    def publish_table(self) -> None:
+        """The table's height, once the table touch found it (``table_point_mm``), latched on ``scanner/table``."""
+        z, at = self.specimen.table_z_mm, self.specimen.table_point
+        if z is not None and at is not None:
+            self.table_pub.publish(TableHeight(stamp_ns=self.clock.now_ns(), x_mm=at[0], y_mm=at[1], z_mm=z))
 
     def scan(self, plan: RasterPlan) -> None:
         """Publish ``plan`` (already checked) as the scan's plan and drive it."""

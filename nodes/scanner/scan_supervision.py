@@ -50,6 +50,7 @@ class SupervisedScanner(ScannerCore, Protocol):
     def follow_path(self, prog: PathProgress, tcp: tuple[float, float, float], now: int) -> None: ...
     def make_plan(self) -> RasterPlan: ...
     def scan(self, plan: RasterPlan) -> None: ...
+    def publish_table(self) -> None: ...
 
 
 class ScanSupervision:
@@ -149,10 +150,12 @@ class ScanSupervision:
                 except ValueError as exc:
                     node.halt(Event.FAULT, f"no surface from the touch-off: {exc}")
                     return
+                node.publish_table()
                 node.change(Event.SERVE, "surface found: waiting for scanner/probe_at requests")
                 return
             try:
                 node.log.info("%s", node.specimen.finish_touch())
+                node.publish_table()
                 plan = node.make_plan()
                 node.check_path(plan.waypoints)
             except (ValueError, palpa.ParamError) as exc:

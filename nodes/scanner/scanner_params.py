@@ -33,6 +33,12 @@ class ScannerParams(palpa.Params):
     """Touch-off points: a grid x grid lattice over the region (2: corners and centre)."""
     touch_inset_mm: float = 0.0
     """Touch-off points this far inside the region (the air-float probe's SPS ring must lie on the specimen)."""
+    table_point_mm: list[float] = []
+    """x, y (phantom frame) of bare table beside the specimen: before the touch-off the air-float probe's SPS find
+    the table's height there (``touchoff: heights`` only; a real move, so the point must lie inside the workspace box
+    and the SPS ring clear of the specimen, or the scanner refuses before any motion), published latched on
+    ``scanner/table``: the estimator's ``thickness: probe`` counts from it. Empty: the table is z = 0 of the frame
+    (as registered: docs/robot.md)."""
     touch_threshold: float = 0.0
     """Contact threshold (heights, indenters: mm; force: N); 0: the signal's default (9 mm, 0.3 mm, 0.5 N)."""
     search_speed_mm_s: float = 5.0

@@ -10,6 +10,7 @@ from collections.abc import Callable, Sequence
 
 import palpa
 from messages import IndenterDisplacements, ProbeHeights
+from models.airfloat import DEFAULT_SPS_RADIUS_MM
 from models.geometry import GeometryError, load_geometry
 from models.surface import (
     SpecimenDoesNotFit,
@@ -29,6 +30,8 @@ from nodes.scanner.touchoff import TouchOff, TouchOffConfig
 __all__ = ["SpecimenPlanner"]
 
 _DEFAULT_THRESHOLD = {"heights": 9.0, "indenters": 0.3, "force": 0.5}
+_TABLE_CLEARANCE_MM = DEFAULT_SPS_RADIUS_MM + 1.0
+"""Bare table a table point needs around it: the SPS ring's radius and a millimetre (the ring must see table only)."""
 
 
 class SpecimenPlanner:
@@ -78,6 +81,9 @@ class SpecimenPlanner:
         except (SpecimenDoesNotFit, ValueError) as exc:
             raise palpa.ParamError(f"{name}: refusing the specimen before any motion: {exc}") from None
         self.prior_top = top
+        self.table_point = _table_point(name, p, footprint or self.region) if p.table_point_mm else None
+        self.table_z_mm: float | None = None
+        """The table's height at ``table_point`` once touched (None: not touched)."""
         # until the touch-off has run, heights are over a level surface: the flat contact_z_mm, or the thickest
         # measured point (so that the pre-motion check of the plan sees the specimen's real height)
         self.surface: SurfaceFit | None = None if p.touchoff == "off" else flat_surface(top if top is not None else 0.0)
@@ -91,12 +97,15 @@ class SpecimenPlanner:
             if self.search_box is not None:  # from the box's top down to its floor, at every point of a grid
                 sb = self.search_box
                 cfg = dataclasses.replace(cfg, start_z_mm=sb[5], floor_z_mm=sb[2], search=True)
-                self.touch = TouchOff(driver, search_points(self.region, p.search_step_mm), cfg)
-                return
-            i = p.touch_inset_mm
-            x0, y0, x1, y1 = self.region
-            inner = (x0 + i, y0 + i, x1 - i, y1 - i) if x1 - x0 > 2 * i and y1 - y0 > 2 * i else self.region
-            self.touch = TouchOff(driver, touch_points(inner, p.touch_grid), cfg)
+                points = search_points(self.region, p.search_step_mm)
+            else:
+                i = p.touch_inset_mm
+                x0, y0, x1, y1 = self.region
+                inner = (x0 + i, y0 + i, x1 - i, y1 - i) if x1 - x0 > 2 * i and y1 - y0 > 2 * i else self.region
+                points = touch_points(inner, p.touch_grid)
+            if self.table_point is not None:  # the table first, beside the specimen
+                points, cfg = [self.table_point, *points], dataclasses.replace(cfg, table_points=1)
+            self.touch = TouchOff(driver, points, cfg)
 
     def plan_heights(self) -> dict[str, object]:
         """Keyword arguments of the raster functions for the heights: flat, or over the surface."""
@@ -145,13 +154,42 @@ class SpecimenPlanner:
             found = (f"search: the specimen under {len(xs)} of {len(xs) + len(self.touch.misses)} points, extent x "
                      f"{min(xs):g}..{max(xs):g}, y {min(ys):g}..{max(ys):g} mm; region x {self.region[0]:g}.."
                      f"{self.region[2]:g}, y {self.region[1]:g}..{self.region[3]:g} mm; ")
+        table = ""
+        if self.touch.table_touches:
+            tx, ty, self.table_z_mm = self.touch.table_touches[0]
+            table = f"the table at z {self.table_z_mm:.2f} mm beside the specimen at ({tx:g}, {ty:g}) mm; "
         fit = fit_surface(self.touch.touches)
         self.surface = fit
         zs = [z for _, _, z in self.touch.touches]
         slower = (f"; {self.touch.reapproaches} descents repeated more slowly (the force rose in too few readings)"
                   if self.touch.reapproaches else "")
-        return (f"{found}touch-off: {len(zs)} points, surface {min(zs):.2f}..{max(zs):.2f} mm, {fit.model} fit "
+        return (f"{found}{table}touch-off: {len(zs)} points, surface {min(zs):.2f}..{max(zs):.2f} mm, {fit.model} fit "
                 f"(rms {fit.rms_mm:.3f} mm){slower}")
+
+
+def _table_point(name: str, p: ScannerParams, specimen: tuple[float, float, float, float]) -> tuple[float, float]:
+    """table_point_mm checked before any motion: two numbers, a heights touch-off to read the table with, inside the
+    workspace box (the arm goes there), and the SPS ring clear of ``specimen`` (its footprint, else the region) by
+    :data:`_TABLE_CLEARANCE_MM` (on it, the SPS would read the specimen's surface for the table)."""
+    v = p.table_point_mm
+    if len(v) != 2 or not all(math.isfinite(float(c)) for c in v):
+        raise palpa.ParamError(f"{name}: table_point_mm needs x, y (mm, phantom frame), got {list(v)}")
+    if p.touchoff != "heights":
+        raise palpa.ParamError(f"{name}: table_point_mm needs touchoff: heights (the probe's SPS read the table from "
+                               f"above, the face never reaches it); touchoff is {p.touchoff}")
+    x, y = float(v[0]), float(v[1])
+    b = p.workspace_mm
+    if not (b[0] <= x <= b[3] and b[1] <= y <= b[4]):
+        raise palpa.ParamError(f"{name}: refusing the table touch before any motion: table_point_mm ({x:g}, {y:g}) "
+                               f"mm lies outside the workspace box (x {b[0]:g}..{b[3]:g}, y {b[1]:g}..{b[4]:g} mm): "
+                               "the arm may not go there")
+    x0, y0, x1, y1 = specimen
+    gap = math.hypot(max(x0 - x, 0.0, x - x1), max(y0 - y, 0.0, y - y1))
+    if gap < _TABLE_CLEARANCE_MM:
+        raise palpa.ParamError(f"{name}: refusing the table touch before any motion: table_point_mm ({x:g}, {y:g}) mm "
+                               f"is {gap:.1f} mm from the specimen (x {x0:g}..{x1:g}, y {y0:g}..{y1:g} mm); the SPS "
+                               f"ring needs {_TABLE_CLEARANCE_MM:g} mm of bare table around the point")
+    return x, y
 
 
 def _search_box(name: str, values: Sequence[float], signal: str,

@@ -23,6 +23,9 @@ and goes on to the next point. The contact signals (``signal``):
   speed, up to three times (``reapproaches`` counts them); a rise still read fewer than 4 times then fails the
   touch-off, naming the point, rather than take the depth it was seen at for the surface.
 
+With a table point first (``table_points``, the scanner's ``table_point_mm``) the SPS read the table's height
+beside the specimen before the specimen's points (``table_touches``; docs/robot.md, "Table touch").
+
 A descent that reaches the floor without contact is an error naming the point (nothing under it); in a search for
 the specimen (``search``, the scanner's ``search_box_mm``) it is a miss, and so is a ring half over an edge. The driver
 is any :class:`nodes.drivers.robot.RobotDriver`; the scanner feeds probe data and calls :meth:`step` from its
@@ -75,6 +78,10 @@ class TouchOffConfig:
     search: bool = False
     """Searching for the specimen: a point with nothing under it (no contact down to the floor, a surface below the
     floor, or, heights, ``samples`` readings with an SPS ring half over an edge) is a miss, not an error."""
+    table_points: int = 0
+    """The first this many points are bare table beside the specimen (the scanner's ``table_point_mm``): their
+    surface is the table's, below the floor (the SPS read it from ``threshold`` above: the face never comes near
+    it), kept in ``table_touches``; nothing found there is an error, searching or not."""
 
 
 class TouchOff:
@@ -88,6 +95,8 @@ class TouchOff:
                              f"{config.start_z_mm:g} mm")
         self.driver, self.points, self.cfg = driver, list(points), config
         self.touches: list[tuple[float, float, float]] = []
+        self.table_touches: list[tuple[float, float, float]] = []
+        """(x, y, z_table) at the table points (``config.table_points``)."""
         self.misses: list[tuple[float, float]] = []
         self._edge = 0  # heights, search: samples with the SPS ring half over an edge at this point
         self.index = 0
@@ -137,7 +146,7 @@ class TouchOff:
             # a sensor hangs over an edge (or sees nothing: the end of its stroke): this sample does not give the
             # surface here; a search stops there (something is under the ring: going on down could put the face on
             # the specimen's edge)
-            if self.cfg.search and min(h_mm[:3]) < self.cfg.threshold:
+            if (self.cfg.search or self.index < self.cfg.table_points) and min(h_mm[:3]) < self.cfg.threshold:
                 self._edge += 1
                 if self._edge >= self.cfg.samples:
                     self._miss()
@@ -190,7 +199,7 @@ class TouchOff:
                 if self._stale_below is None:
                     self._on_force(st.pose[2], abs(st.force_n[2] - self.force_zero_n))
             if self.phase == "searching" and prog.status == MotionStatus.DONE:
-                if self.cfg.search:
+                if self.cfg.search or self.index < self.cfg.table_points:
                     self._miss()
                     return
                 x, y = self.points[self.index]
@@ -290,6 +299,11 @@ class TouchOff:
             return
         x, y = self.points[self.index]
         z = statistics.median(self._found[: self.cfg.samples])
+        if self.index < self.cfg.table_points:
+            self.table_touches.append((x, y, z))
+            self.driver.stop(self.cfg.accel_mm_s2)
+            self.phase = "stopping"
+            return
         if z < self.cfg.floor_z_mm and self.cfg.search:
             self._miss()
             return
@@ -302,6 +316,11 @@ class TouchOff:
         self.phase = "stopping"
 
     def _miss(self) -> None:
+        if self.index < self.cfg.table_points:
+            x, y = self.points[self.index]
+            self._fail(f"the table touch at ({x:g}, {y:g}) mm found no bare table ({self._signal_text()}, or the SPS "
+                       "ring half over an edge): is table_point_mm beside the specimen, on the table?")
+            return
         self.misses.append(self.points[self.index])
         self.driver.stop(self.cfg.accel_mm_s2)
         self.phase = "stopping"
