@@ -55,6 +55,8 @@ class Heartbeat(Message, frozen=True, kw_only=True):
     """Service name -> 'Request -> Response' (palpa.node.service)."""
     wire: int = 1
     """The wire protocol version the node speaks (palpa.net.wire.WIRE_VERSION; absent: 1, a node from before it)."""
+    refused: dict[str, int] = {}
+    """Inputs the node refused and counted, by kind (``clock_ack/not_sender``...; bad messages are in ``counters``)."""
 
 
 class LogRecord(Message, frozen=True, kw_only=True):

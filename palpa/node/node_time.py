@@ -212,6 +212,7 @@ class SimTime:
         if not (clock.started and self._max_jump_ns and sim_ns - clock.now_ns() > self._max_jump_ns):
             return False
         self.refused_jumps += 1
+        self._node.refusals["clock_jump"] = self.refused_jumps
         if self.refused_jumps % 1000 == 1:
             self._node.log.error("%s at %.3f s of simulated time refused: %.0f s ahead of this node's %.3f s, more "
                                  "than the %g s a tick may jump (%s); %d refused so far", what, sim_ns / 1e9,
