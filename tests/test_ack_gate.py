@@ -213,3 +213,22 @@ def test_heartbeats_of_another_incarnation_do_not_keep_a_gone_participant_in(mon
     assert src.sim_now_ns() > 1_020_000_000, "a gone participant kept in by another process's heartbeats"
     for n in (src, slow, impostor):
         n.close(0)
+
+
+def test_a_respawned_nodes_ack_counts_as_soon_as_the_old_incarnation_leaves() -> None:
+    """The old process still holds the name: the new one's ack is refused but kept; the old one's leaving ack (or
+    its drop) frees the name, and the kept ack is believed then, without waiting for the new node to ack again."""
+    bus = MemoryBus()
+    clock = ClockSource("clock", {"time_scale": 1000.0}, transport=bus.transport(), heartbeat_s=0)
+    old, new = (palpa.Node(name="n", transport=bus.transport(), heartbeat_s=0) for _ in range(2))
+    acks = {n: n.publisher(CLOCK_ACK_TOPIC, ClockAck) for n in (old, new)}
+    acks[old].publish(ClockAck(node="n", sim_ns=0, next_ns=0))
+    clock.spin_once(0)
+    acks[new].publish(ClockAck(node="n", sim_ns=0, next_ns=0))
+    clock.spin_once(0)
+    assert clock.refusals == {"clock_ack/other_incarnation": 1} and clock._gate.owns("n", old.incarnation)
+    acks[old].publish(ClockAck(node="n", sim_ns=0, leaving=True))
+    clock.spin_once(0)
+    assert clock._gate.owns("n", new.incarnation) and "n" in clock._events
+    for n in (clock, old, new):
+        n.close(0)
