@@ -22,8 +22,9 @@ through only when it is consistent with the node it names:
 
 Every refusal is counted by kind (:attr:`AckGate.refused`). The limit of all this: the bus authenticates no node
 name, so a client that copies a node's whole header (name, incarnation, next sequence number: all visible on the
-bus) is not told apart from it; the checks above make it race that node ack by ack, its refusals counted and logged
-by the clock, rather than steer time with one message. This module is pure bookkeeping: the clock
+bus) is not told apart from it, and one that acks under a participant's name before that node's first ack holds
+the name; the checks above make it race that node ack by ack, its refusals counted and logged by the clock, rather
+than steer time with one message. Closing that needs acks signed with a key only the launch's nodes hold. This module is pure bookkeeping: the clock
 (palpa.timing.simclock) logs and acts.
 """
 
