@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import socket
 import time
+from pathlib import Path
 
+import msgspec
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -27,6 +29,7 @@ from palpa.runtime_msgs import (
 from palpa.testing import MemoryBus
 from palpa.timing import simclock
 from palpa.timing.ackgate import MAX_SEQ_STEP, AckGate
+from palpa.timing.acksign import MAC_BYTES, node_key, sign, verify
 from palpa.timing.simclock import ClockSource
 
 NOW = 5_000
@@ -232,3 +235,81 @@ def test_a_respawned_nodes_ack_counts_as_soon_as_the_old_incarnation_leaves() ->
     assert clock._gate.owns("n", new.incarnation) and "n" in clock._events
     for n in (clock, old, new):
         n.close(0)
+
+
+def test_a_signature_binds_an_ack_to_its_node_its_message_number_and_its_content() -> None:
+    master = bytes(range(32))
+    key = node_key(master, "talker")
+    real = ClockAck(node="talker", sim_ns=5, next_ns=9, sent={"chatter": 3}, subs=["x"])
+    signed = msgspec.structs.replace(real, mac=sign(key, real, 7, 12))
+    got = msgspec.msgpack.decode(msgspec.msgpack.encode(signed), type=ClockAck)  # as the clock receives it
+    assert verify(key, got, 7, 12)
+    assert not verify(key, got, 7, 13) and not verify(key, got, 8, 12)  # moved to another number / process
+    assert not verify(key, msgspec.structs.replace(got, next_ns=10**15), 7, 12)  # its content changed
+    assert not verify(key, msgspec.structs.replace(got, leaving=True), 7, 12)
+    other = msgspec.structs.replace(real, node="map")  # the talker's key signs for the talker only
+    assert not verify(node_key(master, "map"), msgspec.structs.replace(other, mac=sign(key, other, 7, 12)), 7, 12)
+    assert not verify(key, real, 7, 12)  # unsigned
+    assert not verify(node_key(bytes(32), "talker"), got, 7, 12)  # another run's key
+
+
+def test_with_the_launchs_key_a_copied_header_or_a_name_taken_first_gets_nowhere(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The launcher gave the clock its run's master key and the talker its own key. A client takes the talker's
+    name before it starts, then copies its header exactly (name, incarnation, next message number) with an ack of
+    its own making: without the talker's key every one is refused, and the talker's timeline is whole."""
+    master = bytes(range(32))
+    monkeypatch.setenv("PALPA_CLOCK_MASTER_KEY", master.hex())
+    bus = MemoryBus()
+    clock = ClockSource("clock", {"time_scale": 1000.0, "rate_hz": 1000.0, "participants": ["talker"]},
+                        transport=bus.transport(), heartbeat_s=0)
+    squatter = palpa.Node(name="talker", transport=bus.transport(), heartbeat_s=0)
+    squat = squatter.publisher(CLOCK_ACK_TOPIC, ClockAck)
+    squat.publish(ClockAck(node="talker", sim_ns=0, next_ns=1))  # first under the name: a passed deadline
+    clock.spin_once(0)
+    monkeypatch.setenv("PALPA_CLOCK_KEY", node_key(master, "talker").hex())
+    monkeypatch.setenv("PALPA_NODE_NAME", "talker")
+    talker = Talker(name="talker", params={"rate_hz": 10.0}, transport=bus.transport(), heartbeat_s=0, sim_clock=True,
+                    wait_for_clock_s=0)
+    spy = palpa.Node(name="spy", transport=bus.transport(), heartbeat_s=0)
+    instants: list[ClockTick] = []
+    spy.subscribe(tick_topic("talker"), ClockTick, instants.append)
+    seen: list[RawMessage] = []
+    spy.subscribe_raw(CLOCK_ACK_TOPIC, seen.append)
+
+    def copy_header() -> None:
+        mine = [m.header for m in seen if m.header.inc == talker.incarnation]
+        if mine:
+            last = max(mine, key=lambda h: h.seq)
+            forged = ClockAck(node="talker", sim_ns=clock._sim, next_ns=clock._sim + 3600 * 10**9,
+                              mac=bytes(MAC_BYTES))
+            spy.publish_raw(CLOCK_ACK_TOPIC, msgspec.structs.replace(last, seq=last.seq + 1),
+                            msgspec.msgpack.encode(forged))
+        squat.publish(ClockAck(node="talker", sim_ns=clock._sim, leaving=True))
+
+    _spin([clock, talker, squatter, spy], lambda: len(instants) >= 10, between=copy_header)
+    assert len(instants) >= 10, f"simulated time froze: {len(instants)} instants of the talker"
+    start = instants[0].sim_ns - 100_000_000
+    assert [t.sim_ns - start for t in instants[:10]] == [i * 100_000_000 for i in range(1, 11)]
+    assert clock.refusals.get("clock_ack/bad_signature", 0) >= 10 and clock._gate.owns("talker", talker.incarnation)
+    for n in (clock, talker, squatter, spy):
+        n.close(0)
+
+
+def test_the_launcher_gives_each_node_its_own_key_and_the_clock_the_runs_master(tmp_path: Path) -> None:
+    from palpa.launch.loader import load_launch
+    from palpa.launch.supervisor import Supervisor
+
+    file = tmp_path / "sim.yaml"
+    file.write_text("nodes:\n"
+                    "  - {name: clock, node: 'palpa.timing.simclock:ClockSource'}\n"
+                    "  - {name: talker, node: 'nodes.demo:Talker', env: {PALPA_SIM_CLOCK: '1'}}\n")
+    plan = load_launch(file, run_dir=tmp_path / "run")
+    runs = [Supervisor(plan, reaper=False) for _ in range(2)]
+    envs = [{s.name: run.child_env(s) for s in plan.nodes} for run in runs]
+    master = bytes.fromhex(envs[0]["clock"]["PALPA_CLOCK_MASTER_KEY"])
+    assert "PALPA_CLOCK_MASTER_KEY" not in envs[0]["talker"]  # a node holds its own key only
+    key = bytes.fromhex(envs[0]["talker"]["PALPA_CLOCK_KEY"])
+    a = ClockAck(node="talker", sim_ns=1, next_ns=2)
+    assert verify(node_key(master, "talker"), msgspec.structs.replace(a, mac=sign(key, a, 3, 4)), 3, 4)
+    assert envs[1]["clock"]["PALPA_CLOCK_MASTER_KEY"] != envs[0]["clock"]["PALPA_CLOCK_MASTER_KEY"]  # per run

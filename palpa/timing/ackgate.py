@@ -6,7 +6,10 @@ freeze it (a deadline already passed, counts that never balance, a replayed old 
 through only when it is consistent with the node it names:
 
 * **its sender**: the envelope's publisher (``Header.node``) is the node the ack reports on: no client acks on
-  behalf of another (``palpa topic pub _palpa/lockstep``, a hand-written client under its own name);
+  behalf of another (``palpa topic pub _palpa/lockstep``, a hand-written client under its own name); and in a
+  launched graph, an ack about one of the launch's participants carries that node's signature over its name,
+  incarnation, sequence number and content (palpa.timing.acksign): only the node the launcher gave that key can
+  make one;
 * **its incarnation**: a node name is bound to the incarnation (``Header.inc``, drawn anew at each start,
   palpa.node.presence) of its first ack believed, until that incarnation leaves (its own ``leaving`` ack) or the
   clock drops it (its process gone, or silent): acks under that name from another incarnation (a duplicate node, a
@@ -20,16 +23,17 @@ through only when it is consistent with the node it names:
   only once its heartbeats (same name and incarnation) have been heard, so an invented participant cannot hold time
   with an ack alone; its latest ack is kept until then.
 
-Every refusal is counted by kind (:attr:`AckGate.refused`). The limit of all this: the bus authenticates no node
-name, so a client that copies a node's whole header (name, incarnation, next sequence number: all visible on the
-bus) is not told apart from it, and one that acks under a participant's name before that node's first ack holds
-the name; the checks above make it race that node ack by ack, its refusals counted and logged by the clock, rather
-than steer time with one message. Closing that needs acks signed with a key only the launch's nodes hold. This module is pure bookkeeping: the clock
+Every refusal is counted by kind (:attr:`AckGate.refused`). Without the launch's key (a clock started by hand, or a
+node outside the participants) the bus authenticates no node name: a client that copies a node's whole header
+(name, incarnation, next sequence number: all visible on the bus) is not told apart from it, and one that acks under
+a name before that node's first ack holds the name; the checks above make it race that node ack by ack, its
+refusals counted and logged by the clock, rather than steer time with one message. This module is pure bookkeeping: the clock
 (palpa.timing.simclock) logs and acts.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from palpa.net.wire import Header
@@ -50,6 +54,7 @@ _MAX_NAMES = 4096
 
 REASONS = {
     "not_sender": "sent by another node than the one it reports on",
+    "bad_signature": "about one of the launch's participants, without that node's signature (palpa.timing.acksign)",
     "other_incarnation": "from another incarnation than the one that takes part under that name",
     "out_of_order": "a duplicate, replay or reordering (its sequence number or time goes back)",
     "seq_jump": f"its sequence number more than {MAX_SEQ_STEP} past the last believed",
@@ -71,10 +76,13 @@ class _Binding:
 
 class AckGate:
     """The bindings of node names to incarnations, and the checks above. ``expected``: the launch's participants
-    (empty: any node may join on its first ack, as with a clock started by hand)."""
+    (empty: any node may join on its first ack, as with a clock started by hand). ``verify``: whether an ack about
+    one of them carries its node's signature (palpa.timing.acksign; None: a clock without the launch's key)."""
 
-    def __init__(self, expected: frozenset[str] = frozenset()) -> None:
+    def __init__(self, expected: frozenset[str] = frozenset(),
+                 verify: Callable[[ClockAck, Header], bool] | None = None) -> None:
         self._expected = expected
+        self._verify = verify
         self._bound: dict[str, _Binding] = {}
         self._present: dict[str, int] = {}
         """Name -> the incarnation its heartbeats carry (nodes outside ``expected`` only)."""
@@ -108,6 +116,8 @@ class AckGate:
     def _why(self, ack: ClockAck, header: Header, now_ns: int) -> str | None:
         if header.node != ack.node:
             return "not_sender"
+        if self._verify is not None and ack.node in self._expected and not self._verify(ack, header):
+            return "bad_signature"
         bound = self._bound.get(ack.node)
         if bound is not None and header.inc == bound.inc:
             if header.seq <= bound.seq or ack.sim_ns < bound.sim_ns:

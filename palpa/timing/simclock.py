@@ -46,6 +46,8 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any, Literal
 
+from palpa import env as palpa_env
+from palpa.errors import PalpaError
 from palpa.lograte import LogThrottle
 from palpa.net.transport import ZmqTransport
 from palpa.net.wire import Header
@@ -64,6 +66,7 @@ from palpa.runtime_msgs import (
     tick_topic,
 )
 from palpa.timing.ackgate import REASONS, AckGate
+from palpa.timing.acksign import node_key, verify
 from palpa.timing.clock import SystemClock
 from palpa.timing.lockstep import EventLockstep
 
@@ -130,7 +133,14 @@ class ClockSource(Node):
         """participating node -> its pid, when its heartbeats say it runs on this host"""
         self._held: set[str] = set()
         self._events = EventLockstep()
-        self._gate = AckGate(frozenset(self.params.participants))
+        master = palpa_env.get(palpa_env.CLOCK_MASTER_KEY)
+        try:
+            key = bytes.fromhex(master)
+        except ValueError:
+            raise PalpaError(f"{palpa_env.CLOCK_MASTER_KEY}: expected hex digits") from None
+        # signatures are checked for the launch's participants when the launcher gave this clock its run's key
+        keys = {n: node_key(key, n) for n in self.params.participants}
+        self._gate = AckGate(frozenset(keys), (lambda ack, h: verify(keys[ack.node], ack, h.inc, h.seq)) if key else None)
         self._throttle = LogThrottle(self.log, now=lambda: self.clock.now_ns() / 1e9)
         self._waiting: list[tuple[ClockAck, Header]] = []
         """Acks the gate let through again (their name free, their node heard), to be taken next."""
