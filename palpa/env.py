@@ -10,7 +10,8 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping
 
-__all__ = ["BUS", "BUS_SERVER_KEY", "CURRENT", "CURVE_SECRET", "DIRECT_HOST", "MESSAGES", "NAMESPACE", "NODE_MODULES",
+__all__ = ["BUS", "BUS_SERVER_KEY", "CLOCK_KEY", "CLOCK_MASTER_KEY", "CURRENT", "CURVE_SECRET", "DIRECT_HOST",
+           "MESSAGES", "NAMESPACE", "NODE_MODULES",
            "NODE_NAME", "PARAMS", "REMAP", "RUN_DIR", "SIM_CLOCK", "SIM_CLOCK_MAX_JUMP_S", "SIM_CLOCK_TIMEOUT_S",
            "TRANSPORT", "VARIABLES", "flag", "get", "listed"]
 
@@ -30,6 +31,8 @@ CURRENT = "PALPA_CURRENT"
 BUS_SERVER_KEY = "PALPA_BUS_SERVER_KEY"
 CURVE_SECRET = "PALPA_CURVE_SECRET"
 DIRECT_HOST = "PALPA_DIRECT_HOST"
+CLOCK_KEY = "PALPA_CLOCK_KEY"
+CLOCK_MASTER_KEY = "PALPA_CLOCK_MASTER_KEY"
 
 VARIABLES: dict[str, str] = {
     BUS: "the bus address a node or tool joins (else the one running launch's, else the default bus)",
@@ -51,6 +54,9 @@ VARIABLES: dict[str, str] = {
     CURVE_SECRET: "the path to this client's .key_secret file on an encrypted bus",
     DIRECT_HOST: "the address this node's direct topics are served on when the bus is on another host (default: "
                  "this host's address on the route to the bus)",
+    CLOCK_KEY: "set by the launcher: this node's key (hex) to sign its lockstep clock acks (palpa.timing.acksign)",
+    CLOCK_MASTER_KEY: "set by the launcher on its clock entry: the run's master key (hex), from which the clock "
+                      "derives each node's key to check its acks' signatures",
 }
 
 

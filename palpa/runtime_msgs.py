@@ -55,6 +55,8 @@ class Heartbeat(Message, frozen=True, kw_only=True):
     """Service name -> 'Request -> Response' (palpa.node.service)."""
     wire: int = 1
     """The wire protocol version the node speaks (palpa.net.wire.WIRE_VERSION; absent: 1, a node from before it)."""
+    refused: dict[str, int] = {}
+    """Inputs the node refused and counted, by kind (``clock_ack/not_sender``...; bad messages are in ``counters``)."""
 
 
 class LogRecord(Message, frozen=True, kw_only=True):
@@ -93,7 +95,8 @@ class ClockAck(Message, frozen=True, kw_only=True):
     heard since its previous ack) before the clock counts on them to reach it. ``direct``/``direct_at``: the topics it
     publishes straight to their subscribers (palpa.net.direct) and the endpoint they leave from; ``reached``: the
     direct endpoints that answered this node's direct probes since its previous ack (palpa.net.reach): the clock
-    counts on a subscriber of a direct topic only once it has reached every participant publishing it."""
+    counts on a subscriber of a direct topic only once it has reached every participant publishing it. ``mac``: its
+    signature (palpa.timing.acksign): a launched node's acks are believed only with it."""
 
     node: str
     sim_ns: int
@@ -107,3 +110,5 @@ class ClockAck(Message, frozen=True, kw_only=True):
     direct: list[str] = []
     direct_at: str = ""
     reached: list[str] = []
+    mac: bytes = b""
+    """The node's signature of this ack (palpa.timing.acksign) when its launcher gave it a key; empty otherwise."""

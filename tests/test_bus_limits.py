@@ -116,6 +116,55 @@ def test_what_the_bus_itself_holds_is_never_evicted() -> None:
     assert all(f"bus/{i}" in table for i in range(3))
 
 
+def test_a_flood_spread_over_many_connections_of_one_peer_evicts_only_that_peers_entries() -> None:
+    table: OwnedTable[str, int] = OwnedTable(max_entries=20, max_bytes=10_000)
+    for node in ("a", "b"):  # the graph's nodes: a few entries each, one connection, a peer (process) each
+        for i in range(3):
+            assert table.put(f"{node}/{i}", i, 10, node.encode(), f"pid-{node}".encode()) == (None, [])
+    for i in range(100):  # one process, a connection per entry: under the old per-connection rule a node's
+        why, evicted = table.put(f"flood/{i}", i, 10, f"conn-{i}".encode(), b"pid-flooder")  # three were the most
+        assert why is None and all(o.startswith(b"conn-") for o, _ in evicted)
+    assert all(f"{n}/{i}" in table for n in "ab" for i in range(3)) and len(table) == 20
+    why, evicted = table.put("c/0", 0, 10, b"c", b"pid-c")  # a node started later gets room from the flooder
+    assert why is None and evicted == [(b"conn-86", "flood/86")]
+    # by bytes too: the flooder's peer holds the most bytes, though each of its connections holds little
+    small: OwnedTable[str, int] = OwnedTable(max_entries=100, max_bytes=100)
+    small.put("a/x", 0, 30, b"a", b"pid-a")
+    for i in range(7):
+        small.put(f"flood/{i}", i, 10, f"conn-{i}".encode(), b"pid-flooder")
+    assert small.put("b/x", 0, 20, b"b", b"pid-b") == (None, [(b"conn-0", "flood/0"), (b"conn-1", "flood/1")])
+
+
+def test_within_one_peer_the_client_holding_the_most_goes_first() -> None:
+    # every local client is one peer on a loopback tcp bus: there the old per-connection rule still holds
+    table: OwnedTable[str, int] = OwnedTable(max_entries=10, max_bytes=1000)
+    for i in range(3):
+        table.put(f"node/{i}", i, 1, b"node", b"127.0.0.1")
+    for i in range(20):
+        why, evicted = table.put(f"flood/{i}", i, 1, b"flooder", b"127.0.0.1")
+        assert why is None and all(o == b"flooder" for o, _ in evicted)
+    assert all(f"node/{i}" in table for i in range(3))
+
+
+def test_a_peer_holds_entries_through_a_bounded_number_of_connections() -> None:
+    table: OwnedTable[str, int] = OwnedTable(max_entries=100, max_bytes=1000, max_clients_per_peer=3)
+    for i in range(3):
+        assert table.put(f"f/{i}", i, 1, f"conn-{i}".encode(), b"pid-f") == (None, [])
+    assert table.put("f/0", 5, 1, b"conn-0", b"pid-f") == (None, [])  # a client it has: as before
+    before = dict(table.values)
+    why, evicted = table.put("f/3", 3, 1, b"conn-3", b"pid-f")
+    assert why is not None and "pid-f already uses 3 connections here (at most 3 per peer)" in why
+    assert evicted == [] and table.values == before and table.refused_clients == 1
+    assert table.put("n/0", 0, 1, b"node", b"pid-n") == (None, [])  # another peer is not concerned
+    table.pop("f/2")  # a connection holding nothing no longer counts
+    assert table.put("f/3", 3, 1, b"conn-3", b"pid-f") == (None, [])
+    watchers = Watchers(max_watches=100, max_bytes=10_000)
+    watchers._table.max_clients_per_peer = 2
+    assert watchers.add(b"x/", b"c1", b"p") is None and watchers.add(b"y/", b"c2", b"p") is None
+    assert "at most 2 per peer" in (watchers.add(b"z/", b"c3", b"p") or "")
+    assert watchers.matching(b"z/1") == []
+
+
 def test_the_latch_cache_puts_by_owner_and_reports_evictions() -> None:
     cache = LatchCache(frozenset(), max_entries=3)
     for i in range(3):

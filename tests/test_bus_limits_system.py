@@ -4,6 +4,8 @@ test_bus_limits.py."""
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 from collections.abc import Iterator
 
@@ -13,7 +15,7 @@ import zmq
 
 import palpa
 from palpa.net.bus import Bus
-from palpa.net.latch import MAX_WATCHES
+from palpa.net.latch import MAX_CLIENTS_PER_PEER, MAX_WATCHES
 from palpa.net.wire import MAX_NESTING
 from tests.procs import bus_spec, wait_until
 from tests.test_bus_limits import header, nested
@@ -138,3 +140,50 @@ def test_a_service_started_after_the_cache_was_flooded_is_announced_and_answers(
             adder.request_shutdown()
             thread.join(5)
             adder.close(0)
+
+
+_FLOODER = """
+import sys, zmq
+ctx = zmq.Context()
+endpoint, header, n = sys.argv[1], bytes.fromhex(sys.argv[2]), int(sys.argv[3])
+socks = []
+for i in range(n):  # a connection per value: each holds less than the graph's node
+    s = ctx.socket(zmq.DEALER)
+    s.linger = 0
+    s.connect(endpoint)
+    s.send_multipart([b"SET", b"flood/%d" % i, header, bytes.fromhex(sys.argv[4])])
+    socks.append(s)
+refused = 0
+for s in socks:
+    s.send_multipart([b"PING", b"x"])
+    while True:
+        assert s.poll(20000), "no PONG"
+        frames = s.recv_multipart()
+        if frames[0] == b"PONG":
+            break
+        refused += frames[0] == b"ERR" and b"per peer" in frames[2]
+print(refused)
+"""
+
+
+@pytest.mark.parametrize("max_entries", [200, 4096])
+def test_a_process_spreading_a_flood_over_many_connections_evicts_only_its_own(
+        ctx: zmq.Context[zmq.Socket[bytes]], max_entries: int) -> None:
+    """200: the flood fills the cache and evicts its own values only (its peer holds the most, though each of its
+    connections holds less than the node); 4096: it fits, but past the bound on connections per peer each further
+    connection is refused."""
+    with Bus(bus_spec("ipc"), latch_max_entries=max_entries) as bus:
+        assert bus.address is not None
+        node = dealer(ctx, bus)  # the graph's node, a process of its own: ten values on one connection
+        for i in range(10):
+            node.send_multipart([b"SET", f"node/{i}".encode(), header(node="node"), TEXT])
+        assert replies_until_pong(node) == []
+        n = MAX_CLIENTS_PER_PEER + 44
+        done = subprocess.run([sys.executable, "-c", _FLOODER, bus.address.latch, header(node="flood").hex(), str(n),
+                               TEXT.hex()], capture_output=True, text=True, timeout=120, check=False)
+        assert done.returncode == 0, done.stderr
+        refused = 0 if max_entries < n else 44  # connections whose values were all evicted no longer count
+        assert int(done.stdout) == refused and bus.latch_refused == refused
+        node.send_multipart([b"GET", b"node/"])
+        assert [r[1] for r in replies_until_pong(node)] == [f"node/{i}".encode() for i in range(10)]
+        assert len(bus.cached_topics()) == min(max_entries, 10 + MAX_CLIENTS_PER_PEER)

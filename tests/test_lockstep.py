@@ -211,24 +211,24 @@ def test_the_clock_starts_time_only_once_the_participants_heard_each_other() -> 
     bus = MemoryBus()
     clock = ClockSource(params={"time_scale": 1000.0, "participants": ["a", "b"]}, transport=bus.transport(),
                         heartbeat_s=0)
-    peer = palpa.Node(name="peer", transport=bus.transport(), heartbeat_s=0)
-    acks = peer.publisher(palpa.runtime_msgs.CLOCK_ACK_TOPIC, ClockAck)
+    a, b = (palpa.Node(name=n, transport=bus.transport(), heartbeat_s=0) for n in "ab")  # each acks for itself
+    acks = {n.name: n.publisher(palpa.runtime_msgs.CLOCK_ACK_TOPIC, ClockAck) for n in (a, b)}
     ticks: list[palpa.runtime_msgs.ClockTick] = []
-    peer.subscribe(palpa.runtime_msgs.CLOCK_TOPIC, palpa.runtime_msgs.ClockTick, ticks.append)
+    a.subscribe(palpa.runtime_msgs.CLOCK_TOPIC, palpa.runtime_msgs.ClockTick, ticks.append)
 
     def spin() -> None:
         for _ in range(5):
             clock.spin_once(0)
-            peer.spin_once(0)
+            a.spin_once(0)
 
-    acks.publish(ClockAck(node="a", sim_ns=0, next_ns=10, probe="a/1.1", heard=["a/1.1"]))
-    acks.publish(ClockAck(node="b", sim_ns=0, next_ns=10, probe="b/2.1", heard=["a/1.1", "b/2.1"]))
+    acks["a"].publish(ClockAck(node="a", sim_ns=0, next_ns=10, probe="a/1.1", heard=["a/1.1"]))
+    acks["b"].publish(ClockAck(node="b", sim_ns=0, next_ns=10, probe="b/2.1", heard=["a/1.1", "b/2.1"]))
     spin()
     assert ticks and all(t.hold for t in ticks)  # a has not heard b: b might miss what a sends first
-    acks.publish(ClockAck(node="a", sim_ns=0, next_ns=10, probe="a/1.1", heard=["b/2.1"]))
+    acks["a"].publish(ClockAck(node="a", sim_ns=0, next_ns=10, probe="a/1.1", heard=["b/2.1"]))
     spin()
     assert not ticks[-1].hold
-    for n in (clock, peer):
+    for n in (clock, a, b):
         n.close(0)
 
 

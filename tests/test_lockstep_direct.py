@@ -156,7 +156,8 @@ def test_time_waits_for_a_subscriber_to_reach_a_direct_publisher_that_joins_late
     sim = listener._sim_time
     assert sim is not None
     wait_until(lambda: not sim.holds_timers, 10, "simulated time to start", step=graph.spin)
-    ticker = _DirectTicker("ticker", bus=graph.address, sim_clock=True, heartbeat_s=0, wait_for_clock_s=0)
+    # not among the participants: the clock believes its acks once its heartbeats are heard (palpa.timing.ackgate)
+    ticker = _DirectTicker("ticker", bus=graph.address, sim_clock=True, heartbeat_s=1.0, wait_for_clock_s=0)
     graph.nodes.append(ticker)
     t, lt = ticker.transport, listener.transport
     assert isinstance(t, ZmqTransport) and isinstance(lt, ZmqTransport) and ticker.out.direct

@@ -75,6 +75,7 @@ def test_a_tick_that_jumps_past_the_bound_is_refused_logged_and_counted() -> Non
         node.spin_once(0)
         assert node.clock.now_ns() == t and node.ticks == ticks + 1
     assert node.sim_time is not None and node.sim_time.refused_jumps == 2
+    assert node.refusals == {"clock_jump": 2}  # in its heartbeats: palpa node info shows it
     assert "refused" in logs[0] and "3600 s ahead" in logs[0] and "PALPA_SIM_CLOCK_MAX_JUMP_S" in logs[0]
     # a jump within the bound is time moving on (an idle node hears the clock once a wall second)
     pub.publish(ClockTick(sim_ns=t + 50 * 10**9))

@@ -201,3 +201,41 @@ def test_forgetting_publishers_is_counted_and_logged_once_per_interval(tmp_path:
     lines = [r.getMessage() for r in caplog.records if "sequence state full" in r.getMessage()]
     assert len(lines) == 1 and "forgot 'name-0' on 'chatter'" in lines[0]
     h.close()
+
+
+def _live_writer(path: Path) -> tuple[BagWriter, bytes]:
+    """A live recorder's writer on ``path`` with a few flushed messages, and the file's bytes as they stand."""
+    w = BagWriter(path)
+    cid = w.register_channel("t", "msgpack", 0, {})
+    for i in range(1, 6):
+        w.add_message(cid, i, i, i, b"x" * 100)
+    w.flush()
+    return w, path.read_bytes()
+
+
+def test_force_refuses_a_file_a_live_recorder_holds_without_touching_a_byte(tmp_path: Path) -> None:
+    path = tmp_path / "live.mcap"
+    w, before = _live_writer(path)
+    with pytest.raises(BagError, match="is in use"):
+        BagWriter(path, overwrite=True)
+    with pytest.raises(BagError, match="is in use"):  # the recorder node, as `palpa record --force` runs it
+        NodeHarness(Recorder, {"output": str(path), "force": True})
+    assert path.read_bytes() == before
+    w.finish()
+    assert [m[1] for m in check_official(path).messages] == [1, 2, 3, 4, 5]
+    again = BagWriter(path, overwrite=True)  # its recorder is gone: --force overwrites, as it says
+    again.finish()
+    assert check_official(path).messages == []
+
+
+def test_force_deletes_no_piece_of_a_split_recording_a_live_recorder_holds(tmp_path: Path) -> None:
+    out = tmp_path / "run.mcap"
+    (tmp_path / "run-0001.mcap").write_bytes(b"an earlier run's first piece, its recorder gone")
+    w, before = _live_writer(tmp_path / "run-0002.mcap")
+    with pytest.raises(BagError, match="run-0002.mcap is in use"):
+        NodeHarness(Recorder, {"output": str(out), "force": True, "split_size_mb": 1.0})
+    assert (tmp_path / "run-0001.mcap").exists() and (tmp_path / "run-0002.mcap").read_bytes() == before
+    w.finish()
+    h = NodeHarness(Recorder, {"output": str(out), "force": True, "split_size_mb": 1.0})  # nobody holds them now
+    h.close()
+    assert [p.name for p in sorted(tmp_path.iterdir())] == ["run-0001.mcap"]

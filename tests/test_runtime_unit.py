@@ -214,14 +214,14 @@ def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.Mo
     src.spin_once(0)
     wall[0] = 200_000_000
     assert src.sim_now_ns() == 1_200_000_000  # held: the slow node is 50 ms behind, more than the 20 ms lead
-    ack.publish(ClockAck(node="slow", sim_ns=1_300_000_000))
+    ack.publish(ClockAck(node="slow", sim_ns=1_200_000_000))  # caught up (an ack past the clock's time is refused)
     src.spin_once(0)
     wall[0] = 300_000_000
-    assert src.sim_now_ns() == 1_320_000_000  # may lead the slowest node by 20 ms, no more
+    assert src.sim_now_ns() == 1_220_000_000  # may lead the slowest node by 20 ms, no more
     wall[0] = 300_000_000 + 3_000_000_000  # silent for 3 s: slow, not gone (no process to check): still holding
-    assert src.sim_now_ns() == 1_320_000_000
+    assert src.sim_now_ns() == 1_220_000_000
     wall[0] = 300_000_000 + 30_000_000_000  # silent for participant_timeout_s: it no longer holds the clock
-    assert src.sim_now_ns() == 1_320_000_000 + 2 * 27_000_000_000
+    assert src.sim_now_ns() == 1_220_000_000 + 2 * 27_000_000_000
     wall[0] += 100_000_000
     src.sim_now_ns()
     dropped = [r for r in caplog.records if "slow not heard" in r.getMessage()]
@@ -247,6 +247,8 @@ def _lockstep(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], Any, Any, Any
     from palpa.runtime_msgs import CLOCK_ACK_TOPIC, ClockAck, Heartbeat
 
     wall, bus, src = _clock_source(monkeypatch)
+    wall[0] = 50_000_000
+    assert src.sim_now_ns() == 1_100_000_000  # the time the node acks (an ack past the clock's time is refused)
     peer = palpa.Node(name="slow", transport=bus.transport(), heartbeat_s=0)
     ack = peer.publisher(CLOCK_ACK_TOPIC, ClockAck)
     hb = peer.publisher("_palpa/heartbeat", Heartbeat)
@@ -275,15 +277,15 @@ def test_lockstep_drops_a_node_whose_process_is_gone_or_that_left(monkeypatch: p
     assert src.sim_now_ns() == 1_120_000_000  # silent < 2 s: not checked yet
     wall[0] = 2_100_000_000
     assert src.sim_now_ns() == 1_120_000_000 + 2 * 200_000_000  # gone: time runs free
-    ack.publish(ClockAck(node="slow", sim_ns=2_000_000_000))  # it acks again: it takes part again
+    ack.publish(ClockAck(node="slow", sim_ns=1_500_000_000))  # it acks again: it takes part again
     src.spin_once(0)
     src.pid_alive = lambda pid: True
     wall[0] = 3_000_000_000
-    assert src.sim_now_ns() == 2_020_000_000
+    assert src.sim_now_ns() == 1_520_000_000
     ack.publish(ClockAck(node="slow", sim_ns=2_000_000_000, leaving=True))
     src.spin_once(0)
     wall[0] = 3_100_000_000
-    assert src.sim_now_ns() == 2_020_000_000 + 2 * 100_000_000  # it left: not waited for
+    assert src.sim_now_ns() == 1_520_000_000 + 2 * 100_000_000  # it left: not waited for
 
 
 def test_a_sim_clock_node_says_it_leaves_as_it_closes() -> None:

@@ -70,6 +70,9 @@ def node_info_lines(name: str, beats: dict[str, Heartbeat]) -> list[str]:
             lines.append(f"    {topic}: {tname}{extra}")
     lines.append("  Service Servers:")
     lines += [f"    {s}: {types}" for s, types in sorted(hb.services.items()) if not s.startswith("_palpa/")]
+    if hb.refused:
+        lines.append("  Refused:")
+        lines += [f"    {kind}: {n}" for kind, n in sorted(hb.refused.items())]
     return lines
 
 

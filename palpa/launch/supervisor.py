@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import secrets
 import selectors
 import signal
 import subprocess
@@ -33,9 +34,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
+from palpa import env as palpa_env
 from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
 from palpa.launch.clockwatch import ClockWatch
+from palpa.launch.compose import CLOCK_TARGET
 from palpa.launch.nodeproc import REAP_GRACE_S, NodeProc
 from palpa.launch.output import Screen
 from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
@@ -48,6 +51,7 @@ from palpa.net.address import BusAddress
 from palpa.net.bus import Bus
 from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import CLOCK_TOPIC, HEARTBEAT_TOPIC, ClockTick, Heartbeat
+from palpa.timing.acksign import node_key
 
 __all__ = ["Supervisor", "exit_text"]
 
@@ -91,6 +95,9 @@ class Supervisor:
         """This launch's entry among the running launches (palpa.current), while it runs."""
         self._reaper: Reaper | None = None
         self._clock_watch = ClockWatch.for_plan(plan)
+        self._clock_master = secrets.token_bytes(32)
+        """This run's master key for signed clock acks (palpa.timing.acksign): each child gets its own node's key,
+        the clock entry the master."""
 
     # -- public ----------------------------------------------------------------------------------------
     def request_stop(self) -> None:
@@ -256,10 +263,19 @@ class Supervisor:
         color = self._screen.color_for(index)
         return NodeProc(spec=spec, log=log, color=color)
 
-    def _spawn(self, p: NodeProc) -> None:
-        spec = p.spec
+    def child_env(self, spec: NodeSpec) -> dict[str, str]:
+        """The environment ``spec``'s process starts with (:meth:`NodeSpec.child_env`) and its key to sign its
+        clock acks; the clock entry also gets the run's master key, to check them (palpa.timing.acksign)."""
         env = spec.child_env(dict(os.environ), bus=self.address, run_dir=self.plan.run_dir,
                              python_path=self.plan.python_path)
+        env[palpa_env.CLOCK_KEY] = node_key(self._clock_master, spec.name).hex()
+        if spec.target == CLOCK_TARGET:
+            env[palpa_env.CLOCK_MASTER_KEY] = self._clock_master.hex()
+        return env
+
+    def _spawn(self, p: NodeProc) -> None:
+        spec = p.spec
+        env = self.child_env(spec)
         argv = spec.argv()
         p.starts += 1
         p.started_at = time.monotonic()

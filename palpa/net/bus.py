@@ -48,9 +48,23 @@ from palpa.net.latch import (
 )
 from palpa.net.wire import MAX_MSG_BYTES, MAX_TOPIC_BYTES
 
-__all__ = ["Bus", "CurveServer", "is_loopback_endpoint"]
+__all__ = ["Bus", "CurveServer", "is_loopback_endpoint", "peer_of"]
 
 log = logging.getLogger("palpa.net.bus")
+
+def peer_of(frame: zmq.Frame) -> bytes:
+    """Who is behind a client of the bus, as the cache counts clients (palpa.net.latch): its CURVE key when it has
+    one, and the peer address libzmq gives the message (``localhost:uid:gid:pid`` on ipc, the process; the IP
+    address on tcp, the host; every local client is one peer on a loopback tcp bus). Empty parts when libzmq knows
+    none (inproc)."""
+    parts: list[str] = []
+    for prop in ("User-Id", "Peer-Address"):
+        try:
+            parts.append(str(frame.get(prop)))
+        except zmq.ZMQError:  # not given for this transport
+            parts.append("")
+    return "@".join(parts).encode()
+
 
 def is_loopback_endpoint(endpoint: str) -> bool:
     """True for ipc/inproc endpoints and tcp endpoints on a loopback address: ``localhost`` itself or a
@@ -231,10 +245,10 @@ class Bus:
             if router in events:
                 while True:
                     try:
-                        frames = router.recv_multipart(zmq.NOBLOCK)
+                        msg = router.recv_multipart(zmq.NOBLOCK, copy=False)
                     except zmq.Again:
                         break
-                    self._guarded(self._handle_latch, router, frames)
+                    self._guarded(self._handle_latch, router, [f.bytes for f in msg], peer_of(msg[-1]))
 
     def _guarded(self, handle: Callable[..., object], *args: Any) -> None:
         """Run one request's handling; whatever it raises is counted and logged, and the cache thread goes on
@@ -246,14 +260,16 @@ class Bus:
             self._throttle.event("internal", logging.ERROR, "latch: error handling a request (%d so far): %r",
                                  self.internal_errors, exc)
 
-    def _handle_latch(self, router: zmq.Socket[bytes], frames: list[bytes]) -> None:
+    def _handle_latch(self, router: zmq.Socket[bytes], frames: list[bytes], peer: bytes | None = None) -> None:
+        """One request from the client ``frames[0]`` (its ROUTER identity) of ``peer`` (:func:`peer_of`; None:
+        a peer of its own)."""
         if len(frames) < 2:
             log.warning("latch: ignoring a request of %d frame(s)", len(frames))
             return
         ident, verb = frames[0], frames[1]
         topic = frames[2] if len(frames) > 2 else b""
         if verb == b"SET":
-            if not self._store(router, topic, frames[3:], ident):
+            if not self._store(router, topic, frames[3:], ident, peer):
                 return
             for prefix, watcher in self._watchers.matching(topic):
                 if watcher != ident:
@@ -264,7 +280,7 @@ class Bus:
                 self._refuse(router, ident, topic, f"GET prefix of {len(topic)} bytes (at most {MAX_TOPIC_BYTES})")
                 return
             evicted_before = self._watchers.evicted
-            why = self._watchers.add(topic, ident)
+            why = self._watchers.add(topic, ident, peer)
             if why is not None:
                 self.watch_refused += 1
                 self._refuse(router, ident, topic, f"watcher table {why}")
@@ -297,14 +313,14 @@ class Bus:
             self._send(router, prefix, watcher, [b"VAL", CLIENT_KEYS_TOPIC, *value])
 
     def _store(self, router: zmq.Socket[bytes] | None, topic: bytes, value: list[bytes],
-               ident: bytes = BUS_OWNER) -> bool:
-        """Check and cache one value (owned by ``ident``; a captured one by the bus); a refusal is counted, logged
-        and (to a SET's sender) answered with ``ERR topic reason``."""
+               ident: bytes = BUS_OWNER, peer: bytes | None = None) -> bool:
+        """Check and cache one value (owned by ``ident`` of ``peer``; a captured one by the bus); a refusal is
+        counted, logged and (to a SET's sender) answered with ``ERR topic reason``."""
         evicted: list[bytes] = []
         with self._cache_lock:
             why = self._cache.check(topic, value)
             if why is None:
-                why, evicted = self._cache.put(topic, value, ident)
+                why, evicted = self._cache.put(topic, value, ident, peer)
             if why is not None:
                 self._cache.refused += 1
         if evicted:

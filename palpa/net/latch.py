@@ -3,9 +3,11 @@ of a latched topic) and how much both hold, so that no client can grow the bus w
 every later subscriber, or lock the graph's own nodes out. The bus (palpa.net.bus) serves them on its ROUTER socket; see
 docs/wire.md and docs/limits.md.
 
-Both are :class:`OwnedTable`\ s: every entry belongs to the client (ROUTER identity) that set it, and when a bound
-is reached the least recently set entry of the client holding the most is evicted. A client flooding the bus thus
-only ever evicts its own entries while it holds more than anyone else, and a node started later always gets room.
+Both are :class:`OwnedTable`\ s: every entry belongs to the client (ROUTER identity) that set it and to that
+client's peer (the process behind it on an ipc bus, its address on a tcp one), and when a bound is reached the least
+recently set entry of the greediest client of the peer holding the most is evicted. A client flooding the bus thus
+only ever evicts its own peer's entries while that peer holds more than anyone else, however many connections it
+spreads the flood over, and a node started later always gets room.
 """
 
 from __future__ import annotations
@@ -20,8 +22,8 @@ from palpa.message import lookup
 from palpa.net.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
 from palpa.net.wire import DECODE_ERRORS, MAX_TOPIC_BYTES, decode_any, decode_header
 
-__all__ = ["BUS_OWNER", "DEFAULT_LATCH_MAX_BYTES", "DEFAULT_LATCH_MAX_ENTRIES", "MAX_WATCH_BYTES", "MAX_WATCHES",
-           "LatchCache", "OwnedTable", "Watchers"]
+__all__ = ["BUS_OWNER", "DEFAULT_LATCH_MAX_BYTES", "DEFAULT_LATCH_MAX_ENTRIES", "MAX_CLIENTS_PER_PEER",
+           "MAX_WATCHES", "MAX_WATCH_BYTES", "LatchCache", "OwnedTable", "Watchers"]
 
 DEFAULT_LATCH_MAX_BYTES = 64 * 2**20
 DEFAULT_LATCH_MAX_ENTRIES = 4096
@@ -29,6 +31,9 @@ MAX_WATCHES = 16_384
 """(prefix, client) pairs the bus pushes later SETs to (one per latched GET)."""
 MAX_WATCH_BYTES = 4 * 2**20
 """Bytes of watched prefixes, all clients together."""
+MAX_CLIENTS_PER_PEER = 256
+"""Clients (connections) through which one peer (a process on an ipc bus, an address on a tcp one) may hold cache
+entries, and, apart, watches."""
 BUS_OWNER = b""
 """The owner of what the bus itself caches (captured graph-latched topics, the client keys): never evicted."""
 _ENDPOINT_MAX = 1024
@@ -38,20 +43,30 @@ V = TypeVar("V")
 
 
 class OwnedTable(Generic[K, V]):
-    """Key -> value, each entry owned by one client, bounded by ``max_entries`` and ``max_bytes`` (of the sizes
-    given to :meth:`put`). Making room evicts the least recently set entry of the client owning the most entries
-    (for the entry bound) or bytes (for the byte bound); entries of :data:`BUS_OWNER` are never evicted."""
+    """Key -> value, each entry owned by one client of one peer, bounded by ``max_entries`` and ``max_bytes`` (of
+    the sizes given to :meth:`put`). Making room evicts from the peer holding the most entries (for the entry bound)
+    or bytes (for the byte bound), within it from its client holding the most, that client's least recently set
+    entry; entries of :data:`BUS_OWNER` are never evicted. A peer (a process, a host: :func:`palpa.net.bus.peer_of`)
+    holds entries through at most ``max_clients_per_peer`` clients: spreading a flood over many connections buys it
+    nothing."""
 
-    def __init__(self, max_entries: int, max_bytes: int) -> None:
+    def __init__(self, max_entries: int, max_bytes: int, max_clients_per_peer: int = MAX_CLIENTS_PER_PEER) -> None:
         self.max_entries = max_entries
         self.max_bytes = max_bytes
+        self.max_clients_per_peer = max_clients_per_peer
         self.values: dict[K, V] = {}
         self._meta: dict[K, tuple[bytes, int]] = {}  # key -> (owner, size)
         self._owned: dict[bytes, dict[K, None]] = {}  # owner -> its keys, least recently set first
         self._owner_bytes: dict[bytes, int] = {}
+        self._peer_of: dict[bytes, bytes] = {}  # owner (holding entries) -> its peer
+        self._clients: dict[bytes, dict[bytes, None]] = {}  # peer -> its owners holding entries
+        self._peer_entries: dict[bytes, int] = {}
+        self._peer_bytes: dict[bytes, int] = {}
         self.bytes = 0
         self.evicted = 0
         """Entries evicted to make room so far."""
+        self.refused_clients = 0
+        """Puts refused because the client's peer already held entries through ``max_clients_per_peer`` others."""
 
     def __len__(self) -> int:
         return len(self.values)
@@ -62,9 +77,12 @@ class OwnedTable(Generic[K, V]):
     def __iter__(self) -> Iterator[K]:
         return iter(self.values)
 
-    def put(self, key: K, value: V, size: int, owner: bytes) -> tuple[str | None, list[tuple[bytes, K]]]:
-        """Store ``value`` (replacing ``key``'s old value, whoever set it), evicting what must go; returns (why it
-        cannot be stored, or None; the evicted (owner, key) pairs). A refusal changes nothing."""
+    def put(self, key: K, value: V, size: int, owner: bytes,
+            peer: bytes | None = None) -> tuple[str | None, list[tuple[bytes, K]]]:
+        """Store ``value`` (replacing ``key``'s old value, whoever set it) for ``owner``, a client of ``peer``
+        (None: a peer of its own), evicting what must go; returns (why it cannot be stored, or None; the evicted
+        (owner, key) pairs). A refusal changes nothing."""
+        peer = owner if peer is None else peer
         old = self._meta.get(key)
         # what may not be evicted (the bus's own entries, and this key's old value, which is replaced) must leave
         # room for the new value, or nothing changes
@@ -74,6 +92,11 @@ class OwnedTable(Generic[K, V]):
         if kept_entries + 1 > self.max_entries or kept_bytes + size > self.max_bytes:
             return (f"full: a value of {size} bytes does not fit in {self.max_bytes} bytes and "
                     f"{self.max_entries} entries"), []
+        clients = self._clients.get(peer, {})
+        if owner != BUS_OWNER and owner not in clients and len(clients) >= self.max_clients_per_peer:
+            self.refused_clients += 1
+            return (f"peer {peer[:80].decode(errors='replace')} already uses "
+                    f"{len(clients)} connections here (at most {self.max_clients_per_peer} per peer)"), []
         if old is not None:
             self.pop(key)
         evicted: list[tuple[bytes, K]] = []
@@ -86,16 +109,23 @@ class OwnedTable(Generic[K, V]):
         self._meta[key] = (owner, size)
         self._owned.setdefault(owner, {})[key] = None
         self._owner_bytes[owner] = self._owner_bytes.get(owner, 0) + size
+        self._peer_of[owner] = peer
+        self._clients.setdefault(peer, {})[owner] = None
+        self._peer_entries[peer] = self._peer_entries.get(peer, 0) + 1
+        self._peer_bytes[peer] = self._peer_bytes.get(peer, 0) + size
         self.bytes += size
         return None, evicted
 
     def _greediest(self, by_bytes: bool) -> K:
-        """The least recently set key of the owner (the bus aside) holding the most entries, or bytes."""
-        owners = [o for o in self._owned if o != BUS_OWNER]
+        """The least recently set key of the client holding the most entries (or bytes) within the peer (the bus
+        aside) holding the most."""
+        peers = [p for p in self._clients if p != BUS_OWNER]
         if by_bytes:
-            worst = max(owners, key=self._owner_bytes.__getitem__)
+            peer = max(peers, key=self._peer_bytes.__getitem__)
+            worst = max(self._clients[peer], key=self._owner_bytes.__getitem__)
         else:
-            worst = max(owners, key=lambda o: len(self._owned[o]))
+            peer = max(peers, key=self._peer_entries.__getitem__)
+            worst = max(self._clients[peer], key=lambda o: len(self._owned[o]))
         return next(iter(self._owned[worst]))
 
     def pop(self, key: K) -> V | None:
@@ -104,12 +134,22 @@ class OwnedTable(Generic[K, V]):
         if meta is None:
             return None
         owner, size = meta
+        peer = self._peer_of[owner]
         keys = self._owned[owner]
         del keys[key]
         self._owner_bytes[owner] -= size
+        self._peer_entries[peer] -= 1
+        self._peer_bytes[peer] -= size
         if not keys:
             del self._owned[owner]
             del self._owner_bytes[owner]
+            del self._peer_of[owner]
+            clients = self._clients[peer]
+            del clients[owner]
+            if not clients:
+                del self._clients[peer]
+                del self._peer_entries[peer]
+                del self._peer_bytes[peer]
         self.bytes -= size
         return self.values.pop(key)
 
@@ -130,10 +170,11 @@ class Watchers:
     def evicted(self) -> int:
         return self._table.evicted
 
-    def add(self, prefix: bytes, ident: bytes) -> str | None:
-        """Watch ``prefix`` for ``ident`` (evicting the greediest client's oldest watch when full); why not (one
-        prefix over the byte bound), or None."""
-        why, evicted = self._table.put((prefix, ident), None, len(prefix) + len(ident), ident)
+    def add(self, prefix: bytes, ident: bytes, peer: bytes | None = None) -> str | None:
+        """Watch ``prefix`` for ``ident``, a client of ``peer`` (evicting the greediest peer's greediest client's
+        oldest watch when full); why not (one prefix over the byte bound, too many clients of that peer), or
+        None."""
+        why, evicted = self._table.put((prefix, ident), None, len(prefix) + len(ident), ident, peer)
         for _owner, (p, i) in evicted:
             self._unindex(p, i)
         if why is None:
@@ -211,9 +252,11 @@ class LatchCache:
             return f"{h.type}: {exc}"
         return None
 
-    def put(self, topic: bytes, value: list[bytes], owner: bytes = BUS_OWNER) -> tuple[str | None, list[bytes]]:
-        """Store a checked value set by ``owner``; returns (why not, the old value kept; the topics evicted)."""
-        why, evicted = self.table.put(topic, value, len(topic) + sum(len(f) for f in value), owner)
+    def put(self, topic: bytes, value: list[bytes], owner: bytes = BUS_OWNER,
+            peer: bytes | None = None) -> tuple[str | None, list[bytes]]:
+        """Store a checked value set by ``owner``, a client of ``peer``; returns (why not, the old value kept; the
+        topics evicted)."""
+        why, evicted = self.table.put(topic, value, len(topic) + sum(len(f) for f in value), owner, peer)
         return (None if why is None else f"latch cache {why}"), [k for _o, k in evicted]
 
     def matching(self, prefix: bytes) -> list[tuple[bytes, list[bytes]]]:

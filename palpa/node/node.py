@@ -115,6 +115,10 @@ class Node:
         self.name = name or default_node_name(type(self).__name__)
         self.incarnation = int.from_bytes(os.urandom(4), "big") | 1
         """Drawn anew at every start and sent in every header (``inc``): receivers tell a restart from a repeat."""
+        self.refusals: dict[str, int] = {}
+        """Inputs this node refused and counted, by kind (``clock_jump``: ticks past the bound; the lockstep clock's
+        ``clock_ack/<why>``; bad messages are counted per topic apart): in its heartbeats (``refused``), shown by
+        ``palpa node info``."""
         if sim_clock is None:
             sim_clock = palpa_env.flag(palpa_env.SIM_CLOCK)
         self.params = convert_params(type(self).Params, params, where=f"node {self.name!r}")

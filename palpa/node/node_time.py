@@ -14,6 +14,8 @@ import time
 from collections.abc import Mapping
 from typing import Any, Protocol
 
+import msgspec
+
 from palpa import env as palpa_env
 from palpa.errors import PalpaError
 from palpa.net.transport import ZmqTransport
@@ -23,9 +25,10 @@ from palpa.node.naming import RUNTIME_PREFIX
 from palpa.node.nodeapi import NodeApi
 from palpa.node.receive import Receiver
 from palpa.runtime_msgs import CLOCK_ACK_TOPIC, CLOCK_TOPIC, ClockAck, ClockTick, tick_topic
+from palpa.timing.acksign import sign
 from palpa.timing.clock import TopicClock
 
-__all__ = ["EXIT_CLOCK_LOST", "SimTime", "Timers", "clock_max_jump_ns", "clock_timeout_ns"]
+__all__ = ["EXIT_CLOCK_LOST", "SimTime", "Timers", "ack_key", "clock_max_jump_ns", "clock_timeout_ns"]
 
 _CLOCK_ACK_TOPIC_B = CLOCK_ACK_TOPIC.encode()
 _TIMER_PASSES = 100
@@ -52,6 +55,18 @@ def clock_max_jump_ns(max_jump_s: float | None = None) -> int:
     """Simulated ns a tick may move a node's time forward at once (0: no bound); None reads
     ``PALPA_SIM_CLOCK_MAX_JUMP_S`` (default 60 s)."""
     return _seconds_ns(max_jump_s, palpa_env.SIM_CLOCK_MAX_JUMP_S, _SIM_CLOCK_MAX_JUMP_S)
+
+
+def ack_key(node: str) -> bytes:
+    """The key the launcher gave this process to sign ``node``'s clock acks (``PALPA_CLOCK_KEY``, hex), when it
+    started ``node`` (``PALPA_NODE_NAME``); empty otherwise (another node of the process signs nothing)."""
+    text = palpa_env.get(palpa_env.CLOCK_KEY)
+    if not text or palpa_env.get(palpa_env.NODE_NAME) != node:
+        return b""
+    try:
+        return bytes.fromhex(text)
+    except ValueError:
+        raise PalpaError(f"{palpa_env.CLOCK_KEY}: expected hex digits") from None
 
 
 def _seconds_ns(given_s: float | None, variable: str, default_s: float) -> int:
@@ -135,6 +150,8 @@ class Timers:
 class _Host(NodeApi, Protocol):
     """What :class:`SimTime` uses of its node beyond :class:`palpa.node.nodeapi.NodeApi`."""
 
+    incarnation: int
+
     def run_timers(self) -> None: ...
 
     def next_timer_due_ns(self) -> int | None: ...
@@ -185,6 +202,8 @@ class SimTime:
         self._reached: dict[str, None] = transport.reach.reached if isinstance(transport, ZmqTransport) else {}
         self._reached_acked = 0
         self._ack_direct: list[str] = []
+        self._key = ack_key(node.name)
+        """This node's key to sign its acks (palpa.timing.acksign; empty: its launcher gave it none)."""
         node.subscribe(CLOCK_TOPIC, ClockTick, self.on_clock)
         node.subscribe(tick_topic(node.name), ClockTick, self.on_clock)  # the event lockstep's, to this node alone
         rx.on_instant = self.on_instant
@@ -212,6 +231,7 @@ class SimTime:
         if not (clock.started and self._max_jump_ns and sim_ns - clock.now_ns() > self._max_jump_ns):
             return False
         self.refused_jumps += 1
+        self._node.refusals["clock_jump"] = self.refused_jumps
         if self.refused_jumps % 1000 == 1:
             self._node.log.error("%s at %.3f s of simulated time refused: %.0f s ahead of this node's %.3f s, more "
                                  "than the %g s a tick may jump (%s); %d refused so far", what, sim_ns / 1e9,
@@ -302,12 +322,19 @@ class SimTime:
         for topic, n in self._raw_sent.items():
             sent[topic] = sent.get(topic, 0) + n
         self._last_ack_ns = self._clock.now_ns()
-        self._ack_pub.publish(ClockAck(node=self._node.name, sim_ns=self._last_ack_ns, next_ns=due, sent=sent,
-                                       recv={t: st.received + st.decode_errors for t, st in self._ack_stats},
-                                       subs=self._ack_subs, probe=probe, heard=new_joins, direct=direct,
-                                       direct_at=t.direct_endpoint if direct and isinstance(t, ZmqTransport) else "",
-                                       reached=new_reached))
+        self._send(ClockAck(node=self._node.name, sim_ns=self._last_ack_ns, next_ns=due, sent=sent,
+                            recv={t: st.received + st.decode_errors for t, st in self._ack_stats},
+                            subs=self._ack_subs, probe=probe, heard=new_joins, direct=direct,
+                            direct_at=t.direct_endpoint if direct and isinstance(t, ZmqTransport) else "",
+                            reached=new_reached))
 
     def leave(self) -> None:
         """Tell the lockstep clock that this node is leaving: it stops waiting for it now, not later."""
-        self._ack_pub.publish(ClockAck(node=self._node.name, sim_ns=self._last_ack_ns, leaving=True))
+        self._send(ClockAck(node=self._node.name, sim_ns=self._last_ack_ns, leaving=True))
+
+    def _send(self, ack: ClockAck) -> None:
+        """Publish ``ack``, signed with this node's key when it has one (as the message number it goes out as)."""
+        if self._key:
+            ack = msgspec.structs.replace(ack, mac=sign(self._key, ack, self._node.incarnation,
+                                                        self._ack_pub.seq + 1))
+        self._ack_pub.publish(ack)

@@ -29,6 +29,7 @@ class NodeApi(Protocol):
     clock: Clock
     log: logging.Logger
     dispatch: Dispatch
+    refusals: dict[str, int]
 
     @property
     def transport(self) -> Transport: ...

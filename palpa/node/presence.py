@@ -157,6 +157,7 @@ class Heartbeats:
                 wire=WIRE_VERSION,
                 direct=[p.topic for p in pubs.values() if p.direct],
                 services={name: srv.types for name, srv in self._services.items()},
+                refused=dict(self._node.refusals),
             )
         )
 

@@ -57,7 +57,7 @@ from palpa.record.format import (
     split_pieces,
 )
 from palpa.record.lastvalues import LastValues
-from palpa.record.writer import COMPRESSIONS, MAX_CHANNELS, BagWriter
+from palpa.record.writer import COMPRESSIONS, MAX_CHANNELS, BagWriter, lock_many
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat
 
 __all__ = ["MAX_LATCHED_BYTES", "RESERVED_CHANNELS", "RecorderParams", "Recorder"]
@@ -187,8 +187,15 @@ class Recorder(Node):
             old = split_pieces(out)
             if old and not p.force:
                 raise BagError(f"{old[0]} already exists (use --force / force: true to overwrite)")
-            for piece in old:  # stale pieces of an earlier, longer run would read as part of this one
-                piece.unlink()
+            # stale pieces of an earlier, longer run would read as part of this one; but a piece a live recorder
+            # holds is its data: refuse before deleting any
+            held = lock_many(old)
+            try:
+                for piece in old:
+                    piece.unlink()
+            finally:
+                for fh in held:
+                    fh.close()
 
     def _open_file(self) -> BagWriter:
         self._file_index += 1

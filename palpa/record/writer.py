@@ -52,7 +52,7 @@ from mcap.records import (
 
 from palpa.record.format import MAGIC, BagError
 
-__all__ = ["COMPRESSIONS", "MAX_CHANNELS", "BagWriter", "lock_exclusive"]
+__all__ = ["COMPRESSIONS", "MAX_CHANNELS", "BagWriter", "lock_exclusive", "lock_many", "open_locked"]
 
 MAX_CHANNELS = 0xFFFF
 """Channels one MCAP file can hold (its channel ids are uint16, 0 is reserved)."""
@@ -96,6 +96,45 @@ def lock_exclusive(fh: BinaryIO) -> bool:
     return True
 
 
+def open_locked(path: Path, overwrite: bool) -> BinaryIO:
+    """``path`` opened for writing from byte 0, holding the lock of a live writer (``palpa bag recover --in-place``
+    must not replace a file in use, nor another recorder overwrite it). The lock comes first and the file is emptied
+    only once it is held: a file another live writer holds is refused ("in use") with every byte of it intact, even
+    with ``overwrite``; without ``overwrite`` an existing file is refused."""
+    try:
+        # no O_TRUNC: opening must not destroy what a live writer is writing, whose lock we do not have yet
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | (0 if overwrite else os.O_EXCL), 0o666)
+    except FileExistsError:
+        raise BagError(f"{path} already exists (use --force / force: true to overwrite)") from None
+    except OSError as exc:
+        raise BagError(f"cannot create {path}: {exc}") from None
+    fh = os.fdopen(fd, "wb")
+    if not lock_exclusive(fh):
+        fh.close()
+        raise BagError(f"{path} is in use: a recorder is still writing it (it holds the file's lock); "
+                       "record to another file, or stop that recorder first")
+    fh.truncate(0)
+    return fh
+
+
+def lock_many(paths: list[Path]) -> list[BinaryIO]:
+    """Hold the live-writer lock of every file in ``paths`` (to delete them: the stale pieces of an earlier split
+    recording); :class:`BagError` naming the first one a live writer holds, and then none is held."""
+    held: list[BinaryIO] = []
+    try:
+        for path in paths:
+            fh: BinaryIO = open(path, "rb")  # noqa: SIM115 - returned open, closed by the caller
+            held.append(fh)
+            if not lock_exclusive(fh):
+                raise BagError(f"{path} is in use: a recorder is still writing it (it holds the file's lock); "
+                               "record to another file, or stop that recorder first")
+    except BaseException:
+        for fh in held:
+            fh.close()
+        raise
+    return held
+
+
 class BagWriter:
     """One MCAP file. ``add_message`` buffers into the open chunk; ``flush`` closes it; ``finish`` writes the
     summary and footer. Times are ns since the Unix epoch; ``sequence`` must fit MCAP's uint32.
@@ -121,14 +160,7 @@ class BagWriter:
         self._compression = name
         self._chunk_size = chunk_size
         self._fsync = fsync
-        try:
-            self._file: BinaryIO = open(self.path, "wb" if overwrite else "xb")  # noqa: SIM115
-        except FileExistsError:
-            raise BagError(f"{self.path} already exists (use --force / force: true to overwrite)") from None
-        except OSError as exc:
-            raise BagError(f"cannot create {self.path}: {exc}") from None
-        # held while the file is written: `palpa bag recover --in-place` must not replace a file in use
-        lock_exclusive(self._file)
+        self._file: BinaryIO = open_locked(self.path, overwrite)
         self._pos = 0
         self.written = 0
         """Bytes handed to the file so far (updated when a chunk closes; cheap to poll per message)."""

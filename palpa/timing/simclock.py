@@ -30,17 +30,28 @@ its stale data. So a node leaves only
   long it is silent (a warning says so once).
 
 A node that acks again after it was dropped takes part again.
+
+Which acks count: only those bound to the identity of the node they report on, its name and incarnation, in order,
+for a time already issued (:mod:`palpa.timing.ackgate`); the others are refused, counted in the clock's ``refusals``
+(``palpa node info``) and logged at a rate limit, so no client of the bus can move time past a node or freeze it
+with acks of its own making.
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
 import time
 from collections.abc import Callable, Mapping
 from typing import Any, Literal
 
+from palpa import env as palpa_env
+from palpa.errors import PalpaError
+from palpa.lograte import LogThrottle
 from palpa.net.transport import ZmqTransport
+from palpa.net.wire import Header
+from palpa.node.endpoints import MsgInfo
 from palpa.node.node import Node, Publisher
 from palpa.node.params import NonNegative, Positive
 from palpa.node.params import Params as ParamsBase
@@ -54,6 +65,8 @@ from palpa.runtime_msgs import (
     Heartbeat,
     tick_topic,
 )
+from palpa.timing.ackgate import REASONS, AckGate
+from palpa.timing.acksign import node_key, verify
 from palpa.timing.clock import SystemClock
 from palpa.timing.lockstep import EventLockstep
 
@@ -120,6 +133,17 @@ class ClockSource(Node):
         """participating node -> its pid, when its heartbeats say it runs on this host"""
         self._held: set[str] = set()
         self._events = EventLockstep()
+        master = palpa_env.get(palpa_env.CLOCK_MASTER_KEY)
+        try:
+            key = bytes.fromhex(master)
+        except ValueError:
+            raise PalpaError(f"{palpa_env.CLOCK_MASTER_KEY}: expected hex digits") from None
+        # signatures are checked for the launch's participants when the launcher gave this clock its run's key
+        keys = {n: node_key(key, n) for n in self.params.participants}
+        self._gate = AckGate(frozenset(keys), (lambda ack, h: verify(keys[ack.node], ack, h.inc, h.seq)) if key else None)
+        self._throttle = LogThrottle(self.log, now=lambda: self.clock.now_ns() / 1e9)
+        self._waiting: list[tuple[ClockAck, Header]] = []
+        """Acks the gate let through again (their name free, their node heard), to be taken next."""
         self._started_wall = self._wall
         self._released = not self.params.participants
         self._anchor = (self._wall, self._sim)
@@ -134,11 +158,33 @@ class ClockSource(Node):
             self.subscribe(HEARTBEAT_TOPIC, self._on_heartbeat)
         self.timer(1.0 / self.params.rate_hz, self._tick, first_in_s=0.0)
 
-    def _on_ack(self, ack: ClockAck) -> None:
+    def _on_ack(self, ack: ClockAck, info: MsgInfo) -> None:
+        self._believe(ack, info.header)
+        self._admit_waiting()
+
+    def _admit_waiting(self) -> None:
+        """Check again the acks kept waiting for their name to be free or their node to be heard (not from inside
+        :meth:`_advance`, which may free a name)."""
+        while self._waiting:
+            self._believe(*self._waiting.pop(0))
+
+    def _believe(self, ack: ClockAck, header: Header) -> None:
+        """An ack, believed only when bound to its node's identity (palpa.timing.ackgate); a refusal is counted
+        (``refused`` in the clock's heartbeats: ``palpa node info``) and logged, one line per kind and interval."""
+        why = self._gate.check(ack, header, self._sim)
+        if why is not None:
+            key = f"clock_ack/{why}"
+            self.refusals[key] = self.refusals.get(key, 0) + 1
+            self._throttle.event(key, logging.WARNING, "ack for %s refused (%d so far): %s (from %s, incarnation "
+                                 "%d, seq %d, at %.3f s; the clock is at %.3f s)", ack.node[:80], self.refusals[key],
+                                 REASONS[why], header.node[:80], header.inc, header.seq,
+                                 ack.sim_ns / 1e9, self._sim / 1e9)
+            return
         if ack.leaving:
             self._events.leave(ack.node)
             if self._acks.pop(ack.node, None) is not None:
                 self.log.info("%s left: it no longer holds simulated time back", ack.node)
+            self._released_name(ack.node)
             self._advance()
             return
         self._acks[ack.node] = ack.sim_ns
@@ -153,13 +199,27 @@ class ClockSource(Node):
         elif not self._released:
             self._advance()
 
-    def _on_heartbeat(self, hb: Heartbeat) -> None:
-        if hb.node in self._acks:  # only participants: every node heartbeats, few follow the clock
+    def _on_heartbeat(self, hb: Heartbeat, info: MsgInfo) -> None:
+        inc = info.header.inc
+        if hb.node in self._acks and self._gate.owns(hb.node, inc):
+            # only participants (every node heartbeats, few follow the clock), and only the incarnation that takes
+            # part: another process under its name does not keep it alive
             self._heard[hb.node] = time.monotonic_ns()
             if hb.host == self._host:
                 self._pids[hb.node] = hb.pid
             else:
                 self._pids.pop(hb.node, None)
+        elif (waiting := self._gate.heard(hb.node, inc)) is not None:
+            self._waiting.append(waiting)  # a node from outside the launch file, present now: its last ack counts
+            self._admit_waiting()
+
+    def _released_name(self, node: str) -> None:
+        """``node``'s incarnation no longer takes part: an ack another incarnation sent under its name meanwhile
+        (a respawned node) counts now."""
+        self._pids.pop(node, None)
+        waiting = self._gate.release(node)
+        if waiting is not None:
+            self._waiting.append(waiting)
 
     def _still_in(self, node: str, wall: int) -> bool:
         """Whether ``node`` still holds simulated time back (see the module's docstring); says a drop once."""
@@ -182,6 +242,7 @@ class ClockSource(Node):
         self._acks.pop(node)
         self._events.leave(node)
         self.log.warning("%s %s: it no longer holds simulated time back", node, why)
+        self._released_name(node)
         return False
 
     def sim_now_ns(self) -> int:
@@ -198,6 +259,7 @@ class ClockSource(Node):
         return proposed
 
     def _tick(self) -> None:
+        self._admit_waiting()
         if not self._released or self._events.members:
             self._advance()
             wall = time.monotonic_ns()
