@@ -69,3 +69,31 @@ class StampedBuffer:
         w = (stamp_ns - t0) / (t1 - t0)
         a, b = self._v[i - 1], self._v[i]
         return tuple([x + w * (y - x) for x, y in zip(a, b, strict=True)])  # a list first: faster than a generator
+
+    def at_each(self, stamps: Sequence[int], max_extrapolate_ns: int = 0) -> list[tuple[float, ...] | None]:
+        """:meth:`at` of every stamp, in one call: the same values to the bit, without a call and a binary search
+        over the whole history per stamp (a driver asks for 50 stamps at a time, mostly in order: each search starts
+        where the previous stamp's ended, when that stamp was earlier)."""
+        t, v, gap = self._t, self._v, self.max_gap_ns
+        n = len(t)
+        if not n:
+            return [None] * len(stamps)
+        out: list[tuple[float, ...] | None] = []
+        i, prev = 0, t[0]
+        for stamp in stamps:
+            i = bisect_left(t, stamp, i if stamp >= prev else 0)
+            prev = stamp
+            if i < n and t[i] == stamp:
+                out.append(v[i])
+            elif i == 0:
+                out.append(v[0] if t[0] - stamp <= max_extrapolate_ns else None)
+            elif i == n:
+                out.append(v[-1] if stamp - t[-1] <= max_extrapolate_ns else None)
+            else:
+                t0, t1 = t[i - 1], t[i]
+                if t1 - t0 > gap:
+                    out.append(None)
+                else:
+                    w = (stamp - t0) / (t1 - t0)
+                    out.append(tuple([x + w * (y - x) for x, y in zip(v[i - 1], v[i], strict=True)]))
+        return out

@@ -120,8 +120,9 @@ class AirfloatEstimator:
                                               c.indenter_radius_mm)
         d_in, tilt = np.atleast_1d(d_in) + c.depth_offset_mm, np.atleast_1d(tilt)
         tol = c.max_gap_ns
-        poses = [self.pose.at(m.stamp_ns, tol) for m in batch]
-        forces = [self.force.at(m.stamp_ns, tol) for m in batch]
+        stamps = [m.stamp_ns for m in batch]
+        poses = self.pose.at_each(stamps, tol)
+        forces = self.force.at_each(stamps, tol)
         xyz = np.array([p if p is not None else (np.nan,) * 3 for p in poses])
         f = np.array([x[0] if x is not None else np.nan for x in forces])
         fault = np.array([x is not None and x[1] > 0 for x in forces])
