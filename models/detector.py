@@ -38,8 +38,8 @@ Our own code; the background / matched filter / extreme-value recipe is the stan
 
 from __future__ import annotations
 
+import functools
 import math
-import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -49,7 +49,7 @@ import numpy.typing as npt
 # and a launcher imports this module (through the map node) only to check the map's parameters, before it starts
 # anything (issue 40: a composed run's start-up is serial, launcher first)
 from models.peaks import peak_parts
-from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps
+from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, nanmedian_stack
 
 __all__ = ["BACKGROUND_DEGREE", "GUMBEL_LOC", "GUMBEL_SCALE", "REFERENCE_AREA_MM2", "DetectorConfig", "Detection",
            "describe", "detect", "false_alarm_probability", "fit_false_alarm_law", "peak_significance", "significance",
@@ -175,10 +175,15 @@ def fit_false_alarm_law(maxima: npt.ArrayLike, areas_mm2: npt.ArrayLike, referen
     return float(res.x[0]), float(math.exp(float(res.x[1])))
 
 
+@functools.lru_cache(maxsize=64)
 def _disc(radius_mm: float, cell_mm: float) -> FloatArray:
+    """The cells of a disc (1.0 inside), read-only: made once per radius and cell size (a detection asks for each
+    at every map published)."""
     n = max(0, int(math.floor(radius_mm / cell_mm + 1e-9)))
     yy, xx = np.mgrid[-n : n + 1, -n : n + 1] * cell_mm
-    return np.asarray(xx**2 + yy**2 <= radius_mm**2 + 1e-9, dtype=np.float64)
+    disc = np.asarray(xx**2 + yy**2 <= radius_mm**2 + 1e-9, dtype=np.float64)
+    disc.setflags(write=False)
+    return disc
 
 
 def _fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArray) -> FloatArray:
@@ -217,9 +222,7 @@ def _drop_spikes(grid: FloatArray, ratio: float) -> FloatArray:
     padded = np.pad(grid, 1, constant_values=np.nan)
     ny, nx = grid.shape
     stack = np.stack([padded[dy : dy + ny, dx : dx + nx] for dy in range(3) for dx in range(3) if (dy, dx) != (1, 1)])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)   # a cell without valid neighbours: no median, kept
-        around = np.nanmedian(stack, axis=0)
+    around = nanmedian_stack(stack)  # a cell without valid neighbours: NaN, kept
     spike = np.isfinite(grid) & (around > 0) & (grid > ratio * around)
     return np.where(spike, np.nan, grid)
 

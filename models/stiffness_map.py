@@ -13,7 +13,6 @@ Cells with fewer than ``min_count`` samples are NaN.
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -29,6 +28,7 @@ __all__ = [
     "MapSnapshot",
     "StiffnessGrid",
     "fill_gaps",
+    "nanmedian_stack",
     "to_inclusions_json",
 ]
 
@@ -168,10 +168,17 @@ def _neighbourhood(grid: FloatArray) -> FloatArray:
     return np.stack([padded[dy : dy + ny, dx : dx + nx] for dy in range(3) for dx in range(3)])
 
 
-def _nanmedian(stack: FloatArray) -> FloatArray:
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN neighbourhoods -> NaN
-        return np.asarray(np.nanmedian(stack, axis=0))
+def nanmedian_stack(stack: FloatArray) -> FloatArray:
+    """``np.nanmedian(stack, axis=0)`` to the bit (the middle value, or the mean of the middle two, of each
+    column's non-NaN values; NaN for a column of NaN, without a warning), by one sort: numpy's own takes its
+    masked-array path for fewer than 600 rows, ~1 ms for a map's 3 x 3 neighbourhoods, which the detector asks
+    for at every map published (issue 40)."""
+    ordered = np.sort(stack, axis=0)  # NaN last
+    n = stack.shape[0] - np.isnan(stack).sum(axis=0)
+    lo = np.take_along_axis(ordered, np.maximum((n - 1) // 2, 0)[None], axis=0)[0]
+    hi = np.take_along_axis(ordered, (n // 2)[None], axis=0)[0]
+    out: FloatArray = (lo + hi) / 2  # a column of NaN alone: its first row, NaN
+    return out
 
 
 def fill_gaps(stiffness: FloatArray, min_neighbors: int = 4) -> FloatArray:
@@ -184,7 +191,7 @@ def fill_gaps(stiffness: FloatArray, min_neighbors: int = 4) -> FloatArray:
     n_valid = np.isfinite(stack).sum(axis=0)  # the centre is NaN where we fill
     out = grid.copy()
     holes = np.isnan(grid) & (n_valid >= min_neighbors)
-    out[holes] = _nanmedian(stack)[holes]
+    out[holes] = nanmedian_stack(stack)[holes]
     return out
 
 

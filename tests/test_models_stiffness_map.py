@@ -170,3 +170,26 @@ def test_inclusions_json_matches_design_contract() -> None:
     assert json.loads(json.dumps(out)) == out
     rec = to_inclusions_json([replace(inc, snr=7.5, false_alarm=1e-4)])[0]
     assert rec == {**out[0], "snr": 7.5, "false_alarm": 1e-4}   # the detector's significance, when known
+
+
+def test_nanmedian_stack_is_numpys_nanmedian_to_the_bit() -> None:
+    """The detector's and the gap filler's median of each 3 x 3 neighbourhood: numpy's nanmedian along the first
+    axis, bit for bit (odd and even counts of valid values, ties, columns of NaN alone, infinities)."""
+    import warnings
+
+    from models.stiffness_map import nanmedian_stack
+
+    rng = np.random.default_rng(5)
+    for rows in (1, 2, 8, 9):
+        stack = np.round(rng.lognormal(3.0, 0.5, (rows, 17, 13)), 2)
+        stack[rng.random(stack.shape) < 0.4] = np.nan
+        stack[:, 0, 0] = np.nan
+        stack[0, 1, 1] = np.inf
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            want = np.nanmedian(stack, axis=0)
+        got = nanmedian_stack(stack)
+        assert got.dtype == want.dtype and got.shape == want.shape
+        assert got.tobytes() == want.tobytes()
+    counts = (~np.isnan(stack)).sum(axis=0)
+    assert {0, 1, 2} <= set(counts.ravel().tolist()) and (counts % 2 == 1).any()
