@@ -247,9 +247,8 @@ class ArmModel:
     def _refresh(self) -> None:
         s, v = self._sample()
         prim, u = self._require_plan().locate(s)
-        lin, ang = prim.twist_per_mm(u)
-        self._pose = _as_tuple(np.concatenate((prim.position(u), prim.rotvec(u))))
-        self._twist = np.concatenate((lin * v, ang * v))
+        self._pose = prim.pose_at(u)
+        self._twist = prim.twist6_per_mm(u) * v
         self._index = prim.index
 
     def _finish(self, pose: Pose, status: ArmStatus, index: int | None = None) -> None:

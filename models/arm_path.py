@@ -90,6 +90,8 @@ class Primitive:
         self.accel, self.index = accel, index
         self._turns = bool(np.any(self.dw))
         self._line_twist: tuple[np.ndarray, np.ndarray] | None = None
+        self._line_twist6: np.ndarray | None = None
+        self._lists: tuple[list[float], list[float], list[float], list[float], list[float]] | None = None
         angle_mm = float(np.linalg.norm(self.dw)) * MM_PER_RAD
         self._delta = p1 - p0
         if ctrl is None:
@@ -120,10 +122,41 @@ class Primitive:
         t = self._tau_of(u)
         return np.asarray((1 - t) ** 2 * self.p0 + 2 * (1 - t) * t * self.ctrl + t**2 * self.p1, float)
 
+    def pose_at(self, u: float) -> Pose:
+        """:meth:`position` and :meth:`rotvec` at u as one pose of Python floats: the same arithmetic, element by
+        element, without a numpy call per 3-vector (the arm model asks at every 2 ms tick of a simulation)."""
+        lists = self._lists
+        if lists is None:
+            bend = self.p0 if self.ctrl is None else self.ctrl
+            lists = self._lists = (self.p0.tolist(), self._delta.tolist(), bend.tolist(), self.p1.tolist(),
+                                   np.asarray(self.rotvec0, float).tolist())
+        p0, delta, ctrl, p1, rv0 = lists
+        pos: list[float]
+        if self.ctrl is None:
+            if self.lin <= EPS_MM:
+                pos = p0
+            else:
+                k = float(u) / self.length
+                pos = [a + d * k for a, d in zip(p0, delta, strict=True)]
+        else:
+            t = self._tau_of(u)
+            a, b, c = (1 - t) ** 2, 2 * (1 - t) * t, t**2  # position()'s scalars, in its order
+            pos = [a * x + b * y + c * z for x, y, z in zip(p0, ctrl, p1, strict=True)]
+        rv = self.rotvec(u).tolist() if self._turns else rv0
+        return (pos[0], pos[1], pos[2], rv[0], rv[1], rv[2])
+
     def rotvec(self, u: float) -> np.ndarray:
         if not self._turns:
             return self.rotvec0
         return quat_to_rotvec(qmul(quat(self.dw * (u / self.length)), self.rot0))
+
+    def twist6_per_mm(self, u: float) -> np.ndarray:
+        """:meth:`twist_per_mm` as one 6-vector (linear, then angular; an array the caller must not change)."""
+        if self.ctrl is None:
+            if self._line_twist6 is None:
+                self._line_twist6 = np.concatenate(self.twist_per_mm(u))
+            return self._line_twist6
+        return np.concatenate(self.twist_per_mm(u))
 
     def twist_per_mm(self, u: float) -> tuple[np.ndarray, np.ndarray]:
         """(linear direction, angular rate) per mm of path at u (arrays the caller must not change: a line's are

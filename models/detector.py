@@ -40,16 +40,18 @@ Our own code; the background / matched filter / extreme-value recipe is the stan
 
 from __future__ import annotations
 
+import functools
 import math
-import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
-from scipy import ndimage, optimize
 
+# scipy.ndimage and scipy.optimize are imported by the functions that use them: together they take ~0.3 s to import,
+# and a launcher imports this module (through the map node) only to check the map's parameters, before it starts
+# anything (issue 40: a composed run's start-up is serial, launcher first)
 from models.peaks import peak_parts
-from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps
+from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, nanmedian_stack
 
 __all__ = ["BACKGROUND_DEGREE", "CAMERA_GUMBEL_LOC", "CAMERA_GUMBEL_SCALE", "CAMERA_REFERENCE_AREA_MM2",
            "FALSE_ALARM_LAWS", "GUMBEL_LOC", "GUMBEL_SCALE", "REFERENCE_AREA_MM2", "DetectorConfig", "Detection",
@@ -192,15 +194,22 @@ def fit_false_alarm_law(maxima: npt.ArrayLike, areas_mm2: npt.ArrayLike, referen
         z = (top - float(p[0])) / scale - off
         return float(np.sum(math.log(scale) + z + np.exp(-z)))
 
+    from scipy import optimize
+
     start = np.array([float(np.mean(top - off)), math.log(max(float(np.std(top)), 1e-3))])
     res = optimize.minimize(nll, start, method="Nelder-Mead", options={"xatol": 1e-7, "fatol": 1e-10})
     return float(res.x[0]), float(math.exp(float(res.x[1])))
 
 
+@functools.lru_cache(maxsize=64)
 def _disc(radius_mm: float, cell_mm: float) -> FloatArray:
+    """The cells of a disc (1.0 inside), read-only: made once per radius and cell size (a detection asks for each
+    at every map published)."""
     n = max(0, int(math.floor(radius_mm / cell_mm + 1e-9)))
     yy, xx = np.mgrid[-n : n + 1, -n : n + 1] * cell_mm
-    return np.asarray(xx**2 + yy**2 <= radius_mm**2 + 1e-9, dtype=np.float64)
+    disc = np.asarray(xx**2 + yy**2 <= radius_mm**2 + 1e-9, dtype=np.float64)
+    disc.setflags(write=False)
+    return disc
 
 
 def _fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArray) -> FloatArray:
@@ -239,9 +248,7 @@ def _drop_spikes(grid: FloatArray, ratio: float) -> FloatArray:
     padded = np.pad(grid, 1, constant_values=np.nan)
     ny, nx = grid.shape
     stack = np.stack([padded[dy : dy + ny, dx : dx + nx] for dy in range(3) for dx in range(3) if (dy, dx) != (1, 1)])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)   # a cell without valid neighbours: no median, kept
-        around = np.nanmedian(stack, axis=0)
+    around = nanmedian_stack(stack)  # a cell without valid neighbours: NaN, kept
     spike = np.isfinite(grid) & (around > 0) & (grid > ratio * around)
     return np.where(spike, np.nan, grid)
 
@@ -257,6 +264,8 @@ def significance(residual: FloatArray, valid: BoolArray, use: BoolArray, cell_mm
     """Per radius, the residual's disc mean times sqrt(valid cells in the disc), less that quantity's median over the
     ``use`` cells, in units of its robust scale there (at least ``floor``); NaN where the disc holds fewer than a
     third of its cells."""
+    from scipy import ndimage
+
     r = np.where(valid, residual, 0.0)
     ok = valid.astype(np.float64)
     out = []
@@ -284,6 +293,8 @@ def detect(snapshot: MapSnapshot, cfg: DetectorConfig | None = None, *, threshol
     background and noise may be estimated from (an adaptive planner's blind sweeps; default: every valid cell).
     Non-positive stiffness values are not valid cells (eq. 7 gives none on a sound map). Raises ValueError on a
     config it cannot use."""
+    from scipy import ndimage
+
     cfg = cfg or DetectorConfig()
     grid = fill_gaps(_drop_spikes(np.asarray(snapshot.stiffness, dtype=np.float64), cfg.spike_ratio))
     valid = np.isfinite(grid) & (grid > 0)
@@ -341,6 +352,8 @@ def peak_significance(det: Detection, floor: float = 2.0) -> float:
     """The largest significance on the map that the detector could report: the highest peak of the regions above
     ``floor`` that are not an edge row (:func:`detect`), else the map's largest significance. A blank map's false
     alarm is this exceeding the threshold; bench/detector_calibration.py fits the law of it."""
+    from scipy import ndimage
+
     sig = np.nan_to_num(det.significance, nan=-np.inf)
     labels, n = ndimage.label(sig > floor, structure=_EIGHT)
     tops = [float(sig[labels == k].max()) for k in range(1, n + 1) if not _edge_row(det, labels == k)]
@@ -366,6 +379,8 @@ def describe(det: Detection, snapshot: MapSnapshot, region: BoolArray, cfg: Dete
     """One detected region (non-empty ``region`` cells of ``det``'s grid) as an inclusion (module doc, step 5).
     ``part``: the region is one part of a region cut in two or more, and its extent stays within the smallest disc
     of it (the raised cells past the cut are the other part's)."""
+    from scipy import ndimage
+
     valid = np.isfinite(det.residual)
     cell = float(snapshot.resolution_mm)
     gy, gx = np.meshgrid(snapshot.y_mm, snapshot.x_mm, indexing="ij")

@@ -229,3 +229,25 @@ def test_blend_at_a_reversal_becomes_a_stop() -> None:
     trace = run(arm, limit_s=5.0)
     assert min(abs(t[1][0] - 10.0) for t in trace) < 1e-9  # went all the way to the waypoint
     assert arm.done and arm.pose == pose(0, 0.01, 0)
+
+
+def test_a_path_pieces_pose_and_twist_are_its_position_rotation_and_twist_to_the_bit() -> None:
+    """The arm model reads each tick's pose and twist with Primitive.pose_at / twist6_per_mm (issue 40: no numpy
+    call per 3-vector); they are position(), rotvec() and twist_per_mm() to the last bit, on lines, blends, pure
+    rotations."""
+    from models.arm_path import PathPlan
+
+    turn = (0.2, math.pi - 0.3, 0.1)
+    plan = PathPlan(pose(0, 0, 100), [ArmTarget(pose(40, 0, 100), 50.0, 500.0, 8.0),
+                                      ArmTarget(pose(40, 30, 90, turn), 50.0, 500.0, 5.0),
+                                      ArmTarget(pose(40, 30, 90, DOWN), 50.0, 500.0),
+                                      ArmTarget(pose(40, 30, 90, DOWN), 50.0, 500.0)])
+    kinds = {(p.ctrl is not None, bool(np.any(p.dw)), p.lin > 1e-9) for p in plan.prims}
+    assert {(True, True, True), (False, True, False), (False, False, True)} <= kinds
+    for prim in plan.prims:
+        for u in np.linspace(0.0, prim.length, 41).tolist() + [prim.length * 0.3337]:
+            want = tuple(np.concatenate((prim.position(u), prim.rotvec(u))).tolist())
+            got = prim.pose_at(u)
+            assert np.array(got).tobytes() == np.array(want).tobytes() and all(type(v) is float for v in got)
+            lin, ang = prim.twist_per_mm(u)
+            assert (prim.twist6_per_mm(u) * 7.5).tobytes() == np.concatenate((lin * 7.5, ang * 7.5)).tobytes()

@@ -93,6 +93,50 @@ def test_incremental_and_vectorised_add_agree() -> None:
     assert np.nanmedian(a.spread) == pytest.approx(1.0, abs=0.15)
 
 
+def _reference_medians(cells: np.ndarray, values: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-cell median and 1.4826 * MAD by one sort of every sample by (cell, value): what a snapshot computed
+    before it kept each cell's samples sorted (issue 40)."""
+    count = np.bincount(cells, minlength=n_cells)
+
+    def grouped(v: np.ndarray) -> np.ndarray:
+        ordered = v[np.lexsort((v, cells))]
+        start = np.cumsum(count) - count
+        out = np.full(n_cells, np.nan)
+        has = count > 0
+        lo, hi = start[has] + (count[has] - 1) // 2, start[has] + count[has] // 2
+        out[has] = 0.5 * (ordered[lo] + ordered[hi])
+        return out
+
+    median = grouped(values)
+    return median, 1.4826 * grouped(np.abs(values - median[cells]))
+
+
+def test_snapshots_between_adds_give_the_all_at_once_medians_to_the_bit() -> None:
+    """A snapshot recomputes only the cells that changed since the last one; the result is the same, bit for bit,
+    as sorting every sample at once (ties, even and odd counts, cells under min_count included)."""
+    rng = np.random.default_rng(3)
+    n = 5000
+    x, y = rng.uniform(0, 11, n), rng.uniform(0, 8, n)
+    x[[100, 2000, 4999]] = 11.5  # a column of three samples: under min_count
+    v = np.round(rng.lognormal(3.0, 0.3, n), 1)  # rounded: many ties within a cell
+    g = StiffnessGrid(0, 0, 12, 8, 1.0, min_count=4)
+    for i in range(0, n, 37):
+        g.add(x[i : i + 37], y[i : i + 37], v[i : i + 37])
+        if i % 3 == 0:
+            g.snapshot()
+    snap = g.snapshot()
+    cells = y.astype(np.int64) * g.nx + x.astype(np.int64)
+    median, spread = _reference_medians(cells, v, g.nx * g.ny)
+    count = np.bincount(cells, minlength=g.nx * g.ny)
+    thin = count < 4
+    assert thin.any() and (count % 2 == 0).any() and (count % 2 == 1).any()
+    median[thin] = np.nan
+    spread[thin] = np.nan
+    assert snap.count.ravel().tolist() == count.tolist()
+    assert snap.stiffness.ravel().tobytes() == median.tobytes()
+    assert snap.spread.ravel().tobytes() == spread.tobytes()
+
+
 def test_grid_rejects_bad_geometry() -> None:
     for args in ((0, 0, 0, 1, 1), (0, 0, 1, 1, 0), (0, 0, math.nan, 1, 1)):
         with pytest.raises(ValueError, match="StiffnessGrid"):
@@ -126,3 +170,26 @@ def test_inclusions_json_matches_design_contract() -> None:
     assert json.loads(json.dumps(out)) == out
     rec = to_inclusions_json([replace(inc, snr=7.5, false_alarm=1e-4)])[0]
     assert rec == {**out[0], "snr": 7.5, "false_alarm": 1e-4}   # the detector's significance, when known
+
+
+def test_nanmedian_stack_is_numpys_nanmedian_to_the_bit() -> None:
+    """The detector's and the gap filler's median of each 3 x 3 neighbourhood: numpy's nanmedian along the first
+    axis, bit for bit (odd and even counts of valid values, ties, columns of NaN alone, infinities)."""
+    import warnings
+
+    from models.stiffness_map import nanmedian_stack
+
+    rng = np.random.default_rng(5)
+    for rows in (1, 2, 8, 9):
+        stack = np.round(rng.lognormal(3.0, 0.5, (rows, 17, 13)), 2)
+        stack[rng.random(stack.shape) < 0.4] = np.nan
+        stack[:, 0, 0] = np.nan
+        stack[0, 1, 1] = np.inf
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            want = np.nanmedian(stack, axis=0)
+        got = nanmedian_stack(stack)
+        assert got.dtype == want.dtype and got.shape == want.shape
+        assert got.tobytes() == want.tobytes()
+    counts = (~np.isnan(stack)).sum(axis=0)
+    assert {0, 1, 2} <= set(counts.ravel().tolist()) and (counts % 2 == 1).any()

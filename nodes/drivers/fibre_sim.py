@@ -166,17 +166,13 @@ class SimFibreDriver:
                         self.skipped)
         stamps = np.arange(self._next_ns, end + 1, self._period_ns, dtype=np.int64)
         self._next_ns = int(stamps[-1]) + self._period_ns
-        poses: list[tuple[float, ...]] = []
-        keep: list[int] = []
-        for t in stamps.tolist():
-            p = self._pose.at(t, max_extrapolate_ns=_POSE_HOLD_NS)
-            if p is not None:
-                poses.append(p)
-                keep.append(t)
+        grid = stamps.tolist()
+        at = self._pose.at_each(grid, max_extrapolate_ns=_POSE_HOLD_NS)
+        keep = [t for t, p in zip(grid, at, strict=True) if p is not None]
         if not keep:
             return []
-        xyz = np.asarray(poses)
-        pressure = np.array([(self._pressure.at(t, 500_000_000) or (0.0,))[0] for t in keep])
+        xyz = np.asarray([p for p in at if p is not None])
+        pressure = np.array([(p or (0.0,))[0] for p in self._pressure.at_each(keep, 500_000_000)])
         heights = self.heights(xyz[:, 0], xyz[:, 1], xyz[:, 2], pressure, np.asarray(keep, dtype=np.int64))
         out = []
         for t, (h1, h2, h3, h4) in zip(keep, heights.tolist(), strict=True):

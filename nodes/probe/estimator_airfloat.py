@@ -124,8 +124,9 @@ class AirfloatEstimator:
                                               c.indenter_radius_mm)
         d_in, tilt = np.atleast_1d(d_in) + c.depth_offset_mm, np.atleast_1d(tilt)
         tol = c.max_gap_ns
-        poses = [self.pose.at(m.stamp_ns, tol) for m in batch]
-        forces = [self.force.at(m.stamp_ns, tol) for m in batch]
+        stamps = [m.stamp_ns for m in batch]
+        poses = self.pose.at_each(stamps, tol)
+        forces = self.force.at_each(stamps, tol)
         xyz = np.array([p if p is not None else (np.nan,) * 3 for p in poses])
         f = np.array([x[0] if x is not None else np.nan for x in forces])
         fault = np.array([x is not None and x[1] > 0 for x in forces])
@@ -141,43 +142,48 @@ class AirfloatEstimator:
             e = np.asarray(corrected_modulus(f, d_in, c.indenter_radius_mm, np.where(ok_geom, thick, 1.0),
                                              c.poisson_ratio), dtype=float)
         out = []
-        xyz_rows = xyz.tolist()  # Python floats: per-element numpy calls cost ~1 us each, 150 a batch
+        # Python floats and bools of the same values, each array in one call: per-element numpy indexing and
+        # comparisons cost ~0.1-1 us each, a dozen per sample (issue 40)
+        xyz_rows = xyz.tolist()
+        d_l, tilt_l, f_l, e_l, thick_l = d_in.tolist(), tilt.tolist(), f.tolist(), e.tolist(), thick.tolist()
+        fault_l, ring_l, geom_l = fault.tolist(), np.asarray(ring_on).tolist(), ok_geom.tolist()
         for i, m in enumerate(batch):
             reason = ""
+            fi, di = f_l[i], d_l[i]
             if poses[i] is None:
                 reason = "stale_pose"
             elif forces[i] is None:
                 reason = "stale_pressure"
-            elif fault[i]:
+            elif fault_l[i]:
                 reason = "pressure_fault"
-            elif max(m.h_mm) >= c.stroke_mm - 1e-6 or f[i] <= c.min_force_n:
+            elif max(m.h_mm) >= c.stroke_mm - 1e-6 or fi <= c.min_force_n:
                 reason = "no_contact"
-            elif not ring_on[i]:
+            elif not ring_l[i]:
                 reason = "ring_off_specimen"
             elif m.h_mm[3] > c.stroke_mm - c.stroke_margin_mm:
                 reason = "at_stroke_end"
-            elif not ok_geom[i]:
+            elif not geom_l[i]:
                 reason = "off_geometry"
-            elif tilt[i] > c.max_tilt_rad:
+            elif tilt_l[i] > c.max_tilt_rad:
                 reason = "tilt_too_large"
-            elif d_in[i] < c.min_depth_mm:
+            elif di < c.min_depth_mm:
                 reason = "too_shallow"
-            elif d_in[i] > c.max_depth_mm:
+            elif di > c.max_depth_mm:
                 reason = "too_deep"
-            elif not np.isfinite(e[i]):
+            elif not math.isfinite(e_l[i]):
                 reason = "no_solution"
             valid = not reason
             x, y, z = (v if math.isfinite(v) else 0.0 for v in xyz_rows[i])
             out.append(StiffnessSample(
                 stamp_ns=m.stamp_ns, model="airfloat", x_mm=x, y_mm=y, z_mm=z,
-                value=float(e[i]) if valid else float("nan"), unit="kPa", valid=valid, reason=reason,
-                d_in_mm=float(d_in[i]), force_n=float(f[i]) if np.isfinite(f[i]) else 0.0,
-                tilt_rad=float(tilt[i]), thickness_mm=float(thick[i]) if ok_geom[i] else 0.0,
+                value=e_l[i] if valid else float("nan"), unit="kPa", valid=valid, reason=reason,
+                d_in_mm=di, force_n=fi if math.isfinite(fi) else 0.0,
+                tilt_rad=tilt_l[i], thickness_mm=thick_l[i] if geom_l[i] else 0.0,
             ))
             if valid and self.in_ramp:
-                self.ramp_f.append(float(f[i]))
-                self.ramp_d.append(float(d_in[i]))
-                self.ramp_t.append(float(thick[i]))
+                self.ramp_f.append(fi)
+                self.ramp_d.append(di)
+                self.ramp_t.append(thick_l[i])
                 self.ramp_xy = (x, y)
         return out
 

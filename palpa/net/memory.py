@@ -71,8 +71,9 @@ class MemoryBus:
     def _route(self, frames: list[bytes], latched: bool) -> None:
         if latched:
             self._cache[frames[0]] = frames[1:]
+        delivery = Delivery(frames, False)  # one for every listener: the first to parse it parses it for all
         for t in self.listeners(frames[0]):
-            t.inbox.append(Delivery(list(frames), False))
+            t.inbox.append(delivery)
 
     def listeners(self, topic: bytes) -> list[MemoryTransport]:
         """The open transports with a subscription matching ``topic`` (ZeroMQ's prefix rule)."""

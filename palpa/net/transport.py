@@ -34,6 +34,7 @@ from palpa.net.handshake import HANDSHAKE_EVENTS, HandshakeWatch
 from palpa.net.keys import load_secret_key
 from palpa.net.options import TransportOptions
 from palpa.net.reach import DirectReach
+from palpa.net.wire import Envelope
 
 __all__ = ["Delivery", "SendFn", "Transport", "TransportOptions", "ZmqTransport", "curve_client_options"]
 
@@ -45,11 +46,18 @@ SendFn = Callable[[Sequence[bytes], bool], None]
 _SUBSCRIPTIONS_GRACE_MS = 100
 
 
-class Delivery(msgspec.Struct, frozen=True, gc=False):
-    """One envelope as received (a Struct, not a NamedTuple: made once per message, ~4x cheaper)."""
+class Delivery(msgspec.Struct, gc=False):
+    """One envelope as received (a Struct, not a NamedTuple: made once per message, ~4x cheaper).
+
+    An in-memory bus hands the same Delivery to every node that listens (its frames are never changed); the first
+    receiver to parse it keeps the parsed envelope in :attr:`envelope`, and the others take it from there instead of
+    parsing the same bytes again (issue 40: a pose on its way to three nodes was parsed three times)."""
 
     frames: list[bytes]
     from_cache: bool
+    envelope: Envelope | None = None
+    """The frames parsed (:func:`palpa.net.wire.parse_envelope`), once some receiver did; None before, or when they
+    are malformed (each receiver then counts the error itself)."""
 
 
 class Transport(Protocol):

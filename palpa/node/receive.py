@@ -157,7 +157,9 @@ class Receiver:
                 self.count_error(topic, stats, f"message of {size} bytes refused (max_msg_bytes {self.max_bytes})")
             return
         try:
-            env = parse_envelope(frames)
+            env = delivery.envelope
+            if env is None:  # the first receiver of a shared delivery parses it for the others (Delivery)
+                env = delivery.envelope = parse_envelope(frames)
             items = env.messages() if rstats is not None else None
         except DecodeError as exc:
             stats = sub.stats if sub is not None else rstats

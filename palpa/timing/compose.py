@@ -346,9 +346,8 @@ class Composition:
             frames = d.frames
             if self._ours(frames):
                 continue  # one of ours, back from the proxy
-            topic = frames[0]
-            for t in self.bus.listeners(topic):
-                t.inbox.append(Delivery(list(frames), d.from_cache))
+            for t in self.bus.listeners(frames[0]):
+                t.inbox.append(d)  # one delivery for every listener (Delivery)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
