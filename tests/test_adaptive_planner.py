@@ -106,7 +106,8 @@ def test_the_planners_knobs_default_alike_in_the_model_the_node_and_the_launch_f
     node = AdaptivePlanner.Params()
     args = load_launch(REPO / "launch" / "scan_adaptive_sim.yaml", {}, run_dir=Path("runs") / "unused").args
     shared = [f.name for f in fields(PlannerConfig) if f.name != "region_mm" and hasattr(node, f.name)]
-    assert {"near_miss", "miss_probability", "suspect", "cover_column_mm", "interior_gap_mm"} <= set(shared)
+    assert {"near_miss_false_alarm", "miss_probability", "suspect_false_alarm", "cover_column_mm",
+            "interior_gap_mm"} <= set(shared)
     def plain(v: object) -> object:   # a list param or arg for a tuple field
         return tuple(v) if isinstance(v, list) else v
 
@@ -131,7 +132,8 @@ def test_a_probes_late_estimates_count_as_that_probes_not_the_next_ones(tmp_path
 
     g = GraphHarness()
     planner = g.add(AdaptivePlanner, {"region_mm": [0.0, 0.0, 30.0, 30.0], "seed_spacing_mm": 14.0,
-                                      "max_probes": 30, "output_dir": str(tmp_path)}, name="planner")
+                                      "max_probes": 30, "output_dir": str(tmp_path),
+                                      "coarse_pass": False}, name="planner")   # blind and resolving sweeps mixed
     scanner = g.add(palpa.Node, name="scanner")
     status = scanner.publisher("robot/scan_status", ScanStatus, latched=True)
     status.publish(ScanStatus(stamp_ns=g.clock.now_ns(), state="idle", line=0, lines=0, progress=0.0, eta_s=0.0))
