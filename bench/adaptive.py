@@ -16,7 +16,11 @@ every map with ``models.scoring`` against its phantom, and compares per phantom:
 
 Writes ``compare.csv`` and ``error_vs_probes.png`` (error and inclusions found against probes spent: the adaptive
 planner's detection map after every probe and the raster's map as it grows, both read from their recordings and scored as
-a final map is) into OUT. The last line is JSON: ``probe_ratio`` (the probes the planner spent until its own stop
+a final map is) into OUT. The last line is JSON: ``time_ratio`` (simulated scan time, from the first measuring
+motion after the touch-off to the planner's stop or the raster's end, adaptive over raster, summed over every run),
+``path_ratio`` (the arm's path over the same span, likewise), ``time_ratio_localise`` (the planner's time pro rata to
+the probe after which its map finds what the raster's final map found, over the raster's whole scan time, over the
+runs where that happens), ``probe_ratio`` (the probes the planner spent until its own stop
 rule stopped it, over the raster's probe equivalents, summed over the phantoms where the adaptive map found every
 inclusion the raster's found: adaptive over raster probes at equal or better detection), ``probe_ratio_all`` (the
 same over every phantom, whatever was missed), ``probe_ratio_localise`` (the probes after which the recorded detection map
@@ -224,6 +228,7 @@ def main(argv: list[str] | None = None) -> int:
             "found_raster": r["found"], "found_adaptive": a["found"], "missed_vs_raster": missed,
             "probes_raster_eq": round(eq, 1), "probes_adaptive": plan["probes"], "probe_ratio": plan["probes"] / eq,
             "path_ratio": a["path_mm"] / r["path_mm"], "samples_ratio": a["probes"] / max(r["probes"], 1),
+            "path_raster_mm": r["path_mm"], "path_adaptive_mm": a["path_mm"],
             "time_raster_s": r["scan_s"], "time_adaptive_s": plan["sim_s"],
             "err_raster_mm": r["mean_centroid_error_mm"], "err_adaptive_mm": a["mean_centroid_error_mm"],
             "fp_raster": r["false_positives"], "fp_adaptive": a["false_positives"],
@@ -270,6 +275,10 @@ def main(argv: list[str] | None = None) -> int:
     def pooled(key: str, over: list[dict[str, Any]]) -> float | None:
         return sum(r[key] for r in over) / sum(r["probes_raster_eq"] for r in over) if over else None
 
+    def pooled_over(num: str, den: str, over: list[dict[str, Any]]) -> float | None:
+        ok = [r for r in over if all(isinstance(r[k], int | float) and math.isfinite(r[k]) for k in (num, den))]
+        return round(sum(r[num] for r in ok) / sum(r[den] for r in ok), 4) if ok else None
+
     def redraw(over: dict[tuple[str, int], dict[str, Any]], method: str) -> float | None:
         if opts.noise_seeds < 2:
             return None
@@ -280,6 +289,9 @@ def main(argv: list[str] | None = None) -> int:
     print(json.dumps({"probe_ratio": pooled("probes_adaptive", complete),
                       "probe_ratio_all": pooled("probes_adaptive", rows),
                       "probe_ratio_localise": pooled("probes_to_localise", localised),
+                      "time_ratio": pooled_over("time_adaptive_s", "time_raster_s", rows),
+                      "path_ratio": pooled_over("path_adaptive_mm", "path_raster_mm", rows),
+                      "time_ratio_localise": pooled_over("localise_s_adaptive", "time_raster_s", localised),
                       "missed_vs_raster": sum(r["missed_vs_raster"] for r in rows),
                       "missed_unsensed": (sum(r["missed_unsensed"] for r in rows)
                                           if all(r["missed_unsensed"] != "" for r in rows) else None),
