@@ -237,3 +237,39 @@ def test_estimates_lost_on_the_way_or_none_at_all_make_the_planners_run_incomple
             "ok": "", "lost": "stiffness/sample lost 2 message(s) and its publisher restarted 0 time(s)",
             "none": "no valid stiffness estimate reached the planner: there is no map"}[out]
         h.close()
+
+
+def test_the_planner_keeps_only_what_a_probe_measured_on_its_measuring_part(tmp_path: Path) -> None:
+    """The scanner's answer says when the probe measured; the transit over the line at the retract height (before)
+    and the retract (after) are heard on the line too, and left out of the planner's map, as out of the answer."""
+    from messages import ProbeResult, StiffnessSample
+    from nodes.scanner.adaptive_planner import AdaptivePlanner
+    from palpa.testing import NodeHarness
+
+    h = NodeHarness(AdaptivePlanner, {"region_mm": [0.0, 0.0, 30.0, 30.0], "output_dir": str(tmp_path)})
+    p, now = h.node, h.clock.now_ns()
+    p.inflight, p.inflight_blind, p.inflight_since_ns = (10.0, 12.0), True, now
+
+    def at(stamp_ns: int, value: float) -> StiffnessSample:
+        return StiffnessSample(stamp_ns=stamp_ns, model="airfloat", x_mm=10.0, y_mm=12.0, z_mm=1.0, value=value,
+                               unit="kPa", valid=True)
+
+    for i, value in ((1, 99.0), (2, 12.0), (3, 12.0), (4, 99.0)):   # transit, two on the line, retract
+        p.on_sample(at(now + i * 1_000_000, value))
+    assert p.pending == [] and len(p.held) == 4   # nothing binned before the answer says when
+
+    class Answered:
+        def exception(self) -> None:
+            return None
+
+        def result(self) -> ProbeResult:
+            return ProbeResult(x_mm=10.0, y_mm=12.0, value=12.0, unit="kPa", samples=2, mad=0.0, duration_s=1.0,
+                               measured_from_ns=now + 2_000_000, measured_to_ns=now + 3_000_000)
+
+    p._update_belief = lambda: None   # type: ignore[method-assign]   # the binning, not the GP, is under test
+    p.on_result(Answered())   # type: ignore[arg-type]
+    assert [v for _, _, v, _ in p.pending] == [12.0, 12.0] and p.held == []
+    p.on_sample(at(now + 5_000_000, 99.0))   # the last probe's, arriving late but measured after its span
+    p.on_sample(at(now + 2_500_000, 12.0))   # ... and one measured inside it
+    assert [v for _, _, v, _ in p.pending] == [12.0, 12.0, 12.0]
+    h.close()
