@@ -344,3 +344,20 @@ def test_tare_over_the_serial_driver_zeroes_the_heights() -> None:
             assert h.published("probe/heights")[-1].h_mm == pytest.approx((0.0, 0.0, 0.0, 0.0), abs=0.05)
         finally:
             h.close()
+
+
+def test_a_sweep_starts_from_the_end_of_its_line_nearer_the_arm() -> None:
+    """A planner going down a column of short sweeps would otherwise travel past each line to come back up it."""
+    for home_y, first_y in ((20.0, 27.0), (40.0, 33.0)):
+        g = GraphHarness()
+        g.add(RobotScanner, {"autostart": False, "home_mm": [30.0, home_y, 8.0], "watch_topic": "",
+                             "contact_z_mm": 5.0, "speed_mm_s": 10.0})
+        op = g.add(palpa.Node, name="operator")
+        fut = op.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=60).call_async(
+            ProbeAt(x_mm=30.0, y_mm=30.0, radius_mm=4.0))
+        _lagging_estimator(g, fut, 0.0, 30.0)
+        assert fut.result().samples >= 10
+        down = [q for q in g.published("robot/pose") if abs(q.z_mm - 5.0) < 0.05]
+        assert down and down[0].y_mm == pytest.approx(first_y, abs=0.3), (home_y, down[0])
+        assert down[-1].y_mm == pytest.approx(60.0 - first_y, abs=0.3), (home_y, down[-1])
+        g.close()

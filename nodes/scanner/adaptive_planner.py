@@ -8,9 +8,11 @@ the planner carries on with the next best point.
 
 What it learns from: every valid ``stiffness/sample`` binned into the belief grid (the per-cell median, as the map
 aggregator's), so a sweep teaches it the cells it crossed, not one number. The belief is
-:func:`models.adaptive.fit_belief` (GP regression). With ``stop_rule: detect`` (default) the next point and the end
-are :func:`models.adaptive_detect.decide`'s: cover the region until an inclusion of the smallest size of interest is
-unlikely to hide, sample every candidate's boundary, then stop; inclusions are detected on the measured cells (GP
+:func:`models.adaptive.fit_belief` (GP regression). With ``stop_rule: detect`` (default) the planner first makes
+the coarse pass (models.adaptive_route: the whole covering lattice, chosen before any sweep and visited in one short
+route), then the next point and the end are :func:`models.adaptive_detect.decide`'s: sample every candidate's
+boundary (suspects and detections by the map detector's own false-alarm law), the nearest open point first, cover
+what is left until an inclusion of the smallest size of interest is unlikely to hide, then stop; inclusions are detected on the measured cells (GP
 mean only near them) against the baseline of the stiffness-blind probes. With ``stop_rule: lse`` the straddle /
 ILS-UCB acquisition (:func:`models.adaptive.next_probe`) and LSE's ambiguous area (:func:`models.adaptive.should_stop`)
 on the GP mean.

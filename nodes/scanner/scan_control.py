@@ -141,6 +141,11 @@ class ScanControl:
         half = req.length_mm / 2
         ends = (req.x_mm, req.y_mm - half, req.x_mm, req.y_mm + half) if p.axis == "y" else \
             (req.x_mm - half, req.y_mm, req.x_mm + half, req.y_mm)
+        # a sweep starts from the end of its line nearer the arm: a planner going down a column of short sweeps
+        # would otherwise travel past each line to come back up it (a line is read alike both ways, as a raster's)
+        here = self.node.driver.state().pose[:2]
+        if math.dist(here, ends[2:]) < math.dist(here, ends[:2]):
+            ends = (*ends[2:], *ends[:2])
         common: dict[str, Any] = dict(spacing_mm=p.spacing_mm, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
                       approach_clearance_mm=p.approach_clearance_mm, retract_clearance_mm=p.retract_clearance_mm,
                       transit_speed_mm_s=p.transit_speed_mm_s)
