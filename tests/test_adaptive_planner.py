@@ -66,9 +66,9 @@ def test_planner_probes_through_the_scanner_carries_on_after_refusals_and_is_det
     assert a["refused"] == 3 * len(a["given_up"])               # each given up after exactly its retries
     # a run that lost probes does not end clean: the planner exits 1 (above) and says what is missing
     assert a["incomplete"].startswith(f"{len(a['given_up'])} probe(s) given up after refusals, at ({a['given_up'][0][0]:.1f}, ")
-    # every probe says why it was made: the seed grid first, then what the acquisition chose it for
-    assert len(a["why"]) == a["probes"] and a["why"][0] == "seed"
-    assert set(a["why"]) <= {"seed", "covering, lattice", "covering", "resolving a candidate",
+    # every probe says why it was made: the coarse pass first, then what the acquisition chose it for
+    assert len(a["why"]) == a["probes"] and a["why"][0] == "coarse pass"
+    assert set(a["why"]) <= {"coarse pass", "covering, lattice", "covering", "resolving a candidate",
                              "measuring a detection's disc", "no sweep reveals more"}
     assert beliefs and beliefs[-1].final and len(beliefs[-1].stiffness) == 9 * 9
     assert np.all(np.isfinite(beliefs[-1].stiffness))

@@ -102,7 +102,7 @@ class AdaptivePlanner(palpa.Node):
         """detect: how far an inclusion's reach strays from that, as equally likely offsets (PlannerConfig)."""
         interior_gap_mm: float = 3.0
         """detect: every cell of a detected inclusion's disc within this of a measured cell before stopping (0: off)."""
-        miss_probability: float = 0.01
+        miss_probability: float = 0.02
         """detect: the chance, below which the planner may stop, that such an inclusion hides unsensed."""
         suspect_false_alarm: float = 0.4
         """detect: regions the map detector reports at this false-alarm rate per map get their boundary sampled."""
@@ -125,7 +125,7 @@ class AdaptivePlanner(palpa.Node):
         """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
         cover_column_mm: float = 8.0
         """detect: the covering sweeps on a staggered lattice with columns this far apart (PlannerConfig; 0: off)."""
-        cover_period_mm: float = 12.0
+        cover_period_mm: float = 14.0
         """detect: along a lattice column a sweep every this far, the next column's half a period along."""
         mode: Literal["sweep", "indent"] = "sweep"
         """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
