@@ -77,6 +77,9 @@ def test_the_coarse_pass_covers_the_region_to_the_tolerance_each_sweep_once_alon
     # the route is no longer than the lattice's own serpentine order through the same points
     assert route_length(points) <= route_length(sorted(points, key=lambda p: (p[0], p[1])))
     assert coarse_pass(PlannerConfig((0.0, 0.0, 40.0, 40.0), sweep_mm=0.0)) == []   # presses: no lattice
+    # a region that is no whole number of cells: its last column's sweeps on its edge, not a cell centre past it
+    odd = PlannerConfig((6.0, 6.0, 38.9, 47.9), sweep_mm=6.0, cover_column_mm=8.0, cover_period_mm=14.0)
+    assert odd.grid()[0][-1] > 38.9 and all(6.0 <= x <= 38.9 for x, _ in coarse_pass(odd))
 
 
 def test_suspects_are_what_the_map_detector_reports_at_the_looser_false_alarm_rate() -> None:
