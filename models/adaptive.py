@@ -31,7 +31,7 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = ["Belief", "PlannerConfig", "acquisition", "ambiguous", "fit_belief", "footprint_cells", "footprint_score",
-           "initial_design", "level", "near_probed", "next_probe", "probe_points", "should_stop",
+           "initial_design", "inside", "level", "near_probed", "next_probe", "probe_points", "should_stop",
            "unresolved"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -339,7 +339,16 @@ def next_probe(belief: Belief, probed: Sequence[tuple[float, float]], cfg: Plann
     if not np.isfinite(score).any() or float(np.max(score)) <= 0.0:
         score = np.where(np.isfinite(score), straddle, -np.inf)
     i = int(np.argmax(score))
-    return float(gx.flat[i]), float(py_of.flat[i])
+    return inside(cfg, float(gx.flat[i]), float(py_of.flat[i]))
+
+
+def inside(cfg: PlannerConfig, x: float, y: float) -> tuple[float, float]:
+    """The point (x, y) moved onto the region when it lies past its edge: the grid's last cell may reach past the
+    region (:meth:`PlannerConfig.grid`), and its centre with it, where the probe's ring or tips are off the specimen
+    and no estimate is valid (fresh set 13200-13219: sweeps given up at x = 39.0 with the region ending at 38.9;
+    the camera's presses at the edge of a region that is no whole number of 4 mm cells)."""
+    x0, y0, x1, y1 = cfg.region_mm
+    return min(max(x, x0), x1), min(max(y, y0), y1)
 
 
 def should_stop(belief: Belief, probes: int, cfg: PlannerConfig,

@@ -62,6 +62,7 @@ from models.adaptive import (
     PlannerConfig,
     footprint_cells,
     footprint_score,
+    inside,
     near_probed,
     next_probe,
     probe_points,
@@ -297,6 +298,7 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
         else:
             i = int(np.argmax(ok))
         kind = "covering, lattice" if on_lattice else "covering"
-        return Decision(False, f"{kind} ({state})", (float(px.flat[i]), float(py.flat[i])), True, miss, n_open, kind)
+        point = inside(cfg, float(px.flat[i]), float(py.flat[i]))
+        return Decision(False, f"{kind} ({state})", point, True, miss, n_open, kind)
     kind = "no sweep reveals more"
     return Decision(False, f"{kind} ({state})", next_probe(belief, probed, cfg, observed), False, miss, n_open, kind)

@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from models.adaptive import PlannerConfig, probe_points
+from models.adaptive import PlannerConfig, inside, probe_points
 from models.adaptive_cover import cover_lattice, fill_cells
 
 __all__ = ["coarse_pass", "coarse_spacing", "order_route", "route_length"]
@@ -109,10 +109,7 @@ def coarse_pass(cfg: PlannerConfig, start: Point | None = None) -> list[Point]:
         return []
     cells = lattice + fill_cells(cfg, lattice)
     px, py = probe_points(None, cfg)
-    # a column in the grid's last, partial cell lies past the region's edge (fresh set 13200-13219: sweeps at
-    # x = 39.0 with the region ending at 38.9, the SPS ring off the specimen, no valid estimate, given up): on it
-    x0, _, x1, _ = cfg.region_mm
-    points = [(min(max(float(px[iy, ix]), x0), x1), float(py[iy, ix])) for iy, ix in cells]
+    points = [inside(cfg, float(px[iy, ix]), float(py[iy, ix])) for iy, ix in cells]   # a partial last cell
     if start is None:   # from the lattice corner nearest the region's origin: the scanner's home side
         x0, y0 = cfg.region_mm[:2]
         start = min(points, key=lambda p: (math.dist(p, (x0, y0)), p))

@@ -111,3 +111,17 @@ def test_a_near_miss_is_decided_by_its_false_alarm_probability_under_the_detecto
     from dataclasses import replace
     assert len(near_misses(suspects, detected, replace(cfg, near_miss_false_alarm=p * 1.01))) == 1
     assert near_misses(suspects, detected, replace(cfg, near_miss_false_alarm=p * 0.99)) == []
+
+
+def test_a_press_chosen_in_the_grids_partial_last_cell_is_made_on_the_regions_edge() -> None:
+    """The camera's presses: the most ambiguous cell is the last column, whose centre lies past the region; the
+    press is made on the region's edge, where the probe's tips are still on the specimen."""
+    from models.adaptive import Belief, next_probe
+
+    cfg = PlannerConfig((0.0, 0.0, 8.9, 8.9), resolution_mm=2.0)   # cells centred at 1 ... 9: the last one past 8.9
+    xs, ys = cfg.grid()
+    std = np.full((len(ys), len(xs)), 0.01)
+    std[:, -1] = 5.0   # only the last column is uncertain
+    b = Belief(xs, ys, np.full(std.shape, 10.0), std, 10.0, 12.0)
+    x, y = next_probe(b, [], cfg)
+    assert xs[-1] > 8.9 and x == 8.9 and 0.0 <= y <= 8.9
