@@ -332,21 +332,23 @@ def next_probe(belief: Belief, probed: Sequence[tuple[float, float]], cfg: Plann
     boundary between its two middle cells."""
     score = footprint_score(belief, cfg, observed)
     straddle = acquisition(belief, cfg.beta)
-    gx, py_of = probe_points(belief, cfg)
-    near = near_probed(gx, py_of, probed, cfg.min_separation_mm)
+    x0, y0, x1, y1 = cfg.region_mm
+    gx, py_of = (np.clip(v, lo, hi) for v, lo, hi in zip(probe_points(belief, cfg), (x0, y0), (x1, y1), strict=True))
+    near = near_probed(gx, py_of, probed, cfg.min_separation_mm)   # where the probe would go (:func:`inside`)
     score[near] = -np.inf
     straddle[near] = -np.inf
     if not np.isfinite(score).any() or float(np.max(score)) <= 0.0:
         score = np.where(np.isfinite(score), straddle, -np.inf)
     i = int(np.argmax(score))
-    return inside(cfg, float(gx.flat[i]), float(py_of.flat[i]))
+    return float(gx.flat[i]), float(py_of.flat[i])
 
 
 def inside(cfg: PlannerConfig, x: float, y: float) -> tuple[float, float]:
     """The point (x, y) moved onto the region when it lies past its edge: the grid's last cell may reach past the
     region (:meth:`PlannerConfig.grid`), and its centre with it, where the probe's ring or tips are off the specimen
-    and no estimate is valid (fresh set 13200-13219: sweeps given up at x = 39.0 with the region ending at 38.9;
-    the camera's presses at the edge of a region that is no whole number of 4 mm cells)."""
+    and no estimate is valid (fresh set 13200-13219: sweeps given up at x = 39.0 with the region ending at 38.9).
+    :func:`next_probe` and the covering choice (models.adaptive_detect) clip their candidate points alike, and skip
+    those near a probe made or given up where it went."""
     x0, y0, x1, y1 = cfg.region_mm
     return min(max(x, x0), x1), min(max(y, y0), y1)
 

@@ -62,7 +62,6 @@ from models.adaptive import (
     PlannerConfig,
     footprint_cells,
     footprint_score,
-    inside,
     near_probed,
     next_probe,
     probe_points,
@@ -276,8 +275,9 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
         point = order_route(list(kinds), last)[0]
         kind = kinds[point]
         return Decision(False, f"{kind} ({state})", point, False, miss, n_open, kind)
-    px, py = probe_points(belief, cfg)
-    near = near_probed(px, py, probed, cfg.min_separation_mm)
+    x0, y0, x1, y1 = cfg.region_mm
+    px, py = (np.clip(v, lo, hi) for v, lo, hi in zip(probe_points(belief, cfg), (x0, y0), (x1, y1), strict=True))
+    near = near_probed(px, py, probed, cfg.min_separation_mm)   # where the probe would go (models.adaptive.inside)
     gain = coverage_gain(covered, cfg.resolution_mm, cfg.reaches(), footprint_cells(cfg))
     gain[~np.isfinite(footprint_score(belief, cfg))] = 0.0   # a sweep that would leave the region
     gain[near] = 0.0
@@ -298,7 +298,6 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
         else:
             i = int(np.argmax(ok))
         kind = "covering, lattice" if on_lattice else "covering"
-        point = inside(cfg, float(px.flat[i]), float(py.flat[i]))
-        return Decision(False, f"{kind} ({state})", point, True, miss, n_open, kind)
+        return Decision(False, f"{kind} ({state})", (float(px.flat[i]), float(py.flat[i])), True, miss, n_open, kind)
     kind = "no sweep reveals more"
     return Decision(False, f"{kind} ({state})", next_probe(belief, probed, cfg, observed), False, miss, n_open, kind)

@@ -118,10 +118,13 @@ def test_a_press_chosen_in_the_grids_partial_last_cell_is_made_on_the_regions_ed
     press is made on the region's edge, where the probe's tips are still on the specimen."""
     from models.adaptive import Belief, next_probe
 
-    cfg = PlannerConfig((0.0, 0.0, 8.9, 8.9), resolution_mm=2.0)   # cells centred at 1 ... 9: the last one past 8.9
+    cfg = PlannerConfig((0.0, 0.0, 16.5, 16.5), resolution_mm=4.0)   # cells centred at 2 ... 18: the last past 16.5
     xs, ys = cfg.grid()
     std = np.full((len(ys), len(xs)), 0.01)
     std[:, -1] = 5.0   # only the last column is uncertain
     b = Belief(xs, ys, np.full(std.shape, 10.0), std, 10.0, 12.0)
     x, y = next_probe(b, [], cfg)
-    assert xs[-1] > 8.9 and x == 8.9 and 0.0 <= y <= 8.9
+    assert xs[-1] > 16.5 and x == 16.5 and 0.0 <= y <= 16.5
+    # once made (or given up), the same point is not chosen again: the check is where the probe went
+    again = next_probe(b, [(x, y)], cfg)
+    assert again != (x, y) and again[0] <= 16.5
