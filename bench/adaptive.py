@@ -16,7 +16,11 @@ every map with ``models.scoring`` against its phantom, and compares per phantom:
 
 Writes ``compare.csv`` and ``error_vs_probes.png`` (error and inclusions found against probes spent: the adaptive
 planner's detection map after every probe and the raster's map as it grows, both read from their recordings and scored as
-a final map is) into OUT. The last line is JSON: ``probe_ratio`` (the probes the planner spent until its own stop
+a final map is) into OUT. The last line is JSON: ``time_ratio`` (simulated scan time, from the first measuring
+motion after the touch-off to the planner's stop or the raster's end, adaptive over raster, summed over every run),
+``path_ratio`` (the arm's path over the same span, likewise), ``time_ratio_localise`` (the planner's time pro rata to
+the probe after which its map finds what the raster's final map found, over the raster's whole scan time, over the
+runs where that happens), ``probe_ratio`` (the probes the planner spent until its own stop
 rule stopped it, over the raster's probe equivalents, summed over the phantoms where the adaptive map found every
 inclusion the raster's found: adaptive over raster probes at equal or better detection), ``probe_ratio_all`` (the
 same over every phantom, whatever was missed), ``probe_ratio_localise`` (the probes after which the recorded detection map
@@ -52,6 +56,7 @@ import json
 import math
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -79,13 +84,38 @@ from yamlstruct import Source  # noqa: E402
 RASTER = REPO / "launch" / "scan_sim.yaml"
 ADAPTIVE = REPO / "launch" / "scan_adaptive_sim.yaml"
 SPACING_MM = 3.0
+CAMERA_SPACING_MM = 4.0
+"""The camera raster's press grid (launch/scan_camera_sim.yaml's spacing_mm)."""
+
+
+@dataclass(frozen=True)
+class Kit:
+    """One probe's raster and adaptive launch files, its shipped phantom and the generated phantoms it can press."""
+
+    raster: Path
+    adaptive: Path
+    shipped: Path
+    ranges: PhantomRanges
+
+
+KITS = {
+    "airfloat": Kit(RASTER, ADAPTIVE, REPO / "phantoms" / "airfloat_tumours.yaml", PhantomRanges()),
+    # the camera probe presses up to 6 mm deep, never more than 0.85 of the thinnest point: the air-float sweep's
+    # 2.5-6 mm specimens give it no valid estimate (BENCHMARKS.md, specimens), so its phantoms are 8-12 mm, flat
+    "camera": Kit(REPO / "launch" / "scan_camera_sim.yaml", REPO / "launch" / "scan_adaptive_camera_sim.yaml",
+                  REPO / "phantoms" / "flat_26k_tumours.yaml",
+                  PhantomRanges(thickness_mm=(8.0, 12.0), dome_probability=0.0)),
+}
 MARGIN_MM = 6.0
 LENGTH_MM = 6.0
 
 
-def raster_probe_equivalents(spec: RunSpec) -> float:
-    """The raster's swept length in contact over the planner's sweep length (lines every SPACING_MM along x)."""
+def raster_probe_equivalents(spec: RunSpec, camera: bool = False) -> float:
+    """The raster's swept length in contact over the planner's sweep length (lines every SPACING_MM along x); for
+    the camera probe its presses (a grid every CAMERA_SPACING_MM)."""
     x0, y0, x1, y1 = spec.overrides["region_mm"]
+    if camera:
+        return float(math.prod(math.floor(span / CAMERA_SPACING_MM + 1e-9) + 1 for span in (x1 - x0, y1 - y0)))
     lines = math.floor((x1 - x0) / SPACING_MM + 1e-9) + 1
     return lines * (y1 - y0) / LENGTH_MM
 
@@ -155,8 +185,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--adaptive-arg", action="append", default=[], metavar="NAME=VALUE",
                     help="an arg of the adaptive launch file (repeatable), e.g. epsilon=0.2")
     ap.add_argument("--no-run", action="store_true", help="only score and compare the runs already made")
-    ap.add_argument("--only", nargs="+", default=[RASTER.stem, ADAPTIVE.stem], choices=[RASTER.stem, ADAPTIVE.stem],
-                    help="run only these launch files (the others' runs are scored if present)")
+    ap.add_argument("--probe", choices=sorted(KITS), default="airfloat", help="the air-float probe's sweeps (default) "
+                    "or the camera probe's presses (its own launch files and thicker phantoms)")
+    ap.add_argument("--only", nargs="+", default=["raster", "adaptive"],
+                    choices=["raster", "adaptive", RASTER.stem, ADAPTIVE.stem],
+                    help="run only these methods (the others' runs are scored if present; the air-float launch files' "
+                    "names are accepted too)")
     ap.add_argument("--timeout", type=float, default=900.0)
     ap.add_argument("--noise-seeds", type=int, default=1, metavar="K",
                     help="run every phantom with sensor noise seeds 0..K-1 (per-inclusion detection rates)")
@@ -170,30 +204,31 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--noise-seeds: at least 1 draw, got {opts.noise_seeds}")
     out: Path = opts.out.resolve()  # a worker's working directory is its own
     (out / "phantoms").mkdir(parents=True, exist_ok=True)
-    phantoms = [REPO / "phantoms" / "airfloat_tumours.yaml"]
+    kit = KITS[opts.probe]
+    phantoms = [kit.shipped]
     for seed in range(opts.first_seed, opts.first_seed + opts.generate):
         path = out / "phantoms" / f"random_{seed}.yaml"
-        path.write_text(yaml.safe_dump(random_phantom(seed, PhantomRanges()), sort_keys=False), encoding="utf-8")
+        path.write_text(yaml.safe_dump(random_phantom(seed, kit.ranges), sort_keys=False), encoding="utf-8")
         phantoms.append(path)
     # both methods on the same region: the raster's own edge margin (the SPS ring stays on the specimen)
     seeds = list(range(opts.noise_seeds))
     specs = {name: plan_runs(launch, phantoms, seeds, {}, out / name, margin_mm=MARGIN_MM, geometry_error_mm=0.2)
-             for name, launch in (("raster", RASTER), ("adaptive", ADAPTIVE))}
+             for name, launch in (("raster", kit.raster), ("adaptive", kit.adaptive))}
     for item in opts.adaptive_arg:
         name, _, value = item.partition("=")
         for s in specs["adaptive"]:
             s.overrides[name] = Source.from_text(value, f"--adaptive-arg {name}").data
     # phantom by phantom, both methods: a bench cut short and run again runs only what it had not finished
     jobs = [RunJob(launch, s, True, opts.timeout) for pair in zip(specs["raster"], specs["adaptive"], strict=True)
-            for launch, s in zip((RASTER, ADAPTIVE), pair, strict=True)
-            if not opts.no_run and launch.stem in opts.only]
+            for name, launch, s in zip(("raster", "adaptive"), (kit.raster, kit.adaptive), pair, strict=True)
+            if not opts.no_run and (name in opts.only or launch.stem in opts.only)]
     t0 = time.monotonic()
     for job, rec in zip(jobs, run_tasks(jobs, out, cluster_of(opts), rerun=opts.rerun) if jobs else [],
                         strict=True):
         print(f"{job.launch.stem} {job.spec.id}: {rec['error'] or 'done'}, "
               f"{rec['result'].get('row', {}).get('wall_s', math.nan):.0f} s", file=sys.stderr)
     wall = time.monotonic() - t0
-    deterministic = _same_again(specs["adaptive"][0], opts.timeout) if opts.determinism else None
+    deterministic = _same_again(kit.adaptive, specs["adaptive"][0], opts.timeout) if opts.determinism else None
     same_as = _same_as(specs["adaptive"], opts.same_as) if opts.same_as else None
     rows: list[dict[str, Any]] = []
     rates: dict[tuple[str, int], dict[str, Any]] = {}
@@ -218,12 +253,13 @@ def main(argv: list[str] | None = None) -> int:
             rate["runs"] += 1
             rate["raster"] += int(x["found"])
             rate["adaptive"] += int(y["found"])
-        eq = raster_probe_equivalents(r_spec)
+        eq = raster_probe_equivalents(r_spec, camera=opts.probe == "camera")
         rows.append({
             "run": r_spec.id, "phantom": r_spec.phantom.stem, "seed": r_spec.seed, "inclusions": r["true_inclusions"],
             "found_raster": r["found"], "found_adaptive": a["found"], "missed_vs_raster": missed,
             "probes_raster_eq": round(eq, 1), "probes_adaptive": plan["probes"], "probe_ratio": plan["probes"] / eq,
             "path_ratio": a["path_mm"] / r["path_mm"], "samples_ratio": a["probes"] / max(r["probes"], 1),
+            "path_raster_mm": r["path_mm"], "path_adaptive_mm": a["path_mm"],
             "time_raster_s": r["scan_s"], "time_adaptive_s": plan["sim_s"],
             "err_raster_mm": r["mean_centroid_error_mm"], "err_adaptive_mm": a["mean_centroid_error_mm"],
             "fp_raster": r["false_positives"], "fp_adaptive": a["false_positives"],
@@ -270,6 +306,10 @@ def main(argv: list[str] | None = None) -> int:
     def pooled(key: str, over: list[dict[str, Any]]) -> float | None:
         return sum(r[key] for r in over) / sum(r["probes_raster_eq"] for r in over) if over else None
 
+    def pooled_over(num: str, den: str, over: list[dict[str, Any]]) -> float | None:
+        ok = [r for r in over if all(isinstance(r[k], int | float) and math.isfinite(r[k]) for k in (num, den))]
+        return round(sum(r[num] for r in ok) / sum(r[den] for r in ok), 4) if ok else None
+
     def redraw(over: dict[tuple[str, int], dict[str, Any]], method: str) -> float | None:
         if opts.noise_seeds < 2:
             return None
@@ -280,6 +320,9 @@ def main(argv: list[str] | None = None) -> int:
     print(json.dumps({"probe_ratio": pooled("probes_adaptive", complete),
                       "probe_ratio_all": pooled("probes_adaptive", rows),
                       "probe_ratio_localise": pooled("probes_to_localise", localised),
+                      "time_ratio": pooled_over("time_adaptive_s", "time_raster_s", rows),
+                      "path_ratio": pooled_over("path_adaptive_mm", "path_raster_mm", rows),
+                      "time_ratio_localise": pooled_over("localise_s_adaptive", "time_raster_s", localised),
                       "missed_vs_raster": sum(r["missed_vs_raster"] for r in rows),
                       "missed_unsensed": (sum(r["missed_unsensed"] for r in rows)
                                           if all(r["missed_unsensed"] != "" for r in rows) else None),
@@ -298,11 +341,11 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _same_again(spec: RunSpec, timeout_s: float) -> bool:
+def _same_again(launch: Path, spec: RunSpec, timeout_s: float) -> bool:
     """Run ``spec``'s adaptive launch once more in a sibling directory: the same probe points, the same inclusions
     and the same map (the runs are deterministic for a seed, lockstep simulated clock and all)."""
     again = RunSpec(spec.id, spec.phantom, spec.seed, spec.args, spec.overrides, spec.run_dir.with_name(spec.id + "-again"))
-    ran = launch_one(ADAPTIVE, again, in_process=True, timeout_s=timeout_s)
+    ran = launch_one(launch, again, in_process=True, timeout_s=timeout_s)
     if ran["exit_code"] != 0:
         return False
     same_points, same_found, same_map = _same_outputs(spec.run_dir, again.run_dir)

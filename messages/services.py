@@ -44,6 +44,11 @@ class ProbeResult(Message, frozen=True, kw_only=True):
     samples: int
     mad: float
     duration_s: float
+    measured_from_ns: int = 0
+    """The span the estimates were measured in (stamps, ns): the probe on its measuring part, sliding along the line
+    or pressing and holding. A caller binning the estimates itself keeps these, not the transit's (the air-float
+    probe's floating indenter reads the tissue from several mm higher). 0 and 0: not said."""
+    measured_to_ns: int = 0
 
 
 class SetPressure(Message, frozen=True, kw_only=True):

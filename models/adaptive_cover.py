@@ -35,8 +35,8 @@ from scipy import ndimage
 
 from models.adaptive import PlannerConfig, footprint_cells, initial_design, probe_points
 
-__all__ = ["cover_cost", "cover_lattice", "coverage_gain", "distance_to_measured", "hidden", "hidden_fractions",
-           "lattice_cells", "miss_probability", "seed_design", "sweep_stencil", "valid_rows"]
+__all__ = ["cover_cost", "cover_lattice", "coverage_gain", "distance_to_measured", "fill_cells", "hidden",
+           "hidden_fractions", "lattice_cells", "miss_probability", "seed_design", "sweep_stencil", "valid_rows"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -144,24 +144,56 @@ def lattice_cells(shape: tuple[int, int], footprint: int, column: int, period: i
     return out
 
 
-def _fill_count(covered: BoolArray, cfg: PlannerConfig, limit: int) -> int:
-    """How many greedy sweeps (:func:`coverage_gain`, ties to the first cell) bring the miss probability of
-    ``covered`` below the tolerance (at most ``limit``: then ``limit``)."""
+def _fill(covered: BoolArray, cfg: PlannerConfig, limit: int) -> list[tuple[int, int]] | None:
+    """The greedy sweeps (:func:`coverage_gain`, ties to the first cell), centre cells, that bring the miss
+    probability of ``covered`` below the tolerance; None when ``limit`` of them do not."""
     cov = covered.copy()
     k = footprint_cells(cfg)
     first, last = valid_rows(cov.shape[0], k)
     reaches = cfg.reaches()
-    n = 0
-    while n < limit and miss_probability(cov, cfg.resolution_mm, reaches) >= cfg.miss_probability:
+    cells: list[tuple[int, int]] = []
+    while miss_probability(cov, cfg.resolution_mm, reaches) >= cfg.miss_probability:
+        if len(cells) >= limit:
+            return None
         gain = coverage_gain(cov, cfg.resolution_mm, reaches, k)
         gain[:first] = 0.0
         gain[last + 1:] = 0.0
         iy, ix = np.unravel_index(int(np.argmax(gain)), gain.shape)
         if gain[iy, ix] <= 0:
-            return limit
-        cov |= _sweep_cells([(int(iy), int(ix))], cov.shape, k)
-        n += 1
-    return n
+            return None
+        cells.append((int(iy), int(ix)))
+        cov |= _sweep_cells([cells[-1]], cov.shape, k)
+    return cells
+
+
+def _fill_count(covered: BoolArray, cfg: PlannerConfig, limit: int) -> int:
+    """How many greedy sweeps (:func:`_fill`) bring the miss probability of ``covered`` below the tolerance (at
+    most ``limit``: then ``limit``)."""
+    cells = _fill(covered, cfg, limit)
+    return limit if cells is None else len(cells)
+
+
+def fill_cells(cfg: PlannerConfig, cells: Sequence[tuple[int, int]]) -> list[tuple[int, int]]:
+    """The greedy sweeps (centre cells) that, added to the sweeps centred on ``cells``, bring the miss probability
+    of ``cfg``'s region below the tolerance, within the probe budget less ``cells`` (as many as that allows)."""
+    xs, ys = cfg.grid()
+    covered = _sweep_cells(cells, (len(ys), len(xs)), footprint_cells(cfg))
+    limit = max(0, cfg.max_probes - len(cells))
+    out = _fill(covered, cfg, limit)
+    if out is None:   # the budget first: as many as it allows, the most revealing first
+        out = []
+        k = footprint_cells(cfg)
+        first, last = valid_rows(covered.shape[0], k)
+        while len(out) < limit:
+            gain = coverage_gain(covered, cfg.resolution_mm, cfg.reaches(), k)
+            gain[:first] = 0.0
+            gain[last + 1:] = 0.0
+            iy, ix = np.unravel_index(int(np.argmax(gain)), gain.shape)
+            if gain[iy, ix] <= 0:
+                break
+            out.append((int(iy), int(ix)))
+            covered |= _sweep_cells([out[-1]], covered.shape, k)
+    return out
 
 
 def cover_cost(cfg: PlannerConfig, cells: Sequence[tuple[int, int]], limit: int | None = None) -> int:

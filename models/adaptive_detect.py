@@ -17,16 +17,18 @@ an inclusion, and where*. Two things must hold before that answer is good enough
   measured cell, averaged over the radii (:func:`miss_probability`). Stop only when that is below
   ``miss_probability``. (Garg et al. 2016 and Gotovos et al. 2013 stop on the belief alone; a GP with a length scale
   shorter than that reach cannot vouch for it, which is why the LSE rule costs coverage.)
-* **every candidate is resolved.** A candidate is a region of the detection map above ``suspect`` times the
-  detector's threshold (a weak inclusion seen from a sweep past its edge rises less than the detector asks). It is
+* **every candidate is resolved.** A candidate is a region the map's own detector reports when its false-alarm
+  rate per map is loosened to ``suspect_false_alarm`` (a weak inclusion seen from a sweep past its edge rises less
+  than the map's bar); it is confirmed when it passes the map's bar (``false_alarm_per_map``), and dismissed when,
+  its boundary sampled, it does not. It is
   resolved when the points on the edge of its disc on all four sides (one cell out for a small one:
   :func:`open_sides`) have been measured: its boundary is sampled, so its centroid and extent are the map's and
   not the kernel's guess; when a side is still stiff the candidate grows and opens the next side out.
   A *detected* inclusion is resolved only once its disc is measured densely (every cell within ``interior_gap_mm``
   of a measured one, columns 6 mm apart by default: :func:`interior_gaps`): between sparse sweeps the map is the
   GP's guess, which joins two neighbours into one blob and shows no dip it never measured.
-  A *near miss* (a suspect whose significance came ``near_miss`` of the way to the detector's threshold, no
-  detection:
+  A *near miss* (a suspect that is no detection but whose false-alarm probability by the detector's law is at most
+  ``near_miss_false_alarm``:
   :func:`near_misses`) is resolved only once its disc is measured at the raster's density (``near_miss_gap_mm``):
   whether a weak inclusion crosses the threshold turns on whether a cell near its middle was measured.
 
@@ -73,8 +75,9 @@ from models.adaptive_cover import (
     miss_probability,
     seed_design,
 )
+from models.adaptive_route import order_route
 from models.adaptive_split import split_detections
-from models.detector import Detection, DetectorConfig, detect
+from models.detector import Detection, DetectorConfig, detect, false_alarm_probability
 from models.stiffness_map import Inclusion, MapSnapshot
 
 __all__ = ["Decision", "decide", "detect_candidates", "detection_map", "detector_config", "interior_gaps",
@@ -93,9 +96,10 @@ def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, 
     return np.where(ok, meas, np.where(near, np.asarray(mean, dtype=np.float64), np.nan))
 
 
-def detector_config(cfg: PlannerConfig) -> DetectorConfig:
-    """The map detector's settings the planner detects with (the raster's own, its false-alarm rate the planner's)."""
-    return DetectorConfig(false_alarm_per_map=cfg.false_alarm_per_map)
+def detector_config(cfg: PlannerConfig, suspect: bool = False) -> DetectorConfig:
+    """The map detector's settings the planner detects with (the raster's own, its false-alarm rate the planner's;
+    ``suspect``: at ``cfg.suspect_false_alarm``, the bar a region must pass to be worth resolving)."""
+    return DetectorConfig(false_alarm_per_map=cfg.suspect_false_alarm if suspect else cfg.false_alarm_per_map)
 
 
 def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], cfg: PlannerConfig,
@@ -104,8 +108,8 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     (models.detector.detect, the raster's own) finds on it, its background and noise from the cells of ``fair``
     (measured by stiffness-blind sweeps: the resolving sweeps go where it is stiff, and the GP's guesses are smoother
     than any measurement) when it has any, else from the measured cells; a detection whose measured cells show two
-    maxima split in two (``cfg.split_prominence``: models.adaptive_split). ``suspect``: with the detector's
-    threshold scaled by ``cfg.suspect``, the regions worth a closer look (a weak inclusion seen from a sweep that
+    maxima split in two (``cfg.split_prominence``: models.adaptive_split). ``suspect``: at the detector's
+    false-alarm rate ``cfg.suspect_false_alarm``, the regions worth a closer look (a weak inclusion seen from a sweep that
     passed its edge rises less than the detector's threshold; resolving it samples nearer its centre), never split
     (the split would only add sides to sample)."""
     grid = detection_map(measured, belief.mean, cfg.resolution_mm, cfg.fill_mm)
@@ -113,22 +117,23 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
                        resolution_mm=cfg.resolution_mm)
     observed = np.isfinite(measured)
     blind = observed if fair is None else np.isfinite(np.asarray(fair, dtype=np.float64))
-    dcfg = detector_config(cfg)
-    det = detect(snap, dcfg, threshold_scale=cfg.suspect if suspect else 1.0,
-                 estimate_from=blind if blind.any() else observed)
+    dcfg = detector_config(cfg, suspect)
+    det = detect(snap, dcfg, estimate_from=blind if blind.any() else observed)
     if cfg.split_prominence > 0 and not suspect:
         det = replace(det, inclusions=split_detections(det, snap, observed, dcfg, prominence_k=cfg.split_prominence))
     return snap, det
 
 
 def near_misses(suspects: Sequence[Inclusion], detected: Detection, cfg: PlannerConfig) -> list[Inclusion]:
-    """The suspects that are no detection but came close (``cfg.near_miss``): their significance at least that
-    fraction of the detector's threshold on the map of ``detected``, and no detection's centre inside their disc (a
-    detection's halo is no inclusion of its own)."""
-    if cfg.near_miss <= 0 or not np.isfinite(detected.threshold_snr):
+    """The suspects that are no detection but came close: a blank map of their map's area would show a peak as
+    significant with probability at most ``cfg.near_miss_false_alarm`` (the detector's own law,
+    models.detector.false_alarm_probability, on the map of ``detected``), and no detection's centre lies inside
+    their disc (a detection's halo is no inclusion of its own)."""
+    if cfg.near_miss_false_alarm <= 0 or not np.isfinite(detected.area_mm2):
         return []
-    bar = cfg.near_miss * detected.threshold_snr
-    return [c for c in suspects if c.snr >= bar
+    dcfg = detector_config(cfg)
+    return [c for c in suspects
+            if false_alarm_probability(c.snr, detected.area_mm2, dcfg) <= cfg.near_miss_false_alarm
             and not any((d.x_mm - c.x_mm) ** 2 + (d.y_mm - c.y_mm) ** 2 <= c.radius_mm**2
                         for d in detected.inclusions)]
 
@@ -262,17 +267,17 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
         return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, n_open)
     if n >= len(seed_design(cfg)) and miss < cfg.miss_probability and not n_open:
         return Decision(True, f"found: {state} after {n - len(given_up)} probes", None, False, miss, n_open)
-    if sides:
-        kind = "resolving a candidate"
-        return Decision(False, f"{kind} ({state})", sides[0], False, miss, n_open, kind)
-    if interior:
-        kind = "measuring a detection's disc"
-        return Decision(False, f"{kind} ({state})", interior[0], False, miss, n_open, kind)
-    if second:
-        kind = "measuring a near miss's disc"
-        return Decision(False, f"{kind} ({state})", second[0], False, miss, n_open, kind)
-    px, py = probe_points(belief, cfg)
-    near = near_probed(px, py, probed, cfg.min_separation_mm)
+    if n_open:
+        # every open point is asked for before the stop; the nearest first along a short route through them all
+        # (models.adaptive_route), not candidate by candidate across the specimen and back
+        kinds = {**{p: "measuring a near miss's disc" for p in second},
+                 **{p: "measuring a detection's disc" for p in interior}, **{p: "resolving a candidate" for p in sides}}
+        point = order_route(list(kinds), last)[0]
+        kind = kinds[point]
+        return Decision(False, f"{kind} ({state})", point, False, miss, n_open, kind)
+    x0, y0, x1, y1 = cfg.region_mm
+    px, py = (np.clip(v, lo, hi) for v, lo, hi in zip(probe_points(belief, cfg), (x0, y0), (x1, y1), strict=True))
+    near = near_probed(px, py, probed, cfg.min_separation_mm)   # where the probe would go (models.adaptive.inside)
     gain = coverage_gain(covered, cfg.resolution_mm, cfg.reaches(), footprint_cells(cfg))
     gain[~np.isfinite(footprint_score(belief, cfg))] = 0.0   # a sweep that would leave the region
     gain[near] = 0.0

@@ -66,9 +66,9 @@ def test_planner_probes_through_the_scanner_carries_on_after_refusals_and_is_det
     assert a["refused"] == 3 * len(a["given_up"])               # each given up after exactly its retries
     # a run that lost probes does not end clean: the planner exits 1 (above) and says what is missing
     assert a["incomplete"].startswith(f"{len(a['given_up'])} probe(s) given up after refusals, at ({a['given_up'][0][0]:.1f}, ")
-    # every probe says why it was made: the seed grid first, then what the acquisition chose it for
-    assert len(a["why"]) == a["probes"] and a["why"][0] == "seed"
-    assert set(a["why"]) <= {"seed", "covering, lattice", "covering", "resolving a candidate",
+    # every probe says why it was made: the coarse pass first, then what the acquisition chose it for
+    assert len(a["why"]) == a["probes"] and a["why"][0] == "coarse pass"
+    assert set(a["why"]) <= {"coarse pass", "covering, lattice", "covering", "resolving a candidate",
                              "measuring a detection's disc", "no sweep reveals more"}
     assert beliefs and beliefs[-1].final and len(beliefs[-1].stiffness) == 9 * 9
     assert np.all(np.isfinite(beliefs[-1].stiffness))
@@ -106,7 +106,8 @@ def test_the_planners_knobs_default_alike_in_the_model_the_node_and_the_launch_f
     node = AdaptivePlanner.Params()
     args = load_launch(REPO / "launch" / "scan_adaptive_sim.yaml", {}, run_dir=Path("runs") / "unused").args
     shared = [f.name for f in fields(PlannerConfig) if f.name != "region_mm" and hasattr(node, f.name)]
-    assert {"near_miss", "miss_probability", "suspect", "cover_column_mm", "interior_gap_mm"} <= set(shared)
+    assert {"near_miss_false_alarm", "miss_probability", "suspect_false_alarm", "cover_column_mm",
+            "interior_gap_mm"} <= set(shared)
     def plain(v: object) -> object:   # a list param or arg for a tuple field
         return tuple(v) if isinstance(v, list) else v
 
@@ -131,7 +132,8 @@ def test_a_probes_late_estimates_count_as_that_probes_not_the_next_ones(tmp_path
 
     g = GraphHarness()
     planner = g.add(AdaptivePlanner, {"region_mm": [0.0, 0.0, 30.0, 30.0], "seed_spacing_mm": 14.0,
-                                      "max_probes": 30, "output_dir": str(tmp_path)}, name="planner")
+                                      "max_probes": 30, "output_dir": str(tmp_path),
+                                      "coarse_pass": False}, name="planner")   # blind and resolving sweeps mixed
     scanner = g.add(palpa.Node, name="scanner")
     status = scanner.publisher("robot/scan_status", ScanStatus, latched=True)
     status.publish(ScanStatus(stamp_ns=g.clock.now_ns(), state="idle", line=0, lines=0, progress=0.0, eta_s=0.0))
@@ -235,3 +237,39 @@ def test_estimates_lost_on_the_way_or_none_at_all_make_the_planners_run_incomple
             "ok": "", "lost": "stiffness/sample lost 2 message(s) and its publisher restarted 0 time(s)",
             "none": "no valid stiffness estimate reached the planner: there is no map"}[out]
         h.close()
+
+
+def test_the_planner_keeps_only_what_a_probe_measured_on_its_measuring_part(tmp_path: Path) -> None:
+    """The scanner's answer says when the probe measured; the transit over the line at the retract height (before)
+    and the retract (after) are heard on the line too, and left out of the planner's map, as out of the answer."""
+    from messages import ProbeResult, StiffnessSample
+    from nodes.scanner.adaptive_planner import AdaptivePlanner
+    from palpa.testing import NodeHarness
+
+    h = NodeHarness(AdaptivePlanner, {"region_mm": [0.0, 0.0, 30.0, 30.0], "output_dir": str(tmp_path)})
+    p, now = h.node, h.clock.now_ns()
+    p.inflight, p.inflight_blind, p.inflight_since_ns = (10.0, 12.0), True, now
+
+    def at(stamp_ns: int, value: float) -> StiffnessSample:
+        return StiffnessSample(stamp_ns=stamp_ns, model="airfloat", x_mm=10.0, y_mm=12.0, z_mm=1.0, value=value,
+                               unit="kPa", valid=True)
+
+    for i, value in ((1, 99.0), (2, 12.0), (3, 12.0), (4, 99.0)):   # transit, two on the line, retract
+        p.on_sample(at(now + i * 1_000_000, value))
+    assert p.pending == [] and len(p.held) == 4   # nothing binned before the answer says when
+
+    class Answered:
+        def exception(self) -> None:
+            return None
+
+        def result(self) -> ProbeResult:
+            return ProbeResult(x_mm=10.0, y_mm=12.0, value=12.0, unit="kPa", samples=2, mad=0.0, duration_s=1.0,
+                               measured_from_ns=now + 2_000_000, measured_to_ns=now + 3_000_000)
+
+    p._update_belief = lambda: None   # type: ignore[method-assign]   # the binning, not the GP, is under test
+    p.on_result(Answered())   # type: ignore[arg-type]
+    assert [v for _, _, v, _ in p.pending] == [12.0, 12.0] and p.held == []
+    p.on_sample(at(now + 5_000_000, 99.0))   # the last probe's, arriving late but measured after its span
+    p.on_sample(at(now + 2_500_000, 12.0))   # ... and one measured inside it
+    assert [v for _, _, v, _ in p.pending] == [12.0, 12.0, 12.0]
+    h.close()

@@ -113,7 +113,35 @@ def test_a_probe_answers_from_its_measuring_part_only_not_from_the_descent_or_th
     assert len(near) > 2 * len(down) and statistics.median(s.value for s in near) > 1.03 * statistics.median(down)
     assert 0.9 * len(down) <= r.samples <= len(down), (r.samples, len(down), len(near))
     assert r.value == pytest.approx(statistics.median(down), rel=0.003)
+    # the answer says when it measured, so that a caller binning the estimates itself (the adaptive planner) keeps
+    # the same ones: the working height's inside that span, the descent's and the retract's outside it
+    def inside(t: int) -> bool:
+        return r.measured_from_ns <= t <= r.measured_to_ns
+
+    up = [s for s in near if abs(s.z_mm - 5.0) >= 0.05]
+    assert r.measured_from_ns > 0 and sum(inside(s.stamp_ns) for s in near if abs(s.z_mm - 5.0) < 0.05) == r.samples
+    assert sum(inside(s.stamp_ns) for s in up) <= 0.1 * len(up), (len(up), sum(inside(s.stamp_ns) for s in up))
     g.close()
+
+
+def test_a_shorter_rest_answers_sooner_with_the_same_estimates() -> None:
+    """probe_rest_s is the earliest answer after the path's end, not a wait for the estimates (the answer waits for
+    an estimate measured after the path's end whatever the rest): 0.1 s answers 0.5 s sooner than 0.6 s, from the
+    same estimates."""
+    results = {}
+    for rest in (0.6, 0.1):
+        g = GraphHarness()
+        g.add(RobotScanner, {"autostart": False, "home_mm": [30.0, 26.0, 8.0], "watch_topic": "",
+                             "contact_z_mm": 5.0, "speed_mm_s": 10.0, "probe_rest_s": rest})
+        op = g.add(palpa.Node, name="operator")
+        fut = op.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=60).call_async(
+            ProbeAt(x_mm=30.0, y_mm=30.0, radius_mm=4.0))
+        _lagging_estimator(g, fut, 0.0, 30.0)
+        results[rest] = fut.result()
+        g.close()
+    slow, quick = results[0.6], results[0.1]
+    assert quick.samples == slow.samples >= 10 and quick.value == slow.value, results
+    assert quick.duration_s == pytest.approx(slow.duration_s - 0.5, abs=0.1), results
 
 
 def test_probe_takes_the_estimates_near_the_point_only() -> None:
@@ -316,3 +344,20 @@ def test_tare_over_the_serial_driver_zeroes_the_heights() -> None:
             assert h.published("probe/heights")[-1].h_mm == pytest.approx((0.0, 0.0, 0.0, 0.0), abs=0.05)
         finally:
             h.close()
+
+
+def test_a_sweep_starts_from_the_end_of_its_line_nearer_the_arm() -> None:
+    """A planner going down a column of short sweeps would otherwise travel past each line to come back up it."""
+    for home_y, first_y in ((20.0, 27.0), (40.0, 33.0)):
+        g = GraphHarness()
+        g.add(RobotScanner, {"autostart": False, "home_mm": [30.0, home_y, 8.0], "watch_topic": "",
+                             "contact_z_mm": 5.0, "speed_mm_s": 10.0})
+        op = g.add(palpa.Node, name="operator")
+        fut = op.client("scanner/probe_at", ProbeAt, ProbeResult, timeout_s=60).call_async(
+            ProbeAt(x_mm=30.0, y_mm=30.0, radius_mm=4.0))
+        _lagging_estimator(g, fut, 0.0, 30.0)
+        assert fut.result().samples >= 10
+        down = [q for q in g.published("robot/pose") if abs(q.z_mm - 5.0) < 0.05]
+        assert down and down[0].y_mm == pytest.approx(first_y, abs=0.3), (home_y, down[0])
+        assert down[-1].y_mm == pytest.approx(60.0 - first_y, abs=0.3), (home_y, down[-1])
+        g.close()

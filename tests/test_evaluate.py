@@ -89,6 +89,26 @@ def _fake_run(tmp: Path) -> RunSpec:
     return RunSpec("r0", phantom, 0, {"spacing_mm": 3}, run_dir=tmp / "run")
 
 
+def test_an_adaptive_runs_path_starts_at_its_first_probe_not_at_its_touch_off(tmp_path: Path) -> None:
+    """The raster's span starts when it is 'scanning', the adaptive planner's when the scanner is first 'probing':
+    the touch-off before either is neither method's path (issue 41's path_ratio compares like with like)."""
+    t0 = 1_700_000_000_000_000_000
+    enc = msgspec.msgpack.encode
+
+    def status(t: int, state: str, seq: int) -> Rec:
+        return Rec("robot/scan_status", t, enc(ScanStatus(stamp_ns=t, state=state, line=0, lines=0, progress=0,
+                                                           eta_s=0)), seq, "ScanStatus", "scanner")
+
+    def pose(t: int, y: float, seq: int) -> Rec:
+        return Rec("robot/pose", t, enc(RobotPose(stamp_ns=t, x_mm=10.0, y_mm=y, z_mm=5.0)), seq, "RobotPose",
+                   "scanner")
+
+    recs = [status(t0, "touching", 1), pose(t0 + 1, 0.0, 1), pose(t0 + 2, 50.0, 2),   # 50 mm of touch-off
+            status(t0 + 3, "probing", 2), pose(t0 + 4, 56.0, 3), status(t0 + 5, "idle", 3), pose(t0 + 6, 60.0, 4)]
+    write_bag(tmp_path / "recording.mcap", recs)
+    assert scan_facts(tmp_path / "recording.mcap")["path_mm"] == pytest.approx(4.0)   # poses from 'probing' on: 56 -> 60
+
+
 def test_a_run_is_scored_against_its_phantom_and_its_recording(tmp_path: Path) -> None:
     spec = _fake_run(tmp_path)
     facts = scan_facts(spec.run_dir / "recording.mcap")

@@ -32,7 +32,7 @@ SEEDS = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
 
 def _cfg(**kw: Any) -> PlannerConfig:
     # one reach, no interior or near-miss rule and the greedy cover alone unless a test asks: each rule on its own
-    kw = {"radius_span_mm": 0.0, "interior_gap_mm": 0.0, "cover_column_mm": 0.0, "near_miss": 0.0, **kw}
+    kw = {"radius_span_mm": 0.0, "interior_gap_mm": 0.0, "cover_column_mm": 0.0, "near_miss_false_alarm": 0.0, **kw}
     return PlannerConfig(REGION, sweep_mm=6.0, seed_spacing_mm=40.0, **kw)   # seed: 2 x 2 points
 
 
@@ -222,7 +222,7 @@ def _column_rise(fraction: float) -> float:
 
 
 def test_a_weak_rise_is_a_suspect_to_resolve_but_not_a_detection() -> None:
-    cfg = _cfg(reach_mm=40.0, suspect=0.5)
+    cfg = _cfg(reach_mm=40.0, suspect_false_alarm=0.9)   # suspects: what the detector reports at 0.9 per map
     b = _belief(cfg)
     measured = np.full((20, 20), 10.0)
     measured[8:13, 10] = 10.0 * _column_rise(0.75)   # 3/4 of the detector's threshold: over half of it
@@ -232,7 +232,8 @@ def test_a_weak_rise_is_a_suspect_to_resolve_but_not_a_detection() -> None:
     assert len(detect_candidates(b, measured, counts, cfg, suspect=True)[1].inclusions) == 1
     probed = SEEDS
     assert not decide(b, measured, counts, probed, cfg).stop
-    assert decide(b, measured, counts, probed, _cfg(reach_mm=40.0, suspect=1.0)).stop
+    # at the map's own false-alarm rate the suspects are the detections: the rise is none, nothing to resolve
+    assert decide(b, measured, counts, probed, _cfg(reach_mm=40.0, suspect_false_alarm=0.003)).stop
 
 
 def test_a_point_given_up_is_not_chosen_again() -> None:
@@ -350,10 +351,11 @@ def _near_miss(b: Belief, fraction: float, cfg: PlannerConfig, fair: npt.NDArray
 
 
 def test_a_near_miss_gets_its_disc_measured_at_its_own_gap_whether_or_not_detections_are() -> None:
-    cfg = _cfg(reach_mm=40.0, interior_gap_mm=2.0, near_miss=0.8, near_miss_gap_mm=2.0)   # coverage: no concern
+    cfg = _cfg(reach_mm=40.0, interior_gap_mm=2.0, near_miss_false_alarm=0.04,
+               near_miss_gap_mm=2.0)   # coverage: no concern
     b = _belief(cfg)
     fair = np.full((20, 20), 10.0)   # the blind cells: 10, no spread (the detector's noise floor)
-    measured = _near_miss(b, 0.9, cfg, fair)   # 0.9 of the way to the threshold
+    measured = _near_miss(b, 0.9, cfg, fair)   # 0.9 of the threshold's significance: 1 % false alarms per map
     counts = np.ones((20, 20), dtype=np.int64)
     detected = detect_candidates(b, measured, counts, cfg, fair)[1]
     assert detected.inclusions == []   # no detection
@@ -361,18 +363,18 @@ def test_a_near_miss_gets_its_disc_measured_at_its_own_gap_whether_or_not_detect
     assert not d.stop and d.point == (21.0, 21.0) and d.kind == "measuring a near miss's disc"
     assert decide(b, measured, counts, SEEDS, replace(cfg, interior_gap_mm=0.0), fair=fair).point == d.point   # on its own
     assert decide(b, measured, counts, SEEDS, _cfg(reach_mm=40.0, interior_gap_mm=2.0), fair=fair).stop   # off
-    assert decide(b, measured, counts, SEEDS, replace(cfg, near_miss=0.95), fair=fair).stop   # not close enough
+    assert decide(b, measured, counts, SEEDS, replace(cfg, near_miss_false_alarm=0.005), fair=fair).stop   # not close enough
     measured[7:14, 10] = measured[7, 8]   # its middle measured: still under the threshold, nothing left unmeasured
     assert detect_candidates(b, measured, counts, cfg, fair)[1].inclusions == []
     assert decide(b, measured, counts, SEEDS, cfg, fair=fair).stop
     finer = decide(b, measured, counts, SEEDS, replace(cfg, near_miss_gap_mm=1.5), fair=fair)
     assert not finer.stop and finer.point is not None and finer.point[0] in (19.0, 23.0)   # every column, as a raster
-    assert decide(b, measured, counts, SEEDS, replace(cfg, near_miss=0.0, near_miss_gap_mm=1.5), fair=fair).stop
+    assert decide(b, measured, counts, SEEDS, replace(cfg, near_miss_false_alarm=0.0, near_miss_gap_mm=1.5), fair=fair).stop
     suspects = detect_candidates(b, measured, counts, cfg, fair, suspect=True)[1].inclusions
     detected = detect_candidates(b, measured, counts, cfg, fair)[1]
     assert len(near_misses(suspects, detected, cfg)) == 1
     assert near_misses(suspects, replace(detected, inclusions=suspects), cfg) == []   # a detection's own halo
-    assert near_misses(suspects, replace(detected, threshold_snr=math.nan), cfg) == []   # no map to detect on yet
-    for bad in ({"near_miss": -0.1}, {"near_miss": 1.0}, {"near_miss_gap_mm": 0.0}):   # 1: the detections themselves
+    assert near_misses(suspects, replace(detected, area_mm2=math.nan), cfg) == []   # no map to detect on yet
+    for bad in ({"near_miss_false_alarm": -0.1}, {"near_miss_false_alarm": 1.0}, {"near_miss_gap_mm": 0.0}):
         with pytest.raises(ValueError, match="near_miss"):
             _cfg(**bad)

@@ -80,7 +80,7 @@ class RunSpec:
 def scan_facts(recording: Path) -> dict[str, float]:
     """From a run's recording: simulated span (first to last message), simulated time to the scan's end (first
     message to the 'done' status: what a simulation had to compute, whatever ran on after it), scan time (first
-    'scanning' to 'done' status), path length of the TCP while scanning (mm) and the number of valid probe
+    'scanning' or 'probing' to 'done' status), path length of the TCP while scanning (mm) and the number of valid probe
     (stiffness) samples."""
     from palpa.record.reader import iter_bag, resolve_bag_paths
 
@@ -96,7 +96,9 @@ def scan_facts(recording: Path) -> dict[str, float]:
         last = t if last is None else max(last, t)
         if m.topic == "robot/scan_status":
             st = msgspec.msgpack.decode(m.payload, type=ScanStatus)
-            if st.state == "scanning" and scan_start is None:
+            # the scan starts with its first measuring motion: a raster's lines, an adaptive planner's first probe
+            # (both after the touch-off), so that path and time compare like with like
+            if st.state in ("scanning", "probing") and scan_start is None:
                 scan_start = st.stamp_ns
             elif st.state == "done" and scan_end is None:
                 scan_end = st.stamp_ns

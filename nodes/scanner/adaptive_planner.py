@@ -8,9 +8,11 @@ the planner carries on with the next best point.
 
 What it learns from: every valid ``stiffness/sample`` binned into the belief grid (the per-cell median, as the map
 aggregator's), so a sweep teaches it the cells it crossed, not one number. The belief is
-:func:`models.adaptive.fit_belief` (GP regression). With ``stop_rule: detect`` (default) the next point and the end
-are :func:`models.adaptive_detect.decide`'s: cover the region until an inclusion of the smallest size of interest is
-unlikely to hide, sample every candidate's boundary, then stop; inclusions are detected on the measured cells (GP
+:func:`models.adaptive.fit_belief` (GP regression). With ``stop_rule: detect`` (default) the planner first makes
+the coarse pass (models.adaptive_route: the whole covering lattice, chosen before any sweep and visited in one short
+route), then the next point and the end are :func:`models.adaptive_detect.decide`'s: sample every candidate's
+boundary (suspects and detections by the map detector's own false-alarm law), the nearest open point first, cover
+what is left until an inclusion of the smallest size of interest is unlikely to hide, then stop; inclusions are detected on the measured cells (GP
 mean only near them) against the baseline of the stiffness-blind probes. With ``stop_rule: lse`` the straddle /
 ILS-UCB acquisition (:func:`models.adaptive.next_probe`) and LSE's ambiguous area (:func:`models.adaptive.should_stop`)
 on the GP mean.
@@ -53,6 +55,7 @@ from models.adaptive import (
 )
 from models.adaptive_cover import seed_design
 from models.adaptive_detect import decide, detect_candidates, detector_config, unsensed
+from models.adaptive_route import coarse_pass
 from models.detector import Detection, detect
 from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import MapSnapshot, StiffnessGrid
@@ -99,10 +102,13 @@ class AdaptivePlanner(palpa.Node):
         """detect: how far an inclusion's reach strays from that, as equally likely offsets (PlannerConfig)."""
         interior_gap_mm: float = 3.0
         """detect: every cell of a detected inclusion's disc within this of a measured cell before stopping (0: off)."""
-        miss_probability: float = 0.01
+        miss_probability: float = 0.02
         """detect: the chance, below which the planner may stop, that such an inclusion hides unsensed."""
-        suspect: float = 0.6
-        """detect: regions above this fraction of the detector's threshold get their boundary sampled."""
+        suspect_false_alarm: float = 0.4
+        """detect: regions the map detector reports at this false-alarm rate per map get their boundary sampled."""
+        coarse_pass: bool = True
+        """detect: first the whole covering lattice (and the sweeps patching its edges), chosen before any is made and
+        visited in one short route (models.adaptive_route); false: a seed grid, the rest covered as it goes."""
         fill_mm: float = 4.0
         """detect: the detection map takes the GP mean only this close to a measured cell."""
         false_alarm_per_map: float = 0.003
@@ -110,16 +116,16 @@ class AdaptivePlanner(palpa.Node):
         split_prominence: float = 1.5
         """detect: split a detection whose measured cells show two maxima this many noise scales above the measured
         level joining them (PlannerConfig; 0: off)."""
-        near_miss: float = 0.8
-        """detect, > 0: a suspect whose significance came this fraction of the way to the detector's threshold gets
-        its disc measured at the raster's density (PlannerConfig)."""
+        near_miss_false_alarm: float = 0.04
+        """detect, > 0: a suspect whose false-alarm probability by the detector's law is at most this gets its disc
+        measured at the raster's density (PlannerConfig)."""
         near_miss_gap_mm: float = 1.5
         """detect: a near miss's disc is measured until every cell is within this of a measured one (PlannerConfig)."""
         near_best: float = 1.0
         """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
         cover_column_mm: float = 8.0
         """detect: the covering sweeps on a staggered lattice with columns this far apart (PlannerConfig; 0: off)."""
-        cover_period_mm: float = 12.0
+        cover_period_mm: float = 14.0
         """detect: along a lattice column a sweep every this far, the next column's half a period along."""
         mode: Literal["sweep", "indent"] = "sweep"
         """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
@@ -154,8 +160,9 @@ class AdaptivePlanner(palpa.Node):
                                      reach_spread_mm=tuple(float(v) for v in p.reach_spread_mm),
                                      interior_gap_mm=p.interior_gap_mm,
                                      miss_probability=p.miss_probability, fill_mm=p.fill_mm,
-                                     suspect=p.suspect, false_alarm_per_map=p.false_alarm_per_map,
-                                     near_miss=p.near_miss,
+                                     suspect_false_alarm=p.suspect_false_alarm,
+                                     false_alarm_per_map=p.false_alarm_per_map,
+                                     near_miss_false_alarm=p.near_miss_false_alarm,
                                      near_miss_gap_mm=p.near_miss_gap_mm, split_prominence=p.split_prominence,
                                      near_best=p.near_best, cover_column_mm=p.cover_column_mm,
                                      cover_period_mm=p.cover_period_mm,
@@ -167,10 +174,18 @@ class AdaptivePlanner(palpa.Node):
         self.fair = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
         """The cells measured by stiffness-blind probes (seed grid, covering sweeps): the detector's baseline."""
         self.pending: list[tuple[float, float, float, bool]] = []
+        self.held: list[tuple[float, float, float, int]] = []
+        """The probe in flight's samples (x, y, value, measured at), until its answer says when it measured."""
+        self.windows: list[tuple[int, int]] = []
+        """For every probe made, the span its measuring part took (ns; (0, 0): not said, every sample counts)."""
         """Samples not yet in the grids: (x, y, value, measured by a stiffness-blind probe)."""
         self.unit = ""
-        seeds = seed_design(self.cfg) if self.cfg.stop_rule == "detect" else initial_design(self.cfg)
-        self.queue = [(pt, True, "seed") for pt in seeds]
+        coarse = coarse_pass(self.cfg) if self.cfg.stop_rule == "detect" and p.coarse_pass else []
+        if coarse:
+            self.queue = [(pt, True, "coarse pass") for pt in coarse]
+        else:
+            seeds = seed_design(self.cfg) if self.cfg.stop_rule == "detect" else initial_design(self.cfg)
+            self.queue = [(pt, True, "seed") for pt in seeds]
         """(point, blind, why): the points to probe next; blind when chosen without looking at stiffness; why: what
         the acquisition meant it for (seed, covering, resolving a candidate, ...)."""
         self.why: list[str] = []
@@ -221,19 +236,30 @@ class AdaptivePlanner(palpa.Node):
         if not s.valid:
             return
         blind = self._measured_by(s)
-        if blind is not None:
-            self.unit = s.unit
+        if blind is None:
+            return
+        self.unit = s.unit
+        # and of those, only what they measured on their measuring part (the scanner's answer says when): the transit
+        # to a sweep, often along the same column, passes over its line at the retract height, where the floating
+        # indenter still reads, at another load (tuning phantom airfloat_tumours: the map's noise 0.075, the raster's
+        # 0.046)
+        if self._in_flight(s):
+            self.held.append((s.x_mm, s.y_mm, s.value, s.stamp_ns))   # until its answer says when it measured
+        elif _within(self.windows[-1] if len(self.windows) == len(self.probed) else (0, 0), s.stamp_ns):
             self.pending.append((s.x_mm, s.y_mm, s.value, blind))
+
+    def _in_flight(self, s: StiffnessSample) -> bool:
+        """Whether ``s`` is the probe in flight's: measured since its request, on its line (:meth:`_on`)."""
+        return self.inflight is not None and s.stamp_ns >= self.inflight_since_ns and self._on(self.inflight, s)
 
     def _measured_by(self, s: StiffnessSample) -> bool | None:
         """Whether the probe that measured ``s`` was stiffness-blind; None when ``s`` lies on neither the probe in
-        flight (measured since its request) nor the last one made (its sweep's line, or the press's radius, within
-        one belief cell). By where and when it was measured, not when it arrived: the scanner answers a while after
-        the path ends and the probe rests on the tissue meanwhile, so estimates of the last probe keep arriving after
-        the next one was asked for; counted as the next probe's, a resolving sweep's stiff end went into the blind
-        baseline whenever a covering sweep followed, raised the detector's threshold and lost a weak inclusion
-        (fresh seed 5019, draw 2)."""
-        if self.inflight is not None and s.stamp_ns >= self.inflight_since_ns and self._on(self.inflight, s):
+        flight (:meth:`_in_flight`) nor the last one made (its sweep's line, or the press's radius, within one belief
+        cell). By where and when it was measured, not when it arrived: the scanner answers a while after the path
+        ends, so estimates of the last probe keep arriving after the next one was asked for; counted as the next
+        probe's, a resolving sweep's stiff end went into the blind baseline whenever a covering sweep followed,
+        raised the detector's threshold and lost a weak inclusion (fresh seed 5019, draw 2)."""
+        if self._in_flight(s):
             return self.inflight_blind
         if self.probed and self._on(self.probed[-1], s):
             return self.blind[-1]
@@ -276,6 +302,10 @@ class AdaptivePlanner(palpa.Node):
         err = fut.exception()
         if err is None:
             r = fut.result()
+            window = (r.measured_from_ns, r.measured_to_ns)
+            self.pending += [(x, y, v, self.inflight_blind) for x, y, v, t in self.held if _within(window, t)]
+            self.held.clear()
+            self.windows.append(window)
             self.probed.append(point)
             self.blind.append(self.inflight_blind)
             self.why.append(self.inflight_why)
@@ -286,6 +316,7 @@ class AdaptivePlanner(palpa.Node):
         self._refused(point, err)
 
     def _refused(self, point: tuple[float, float], err: ServiceError) -> None:
+        self.held.clear()   # a probe that failed said nothing of when it measured
         self.refused += 1
         n = self.tries[point] = self.tries.get(point, 0) + 1
         if n <= self.params.retries:
@@ -400,6 +431,7 @@ class AdaptivePlanner(palpa.Node):
         out.mkdir(parents=True, exist_ok=True)
         (out / "planner.json").write_text(json.dumps({
             "probes": len(self.probed), "refused": self.refused, "sim_s": elapsed, "stop": why,
+            "swept_mm": len(self.probed) * (p.length_mm if p.mode == "sweep" else 0.0),
             "points": self.probed, "why": self.why, "given_up": self.given_up, "incomplete": lost,
             "unsensed": [{"reach_mm": r, "fraction": round(f, 4)} for r, f in hiding]}, indent=1) + "\n")
         self.timer(0.2, lambda: self.request_shutdown(1 if lost else 0), oneshot=True)
@@ -418,3 +450,9 @@ class AdaptivePlanner(palpa.Node):
         if stats is not None and stats.loss():
             lost.append(f"stiffness/sample {stats.loss()}")
         return "; ".join(lost)
+
+
+def _within(window: tuple[int, int], stamp_ns: int) -> bool:
+    """Whether a sample measured at ``stamp_ns`` lies in a probe's measuring span (``(0, 0)``: not said, so yes)."""
+    lo, hi = window
+    return (lo == 0 and hi == 0) or lo <= stamp_ns <= hi

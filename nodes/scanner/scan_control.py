@@ -39,9 +39,6 @@ from palpa.node.service import RequestRefused, Responder, Service
 
 __all__ = ["ControlledScanner", "ScanControl", "ScannerCore", "lift_first", "measuring_moves"]
 
-_SETTLE_S = 0.6
-"""After a probe's path: the rest at its end, and time for the estimator to publish the last estimates (its
-max_wait_s is 0.25 s); the earliest answer."""
 _LIFT_TOLERANCE_MM = 0.5
 """An arm this much below a probe's first waypoint is lifted straight up to it first (:func:`lift_first`)."""
 _CATCH_UP_S = 10.0
@@ -144,6 +141,11 @@ class ScanControl:
         half = req.length_mm / 2
         ends = (req.x_mm, req.y_mm - half, req.x_mm, req.y_mm + half) if p.axis == "y" else \
             (req.x_mm - half, req.y_mm, req.x_mm + half, req.y_mm)
+        # a sweep starts from the end of its line nearer the arm: a planner going down a column of short sweeps
+        # would otherwise travel past each line to come back up it (a line is read alike both ways, as a raster's)
+        here = self.node.driver.state().pose[:2]
+        if math.dist(here, ends[2:]) < math.dist(here, ends[:2]):
+            ends = (*ends[2:], *ends[:2])
         common: dict[str, Any] = dict(spacing_mm=p.spacing_mm, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
                       approach_clearance_mm=p.approach_clearance_mm, retract_clearance_mm=p.retract_clearance_mm,
                       transit_speed_mm_s=p.transit_speed_mm_s)
@@ -172,7 +174,7 @@ class ScanControl:
     def path_done(self) -> None:
         """The probe's path is complete: answer after the rest, once the estimator has caught up (module doc)."""
         self.path_end_ns = self.node.clock.now_ns()
-        self.settle_until_ns = self.path_end_ns + int(_SETTLE_S * 1e9)
+        self.settle_until_ns = self.path_end_ns + int(self.node.params.probe_rest_s * 1e9)
         if self.closed_ns is None:
             self.closed_ns = self.path_end_ns
 
@@ -219,7 +221,8 @@ class ScanControl:
                       req.x_mm, req.y_mm, median, self.unit, len(values), len(self.values) - len(values))
         responder.reply(ProbeResult(x_mm=req.x_mm, y_mm=req.y_mm, value=median, unit=self.unit,
                                     samples=len(values), mad=mad,
-                                    duration_s=(node.clock.now_ns() - self.started_ns) / 1e9))
+                                    duration_s=(node.clock.now_ns() - self.started_ns) / 1e9,
+                                    measured_from_ns=opened or 0, measured_to_ns=closed or 0))
 
     def stop_probe(self, why: str, status: str = "", event: Event = Event.PROBE_FAILED) -> None:
         """Stop the arm where it is and fail the probe in progress with ``why`` (``event``: PROBE_FAILED, or ABORT

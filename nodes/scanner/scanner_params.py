@@ -112,3 +112,8 @@ class ScannerParams(palpa.Params):
     watchdog for 1/rtde_watchdog_hz s (a stalled PC or a cut cable); 0: no watchdog."""
     autostart: bool = True
     """Run the raster at start-up (and exit when it is done); false: stay idle and serve probe_at requests."""
+    probe_rest_s: palpa.NonNegative = 0.6
+    """``scanner/probe_at``: the earliest answer after a probe's path has ended (the rest at its end, and time for
+    the estimator's last estimates); the answer also waits, whatever this is, until an estimate measured at or after
+    the path's end has arrived (nodes.scanner.scan_control), so a shorter rest loses no estimate, it only stops
+    waiting for nothing. An adaptive air-float scan sets 0.1: this rest was a third of each of its sweeps' time."""
