@@ -328,3 +328,44 @@ def test_a_setup_that_takes_a_name_the_node_keeps_its_state_in_is_refused_at_onc
     node = OwnsItsNames(transport=bus.transport(), heartbeat_s=0)
     assert node.is_shutdown and node.exit_code == 3 and node._late is not None
     node.close()
+
+
+class _Slow(palpa.Node):
+    """A sim-clock node whose only timer fires every two simulated minutes (a periodic save, a status line)."""
+
+    def setup(self) -> None:
+        self.fired: list[int] = []
+        self.timer(120.0, lambda: self.fired.append(self.clock.now_ns()))
+
+
+def test_a_timer_further_off_than_the_bound_still_fires() -> None:
+    """The event lockstep ticks a node at its own next deadline: for a 2-minute timer that is 120 s on, past the 60 s
+    bound, and it was refused for good (the timer never fired). A jump that passes none of the node's timers is
+    taken; one that passes a timer is still refused, as is a message's instant past it."""
+    from palpa.runtime_msgs import ClockTick
+
+    bus = MemoryBus()
+    node = _Slow(name="slow", transport=bus.transport(), heartbeat_s=0, sim_clock=True, wait_for_clock_s=0,
+                 sim_clock_timeout_s=0)
+    clock = palpa.Node(name="clock", transport=bus.transport(), heartbeat_s=0)
+    pub = clock.publisher("_palpa/clock", ClockTick)
+    t0 = 10**9
+    pub.publish(ClockTick(sim_ns=t0))  # time starts: the timer is due at t0 + 120 s
+    node.spin_once(0)
+    for k in (1, 2):
+        pub.publish(ClockTick(sim_ns=t0 + k * 120 * 10**9))  # the lockstep's tick at its deadline
+        node.spin_once(0)
+        assert node.fired == [t0 + i * 120 * 10**9 for i in range(1, k + 1)]
+    assert node.sim_time is not None and node.sim_time.refused_jumps == 0
+    now = node.clock.now_ns()
+    pub.publish(ClockTick(sim_ns=now + 3600 * 10**9))  # past its next deadline (now + 120 s): refused
+    node.spin_once(0)
+    assert node.clock.now_ns() == now and len(node.fired) == 2 and node.sim_time.refused_jumps == 1
+    forger = palpa.Node(name="forger", transport=bus.transport(), heartbeat_s=0)
+    node.subscribe("chatter", Text)
+    forger.publish_raw("chatter", Header(type="Text", seq=1, stamp=1, node="forger", at=now + 3600 * 10**9),
+                       msgspec.msgpack.encode(Text(text="hi")))
+    node.spin_once(0)
+    assert node.clock.now_ns() == now and node.sim_time.refused_jumps == 2
+    for n in (node, clock, forger):
+        n.close(0)

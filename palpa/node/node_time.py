@@ -39,8 +39,9 @@ _SIM_CLOCK_TIMEOUT_S = 30.0
 _SIM_CLOCK_MAX_JUMP_S = 60.0
 """Simulated seconds a tick may move time forward at once (PALPA_SIM_CLOCK_MAX_JUMP_S; 0: no bound). The lockstep
 clock moves an idle node's time by at most about ``time_scale`` seconds per wall second (its broadcast), a busy
-one's from deadline to deadline; an hour ahead is a forged or broken tick, which would move every timer of the
-graph an hour on (and a simulated driver would try to produce an hour of samples at once)."""
+one's from deadline to deadline; an hour ahead past a node's timers is a forged or broken tick, which would move every
+timer of the graph an hour on (and a simulated driver would try to produce an hour of samples at once). A jump that
+passes none of the node's timers (its own next deadline is that far, or it has none) is not bounded."""
 EXIT_CLOCK_LOST = 3
 """The exit code of a sim-clock node that stopped because simulated time stopped."""
 
@@ -225,10 +226,17 @@ class SimTime:
                                    CLOCK_TOPIC, timeout_s)
 
     def _refused(self, sim_ns: int, what: str) -> bool:
-        """Whether moving time to ``sim_ns`` is a jump past the bound (logged, the first time and every 1000th,
-        and counted in :attr:`refused_jumps`): the node's time stays where it is."""
+        """Whether moving time to ``sim_ns`` is a jump past the bound that would pass one of this node's timers
+        (logged, the first time and every 1000th, and counted in :attr:`refused_jumps`): the node's time stays where
+        it is. A jump that passes none of its timers is what the event lockstep gives a node whose next timer is far
+        off (a 2-minute timer is ticked 2 minutes on) or that has none: taken, whatever its size. The bound is
+        against a forged instant firing or skipping a node's timers at once (and the simulated drivers rendering
+        the hour it skipped), which only a timer due before the new instant can do."""
         clock = self._clock
         if not (clock.started and self._max_jump_ns and sim_ns - clock.now_ns() > self._max_jump_ns):
+            return False
+        due = self._timers.next_due_ns()
+        if due is None or due >= sim_ns:
             return False
         self.refused_jumps += 1
         self._node.refusals["clock_jump"] = self.refused_jumps
