@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
@@ -61,6 +60,7 @@ from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import MapSnapshot, StiffnessGrid
 from models.surface import region_in_footprint
 from nodes.mapping.map_output import detection_summary, inclusions_message, write_outputs
+from nodes.scanner.planner_params import PlannerParams
 from palpa.node.service import ServiceError
 from palpa.node.service_client import Future
 
@@ -70,80 +70,8 @@ __all__ = ["AdaptivePlanner"]
 class AdaptivePlanner(palpa.Node):
     """Picks probe points from a GP belief of stiffness and sends them to the scanner (module doc)."""
 
-    class Params(palpa.Params):
-        region_mm: list[float] = []
-        """x0, y0, x1, y1 the planner probes in (the scanner refuses what is outside its own box); empty: the
-        measured footprint (``geometry``) less ``edge_margin_mm``."""
-        geometry: str = ""
-        """Measured-geometry file (models.geometry), for the footprint when no region is given."""
-        edge_margin_mm: float = 6.0
-        resolution_mm: float = 2.0
-        initial: int = 4
-        """An initial x initial grid of probes first (unless seed_spacing_mm)."""
-        seed_spacing_mm: float = 0.0
-        """> 0: the initial grid's points about this far apart instead (a seed that scales with the specimen)."""
-        max_length_scale_mm: float = 3.0
-        """Upper bound of the GP kernel's length scale (models.adaptive.PlannerConfig.length_scale_mm)."""
-        beta: float = 2.0
-        implicit_fraction: float = 0.0
-        rel_threshold: float = 0.2
-        stop_area_mm2: float = 16.0
-        epsilon: float = 0.1
-        """LSE's accuracy, a fraction of the baseline (models.adaptive.PlannerConfig)."""
-        max_probes: int = 60
-        stop_rule: Literal["detect", "lse"] = "detect"
-        """detect: stop when an inclusion of the sizes of interest is unlikely to hide, every candidate's boundary is
-        sampled and every detection's disc measured densely (models.adaptive_detect); lse: LSE's ambiguous area."""
-        reach_mm: float = 4.0
-        """detect: a measurement within this of an inclusion's centre senses it (smallest radius + sensing reach)."""
-        radius_span_mm: float = 4.5
-        """detect: the radii of interest span this much above the smallest; the reach grows with them (PlannerConfig)."""
-        reach_spread_mm: tuple[float, ...] = (0.0,)
-        """detect: how far an inclusion's reach strays from that, as equally likely offsets (PlannerConfig)."""
-        interior_gap_mm: float = 3.0
-        """detect: every cell of a detected inclusion's disc within this of a measured cell before stopping (0: off)."""
-        miss_probability: float = 0.02
-        """detect: the chance, below which the planner may stop, that such an inclusion hides unsensed."""
-        suspect_false_alarm: float = 0.4
-        """detect: regions the map detector reports at this false-alarm rate per map get their boundary sampled."""
-        coarse_pass: bool = True
-        """detect: first the whole covering lattice (and the sweeps patching its edges), chosen before any is made and
-        visited in one short route (models.adaptive_route); false: a seed grid, the rest covered as it goes."""
-        fill_mm: float = 4.0
-        """detect: the detection map takes the GP mean only this close to a measured cell."""
-        false_alarm_per_map: float = 0.003
-        """The map detector's false-alarm rate per map (models.detector), as the map aggregator's."""
-        split_prominence: float = 1.5
-        """detect: split a detection whose measured cells show two maxima this many noise scales above the measured
-        level joining them (PlannerConfig; 0: off)."""
-        near_miss_false_alarm: float = 0.04
-        """detect, > 0: a suspect whose false-alarm probability by the detector's law is at most this gets its disc
-        measured at the raster's density (PlannerConfig)."""
-        near_miss_gap_mm: float = 1.5
-        """detect: a near miss's disc is measured until every cell is within this of a measured one (PlannerConfig)."""
-        near_best: float = 1.0
-        """detect: the nearest of the covering sweeps revealing at least this fraction of the best one's."""
-        cover_column_mm: float = 8.0
-        """detect: the covering sweeps on a staggered lattice with columns this far apart (PlannerConfig; 0: off)."""
-        cover_period_mm: float = 14.0
-        """detect: along a lattice column a sweep every this far, the next column's half a period along."""
-        mode: Literal["sweep", "indent"] = "sweep"
-        """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
-        length_mm: float = 6.0
-        radius_mm: float = 3.0
-        """Samples within this distance of the point make the scanner's answer (the planner bins them all)."""
-        min_count: int = 1
-        """Samples a cell needs to count as observed."""
-        refit_every: int = 8
-        """Re-optimise the GP's hyper-parameters every this many probes (a fit costs seconds, a posterior ms)."""
-        retries: int = 2
-        call_timeout_s: float = 120.0
-        """Seconds of the node's clock a probe may take before the planner gives it up (simulated time on a
-        simulated clock)."""
-        output_dir: str = "out"
-        title: str = ""
-
-    params: Params
+    Params = PlannerParams
+    params: PlannerParams
 
     def setup(self) -> None:
         p = self.params
