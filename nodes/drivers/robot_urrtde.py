@@ -32,7 +32,7 @@ import logging
 import math
 import threading
 from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from typing import Any
 
 from nodes.drivers.host_clock import host_ns
 from nodes.drivers.native_stderr import native_stderr
@@ -46,6 +46,7 @@ from nodes.drivers.robot import (
     Vec6,
     checked_path,
 )
+from nodes.drivers.rtde_interfaces import RtdeInterfaces, UrRtde
 
 __all__ = ["RtdeInterfaces", "URRtdeDriver"]
 
@@ -65,43 +66,6 @@ _UNREACHABLE = ("connection refused", "timeout connecting", "timed out", "no rou
                 "connection reset", "host is unreachable")
 """ur_rtde's words (its RuntimeError, or what it printed) for a controller that does not answer on a port: all it
 raises is RuntimeError, so only the text tells an unreachable robot from a refused script."""
-
-
-class RtdeInterfaces(Protocol):
-    """What makes ur_rtde's two interfaces (or stand-ins answering the same methods)."""
-
-    threaded: bool
-    """Whether the interfaces move on threads of their own in wall time (ur_rtde's receive stream), so the driver
-    polls them between its caller's calls from a monitor thread; False: they move only when called."""
-
-    def receive(self, host: str, frequency_hz: float, fields: list[str]) -> Any:
-        """rtde_receive.RTDEReceiveInterface(host, frequency_hz, fields); RuntimeError if unreachable."""
-        ...
-
-    def control(self, host: str, frequency_hz: float) -> Any:
-        """rtde_control.RTDEControlInterface(host, frequency_hz); RuntimeError if it cannot start its script."""
-        ...
-
-
-class _UrRtde:
-    """ur_rtde's own interfaces (imported at the first connection: a project dependency, with a clear error)."""
-
-    threaded = True
-
-    @staticmethod
-    def _modules() -> tuple[Any, Any]:
-        try:
-            import rtde_control
-            import rtde_receive
-        except ImportError as e:  # pragma: no cover - ur_rtde is a project dependency
-            raise RobotConnectionError(f"ur_rtde is not installed ({e}); pip install ur-rtde") from e
-        return rtde_control, rtde_receive
-
-    def receive(self, host: str, frequency_hz: float, fields: list[str]) -> Any:
-        return self._modules()[1].RTDEReceiveInterface(host, frequency_hz, fields)
-
-    def control(self, host: str, frequency_hz: float) -> Any:
-        return self._modules()[0].RTDEControlInterface(host, frequency_hz)
 
 
 def _unreachable(host: str, ports: str, why: str, said: list[str]) -> RobotConnectionError:
@@ -137,7 +101,7 @@ class URRtdeDriver:
         self.max_speed_mm_s, self.max_accel_mm_s2 = max_speed_mm_s, max_accel_mm_s2
         self.poll_s, self.start_timeout_s, self.command_timeout_s = poll_s, start_timeout_s, command_timeout_s
         self._clock = clock
-        self._interfaces: RtdeInterfaces = interfaces if interfaces is not None else _UrRtde()
+        self._interfaces: RtdeInterfaces = interfaces if interfaces is not None else UrRtde()
         self._lock = threading.RLock()  # serialises every ur_rtde call
         self._rc: Any = None  # rtde_control.RTDEControlInterface
         self._rr: Any = None  # rtde_receive.RTDEReceiveInterface

@@ -105,7 +105,7 @@ class ScannerParams(palpa.Params):
     """Fixed tool orientation (rotation vector, rad): probe pointing down."""
     rtde_interfaces: str = ""
     """ur_rtde: ``MODULE:name`` of what makes its two interfaces instead of ur_rtde itself
-    (nodes.drivers.robot_urrtde.RtdeInterfaces); ``emulators.ur.local:hosts`` drives an emulated controller served
+    (nodes.drivers.rtde_interfaces.RtdeInterfaces); ``emulators.ur.local:hosts`` drives an emulated controller served
     at ``robot_host`` in this process, on the node's clock (the in-process tests). Empty: ur_rtde over TCP."""
     rtde_watchdog_hz: palpa.SafetyLimit[palpa.NonNegative] = 2.0
     """ur_rtde: the controller stops the program (and the arm) when this process has not kicked its RTDE
