@@ -6,11 +6,15 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import pytest
+
 from palpa.node.node import Node
 from palpa.record.recorder import Recorder
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, Heartbeat
 from palpa.testing import MemoryBus
 from tests.procs import wait_until
+
+pytestmark = pytest.mark.system  # heartbeats go on the wall clock by design: these wait for them in wall time
 
 
 def _listen(bus: MemoryBus) -> tuple[Node, list[Heartbeat]]:
