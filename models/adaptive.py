@@ -46,6 +46,9 @@ class PlannerConfig:
     """x0, y0, x1, y1 the planner may probe in (the scanner's box is checked by the scanner itself)."""
     resolution_mm: float = 2.0
     """Cell size of the belief grid (and of the written map)."""
+    model: str = ""
+    """The estimator's model the samples come from (``StiffnessSample.model``): it picks the map detector's
+    false-alarm law (models.detector.with_law_of); '' until the first sample says."""
     initial: int = 4
     """An ``initial x initial`` grid of probes before the acquisition takes over (unless ``seed_spacing_mm``)."""
     seed_spacing_mm: float = 0.0

@@ -77,7 +77,7 @@ from models.adaptive_cover import (
 )
 from models.adaptive_route import order_route
 from models.adaptive_split import split_detections
-from models.detector import Detection, DetectorConfig, detect, false_alarm_probability
+from models.detector import Detection, DetectorConfig, detect, false_alarm_probability, with_law_of
 from models.stiffness_map import Inclusion, MapSnapshot
 
 __all__ = ["Decision", "decide", "detect_candidates", "detection_map", "detector_config", "interior_gaps",
@@ -99,7 +99,8 @@ def detection_map(measured: FloatArray, mean: FloatArray, resolution_mm: float, 
 def detector_config(cfg: PlannerConfig, suspect: bool = False) -> DetectorConfig:
     """The map detector's settings the planner detects with (the raster's own, its false-alarm rate the planner's;
     ``suspect``: at ``cfg.suspect_false_alarm``, the bar a region must pass to be worth resolving)."""
-    return DetectorConfig(false_alarm_per_map=cfg.suspect_false_alarm if suspect else cfg.false_alarm_per_map)
+    rate = cfg.suspect_false_alarm if suspect else cfg.false_alarm_per_map
+    return with_law_of(DetectorConfig(false_alarm_per_map=rate), cfg.model)
 
 
 def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], cfg: PlannerConfig,

@@ -55,7 +55,7 @@ from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, nanmedian_st
 
 __all__ = ["BACKGROUND_DEGREE", "CAMERA_GUMBEL_LOC", "CAMERA_GUMBEL_SCALE", "CAMERA_REFERENCE_AREA_MM2",
            "FALSE_ALARM_LAWS", "GUMBEL_LOC", "GUMBEL_SCALE", "REFERENCE_AREA_MM2", "DetectorConfig", "Detection",
-           "describe", "detect", "false_alarm_law", "false_alarm_probability", "fit_false_alarm_law", "peak_significance", "significance",
+           "describe", "detect", "false_alarm_law", "with_law_of", "false_alarm_probability", "fit_false_alarm_law", "peak_significance", "significance",
            "threshold_for"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -165,6 +165,13 @@ def false_alarm_law(model: str) -> tuple[float, float, float] | None:
     """The false-alarm law measured for the probe whose estimator states ``model`` (:data:`FALSE_ALARM_LAWS`);
     None for a probe no law was measured for (the caller says so and falls back on the default's)."""
     return FALSE_ALARM_LAWS.get(model)
+
+
+def with_law_of(cfg: DetectorConfig, model: str) -> DetectorConfig:
+    """``cfg`` with the false-alarm law measured for ``model``'s probe (:func:`false_alarm_law`); ``cfg`` as it is for
+    a probe no law was measured for (the caller says so: its stated false-alarm rate is then not that map's)."""
+    law = false_alarm_law(model)
+    return cfg if law is None else replace(cfg, gumbel=law)
 
 
 def threshold_for(area_mm2: float, cfg: DetectorConfig) -> float:

@@ -17,12 +17,13 @@ from models.adaptive_detect import (
     decide,
     detect_candidates,
     detection_map,
+    detector_config,
     interior_gaps,
     near_misses,
     open_sides,
     unsensed,
 )
-from models.detector import DetectorConfig, threshold_for
+from models.detector import FALSE_ALARM_LAWS, DetectorConfig, threshold_for
 from models.stiffness_map import Inclusion
 
 REGION = (0.0, 0.0, 40.0, 40.0)   # 20 x 20 cells of 2 mm
@@ -378,3 +379,14 @@ def test_a_near_miss_gets_its_disc_measured_at_its_own_gap_whether_or_not_detect
     for bad in ({"near_miss_false_alarm": -0.1}, {"near_miss_false_alarm": 1.0}, {"near_miss_gap_mm": 0.0}):
         with pytest.raises(ValueError, match="near_miss"):
             _cfg(**bad)
+
+
+def test_the_planner_detects_with_the_law_of_the_probe_its_samples_come_from() -> None:
+    """The camera planner's maps hold K_t (N/mm), whose noise is not the air-float's: its suspects and detections
+    are judged by the camera probe's own false-alarm law, as the map aggregator's are; a probe without a measured
+    law keeps the default's."""
+    camera = detector_config(_cfg(model="multi_indenter"))
+    assert camera.gumbel == FALSE_ALARM_LAWS["multi_indenter"] != DetectorConfig().gumbel
+    assert detector_config(_cfg(model="multi_indenter"), suspect=True).gumbel == camera.gumbel
+    assert detector_config(_cfg(model="airfloat")).gumbel == FALSE_ALARM_LAWS["airfloat"]
+    assert detector_config(_cfg(model="")).gumbel == DetectorConfig().gumbel

@@ -31,7 +31,7 @@ from messages import (
     StiffnessSample,
     Trigger,
 )
-from models.detector import Detection, DetectorConfig, detect, false_alarm_law
+from models.detector import Detection, DetectorConfig, detect, false_alarm_law, with_law_of
 from models.stiffness_map import MapSnapshot, StiffnessGrid, spacing_warning
 from nodes.mapping.map_output import PngHelper, detection_summary, inclusions_message, write_outputs
 from palpa.node.service import RequestRefused
@@ -221,13 +221,11 @@ class MapAggregator(palpa.Node):
     def _take_model(self, model: str) -> None:
         """The samples come from ``model``'s estimator: detect with the false-alarm law measured for that probe."""
         self.model = model
-        law = false_alarm_law(model)
-        if law is None:
-            law = DetectorConfig().gumbel
+        if false_alarm_law(model) is None:
             self.log.warning("no false-alarm law was measured for %r maps (models.detector.FALSE_ALARM_LAWS): the "
                              "air-float probe's is used, so the stated false-alarm rate is not this map's "
                              "(bench/detector_calibration.py measures one on blank scans)", model)
-        self.detector = replace(self.detector, gumbel=law)
+        self.detector = with_law_of(replace(self.detector, gumbel=DetectorConfig().gumbel), model)
 
     def _detect(self, snap: MapSnapshot) -> Detection:
         return detect(snap, self.detector)

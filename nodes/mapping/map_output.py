@@ -29,7 +29,6 @@ import subprocess
 import sys
 import textwrap
 from collections.abc import Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import IO, Any
 
@@ -37,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from messages import DetectedInclusion, Inclusions
-from models.detector import Detection, DetectorConfig, detect, false_alarm_law
+from models.detector import Detection, DetectorConfig, detect, with_law_of
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, to_inclusions_json
 
 __all__ = ["PngHelper", "detection_summary", "inclusions_message", "map_model", "read_map", "redetect", "write_outputs"]
@@ -75,9 +74,7 @@ def redetect(npz: Path, cfg: DetectorConfig | None = None) -> Detection:
     """The map detector (models.detector.detect, the map aggregator's) run on a written ``map.npz`` again, with the
     false-alarm law of the probe that made the map (:func:`map_model`; a probe without one: ``cfg``'s). Raises
     OSError, KeyError or ValueError on a file that is not a map."""
-    cfg = cfg or DetectorConfig()
-    law = false_alarm_law(map_model(npz))
-    return detect(read_map(npz), cfg if law is None else replace(cfg, gumbel=law))
+    return detect(read_map(npz), with_law_of(cfg or DetectorConfig(), map_model(npz)))
 
 
 def inclusions_message(det: Detection, *, stamp_ns: int, unit: str, false_alarm_per_map: float,

@@ -30,6 +30,7 @@ lost: a probe given up after the scanner's refusals, or estimates lost on the wa
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -167,6 +168,8 @@ class AdaptivePlanner(palpa.Node):
         if blind is None:
             return
         self.unit = s.unit
+        if s.model != self.cfg.model:  # the probe's own false-alarm law for every detection (models.detector)
+            self.cfg = replace(self.cfg, model=s.model)
         # and of those, only what they measured on their measuring part (the scanner's answer says when): the transit
         # to a sweep, often along the same column, passes over its line at the retract height, where the floating
         # indenter still reads, at another load (tuning phantom airfloat_tumours: the map's noise 0.075, the raster's
@@ -350,7 +353,7 @@ class AdaptivePlanner(palpa.Node):
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes; "
             title += detection_summary(det, p.false_alarm_per_map)
             write_outputs(out, snap, det.inclusions, unit=self.unit or "?", title=title, unsensed=mask,
-                          incomplete=lost)
+                          incomplete=lost, model=self.cfg.model)
             self.inc_pub.publish(inclusions_message(det, stamp_ns=self.clock.now_ns(), unit=self.unit,
                                                     false_alarm_per_map=p.false_alarm_per_map, final=True))
         else:
