@@ -194,6 +194,9 @@ def test_aligned_export_states_its_method_and_refuses_what_it_cannot_do(tmp_path
     assert "--format needs -o" in capsys.readouterr().err
     with pytest.raises(BagError, match="not msgpack"):
         palpa.bag.read(write_bag(tmp_path / "bad.mcap", [Rec("a", 1, b"\xc1", 1)]))
+    deep = b"\x91" * 100_000 + b"\x00"  # an array in an array ... 10^5 deep: the recorder keeps what the wire carried
+    with pytest.raises(BagError, match="nested deeper"):  # a clear refusal, not a RecursionError's traceback
+        palpa.bag.read(write_bag(tmp_path / "deep.mcap", [Rec("a", 1, deep, 1)]))
 
 
 def test_flattening_nested_maps_fixed_arrays_and_units_from_the_schema() -> None:

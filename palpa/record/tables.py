@@ -25,9 +25,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import msgspec
 from mcap.records import McapRecord, Schema
 
+from palpa.errors import DecodeError
+from palpa.net.wire import decode_any
 from palpa.record.export import inline_refs
 from palpa.record.format import SCHEMA_ENCODING, BagError, TopicFilter
 from palpa.record.reader import BagMessage, iter_bag, resolve_bag_paths
@@ -118,9 +119,6 @@ class TopicRows:
     types: list[str] = field(default_factory=list)
 
 
-_decoder = msgspec.msgpack.Decoder()
-
-
 def read_rows(paths: Sequence[Path], topics: TopicFilter) -> Iterator[tuple[str, dict[str, Any]]]:
     """(topic, flat row) for every message of the selected topics, in file order. A payload that is not msgpack
     raises :class:`BagError` naming the topic and sequence number (a table with a hole would look complete)."""
@@ -136,8 +134,8 @@ def read_rows(paths: Sequence[Path], topics: TopicFilter) -> Iterator[tuple[str,
         if not topics(m.topic):
             continue
         try:
-            value = _decoder.decode(m.payload)
-        except (msgspec.DecodeError, ValueError) as exc:
+            value = decode_any(m.payload)  # nesting-bounded, as every decode of what the wire carried
+        except (DecodeError, ValueError) as exc:
             raise BagError(f"{m.topic}: the message with sequence number {m.seq} is not msgpack ({exc}); "
                            "nothing was exported") from None
         flat = flatteners.get(m.type)
