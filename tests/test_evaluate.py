@@ -192,3 +192,9 @@ def test_evaluate_redetect_scores_the_runs_left_in_out_with_the_map_detector(tmp
     runs = list(csv.DictReader((out / "runs.csv").open()))
     assert [r["run"] for r in runs] == ["ph-s0", "ph-s1"]
     assert runs[0]["found"] == "1" and runs[1]["error"].startswith("cannot score") and not (out / "runs" / "ph-s1").exists()
+    # a map its node wrote as partial (the scan stopped) is no result, however well it detects
+    np.savez(run_dir / "map" / "map.npz", stiffness=stiff, x_mm=axis, y_mm=axis, count=np.full(stiff.shape, 5),
+             incomplete=np.array("the scan did not finish: last heard scanning at 14 % of its path"))
+    assert main([launch, "--phantom", str(spec.phantom), "--seeds", "0", "-o", str(out), "--redetect"]) == 1
+    runs = list(csv.DictReader((out / "runs.csv").open()))
+    assert runs[0]["error"] == "the map is INCOMPLETE: the scan did not finish: last heard scanning at 14 % of its path"

@@ -133,6 +133,11 @@ def test_scan_report_redetects_with_the_map_detector(tmp_path, capsys) -> None: 
     assert main([str(tmp_path), "--redetect", "--phantom", str(ph)]) == 0
     out = capsys.readouterr().out
     assert "1 inclusion(s) found" in out and "SNR" in out and "1 of 1 found, 0 false positive(s)" in out
+    # a partial map (its node said so in map.npz) is reported, but the report fails and says why
+    np.savez(tmp_path / "map" / "map.npz", stiffness=stiff, x_mm=xs, y_mm=xs, count=np.ones(gx.shape, dtype=int),
+             incomplete=np.array("the scan did not finish"))
+    assert main([str(tmp_path), "--redetect", "--phantom", str(ph)]) == 1
+    assert "the map is INCOMPLETE: the scan did not finish" in capsys.readouterr().err
     # the map's probe picks the false-alarm law: a map of the camera probe's (its unit; or map.npz's model) is
     # thresholded with the camera's, as the map aggregator detected it
     from dataclasses import replace

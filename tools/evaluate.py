@@ -294,10 +294,15 @@ def run_and_score(job: RunJob) -> dict[str, Any]:
 def redetected(spec: RunSpec) -> dict[str, Any]:
     """A record as :func:`run_tasks` gives one, for a run an earlier sweep left in its run directory, scored with
     the map detector run on its ``map.npz`` again (``--redetect``: nothing is launched)."""
+    from nodes.mapping.map_output import map_incomplete
+
     try:
+        why = map_incomplete(spec.run_dir / "map" / "map.npz")
         scored, incs, dets = score_outputs(spec, load_phantom(spec.phantom), redetect=True)
     except (OSError, ValueError, KeyError) as exc:
         return {"key": "", "ok": False, "error": f"cannot score: {exc}", "result": {}}
+    if why:  # the run's own map said it is partial: its launch failed then, and a new detection does not mend it
+        return {"key": "", "ok": False, "error": f"the map is INCOMPLETE: {why}", "result": {}}
     return {"key": "", "ok": True, "error": "", "result": {"row": scored, "inclusions": incs, "detections": dets}}
 
 

@@ -71,6 +71,12 @@ def main(argv: list[str] | None = None) -> int:
               f"{len(score.false_positives)} false positive(s)")
         for line in score.summary():
             print(f"  {line}")
+    from nodes.mapping.map_output import map_incomplete
+
+    why = map_incomplete(out / "map.npz") if (out / "map.npz").exists() else ""
+    if why:  # what is above holds part of the scan: a report of it is not a result
+        print(f"scan_report: the map is INCOMPLETE: {why}", file=sys.stderr)
+        return 1
     return 0
 
 

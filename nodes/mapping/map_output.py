@@ -39,7 +39,8 @@ from messages import DetectedInclusion, Inclusions
 from models.detector import Detection, DetectorConfig, detect, with_law_of
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, to_inclusions_json
 
-__all__ = ["PngHelper", "detection_summary", "inclusions_message", "map_model", "read_map", "redetect", "write_outputs"]
+__all__ = ["PngHelper", "detection_summary", "inclusions_message", "map_incomplete", "map_model", "read_map", "redetect",
+           "write_outputs"]
 
 
 def read_map(npz: Path) -> MapSnapshot:
@@ -68,6 +69,13 @@ def map_model(npz: Path) -> str:
         if "model" in d:
             return str(d["model"])
         return _MODEL_OF_UNIT.get(str(d["unit"]), "") if "unit" in d else ""
+
+
+def map_incomplete(npz: Path) -> str:
+    """Why a written ``map.npz`` lacks part of what it was to hold (its ``incomplete``; '' when it is whole): a map
+    scored or reported later must say so, and count as a failed run."""
+    with np.load(npz) as d:
+        return str(d["incomplete"]) if "incomplete" in d else ""
 
 
 def redetect(npz: Path, cfg: DetectorConfig | None = None) -> Detection:
