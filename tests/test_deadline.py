@@ -111,3 +111,19 @@ def test_a_blocking_call_on_a_mock_clock_times_out_instead_of_hanging() -> None:
         assert g.clock.now_ns() == start
         sub = caller.subscribe("nothing/here", Ask)
         assert sub.next(timeout_s=30.0) is None
+
+
+def test_a_blocking_wait_on_a_still_clock_ends_its_own_call_only() -> None:
+    """The frozen-clock rule belongs to the waiter: a blocking call's rounds on a clock that stands still end that
+    call, not another call sent before it whose deadline has not come (it was ended by the other wait's round count,
+    "no reply within the deadline", at the same simulated instant it was sent)."""
+    with GraphHarness([(Silent, None)]) as g:
+        caller = g.add(palpa.Node, name="caller")
+        ask = caller.client("ask", Ask, Answer, timeout_s=30.0)
+        assert ask.wait_for_service(1.0)
+        earlier = ask.call_async(Ask(n=1))
+        with pytest.raises(ServiceTimeout):
+            ask.call(Ask(n=2))
+        assert not earlier.done()  # its 30 s of simulated time have not passed
+        g.advance(31.0)
+        assert earlier.done() and isinstance(earlier.exception(), ServiceTimeout)

@@ -108,7 +108,7 @@ class Future(Generic[R]):
         pump = _pump_of(node)
         try:
             while not self._done:
-                self._client._expire()
+                self._client._expire(self)
                 if self._done or limit.passed():
                     break
                 node.flush()
@@ -247,10 +247,13 @@ class Client(Generic[Q, R]):
     def _tick(self) -> None:
         self._expire()
 
-    def _expire(self) -> None:
+    def _expire(self, waited: Future[Any] | None = None) -> None:
+        """End the pending calls whose deadline has come. ``waited``: the call a blocking wait is in, the only one
+        whose deadline counts this round (a clock that stands still ends that wait after its rounds, not the other
+        calls', whose time has not come)."""
         self._send_unsent()
         for seq, fut in list(self._pending.items()):
-            if not fut.deadline.passed():
+            if not (fut.deadline.passed() if fut is waited else fut.deadline.reached()):
                 continue
             del self._pending[seq]
             if self._unsent.pop(seq, None) is not None:

@@ -130,6 +130,11 @@ class Deadline:
             return 0.0 if self._frozen else math.inf
         return 0.0 if self._frozen else max(0.0, (self.at_ns - self._read()) / 1e9)
 
+    def reached(self) -> bool:
+        """Whether the clock has reached the limit, without counting a round: for a limit checked by someone
+        other than its waiter (the frozen-clock rule is the waiter's alone)."""
+        return self.at_ns is not None and self._read() >= self.at_ns
+
     def passed(self) -> bool:
         """Whether the limit is reached; call it once per round of a wait (the frozen-clock rule counts them)."""
         now = self._read()
