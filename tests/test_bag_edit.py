@@ -124,7 +124,8 @@ def test_merge_interleaves_recordings_by_time_and_the_result_replays(tmp_path: P
     assert [t for topic, t in in_file if topic == "chatter"] == ["a 0", "b 0", "a 1", "b 1", "a 2", "b 2"]
     # each recording keeps its own channels (two talkers' sequence numbers each count from 1)
     assert len([c for c in view.channels.values() if c.topic == "chatter"]) == 2
-    assert view.statistics.metadata_count == va.statistics.metadata_count + vb.statistics.metadata_count + 1
+    # every input's metadata but its drops, one palpa.drops recounted over the merge, and palpa.edit
+    assert view.statistics.metadata_count == va.statistics.metadata_count + vb.statistics.metadata_count - 2 + 1 + 1
 
     player, got = play_in_memory({"file": str(out), "rate": 1000.0})
     assert player.exit_code == 0
@@ -187,3 +188,25 @@ def test_a_recording_cut_anywhere_is_refused_with_a_message_not_a_traceback(tmp_
         assert main(["bag", "filter", str(damaged), "--topics", "chatter", "-o", str(out)]) == 1, cut
         assert "palpa bag recover" in capsys.readouterr().err or not out.exists(), cut
         assert not out.exists(), cut
+
+
+def test_an_edited_recording_counts_the_gaps_of_what_it_kept(tmp_path: Path) -> None:
+    """``palpa.drops`` of a cut or filtered file is recounted from the messages written (as ``recover`` does): the
+    input's counts were of every topic over the whole run; a held latched copy from before the start is no gap."""
+    import json
+
+    first = 1_700_000_000 * S
+    msgs = [Rec("plan", first, _text("a plan"), 1, node="scanner", latched=True)]
+    msgs += [Rec("chatter", first + (i + 1) * S, _text(f"a {i}"), i + 1) for i in range(10) if i != 1]  # seq 2 lost
+    msgs += [Rec("plan", first + 8 * S, _text("b plan"), 5, node="scanner", latched=True)]  # seqs 2-4 never recorded
+    src = write_bag(tmp_path / "a.mcap", msgs)
+
+    def gaps(path: Path) -> dict[str, int]:
+        return {t: json.loads(d)["gaps"] for t, d in check_official(path).metadata["palpa.drops"].items()}
+
+    assert main(["bag", "filter", str(src), "--exclude", "none", "-o", str(tmp_path / "all.mcap")]) == 0
+    assert gaps(tmp_path / "all.mcap") == {"chatter": 1, "plan": 3}
+    assert main(["bag", "filter", str(src), "--topics", "chatter", "-o", str(tmp_path / "f.mcap")]) == 0
+    assert gaps(tmp_path / "f.mcap") == {"chatter": 1}
+    assert main(["bag", "cut", str(src), "--start", "3", "--end", "7", "-o", str(tmp_path / "c.mcap")]) == 0
+    assert gaps(tmp_path / "c.mcap") == {"chatter": 0}  # the held plan (seq 1) opens the range: not a gap of it

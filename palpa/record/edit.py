@@ -31,11 +31,13 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 import palpa
+from palpa.net.wire import SequenceTracker, TopicStats
 from palpa.record.format import (
     BLOBS_SCHEMA,
     BLOBS_SCHEMA_NAME,
     BLOBS_TOPIC_PREFIX,
     LAUNCH_ATTACHMENT,
+    MD_DROPS,
     MESSAGE_ENCODING,
     META_BLOBS_OF,
     SCHEMA_ENCODING,
@@ -59,6 +61,9 @@ class EditReport:
     topics: set[str] = field(default_factory=set)
     held_latched: int = 0
     duplicates: int = 0
+    drops: dict[str, dict[str, int]] = field(default_factory=dict)
+    """Per topic, the sequence gaps of what was written (``palpa.drops``, recounted as recover does: the
+    inputs' counts were of whole recordings, every topic and the whole time range)."""
 
     def text(self) -> str:
         """The summary line the CLI prints."""
@@ -187,7 +192,9 @@ def rewrite(recordings: Sequence[Sequence[Path]], out: str | os.PathLike[str], *
                                "nothing written")
             for _path, (_att, metadata) in sides:
                 for md in metadata:
-                    w.add_metadata(md.name, dict(md.metadata))
+                    if md.name != MD_DROPS:
+                        w.add_metadata(md.name, dict(md.metadata))
+            w.add_metadata(MD_DROPS, {t: dumps(d) for t, d in report.drops.items()})
             w.add_metadata("palpa.edit", {
                 "operation": operation, "sources": dumps([str(p) for rec in recordings for p in rec]),
                 "topics": dumps([p.pattern for p in keep.include]), "exclude": dumps([p.pattern for p in keep.exclude]),
@@ -205,6 +212,7 @@ def _copy_messages(out: _Out, recordings: Sequence[Sequence[Path]], keep: Callab
     held: dict[tuple[int, str, str], tuple[_Source, BagMessage]] = {}
     last_latched: dict[tuple[int, str, str], int] = {}
     streams_of = _Streams()
+    tracker, stats = SequenceTracker(), dict[str, TopicStats]()
     started = start_ns is None
     for src, m in heapq.merge(*streams, key=lambda item: item[1].log_time):
         if not keep(m.topic):
@@ -235,6 +243,9 @@ def _copy_messages(out: _Out, recordings: Sequence[Sequence[Path]], keep: Callab
         out.message(src, m, m.log_time)
         report.messages += 1
         report.topics.add(m.topic)
+        # not the latched copies held from before the start: their numbers lie before the range, not gaps in it
+        tracker.observe(m.topic, m.node, m.seq, stats.setdefault(m.topic, TopicStats()))
+    report.drops = {t: s.as_dict() for t, s in stats.items()}
 
 
 class _Streams:
