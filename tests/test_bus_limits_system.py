@@ -89,7 +89,8 @@ def test_a_full_cache_still_takes_a_later_clients_values(ctx: zmq.Context[zmq.So
         assert len(bus.cached_topics()) == 4096 and bus.latch_refused == 0
 
 
-def test_the_watcher_table_is_bounded_and_sets_still_reach_watchers(ctx: zmq.Context[zmq.Socket[bytes]]) -> None:
+def test_the_watcher_table_is_bounded_and_sets_still_reach_watchers(ctx: zmq.Context[zmq.Socket[bytes]],
+                                                                   caplog: pytest.LogCaptureFixture) -> None:
     with Bus(bus_spec("ipc")) as bus:
         flooder = dealer(ctx, bus)
         for i in range(MAX_WATCHES + 5000):
@@ -98,6 +99,7 @@ def test_the_watcher_table_is_bounded_and_sets_still_reach_watchers(ctx: zmq.Con
         errors = replies_until_pong(flooder)
         assert len(errors) == 1 and b"GET prefix of 2000 bytes" in errors[0][2]
         assert len(bus._watchers) == MAX_WATCHES and bus.watch_refused == 1
+        assert "latch: watch refused" in caplog.text and "(1 so far)" in caplog.text  # its own count, not the SETs'
         watcher = dealer(ctx, bus)
         watcher.send_multipart([b"GET", b"robot/"])
         assert replies_until_pong(watcher) == []

@@ -277,13 +277,14 @@ class Bus:
         elif verb == b"GET":
             if len(topic) > MAX_TOPIC_BYTES:
                 self.watch_refused += 1
-                self._refuse(router, ident, topic, f"GET prefix of {len(topic)} bytes (at most {MAX_TOPIC_BYTES})")
+                self._refuse(router, ident, topic, f"GET prefix of {len(topic)} bytes (at most {MAX_TOPIC_BYTES})",
+                             watch=True)
                 return
             evicted_before = self._watchers.evicted
             why = self._watchers.add(topic, ident, peer)
             if why is not None:
                 self.watch_refused += 1
-                self._refuse(router, ident, topic, f"watcher table {why}")
+                self._refuse(router, ident, topic, f"watcher table {why}", watch=True)
             elif self._watchers.evicted != evicted_before:
                 self._throttle.event("watch-evicted", logging.WARNING, "latch: watcher table full (%d watches): "
                                      "dropped the oldest watch of the client holding the most (%d so far)",
@@ -331,10 +332,12 @@ class Bus:
         self._refuse(router, ident, topic, why)
         return False
 
-    def _refuse(self, router: zmq.Socket[bytes] | None, ident: bytes, topic: bytes, why: str) -> None:
-        """Log a refused request (throttled) and answer its sender ``ERR topic reason``."""
-        self._throttle.event("refused", logging.WARNING, "latch: refused %r (%d refused so far): %s", topic[:80],
-                             self._cache.refused, why)
+    def _refuse(self, router: zmq.Socket[bytes] | None, ident: bytes, topic: bytes, why: str,
+                watch: bool = False) -> None:
+        """Log a refused request (throttled, SETs and watches apart, each with its own count) and answer its sender
+        ``ERR topic reason``."""
+        kind, count = ("watch refused", self.watch_refused) if watch else ("refused", self._cache.refused)
+        self._throttle.event(kind, logging.WARNING, f"latch: {kind} %r (%d so far): %s", topic[:80], count, why)
         if router is not None:
             self._send(router, b"", ident, [b"ERR", topic[:MAX_TOPIC_BYTES], why.encode()])
 
