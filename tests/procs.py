@@ -14,7 +14,7 @@ import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from emulators.ur.process import UrEmulatorProcess
 from palpa.net.address import BusAddress
@@ -237,3 +237,20 @@ class ChildSteps:
             self.child.join(5.0)
         if exc[0] is None:
             assert self.child.exitcode == 0, f"{self.what} exited with {self.child.exitcode} (-6: ur_rtde aborted)"
+
+
+if TYPE_CHECKING:
+    import zmq
+
+
+def replies_until_pong(sock: zmq.Socket[bytes], token: bytes = b"sync") -> list[list[bytes]]:
+    """Every reply of the bus's latch socket before the PONG to a PING sent now (it answers in order); fails when no
+    PONG comes within 5 s (its cache thread died)."""
+    sock.send_multipart([b"PING", token])
+    out = []
+    while True:
+        assert sock.poll(5000), f"no PONG {token!r} within 5 s: the bus's cache thread does not answer"
+        frames = sock.recv_multipart()
+        if frames == [b"PONG", token]:
+            return out
+        out.append(frames)

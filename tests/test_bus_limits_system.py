@@ -17,7 +17,7 @@ import palpa
 from palpa.net.bus import Bus
 from palpa.net.latch import MAX_CLIENTS_PER_PEER, MAX_WATCHES
 from palpa.net.wire import MAX_NESTING
-from tests.procs import bus_spec, wait_until
+from tests.procs import bus_spec, replies_until_pong, wait_until
 from tests.test_bus_limits import header, nested
 from tests.test_service import Adder, AddReply, AddRequest
 
@@ -39,18 +39,6 @@ def dealer(ctx: zmq.Context[zmq.Socket[bytes]], bus: Bus) -> zmq.Socket[bytes]:
     sock.linger = 0
     sock.connect(bus.address.latch)
     return sock
-
-
-def replies_until_pong(sock: zmq.Socket[bytes], token: bytes = b"sync") -> list[list[bytes]]:
-    """Every reply before the PONG to a PING sent now (the bus answers in order): fails if the cache thread died."""
-    sock.send_multipart([b"PING", token])
-    out = []
-    while True:
-        assert sock.poll(5000), "no PONG: the bus's cache thread does not answer"
-        frames = sock.recv_multipart()
-        if frames == [b"PONG", token]:
-            return out
-        out.append(frames)
 
 
 def test_deep_nesting_is_refused_and_the_cache_thread_survives(ctx: zmq.Context[zmq.Socket[bytes]]) -> None:

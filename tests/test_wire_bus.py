@@ -13,7 +13,7 @@ import zmq
 
 from palpa.net.address import BusAddress
 from palpa.net.wire import Header, encode_header
-from tests.procs import wait_until
+from tests.procs import replies_until_pong, wait_until
 
 pytestmark = pytest.mark.system
 
@@ -33,18 +33,6 @@ def _socket(made: list[zmq.Socket[bytes]], kind: int, endpoint: str) -> zmq.Sock
     return sock
 
 
-def _until_pong(dealer: zmq.Socket[bytes], token: bytes) -> list[list[bytes]]:
-    """Send PING and return every reply that came before its PONG."""
-    dealer.send_multipart([b"PING", token])
-    before: list[list[bytes]] = []
-    while True:
-        assert dealer.poll(5000), f"no PONG {token!r} within 5 s"
-        frames = dealer.recv_multipart()
-        if frames == [b"PONG", token]:
-            return before
-        before.append(frames)
-
-
 def test_unwatch_ends_the_push_a_get_started(ipc_bus: BusAddress, sockets: list[zmq.Socket[bytes]]) -> None:
     setter = _socket(sockets, zmq.DEALER, ipc_bus.latch)
     watcher = _socket(sockets, zmq.DEALER, ipc_bus.latch)
@@ -57,8 +45,8 @@ def test_unwatch_ends_the_push_a_get_started(ipc_bus: BusAddress, sockets: list[
         seq += 1
         header = encode_header(Header(type="Text", seq=seq, stamp=1, node="setter", latched=True))
         setter.send_multipart([b"SET", b"w/topic", header, msgpack.packb({"text": str(seq)})])
-        assert _until_pong(setter, b"set") == []
-        return [msgpack.unpackb(f[3])["text"] for f in _until_pong(watcher, b"watch") if f[0] == b"VAL"]
+        assert replies_until_pong(setter, b"set") == []
+        return [msgpack.unpackb(f[3])["text"] for f in replies_until_pong(watcher, b"watch") if f[0] == b"VAL"]
 
     set_value()
     watcher.send_multipart([b"GET", b"w/"])
@@ -66,7 +54,7 @@ def test_unwatch_ends_the_push_a_get_started(ipc_bus: BusAddress, sockets: list[
     watcher.send_multipart([b"UNWATCH", b"w/"])
     assert set_value() == []
     watcher.send_multipart([b"UNWATCH", b"never/watched"])  # not an error: no reply at all
-    assert _until_pong(watcher, b"quiet") == []
+    assert replies_until_pong(watcher, b"quiet") == []
     watcher.send_multipart([b"GET", b"w/"])  # a new GET watches again
     assert set_value() == ["3", "4"]
 
