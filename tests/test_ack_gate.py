@@ -5,7 +5,7 @@ at a rate limit and shown by ``palpa node info``."""
 from __future__ import annotations
 
 import socket
-import time
+from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
@@ -31,6 +31,7 @@ from palpa.timing import simclock
 from palpa.timing.ackgate import MAX_SEQ_STEP, AckGate
 from palpa.timing.acksign import MAC_BYTES, node_key, sign, verify
 from palpa.timing.simclock import ClockSource
+from tests.procs import wait_until
 
 NOW = 5_000
 
@@ -120,14 +121,18 @@ def test_no_forged_ack_about_a_bound_node_is_believed_and_every_real_one_is(forg
             assert gate.owns("n", 7)
 
 
-def _spin(nodes: list[palpa.Node], until: object, timeout_s: float = 20.0, between: object = None) -> None:
-    """Spin ``nodes`` until ``until()`` holds (a deadline, not a wait: the memory bus needs no time)."""
-    deadline = time.monotonic() + timeout_s
-    while not until() and time.monotonic() < deadline:  # type: ignore[operator]
+def _spin(nodes: list[palpa.Node], until: Callable[[], object], timeout_s: float = 20.0,
+          between: Callable[[], object] | None = None) -> None:
+    """Spin ``nodes`` (then ``between()``) until ``until()`` holds; the memory bus needs no time, so the deadline
+    is only there to fail a test that would otherwise spin for good, with what it waited for."""
+
+    def step() -> None:
         for n in nodes:
             n.spin_once(0)
         if between is not None:
-            between()  # type: ignore[operator]
+            between()
+
+    wait_until(until, timeout_s, "the test's condition", step=step)
 
 
 def test_forged_duplicate_and_replayed_acks_neither_advance_nor_freeze_simulated_time() -> None:
