@@ -80,7 +80,7 @@ from models.adaptive_split import split_detections
 from models.detector import Detection, DetectorConfig, detect, false_alarm_probability, with_law_of
 from models.stiffness_map import Inclusion, MapSnapshot
 
-__all__ = ["Decision", "decide", "detect_candidates", "detection_map", "detector_config", "interior_gaps",
+__all__ = ["Decision", "candidate_map", "decide", "detect_candidates", "detection_map", "detector_config", "interior_gaps",
            "near_misses", "open_sides", "swept_cells", "unsensed"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -103,6 +103,15 @@ def detector_config(cfg: PlannerConfig, suspect: bool = False) -> DetectorConfig
     return with_law_of(DetectorConfig(false_alarm_per_map=rate), cfg.model)
 
 
+def candidate_map(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64],
+                  cfg: PlannerConfig) -> MapSnapshot:
+    """The detection map (:func:`detection_map`) as a map snapshot: what :func:`detect_candidates` detects on, and
+    what the planner shows after every probe."""
+    grid = detection_map(measured, belief.mean, cfg.resolution_mm, cfg.fill_mm)
+    return MapSnapshot(stiffness=grid, x_mm=belief.x_mm, y_mm=belief.y_mm, count=counts, spread=belief.std,
+                       resolution_mm=cfg.resolution_mm)
+
+
 def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], cfg: PlannerConfig,
                       fair: FloatArray | None = None, suspect: bool = False) -> tuple[MapSnapshot, Detection]:
     """The detection map (:func:`detection_map`) as a map snapshot, and what the map detector
@@ -113,9 +122,7 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     false-alarm rate ``cfg.suspect_false_alarm``, the regions worth a closer look (a weak inclusion seen from a sweep that
     passed its edge rises less than the detector's threshold; resolving it samples nearer its centre), never split
     (the split would only add sides to sample)."""
-    grid = detection_map(measured, belief.mean, cfg.resolution_mm, cfg.fill_mm)
-    snap = MapSnapshot(stiffness=grid, x_mm=belief.x_mm, y_mm=belief.y_mm, count=counts, spread=belief.std,
-                       resolution_mm=cfg.resolution_mm)
+    snap = candidate_map(belief, measured, counts, cfg)
     observed = np.isfinite(measured)
     blind = observed if fair is None else np.isfinite(np.asarray(fair, dtype=np.float64))
     dcfg = detector_config(cfg, suspect)

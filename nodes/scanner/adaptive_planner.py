@@ -54,7 +54,13 @@ from models.adaptive import (
     should_stop,
 )
 from models.adaptive_cover import seed_design
-from models.adaptive_detect import decide, detect_candidates, detector_config, unsensed
+from models.adaptive_detect import (
+    candidate_map,
+    decide,
+    detect_candidates,
+    detector_config,
+    unsensed,
+)
 from models.adaptive_route import coarse_pass
 from models.detector import Detection, detect
 from models.geometry import GeometryError, load_geometry
@@ -278,7 +284,7 @@ class AdaptivePlanner(palpa.Node):
         old = self.belief
         reuse = old is not None and len(self.probed) % self.params.refit_every != 0
         self.belief = fit_belief(pts, vals, self.cfg, kernel=old.kernel if reuse and old else None)
-        self._publish_belief(final=False)
+        self._publish_belief(self._map(self.belief), final=False)
 
     def _decide(self) -> tuple[bool, str]:
         """Stop, or queue the acquisition's next point."""
@@ -302,28 +308,33 @@ class AdaptivePlanner(palpa.Node):
         return stop, why
 
     # -- output ------------------------------------------------------------------------------------
-    def _detection(self, b: Belief) -> tuple[MapSnapshot, Detection]:
-        """The map the inclusions are detected on and what the map detector (models.detector, the raster's own)
-        finds: with the detect rule the measured cells and the GP mean near them, the background and noise from the
-        stiffness-blind probes' cells (models.adaptive_detect); with lse the GP mean (the belief alone)."""
-        counts = self.grid.snapshot().count
+    def _map(self, b: Belief) -> MapSnapshot:
+        """The map the inclusions are detected on: with the detect rule the measured cells and the GP mean near them
+        (models.adaptive_detect.candidate_map); with lse the GP mean (the belief alone)."""
+        grid = self.grid.snapshot()
         if self.cfg.stop_rule == "detect":
-            return detect_candidates(b, self.grid.snapshot().stiffness, counts, self.cfg,
-                                     self.fair.snapshot().stiffness)
-        snap = MapSnapshot(stiffness=b.mean, x_mm=b.x_mm, y_mm=b.y_mm, count=counts, spread=b.std,
+            return candidate_map(b, grid.stiffness, grid.count, self.cfg)
+        return MapSnapshot(stiffness=b.mean, x_mm=b.x_mm, y_mm=b.y_mm, count=grid.count, spread=b.std,
                            resolution_mm=self.params.resolution_mm)
+
+    def _detection(self, b: Belief) -> tuple[MapSnapshot, Detection]:
+        """:meth:`_map` and what the map detector (models.detector, the raster's own) finds on it: with the detect
+        rule its background and noise from the stiffness-blind probes' cells (models.adaptive_detect)."""
+        if self.cfg.stop_rule == "detect":
+            grid = self.grid.snapshot()
+            return detect_candidates(b, grid.stiffness, grid.count, self.cfg, self.fair.snapshot().stiffness)
+        snap = self._map(b)
         return snap, detect(snap, detector_config(self.cfg))
 
-    def _publish_belief(self, final: bool) -> tuple[MapSnapshot, Detection]:
+    def _publish_belief(self, snap: MapSnapshot, final: bool) -> None:
+        """The belief's mean and spread and the map ``snap`` (:meth:`_map`) on their topics."""
         b = self.belief
         assert b is not None
-        snap, det = self._detection(b)
         now = self.clock.now_ns()
         for pub, grid in ((self.mean_pub, b.mean), (self.std_pub, b.std), (self.map_pub, snap.stiffness)):
             pub.publish(StiffnessMap(stamp_ns=now, unit=self.unit, x_mm=b.x_mm.tolist(), y_mm=b.y_mm.tolist(),
                                      stiffness=grid.ravel().tolist(), count=snap.count.ravel().tolist(),
                                      spread=b.std.ravel().tolist(), samples=len(self.probed), final=final))
-        return snap, det
 
     def _unsensed(self) -> tuple[list[tuple[float, float]], npt.NDArray[np.bool_]]:
         """Where an inclusion of the sizes of interest could still lie unseen (models.adaptive_detect.unsensed),
@@ -349,7 +360,8 @@ class AdaptivePlanner(palpa.Node):
         if lost:
             self.log.error("the map is INCOMPLETE: %s", lost)
         if self.belief is not None:
-            snap, det = self._publish_belief(final=True)
+            snap, det = self._detection(self.belief)
+            self._publish_belief(snap, final=True)
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes; "
             title += detection_summary(det, p.false_alarm_per_map)
             write_outputs(out, snap, det.inclusions, unit=self.unit or "?", title=title, unsensed=mask,
