@@ -37,7 +37,7 @@ from zmq.auth.thread import ThreadAuthenticator
 from palpa.errors import BusError
 from palpa.lograte import LogThrottle
 from palpa.net.address import BusAddress, is_loopback_host
-from palpa.net.direct import CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
+from palpa.net.direct import ATTACH_MARK, CLIENT_KEYS_TOPIC, DIRECTORY_PREFIX
 from palpa.net.keys import ClientKeys, load_secret_key
 from palpa.net.latch import (
     BUS_OWNER,
@@ -178,6 +178,10 @@ class Bus:
         # when the late joiner the cache exists for most needs them
         for topic in self._latched_topics:
             xsub.send(b"\x01" + topic.encode())
+        # and to a topic nobody publishes: a publisher that attaches then always hears at least one
+        # subscription, and stops waiting for them at once instead of after its 100 ms grace (which every node
+        # paid at start while nothing was subscribed yet)
+        xsub.send(b"\x01" + ATTACH_MARK)
 
         capture: zmq.Socket[bytes] | None = None
         capture_sub: zmq.Socket[bytes] | None = None
@@ -196,6 +200,13 @@ class Bus:
         self._control = self._ctx.socket(zmq.PAIR)
         self._control.linger = 0
         self._control.connect("inproc://palpa-proxy-control")
+        # stop() wakes the cache thread at once instead of after its poll's 100 ms
+        wake = self._ctx.socket(zmq.PAIR)
+        wake.linger = 0
+        wake.bind("inproc://palpa-lvc-wake")
+        self._wake = self._ctx.socket(zmq.PAIR)
+        self._wake.linger = 0
+        self._wake.connect("inproc://palpa-lvc-wake")
 
         def proxy() -> None:
             try:
@@ -210,8 +221,9 @@ class Bus:
 
         def cache() -> None:
             try:
-                self._serve_cache(router, capture_sub)
+                self._serve_cache(router, capture_sub, wake)
             finally:
+                wake.close(0)
                 router.close(0)
                 if capture_sub is not None:
                     capture_sub.close(0)
@@ -222,9 +234,11 @@ class Bus:
             self._threads.append(thread)
         return self.address
 
-    def _serve_cache(self, router: zmq.Socket[bytes], capture_sub: zmq.Socket[bytes] | None) -> None:
+    def _serve_cache(self, router: zmq.Socket[bytes], capture_sub: zmq.Socket[bytes] | None,
+                     wake: zmq.Socket[bytes]) -> None:
         poller = zmq.Poller()
         poller.register(router, zmq.POLLIN)
+        poller.register(wake, zmq.POLLIN)
         exact = {t.encode() for t in self._latched_topics}
         if capture_sub is not None:
             poller.register(capture_sub, zmq.POLLIN)
@@ -365,10 +379,13 @@ class Bus:
         if self.address is not None:
             with contextlib.suppress(zmq.ZMQError):
                 self._control.send(b"TERMINATE")
+            with contextlib.suppress(zmq.ZMQError):
+                self._wake.send(b"", zmq.NOBLOCK)
         for thread in self._threads:
             thread.join(timeout_s)
         if self.address is not None:
             self._control.close(0)
+            self._wake.close(0)
         self._shutdown_ctx()
         if self.address is not None:
             for endpoint in (self.address.pub, self.address.sub, self.address.latch):

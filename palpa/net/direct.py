@@ -46,7 +46,7 @@ from palpa.net.address import BusAddress, is_loopback_host
 from palpa.net.wire import Header, encode_header
 
 __all__ = [
-    "CLIENT_KEYS_TOPIC", "DIRECTORY_PREFIX", "JOIN_PROBE_PREFIX", "REACH_PREFIX", "DirectSocket", "SubscriberSet",
+    "ATTACH_MARK", "CLIENT_KEYS_TOPIC", "DIRECTORY_PREFIX", "JOIN_PROBE_PREFIX", "REACH_PREFIX", "DirectSocket", "SubscriberSet",
     "bind_candidates",
     "directory_entry", "directory_key", "directory_value", "follow_directory",
 ]
@@ -156,6 +156,11 @@ def bind_candidates(address: BusAddress, curve: bool = False) -> list[str]:
     return []
 
 
+ATTACH_MARK = b"_palpa/attach"
+"""The topic the bus's proxy subscribes to for itself and nobody publishes (palpa.net.bus): a publisher attaching
+to the proxy always hears this one subscription, so it knows at once that it has heard them all."""
+
+
 class SubscriberSet:
     """The subscriptions an XPUB socket has heard (ZeroMQ sends each prefix once, ``\\x01prefix``, and
     ``\\x00prefix`` when its last subscriber leaves), so a publisher can tell whether anyone listens."""
@@ -170,6 +175,8 @@ class SubscriberSet:
 
     def note(self, message: bytes) -> None:
         """Record one subscription message read from the XPUB socket."""
+        if message[1:] == ATTACH_MARK:
+            return  # the proxy's own: nobody listens to it
         if message[:1] == b"\x01":
             self.prefixes.add(message[1:])
             if message.startswith(JOIN_PROBE_SUB):
