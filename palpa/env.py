@@ -13,7 +13,7 @@ from collections.abc import Mapping
 __all__ = ["BUS", "BUS_SERVER_KEY", "CLOCK_KEY", "CLOCK_MASTER_KEY", "CURRENT", "CURVE_SECRET", "DIRECT_HOST",
            "MESSAGES", "NAMESPACE", "NODE_MODULES",
            "NODE_NAME", "PARAMS", "REMAP", "RUN_DIR", "SIM_CLOCK", "SIM_CLOCK_MAX_JUMP_S", "SIM_CLOCK_TIMEOUT_S",
-           "TRANSPORT", "VARIABLES", "flag", "get", "listed"]
+           "START_GATE", "TRANSPORT", "VARIABLES", "flag", "get", "listed"]
 
 BUS = "PALPA_BUS"
 RUN_DIR = "PALPA_RUN_DIR"
@@ -33,6 +33,7 @@ CURVE_SECRET = "PALPA_CURVE_SECRET"
 DIRECT_HOST = "PALPA_DIRECT_HOST"
 CLOCK_KEY = "PALPA_CLOCK_KEY"
 CLOCK_MASTER_KEY = "PALPA_CLOCK_MASTER_KEY"
+START_GATE = "PALPA_START_GATE"
 
 VARIABLES: dict[str, str] = {
     BUS: "the bus address a node or tool joins (else the one running launch's, else the default bus)",
@@ -57,6 +58,8 @@ VARIABLES: dict[str, str] = {
     CLOCK_KEY: "set by the launcher: this node's key (hex) to sign its lockstep clock acks (palpa.timing.acksign)",
     CLOCK_MASTER_KEY: "set by the launcher on its clock entry: the run's master key (hex), from which the clock "
                       "derives each node's key to check its acks' signatures",
+    START_GATE: "set by the launcher on a composed simulation it starts before its prepare commands: the file "
+                "descriptor to read its go from (palpa.startgate)",
 }
 
 

@@ -81,3 +81,18 @@ class Freezer(palpa.Node):
         deadline = time.monotonic() + self.params.hold_s
         while time.monotonic() < deadline and not self.is_shutdown:
             time.sleep(0.05)
+
+
+class NeedsFile(palpa.Node):
+    """Reads ``path`` as it is built (a file a launch's prepare step writes), says what it read, then exits 0: built
+    before the prepare step has run, it fails."""
+
+    class Params(palpa.Params):
+        path: str = ""
+
+    params: Params
+
+    def setup(self) -> None:
+        with open(self.params.path, encoding="utf-8") as f:
+            self.log.info("read: %s", f.read().strip())
+        self.timer(0.01, lambda: self.request_shutdown(0), oneshot=True)

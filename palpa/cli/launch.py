@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     # again by _parse_rest (options included)
     p.add_argument("rest", nargs=argparse.REMAINDER, metavar="FILE [name:=value ...]",
                    help="the launch file, then arg overrides (value parsed as YAML)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, fast_exit=True)  # every file is closed when the launch returns
 
 
 def _add_options(p: argparse.ArgumentParser) -> None:
@@ -85,7 +85,7 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     run_dir, created = _make_run_dir(args.run_dir)
     try:
-        plan = _composed(load_launch(args.file, overrides, run_dir=run_dir), args.in_process)
+        plan = _composed(load_launch(args.file, overrides, run_dir=run_dir, defer_node_checks=True), args.in_process)
     except PalpaError:
         if created:
             with contextlib.suppress(OSError):
@@ -95,10 +95,17 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _composed(plan: LaunchPlan, flag: bool | None) -> LaunchPlan:
-    """The plan with its simulated-clock nodes composed in one process, when the flag or the file asks for it."""
+    """The plan with its simulated-clock nodes composed in one process, when the flag or the file asks for it.
+    A composed plan keeps the loader's deferred node checks for the launch to run while the composition imports
+    its code (palpa.startgate); any other plan runs them here."""
     from palpa.launch.compose import compose_plan
 
-    return compose_plan(plan) if flag or plan.in_process else plan
+    if flag or plan.in_process:
+        return compose_plan(plan)
+    checks, plan.pending_checks = plan.pending_checks, None
+    if checks is not None:
+        checks()
+    return plan
 
 
 def _make_run_dir(chosen: Path | None) -> tuple[Path, bool]:

@@ -81,7 +81,7 @@ def compose_plan(plan: LaunchPlan) -> LaunchPlan:
         env=env, required=any(s.required for s in composed),
         sigterm_timeout=max(s.sigterm_timeout for s in members),
         sigkill_timeout=max(s.sigkill_timeout for s in members),
-        where=f"{where}: in_process ({', '.join(s.name for s in members)})",
+        where=f"{where}: in_process ({', '.join(s.name for s in members)})", gate=True,
     )
     # a report node composed in goes on being reported: the entry's lines its logger wrote
     inside = {s.name for s in members}

@@ -97,11 +97,13 @@ class _Collected:
 
 
 def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
-                run_dir: str | Path | None = None) -> LaunchPlan:
+                run_dir: str | Path | None = None, defer_node_checks: bool = False) -> LaunchPlan:
     """Read, resolve and validate a launch file (and its includes). Raises :class:`LaunchError` naming
     ``file:line:col`` and what was expected. Nothing is started. ``overrides`` are arg values (native types, see
     :func:`parse_overrides`); ``run_dir`` is what ``$(run_dir)`` means (default ``runs/<YYYYmmdd-HHMMSS>``
-    under the working directory)."""
+    under the working directory). With ``defer_node_checks`` the checks that import node classes (their
+    parameters, their input files: ~0.2 s) are left in :attr:`LaunchPlan.pending_checks` for the caller to run,
+    with the same errors, while a composed simulation imports the same classes (palpa.startgate)."""
     path = Path(file)
     if not path.is_file():
         siblings = sorted(display_path(p) for p in path.parent.glob("*.yaml")) if path.parent.is_dir() else []
@@ -122,7 +124,11 @@ def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
     viz = plan.viz_node()
     if viz is not None:
         plan.nodes.insert(0, viz)  # first, so that it hears every node's first messages
-    _validate_nodes(col)
+    _validate_recorder_of(col)
+    if defer_node_checks:
+        plan.pending_checks = lambda: _validate_nodes(col)
+    else:
+        _validate_nodes(col)
     check_hazards(plan, col.top, col.node_sources)
     name_clock_participants(plan)
     return plan
@@ -342,11 +348,14 @@ def _validate_nodes(col: _Collected) -> None:
                                                               f"{value!r} does not exist (from {Path.cwd()})"
                                                               f"{_arg_note(col, src, (*where, 'params', name))}")
             col.plan.node_params[spec.name] = msgspec.to_builtins(params)
-        rec = col.plan.recorder()
-        if rec is not None:
-            _validate_recorder(col, rec)
     finally:
         sys.path[:] = saved
+
+
+def _validate_recorder_of(col: _Collected) -> None:
+    rec = col.plan.recorder()
+    if rec is not None:
+        _validate_recorder(col, rec)
 
 
 def _validate_recorder(col: _Collected, rec: NodeSpec) -> None:

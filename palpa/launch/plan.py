@@ -7,6 +7,7 @@ import json
 import os
 import secrets
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,6 +55,9 @@ class NodeSpec:
     transport: TransportOptions | None = None
     """Transport options set by the launch file (None: the child reads its own environment and flags)."""
     where: str = ""
+    gate: bool = False
+    """It may start before the file's ``prepare`` commands and wait for the launcher's go (palpa.startgate): the
+    composed simulation, whose imports then overlap the prepare step."""
 
     def argv(self) -> list[str]:
         """The command line of the child: ``palpa run`` for a node class, ``cmd`` as given otherwise."""
@@ -132,6 +136,9 @@ class LaunchPlan:
     """Included file -> the args the command line set in it (docs/launch.md, "Includes")."""
     in_process: bool = False
     """The file asks for its simulated-clock nodes in one process (see :mod:`palpa.launch.compose`)."""
+    pending_checks: Callable[[], None] | None = field(default=None, repr=False, compare=False)
+    """The loader's node-class checks, when the caller asked to run them itself (``load_launch(...,
+    defer_node_checks=True)``): they raise the same :class:`LaunchError` as a plain load would."""
     composed_from: str | None = None
     """The resolved launch file this plan was composed from (:func:`palpa.launch.compose.compose_plan`):
     :meth:`to_yaml` gives it, so the run directory and the recording describe the graph as written (a replay

@@ -51,10 +51,12 @@ def _child_setup(launcher_pid: int) -> Callable[[], None]:
 class Child:
     """One running child process with its output pipe (stdout and stderr merged, non-blocking)."""
 
-    def __init__(self, argv: Sequence[str], env: dict[str, str], cwd: Path | None = None) -> None:
+    def __init__(self, argv: Sequence[str], env: dict[str, str], cwd: Path | None = None,
+                 pass_fds: Sequence[int] = ()) -> None:
         self.popen = subprocess.Popen(
             list(argv), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env,
             cwd=cwd, start_new_session=True, preexec_fn=_child_setup(os.getpid()), bufsize=0, close_fds=True,
+            pass_fds=tuple(pass_fds),
         )
         self.pid = self.popen.pid
         out = self.popen.stdout
@@ -64,6 +66,11 @@ class Child:
         self.fd = self._out.fileno()
         os.set_blocking(self.fd, False)
         self.returncode: int | None = None
+        self.exit_fd: int | None = None
+        """A pidfd, readable once the child has exited (Linux 5.3+; None elsewhere): a selector then wakes at its
+        exit, which its output's end does not say (a grandchild may hold the pipe, or the pipe closes first)."""
+        with contextlib.suppress(AttributeError, OSError):
+            self.exit_fd = os.pidfd_open(self.pid)
 
     def signal(self, sig: int) -> bool:
         """Send ``sig`` to the child's whole process group; False if it is already gone."""
@@ -111,6 +118,13 @@ class Child:
         except OSError:
             return None
         return data if data else None
+
+    def close_exit_fd(self) -> None:
+        """Close :attr:`exit_fd` (unregister it from any selector first)."""
+        fd, self.exit_fd = self.exit_fd, None
+        if fd is not None:
+            with contextlib.suppress(OSError):
+                os.close(fd)
 
     def close_output(self) -> None:
         with contextlib.suppress(OSError):

@@ -42,6 +42,7 @@ from palpa.launch.compose import CLOCK_TARGET
 from palpa.launch.nodeproc import REAP_GRACE_S, NodeProc
 from palpa.launch.output import Screen
 from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
+from palpa.launch.prepare import run_prepare
 from palpa.launch.process import Child
 from palpa.launch.progress import ProgressView, progress_fields
 from palpa.launch.reaper import Reaper
@@ -51,6 +52,7 @@ from palpa.net.address import BusAddress
 from palpa.net.bus import Bus
 from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import CLOCK_TOPIC, HEARTBEAT_TOPIC, ClockTick, Heartbeat
+from palpa.startgate import open_gate, release
 from palpa.timing.acksign import node_key
 
 __all__ = ["Supervisor", "exit_text"]
@@ -58,6 +60,11 @@ __all__ = ["Supervisor", "exit_text"]
 _BACKOFF_CAP_S = 60.0
 _STABLE_S = 30.0  # a run at least this long resets the respawn backoff
 _STEP_S = 0.05
+_CALLED_OFF_S = 10.0
+"""How long a launch that gave up before its nodes waits for the entries it had started at a start gate to leave
+by themselves (they only import until then) before it kills them."""
+_EXITED = "exited"
+"""The selector's mark on a child's pidfd (palpa.launch.process.Child.exit_fd)."""
 
 
 class Supervisor:
@@ -96,6 +103,7 @@ class Supervisor:
         self._reaper: Reaper | None = None
         self._clock_watch = ClockWatch.for_plan(plan)
         self._clock_master = secrets.token_bytes(32)
+        self._gates: list[int] = []  # write ends of the start gates of entries waiting for the prepare step
         """This run's master key for signed clock acks (palpa.timing.acksign): each child gets its own node's key,
         the clock entry the master."""
 
@@ -111,29 +119,51 @@ class Supervisor:
         if rec_spec is not None and not plan.recorder_available:
             raise LaunchError(f"{plan.files[0] if plan.files else plan.file}: the file asks to record, but "
                               "palpa.record.recorder:Recorder is not importable here")
+        # an entry that can wait at a start gate (the composed simulation) starts first and imports its code
+        # while the node checks, the bus and the prepare commands run; it builds nothing before the go
+        gated = any(s.gate for s in plan.nodes) and bool(plan.prepare or plan.pending_checks)
+        if not gated:
+            self._run_checks()  # before anything is written: a file that fails them leaves nothing
         plan.run_dir.mkdir(parents=True, exist_ok=True)
         self._screen.open_launch_log(plan.run_dir / "launch.log")
         (plan.run_dir / "launch.resolved.yaml").write_text(plan.to_yaml(), encoding="utf-8")
-        self._prepare()
         old = self._inbox.install(self._sel)
         bus: Bus | None = None
         try:
-            if self._use_reaper:
-                self._reaper = Reaper()
-                self._screen.say(f"reaper pid {self._reaper.pid} will kill the nodes' process groups if this "
-                                 "launcher is killed")
-            bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched, hwm=plan.bus.hwm,
-                      max_msg_bytes=plan.bus.max_msg_bytes)
-            self.address = bus.start()
-            tmp = plan.run_dir / ".bus.address.tmp"  # readers never see a half-written address
-            tmp.write_text(f"{self.address}\n", encoding="utf-8")
-            os.replace(tmp, plan.run_dir / "bus.address")
-            if self._announce:
-                self._entry = announce(self.address, plan.run_dir)
-            self._screen.say(f"bus at {self.address}; run directory {plan.run_dir}")
-            self._start_observer()
             for i, spec in enumerate(plan.nodes):
                 self._procs.append(self._make_proc(spec, i))
+            ready = False
+            try:
+                for p in self._procs:
+                    if gated and p.spec.gate:
+                        self._spawn(p, gated=True)
+                self._run_checks()
+                if self._use_reaper:
+                    self._reaper = Reaper()
+                    self._screen.say(f"reaper pid {self._reaper.pid} will kill the nodes' process groups if this "
+                                     "launcher is killed")
+                    for p in self._procs:
+                        if p.child is not None:
+                            self._reaper.add(p.child.pid)
+                bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched,
+                          hwm=plan.bus.hwm, max_msg_bytes=plan.bus.max_msg_bytes)
+                self.address = bus.start()
+                tmp = plan.run_dir / ".bus.address.tmp"  # readers never see a half-written address
+                tmp.write_text(f"{self.address}\n", encoding="utf-8")
+                os.replace(tmp, plan.run_dir / "bus.address")
+                if self._announce:
+                    self._entry = announce(self.address, plan.run_dir)
+                self._screen.say(f"bus at {self.address}; run directory {plan.run_dir}")
+                self._start_observer()
+                run_prepare(plan, self._screen)
+                ready = True
+            finally:
+                for w in self._gates:
+                    release(w, str(self.address) if ready else None)
+                if self._gates and not ready:  # let them leave by themselves, saying so in their logs
+                    self._run_until(lambda: not any(p.state == "running" for p in self._procs),
+                                    timeout_s=_CALLED_OFF_S)
+                self._gates.clear()
             if rec_spec is not None:
                 self._recorder = self._make_proc(rec_spec, len(plan.nodes))
                 self._start_recorder()
@@ -141,7 +171,8 @@ class Supervisor:
                 for p in self._procs:
                     if self._stopping:
                         break
-                    self._spawn(p)
+                    if p.state == "idle":  # a gated one is already running
+                        self._spawn(p)
                 self._all_started = True
                 self._check_all_exited()
             self._run_until(lambda: self._stopping)
@@ -155,21 +186,11 @@ class Supervisor:
         return summarize(self._screen, self._all(), self.plan.run_dir, self._reason, self._code)
 
     # -- phases ----------------------------------------------------------------------------------------
-    def _prepare(self) -> None:
-        """Run the file's ``prepare`` commands in order; the first that fails ends the launch before any node."""
-        env = dict(os.environ)
-        if self.plan.python_path:
-            env["PYTHONPATH"] = os.pathsep.join([*self.plan.python_path, *filter(None, [env.get("PYTHONPATH")])])
-        for argv in self.plan.prepare:
-            cmd = [sys.executable, *argv[1:]] if argv[0] == "python" else list(argv)
-            self._screen.say(f"prepare: {' '.join(argv)}")
-            try:
-                done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120, check=False)
-            except (OSError, subprocess.TimeoutExpired) as exc:
-                raise LaunchError(f"prepare: {' '.join(argv)}: {exc}") from None
-            if done.returncode != 0:
-                tail = (done.stderr or done.stdout).strip().splitlines()[-5:]
-                raise LaunchError(f"prepare: {' '.join(argv)} exited {done.returncode}: {' / '.join(tail)}")
+    def _run_checks(self) -> None:
+        """The loader's node checks the caller left to the launch (``LaunchPlan.pending_checks``), once."""
+        checks, self.plan.pending_checks = self.plan.pending_checks, None
+        if checks is not None:
+            checks()
 
     def _start_observer(self) -> None:
         topic = self.plan.progress_topic
@@ -220,6 +241,8 @@ class Supervisor:
         for key, _ in self._sel.select(_STEP_S):
             if key.data is None:
                 self._inbox.drain()
+            elif key.data is _EXITED:
+                pass  # a child exited: the loop below finds which
             else:
                 key.data.read(self._screen, self._sel)
         self._handle_signals()
@@ -273,26 +296,39 @@ class Supervisor:
             env[palpa_env.CLOCK_MASTER_KEY] = self._clock_master.hex()
         return env
 
-    def _spawn(self, p: NodeProc) -> None:
+    def _spawn(self, p: NodeProc, gated: bool = False) -> None:
         spec = p.spec
         env = self.child_env(spec)
         argv = spec.argv()
         p.starts += 1
         p.started_at = time.monotonic()
         p.buf = b""
+        r = w = -1
+        if gated:
+            r, w = open_gate()
+            env[palpa_env.START_GATE] = str(r)
         try:
-            p.child = Child(argv, env)
+            p.child = Child(argv, env, pass_fds=(r,) if gated else ())
         except OSError as exc:
+            if gated:
+                os.close(w)
             p.child = None
             self._screen.say(f"cannot start {spec.name}: {argv[0]}: {exc.strerror or exc}", "ERROR")
             p.state = "running"
             self._after_exit(p, 127)
             return
+        finally:
+            if gated:
+                os.close(r)
+        if gated:
+            self._gates.append(w)
         p.state = "running"
         if self._reaper is not None and not self._reaper.add(p.child.pid):
             self._screen.say("the reaper process is gone: a killed launcher may leave grandchildren behind", "WARNING")
             self._reaper = None
         self._sel.register(p.child.fd, selectors.EVENT_READ, p)
+        if p.child.exit_fd is not None:
+            self._sel.register(p.child.exit_fd, selectors.EVENT_READ, _EXITED)
         again = f" (start {p.starts})" if p.starts > 1 else ""
         p.log.write(f"[launch] started pid {p.child.pid}{again}: {' '.join(argv)}\n")
         self._screen.say(f"started {spec.name} pid {p.child.pid}{again}")
@@ -302,6 +338,7 @@ class Supervisor:
         if child is None or child.returncode is None:
             return
         p.drop_output(self._screen, self._sel)
+        self._forget_exit_fd(child)
         if self._reaper is not None:
             self._reaper.remove(child.pid)
         code = child.returncode
@@ -319,6 +356,12 @@ class Supervisor:
             p.state, p.outcome = "done", f"exited while stopping ({exit_text(code)})"
             return
         self._after_exit(p, code)
+
+    def _forget_exit_fd(self, child: Child) -> None:
+        if child.exit_fd is not None:
+            with contextlib.suppress(KeyError, ValueError):
+                self._sel.unregister(child.exit_fd)
+            child.close_exit_fd()
 
     def _after_exit(self, p: NodeProc, code: int) -> None:
         """A node ended on its own: respawn it (if it failed and asks for it), end the launch (required), or
@@ -395,6 +438,8 @@ class Supervisor:
                     p.child.popen.wait(REAP_GRACE_S)
                 p.child.exited()
                 p.state, p.outcome, p.failed = "done", "killed (launcher error)", True
+            if p.child is not None:
+                self._forget_exit_fd(p.child)
         had_view = self._screen.view is not None
         self._screen.close_view()  # the summary goes to stderr like every launcher message
         if had_view:

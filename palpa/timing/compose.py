@@ -29,11 +29,13 @@ from typing import Any
 import msgspec
 
 from palpa.errors import DecodeError, PalpaError
+from palpa.exiting import exit_now
 from palpa.net.address import from_env
 from palpa.net.memory import MemoryBus, MemoryTransport
 from palpa.net.transport import Delivery, SendFn, Transport, TransportOptions, ZmqTransport
 from palpa.net.wire import parse_envelope
 from palpa.node.node import Node
+from palpa.startgate import wait_for_go
 from palpa.timing.clock import MockClock
 
 __all__ = ["Composition", "ComposedNode", "GraphSpec", "main"]
@@ -374,6 +376,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         spec = msgspec.json.decode(text, type=GraphSpec)
         entries = [ComposedNode(**n) for n in spec.nodes]
         classes = [load_node_class(e.target) for e in entries]
+        if not wait_for_go(m for cls in classes for m in cls.warm_imports):
+            log.info("the launcher called the start off: no node was built")
+            return 0
         bridge = ZmqTransport(from_env(), TransportOptions.from_env())
     except (msgspec.DecodeError, msgspec.ValidationError, TypeError, PalpaError) as exc:
         print(f"palpa.timing.compose: {where}: {exc}", file=sys.stderr)
@@ -402,4 +407,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    exit_now(main())  # its files are closed by then: the composition has closed every node
