@@ -214,3 +214,38 @@ def test_a_huge_time_step_is_skipped_not_allocated() -> None:
     now[0] += 2**62
     r = reg.read()
     assert r is not None and 0.0 <= r.measured_kpa <= 60.0
+
+
+def _depths_one_by_one(drv: SimFibreDriver, x: np.ndarray, y: np.ndarray, force: np.ndarray,
+                       reach: np.ndarray) -> np.ndarray:
+    """The driver's inversion as it was written before it took a cell's samples in one call: one np.interp per sample."""
+    import math
+
+    drv._world_depth(x, y, force, reach)  # fills the curves of the cells
+    d = np.zeros(x.size)
+    for i in range(x.size):
+        if force[i] <= 0:
+            continue
+        ld, lf = drv._curves[(int(np.round(x[i] / 0.5)), int(np.round(y[i] / 0.5)))]
+        lfi = math.log(force[i])
+        if lfi <= lf[0]:
+            d[i] = math.exp(ld[0] + (lfi - lf[0]) / 1.5)
+        elif lfi >= lf[-1]:
+            d[i] = math.exp(ld[-1] + (lfi - lf[-1]) / 1.5)
+        else:
+            d[i] = math.exp(float(np.interp(lfi, lf, ld)))
+    return np.minimum(d, reach)
+
+
+def test_a_cells_samples_inverted_together_give_each_samples_depth_to_the_bit() -> None:
+    """Runs of samples in one cell, cells revisited, forces of zero, below the first rung and past the last."""
+    rng = np.random.default_rng(7)
+    drv = driver(phantom=DOME)
+    x = np.concatenate([np.full(40, 20.1), np.linspace(20.0, 26.0, 300), rng.uniform(10, 50, 200), np.full(5, 20.1)])
+    y = np.concatenate([np.full(40, 30.2), np.linspace(30.0, 31.0, 300), rng.uniform(10, 50, 200), np.full(5, 30.2)])
+    force = rng.uniform(-0.1, 3.0, x.size) * rng.choice([1e-4, 1.0, 30.0], x.size)
+    reach = rng.uniform(0.5, 10.0, x.size)
+    got = drv._world_depth(x, y, force, reach)
+    want = _depths_one_by_one(driver(phantom=DOME), x, y, force, reach)
+    assert np.array_equal(got, want)
+    assert (got == 0).any() and drv._range_warned  # forces of zero, and presses past the tables, were in it

@@ -230,22 +230,32 @@ class SimFibreDriver:
             for i, c in enumerate(new):
                 self._curves[c] = (np.log(ladder[i]), np.log(np.maximum(f[i], 1e-300)))
         d = np.zeros(x.size)
-        for i, c in enumerate(cells):
-            if force[i] <= 0:
+        forces = force.tolist()
+        start = 0
+        while start < len(cells):  # a run of samples in one cell: one interpolation call for all of them
+            c = cells[start]
+            end = start + 1
+            while end < len(cells) and cells[end] == c:
+                end += 1
+            pressed = [i for i in range(start, end) if forces[i] > 0]
+            start = end
+            if not pressed:
                 continue
             ld, lf = self._curves[c]
-            lfi = math.log(force[i])
-            if lfi > lf[-1] and not self._range_warned:
-                self._range_warned = True
-                log.warning("sim probe pressed beyond the world's tables at (%.1f, %.1f) mm: %.3f N > %.3f N at "
-                            "%.2f mm (depth extrapolated as F ~ d^1.5)", x[i], y[i], force[i], math.exp(lf[-1]),
-                            math.exp(ld[-1]))
-            if lfi <= lf[0]:
-                d[i] = math.exp(ld[0] + (lfi - lf[0]) / 1.5)
-            elif lfi >= lf[-1]:
-                d[i] = math.exp(ld[-1] + (lfi - lf[-1]) / 1.5)
-            else:
-                d[i] = math.exp(float(np.interp(lfi, lf, ld)))
+            logs = [math.log(forces[i]) for i in pressed]
+            inside = np.interp(logs, lf, ld).tolist()  # element by element what a call per sample gives
+            for i, lfi, mid in zip(pressed, logs, inside, strict=True):
+                if lfi > lf[-1] and not self._range_warned:
+                    self._range_warned = True
+                    log.warning("sim probe pressed beyond the world's tables at (%.1f, %.1f) mm: %.3f N > %.3f N "
+                                "at %.2f mm (depth extrapolated as F ~ d^1.5)", x[i], y[i], forces[i],
+                                math.exp(lf[-1]), math.exp(ld[-1]))
+                if lfi <= lf[0]:
+                    d[i] = math.exp(ld[0] + (lfi - lf[0]) / 1.5)
+                elif lfi >= lf[-1]:
+                    d[i] = math.exp(ld[-1] + (lfi - lf[-1]) / 1.5)
+                else:
+                    d[i] = math.exp(mid)
         out: np.ndarray = np.minimum(d, reach)
         return out
 
