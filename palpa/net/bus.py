@@ -194,19 +194,9 @@ class Bus:
             capture_sub.connect("inproc://palpa-capture")
             for topic in self._latched_topics:
                 capture_sub.setsockopt(zmq.SUBSCRIBE, topic.encode())
-        control = self._ctx.socket(zmq.PAIR)
-        control.linger = 0
-        control.bind("inproc://palpa-proxy-control")
-        self._control = self._ctx.socket(zmq.PAIR)
-        self._control.linger = 0
-        self._control.connect("inproc://palpa-proxy-control")
+        control, self._control = self._pair("inproc://palpa-proxy-control")
         # stop() wakes the cache thread at once instead of after its poll's 100 ms
-        wake = self._ctx.socket(zmq.PAIR)
-        wake.linger = 0
-        wake.bind("inproc://palpa-lvc-wake")
-        self._wake = self._ctx.socket(zmq.PAIR)
-        self._wake.linger = 0
-        self._wake.connect("inproc://palpa-lvc-wake")
+        wake, self._wake = self._pair("inproc://palpa-lvc-wake")
 
         def proxy() -> None:
             try:
@@ -233,6 +223,15 @@ class Bus:
             thread.start()
             self._threads.append(thread)
         return self.address
+
+    def _pair(self, endpoint: str) -> tuple[zmq.Socket[bytes], zmq.Socket[bytes]]:
+        """Two connected PAIR sockets on ``endpoint``: (the thread's end, the caller's end)."""
+        ends = (self._ctx.socket(zmq.PAIR), self._ctx.socket(zmq.PAIR))
+        for sock in ends:
+            sock.linger = 0
+        ends[0].bind(endpoint)
+        ends[1].connect(endpoint)
+        return ends
 
     def _serve_cache(self, router: zmq.Socket[bytes], capture_sub: zmq.Socket[bytes] | None,
                      wake: zmq.Socket[bytes]) -> None:
