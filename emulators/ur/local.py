@@ -113,12 +113,12 @@ class LocalReceive:
     def __init__(self, ur: LocalUr) -> None:
         self._ur, self._link = ur, ur.link
         self._package: dict[str, Any] = {}
+        ur.sync()
         self._take()
 
     def _take(self) -> dict[str, Any]:
-        ur = self._ur
-        ur.sync()
-        ctl = ur.controller
+        """The controller's outputs now (the caller has synced it), or the last package while streaming pauses."""
+        ctl = self._ur.controller
         if ctl.ticks >= ctl.stream_paused_until or not self._package:
             self._package = {n: ctl.output(n) for n in ("timestamp", "actual_TCP_pose", "actual_TCP_speed",
                                                          "actual_TCP_force", "safety_mode", "runtime_state",
@@ -130,7 +130,7 @@ class LocalReceive:
         return self._link == self._ur.link
 
     def _get(self, name: str) -> Any:
-        if not self.isConnected():
+        if not self.isConnected():  # which runs the controller up to now, once for the getter
             raise RuntimeError("RTDE receive: the connection to the controller is lost")
         return self._take()[name]
 
