@@ -174,7 +174,7 @@ class ClockSource(Node):
         why = self._gate.check(ack, header, self._sim)
         if why is not None:
             key = f"clock_ack/{why}"
-            self.refusals[key] = self.refusals.get(key, 0) + 1
+            self.refusals[key] = self._gate.refused[why]  # the gate counts; the heartbeat shows its count
             self._throttle.event(key, logging.WARNING, "ack for %s refused (%d so far): %s (from %s, incarnation "
                                  "%d, seq %d, at %.3f s; the clock is at %.3f s)", ack.node[:80], self.refusals[key],
                                  REASONS[why], header.node[:80], header.inc, header.seq,
