@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import selectors
 import signal
+import subprocess
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -150,3 +151,13 @@ class NodeProc:
                        "(stuck in the kernel?); giving up on it", "ERROR")
             self.drop_output(screen, sel)
             self.state, self.outcome, self.failed = "done", "could not be stopped", True
+
+    def kill_now(self) -> None:
+        """SIGKILL the node if it is still there, wait for it (at most :data:`REAP_GRACE_S`), and count it failed:
+        the launcher's teardown after an error of its own, which must not leave the node behind."""
+        if self.state in ("running", "stopping") and self.child is not None and not self.child.exited():
+            self.child.signal(signal.SIGKILL)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                self.child.popen.wait(REAP_GRACE_S)
+            self.child.exited()
+            self.state, self.outcome, self.failed = "done", "killed (launcher error)", True

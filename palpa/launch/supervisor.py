@@ -16,8 +16,10 @@ graph whose time stood still for its clock's ``frozen_after_s`` (wall seconds) i
 stopped by Ctrl-C while its time stood still (palpa.launch.clockwatch).
 
 This module decides (when to spawn, respawn, stop, escalate, end the launch); palpa.launch.nodeproc keeps each
-node's record, reads its output and carries out its staged stop, palpa.launch.signals brings the signals into the
-loop, palpa.launch.summary words the outcomes and makes the exit code.
+node's record, reads its output and carries out its staged stop, palpa.launch.respawn is the respawn policy,
+palpa.launch.observer the launcher's own node on the bus (heartbeats, progress, the clock's ticks),
+palpa.launch.signals brings the signals into the loop, palpa.launch.summary words the outcomes and makes the exit
+code.
 """
 
 from __future__ import annotations
@@ -27,7 +29,6 @@ import os
 import secrets
 import selectors
 import signal
-import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -39,26 +40,23 @@ from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
 from palpa.launch.clockwatch import ClockWatch
 from palpa.launch.compose import CLOCK_TARGET
-from palpa.launch.nodeproc import REAP_GRACE_S, NodeProc
+from palpa.launch.nodeproc import NodeProc
+from palpa.launch.observer import Observer
 from palpa.launch.output import Screen
 from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
 from palpa.launch.prepare import run_prepare
 from palpa.launch.process import Child
-from palpa.launch.progress import ProgressView, progress_fields
 from palpa.launch.reaper import Reaper
+from palpa.launch.respawn import next_respawn
 from palpa.launch.signals import SignalInbox
 from palpa.launch.summary import exit_text, report_hidden, summarize
 from palpa.net.address import BusAddress
 from palpa.net.bus import Bus
-from palpa.node.node import Node, RawMessage
-from palpa.runtime_msgs import CLOCK_TOPIC, HEARTBEAT_TOPIC, ClockTick, Heartbeat
 from palpa.startgate import open_gate, release
 from palpa.timing.acksign import node_key
 
 __all__ = ["Supervisor", "exit_text"]
 
-_BACKOFF_CAP_S = 60.0
-_STABLE_S = 30.0  # a run at least this long resets the respawn backoff
 _STEP_S = 0.05
 _CALLED_OFF_S = 10.0
 """How long a launch that gave up before its nodes waits for the entries it had started at a start gate to leave
@@ -92,9 +90,8 @@ class Supervisor:
         self._all_started = False
         self._reason = ""
         self._code: int | None = None
-        self._heard: set[str] = set()
         self._screen = Screen(self.out, self.err)
-        self._node: Node | None = None
+        self._observer = Observer(self._screen, self.out)
         self.address: BusAddress | None = None
         self._use_reaper = reaper
         self._announce = announce
@@ -198,13 +195,7 @@ class Supervisor:
         if self._recorder is None and self.plan.record is None and not (topic and show) and \
                 self._clock_watch is None:
             return
-        self._node = Node(name="_launch", bus=self.address, heartbeat_s=0)
-        self._node.subscribe(HEARTBEAT_TOPIC, Heartbeat, self._on_heartbeat)
-        if self._clock_watch is not None:
-            self._node.subscribe(CLOCK_TOPIC, ClockTick, self._clock_watch.on_tick)
-        if topic and show:
-            self._screen.view = ProgressView(topic, self.out, terminal=self.out.isatty())
-            self._node.subscribe_raw(topic, self._on_progress)
+        self._observer.start(self.address, topic, show, self._clock_watch)
 
     def _start_recorder(self) -> None:
         rec = self._recorder
@@ -212,9 +203,10 @@ class Supervisor:
             return
         self._spawn(rec)
         timeout = self.plan.record.ready_timeout_s
-        ready = self._run_until(lambda: RECORDER_NAME in self._heard or rec.state != "running" or self._stopping,
+        heard = self._observer.heard
+        ready = self._run_until(lambda: RECORDER_NAME in heard or rec.state != "running" or self._stopping,
                                 timeout_s=timeout)
-        if RECORDER_NAME in self._heard:
+        if RECORDER_NAME in heard:
             self._screen.say(f"recorder ready: recording to {self.plan.run_dir / 'recording.mcap'}")
             return
         if self._stopping:
@@ -254,8 +246,8 @@ class Supervisor:
                 p.escalate(self._screen, self._sel)
             elif p.state == "backoff" and now >= p.respawn_at and not self._stopping:
                 self._spawn(p)
-        if self._node is not None:
-            self._node.spin_once(0)
+        if self._observer.node is not None:
+            self._observer.node.spin_once(0)
         if self._clock_watch is not None and not self._stopping:  # a graph whose time stands still
             verdict, why = self._clock_watch.verdict()
             if verdict == "frozen":
@@ -365,17 +357,14 @@ class Supervisor:
 
     def _after_exit(self, p: NodeProc, code: int) -> None:
         """A node ended on its own: respawn it (if it failed and asks for it), end the launch (required), or
-        carry on without it. Exit code 0 means the node has finished: it is never respawned."""
+        carry on without it (the respawn policy: palpa.launch.respawn)."""
         spec, now = p.spec, time.monotonic()
-        if now - p.started_at >= _STABLE_S:
-            p.failures = 0
+        delay = next_respawn(p, code, now)
         retries = spec.respawn_max_retries
         if code != 0 and (spec.output == "log" or self._screen.view is not None):
             for line in p.tail:  # what it said last, since its lines were not on screen
                 self._screen.show(f"[{spec.name}] {line}", loud=True)
-        if spec.respawn and code != 0 and (retries < 0 or p.failures < retries):
-            p.failures += 1
-            delay = min(_BACKOFF_CAP_S, spec.respawn_delay * 2 ** (p.failures - 1))
+        if delay is not None:
             p.state, p.respawn_at = "backoff", now + delay
             p.outcome = f"{exit_text(code)}; respawning"
             of = f"{p.failures}/{retries}" if retries >= 0 else f"{p.failures}"
@@ -416,28 +405,11 @@ class Supervisor:
         self._stopping, self._reason, self._code = True, reason, code
         self._screen.say(f"stopping: {reason}", "WARNING" if code else "INFO")
 
-    # -- observer callbacks ------------------------------------------------------------------------------
-    def _on_heartbeat(self, hb: Heartbeat) -> None:
-        self._heard.add(hb.node)
-
-    def _on_progress(self, raw: RawMessage) -> None:
-        view = self._screen.view
-        if view is None or raw.topic != view.topic:
-            return
-        fields = progress_fields(raw.payload)
-        if fields is not None:
-            view.update(fields, raw.recv_ns)
-
     # -- teardown ----------------------------------------------------------------------------------------
     def _teardown(self, bus: Bus | None, old: dict[int, Any]) -> None:
         # only reached with children still running if something raised: do not leave them behind
         for p in self._all():
-            if p.state in ("running", "stopping") and p.child is not None and not p.child.exited():
-                p.child.signal(signal.SIGKILL)
-                with contextlib.suppress(subprocess.TimeoutExpired):
-                    p.child.popen.wait(REAP_GRACE_S)
-                p.child.exited()
-                p.state, p.outcome, p.failed = "done", "killed (launcher error)", True
+            p.kill_now()
             if p.child is not None:
                 self._forget_exit_fd(p.child)
         had_view = self._screen.view is not None
@@ -446,8 +418,8 @@ class Supervisor:
             report_hidden(self._screen, self._all(), self.plan.progress_report)
         if self._entry is not None:
             withdraw(self._entry)
-        if self._node is not None:
-            self._node.close(0)
+        if self._observer.node is not None:
+            self._observer.node.close(0)
         if bus is not None:
             bus.stop()
         if self._reaper is not None:

@@ -23,7 +23,7 @@ from pathlib import Path
 from palpa import env as palpa_env
 from palpa.errors import BusError
 
-__all__ = ["BusAddress", "default_address", "from_env", "is_loopback_host", "private_dir"]
+__all__ = ["BusAddress", "check_ipc_owner", "default_address", "from_env", "is_loopback_host", "private_dir"]
 
 _IPC_MAX = 100  # the kernel's sun_path limit is 107 bytes; keep a margin for the suffix
 
@@ -135,3 +135,16 @@ def is_loopback_host(host: str) -> bool:
         return ipaddress.ip_address(host.strip("[]")).is_loopback
     except ValueError:
         return False
+
+
+def check_ipc_owner(endpoint: str) -> None:
+    """Refuse an ipc socket another user made: it is their bus, not ours (they would read what we publish)."""
+    if not endpoint.startswith("ipc://"):
+        return
+    try:
+        owner = os.stat(endpoint[len("ipc://") :]).st_uid
+    except OSError:
+        return  # not there yet: the bus starts later (ZeroMQ connects when it appears)
+    if owner not in (os.getuid(), 0):
+        raise BusError(f"{endpoint} belongs to uid {owner}, not to this user: refusing to connect to another "
+                       "user's socket")

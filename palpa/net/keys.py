@@ -11,10 +11,11 @@ from pathlib import Path
 
 import zmq.auth
 
+from palpa import env as palpa_env
 from palpa.errors import BusError, PalpaError
 from palpa.lograte import LogThrottle
 
-__all__ = ["ClientKeys", "create_key_pair", "load_secret_key"]
+__all__ = ["ClientKeys", "create_key_pair", "curve_client_options", "load_secret_key"]
 
 log = logging.getLogger("palpa.net.bus.auth")
 
@@ -97,3 +98,24 @@ class ClientKeys:
                                  "(%d refusals so far; add its .key file to %s and send the bus SIGHUP to let it in)",
                                  z85_key.decode(errors="replace"), self.refused, self.directory)
         return False
+
+
+def curve_client_options() -> dict[str, bytes] | None:
+    """CURVE client keys from the environment, or None when the bus is not encrypted.
+
+    ``PALPA_BUS_SERVER_KEY``: the server's public key (Z85 text, or a path to its ``.key`` file);
+    ``PALPA_CURVE_SECRET``: the path to this client's ``.key_secret`` file (its public key must be authorised
+    on the bus).
+    """
+    server = palpa_env.get(palpa_env.BUS_SERVER_KEY) or None
+    if not server:
+        return None
+    secret_file = palpa_env.get(palpa_env.CURVE_SECRET) or None
+    if not secret_file:
+        raise BusError("PALPA_BUS_SERVER_KEY is set but PALPA_CURVE_SECRET (client secret key file) is not")
+    if Path(server).is_file():
+        server_public, _ = zmq.auth.load_certificate(server)
+    else:
+        server_public = server.encode()
+    public, secret = load_secret_key(secret_file)
+    return {"server": server_public, "public": public, "secret": secret}

@@ -12,7 +12,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 
 from palpa.errors import BusError
-from palpa.net.transport import Delivery, SendFn
+from palpa.net.transport_api import Delivery, SendFn
 
 __all__ = ["MEMQ_SCHEME", "MemoryBus", "MemoryTransport", "memq_name", "named_bus"]
 

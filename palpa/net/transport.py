@@ -2,26 +2,23 @@
 
 :class:`ZmqTransport` talks to a real bus; :class:`palpa.net.memory.MemoryBus` provides an in-memory one so node
 logic is tested without sockets. Both deliver ``Delivery`` items: the frames of one envelope
-``[topic, header, payload, *blobs]`` and whether it came from the latched cache.
+``[topic, header, payload, *blobs]`` and whether it came from the latched cache. The interface they share
+(:class:`Transport`, :class:`Delivery`, :data:`SendFn`) is in :mod:`palpa.net.transport_api`, and re-exported here;
+CURVE client keys from the environment in :mod:`palpa.net.keys`.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import select
 import time
 from collections.abc import Callable, Sequence
-from pathlib import Path
-from typing import Protocol, cast
+from typing import cast
 
-import msgspec
 import zmq
-import zmq.auth
 
-from palpa import env as palpa_env
 from palpa.errors import BusError
-from palpa.net.address import BusAddress
+from palpa.net.address import BusAddress, check_ipc_owner
 from palpa.net.direct import (
     CLIENT_KEYS_TOPIC,
     DIRECTORY_PREFIX,
@@ -31,66 +28,16 @@ from palpa.net.direct import (
 )
 from palpa.net.exitflush import note_linger
 from palpa.net.handshake import HANDSHAKE_EVENTS, HandshakeWatch
-from palpa.net.keys import load_secret_key
+from palpa.net.keys import curve_client_options
 from palpa.net.options import TransportOptions
 from palpa.net.reach import DirectReach
-from palpa.net.wire import Envelope
+from palpa.net.transport_api import Delivery, SendFn, Transport
 
 __all__ = ["Delivery", "SendFn", "Transport", "TransportOptions", "ZmqTransport", "curve_client_options"]
 
 log = logging.getLogger("palpa.net.transport")
 
-SendFn = Callable[[Sequence[bytes], bool], None]
-"""Sends one envelope's frames; the bool says whether the topic is latched."""
-
 _SUBSCRIPTIONS_GRACE_MS = 100
-
-
-class Delivery(msgspec.Struct, gc=False):
-    """One envelope as received (a Struct, not a NamedTuple: made once per message, ~4x cheaper).
-
-    An in-memory bus hands the same Delivery to every node that listens (its frames are never changed); the first
-    receiver to parse it keeps the parsed envelope in :attr:`envelope`, and the others take it from there instead of
-    parsing the same bytes again (issue 40: a pose on its way to three nodes was parsed three times)."""
-
-    frames: list[bytes]
-    from_cache: bool
-    envelope: Envelope | None = None
-    """The frames parsed (:func:`palpa.net.wire.parse_envelope`), once some receiver did; None before, or when they
-    are malformed (each receiver then counts the error itself)."""
-
-
-class Transport(Protocol):
-    """What a node needs from the bus."""
-
-    def send(self, frames: Sequence[bytes], latched: bool) -> None:
-        """Publish one envelope through the bus; ``latched`` also stores it as the topic's last value."""
-        ...
-
-    def sender(self, topic: bytes, direct: bool | None) -> SendFn:
-        """How a publisher of ``topic`` sends: through the bus, or straight to subscribers when ``direct``
-        (None: as the transport's options say). Falls back to the bus where direct is not possible."""
-        ...
-
-    def has_subscribers(self, topic: bytes) -> bool:
-        """True when some subscriber's subscription matches ``topic`` (as far as this transport has heard)."""
-        ...
-
-    def subscribe(self, prefix: bytes, request_latched: bool, wants: Callable[[str], bool] | None = None) -> None:
-        """Receive envelopes whose topic starts with ``prefix``; optionally ask the cache for its last value.
-        ``wants``: which of those topics are taken (the rest may still be delivered), so that no connection is made
-        to a direct publisher (palpa.net.direct) for a topic no one here takes."""
-        ...
-
-    def unsubscribe(self, prefix: bytes) -> None: ...
-
-    def poll(self, timeout_s: float) -> list[Delivery]:
-        """Wait up to ``timeout_s`` for envelopes and return every one that is ready (maybe none)."""
-        ...
-
-    def close(self, linger_ms: int) -> None: ...
-
-
 _ZERO_COPY_BYTES = 65_536
 _FD_SETSIZE = 1024
 _RECONNECT_MAX_MS = 2000
@@ -112,40 +59,6 @@ def _send_frames(sock: zmq.Socket[bytes], frames: Sequence[bytes]) -> None:
             _send(sock, frame, flags)
         else:
             _send(sock, frame, flags, copy=False)
-
-
-def _check_ipc_owner(endpoint: str) -> None:
-    """Refuse an ipc socket another user made: it is their bus, not ours (they would read what we publish)."""
-    if not endpoint.startswith("ipc://"):
-        return
-    try:
-        owner = os.stat(endpoint[len("ipc://") :]).st_uid
-    except OSError:
-        return  # not there yet: the bus starts later (ZeroMQ connects when it appears)
-    if owner not in (os.getuid(), 0):
-        raise BusError(f"{endpoint} belongs to uid {owner}, not to this user: refusing to connect to another "
-                       "user's socket")
-
-
-def curve_client_options() -> dict[str, bytes] | None:
-    """CURVE client keys from the environment, or None when the bus is not encrypted.
-
-    ``PALPA_BUS_SERVER_KEY``: the server's public key (Z85 text, or a path to its ``.key`` file);
-    ``PALPA_CURVE_SECRET``: the path to this client's ``.key_secret`` file (its public key must be authorised
-    on the bus).
-    """
-    server = palpa_env.get(palpa_env.BUS_SERVER_KEY) or None
-    if not server:
-        return None
-    secret_file = palpa_env.get(palpa_env.CURVE_SECRET) or None
-    if not secret_file:
-        raise BusError("PALPA_BUS_SERVER_KEY is set but PALPA_CURVE_SECRET (client secret key file) is not")
-    if Path(server).is_file():
-        server_public, _ = zmq.auth.load_certificate(server)
-    else:
-        server_public = server.encode()
-    public, secret = load_secret_key(secret_file)
-    return {"server": server_public, "public": public, "secret": secret}
 
 
 class ZmqTransport:
@@ -189,7 +102,7 @@ class ZmqTransport:
                 sock.curve_publickey = curve["public"]
                 sock.curve_secretkey = curve["secret"]
         for endpoint in (address.pub, address.sub, address.latch):
-            _check_ipc_owner(endpoint)
+            check_ipc_owner(endpoint)
         monitor = self._pub.get_monitor_socket(HANDSHAKE_EVENTS)
         try:
             self._pub.connect(address.pub)

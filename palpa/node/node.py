@@ -25,19 +25,16 @@ readiness, heartbeats and bus logging in :mod:`palpa.node.presence`, topic namin
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import os
-import traceback
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, ClassVar, Protocol, TypeVar, cast
+from typing import Any, ClassVar, TypeVar, cast
 
 from palpa import env as palpa_env
-from palpa.errors import PalpaError
 from palpa.message import Message
-from palpa.net.address import BusAddress, from_env
-from palpa.net.memory import memq_name, named_bus
-from palpa.net.transport import Transport, TransportOptions, ZmqTransport
+from palpa.net.address import BusAddress
+from palpa.net.connect import bus_transport
+from palpa.net.transport import Transport, TransportOptions
 from palpa.net.wire import Header, TopicStats, encode_header
 from palpa.node.dispatch import Dispatch
 from palpa.node.endpoints import (
@@ -63,8 +60,10 @@ from palpa.node.presence import (
 )
 from palpa.node.presence import LOG_TEXT_MAX as LOG_TEXT_MAX  # re-exported: it was defined here
 from palpa.node.receive import Receiver
+from palpa.node.resources import C, Resources
 from palpa.node.service import DEFAULT_TIMEOUT_S, Responder, Service
 from palpa.node.service_client import Client
+from palpa.node.stateguard import check_state_kept, own_state
 from palpa.timing.clock import Clock, SystemClock, TopicClock
 
 __all__ = ["DEFAULT_BATCH", "MsgInfo", "Node", "Publisher", "RawMessage", "Subscription", "Timer", "resolve_topic"]
@@ -72,13 +71,6 @@ __all__ = ["DEFAULT_BATCH", "MsgInfo", "Node", "Publisher", "RawMessage", "Subsc
 M = TypeVar("M", bound=Message)
 Q = TypeVar("Q", bound=Message)
 R = TypeVar("R", bound=Message)
-
-
-class _Closable(Protocol):
-    def close(self) -> object: ...
-
-
-C = TypeVar("C", bound=_Closable)
 
 
 class _NoParams(ParamsBase):
@@ -131,10 +123,10 @@ class Node:
         self.namespace = namespace.strip("/")
         self.remap = dict(remap or {})
         if transport is None:
-            transport = _bus_transport(bus, transport_options)
+            transport = bus_transport(bus, transport_options)
         self._transport = transport
-        self._resources = contextlib.ExitStack()
         self.log = logging.getLogger(f"palpa.node.{self.name}")
+        self._resources = Resources(self.log)
         self.dispatch = Dispatch(self.log)
         """Runs every callback of this node (exception isolation, batches flushed when callbacks return)."""
         options = getattr(transport, "options", None)
@@ -163,9 +155,9 @@ class Node:
         if heartbeat_s > 0 if serve_params is None else serve_params:
             ParamServer(self, lambda: self.params, self._change_params)
         try:
-            own = _own_state(self, theirs)
+            own = own_state(self, theirs)
             self.setup()
-            _check_state_kept(self, own)
+            check_state_kept(self, self.name, own)
             self._probe = confirm_subscriptions(self, self._rx, self.incarnation, JOIN_TIMEOUT_S)
         except BaseException:
             # a refused plan must not leave a robot connection or a serial port open behind it
@@ -203,14 +195,7 @@ class Node:
 
         Register a driver before connecting it: ``self.driver = self.closing(make_driver()); self.driver.connect()``.
         """
-        self._resources.callback(self._close_quietly, resource)
-        return resource
-
-    def _close_quietly(self, resource: _Closable) -> None:
-        try:
-            resource.close()
-        except Exception:
-            self.log.error("error closing %r:\n%s", resource, traceback.format_exc())
+        return self._resources.add(resource)
 
     def on_params_changed(self, old: Any, new: Any) -> bool | None:
         """Called when ``palpa param set`` (or a ParamSet request) would change ``self.params`` from ``old`` to
@@ -458,29 +443,3 @@ class Node:
         """Send this node's heartbeat now (they go out by themselves every ``heartbeat_s`` once it is set up)."""
         self._heartbeats.send()
 
-
-def _bus_transport(bus: str | BusAddress | None, options: TransportOptions | None) -> Transport:
-    """The transport to the bus ``bus`` names (else ``PALPA_BUS``, else the default bus): the process's in-memory
-    bus for ``memq://NAME``, ZeroMQ sockets otherwise."""
-    if not isinstance(bus, BusAddress):
-        text = bus or palpa_env.get(palpa_env.BUS) or ""
-        if (name := memq_name(text)) is not None:
-            return named_bus(name).transport()
-    address = bus if isinstance(bus, BusAddress) else (BusAddress.parse(bus) if bus else from_env())
-    return ZmqTransport(address, options or TransportOptions.from_env())
-
-
-def _own_state(node: Node, theirs: set[str]) -> dict[str, object]:
-    """The private state objects palpa.Node's constructor made (not flags and counters, which change; not what the
-    subclass set before it)."""
-    return {k: v for k, v in vars(node).items()
-            if k.startswith("_") and k not in theirs and not isinstance(v, bool | int | float | str)}
-
-
-def _check_state_kept(node: Node, own: Mapping[str, object]) -> None:
-    """A subclass whose ``setup`` assigned one of these names broke the node (its timers, its sockets, ...) in a way
-    that shows only later, and far from the cause: say so now."""
-    for k, v in own.items():
-        if vars(node).get(k) is not v:
-            raise PalpaError(f"node {node.name!r}: {type(node).__name__}.setup() replaced {k!r}, which palpa.Node "
-                             "keeps its own state in; give your attribute another name")

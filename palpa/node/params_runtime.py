@@ -20,7 +20,14 @@ import msgspec
 
 from palpa.errors import ParamError
 from palpa.message import Message
-from palpa.node.params import Params, change_rules, convert_params, describe_params, param_docs
+from palpa.node.params import (
+    Change,
+    Params,
+    change_rules,
+    convert_params,
+    describe_params,
+    param_docs,
+)
 from palpa.node.service import RequestRefused
 
 if TYPE_CHECKING:
@@ -85,16 +92,21 @@ class ParamServer:
     def values(self) -> ParamValues:
         node = self.node
         params = self.current()
-        return ParamValues(node=node.name, values=msgspec.to_builtins(params), types=describe_params(type(params)),
-                           change=dict(change_rules(type(params))), docs=self._docs(type(params)))
+        types, rules, docs = self._described(type(params))
+        return ParamValues(node=node.name, values=msgspec.to_builtins(params), types=dict(types),
+                           change=dict(rules), docs=docs)
 
-    _docs_cache: dict[type[Params], dict[str, str]] = {}
+    _described_cache: dict[type[Params], tuple[dict[str, str], dict[str, Change], dict[str, str]]] = {}
 
     @classmethod
-    def _docs(cls, params_type: type[Params]) -> dict[str, str]:
-        if params_type not in cls._docs_cache:  # read from the class source once per class
-            cls._docs_cache[params_type] = param_docs(params_type)
-        return cls._docs_cache[params_type]
+    def _described(cls, params_type: type[Params]) -> tuple[dict[str, str], dict[str, Change], dict[str, str]]:
+        """The types and defaults, change rules and docs of ``params_type``'s parameters: made once per class (its
+        fields are fixed when the class is made; the docs are read from its source), not at every get and set."""
+        described = cls._described_cache.get(params_type)
+        if described is None:
+            described = cls._described_cache[params_type] = (
+                describe_params(params_type), change_rules(params_type), param_docs(params_type))
+        return described
 
     def on_get(self, req: ParamGet) -> ParamValues:
         return self.values()
@@ -110,7 +122,7 @@ class ParamServer:
         new = convert_params(type(old), {**current, **req.values}, where=f"node {node.name!r}")
         after: dict[str, Any] = msgspec.to_builtins(new)
         changed = {k: v for k, v in after.items() if v != current[k]}
-        _refuse_fixed(node.name, changed, change_rules(type(old)))
+        _refuse_fixed(node.name, changed, self._described(type(old))[1])
         if changed:
             try:
                 accepted = self.change(old, new)

@@ -32,6 +32,7 @@ from mcap.writer import CompressionType, Writer
 
 import palpa
 from palpa.net.wire import SequenceTracker, TopicStats
+from palpa.record.atomic import written_beside
 from palpa.record.format import (
     BLOBS_SCHEMA,
     BLOBS_SCHEMA_NAME,
@@ -175,34 +176,29 @@ def rewrite(recordings: Sequence[Sequence[Path]], out: str | os.PathLike[str], *
     keep = topics or TopicFilter(always=())
     report = EditReport(output)
     sides = [(p, _side_records(p)) for rec in recordings for p in rec]
-    tmp = output.with_name(output.name + ".partial")
-    try:
-        with open(tmp, "wb") as fh:
-            w = Writer(fh, compression=CompressionType.ZSTD)
-            w.start(library=f"palpa/{palpa.__version__} bag {operation}")
-            seen: set[tuple[str, bytes]] = set()
-            for _path, (attachments, _md) in sides:  # the launch file before any message (launch_text_of)
-                for att in sorted(attachments, key=lambda a: a.name != LAUNCH_ATTACHMENT):
-                    if (att.name, bytes(att.data)) not in seen:
-                        seen.add((att.name, bytes(att.data)))
-                        w.add_attachment(att.create_time, att.log_time, att.name, att.media_type, bytes(att.data))
-            _copy_messages(_Out(w), recordings, keep, start_ns, end_ns, report)
-            if not report.messages:
-                raise BagError("no message of the recording passes the topic filter and lies in the time range: "
-                               "nothing written")
-            for _path, (_att, metadata) in sides:
-                for md in metadata:
-                    if md.name != MD_DROPS:
-                        w.add_metadata(md.name, dict(md.metadata))
-            w.add_metadata(MD_DROPS, {t: dumps(d) for t, d in report.drops.items()})
-            w.add_metadata("palpa.edit", {
-                "operation": operation, "sources": dumps([str(p) for rec in recordings for p in rec]),
-                "topics": dumps([p.pattern for p in keep.include]), "exclude": dumps([p.pattern for p in keep.exclude]),
-                "start_ns": str(start_ns or ""), "end_ns": str(end_ns or ""), "note": report.text()})
-            w.finish()  # type: ignore[no-untyped-call]
-        os.replace(tmp, output)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with written_beside(output) as tmp, open(tmp, "wb") as fh:
+        w = Writer(fh, compression=CompressionType.ZSTD)
+        w.start(library=f"palpa/{palpa.__version__} bag {operation}")
+        seen: set[tuple[str, bytes]] = set()
+        for _path, (attachments, _md) in sides:  # the launch file before any message (launch_text_of)
+            for att in sorted(attachments, key=lambda a: a.name != LAUNCH_ATTACHMENT):
+                if (att.name, bytes(att.data)) not in seen:
+                    seen.add((att.name, bytes(att.data)))
+                    w.add_attachment(att.create_time, att.log_time, att.name, att.media_type, bytes(att.data))
+        _copy_messages(_Out(w), recordings, keep, start_ns, end_ns, report)
+        if not report.messages:
+            raise BagError("no message of the recording passes the topic filter and lies in the time range: "
+                           "nothing written")
+        for _path, (_att, metadata) in sides:
+            for md in metadata:
+                if md.name != MD_DROPS:
+                    w.add_metadata(md.name, dict(md.metadata))
+        w.add_metadata(MD_DROPS, {t: dumps(d) for t, d in report.drops.items()})
+        w.add_metadata("palpa.edit", {
+            "operation": operation, "sources": dumps([str(p) for rec in recordings for p in rec]),
+            "topics": dumps([p.pattern for p in keep.include]), "exclude": dumps([p.pattern for p in keep.exclude]),
+            "start_ns": str(start_ns or ""), "end_ns": str(end_ns or ""), "note": report.text()})
+        w.finish()  # type: ignore[no-untyped-call]
     return report
 
 

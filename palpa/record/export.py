@@ -29,6 +29,7 @@ from mcap.writer import CompressionType, Writer
 import palpa
 from palpa.errors import DecodeError
 from palpa.net.wire import decode_any
+from palpa.record.atomic import written_beside
 from palpa.record.format import (
     BLOBS_TOPIC_PREFIX,
     META_LATCHED,
@@ -136,56 +137,51 @@ def export_json(paths: Sequence[Path], out: str | os.PathLike[str], *, blobs: st
         elif isinstance(rec, Attachment):
             attachments.setdefault((rec.name, rec.data), rec)
 
-    tmp = output.with_name(output.name + ".partial")
-    try:
-        with open(tmp, "wb") as fh:
-            w = Writer(fh, compression=CompressionType.ZSTD)
-            w.start(library=f"palpa/{palpa.__version__} bag export")
-            schema_ids: dict[str, int] = {}
-            channel_ids: dict[tuple[str, str, str, bool], int] = {}
+    with written_beside(output) as tmp, open(tmp, "wb") as fh:
+        w = Writer(fh, compression=CompressionType.ZSTD)
+        w.start(library=f"palpa/{palpa.__version__} bag export")
+        schema_ids: dict[str, int] = {}
+        channel_ids: dict[tuple[str, str, str, bool], int] = {}
 
-            def schema_for(type_name: str) -> int:
-                if type_name not in schema_ids:
-                    raw = recorded_schemas.get(type_name) or schema_bytes(type_name)
-                    schema_ids[type_name] = w.register_schema(
-                        type_name, SCHEMA_ENCODING, json.dumps(inline_refs(json.loads(raw))).encode()
-                    ) if raw else 0
-                return schema_ids[type_name]
+        def schema_for(type_name: str) -> int:
+            if type_name not in schema_ids:
+                raw = recorded_schemas.get(type_name) or schema_bytes(type_name)
+                schema_ids[type_name] = w.register_schema(
+                    type_name, SCHEMA_ENCODING, json.dumps(inline_refs(json.loads(raw))).encode()
+                ) if raw else 0
+            return schema_ids[type_name]
 
-            def channel_for(topic: str, type_name: str, node: str, latched: bool) -> int:
-                key = (topic, type_name, node, latched)
-                if key not in channel_ids:
-                    sid = (w.register_schema("palpa.Blobs", SCHEMA_ENCODING, _BLOBS_JSON_SCHEMA)
-                           if type_name == "palpa.Blobs" else schema_for(type_name))
-                    channel_ids[key] = w.register_channel(topic, "json", sid, {
-                        META_TYPE: type_name, META_PUBLISHER: node, META_LATCHED: "true" if latched else "false"})
-                return channel_ids[key]
+        def channel_for(topic: str, type_name: str, node: str, latched: bool) -> int:
+            key = (topic, type_name, node, latched)
+            if key not in channel_ids:
+                sid = (w.register_schema("palpa.Blobs", SCHEMA_ENCODING, _BLOBS_JSON_SCHEMA)
+                       if type_name == "palpa.Blobs" else schema_for(type_name))
+                channel_ids[key] = w.register_channel(topic, "json", sid, {
+                    META_TYPE: type_name, META_PUBLISHER: node, META_LATCHED: "true" if latched else "false"})
+            return channel_ids[key]
 
-            for index, m in enumerate(iter_bag(paths, on_record=on_record)):
-                data, why = _to_json(m.payload)
-                if data is None:
-                    report.placeholders.append((index, m.topic, why))
-                    data = msgspec.json.encode({"_palpa_error": why, "_palpa_index": index,
-                                                "_palpa_msgpack_base64": base64.b64encode(m.payload).decode()})
-                cid = channel_for(m.topic, m.type, m.node, m.latched)
-                w.add_message(cid, log_time=m.log_time, data=data, publish_time=m.publish_time,
-                              sequence=m.seq & 0xFFFF_FFFF)
-                report.messages += 1
-                if m.blobs:
-                    if blobs == "drop":
-                        report.blobs_dropped += len(m.blobs)
-                    else:
-                        bid = channel_for(BLOBS_TOPIC_PREFIX + m.topic, "palpa.Blobs", m.node, False)
-                        w.add_message(bid, log_time=m.log_time, publish_time=m.publish_time,
-                                      sequence=m.seq & 0xFFFF_FFFF, data=msgspec.json.encode(
-                                          {"blobs": [base64.b64encode(b).decode() for b in m.blobs]}))
-            for md in metadata:
-                w.add_metadata(md.name, md.metadata)
-            w.add_metadata("palpa.export", {"source": ", ".join(map(str, paths)), "note": report.text()})
-            for att in attachments.values():
-                w.add_attachment(att.create_time, att.log_time, att.name, att.media_type, att.data)
-            w.finish()  # type: ignore[no-untyped-call]
-        os.replace(tmp, output)
-    finally:
-        tmp.unlink(missing_ok=True)
+        for index, m in enumerate(iter_bag(paths, on_record=on_record)):
+            data, why = _to_json(m.payload)
+            if data is None:
+                report.placeholders.append((index, m.topic, why))
+                data = msgspec.json.encode({"_palpa_error": why, "_palpa_index": index,
+                                            "_palpa_msgpack_base64": base64.b64encode(m.payload).decode()})
+            cid = channel_for(m.topic, m.type, m.node, m.latched)
+            w.add_message(cid, log_time=m.log_time, data=data, publish_time=m.publish_time,
+                          sequence=m.seq & 0xFFFF_FFFF)
+            report.messages += 1
+            if m.blobs:
+                if blobs == "drop":
+                    report.blobs_dropped += len(m.blobs)
+                else:
+                    bid = channel_for(BLOBS_TOPIC_PREFIX + m.topic, "palpa.Blobs", m.node, False)
+                    w.add_message(bid, log_time=m.log_time, publish_time=m.publish_time,
+                                  sequence=m.seq & 0xFFFF_FFFF, data=msgspec.json.encode(
+                                      {"blobs": [base64.b64encode(b).decode() for b in m.blobs]}))
+        for md in metadata:
+            w.add_metadata(md.name, md.metadata)
+        w.add_metadata("palpa.export", {"source": ", ".join(map(str, paths)), "note": report.text()})
+        for att in attachments.values():
+            w.add_attachment(att.create_time, att.log_time, att.name, att.media_type, att.data)
+        w.finish()  # type: ignore[no-untyped-call]
     return report

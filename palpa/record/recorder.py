@@ -26,7 +26,6 @@ import mcap
 import msgspec
 
 import palpa
-from palpa.errors import ParamError
 from palpa.lograte import LogThrottle
 from palpa.net.wire import DECODE_ERRORS
 from palpa.node.node import Node, RawMessage
@@ -54,10 +53,10 @@ from palpa.record.format import (
     dumps,
     schema_bytes,
     split_path,
-    split_pieces,
 )
 from palpa.record.lastvalues import LastValues
-from palpa.record.writer import COMPRESSIONS, MAX_CHANNELS, BagWriter, lock_many
+from palpa.record.recorder_params import RecorderParams, check_params, prepare_output
+from palpa.record.writer import MAX_CHANNELS, BagWriter
 from palpa.runtime_msgs import HEARTBEAT_TOPIC, LOG_TOPIC, Heartbeat
 
 __all__ = ["MAX_LATCHED_BYTES", "RESERVED_CHANNELS", "RecorderParams", "Recorder"]
@@ -88,31 +87,6 @@ def _well_formed(payload: bytes) -> bool:
 _COUNTERS = ("received", "gaps", "duplicates", "restarts", "decode_errors")
 
 
-class RecorderParams(palpa.Params):
-    """Parameters of :class:`Recorder`."""
-
-    output: str
-    """File to write; with splitting, pieces are ``<stem>-0001.mcap``, ``<stem>-0002.mcap``, ..."""
-    topics: list[str] = []
-    """Regexes matched against whole topic names; empty records every (non-runtime) topic."""
-    exclude: list[str] = []
-    split_size_mb: float = 0.0
-    """Start a new file once this one holds this many MB (1e6 bytes); checked whenever a chunk is closed,
-    so a piece can exceed it by up to one chunk (1 MB). 0: never."""
-    split_duration_s: float = 0.0
-    """Start a new file after this many seconds (checked every flush_period_s); 0: never."""
-    force: bool = False
-    """Overwrite ``output`` (and stale split pieces of it) if it exists."""
-    launch_file: str = ""
-    """A resolved launch file to store in the recording as the attachment launch.resolved.yaml."""
-    compression: str = "zstd"
-    """Chunk compression: zstd, lz4 or none."""
-    flush_period_s: float = 0.5
-    """Close the open chunk at least this often (s): the most a SIGKILL can lose. At most 1 s."""
-    fsync: bool = False
-    """Also fsync on every flush (survives power loss, costs disk latency)."""
-
-
 class Recorder(Node):
     """Writes bus traffic to ``output`` (MCAP). See the module docstring for what is recorded."""
 
@@ -128,24 +102,11 @@ class Recorder(Node):
         super().__init__(name, checked, **kwargs)
 
     def _check(self, p: RecorderParams, where: str) -> None:
-        if not p.output:
-            raise ParamError(f"{where}: parameter 'output': a file path is required")
-        if p.split_size_mb < 0 or p.split_duration_s < 0:
-            raise ParamError(f"{where}: split_size_mb and split_duration_s must be >= 0")
-        if not 0 < p.flush_period_s <= 1.0:
-            raise ParamError(f"{where}: parameter 'flush_period_s' must be in (0, 1] s, got {p.flush_period_s}")
-        if p.compression not in COMPRESSIONS:
-            raise ParamError(f"{where}: parameter 'compression' must be one of {', '.join(COMPRESSIONS)}")
-        self._launch_text = b""
-        if p.launch_file:
-            try:
-                self._launch_text = Path(p.launch_file).read_bytes()
-            except OSError as exc:
-                raise ParamError(f"{where}: parameter 'launch_file': cannot read {p.launch_file}: {exc}") from None
+        self._launch_text = check_params(p, where)
         self._filter = TopicFilter(p.topics, p.exclude, always=(LOG_TOPIC, PARAMS_TOPIC))
         self._splitting = p.split_size_mb > 0 or p.split_duration_s > 0
         self._split_bytes = int(p.split_size_mb * 1e6) if p.split_size_mb > 0 else 1 << 62
-        self._prepare_output(p)
+        prepare_output(p, self._splitting)
 
     def setup(self) -> None:
         p = self.params
@@ -176,27 +137,6 @@ class Recorder(Node):
         self.log.info("recording to %s", self._writer.path)
 
     # -- files -------------------------------------------------------------------------------------------
-    def _prepare_output(self, p: RecorderParams) -> None:
-        out = Path(p.output)
-        if not out.parent.is_dir():
-            raise BagError(f"cannot record to {out}: directory {out.parent} does not exist")
-        first = split_path(out, 1) if self._splitting else out
-        if first.exists() and not p.force:
-            raise BagError(f"{first} already exists (use --force / force: true to overwrite)")
-        if self._splitting:
-            old = split_pieces(out)
-            if old and not p.force:
-                raise BagError(f"{old[0]} already exists (use --force / force: true to overwrite)")
-            # stale pieces of an earlier, longer run would read as part of this one; but a piece a live recorder
-            # holds is its data: refuse before deleting any
-            held = lock_many(old)
-            try:
-                for piece in old:
-                    piece.unlink()
-            finally:
-                for fh in held:
-                    fh.close()
-
     def _open_file(self) -> BagWriter:
         self._file_index += 1
         out = Path(self.params.output)

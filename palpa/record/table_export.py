@@ -13,11 +13,11 @@ import json
 import math
 import os
 import re
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
+from palpa.record.atomic import written_beside
 from palpa.record.format import BagError
 
 if TYPE_CHECKING:
@@ -220,9 +220,7 @@ def export_tables(frames: dict[str, pd.DataFrame], out: str | os.PathLike[str], 
     if not frames:
         raise BagError("no messages on the selected topics: nothing to export")
     report = TableExport(output)
-    tmp = output.with_name(output.name + ".partial")
-    _remove(tmp)
-    try:
+    with written_beside(output, over_directory=True) as tmp:
         if spec is not None:
             table = align(frames, spec)
             report.method = spec.describe()
@@ -238,16 +236,5 @@ def export_tables(frames: dict[str, pd.DataFrame], out: str | os.PathLike[str], 
                 _write(df, tmp / name, fmt, {"palpa.topic": topic, "palpa.source": source})
                 report.files.append(output / name)
                 report.rows[topic] = len(df)
-        _remove(output)
-        os.replace(tmp, output)
-    finally:
-        _remove(tmp)
     return report
-
-
-def _remove(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path)
-    else:
-        path.unlink(missing_ok=True)
 
