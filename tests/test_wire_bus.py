@@ -69,6 +69,7 @@ def test_an_xpub_hears_each_subscription_once_per_connection(ipc_bus: BusAddress
         assert xpub.poll(5000), "no subscription message within 5 s"
         return xpub.recv()
 
+    assert heard() == b"\x01_palpa/attach"  # the proxy's own, on every connection (docs/wire.md)
     first.subscribe(b"js/x")
     assert heard() == b"\x01js/x"
     # the second subscriber's js/x passes the proxy before its marker (one connection, in order): not repeated
