@@ -2,20 +2,15 @@
 
 from __future__ import annotations
 
-import importlib.util
 from types import ModuleType
 
 import pytest
 
-from tests.procs import REPO
+from tests.procs import bench_module
 
 
 def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("adaptive_bound", REPO / "bench" / "adaptive_bound.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return bench_module("adaptive_bound")
 
 
 def test_an_inclusion_hides_between_sweeps_as_often_as_the_gap_outgrows_its_sensed_band() -> None:

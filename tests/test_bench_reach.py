@@ -2,22 +2,17 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 from types import ModuleType
 
 import numpy as np
 
 from models.phantom import parse_phantom
-from tests.procs import REPO
+from tests.procs import bench_module
 
 
 def _bench() -> ModuleType:
-    spec = importlib.util.spec_from_file_location("airfloat_reach", REPO / "bench" / "airfloat_reach.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return bench_module("airfloat_reach")
 
 
 def test_the_reach_is_the_farthest_ring_past_the_edge_up_to_which_every_ring_clears_the_suspect_bar(
