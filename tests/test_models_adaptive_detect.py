@@ -20,11 +20,12 @@ from models.adaptive_detect import (
     detector_config,
     interior_gaps,
     near_misses,
+    off_halos,
     open_sides,
     unsensed,
 )
-from models.detector import FALSE_ALARM_LAWS, DetectorConfig, threshold_for
-from models.stiffness_map import Inclusion
+from models.detector import FALSE_ALARM_LAWS, Detection, DetectorConfig, threshold_for
+from models.stiffness_map import Inclusion, MapSnapshot
 
 REGION = (0.0, 0.0, 40.0, 40.0)   # 20 x 20 cells of 2 mm
 SEEDS = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
@@ -390,3 +391,51 @@ def test_the_planner_detects_with_the_law_of_the_probe_its_samples_come_from() -
     assert detector_config(_cfg(model="multi_indenter"), suspect=True).gumbel == camera.gumbel
     assert detector_config(_cfg(model="airfloat")).gumbel == FALSE_ALARM_LAWS["airfloat"]
     assert detector_config(_cfg(model="")).gumbel == DetectorConfig().gumbel
+
+
+def _detected_at(x: float, y: float, r: float) -> Detection:
+    nan = np.full((20, 20), np.nan)
+    inc = Inclusion(x, y, r, 3.0, 30.0, math.pi * r * r, 12, 20.0, 0.0)
+    return Detection([inc], 10.0, 0.04, 4.4, nan, nan, np.zeros((20, 20), dtype=bool), nan, nan)
+
+
+def test_off_halos_leaves_out_the_blind_cells_within_a_detections_radius_plus_the_halo() -> None:
+    cfg = _cfg()
+    xs, ys = cfg.grid()
+    gx, gy = np.meshgrid(xs, ys)
+    snap = MapSnapshot(stiffness=np.full((20, 20), 10.0), x_mm=xs, y_mm=ys, count=np.ones((20, 20), dtype=np.int64),
+                       spread=np.zeros((20, 20)), resolution_mm=2.0)
+    fair = np.ones((20, 20), dtype=bool)
+    keep = off_halos(snap, fair, _detected_at(21.0, 21.0, 4.0), 4.0, 12)
+    d = np.hypot(gx - 21.0, gy - 21.0)
+    assert not keep[d <= 8.0].any() and keep[d > 8.0].all()   # the disc and 4 mm past its edge, no more
+    assert np.count_nonzero(~keep) > np.count_nonzero(d <= 4.0)
+    # too few cells would be left for the detector's background: the blind cells as they are
+    assert off_halos(snap, fair, _detected_at(21.0, 21.0, 30.0), 4.0, 12).all()
+
+
+def test_with_a_fair_halo_the_detector_estimates_again_without_the_detections_halos(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import models.adaptive_detect as ad
+
+    seen: list[npt.NDArray[np.bool_]] = []
+    real = ad.detect
+
+    def spy(snap: MapSnapshot, dcfg: DetectorConfig, *, estimate_from: npt.NDArray[np.bool_]) -> Detection:
+        seen.append(np.array(estimate_from, dtype=bool))
+        return real(snap, dcfg, estimate_from=estimate_from)
+
+    monkeypatch.setattr(ad, "detect", spy)
+    measured = np.full((20, 20), 10.0) * np.exp(np.random.default_rng(3).normal(0.0, 0.03, (20, 20)))
+    xs, ys = _cfg().grid()
+    gx, gy = np.meshgrid(xs, ys)
+    measured[np.hypot(gx - 21.0, gy - 21.0) <= 5.0] *= 3.0
+    counts = np.ones((20, 20), dtype=np.int64)
+    for halo, calls in ((0.0, 1), (4.0, 2)):
+        seen.clear()
+        cfg = _cfg(reach_mm=40.0, fair_halo_mm=halo)
+        _, det = detect_candidates(_belief(cfg), measured, counts, cfg, measured)
+        assert len(seen) == calls and det.inclusions
+    inc = det.inclusions[0]   # the 3x disc, its halo left out of the second estimate; the rest of the cells kept
+    near = np.hypot(gx - inc.x_mm, gy - inc.y_mm) <= inc.radius_mm + 4.0
+    assert seen[0].all() and not seen[1][near].any() and np.count_nonzero(seen[1]) > 200
