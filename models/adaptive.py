@@ -141,6 +141,10 @@ class PlannerConfig:
     """detect: along a lattice column a sweep every this far (its neighbours half a period along). The spacing rule
     (models.adaptive_route.coarse_spacing) gives 12 for 6 mm sweeps; at the 2 % tolerance 14 covers the tuning
     regions with fewer sweeps (the patches at the lattice's edges included: 110 against 113 on seeds 100-104)."""
+    region_gaps: bool = False
+    """detect, with ``interior_gap_mm``: a detection is resolved only when its whole region above the map's threshold
+    (not only its disc) is measured to that gap: where a strong inclusion's halo joins a neighbour's, only a measured
+    dip lets the split (models.adaptive_split) part them (models.adaptive_detect.region_masks)."""
     fair_halo_mm: float = 0.0
     """detect, > 0: the blind cells within a detection's radius plus this of its centre are no fair sample of the
     tissue (the indenter, 4 mm in radius, reads part of the inclusion there) and are left out of the detector's

@@ -19,9 +19,11 @@ from models.adaptive_detect import (
     detection_map,
     detector_config,
     interior_gaps,
+    mask_gaps,
     near_misses,
     off_halos,
     open_sides,
+    region_masks,
     unsensed,
 )
 from models.detector import FALSE_ALARM_LAWS, Detection, DetectorConfig, threshold_for
@@ -439,3 +441,24 @@ def test_with_a_fair_halo_the_detector_estimates_again_without_the_detections_ha
     inc = det.inclusions[0]   # the 3x disc, its halo left out of the second estimate; the rest of the cells kept
     near = np.hypot(gx - inc.x_mm, gy - inc.y_mm) <= inc.radius_mm + 4.0
     assert seen[0].all() and not seen[1][near].any() and np.count_nonzero(seen[1]) > 200
+
+
+def test_region_gaps_ask_for_the_unmeasured_stretch_of_a_detections_region_past_its_disc() -> None:
+    # a strong inclusion's halo joins a neighbour 16 mm away into one region above the threshold; its disc is
+    # measured, the stretch between them is not: only a sweep there can show the dip that parts them
+    cfg = _cfg()
+    xs, ys = cfg.grid()
+    gx, gy = np.meshgrid(xs, ys)
+    sig = np.where((gx >= 8.0) & (gx <= 30.0) & (gy >= 8.0) & (gy <= 16.0), 10.0, 0.0)
+    nan = np.full((20, 20), np.nan)
+    inc = Inclusion(11.0, 11.0, 3.0, 3.0, 30.0, 28.0, 7, 10.0, 0.0)
+    det = Detection([inc], 10.0, 0.04, 4.4, sig, nan, np.zeros((20, 20), dtype=bool), nan, nan)
+    observed = ~((gx >= 18.0) & (gx <= 26.0))   # the columns between the two unmeasured
+    assert interior_gaps([inc], observed, xs, ys, REGION, 2.0, 3.0, 3) == []
+    masks = region_masks(det, xs, ys)
+    assert len(masks) == 1 and masks[0][0].sum() == np.count_nonzero(sig > 4.4)
+    points = mask_gaps(masks, observed, xs, ys, REGION, 2.0, 3.0, 3)
+    assert len(points) == 1 and 20.0 <= points[0][0] <= 24.0 and 8.0 <= points[0][1] <= 16.0
+    # a region measured to the gap asks for nothing; a detection outside any region (none above) neither
+    assert mask_gaps(masks, np.ones((20, 20), dtype=bool), xs, ys, REGION, 2.0, 3.0, 3) == []
+    assert region_masks(replace(det, significance=np.zeros((20, 20))), xs, ys) == []
