@@ -141,6 +141,14 @@ class PlannerConfig:
     """detect: along a lattice column a sweep every this far (its neighbours half a period along). The spacing rule
     (models.adaptive_route.coarse_spacing) gives 12 for 6 mm sweeps; at the 2 % tolerance 14 covers the tuning
     regions with fewer sweeps (the patches at the lattice's edges included: 110 against 113 on seeds 100-104)."""
+    region_gaps: bool = False
+    """detect, with ``interior_gap_mm``: a detection is resolved only when its whole region above the map's threshold
+    (not only its disc) is measured to that gap: where a strong inclusion's halo joins a neighbour's, only a measured
+    dip lets the split (models.adaptive_split) part them (models.adaptive_detect.region_masks)."""
+    fair_halo_mm: float = 0.0
+    """detect, > 0: the blind cells within a detection's radius plus this of its centre are no fair sample of the
+    tissue (the indenter, 4 mm in radius, reads part of the inclusion there) and are left out of the detector's
+    background and noise, which are then estimated again (models.adaptive_detect.detect_candidates; 0: off)."""
 
     def __post_init__(self) -> None:
         x0, y0, x1, y1 = self.region_mm
@@ -156,9 +164,9 @@ class PlannerConfig:
         if not self.reach_spread_mm or not self.reach_mm + min(self.reach_spread_mm) > 0:
             raise ValueError(f"PlannerConfig.reach_spread_mm: expected at least one offset, none reaching below 0, "
                              f"got {self.reach_spread_mm} around reach_mm {self.reach_mm}")
-        if not (self.cover_column_mm >= 0 and self.cover_period_mm >= 0):
-            raise ValueError(f"PlannerConfig: cover_column_mm and cover_period_mm >= 0 needed, got "
-                             f"{self.cover_column_mm}, {self.cover_period_mm}")
+        if not (self.cover_column_mm >= 0 and self.cover_period_mm >= 0 and self.fair_halo_mm >= 0):
+            raise ValueError(f"PlannerConfig: cover_column_mm, cover_period_mm and fair_halo_mm >= 0 needed, got "
+                             f"{self.cover_column_mm}, {self.cover_period_mm}, {self.fair_halo_mm}")
         if not (0 <= self.near_miss_false_alarm < 1 and self.near_miss_gap_mm > 0):
             raise ValueError(f"PlannerConfig.near_miss_false_alarm: expected 0 <= near_miss_false_alarm < 1 and "
                              f"near_miss_gap_mm > 0, got {self.near_miss_false_alarm}, {self.near_miss_gap_mm}")

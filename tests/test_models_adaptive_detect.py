@@ -19,12 +19,15 @@ from models.adaptive_detect import (
     detection_map,
     detector_config,
     interior_gaps,
+    mask_gaps,
     near_misses,
+    off_halos,
     open_sides,
+    region_masks,
     unsensed,
 )
-from models.detector import FALSE_ALARM_LAWS, DetectorConfig, threshold_for
-from models.stiffness_map import Inclusion
+from models.detector import FALSE_ALARM_LAWS, Detection, DetectorConfig, threshold_for
+from models.stiffness_map import Inclusion, MapSnapshot
 
 REGION = (0.0, 0.0, 40.0, 40.0)   # 20 x 20 cells of 2 mm
 SEEDS = [(10.0, 10.0), (30.0, 10.0), (10.0, 30.0), (30.0, 30.0)]
@@ -390,3 +393,72 @@ def test_the_planner_detects_with_the_law_of_the_probe_its_samples_come_from() -
     assert detector_config(_cfg(model="multi_indenter"), suspect=True).gumbel == camera.gumbel
     assert detector_config(_cfg(model="airfloat")).gumbel == FALSE_ALARM_LAWS["airfloat"]
     assert detector_config(_cfg(model="")).gumbel == DetectorConfig().gumbel
+
+
+def _detected_at(x: float, y: float, r: float) -> Detection:
+    nan = np.full((20, 20), np.nan)
+    inc = Inclusion(x, y, r, 3.0, 30.0, math.pi * r * r, 12, 20.0, 0.0)
+    return Detection([inc], 10.0, 0.04, 4.4, nan, nan, np.zeros((20, 20), dtype=bool), nan, nan)
+
+
+def test_off_halos_leaves_out_the_blind_cells_within_a_detections_radius_plus_the_halo() -> None:
+    cfg = _cfg()
+    xs, ys = cfg.grid()
+    gx, gy = np.meshgrid(xs, ys)
+    snap = MapSnapshot(stiffness=np.full((20, 20), 10.0), x_mm=xs, y_mm=ys, count=np.ones((20, 20), dtype=np.int64),
+                       spread=np.zeros((20, 20)), resolution_mm=2.0)
+    fair = np.ones((20, 20), dtype=bool)
+    keep = off_halos(snap, fair, _detected_at(21.0, 21.0, 4.0), 4.0, 12)
+    d = np.hypot(gx - 21.0, gy - 21.0)
+    assert not keep[d <= 8.0].any() and keep[d > 8.0].all()   # the disc and 4 mm past its edge, no more
+    assert np.count_nonzero(~keep) > np.count_nonzero(d <= 4.0)
+    # too few cells would be left for the detector's background: the blind cells as they are
+    assert off_halos(snap, fair, _detected_at(21.0, 21.0, 30.0), 4.0, 12).all()
+
+
+def test_with_a_fair_halo_the_detector_estimates_again_without_the_detections_halos(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import models.adaptive_detect as ad
+
+    seen: list[npt.NDArray[np.bool_]] = []
+    real = ad.detect
+
+    def spy(snap: MapSnapshot, dcfg: DetectorConfig, *, estimate_from: npt.NDArray[np.bool_]) -> Detection:
+        seen.append(np.array(estimate_from, dtype=bool))
+        return real(snap, dcfg, estimate_from=estimate_from)
+
+    monkeypatch.setattr(ad, "detect", spy)
+    measured = np.full((20, 20), 10.0) * np.exp(np.random.default_rng(3).normal(0.0, 0.03, (20, 20)))
+    xs, ys = _cfg().grid()
+    gx, gy = np.meshgrid(xs, ys)
+    measured[np.hypot(gx - 21.0, gy - 21.0) <= 5.0] *= 3.0
+    counts = np.ones((20, 20), dtype=np.int64)
+    for halo, calls in ((0.0, 1), (4.0, 2)):
+        seen.clear()
+        cfg = _cfg(reach_mm=40.0, fair_halo_mm=halo)
+        _, det = detect_candidates(_belief(cfg), measured, counts, cfg, measured)
+        assert len(seen) == calls and det.inclusions
+    inc = det.inclusions[0]   # the 3x disc, its halo left out of the second estimate; the rest of the cells kept
+    near = np.hypot(gx - inc.x_mm, gy - inc.y_mm) <= inc.radius_mm + 4.0
+    assert seen[0].all() and not seen[1][near].any() and np.count_nonzero(seen[1]) > 200
+
+
+def test_region_gaps_ask_for_the_unmeasured_stretch_of_a_detections_region_past_its_disc() -> None:
+    # a strong inclusion's halo joins a neighbour 16 mm away into one region above the threshold; its disc is
+    # measured, the stretch between them is not: only a sweep there can show the dip that parts them
+    cfg = _cfg()
+    xs, ys = cfg.grid()
+    gx, gy = np.meshgrid(xs, ys)
+    sig = np.where((gx >= 8.0) & (gx <= 30.0) & (gy >= 8.0) & (gy <= 16.0), 10.0, 0.0)
+    nan = np.full((20, 20), np.nan)
+    inc = Inclusion(11.0, 11.0, 3.0, 3.0, 30.0, 28.0, 7, 10.0, 0.0)
+    det = Detection([inc], 10.0, 0.04, 4.4, sig, nan, np.zeros((20, 20), dtype=bool), nan, nan)
+    observed = ~((gx >= 18.0) & (gx <= 26.0))   # the columns between the two unmeasured
+    assert interior_gaps([inc], observed, xs, ys, REGION, 2.0, 3.0, 3) == []
+    masks = region_masks(det, xs, ys)
+    assert len(masks) == 1 and masks[0][0].sum() == np.count_nonzero(sig > 4.4)
+    points = mask_gaps(masks, observed, xs, ys, REGION, 2.0, 3.0, 3)
+    assert len(points) == 1 and 20.0 <= points[0][0] <= 24.0 and 8.0 <= points[0][1] <= 16.0
+    # a region measured to the gap asks for nothing; a detection outside any region (none above) neither
+    assert mask_gaps(masks, np.ones((20, 20), dtype=bool), xs, ys, REGION, 2.0, 3.0, 3) == []
+    assert region_masks(replace(det, significance=np.zeros((20, 20))), xs, ys) == []

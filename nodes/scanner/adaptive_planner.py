@@ -99,8 +99,8 @@ class AdaptivePlanner(palpa.Node):
                                      false_alarm_per_map=p.false_alarm_per_map,
                                      near_miss_false_alarm=p.near_miss_false_alarm,
                                      near_miss_gap_mm=p.near_miss_gap_mm, split_prominence=p.split_prominence,
-                                     near_best=p.near_best, cover_column_mm=p.cover_column_mm,
-                                     cover_period_mm=p.cover_period_mm,
+                                     near_best=p.near_best, cover_column_mm=p.cover_column_mm, region_gaps=p.region_gaps,
+                                     cover_period_mm=p.cover_period_mm, fair_halo_mm=p.fair_halo_mm,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
         except (ValueError, GeometryError) as exc:
             raise palpa.ParamError(f"{self.name}: {exc}") from None

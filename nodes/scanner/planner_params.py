@@ -69,6 +69,10 @@ class PlannerParams(palpa.Params):
     """detect: the covering sweeps on a staggered lattice with columns this far apart (PlannerConfig; 0: off)."""
     cover_period_mm: float = 14.0
     """detect: along a lattice column a sweep every this far, the next column's half a period along."""
+    region_gaps: bool = False
+    """detect: measure a detection's whole region above the threshold to ``interior_gap_mm``, not only its disc."""
+    fair_halo_mm: float = 0.0
+    """detect, > 0: blind cells this far past a detection's radius are left out of its background (PlannerConfig)."""
     mode: Literal["sweep", "indent"] = "sweep"
     """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
     length_mm: float = 6.0
