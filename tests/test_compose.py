@@ -173,6 +173,8 @@ class _LateEchoBus:
 
     def __init__(self) -> None:
         self.subscribed: set[bytes] = set()
+        self.outside: set[bytes] = set()
+        """What subscribers elsewhere on the bus take (the bridge's own subscriptions reach its publisher too)."""
         self.held: list[list[bytes]] = []
         self.back: list[Delivery] = []
 
@@ -186,7 +188,7 @@ class _LateEchoBus:
         self.held.append(list(frames))
 
     def has_subscribers(self, topic: bytes) -> bool:
-        return False
+        return any(topic.startswith(t) for t in self.subscribed | self.outside)
 
     def release(self) -> None:
         self.back += [Delivery(f, False) for f in self.held if any(f[0].startswith(t) for t in self.subscribed)]
@@ -218,8 +220,25 @@ def test_a_service_call_echoed_back_late_through_the_bridge_is_not_run_again() -
     comp.settle()
     assert first.result().total == 2.0 and second.result().total == 4.0
     assert b"math/add/request" in bridge.subscribed   # a service's requests may come from outside too
+    assert [f[0] for f in bridge.held].count(b"math/add/request") == 2  # out on the bus, to come back
     bridge.release()    # both requests (and replies) come back now, the first after the second was served
     comp._wait_outside(0.0)
     comp.settle()
     assert server.srv.calls == 2 and server.srv.repeats == 0
+    comp.close()
+
+
+def test_the_bridge_carries_out_what_the_bus_listens_to_and_every_latched_value() -> None:
+    """A topic nobody on the real bus takes stays in the composition (a PUB socket would drop it after its cost to
+    the composition); one taken there goes out, and a latched value goes to the bus's cache whoever listens."""
+    from messages import Text
+
+    bridge = _LateEchoBus()
+    bridge.outside.add(b"seen/")
+    comp = Composition(bridge=bridge, clock=MockClock(0), heartbeat_s=0)  # type: ignore[arg-type]
+    node = comp.adopt(Node(name="talker", transport=comp.transport(), clock=comp.clock, heartbeat_s=0))
+    for topic, latched in (("seen/x", False), ("unseen/x", False), ("state/x", True)):
+        node.publisher(topic, Text, latched=latched).publish(Text(text=topic))
+    comp.settle()
+    assert sorted(f[0] for f in bridge.held) == [b"seen/x", b"state/x"]
     comp.close()

@@ -67,8 +67,11 @@ class _HubBus(MemoryBus):
 
     def send_out(self, frames: Sequence[bytes], latched: bool) -> None:
         self._route(list(frames), latched)
-        if self.bridge is not None:
-            self.bridge.send(frames, latched)
+        bridge = self.bridge
+        # out on the bus only what someone there listens to (a PUB socket drops the rest itself, after its cost to
+        # us); a latched value goes to the bus's cache whoever listens
+        if bridge is not None and (latched or bridge.has_subscribers(frames[0])):
+            bridge.send(frames, latched)
 
     def transport(self) -> MemoryTransport:
         t = _HubTransport(self)
