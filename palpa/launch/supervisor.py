@@ -100,9 +100,10 @@ class Supervisor:
         self._reaper: Reaper | None = None
         self._clock_watch = ClockWatch.for_plan(plan)
         self._clock_master = secrets.token_bytes(32)
-        self._gates: list[int] = []  # write ends of the start gates of entries waiting for the prepare step
         """This run's master key for signed clock acks (palpa.timing.acksign): each child gets its own node's key,
         the clock entry the master."""
+        self._gates: list[int] = []
+        """Write ends of the start gates of the entries started before the checks and the prepare step."""
 
     # -- public ----------------------------------------------------------------------------------------
     def request_stop(self) -> None:
