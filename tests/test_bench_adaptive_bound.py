@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from types import ModuleType
 
 import pytest
@@ -13,11 +14,11 @@ def _bench() -> ModuleType:
     return bench_module("adaptive_bound")
 
 
-def test_an_inclusion_hides_between_sweeps_as_often_as_the_gap_outgrows_its_sensed_band() -> None:
+def test_an_inclusion_hides_where_the_sweeps_stadiums_cannot_reach() -> None:
     b = _bench()
-    # ratio 0.2 of a 3 mm raster: sweeps 15 mm apart; r 3 + 1.5 senses a 9 mm band of every 15 mm
-    assert b.hide_probability(3.0, 1.5, 0.2, 3.0) == pytest.approx(0.4)
-    assert b.hide_probability(6.0, 1.5, 0.2, 3.0) == 0.0  # its band covers the gap
-    assert b.hide_probability(6.0, 1.5, 1.0, 3.0) == 0.0  # the raster itself senses everything
-    rows = [{"radius_mm": "3.0", "raster": "3"}, {"radius_mm": "6.0", "raster": "2"}, {"radius_mm": "2.0", "raster": "0"}]
-    assert b.expected_unsensed(rows, 1.5, 0.2, 3.0) == pytest.approx(3 * 0.4)
+    # ratio 0.1 of a 3 mm raster in 6 mm sweeps; r 1 + reach 1: each sweep senses 2*2*6 + pi*4 mm^2
+    assert b.hide_probability(1.0, 1.0, 0.1, 3.0, 6.0) == pytest.approx(1 - 0.1 * (4 + math.pi * 4 / 6) / 3)
+    assert b.hide_probability(6.0, 1.5, 0.2, 3.0, 6.0) == 0.0  # its stadiums could cover the whole region
+    assert b.hide_probability(1.0, 1.0, 0.1, 3.0, 1e9) == pytest.approx(1 - 0.1 * 4 / 3)  # long lines: bands
+    rows = [{"radius_mm": "1.0", "raster": "3"}, {"radius_mm": "6.0", "raster": "2"}, {"radius_mm": "0.5", "raster": "0"}]
+    assert b.expected_unsensed(rows, 1.0, 0.1, 3.0, 6.0) == pytest.approx(3 * b.hide_probability(1.0, 1.0, 0.1, 3.0, 6.0))
