@@ -9,7 +9,7 @@ import math
 import re
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -212,15 +212,26 @@ def _state(g: GraphHarness) -> str:
     return str(g.published("robot/scan_status")[-1].state)
 
 
+def _advance_until(g: GraphHarness, clock: MockClock, done: Callable[[], bool], within_s: float, step_s: float,
+                   what: str) -> None:
+    """Advance the graph ``step_s`` at a time until ``done()``; fail naming ``what`` after ``within_s`` simulated."""
+    end = clock.now_ns() + within_s * 1e9
+    while not done():
+        assert clock.now_ns() < end, f"{what} not within {within_s:g} simulated s: {g.published('robot/scan_status')[-1]}"
+        g.advance(step_s)
+
+
+def _scanning(g: GraphHarness, clock: MockClock, ctl: UrController) -> None:
+    _advance_until(g, clock, lambda: _state(g) == "scanning" and ctl.arm.is_moving, 30.0, 0.05, "the scan moving")
+
+
 @at_the_rig_s_start
 def test_the_rig_s_scan_graph_runs_its_raster_on_the_emulated_ur_in_the_box_and_under_the_cap(
         ur: tuple[MockClock, UrController], tmp_path: Path) -> None:
     clock, ctl = ur
     with rig(tmp_path, clock) as g:
         scanner = _scanner(g)
-        while _state(g) != "done" and clock.now_ns() - g.published("robot/plan")[0].stamp_ns < 30e9:
-            g.advance(0.5)
-        assert _state(g) == "done", g.published("robot/scan_status")[-1]
+        _advance_until(g, clock, lambda: _state(g) == "done", 60.0, 0.5, "the raster's end")
         plan: ScanPlan = g.published("robot/plan", ScanPlan)[0]
         poses: list[RobotPose] = g.published("robot/pose", RobotPose)
         samples = g.published("stiffness/sample")
@@ -248,8 +259,7 @@ def test_stale_probe_data_stops_the_emulated_arm_as_a_fault_after_the_watchdog_s
     with rig(tmp_path, clock) as g:
         scanner = _scanner(g)
         fibre = next(n for n in g.nodes if n.name == "fibre")
-        while not (_state(g) == "scanning" and ctl.arm.is_moving):
-            g.advance(0.05)
+        _scanning(g, clock, ctl)
         g.advance(0.5)
         fibre.request_shutdown()  # the probe's data stops (it comes every few ms until now)
         killed, watchdog = clock.now_ns(), scanner.params.watchdog_s
@@ -272,12 +282,11 @@ def test_an_arm_pushed_out_of_the_workspace_box_is_stopped_as_a_fault(
     with rig(tmp_path, clock) as g:
         scanner = _scanner(g)
         top = scanner.params.workspace_mm[5]
-        while not (_state(g) == "scanning" and ctl.arm.is_moving):
-            g.advance(0.05)
+        _scanning(g, clock, ctl)
         with ctl.lock:  # jogged straight up at 100 mm/s, out through the box's top
             ctl.start_motion([ArmTarget((*ctl.arm.pose[:2], top + 40.0, *ctl.arm.pose[3:]), 100.0, 2000.0)])
-        while ctl.arm.pose[2] <= top + 0.5 and _state(g) == "scanning":
-            g.advance(0.002)
+        _advance_until(g, clock, lambda: ctl.arm.pose[2] > top + 0.5 or _state(g) != "scanning", 2.0, 0.002,
+                       "the arm leaving the box's top")
         g.advance(SUPERVISION_MAX_S + 0.002)
         status = g.published("robot/scan_status")[-1]
         assert status.state == "fault" and "outside the workspace box" in status.message, status
