@@ -27,11 +27,11 @@ from palpa.runtime_msgs import (
     tick_topic,
 )
 from palpa.testing import MemoryBus
-from palpa.timing import simclock
 from palpa.timing.ackgate import MAX_SEQ_STEP, AckGate
 from palpa.timing.acksign import MAC_BYTES, node_key, sign, verify
 from palpa.timing.simclock import ClockSource
 from tests.procs import wait_until
+from tests.test_runtime_unit import clock_source
 
 NOW = 5_000
 
@@ -197,12 +197,7 @@ def test_refusals_go_out_in_the_heartbeats_and_node_info_shows_them() -> None:
 def test_heartbeats_of_another_incarnation_do_not_keep_a_gone_participant_in(monkeypatch: pytest.MonkeyPatch) -> None:
     """The participant's process is gone; another process under its name heartbeats (alive, another pid): the clock
     still drops the participant once it has been silent ``check_after_s``, and time runs on."""
-    wall = [0]
-    monkeypatch.setattr(simclock.time, "monotonic_ns", lambda: wall[0])
-    monkeypatch.setattr(simclock.time, "time_ns", lambda: 1_000_000_000)
-    bus = MemoryBus()
-    src = simclock.ClockSource(params={"time_scale": 2.0, "max_lead_s": 0.02}, transport=bus.transport(),
-                               heartbeat_s=0)
+    wall, bus, src = clock_source(monkeypatch)
     src.pid_alive = lambda pid: pid == 5555
     slow, impostor = (palpa.Node(name="slow", transport=bus.transport(), heartbeat_s=0) for _ in range(2))
     slow.publisher(CLOCK_ACK_TOPIC, ClockAck).publish(ClockAck(node="slow", sim_ns=1_000_000_000))

@@ -205,7 +205,7 @@ def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.Mo
                                                           caplog: pytest.LogCaptureFixture) -> None:
     from palpa.runtime_msgs import CLOCK_ACK_TOPIC, ClockAck
 
-    wall, bus, src = _clock_source(monkeypatch)
+    wall, bus, src = clock_source(monkeypatch)
     wall[0] = 100_000_000  # 0.1 s wall at 2x: free running, 0.2 s simulated
     assert src.sim_now_ns() == 1_200_000_000
     laggard = palpa.Node(name="slow", transport=bus.transport(), heartbeat_s=0)
@@ -228,7 +228,7 @@ def test_clock_source_lockstep_holds_for_the_slowest_node(monkeypatch: pytest.Mo
     assert len(dropped) == 1 and dropped[0].levelname == "WARNING"  # said once, not on every tick
 
 
-def _clock_source(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], MemoryBus, Any]:
+def clock_source(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], MemoryBus, Any]:
     """A clock source (2x, 20 ms lead, simulated time from 1 s) on a memory bus, its wall clock ``wall[0]``."""
     from palpa.timing import simclock
 
@@ -246,7 +246,7 @@ def _lockstep(monkeypatch: pytest.MonkeyPatch) -> tuple[list[int], Any, Any, Any
     (wall, source, ack publisher, heartbeat publisher)."""
     from palpa.runtime_msgs import CLOCK_ACK_TOPIC, ClockAck, Heartbeat
 
-    wall, bus, src = _clock_source(monkeypatch)
+    wall, bus, src = clock_source(monkeypatch)
     wall[0] = 50_000_000
     assert src.sim_now_ns() == 1_100_000_000  # the time the node acks (an ack past the clock's time is refused)
     peer = palpa.Node(name="slow", transport=bus.transport(), heartbeat_s=0)
