@@ -24,6 +24,16 @@ ALLOWED_PRIVATE = {
 }
 
 
+def plant_package(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, files: dict[str, str]) -> None:
+    """A package ``fakepkg`` of ``files`` (name -> source; an empty ``__init__.py`` unless given) under
+    ``tmp_path``, made the root the scans of this module walk: a check shown to find what it looks for."""
+    pkg = tmp_path / "fakepkg"
+    pkg.mkdir()
+    for name, text in {"__init__.py": "", **files}.items():
+        (pkg / name).write_text(text)
+    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+
+
 def source_modules(packages: tuple[str, ...]) -> dict[str, Path]:
     out = {}
     for pkg in packages:
@@ -204,14 +214,11 @@ def test_the_world_check_sees_an_estimator_import() -> None:
 
 def test_the_checks_see_a_cycle_and_a_private_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The scans are not vacuous: a planted cycle and a planted private read are found."""
-    pkg = tmp_path / "fakepkg"
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text("")
-    (pkg / "a.py").write_text("from fakepkg import b\n")
-    (pkg / "b.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from fakepkg.a import x\n"
-                              "def f(node):\n    return node._depth\n")
-    (pkg / "c.py").write_text("from fakepkg.a import _secret\n")
-    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    plant_package(tmp_path, monkeypatch, {
+        "a.py": "from fakepkg import b\n",
+        "b.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from fakepkg.a import x\n"
+                "def f(node):\n    return node._depth\n",
+        "c.py": "from fakepkg.a import _secret\n"})
     assert import_cycles(("fakepkg",)) == [["fakepkg.a", "fakepkg.b"]]
     assert foreign_private_access(("fakepkg",)) == ["fakepkg/b.py:5: node._depth"]
     assert private_imports(("fakepkg",)) == ["fakepkg/c.py:1: from fakepkg.a import _secret"]
@@ -319,8 +326,6 @@ def test_yaml_is_read_only_through_yamlstruct() -> None:
 
 
 def test_the_yaml_check_sees_a_reader(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    pkg = tmp_path / "fakepkg"
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text("import yaml\n\ndef f(t):\n    return yaml.safe_dump(yaml.safe_load(t))\n")
-    monkeypatch.setattr(sys.modules[__name__], "ROOT", tmp_path)
+    plant_package(tmp_path, monkeypatch,
+                  {"__init__.py": "import yaml\n\ndef f(t):\n    return yaml.safe_dump(yaml.safe_load(t))\n"})
     assert yaml_read_outside_yamlstruct(("fakepkg",)) == ["fakepkg/__init__.py:4: yaml.safe_load"]

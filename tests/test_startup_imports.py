@@ -11,9 +11,8 @@ from pathlib import Path
 
 import pytest
 
-import tests.test_architecture as arch
 from palpa.launch.loader import load_launch
-from tests.test_architecture import ROOT, source_modules
+from tests.test_architecture import ROOT, plant_package, source_modules
 
 HEAVY = ("scipy", "matplotlib", "sklearn", "cv2", "pandas", "pyarrow", "dask")
 """Packages a launcher checking the demo must not import: each costs 0.1 s or more (``python -X importtime``)."""
@@ -71,11 +70,8 @@ def test_checking_the_demo_imports_no_heavy_package(tmp_path: Path) -> None:
 
 
 def test_the_check_sees_a_heavy_import_at_module_level(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    pkg = tmp_path / "fakepkg"
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text("")
-    (pkg / "a.py").write_text("from fakepkg import b\n\ndef f():\n    import matplotlib\n")
-    (pkg / "b.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import pandas\n"
-                              "try:\n    from scipy import ndimage\nexcept ImportError:\n    pass\n")
-    monkeypatch.setattr(arch, "ROOT", tmp_path)
+    plant_package(tmp_path, monkeypatch, {
+        "a.py": "from fakepkg import b\n\ndef f():\n    import matplotlib\n",
+        "b.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import pandas\n"
+                "try:\n    from scipy import ndimage\nexcept ImportError:\n    pass\n"})
     assert heavy_imports(["fakepkg.a"], ("fakepkg",)) == ["fakepkg.b: scipy", "fakepkg.b: scipy.ndimage"]

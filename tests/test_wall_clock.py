@@ -227,13 +227,11 @@ def test_every_listed_wall_clock_place_still_reads_it() -> None:
 
 
 def test_the_wall_clock_census_sees_each_kind_of_read(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    pkg = tmp_path / "fakepkg"
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text(
+    init = (
         "import time as t\nimport queue\nfrom time import monotonic, strftime\nfrom datetime import datetime\n"
         "class A:\n    def f(self, ev, q, clock=t.time_ns):\n        t.sleep(0.1)\n        ev.wait(0.5)\n"
         "        q.get(timeout=1)\n        return datetime.now(), ev.wait(), q.get(), ', '.join([strftime('%H')])\n")
-    (pkg / "waits.py").write_text("""\
+    waits = """\
 import os, select, subprocess, threading, zmq, serial
 def g(th, proc, sock, poller, sel, cond, q, d, s, parts, sep):
     th.join(5.0)
@@ -255,8 +253,8 @@ def g(th, proc, sock, poller, sel, cond, q, d, s, parts, sep):
     return (", ".join(parts), sep.join(p for p in parts), os.path.join("a", "b"), os.pathsep.join([sep]),
             poller.poll(0), sock.poll(), d.get("k", 0), q.get(), cond.wait_for(bool), th.join(),
             serial.Serial("/dev/x", timeout=None), sel.select(), proc.communicate(b"x"))
-""")
-    monkeypatch.setattr(arch, "ROOT", tmp_path)
+"""
+    arch.plant_package(tmp_path, monkeypatch, {"__init__.py": init, "waits.py": waits})
     assert wall_clock_reads(("fakepkg",)) == {
         "fakepkg": ["3: from time import monotonic"],
         "fakepkg:A.f": ["6: time.time_ns", "7: time.sleep", "8: ev.wait(timeout)", "9: q.get(timeout=)",
