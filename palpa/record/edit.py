@@ -31,8 +31,8 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 import palpa
+from palpa.atomic import written_beside
 from palpa.net.wire import SequenceTracker, TopicStats
-from palpa.record.atomic import written_beside
 from palpa.record.format import (
     BLOBS_SCHEMA,
     BLOBS_SCHEMA_NAME,

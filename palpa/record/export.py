@@ -27,9 +27,9 @@ from mcap.records import Attachment, McapRecord, Metadata, Schema
 from mcap.writer import CompressionType, Writer
 
 import palpa
+from palpa.atomic import written_beside
 from palpa.errors import DecodeError
 from palpa.net.wire import decode_any
-from palpa.record.atomic import written_beside
 from palpa.record.format import (
     BLOBS_TOPIC_PREFIX,
     META_LATCHED,

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Literal
 
-from palpa.record.atomic import written_beside
+from palpa.atomic import written_beside
 from palpa.record.format import BagError
 
 if TYPE_CHECKING:
