@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from palpa import env as palpa_env
+from palpa.atomic import write_beside, written_beside
 from palpa.errors import BusError
 from palpa.net.address import BusAddress, default_address, private_dir
 
@@ -53,21 +54,16 @@ def announce(address: BusAddress, run_dir: Path) -> Path:
     entry = folder / f"{os.getpid()}-{next(_entries)}.json"
     record = {"bus": str(address), "pid": os.getpid(), "started": _start_time(os.getpid()),
               "run_dir": str(run_dir.resolve())}
-    tmp = entry.with_suffix(".tmp")  # readers never see half a file (they read *.json only)
     for _ in range(3):  # a withdraw may remove the empty folder between the mkdir and the write
         with contextlib.suppress(OSError):
             folder.mkdir(mode=0o700, parents=True, exist_ok=True)
-            tmp.write_text(json.dumps(record) + "\n", encoding="utf-8")
-            os.replace(tmp, entry)
+            write_beside(entry, json.dumps(record) + "\n")  # never half a file (readers read *.json only)
             break
     latest = run_dir.parent / "latest"
     if run_dir.parent.name != "runs" or run_dir.name == "latest" or (latest.exists() and not latest.is_symlink()):
         return entry  # only runs/latest (not /tmp/latest for --run-dir /tmp/x), and never over a real file
-    link = run_dir.parent / f".latest.{os.getpid()}.tmp"
-    with contextlib.suppress(OSError):
-        link.unlink(missing_ok=True)
+    with contextlib.suppress(OSError), written_beside(latest, per_writer=True) as link:  # launches start at once
         link.symlink_to(run_dir.name)
-        os.replace(link, latest)
     return entry
 
 

@@ -15,12 +15,13 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from palpa.atomic import write_beside, written_beside
 
 __all__ = ["TABLES", "WALL_CLOCK", "read_tables", "summarize", "write_tables"]
 
@@ -58,20 +59,16 @@ def write_tables(out: Path, tables: dict[str, list[dict[str, Any]]], varied: Seq
     import pyarrow.parquet as pq
 
     rows = tables["runs"]
-    _replace(out / "runs.json", lambda p: p.write_text(json.dumps(rows, indent=1, default=str), encoding="utf-8"))
+    write_beside(out / "runs.json", json.dumps(rows, indent=1, default=str), per_writer=True)
     for name in TABLES:
         df, encoded = _frame(tables[name], name)
         table = pa.Table.from_pandas(df, preserve_index=False)
         meta = {**(table.schema.metadata or {}), _META: json.dumps({"varied": list(varied), "json": encoded})}
         tagged = table.replace_schema_metadata(meta)
-        _replace(out / f"{name}.parquet", lambda p, t=tagged: pq.write_table(t, p))
-        _replace(out / f"{name}.csv", lambda p, r=tables[name]: _write_csv(p, r))
-
-
-def _replace(path: Path, write: Any) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    write(tmp)
-    os.replace(tmp, path)
+        with written_beside(out / f"{name}.parquet", per_writer=True) as tmp:
+            pq.write_table(tagged, tmp)
+        with written_beside(out / f"{name}.csv", per_writer=True) as tmp:
+            _write_csv(tmp, tables[name])
 
 
 def _write_csv(path: Path, table: list[dict[str, Any]]) -> None:

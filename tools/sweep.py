@@ -29,6 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from palpa.atomic import write_beside
+
 __all__ = ["Cluster", "Store", "Task", "content_key", "file_digest", "run_sweep", "tree_digest"]
 
 
@@ -89,10 +91,7 @@ class Store:
     def put(self, record: dict[str, Any]) -> None:
         """Write ``record`` under its key atomically: a reader sees the old file or the new one, never a part."""
         self.root.mkdir(parents=True, exist_ok=True)
-        final = self.path(record["key"])
-        tmp = final.with_name(f".{final.name}.{os.getpid()}.{threading.get_ident()}.tmp")
-        tmp.write_text(json.dumps(record, default=str, allow_nan=True), encoding="utf-8")
-        os.replace(tmp, final)
+        write_beside(self.path(record["key"]), json.dumps(record, default=str, allow_nan=True), per_writer=True)
 
 
 def _record(task: Task, result: dict[str, Any]) -> dict[str, Any]:

@@ -24,7 +24,6 @@ import contextlib
 import json
 import logging
 import math
-import os
 import subprocess
 import sys
 import textwrap
@@ -38,6 +37,7 @@ import numpy.typing as npt
 from messages import DetectedInclusion, Inclusions
 from models.detector import Detection, DetectorConfig, detect, with_law_of
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, to_inclusions_json
+from palpa.atomic import write_beside, written_beside
 
 __all__ = ["PngHelper", "detection_summary", "inclusions_message", "map_incomplete", "map_model", "read_map", "redetect",
            "write_outputs"]
@@ -112,12 +112,6 @@ _HELPER_TIMEOUT_S = 60.0
 """Wall seconds the helper may take to draw (it is then killed, and the picture drawn here)."""
 
 
-def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
-
-
 class PngHelper:
     """A process that has imported matplotlib and waits to draw one ``map.png`` (this module run with ``python -m``,
     reading one JSON request on stdin). Started at once; :meth:`close` ends it if it was not used."""
@@ -186,8 +180,8 @@ def _serve() -> int:
         unsensed = z.get("unsensed")
     found = [Inclusion(x_mm=x, y_mm=y, radius_mm=r, contrast=c, peak=0.0, area_mm2=0.0, cells=0)
              for x, y, r, c in req["inclusions"]]
-    _atomic_write(Path(req["png"]), _render_png(snap, found, unit=req["unit"], title=req["title"],
-                                                unsensed=unsensed))
+    write_beside(Path(req["png"]), _render_png(snap, found, unit=req["unit"], title=req["title"],
+                                               unsensed=unsensed))
     print("ok", flush=True)
     return 0
 
@@ -205,7 +199,6 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
         raise ValueError(f"unsensed: shape {np.shape(unsensed)} is not the map's {np.shape(snap.stiffness)}")
     out_dir.mkdir(parents=True, exist_ok=True)
     npz = out_dir / "map.npz"
-    tmp = out_dir / "map.tmp.npz"
     arrays: dict[str, Any] = {
         "stiffness": snap.stiffness, "x_mm": snap.x_mm, "y_mm": snap.y_mm, "count": snap.count,
         "spread": snap.spread, "unit": np.array(unit)}
@@ -216,14 +209,14 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
     if incomplete:
         arrays["incomplete"] = np.array(incomplete)
         title = "\n".join(textwrap.wrap(f"INCOMPLETE: {incomplete}", 90)) + "\n" + title
-    np.savez_compressed(tmp, **arrays)
-    os.replace(tmp, npz)
+    with written_beside(npz) as tmp, open(tmp, "wb") as fh:  # a file, not a name: np.savez would add .npz
+        np.savez_compressed(fh, **arrays)
     js = out_dir / "inclusions.json"
-    _atomic_write(js, (json.dumps(to_inclusions_json(inclusions), indent=2) + "\n").encode())
+    write_beside(js, json.dumps(to_inclusions_json(inclusions), indent=2) + "\n")
     png = out_dir / "map.png"
     if helper is None or not helper.render(npz, png, inclusions, unit=unit, title=title,
                                            resolution_mm=snap.resolution_mm):
-        _atomic_write(png, _render_png(snap, inclusions, unit=unit, title=title, unsensed=unsensed))
+        write_beside(png, _render_png(snap, inclusions, unit=unit, title=title, unsensed=unsensed))
     return [npz, png, js]
 
 

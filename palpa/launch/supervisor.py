@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from palpa import env as palpa_env
+from palpa.atomic import write_beside
 from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
 from palpa.launch.clockwatch import ClockWatch
@@ -146,9 +147,7 @@ class Supervisor:
                 bus = Bus(plan.bus_request(self._bus_override), latched_topics=plan.bus.latched,
                           hwm=plan.bus.hwm, max_msg_bytes=plan.bus.max_msg_bytes)
                 self.address = bus.start()
-                tmp = plan.run_dir / ".bus.address.tmp"  # readers never see a half-written address
-                tmp.write_text(f"{self.address}\n", encoding="utf-8")
-                os.replace(tmp, plan.run_dir / "bus.address")
+                write_beside(plan.run_dir / "bus.address", f"{self.address}\n")  # never half an address
                 if self._announce:
                     self._entry = announce(self.address, plan.run_dir)
                 self._screen.say(f"bus at {self.address}; run directory {plan.run_dir}")
