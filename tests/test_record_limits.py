@@ -143,7 +143,7 @@ def test_recover_in_place_refuses_a_file_a_recorder_is_writing(tmp_path: Path,
     before = path.read_bytes()
     assert main(["bag", "recover", "--in-place", str(path)]) == 1
     assert "is in use: a recorder is still writing it" in capsys.readouterr().err
-    assert path.read_bytes() == before and not (tmp_path / "live.mcap.recovering").exists()
+    assert path.read_bytes() == before and not (tmp_path / "live.mcap.partial").exists()
     assert main(["bag", "recover", str(path), "-o", str(tmp_path / "copy.mcap")]) == 0  # a snapshot is allowed
     assert "still being written" in capsys.readouterr().err
     for i in range(6, 11):  # the recorder goes on, undisturbed

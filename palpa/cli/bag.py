@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 from pathlib import Path
 
+from palpa.atomic import written_beside
 from palpa.record.edit import rewrite
 from palpa.record.export import export_json
 from palpa.record.format import BagError, TopicFilter
@@ -104,9 +104,8 @@ def run_recover(args: argparse.Namespace) -> int:
             if not lock_exclusive(guard):
                 raise BagError(f"{src} is in use: a recorder is still writing it (it holds the file's lock); "
                                "stop the recorder first, or recover a copy with -o OUT")
-            tmp = src.with_name(src.name + ".recovering")
-            report = recover(src, tmp, overwrite=True)
-            os.replace(tmp, src)
+            with written_beside(src) as tmp:  # a failed recovery leaves the file as it was, and no copy beside it
+                report = recover(src, tmp, overwrite=True)
         report.output = src
     else:
         with open(src, "rb") as probe:
