@@ -194,17 +194,18 @@ def test_where_two_probes_lines_overlap_a_sample_is_the_one_measuring_at_its_sta
     from palpa.testing import NodeHarness
 
     h = NodeHarness(AdaptivePlanner, {"region_mm": [0.0, 0.0, 30.0, 30.0], "output_dir": str(tmp_path)})
-    p, now = h.node, h.clock.now_ns()
-    p.probed, p.blind = [(10.0, 10.0)], [False]
-    p.inflight, p.inflight_blind, p.inflight_since_ns = (10.0, 12.0), True, now
+    p, now = h.node.samples, h.clock.now_ns()   # as the planner made it from its parameters (6 mm sweeps)
+    p.sent((10.0, 10.0), False, now - 10)
+    p.answered((0, 0))
+    p.sent((10.0, 12.0), True, now)
 
     def at(stamp_ns: int, y: float = 13.0) -> StiffnessSample:
         return StiffnessSample(stamp_ns=stamp_ns, model="airfloat", x_mm=10.0, y_mm=y, z_mm=1.0, value=12.0,
                                unit="kPa", valid=True)
 
-    assert p._measured_by(at(now - 1)) is False and p._measured_by(at(now)) is True
-    assert p._measured_by(at(now - 1, y=16.0)) is None     # on the sweep in flight only, measured before it
-    assert p._measured_by(at(now, y=16.0)) is True and p._measured_by(at(now, y=20.0)) is None
+    assert p.measured_by(at(now - 1)) is False and p.measured_by(at(now)) is True
+    assert p.measured_by(at(now - 1, y=16.0)) is None     # on the sweep in flight only, measured before it
+    assert p.measured_by(at(now, y=16.0)) is True and p.measured_by(at(now, y=20.0)) is None
     h.close()
 
 
@@ -225,6 +226,8 @@ def test_estimates_lost_on_the_way_or_none_at_all_make_the_planners_run_incomple
     for lost, out in (((), "ok"), ((6, 7), "lost"), (tuple(range(1, 11)), "none")):
         h = NodeHarness(AdaptivePlanner, {"output_dir": str(tmp_path / out), "region_mm": [0.0, 0.0, 20.0, 20.0]})
         h.node.probed, h.node.blind = [(5.0, 5.0)], [True]   # as after its first probe, a sweep along y at x = 5
+        h.node.samples.sent((5.0, 5.0), True, 0)
+        h.node.samples.answered((0, 0))
         for seq in (s for s in range(1, 11) if s not in lost):
             h.publish_raw(raw(seq))
         if len(lost) < 10:
@@ -248,7 +251,7 @@ def test_the_planner_keeps_only_what_a_probe_measured_on_its_measuring_part(tmp_
 
     h = NodeHarness(AdaptivePlanner, {"region_mm": [0.0, 0.0, 30.0, 30.0], "output_dir": str(tmp_path)})
     p, now = h.node, h.clock.now_ns()
-    p.inflight, p.inflight_blind, p.inflight_since_ns = (10.0, 12.0), True, now
+    p.samples.sent((10.0, 12.0), True, now)
 
     def at(stamp_ns: int, value: float) -> StiffnessSample:
         return StiffnessSample(stamp_ns=stamp_ns, model="airfloat", x_mm=10.0, y_mm=12.0, z_mm=1.0, value=value,
@@ -256,7 +259,7 @@ def test_the_planner_keeps_only_what_a_probe_measured_on_its_measuring_part(tmp_
 
     for i, value in ((1, 99.0), (2, 12.0), (3, 12.0), (4, 99.0)):   # transit, two on the line, retract
         p.on_sample(at(now + i * 1_000_000, value))
-    assert p.pending == [] and len(p.held) == 4   # nothing binned before the answer says when
+    assert p.samples.take() == []   # nothing binned before the answer says when
 
     class Answered:
         def exception(self) -> None:
@@ -268,8 +271,8 @@ def test_the_planner_keeps_only_what_a_probe_measured_on_its_measuring_part(tmp_
 
     p._update_belief = lambda: None   # type: ignore[method-assign]   # the binning, not the GP, is under test
     p.on_result(Answered())   # type: ignore[arg-type]
-    assert [v for _, _, v, _ in p.pending] == [12.0, 12.0] and p.held == []
+    assert [v for _, _, v, _ in p.samples.take()] == [12.0, 12.0]
     p.on_sample(at(now + 5_000_000, 99.0))   # the last probe's, arriving late but measured after its span
     p.on_sample(at(now + 2_500_000, 12.0))   # ... and one measured inside it
-    assert [v for _, _, v, _ in p.pending] == [12.0, 12.0, 12.0]
+    assert [v for _, _, v, _ in p.samples.take()] == [12.0]
     h.close()

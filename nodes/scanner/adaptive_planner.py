@@ -6,8 +6,9 @@ every request against its workspace box, speed caps and watchdog; a refused requ
 retried up to ``retries`` times (the scanner may be busy or still waiting for probe data) and then given up, and
 the planner carries on with the next best point.
 
-What it learns from: every valid ``stiffness/sample`` binned into the belief grid (the per-cell median, as the map
-aggregator's), so a sweep teaches it the cells it crossed, not one number. The belief is
+What it learns from: every valid ``stiffness/sample`` its probes measured (nodes.scanner.probe_samples), binned
+into the belief grid (the per-cell median, as the map aggregator's), so a sweep teaches it the cells it crossed,
+not one number. The belief is
 :func:`models.adaptive.fit_belief` (GP regression). With ``stop_rule: detect`` (default) the planner first makes
 the coarse pass (models.adaptive_route: the whole covering lattice, chosen before any sweep and visited in one short
 route), then the next point and the end are :func:`models.adaptive_detect.decide`'s: sample every candidate's
@@ -68,6 +69,7 @@ from models.stiffness_map import MapSnapshot, StiffnessGrid
 from models.surface import region_in_footprint
 from nodes.mapping.map_output import detection_summary, inclusions_message, write_outputs
 from nodes.scanner.planner_params import PlannerParams
+from nodes.scanner.probe_samples import Point, ProbeSamples
 from palpa.node.service import ServiceError
 from palpa.node.service_client import Future
 
@@ -108,12 +110,9 @@ class AdaptivePlanner(palpa.Node):
         self.grid = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
         self.fair = StiffnessGrid(x0, y0, x1, y1, p.resolution_mm, min_count=p.min_count)
         """The cells measured by stiffness-blind probes (seed grid, covering sweeps): the detector's baseline."""
-        self.pending: list[tuple[float, float, float, bool]] = []
-        self.held: list[tuple[float, float, float, int]] = []
-        """The probe in flight's samples (x, y, value, measured at), until its answer says when it measured."""
-        self.windows: list[tuple[int, int]] = []
-        """For every probe made, the span its measuring part took (ns; (0, 0): not said, every sample counts)."""
-        """Samples not yet in the grids: (x, y, value, measured by a stiffness-blind probe)."""
+        self.samples = ProbeSamples(mode=p.mode, length_mm=p.length_mm, radius_mm=p.radius_mm,
+                                    tolerance_mm=p.resolution_mm)
+        """The probe in flight and the last one made, and their samples not yet in the grids."""
         self.unit = ""
         coarse = coarse_pass(self.cfg) if self.cfg.stop_rule == "detect" and p.coarse_pass else []
         if coarse:
@@ -132,10 +131,7 @@ class AdaptivePlanner(palpa.Node):
         """Points the scanner refused every time: never chosen again, not counted as probes."""
         self.tries: dict[tuple[float, float], int] = {}
         self.refused = 0
-        self.inflight: tuple[float, float] | None = None
-        self.inflight_blind = False
         self.inflight_why = ""
-        self.inflight_since_ns = 0
         self.retry_at_ns = 0
         self.started_ns: int | None = None
         self.belief: Belief | None = None
@@ -166,53 +162,17 @@ class AdaptivePlanner(palpa.Node):
         self.scanner_state = s.state
 
     def on_sample(self, s: StiffnessSample) -> None:
-        # only what its probes measured where they were sent: the touch-off presses and the transit from the last
-        # of them still in contact read 3-20x the tissue's stiffness (a false inclusion at each touch point)
-        if not s.valid:
-            return
-        blind = self._measured_by(s)
-        if blind is None:
+        # only what its probes measured where they were sent, on their measuring part (nodes.scanner.probe_samples)
+        if not s.valid or not self.samples.add(s):
             return
         self.unit = s.unit
         if s.model != self.cfg.model:  # the probe's own false-alarm law for every detection (models.detector)
             self.cfg = replace(self.cfg, model=s.model)
-        # and of those, only what they measured on their measuring part (the scanner's answer says when): the transit
-        # to a sweep, often along the same column, passes over its line at the retract height, where the floating
-        # indenter still reads, at another load (tuning phantom airfloat_tumours: the map's noise 0.075, the raster's
-        # 0.046)
-        if self._in_flight(s):
-            self.held.append((s.x_mm, s.y_mm, s.value, s.stamp_ns))   # until its answer says when it measured
-        elif _within(self.windows[-1] if len(self.windows) == len(self.probed) else (0, 0), s.stamp_ns):
-            self.pending.append((s.x_mm, s.y_mm, s.value, blind))
-
-    def _in_flight(self, s: StiffnessSample) -> bool:
-        """Whether ``s`` is the probe in flight's: measured since its request, on its line (:meth:`_on`)."""
-        return self.inflight is not None and s.stamp_ns >= self.inflight_since_ns and self._on(self.inflight, s)
-
-    def _measured_by(self, s: StiffnessSample) -> bool | None:
-        """Whether the probe that measured ``s`` was stiffness-blind; None when ``s`` lies on neither the probe in
-        flight (:meth:`_in_flight`) nor the last one made (its sweep's line, or the press's radius, within one belief
-        cell). By where and when it was measured, not when it arrived: the scanner answers a while after the path
-        ends, so estimates of the last probe keep arriving after the next one was asked for; counted as the next
-        probe's, a resolving sweep's stiff end went into the blind baseline whenever a covering sweep followed,
-        raised the detector's threshold and lost a weak inclusion (fresh seed 5019, draw 2)."""
-        if self._in_flight(s):
-            return self.inflight_blind
-        if self.probed and self._on(self.probed[-1], s):
-            return self.blind[-1]
-        return None
-
-    def _on(self, probe: tuple[float, float], s: StiffnessSample) -> bool:
-        tol = self.params.resolution_mm
-        half = 0.5 * self.params.length_mm if self.params.mode == "sweep" else 0.0
-        reach = tol if self.params.mode == "sweep" else max(tol, self.params.radius_mm)
-        dy = max(0.0, abs(s.y_mm - probe[1]) - half)
-        return (s.x_mm - probe[0]) ** 2 + dy**2 <= reach**2
 
     # -- the loop ----------------------------------------------------------------------------------
     def step(self) -> None:
         """Send the next request when none is in flight and the scanner is there."""
-        if self.done or self.inflight is not None or self.clock.now_ns() < self.retry_at_ns:
+        if self.done or self.samples.inflight is not None or self.clock.now_ns() < self.retry_at_ns:
             return
         # the scanner may first be finding the surface (touch-off): a request would only be refused
         if not self.probe_at.ready() or self.scanner_state not in ("idle", "done"):
@@ -227,50 +187,44 @@ class AdaptivePlanner(palpa.Node):
             if stop:
                 self.finish(why)
                 return
-        (x, y), self.inflight_blind, self.inflight_why = self.queue.pop(0)
-        self.inflight, self.inflight_since_ns = (x, y), self.clock.now_ns()
+        (x, y), blind, self.inflight_why = self.queue.pop(0)
+        self.samples.sent((x, y), blind, self.clock.now_ns())
         req = ProbeAt(x_mm=x, y_mm=y, mode=self.params.mode,
                       length_mm=self.params.length_mm, radius_mm=self.params.radius_mm)
         self.probe_at.call_async(req).add_done_callback(self.on_result)
 
     def on_result(self, fut: Future[ProbeResult]) -> None:
-        point, self.inflight = self.inflight, None
-        assert point is not None
         err = fut.exception()
         if err is None:
             r = fut.result()
-            window = (r.measured_from_ns, r.measured_to_ns)
-            self.pending += [(x, y, v, self.inflight_blind) for x, y, v, t in self.held if _within(window, t)]
-            self.held.clear()
-            self.windows.append(window)
+            point, blind = self.samples.answered((r.measured_from_ns, r.measured_to_ns))
             self.probed.append(point)
-            self.blind.append(self.inflight_blind)
+            self.blind.append(blind)
             self.why.append(self.inflight_why)
             self.log.info("probe %d at (%.1f, %.1f) mm (%s): %.2f %s from %d estimates", len(self.probed), *point,
                           self.inflight_why, r.value, r.unit, r.samples)
             self._update_belief()
             return
-        self._refused(point, err)
+        self._refused(*self.samples.refused(), err)
 
-    def _refused(self, point: tuple[float, float], err: ServiceError) -> None:
-        self.held.clear()   # a probe that failed said nothing of when it measured
+    def _refused(self, point: Point, blind: bool, err: ServiceError) -> None:
         self.refused += 1
         n = self.tries[point] = self.tries.get(point, 0) + 1
         if n <= self.params.retries:
             self.log.warning("probe at (%.1f, %.1f) mm refused (%s): retrying", *point, err)
-            self.queue.insert(0, (point, self.inflight_blind, self.inflight_why))
+            self.queue.insert(0, (point, blind, self.inflight_why))
             self.retry_at_ns = self.clock.now_ns() + 500_000_000
         else:
             self.log.warning("probe at (%.1f, %.1f) mm refused %d times (%s): giving it up", *point, n, err)
             self.given_up.append(point)
 
     def _observations(self) -> tuple[list[tuple[float, float]], list[float]]:
-        if self.pending:
-            xs, ys, vs, blind = (np.array(v) for v in zip(*self.pending, strict=True))
+        pending = self.samples.take()
+        if pending:
+            xs, ys, vs, blind = (np.array(v) for v in zip(*pending, strict=True))
             self.grid.add(xs, ys, vs)
             if blind.any():
                 self.fair.add(xs[blind], ys[blind], vs[blind])
-            self.pending.clear()
         snap = self.grid.snapshot()
         ok = np.isfinite(snap.stiffness)
         gx, gy = np.meshgrid(snap.x_mm, snap.y_mm)
@@ -393,9 +347,3 @@ class AdaptivePlanner(palpa.Node):
         if stats is not None and stats.loss():
             lost.append(f"stiffness/sample {stats.loss()}")
         return "; ".join(lost)
-
-
-def _within(window: tuple[int, int], stamp_ns: int) -> bool:
-    """Whether a sample measured at ``stamp_ns`` lies in a probe's measuring span (``(0, 0)``: not said, so yes)."""
-    lo, hi = window
-    return (lo == 0 and hi == 0) or lo <= stamp_ns <= hi
