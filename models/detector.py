@@ -47,9 +47,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import numpy.typing as npt
 
-# scipy.ndimage and scipy.optimize are imported by the functions that use them: together they take ~0.3 s to import,
-# and a launcher imports this module (through the map node) only to check the map's parameters, before it starts
-# anything (issue 40: a composed run's start-up is serial, launcher first)
+# no scipy.ndimage (models.grid_filters does its three operations, to the bit) and scipy.optimize only in the
+# function that fits a false-alarm law: scipy.ndimage alone takes ~0.16 s to import, on the start-up path of every
+# process that publishes a map (a composed simulation included)
+from models.grid_filters import dilate, disc_sum, label8
 from models.peaks import peak_parts
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, nanmedian_stack
 
@@ -62,8 +63,6 @@ FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 _MAD_TO_SIGMA = 1.4826
-_EIGHT = np.ones((3, 3), dtype=bool)
-
 BACKGROUND_DEGREE = 2
 """Degree of the background surface in x and y (2: a dome, a tilt, a drift towards an edge)."""
 # fitted by bench/detector_calibration.py on 40 blank scans (runs of 28 Nov 2026, BENCHMARKS.md "Finding all four")
@@ -271,15 +270,13 @@ def significance(residual: FloatArray, valid: BoolArray, use: BoolArray, cell_mm
     """Per radius, the residual's disc mean times sqrt(valid cells in the disc), less that quantity's median over the
     ``use`` cells, in units of its robust scale there (at least ``floor``); NaN where the disc holds fewer than a
     third of its cells."""
-    from scipy import ndimage
-
     r = np.where(valid, residual, 0.0)
     ok = valid.astype(np.float64)
     out = []
     for radius in radii_mm:
         k = _disc(radius, cell_mm)
-        n = ndimage.convolve(ok, k, mode="constant")
-        total = ndimage.convolve(r, k, mode="constant")
+        n = disc_sum(ok, k)
+        total = disc_sum(r, k)
         with np.errstate(invalid="ignore", divide="ignore"):
             stat = np.where(n >= max(1.0, k.sum() / 3), total / np.sqrt(n), np.nan)
         ref = stat[use & np.isfinite(stat)]
@@ -300,8 +297,6 @@ def detect(snapshot: MapSnapshot, cfg: DetectorConfig | None = None, *, threshol
     background and noise may be estimated from (an adaptive planner's blind sweeps; default: every valid cell).
     Non-positive stiffness values are not valid cells (eq. 7 gives none on a sound map). Raises ValueError on a
     config it cannot use."""
-    from scipy import ndimage
-
     cfg = cfg or DetectorConfig()
     grid = fill_gaps(_drop_spikes(np.asarray(snapshot.stiffness, dtype=np.float64), cfg.spike_ratio))
     valid = np.isfinite(grid) & (grid > 0)
@@ -342,7 +337,7 @@ def detect(snapshot: MapSnapshot, cfg: DetectorConfig | None = None, *, threshol
     background = np.where(valid, np.exp(bg), np.nan)
     baseline = float(np.median(background[valid]))
     det = Detection([], baseline, noise, threshold, best, background, candidates, grid, residual, area)
-    labels, n = ndimage.label(np.nan_to_num(best, nan=-np.inf) > threshold, structure=_EIGHT)
+    labels, n = label8(np.nan_to_num(best, nan=-np.inf) > threshold)
     # the smallest disc's significance separates neighbours whose larger discs' halos join
     finest = np.nan_to_num(sig[int(np.argmin(cfg.radii_mm))], nan=-np.inf)
     found = []
@@ -359,10 +354,8 @@ def peak_significance(det: Detection, floor: float = 2.0) -> float:
     """The largest significance on the map that the detector could report: the highest peak of the regions above
     ``floor`` that are not an edge row (:func:`detect`), else the map's largest significance. A blank map's false
     alarm is this exceeding the threshold; bench/detector_calibration.py fits the law of it."""
-    from scipy import ndimage
-
     sig = np.nan_to_num(det.significance, nan=-np.inf)
-    labels, n = ndimage.label(sig > floor, structure=_EIGHT)
+    labels, n = label8(sig > floor)
     tops = [float(sig[labels == k].max()) for k in range(1, n + 1) if not _edge_row(det, labels == k)]
     return max(tops) if tops else min(floor, float(sig.max()))
 
@@ -386,8 +379,6 @@ def describe(det: Detection, snapshot: MapSnapshot, region: BoolArray, cfg: Dete
     """One detected region (non-empty ``region`` cells of ``det``'s grid) as an inclusion (module doc, step 5).
     ``part``: the region is one part of a region cut in two or more, and its extent stays within the smallest disc
     of it (the raised cells past the cut are the other part's)."""
-    from scipy import ndimage
-
     valid = np.isfinite(det.residual)
     cell = float(snapshot.resolution_mm)
     gy, gx = np.meshgrid(snapshot.y_mm, snapshot.x_mm, indexing="ij")
@@ -395,10 +386,10 @@ def describe(det: Detection, snapshot: MapSnapshot, region: BoolArray, cfg: Dete
     peak_excess = float(excess[region].max())
     core = region
     if peak_excess > 0:   # the cells raised by half the peak or more that join the region
-        half, _ = ndimage.label(excess >= 0.5 * peak_excess, structure=_EIGHT)
+        half, _ = label8(excess >= 0.5 * peak_excess)
         core = np.isin(half, np.unique(half[region & (half > 0)]))
         if part:
-            core &= ndimage.binary_dilation(region, structure=_disc(min(cfg.radii_mm), cell) > 0)
+            core &= dilate(region, _disc(min(cfg.radii_mm), cell) > 0)
     own = core & region if (core & region).any() else core   # the centroid from this region's own raised cells
     w = np.clip(excess[own], 0.0, None)
     if not w.sum() > 0:

@@ -46,7 +46,6 @@ raster's moves between presses, not an exclusion."""
 class MapAggregator(palpa.Node):
     """Bins samples, detects inclusions, writes the scan's outputs."""
 
-    warm_imports = ("scipy.ndimage",)  # the detector's, at the first map it publishes
 
     class Params(palpa.Params):
         output_dir: str = "out"
