@@ -28,11 +28,10 @@ import threading
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import zmq
 import zmq.auth
-from zmq.auth.thread import ThreadAuthenticator
 
 from palpa.errors import BusError
 from palpa.lograte import LogThrottle
@@ -47,6 +46,9 @@ from palpa.net.latch import (
     Watchers,
 )
 from palpa.net.wire import MAX_MSG_BYTES, MAX_TOPIC_BYTES
+
+if TYPE_CHECKING:
+    from zmq.auth.thread import ThreadAuthenticator
 
 __all__ = ["Bus", "CurveServer", "is_loopback_endpoint", "peer_of"]
 
@@ -146,6 +148,9 @@ class Bus:
     def start(self) -> BusAddress:
         """Bind all three endpoints and start the proxy and cache threads."""
         if self._curve is not None:
+            # here, not at the top: it imports asyncio and more, which only a CURVE bus needs
+            from zmq.auth.thread import ThreadAuthenticator
+
             self.clients = ClientKeys(self._curve.authorized_clients_dir)
             self._auth = ThreadAuthenticator(self._ctx, log=logging.getLogger("palpa.net.bus.zap"))
             self._auth.start()

@@ -38,7 +38,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 import zmq
-from zmq.auth.thread import ThreadAuthenticator
 
 from palpa import env as palpa_env
 from palpa.lograte import LogThrottle
@@ -325,6 +324,9 @@ class _Curve:
     whom to let in."""
 
     def __init__(self) -> None:
+        # here, not at the top: it imports asyncio and more, which only a CURVE socket needs
+        from zmq.auth.thread import ThreadAuthenticator
+
         self.public, self.secret = zmq.curve_keypair()
         self.ctx: zmq.Context[zmq.Socket[bytes]] = zmq.Context()
         self.allowed = _AllowedKeys()
