@@ -42,10 +42,11 @@ class ClockWatch:
     def for_plan(cls, plan: LaunchPlan) -> ClockWatch | None:
         """A watch on the file's simulated clock (its ``palpa.timing.simclock:ClockSource`` entry), if it has one; its
         bound is that entry's ``frozen_after_s``."""
-        from palpa.timing.simclock import ClockSource
-
         for spec in plan.nodes:
             if spec.target == CLOCK_TARGET:
+                # the node runtime, imported only for a file that has a clock source
+                from palpa.timing.simclock import ClockSource
+
                 return cls(float(spec.params.get("frozen_after_s", ClockSource.Params().frozen_after_s)))
         return None
 

@@ -20,7 +20,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 
@@ -33,9 +33,12 @@ from palpa.launch.source import Mark, Path_, Source, display_path
 from palpa.launch.subst import substitute
 from palpa.launch.validate import convert, did_you_mean, kind, lower_first
 from palpa.net.address import is_loopback_host
-from palpa.node.node import Node
-from palpa.node.params import convert_params, input_paths
-from palpa.targets import TargetError, load_node_class
+
+if TYPE_CHECKING:
+    from palpa.node.node import Node
+
+# the node runtime (palpa.node, palpa.targets: ~50 ms) is imported by the checks that need it, so a launcher that
+# defers them starts a composed simulation before paying for it
 
 __all__ = ["load_launch", "parse_overrides"]
 
@@ -124,10 +127,16 @@ def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
     viz = plan.viz_node()
     if viz is not None:
         plan.nodes.insert(0, viz)  # first, so that it hears every node's first messages
-    _validate_recorder_of(col)
     if defer_node_checks:
-        plan.pending_checks = lambda: _validate_nodes(col)
+        plan.recorder_available = True  # until the checks import it (a launch that cannot record then ends)
+
+        def checks() -> None:
+            _validate_recorder_of(col, deferred=True)
+            _validate_nodes(col)
+
+        plan.pending_checks = checks
     else:
+        _validate_recorder_of(col)
         _validate_nodes(col)
     check_hazards(plan, col.top, col.node_sources)
     name_clock_participants(plan)
@@ -329,6 +338,8 @@ def _node_spec(src: Source, i: int, nd: NodeDecl, namespace: str, col: _Collecte
 
 # -- node classes and params --------------------------------------------------------------------------
 def _validate_nodes(col: _Collected) -> None:
+    from palpa.node.params import convert_params, input_paths
+
     saved = list(sys.path)
     sys.path[:0] = [p for p in col.plan.python_path if p not in sys.path]
     try:
@@ -352,16 +363,22 @@ def _validate_nodes(col: _Collected) -> None:
         sys.path[:] = saved
 
 
-def _validate_recorder_of(col: _Collected) -> None:
+def _validate_recorder_of(col: _Collected, *, deferred: bool = False) -> None:
     rec = col.plan.recorder()
     if rec is not None:
-        _validate_recorder(col, rec)
+        _validate_recorder(col, rec, deferred)
 
 
-def _validate_recorder(col: _Collected, rec: NodeSpec) -> None:
+def _validate_recorder(col: _Collected, rec: NodeSpec, deferred: bool = False) -> None:
+    from palpa.node.params import convert_params
+    from palpa.targets import TargetError, load_node_class
+
     try:
         cls = load_node_class(RECORDER_TARGET)
-    except TargetError:
+    except TargetError as exc:
+        if deferred:  # the launch went ahead on the module being there: it cannot record
+            raise LaunchError(f"{col.plan.file}: the file asks to record, but {RECORDER_TARGET} is not importable "
+                              f"here: {exc.reason}") from None
         col.plan.recorder_available = False  # --check still passes; launching says so
         return
     col.plan.recorder_available = True
@@ -373,6 +390,8 @@ def _validate_recorder(col: _Collected, rec: NodeSpec) -> None:
 
 
 def _import_node_class(src: Source, where: Path_, target: str) -> type[Node]:
+    from palpa.targets import TargetError, load_node_class
+
     try:
         return load_node_class(target)
     except TargetError as exc:

@@ -4,14 +4,16 @@ time may stand still (palpa.launch.clockwatch). Split from palpa.launch.supervis
 
 from __future__ import annotations
 
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from palpa.launch.clockwatch import ClockWatch
 from palpa.launch.output import Screen
 from palpa.launch.progress import ProgressView, progress_fields
 from palpa.net.address import BusAddress
-from palpa.node.node import Node, RawMessage
 from palpa.runtime_msgs import CLOCK_TOPIC, HEARTBEAT_TOPIC, ClockTick, Heartbeat
+
+if TYPE_CHECKING:
+    from palpa.node.node import Node, RawMessage
 
 __all__ = ["Observer"]
 
@@ -31,6 +33,9 @@ class Observer:
               clock_watch: ClockWatch | None) -> None:
         """Join the bus at ``address``: hear heartbeats, the clock's ticks for ``clock_watch``, and, when ``show``,
         show ``progress_topic`` in a progress view on the screen."""
+        # here, not at the top: a launcher starts a composed simulation before it imports the node runtime
+        from palpa.node.node import Node
+
         self.node = Node(name="_launch", bus=address, heartbeat_s=0)
         self.node.subscribe(HEARTBEAT_TOPIC, Heartbeat, self._on_heartbeat)
         if clock_watch is not None:
