@@ -136,6 +136,37 @@ def test_a_bad_parameter_of_a_composed_node_is_refused_at_its_line(procs: Proces
     assert "the launcher called the start off: no node was built" in (run / "sim.log").read_text()
 
 
+def _running_with(token: str) -> list[int]:
+    """Pids of this user's processes whose command line holds ``token``."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and int(entry.name) != os.getpid():
+            try:
+                if token.encode() in (entry / "cmdline").read_bytes():
+                    pids.append(int(entry.name))
+            except OSError:
+                continue
+    return pids
+
+
+@pytest.mark.system
+def test_a_failed_check_stops_the_prepare_step_running_beside_it(procs: ProcessGroup, tmp_path: Path) -> None:
+    """The prepare step starts with the checks (palpa.launch.prepare): a bad parameter ends the launch at once and
+    leaves no prepare command running."""
+    token = f"palpa-prepare-{os.getpid()}-{tmp_path.name}"
+    run = tmp_path / "run"
+    file = _composed(tmp_path, f"import time; {token!r}; time.sleep(120)", "{path: x, speed: 3}")
+    try:
+        proc = launch(procs, file, run, "--no-progress")
+        assert proc.wait(60) == 1, proc.output()
+        assert "has no parameter 'speed'" in proc.output()
+        assert "prepare:" in launch_log(run)  # it had started
+        assert _running_with(token) == []
+    finally:
+        for pid in _running_with(token):
+            os.kill(pid, 9)
+
+
 @pytest.mark.system
 def test_exit_now_runs_the_exit_handlers_and_flushes_what_was_printed() -> None:
     """palpa.exiting: the launcher and the composition end without the interpreter's teardown, but not without

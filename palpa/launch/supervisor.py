@@ -45,7 +45,7 @@ from palpa.launch.nodeproc import NodeProc
 from palpa.launch.observer import Observer
 from palpa.launch.output import Screen
 from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
-from palpa.launch.prepare import run_prepare
+from palpa.launch.prepare import Prepare
 from palpa.launch.process import Child
 from palpa.launch.reaper import Reaper
 from palpa.launch.respawn import next_respawn
@@ -132,10 +132,12 @@ class Supervisor:
             for i, spec in enumerate(plan.nodes):
                 self._procs.append(self._make_proc(spec, i))
             ready = False
+            prepare: Prepare | None = None
             try:
                 for p in self._procs:
                     if gated and p.spec.gate:
                         self._spawn(p, gated=True)
+                prepare = Prepare(plan, self._screen)  # runs while the checks run and the bus starts
                 self._run_checks()
                 if self._use_reaper:
                     self._reaper = Reaper()
@@ -152,9 +154,11 @@ class Supervisor:
                     self._entry = announce(self.address, plan.run_dir)
                 self._screen.say(f"bus at {self.address}; run directory {plan.run_dir}")
                 self._start_observer()
-                run_prepare(plan, self._screen)
+                prepare.wait()
                 ready = True
             finally:
+                if prepare is not None and not ready:
+                    prepare.cancel()
                 for w in self._gates:
                     release(w, str(self.address) if ready else None)
                 if self._gates and not ready:  # let them leave by themselves, saying so in their logs
