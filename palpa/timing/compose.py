@@ -17,6 +17,7 @@ nodes, its clock and its recorder this way, as one child process: ``python -m pa
 
 from __future__ import annotations
 
+import gc
 import logging
 import signal
 import sys
@@ -361,6 +362,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     from palpa.targets import load_node_class
 
     args = list(sys.argv[1:] if argv is None else argv)
+    # a composed run allocates fast and frees almost nothing in cycles: collect the youngest objects every 5 000
+    # allocations, not 700 (the cyclic collector then takes ~0.02 s of a demo run instead of ~0.08 s)
+    gc.set_threshold(5000, 10, 10)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     if len(args) == 2 and args[0] == "--json":
         where, text = "--json", args[1].encode()
@@ -400,6 +404,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"palpa.timing.compose: {exc}", file=sys.stderr)
         comp.close()
         return 2
+    gc.freeze()  # what start-up made (modules, classes, the nodes) lives to the end: no collection walks it again
     wall, sim = time.monotonic(), comp.clock.now_ns()
     code = comp.run()
     took = time.monotonic() - wall
