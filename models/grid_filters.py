@@ -79,7 +79,7 @@ def dilate(mask: BoolArray, structure: BoolArray) -> BoolArray:
     ry, rx = _check_kernel(s)
     padded = np.pad(np.asarray(mask, dtype=bool), ((ry, ry), (rx, rx)))
     windows = sliding_window_view(padded, s.shape)
-    out: BoolArray = windows[..., s].any(axis=-1)
+    out: BoolArray = np.asarray(windows[..., s].any(axis=-1), dtype=bool)
     return out
 
 
