@@ -256,6 +256,8 @@ def test_directory_entries_and_subscriber_sets() -> None:
     assert subs.covers(b"probe/h") and not subs.covers(b"map")
     subs.note(b"\x00probe/")
     assert not subs.covers(b"probe/h")
+    subs.note(b"\x01ma")  # the answers are kept per topic: a new subscription changes them
+    assert subs.covers(b"map") and not subs.covers(b"probe/h")
 
 
 def test_has_subscribers_on_the_bus_and_in_memory(ipc_bus: BusAddress) -> None:

@@ -160,12 +160,16 @@ ATTACH_MARK = b"_palpa/attach"
 to the proxy always hears this one subscription, so it knows at once that it has heard them all."""
 
 
+_COVERS_MAX = 4096
+
+
 class SubscriberSet:
     """The subscriptions an XPUB socket has heard (ZeroMQ sends each prefix once, ``\\x01prefix``, and
     ``\\x00prefix`` when its last subscriber leaves), so a publisher can tell whether anyone listens."""
 
     def __init__(self) -> None:
         self.prefixes: set[bytes] = set()
+        self._covers: dict[bytes, bool] = {}  # topic -> covers(topic), until the prefixes change
         self.joined: dict[str, None] = {}
         """The readiness probes (``_palpa/join/<node>/<pid>.<incarnation>``, palpa.node.presence; kept without the prefix)
         this socket has heard subscribed:
@@ -176,6 +180,7 @@ class SubscriberSet:
         """Record one subscription message read from the XPUB socket."""
         if message[1:] == ATTACH_MARK:
             return  # the proxy's own: nobody listens to it
+        self._covers.clear()
         if message[:1] == b"\x01":
             self.prefixes.add(message[1:])
             if message.startswith(JOIN_PROBE_SUB):
@@ -184,8 +189,14 @@ class SubscriberSet:
             self.prefixes.discard(message[1:])
 
     def covers(self, topic: bytes) -> bool:
-        """True when some subscription's prefix matches ``topic``."""
-        return any(topic.startswith(p) for p in self.prefixes)
+        """True when some subscription's prefix matches ``topic`` (asked at every message a composition sends
+        out: the answer is kept per topic until a subscription comes or goes)."""
+        known = self._covers.get(topic)
+        if known is None:
+            if len(self._covers) >= _COVERS_MAX:
+                self._covers.clear()
+            known = self._covers[topic] = any(topic.startswith(p) for p in self.prefixes)
+        return known
 
 
 class _AllowedKeys:
