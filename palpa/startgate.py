@@ -1,9 +1,10 @@
 """The start gate: a child the launcher starts before its ``prepare`` commands have run, that imports its code
 meanwhile and builds nothing until the launcher says go.
 
-A composed simulation (``palpa launch --in-process``) spends ~0.3 s importing its node classes and ~0.15 s more on
-the modules its nodes import at first use, while the launcher spends ~0.2 s checking the same classes' parameters
-and ~0.15 s on the file's ``prepare`` step: on two cores they can run side by side instead of one after the other.
+A composed simulation (``palpa launch --in-process``) spends ~0.3 s importing its node classes (and whatever their
+``Node.warm_imports`` name: the modules its nodes would import at first use), while the launcher spends ~0.2 s
+checking the same classes' parameters and ~0.2 s on the file's ``prepare`` step (palpa.launch.prepare, started
+beside the checks): on two cores they run side by side instead of one after the other.
 The launcher starts such a child before its bus exists and passes it the read end of a pipe in
 ``PALPA_START_GATE``; ``go <bus address>`` and the end of the pipe let the child build its nodes on that bus, an
 end without it (the launcher gave up: a check or a prepare step failed, or it died) makes the child leave having
