@@ -8,7 +8,8 @@ Layering inside this package (imports point downwards)::
     signals      signals into the supervisor's loop (queued, with a wake-up fd)
     process      one child: own process group, PR_SET_PDEATHSIG, non-blocking output pipe
     progress     the progress bar fed from a topic
-    loader       YAML -> LaunchPlan: args, substitutions, includes, node-class and params validation
+    loader       YAML -> LaunchPlan: args, substitutions, includes
+    nodecheck    node-class and params validation (the checks that import the node runtime)
     plan         the resolved graph (NodeSpec, LaunchPlan)
     schema       the launch-file format as msgspec Structs (validation and JSON Schema)
     source       YAML with file:line:col marks

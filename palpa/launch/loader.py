@@ -4,7 +4,8 @@ Order of work for each file: read the YAML with marks; validate and resolve ``ar
 else an error); apply substitutions to everything else; validate the result against
 :class:`~palpa.launch.schema.LaunchFile`; load includes (paths relative to the including file, cycles refused);
 collect the nodes. When every file is in, each ``node:`` class is imported and its params are validated with
-:func:`palpa.node.params.convert_params`. Every error reads ``file:line:col: what was expected``.
+:func:`palpa.node.params.convert_params` (:mod:`palpa.launch.nodecheck`; a composed launch defers that to run while
+its simulation imports the same classes). Every error reads ``file:line:col: what was expected``.
 
 Substitutions are applied by :mod:`palpa.launch.subst`; validation errors are worded by
 :mod:`palpa.launch.validate`.
@@ -15,30 +16,24 @@ from __future__ import annotations
 import json
 import os
 import re
-import sys
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import msgspec
 
-from palpa.errors import BusError, LaunchError, ParamError
+from palpa.errors import BusError, LaunchError
 from palpa.launch.compose import name_clock_participants
 from palpa.launch.hazards import check_hazards
-from palpa.launch.plan import RECORDER_NAME, RECORDER_TARGET, VIZ_NAME, LaunchPlan, NodeSpec
+from palpa.launch.nodecheck import validate_nodes, validate_recorder
+from palpa.launch.plan import RECORDER_NAME, VIZ_NAME, LaunchPlan, NodeSpec
 from palpa.launch.schema import ArgDecl, IncludeDecl, LaunchFile, NodeDecl, RecordDecl, VizDecl
 from palpa.launch.source import Mark, Path_, Source, display_path
 from palpa.launch.subst import substitute
-from palpa.launch.validate import convert, did_you_mean, kind, lower_first
+from palpa.launch.validate import convert, did_you_mean, kind
 from palpa.net.address import is_loopback_host
-
-if TYPE_CHECKING:
-    from palpa.node.node import Node
-
-# the node runtime (palpa.node, palpa.targets: ~50 ms) is imported by the checks that need it, so a launcher that
-# defers them starts a composed simulation before paying for it
 
 __all__ = ["load_launch", "parse_overrides"]
 
@@ -131,13 +126,13 @@ def load_launch(file: str | Path, overrides: Mapping[str, Any] | None = None, *,
         plan.recorder_available = True  # until the checks import it (a launch that cannot record then ends)
 
         def checks() -> None:
-            _validate_recorder_of(col, deferred=True)
-            _validate_nodes(col)
+            validate_recorder(col, deferred=True)
+            validate_nodes(col)
 
         plan.pending_checks = checks
     else:
-        _validate_recorder_of(col)
-        _validate_nodes(col)
+        validate_recorder(col)
+        validate_nodes(col)
     check_hazards(plan, col.top, col.node_sources)
     name_clock_participants(plan)
     return plan
@@ -334,96 +329,3 @@ def _node_spec(src: Source, i: int, nd: NodeDecl, namespace: str, col: _Collecte
         sigkill_timeout=nd.sigkill_timeout, output=nd.output,
         transport=nd.transport, where=str(src.mark(where)),
     )
-
-
-# -- node classes and params --------------------------------------------------------------------------
-def _validate_nodes(col: _Collected) -> None:
-    from palpa.node.params import convert_params, input_paths
-
-    saved = list(sys.path)
-    sys.path[:0] = [p for p in col.plan.python_path if p not in sys.path]
-    try:
-        for src, where, spec in col.node_sources:
-            if spec.target is None:
-                continue
-            cls = _import_node_class(src, (*where, "node"), spec.target)
-            try:
-                params = convert_params(cls.Params, spec.params, where=f"node {spec.name!r}")
-            except ParamError as exc:
-                raise _param_error(src, (*where, "params"), spec, exc, col) from None
-            for name, value in input_paths(params).items():
-                # a file in the run directory is made by the run itself (a prepare step) before the node starts
-                made_by_run = Path(value).resolve().is_relative_to(col.plan.run_dir.resolve())
-                if not made_by_run and not Path(value).exists():
-                    raise src.error((*where, "params", name), f"param {name!r} of node {spec.name!r}: "
-                                                              f"{value!r} does not exist (from {Path.cwd()})"
-                                                              f"{_arg_note(col, src, (*where, 'params', name))}")
-            col.plan.node_params[spec.name] = msgspec.to_builtins(params)
-    finally:
-        sys.path[:] = saved
-
-
-def _validate_recorder_of(col: _Collected, *, deferred: bool = False) -> None:
-    rec = col.plan.recorder()
-    if rec is not None:
-        _validate_recorder(col, rec, deferred)
-
-
-def _validate_recorder(col: _Collected, rec: NodeSpec, deferred: bool = False) -> None:
-    from palpa.node.params import convert_params
-    from palpa.targets import TargetError, load_node_class
-
-    try:
-        cls = load_node_class(RECORDER_TARGET)
-    except TargetError as exc:
-        if deferred:  # the launch went ahead on the module being there: it cannot record
-            raise LaunchError(f"{col.plan.file}: the file asks to record, but {RECORDER_TARGET} is not importable "
-                              f"here: {exc.reason}") from None
-        col.plan.recorder_available = False  # --check still passes; launching says so
-        return
-    col.plan.recorder_available = True
-    src = col.top if col.top is not None else Source.read(col.plan.file)
-    try:
-        convert_params(cls.Params, rec.params, where="record")
-    except ParamError as exc:
-        raise src.error(("record",), f"the recorder does not accept these settings: {exc}") from None
-
-
-def _import_node_class(src: Source, where: Path_, target: str) -> type[Node]:
-    from palpa.targets import TargetError, load_node_class
-
-    try:
-        return load_node_class(target)
-    except TargetError as exc:
-        raise src.error(where, exc.reason) from None
-
-
-def _arg_note(col: _Collected, src: Source, path: Path_) -> str:
-    """'; it comes from arg X = V, given by the command line' for a value written as ``$(arg X)``."""
-    raw = src.get(path)
-    names = re.findall(r"\$\(\s*arg\s+([^()\s]+)\s*\)", raw) if isinstance(raw, str) else []
-    args, given = col.args_of.get(src.name, ({}, None))
-    notes = []
-    for name in dict.fromkeys(names):
-        if given is not None and name in given.values:
-            mark = given.marks.get(name)
-            notes.append(f"arg {name!r} = {json.dumps(args.get(name))}, given by {given.origin}"
-                         + (f" at {mark}" if mark is not None else f" ({name}:=...)"))
-        elif given is not None and name in given.inherited:
-            notes.append(f"arg {name!r} = {json.dumps(args.get(name))}, given by the command line ({name}:=...)")
-        elif name in args:
-            notes.append(f"arg {name!r} = {json.dumps(args.get(name))} (its default)")
-    return f"; from {'; '.join(notes)}" if notes else ""
-
-
-def _param_error(src: Source, where: Path_, spec: NodeSpec, exc: ParamError, col: _Collected) -> LaunchError:
-    """The launch file's error for a parameter the node refused, at the parameter's key or value."""
-    name, declared = exc.param, exc.declared
-    if exc.unknown:
-        return src.error((*where, name), f"node {spec.name!r} ({spec.target}) has no parameter {name!r}"
-                                         f"{did_you_mean(name, declared)}; declared: {', '.join(declared) or 'none'}",
-                         key=True)
-    if name:
-        return src.error((*where, name), f"param {name!r} of node {spec.name!r}: {lower_first(exc.reason)}"
-                                         f"{_arg_note(col, src, (*where, name))}")
-    return src.error(where, f"params of node {spec.name!r}: {exc.reason or exc}")
