@@ -60,6 +60,10 @@ def __getattr__(name: str) -> Any:
     return value
 
 
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_WHERE))
+
+
 __version__ = "0.1.0"
 
 __all__ = [
