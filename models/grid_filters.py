@@ -52,7 +52,7 @@ def disc_sum(values: FloatArray, kernel: FloatArray) -> FloatArray:
     return out
 
 
-@functools.lru_cache(maxsize=64)
+@functools.lru_cache(maxsize=16)  # a map keeps its shape: 4 radii x a few shapes (~0.3 MB each at 24 x 24)
 def _taps(shape: tuple[int, int], kshape: tuple[int, int], kbytes: bytes) -> tuple[np.ndarray, tuple[int, int]]:
     """For a grid of ``shape`` zero-padded by the kernel's half sides: the flat index of each kernel cell's value
     under each grid cell, (taps in the kernel's C order, cells); and the half sides."""
@@ -88,8 +88,8 @@ def label8(mask: BoolArray) -> tuple[np.ndarray, int]:
     1..n in the order their first cell comes in C order (0 off the mask), and n.
 
     Every cell of the mask starts as its own flat index; each round takes the least index among itself and its 8
-    neighbours, then follows the links (pointer jumping), so a region's cells agree on its least index, its first
-    cell, in a number of rounds that grows with the logarithm of its size, not its length."""
+    neighbours, then follows the links to their ends (pointer jumping), until the region's cells agree on its least
+    index, its first cell: a few rounds even for a long winding region (tests/test_grid_filters.py's spiral)."""
     m = np.asarray(mask, dtype=bool)
     if m.ndim != 2:
         raise ValueError("label8: a 2-D mask is needed")
