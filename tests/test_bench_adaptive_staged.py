@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from types import ModuleType
 from typing import Any
 
@@ -61,3 +62,13 @@ def test_a_stage_reveals_the_available_cells_within_its_radius_of_a_hot_cell() -
     available[2, 3] = False   # a gap the raster never measured stays blind
     out = b.grow(np.zeros((5, 5), dtype=bool), hot, available, 2.0, 2.0)
     assert out.sum() == 4 and out[2, 2] and out[1, 2] and out[3, 2] and out[2, 1] and not out[2, 3]
+
+
+def test_a_false_positive_beside_a_true_inclusion_is_a_fragment_and_one_far_away_is_noise() -> None:
+    b = _bench()
+    run, full = _run(b)
+    hit = full.inclusions[0]   # matched to the bump at (21, 17), r 3
+    beside = replace(hit, x_mm=21.0 + 3.0 + 2.5)   # past the match's r + 1 mm, within its r + 4 mm
+    far = replace(hit, x_mm=5.0, y_mm=29.0)
+    assert b.fp_split(run, replace(full, inclusions=[hit])) == (0, 0)
+    assert b.fp_split(run, replace(full, inclusions=[hit, beside, far])) == (1, 1)
