@@ -132,6 +132,32 @@ def test_a_missed_line_is_bridged_and_an_unscanned_corner_is_no_inclusion() -> N
     assert math.hypot(det.inclusions[0].x_mm - 21.0, det.inclusions[0].y_mm - 31.0) <= 1.0
 
 
+@pytest.mark.xfail(strict=True, reason="the background's IRLS starts from least squares on partial maps too; a "
+                   "robust start (branch h-partial-robust-start) fixes this and the oracle's misses but costs the "
+                   "staged frontier at one false positive in ten maps (BENCHMARKS.md, 'The shared detector on "
+                   "partial maps')")
+def test_a_partial_maps_background_does_not_bend_to_a_fair_segment_over_an_inclusion() -> None:
+    """A sparse lattice of eight 3-cell segments is the fair sample (``estimate_from``), one of them over an
+    inclusion at the map's corner, whose disc is revealed at full density (bench/adaptive_staged.py's oracle on
+    fresh seed 14506: 25 σ on the raster, 0.7 σ on such a map). From a least-squares start the quadratic through 24
+    cells sits at the segment's level and the inclusion vanishes; started from the biweights of the cells'
+    deviations from their median, it is found on every draw."""
+    xs, ys = np.arange(21) * CELL + 7.0, np.arange(19) * CELL + 7.0
+    gy, gx = np.meshgrid(ys, xs, indexing="ij")
+    fair = np.zeros(gx.shape, dtype=bool)
+    for x0, y0 in [(7, 31), (23, 31), (43, 31), (11, 19), (27, 19), (7, 7), (23, 7), (43, 7)]:
+        fair |= (gx == x0) & (gy >= y0) & (gy <= y0 + 4)
+    inclusion = np.hypot(gx - 43.5, gy - 33.5) <= 4.3
+    shown = fair | (np.hypot(gx - 43.5, gy - 33.5) <= 5.3)
+    for seed in range(5):
+        noise = np.exp(0.03 * np.random.default_rng(seed).standard_normal(gx.shape))
+        grid = np.where(shown, BASE * np.where(inclusion, 1.4, 1.0) * noise, np.nan)
+        snap = MapSnapshot(grid, xs, ys, np.ones(gx.shape, dtype=np.int64), np.zeros(gx.shape), CELL)
+        det = detect(snap, estimate_from=fair)
+        assert [round(i.x_mm / 4) for i in det.inclusions] == [11], seed
+        assert abs(math.log(float(det.background[13, 18]) / BASE)) < 0.1, seed   # under the inclusion: the tissue's
+
+
 def test_degenerate_maps_detect_nothing() -> None:
     assert detect(StiffnessGrid(0, 0, 10, 10, 1.0).snapshot(), _calibrated()).inclusions == []   # no data
     negative = _snap(np.full((30, 30), -1.0))   # no positive stiffness: no valid cell
