@@ -20,7 +20,7 @@ from palpa.errors import LaunchError
 from palpa.launch.output import Screen
 from palpa.launch.plan import LaunchPlan
 
-__all__ = ["Prepare", "run_prepare"]
+__all__ = ["Prepare"]
 
 PREPARE_TIMEOUT_S = 120.0
 """Wall seconds one prepare command may take."""
@@ -106,8 +106,3 @@ class Prepare:
             with contextlib.suppress(OSError):
                 self._out.close()
             self._out = None
-
-
-def run_prepare(plan: LaunchPlan, screen: Screen) -> None:
-    """Run ``plan.prepare`` to its end (:class:`Prepare`, started and waited for)."""
-    Prepare(plan, screen).wait()

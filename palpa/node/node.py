@@ -85,9 +85,6 @@ class Node:
     """This node's parameters, validated into :attr:`Params`. A subclass declaring ``class Params`` also declares
     ``params: Params`` so that mypy checks every ``self.params.<name>`` (tests/test_architecture.py holds every
     node class in the project to it)."""
-    warm_imports: ClassVar[tuple[str, ...]] = ()
-    """Modules the node imports at first use rather than at start (to spare processes that never need them):
-    a process that has time to spare before its nodes start imports them then (palpa.startgate)."""
 
     def __init__(
         self,

@@ -316,7 +316,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         spec = msgspec.json.decode(text, type=GraphSpec)
         entries = [ComposedNode(**n) for n in spec.nodes]
         classes = [load_node_class(e.target) for e in entries]
-        if not wait_for_go(m for cls in classes for m in cls.warm_imports):
+        if not wait_for_go():
             log.info("the launcher called the start off: no node was built")
             return 0
         bridge = ZmqTransport(from_env(), TransportOptions.from_env())
