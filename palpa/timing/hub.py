@@ -62,6 +62,9 @@ class HubBus(MemoryBus):
 
 
 class HubTransport(MemoryTransport):
+    """A composed node's connection to the hub: its sends go out through :meth:`HubBus.send_out`, and what it
+    publishes or subscribes to is noted for the bridge."""
+
     bus: HubBus
 
     def send(self, frames: Sequence[bytes], latched: bool) -> None:
