@@ -62,7 +62,7 @@ from models.adaptive_detect import detect_candidates  # noqa: E402
 from models.detector import Detection, DetectorConfig, detect, with_law_of  # noqa: E402
 from models.phantom import Phantom, load_phantom  # noqa: E402
 from models.scoring import redraw_misses, score_scan  # noqa: E402
-from models.stiffness_map import MapSnapshot, to_inclusions_json  # noqa: E402
+from models.stiffness_map import MapSnapshot, fill_gaps, to_inclusions_json  # noqa: E402
 from nodes.mapping.map_output import map_model, read_map  # noqa: E402
 from yamlstruct import Source  # noqa: E402
 
@@ -154,7 +154,8 @@ def detect_revealed(run: Run, revealed: BoolArray, fair: BoolArray | None, *, na
     counts = np.where(revealed, s.count, 0)
     if nan:
         part = MapSnapshot(grid, s.x_mm, s.y_mm, counts, np.where(revealed, s.spread, np.nan), s.resolution_mm)
-        return detect(part, with_law_of(DetectorConfig(), run.model), estimate_from=fair), kernel
+        blind = np.isfinite(fill_gaps(s.stiffness)) & ~revealed   # tissue on the raster's map, unmeasured here
+        return detect(part, with_law_of(DetectorConfig(), run.model), estimate_from=fair, unmeasured=blind), kernel
     cfg = planner_config(s, run.model)
     gx, gy = np.meshgrid(s.x_mm, s.y_mm)
     belief = fit_belief(list(zip(gx[revealed], gy[revealed], strict=True)), grid[revealed].tolist(), cfg,
@@ -324,6 +325,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("out", type=Path, help="an output directory of bench/adaptive.py (its raster runs)")
     ap.add_argument("--nan", action="store_true", help="grid-search with blind cells NaN (the raster map's own "
                     "presentation) instead of the planner's")
+    ap.add_argument("--no-other", action="store_true", help="do not score the frontier's schemes again with the other "
+                    "presentation (the planner's takes minutes a set)")
     ap.add_argument("--runs", type=int, default=0, help="only every N-th run (a quick look; 0: all)")
     opts = ap.parse_args(argv)
     t0 = time.monotonic()
@@ -364,7 +367,8 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             s = pick
             t = table[s]
-            alt = tally(runs, (run_scheme(r, s, nan=not opts.nan) for r in runs))
+            alt = ({"missed": "-", "fp": "-"} if opts.no_other
+                   else tally(runs, (run_scheme(r, s, nan=not opts.nan) for r in runs)))
             # two-fold: choose on one half's table, score on the other half, both ways
             held = [part(c, 1 - h) for h, c in enumerate(best(halftables[h], b, cap * len(idx[h])) for h in (0, 1))
                     if c is not None]

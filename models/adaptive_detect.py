@@ -127,10 +127,11 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     blind = observed if fair is None else np.isfinite(np.asarray(fair, dtype=np.float64))
     dcfg = detector_config(cfg, suspect)
     estimate = blind if blind.any() else observed
+    unseen = ~np.isfinite(snap.stiffness)   # the region is tissue: what the map leaves blank nobody measured
     if cfg.fair_halo_mm > 0:
-        estimate = off_halos(snap, estimate, detect(snap, detector_config(cfg), estimate_from=estimate),
-                             cfg.fair_halo_mm, dcfg.min_valid_cells)
-    det = detect(snap, dcfg, estimate_from=estimate)
+        estimate = off_halos(snap, estimate, detect(snap, detector_config(cfg), estimate_from=estimate,
+                                                    unmeasured=unseen), cfg.fair_halo_mm, dcfg.min_valid_cells)
+    det = detect(snap, dcfg, estimate_from=estimate, unmeasured=unseen)
     if cfg.split_prominence > 0 and not suspect:
         det = replace(det, inclusions=split_detections(det, snap, observed, dcfg, prominence_k=cfg.split_prominence))
     return snap, det

@@ -423,9 +423,10 @@ def test_with_a_fair_halo_the_detector_estimates_again_without_the_detections_ha
     seen: list[npt.NDArray[np.bool_]] = []
     real = ad.detect
 
-    def spy(snap: MapSnapshot, dcfg: DetectorConfig, *, estimate_from: npt.NDArray[np.bool_]) -> Detection:
+    def spy(snap: MapSnapshot, dcfg: DetectorConfig, *, estimate_from: npt.NDArray[np.bool_],
+            unmeasured: npt.NDArray[np.bool_]) -> Detection:
         seen.append(np.array(estimate_from, dtype=bool))
-        return real(snap, dcfg, estimate_from=estimate_from)
+        return real(snap, dcfg, estimate_from=estimate_from, unmeasured=unmeasured)
 
     monkeypatch.setattr(ad, "detect", spy)
     measured = np.full((20, 20), 10.0) * np.exp(np.random.default_rng(3).normal(0.0, 0.03, (20, 20)))

@@ -132,10 +132,6 @@ def test_a_missed_line_is_bridged_and_an_unscanned_corner_is_no_inclusion() -> N
     assert math.hypot(det.inclusions[0].x_mm - 21.0, det.inclusions[0].y_mm - 31.0) <= 1.0
 
 
-@pytest.mark.xfail(strict=True, reason="the background's IRLS starts from least squares on partial maps too; a "
-                   "robust start (branch h-partial-robust-start) fixes this and the oracle's misses but costs the "
-                   "staged frontier at one false positive in ten maps (BENCHMARKS.md, 'The shared detector on "
-                   "partial maps')")
 def test_a_partial_maps_background_does_not_bend_to_a_fair_segment_over_an_inclusion() -> None:
     """A sparse lattice of eight 3-cell segments is the fair sample (``estimate_from``), one of them over an
     inclusion at the map's corner, whose disc is revealed at full density (bench/adaptive_staged.py's oracle on
@@ -158,6 +154,51 @@ def test_a_partial_maps_background_does_not_bend_to_a_fair_segment_over_an_inclu
         assert abs(math.log(float(det.background[13, 18]) / BASE)) < 0.1, seed   # under the inclusion: the tissue's
 
 
+def _columns_map(blobs: list[tuple[float, float, float, float]], seed: int) -> npt.NDArray[np.float64]:
+    """``_field`` seen only on columns 8 mm apart (x = 5, 13, ... 53 mm): a sparse lattice, NaN between."""
+    gy, gx = np.meshgrid(XS, XS, indexing="ij")
+    return np.where((gx - 5.0) % 8.0 == 0, _field(blobs, noise=0.04, seed=seed), np.nan)
+
+
+def test_an_inclusion_seen_in_pieces_across_unmeasured_cells_is_one_inclusion() -> None:
+    """Two columns of a sparse lattice cross one inclusion 4 mm either side of its centre; the 6 mm between them
+    was never measured. Each column's piece stands far above the threshold: two regions. Joined across the blind
+    cells they are one inclusion, at the centre; a wider gap than ``join_gap_mm`` is not bridged, and healthy
+    measured cells between two regions keep them apart."""
+    one = [(33.0, 31.0, 5.0, 2.0)]
+    for seed in range(3):
+        snap = _snap(_columns_map(one, seed))
+        apart = detect(snap, _calibrated())
+        assert sorted(round(i.x_mm) for i in apart.inclusions) == [29, 37], seed   # the pieces, off its centre
+        blind = ~np.isfinite(snap.stiffness)
+        joined = detect(snap, replace(_calibrated(), join_gap_mm=6.0), unmeasured=blind).inclusions
+        assert len(joined) == 1 and abs(joined[0].x_mm - 33.0) < 1.0 and abs(joined[0].y_mm - 31.0) < 1.0, seed
+        narrow = detect(snap, replace(_calibrated(), join_gap_mm=4.0), unmeasured=blind).inclusions  # 2 cells < 3
+        assert len(narrow) == 2, seed
+        # the cells between are not said to be unmeasured tissue (off the specimen, say): nothing joins across them
+        assert len(detect(snap, replace(_calibrated(), join_gap_mm=6.0)).inclusions) == 2, seed
+    # two inclusions on neighbouring columns with measured healthy cells between them along the column: two
+    two = [(29.0, 15.0, 3.0, 2.0), (37.0, 45.0, 3.0, 2.0)]
+    for seed in range(3):
+        snap = _snap(_columns_map(two, seed))
+        found = detect(snap, replace(_calibrated(), join_gap_mm=6.0), unmeasured=~np.isfinite(snap.stiffness)).inclusions
+        assert sorted((round(i.x_mm), round(i.y_mm)) for i in found) == [(29, 15), (37, 45)], seed
+    # two inclusions, one on each column, 6 mm of blind cells apart on the diagonal but their peaks 11 mm apart:
+    # more than one inclusion's breadth (join_span_mm), two; with a span that allows it they would be one
+    diagonal = [(29.0, 15.0, 3.0, 2.0), (37.0, 23.0, 3.0, 2.0)]
+    for seed in range(3):
+        snap = _snap(_columns_map(diagonal, seed))
+        cfg = replace(_calibrated(), join_gap_mm=6.0, join_span_mm=10.0)
+        found = detect(snap, cfg, unmeasured=~np.isfinite(snap.stiffness)).inclusions
+        assert sorted((round(i.x_mm), round(i.y_mm)) for i in found) == [(29, 15), (37, 23)], seed
+        loose = detect(snap, replace(cfg, join_span_mm=20.0), unmeasured=~np.isfinite(snap.stiffness)).inclusions
+        assert [(round(i.x_mm), round(i.y_mm)) for i in loose] == [(33, 19)], seed
+    # a whole map (nothing unmeasured): the same detections with or without the joining
+    whole = _snap(_field([(20.0, 20.0, 4.0, 1.6), (26.0, 30.0, 4.0, 1.6)], noise=0.04, seed=3))
+    assert (detect(whole, _calibrated()).inclusions
+            == detect(whole, replace(_calibrated(), join_gap_mm=20.0), unmeasured=np.ones((30, 30), bool)).inclusions)
+
+
 def test_degenerate_maps_detect_nothing() -> None:
     assert detect(StiffnessGrid(0, 0, 10, 10, 1.0).snapshot(), _calibrated()).inclusions == []   # no data
     negative = _snap(np.full((30, 30), -1.0))   # no positive stiffness: no valid cell
@@ -166,7 +207,8 @@ def test_degenerate_maps_detect_nothing() -> None:
     smooth = _snap(_field([], noise=0.0, seed=0))   # no noise at all: the floor keeps wrinkles insignificant
     assert detect(smooth, _calibrated()).inclusions == []
     for bad in ({"radii_mm": ()}, {"false_alarm_per_map": 0.0}, {"candidate_snr": 0.0}, {"iterations": 0},
-                {"noise_floor_rel": 0.0}):
+                {"noise_floor_rel": 0.0}, {"join_gap_mm": -1.0},
+                {"join_span_mm": -1.0}):
         with pytest.raises(ValueError, match="DetectorConfig"):
             DetectorConfig(**bad)  # type: ignore[arg-type]
 
