@@ -177,6 +177,8 @@ def test_an_inclusion_seen_in_pieces_across_unmeasured_cells_is_one_inclusion() 
         assert len(narrow) == 2, seed
         # the cells between are not said to be unmeasured tissue (off the specimen, say): nothing joins across them
         assert len(detect(snap, replace(_calibrated(), join_gap_mm=6.0)).inclusions) == 2, seed
+        elsewhere = blind & ((snap.x_mm[None, :] < 29.0) | (snap.x_mm[None, :] > 37.0))
+        assert len(detect(snap, replace(_calibrated(), join_gap_mm=6.0), unmeasured=elsewhere).inclusions) == 2
     # two inclusions on neighbouring columns with measured healthy cells between them along the column: two
     two = [(29.0, 15.0, 3.0, 2.0), (37.0, 45.0, 3.0, 2.0)]
     for seed in range(3):
