@@ -6,10 +6,10 @@ the probe's footprint reads so, a probe half off the specimen's edge can. A map'
 a thickness error into a relative stiffness error; an inclusion multiplies the local stiffness), so the detector
 works on ``log(stiffness)``:
 
-1. **Background.** A smooth surface (a quadratic in x and y, :data:`BACKGROUND_DEGREE`) fitted by iteratively
-   reweighted least squares (Tukey's biweight) to the cells that are *not candidates*, so a dome's slope or an
-   edge's drift is followed while an inclusion's cells do not pull the baseline up (on a partial map, the fit
-   starts from the median's biweights, so a few fair cells over an inclusion cannot hold the surface up). The
+1. **Background.** A smooth surface (a quadratic in x and y, :data:`BACKGROUND_DEGREE`: models.background) fitted
+   by iteratively reweighted least squares (Tukey's biweight) to the cells that are *not candidates*, so a dome's
+   slope or an edge's drift is followed while an inclusion's cells do not pull the baseline up (on a partial map,
+   the fit starts from the median's biweights, so a few fair cells over an inclusion cannot hold the surface up). The
    residual is the log-contrast.
 2. **Matched filter.** The residual summed over a disc of each radius of interest (:attr:`DetectorConfig.radii_mm`:
    the sizes of inclusions the scan should find), over the valid cells only, divided by the square root of how many
@@ -45,18 +45,18 @@ from __future__ import annotations
 
 import functools
 import math
-from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 import numpy.typing as npt
 
+from models.background import BACKGROUND_DEGREE, MAD_TO_SIGMA, fit_background
+
 # no scipy.ndimage (models.grid_filters does its three operations, to the bit) and scipy.optimize only in the
 # function that fits a false-alarm law: scipy.ndimage alone takes ~0.16 s to import, on the start-up path of every
 # process that publishes a map (a composed simulation included)
 from models.grid_filters import dilate, disc_sum, label8
-from models.peaks import peak_parts
+from models.peaks import joined_across, peak_parts
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, nanmedian_stack
 
 __all__ = ["BACKGROUND_DEGREE", "CAMERA_GUMBEL_LOC", "CAMERA_GUMBEL_SCALE", "CAMERA_REFERENCE_AREA_MM2",
@@ -67,9 +67,6 @@ __all__ = ["BACKGROUND_DEGREE", "CAMERA_GUMBEL_LOC", "CAMERA_GUMBEL_SCALE", "CAM
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
-_MAD_TO_SIGMA = 1.4826
-BACKGROUND_DEGREE = 2
-"""Degree of the background surface in x and y (2: a dome, a tilt, a drift towards an edge)."""
 # fitted by bench/detector_calibration.py on 40 blank scans (runs of 28 Nov 2026, BENCHMARKS.md "Finding all four")
 GUMBEL_LOC = 2.447
 """Location (σ) of the Gumbel law of a blank map's largest significance, at :data:`REFERENCE_AREA_MM2`."""
@@ -237,57 +234,6 @@ def _disc(radius_mm: float, cell_mm: float) -> FloatArray:
     return disc
 
 
-def _fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArray, *,
-                    robust_start: bool = False) -> FloatArray:
-    """A quadratic surface fitted to ``logs`` on the ``use`` cells by Tukey-biweight IRLS, evaluated everywhere;
-    no slope or curve along an axis the ``use`` cells span less than half the map of (it would be extrapolated
-    from nothing), a constant (the median) when too few cells support the surface.
-
-    The IRLS starts from the least-squares fit (every weight one), unless ``robust_start``: then from the biweights
-    of the cells' deviations from their median, so a cluster of raised cells is down-weighted before the surface
-    can bend to it (the biweight is not convex: from a start that fits them it keeps them). A partial map's fair
-    cells need it: a few segments of a sparse lattice over an inclusion are a large share of a few dozen cells, at
-    the map's corner, and the least-squares quadratic through them sits at their level (BENCHMARKS.md "Could any
-    sense-then-confirm scheme do it?"). A whole map's fit starts from least squares as it always has (its hundreds
-    of cells are not moved so, and its detections stay what they were, to the bit)."""
-    gy, gx = np.meshgrid(y, x, indexing="ij")
-    sx = max(float(np.ptp(x)), 1e-9) / 2
-    sy = max(float(np.ptp(y)), 1e-9) / 2
-    u, v = (gx - float(np.mean(x))) / sx, (gy - float(np.mean(y))) / sy
-    along_x = float(np.ptp(gx[use])) >= sx if use.any() else False
-    along_y = float(np.ptp(gy[use])) >= sy if use.any() else False
-    terms = [np.ones_like(u)] + [u**i * v**j for d in range(1, BACKGROUND_DEGREE + 1) for i in range(d + 1)
-                                 for j in [d - i] if (along_x or i == 0) and (along_y or j == 0)]
-    design = np.stack([t[use] for t in terms], axis=1)
-    target = logs[use]
-    if target.size < 3 * len(terms):
-        return np.full(logs.shape, float(np.median(target)) if target.size else math.nan)
-    w: FloatArray = np.ones(target.size)
-    if robust_start:
-        w = _biweight(target - float(np.median(target)), w)
-    coef: FloatArray = np.zeros(len(terms))
-    for _ in range(8):
-        sw = np.sqrt(w)
-        coef = np.asarray(np.linalg.lstsq(design * sw[:, None], target * sw, rcond=None)[0], dtype=np.float64)
-        r = target - design @ coef
-        s = _MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r))))
-        if not s > 0:
-            break
-        t = r / (4.685 * s)
-        w = np.asarray(np.where(np.abs(t) < 1, (1 - t**2) ** 2, 0.0), dtype=np.float64)
-    return np.asarray(sum(c * t for c, t in zip(coef, terms, strict=True)), dtype=np.float64)
-
-
-def _biweight(r: FloatArray, otherwise: FloatArray) -> FloatArray:
-    """Tukey's biweights (c = 4.685) of residuals ``r`` about zero, in units of their robust scale (1.4826 median
-    absolute value); ``otherwise`` when that scale is zero."""
-    s = _MAD_TO_SIGMA * float(np.median(np.abs(r)))
-    if not s > 0:
-        return otherwise
-    t = r / (4.685 * s)
-    return np.asarray(np.where(np.abs(t) < 1, (1 - t**2) ** 2, 0.0), dtype=np.float64)
-
-
 def _drop_spikes(grid: FloatArray, ratio: float) -> FloatArray:
     """``grid`` with NaN where a cell reads more than ``ratio`` times the median of its valid neighbours (module
     doc); a copy."""
@@ -302,7 +248,7 @@ def _drop_spikes(grid: FloatArray, ratio: float) -> FloatArray:
 def _spread(values: FloatArray) -> tuple[float, float]:
     """(median, 1.4826 MAD): the centre and robust σ of the cells left once the candidates are masked."""
     centre = float(np.median(values))
-    return centre, _MAD_TO_SIGMA * float(np.median(np.abs(values - centre)))
+    return centre, MAD_TO_SIGMA * float(np.median(np.abs(values - centre)))
 
 
 def significance(residual: FloatArray, valid: BoolArray, use: BoolArray, cell_mm: float,
@@ -335,7 +281,7 @@ def detect(snapshot: MapSnapshot, cfg: DetectorConfig | None = None, *, threshol
     ``threshold_scale`` multiplies the threshold (below 1: the suspects worth a closer look, as an adaptive planner
     asks for). ``estimate_from``: the cells whose values are a fair sample of the tissue, the only ones the
     background and noise may be estimated from (an adaptive planner's blind sweeps; default: every valid cell); when they
-    leave out a valid cell the map is partial, and the background's fit starts robustly (:func:`_fit_background`).
+    leave out a valid cell the map is partial, and the background's fit starts robustly (:func:`models.background.fit_background`).
     ``unmeasured``: cells of the tissue nobody measured (an adaptive planner's blind cells; not cells off the
     specimen), across which regions :attr:`DetectorConfig.join_gap_mm` apart or less are one inclusion (default:
     none; a whole map's detections do not depend on it). Non-positive stiffness values are not valid cells (eq. 7 gives none on a sound map). Raises ValueError on a
@@ -359,7 +305,7 @@ def detect(snapshot: MapSnapshot, cfg: DetectorConfig | None = None, *, threshol
         use = fair & ~candidates
         if use.sum() < cfg.min_valid_cells:
             use = fair
-        bg = _fit_background(logs, use, snapshot.x_mm, snapshot.y_mm, robust_start=partial)
+        bg = fit_background(logs, use, snapshot.x_mm, snapshot.y_mm, robust_start=partial)
         residual = logs - bg
         sig = significance(residual, valid, use, cell, cfg.radii_mm, cfg.noise_floor_rel)
         hot = np.zeros(shape, dtype=bool)
@@ -395,49 +341,13 @@ def detect(snapshot: MapSnapshot, cfg: DetectorConfig | None = None, *, threshol
     def near(a: int, b: int) -> bool:
         return float((peaks[a][0] - peaks[b][0]) ** 2 + (peaks[a][1] - peaks[b][1]) ** 2) <= span + 1e-9
 
-    for members in _joined_across(labels, keep, blind, gap, near):
+    for members in joined_across(labels, keep, blind, gap, near):
         region = np.isin(labels, members)
         parts = peak_parts(finest, region, region, cfg.split_snr) if len(members) == 1 else [region]
         if len(parts) < 2 or any(p.sum() < 2 for p in parts):
             parts = [region]
         found += [describe(det, snapshot, p, cfg, part=len(parts) > 1) for p in parts if not _edge_row(det, p)]
     return replace(det, inclusions=sorted(found, key=lambda inc: -inc.snr))
-
-
-def _joined_across(labels: npt.NDArray[np.int_], keep: list[int], blind: BoolArray, gap: int,
-                   near: Callable[[int, int], bool]) -> list[list[int]]:
-    """The regions ``keep`` of ``labels`` in groups, in label order: two regions are one group when a path of at most
-    ``gap`` ``blind`` cells (8-connected) links them and ``near`` says they may be one, or a chain of such links. A search from every region through
-    the blind cells around it, each reached cell owned by the region that reached it first, as far as ``gap``;
-    wherever two owners' cells (or a region's own) touch within ``gap`` blind cells in all, their regions join."""
-    parent = {k: k for k in keep}
-
-    def root(k: int) -> int:
-        while parent[k] != k:
-            parent[k] = parent[parent[k]]
-            k = parent[k]
-        return k
-
-    if gap > 0 and len(keep) > 1 and blind.any():
-        ny, nx = labels.shape
-        owner = np.where(np.isin(labels, keep), labels, 0)
-        dist = np.where(owner > 0, 0, -1)
-        queue = deque((int(y), int(x)) for y, x in np.argwhere(owner > 0))
-        while queue:
-            y, x = queue.popleft()
-            for yy in range(max(0, y - 1), min(ny, y + 2)):
-                for xx in range(max(0, x - 1), min(nx, x + 2)):
-                    if owner[yy, xx] > 0 and owner[yy, xx] != owner[y, x]:
-                        if dist[y, x] + dist[yy, xx] <= gap and near(int(owner[y, x]), int(owner[yy, xx])):
-                            a, b = root(int(owner[y, x])), root(int(owner[yy, xx]))
-                            parent[max(a, b)] = min(a, b)
-                    elif owner[yy, xx] == 0 and blind[yy, xx] and dist[y, x] < gap:
-                        owner[yy, xx], dist[yy, xx] = owner[y, x], dist[y, x] + 1
-                        queue.append((yy, xx))
-    groups: dict[int, list[int]] = {}
-    for k in keep:
-        groups.setdefault(root(k), []).append(k)
-    return sorted(groups.values())
 
 
 def peak_significance(det: Detection, floor: float = 2.0) -> float:

@@ -6,11 +6,13 @@ persistence); tie-breaks are by cell index, so a cut is deterministic."""
 from __future__ import annotations
 
 import math
+from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["peak_parts"]
+__all__ = ["joined_across", "peak_parts"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -64,3 +66,39 @@ def peak_parts(level: FloatArray, region: BoolArray, peaks: BoolArray, prominenc
         out[c] = labels.setdefault(root(int(c)), len(labels) + 1)
     flat = out.reshape(region.shape)
     return [flat == k for k in range(1, len(labels) + 1)]
+
+
+def joined_across(labels: npt.NDArray[np.int_], keep: list[int], blind: BoolArray, gap: int,
+                   near: Callable[[int, int], bool]) -> list[list[int]]:
+    """The regions ``keep`` of ``labels`` in groups, in label order: two regions are one group when a path of at most
+    ``gap`` ``blind`` cells (8-connected) links them and ``near`` says they may be one, or a chain of such links. A search from every region through
+    the blind cells around it, each reached cell owned by the region that reached it first, as far as ``gap``;
+    wherever two owners' cells (or a region's own) touch within ``gap`` blind cells in all, their regions join."""
+    parent = {k: k for k in keep}
+
+    def root(k: int) -> int:
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    if gap > 0 and len(keep) > 1 and blind.any():
+        ny, nx = labels.shape
+        owner = np.where(np.isin(labels, keep), labels, 0)
+        dist = np.where(owner > 0, 0, -1)
+        queue = deque((int(y), int(x)) for y, x in np.argwhere(owner > 0))
+        while queue:
+            y, x = queue.popleft()
+            for yy in range(max(0, y - 1), min(ny, y + 2)):
+                for xx in range(max(0, x - 1), min(nx, x + 2)):
+                    if owner[yy, xx] > 0 and owner[yy, xx] != owner[y, x]:
+                        if dist[y, x] + dist[yy, xx] <= gap and near(int(owner[y, x]), int(owner[yy, xx])):
+                            a, b = root(int(owner[y, x])), root(int(owner[yy, xx]))
+                            parent[max(a, b)] = min(a, b)
+                    elif owner[yy, xx] == 0 and blind[yy, xx] and dist[y, x] < gap:
+                        owner[yy, xx], dist[yy, xx] = owner[y, x], dist[y, x] + 1
+                        queue.append((yy, xx))
+    groups: dict[int, list[int]] = {}
+    for k in keep:
+        groups.setdefault(root(k), []).append(k)
+    return sorted(groups.values())

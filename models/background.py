@@ -1,0 +1,72 @@
+"""The smooth background under a stiffness map (models.detector, step 1): a quadratic surface in x and y fitted to
+``log(stiffness)`` by iteratively reweighted least squares with Tukey's biweight, so a dome's slope or an edge's
+drift is followed while an inclusion's raised cells do not pull it up."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+from models._arrays import FloatArray
+
+__all__ = ["BACKGROUND_DEGREE", "MAD_TO_SIGMA", "biweight", "fit_background"]
+
+BoolArray = npt.NDArray[np.bool_]
+
+MAD_TO_SIGMA = 1.4826
+"""Median absolute deviation to σ, for normal noise."""
+BACKGROUND_DEGREE = 2
+"""Degree of the background surface in x and y (2: a dome, a tilt, a drift towards an edge)."""
+
+
+def fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArray, *,
+                    robust_start: bool = False) -> FloatArray:
+    """A quadratic surface fitted to ``logs`` on the ``use`` cells by Tukey-biweight IRLS, evaluated everywhere;
+    no slope or curve along an axis the ``use`` cells span less than half the map of (it would be extrapolated
+    from nothing), a constant (the median) when too few cells support the surface.
+
+    The IRLS starts from the least-squares fit (every weight one), unless ``robust_start``: then from the biweights
+    of the cells' deviations from their median, so a cluster of raised cells is down-weighted before the surface
+    can bend to it (the biweight is not convex: from a start that fits them it keeps them). A partial map's fair
+    cells need it: a few segments of a sparse lattice over an inclusion are a large share of a few dozen cells, at
+    the map's corner, and the least-squares quadratic through them sits at their level (BENCHMARKS.md "Could any
+    sense-then-confirm scheme do it?"). A whole map's fit starts from least squares as it always has (its hundreds
+    of cells are not moved so, and its detections stay what they were, to the bit)."""
+    gy, gx = np.meshgrid(y, x, indexing="ij")
+    sx = max(float(np.ptp(x)), 1e-9) / 2
+    sy = max(float(np.ptp(y)), 1e-9) / 2
+    u, v = (gx - float(np.mean(x))) / sx, (gy - float(np.mean(y))) / sy
+    along_x = float(np.ptp(gx[use])) >= sx if use.any() else False
+    along_y = float(np.ptp(gy[use])) >= sy if use.any() else False
+    terms = [np.ones_like(u)] + [u**i * v**j for d in range(1, BACKGROUND_DEGREE + 1) for i in range(d + 1)
+                                 for j in [d - i] if (along_x or i == 0) and (along_y or j == 0)]
+    design = np.stack([t[use] for t in terms], axis=1)
+    target = logs[use]
+    if target.size < 3 * len(terms):
+        return np.full(logs.shape, float(np.median(target)) if target.size else math.nan)
+    w: FloatArray = np.ones(target.size)
+    if robust_start:
+        w = biweight(target - float(np.median(target)), w)
+    coef: FloatArray = np.zeros(len(terms))
+    for _ in range(8):
+        sw = np.sqrt(w)
+        coef = np.asarray(np.linalg.lstsq(design * sw[:, None], target * sw, rcond=None)[0], dtype=np.float64)
+        r = target - design @ coef
+        s = MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r))))
+        if not s > 0:
+            break
+        t = r / (4.685 * s)
+        w = np.asarray(np.where(np.abs(t) < 1, (1 - t**2) ** 2, 0.0), dtype=np.float64)
+    return np.asarray(sum(c * t for c, t in zip(coef, terms, strict=True)), dtype=np.float64)
+
+
+def biweight(r: FloatArray, otherwise: FloatArray) -> FloatArray:
+    """Tukey's biweights (c = 4.685) of residuals ``r`` about zero, in units of their robust scale (1.4826 median
+    absolute value); ``otherwise`` when that scale is zero."""
+    s = MAD_TO_SIGMA * float(np.median(np.abs(r)))
+    if not s > 0:
+        return otherwise
+    t = r / (4.685 * s)
+    return np.asarray(np.where(np.abs(t) < 1, (1 - t**2) ** 2, 0.0), dtype=np.float64)
