@@ -20,6 +20,14 @@ The camera probe's, the same way on its blank specimens (its scan target without
         --phantom phantoms/blank/camera_dome_12_8.yaml --seeds $(seq 0 19) -o runs/camblank --serial
     .venv/bin/python bench/detector_calibration.py runs/camblank
 
+The adaptive planner's maps (issue 41) are partial: its lattice, what it measured around suspects, the GP's mean
+within ``fill_mm``. Their noise is not a whole map's, so they get a law of their own (``ADAPTIVE_*``), fitted on the
+planner's final detections of the same blank specimens as its planner.json states them:
+
+    python -m tools.evaluate launch/scan_adaptive_sim.yaml --phantom phantoms/blank/flat_3mm.yaml \
+        --phantom phantoms/blank/dome_4_2.yaml --seeds $(seq 0 19) --margin 7 -o runs/blank_adaptive --workers 1
+    .venv/bin/python bench/detector_calibration.py runs/blank_adaptive --planner
+
 Which probe's law is fitted is read from the maps (map.npz's ``model``, else its unit); all maps must agree.
 
 The largest of many weakly dependent significances follows a Gumbel law whose location grows as
@@ -68,11 +76,41 @@ def peaks(maps: list[MapSnapshot], cfg: DetectorConfig) -> tuple[np.ndarray, np.
     return np.array(top), np.array(area)
 
 
+def planner_law(runs: list[Path]) -> int:
+    """``--planner``: the law of the adaptive planner's own maps, from the final detection each run's planner.json
+    states (its largest significance and valid area: models.adaptive_detect's detection, the planner's fair cells and
+    blind cells as the planner had them; a re-detection of map.npz alone would not know them)."""
+    files = sorted(p for r in runs for p in r.glob("runs/*/map/planner.json") if p.parent.parent.name != "latest")
+    found = [json.loads(f.read_text(encoding="utf-8")).get("detection") or {} for f in files]
+    if not files or not all("peak_significance" in d for d in found):
+        raise SystemExit(f"need runs/*/map/planner.json with a 'detection' under {', '.join(map(str, runs))}")
+    top = np.array([d["peak_significance"] for d in found])
+    area = np.array([d["area_mm2"] for d in found])
+    ref_area = float(np.median(area))
+    loc, scale = fit_false_alarm_law(top, area, ref_area)
+    cfg = replace(DetectorConfig(), gumbel=(loc, scale, ref_area))
+    over = [t > threshold_for(a, cfg) for t, a in zip(top, area, strict=True)]
+    was = [t > d["threshold_snr"] for t, d in zip(top, found, strict=True)]
+    print(f"{len(files)} blank adaptive maps; largest significance per map: median {np.median(top):.2f}, range "
+          f"{top.min():.2f}..{top.max():.2f} σ; valid area {area.min():.0f}..{area.max():.0f} mm²")
+    for f, t, a in zip(files, top, area, strict=True):
+        print(f"  {f.parent.parent.name:24s} {t:5.2f} ({a:.0f} mm²)")
+    print(f"ADAPTIVE_GUMBEL_LOC = {loc:.3f}\nADAPTIVE_GUMBEL_SCALE = {scale:.3f}\nADAPTIVE_REFERENCE_AREA_MM2 = {ref_area:.0f}")
+    print(f"maps over the threshold they were detected with: {sum(was)} of {len(files)}; over this law's at "
+          f"{100 * cfg.false_alarm_per_map:g} %: {sum(over)}")
+    print(json.dumps({"model": "adaptive", "loc": loc, "scale": scale, "ref_area_mm2": ref_area,
+                      "maxima": [round(float(t), 3) for t in top], "maps_over_their_threshold": int(sum(was))}))
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", type=Path, nargs="+", help="evaluate output folders (their runs/*/map/map.npz)")
     ap.add_argument("--rounds", type=int, default=4, help="refits with the constants found (candidates move)")
+    ap.add_argument("--planner", action="store_true", help="the adaptive planner's maps: fit from planner.json")
     args = ap.parse_args()
+    if args.planner:
+        return planner_law(args.runs)
     files = sorted(p for r in args.runs for p in r.glob("runs/*/map/map.npz") if p.parent.parent.name != "latest")
     if not files:
         raise SystemExit(f"no runs/*/map/map.npz under {', '.join(map(str, args.runs))}")

@@ -59,8 +59,9 @@ from models.grid_filters import dilate, disc_sum, label8
 from models.peaks import joined_across, peak_parts
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, nanmedian_stack
 
-__all__ = ["BACKGROUND_DEGREE", "CAMERA_GUMBEL_LOC", "CAMERA_GUMBEL_SCALE", "CAMERA_REFERENCE_AREA_MM2",
-           "FALSE_ALARM_LAWS", "GUMBEL_LOC", "GUMBEL_SCALE", "REFERENCE_AREA_MM2", "DetectorConfig", "Detection",
+__all__ = ["ADAPTIVE_GUMBEL_LOC", "ADAPTIVE_GUMBEL_SCALE", "ADAPTIVE_REFERENCE_AREA_MM2", "BACKGROUND_DEGREE",
+           "CAMERA_GUMBEL_LOC", "CAMERA_GUMBEL_SCALE", "CAMERA_REFERENCE_AREA_MM2",
+           "FALSE_ALARM_LAWS", "GUMBEL_LOC", "PARTIAL_MAP_LAWS", "GUMBEL_SCALE", "REFERENCE_AREA_MM2", "DetectorConfig", "Detection",
            "describe", "detect", "false_alarm_law", "with_law_of", "false_alarm_probability", "fit_false_alarm_law", "peak_significance", "significance",
            "threshold_for"]
 
@@ -83,6 +84,21 @@ CAMERA_GUMBEL_SCALE = 0.321
 """Scale (σ) of that Gumbel law."""
 CAMERA_REFERENCE_AREA_MM2 = 2112.0
 """The valid area of the blank camera maps it was fitted on (their 4 mm grid of presses over a 60 mm specimen)."""
+# the adaptive planner's maps (air-float): fitted by bench/detector_calibration.py --planner on 40 blank adaptive
+# scans (the same sheet and dome, seeds 0-19; runs of 28 Nov 2026, BENCHMARKS.md "The planner's own false-alarm law")
+ADAPTIVE_GUMBEL_LOC = 2.683
+"""Location (σ) of the Gumbel law of a blank adaptive map's largest significance, at
+:data:`ADAPTIVE_REFERENCE_AREA_MM2`."""
+ADAPTIVE_GUMBEL_SCALE = 0.640
+"""Scale (σ) of that Gumbel law: twice a whole map's, its tail heavier (a partial map's background and noise come from
+a sparse lattice, the GP's mean fills the cells between)."""
+ADAPTIVE_REFERENCE_AREA_MM2 = 2080.0
+"""The valid area of the blank adaptive maps it was fitted on."""
+PARTIAL_MAP_LAWS: dict[str, tuple[float, float, float]] = {
+    "airfloat": (ADAPTIVE_GUMBEL_LOC, ADAPTIVE_GUMBEL_SCALE, ADAPTIVE_REFERENCE_AREA_MM2),
+}
+"""The false-alarm law of an adaptive planner's maps, by probe (models.adaptive_detect.detector_config): detected with
+a whole map's law, the planner's blank maps showed a detection in 4 of 40 where 0.3 % was stated."""
 FALSE_ALARM_LAWS: dict[str, tuple[float, float, float]] = {
     "airfloat": (GUMBEL_LOC, GUMBEL_SCALE, REFERENCE_AREA_MM2),
     "multi_indenter": (CAMERA_GUMBEL_LOC, CAMERA_GUMBEL_SCALE, CAMERA_REFERENCE_AREA_MM2),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from types import ModuleType
 from typing import Any
@@ -41,7 +42,12 @@ def test_revealing_everything_is_the_full_maps_detection_and_a_bump_never_reveal
     every = np.ones(run.snap.stiffness.shape, dtype=bool)
     for nan in (True, False):   # blind cells NaN (the raster's map), or the planner's GP-filled map
         det, _ = b.detect_revealed(run, every, None, nan=nan)
-        assert det.inclusions == full.inclusions
+        if nan:
+            assert det.inclusions == full.inclusions
+        else:   # the planner's maps have a false-alarm law of their own (a higher bar): the same bump, found
+            (mine,), (theirs,) = det.inclusions, full.inclusions
+            assert math.hypot(mine.x_mm - theirs.x_mm, mine.y_mm - theirs.y_mm) < 1.0
+            assert mine.snr == theirs.snr and mine.false_alarm > theirs.false_alarm
         assert b.reveal_all(run, nan=nan) == (256.0, (True,), 0)
     # every 6th line, no stage: its cells never come within 4 mm of the bump's edge, so it is missed
     lat = b.lattice(run.snap, 6, 0)

@@ -26,7 +26,13 @@ from models.adaptive_detect import (
     region_masks,
     unsensed,
 )
-from models.detector import FALSE_ALARM_LAWS, Detection, DetectorConfig, threshold_for
+from models.detector import (
+    FALSE_ALARM_LAWS,
+    PARTIAL_MAP_LAWS,
+    Detection,
+    DetectorConfig,
+    threshold_for,
+)
 from models.stiffness_map import Inclusion, MapSnapshot
 
 REGION = (0.0, 0.0, 40.0, 40.0)   # 20 x 20 cells of 2 mm
@@ -391,8 +397,13 @@ def test_the_planner_detects_with_the_law_of_the_probe_its_samples_come_from() -
     camera = detector_config(_cfg(model="multi_indenter"))
     assert camera.gumbel == FALSE_ALARM_LAWS["multi_indenter"] != DetectorConfig().gumbel
     assert detector_config(_cfg(model="multi_indenter"), suspect=True).gumbel == camera.gumbel
-    assert detector_config(_cfg(model="airfloat")).gumbel == FALSE_ALARM_LAWS["airfloat"]
     assert detector_config(_cfg(model="")).gumbel == DetectorConfig().gumbel
+    # the air-float planner's maps are partial: the law of its own blank maps, not a whole map's (heavier-tailed: at
+    # the same rate its threshold is higher)
+    own = detector_config(_cfg(model="airfloat"))
+    assert own.gumbel == PARTIAL_MAP_LAWS["airfloat"] != FALSE_ALARM_LAWS["airfloat"]
+    assert detector_config(_cfg(model="airfloat"), suspect=True).gumbel == own.gumbel
+    assert threshold_for(2080.0, own) > threshold_for(2080.0, replace(own, gumbel=FALSE_ALARM_LAWS["airfloat"]))
 
 
 def _detected_at(x: float, y: float, r: float) -> Detection:

@@ -63,7 +63,7 @@ from models.adaptive_detect import (
     unsensed,
 )
 from models.adaptive_route import coarse_pass
-from models.detector import Detection, detect
+from models.detector import Detection, detect, peak_significance
 from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import MapSnapshot, StiffnessGrid
 from models.surface import region_in_footprint
@@ -313,8 +313,12 @@ class AdaptivePlanner(palpa.Node):
         lost = self._losses()
         if lost:
             self.log.error("the map is INCOMPLETE: %s", lost)
+        found: dict[str, float] = {}
         if self.belief is not None:
             snap, det = self._detection(self.belief)
+            # what a false-alarm law of the planner's own maps is fitted on (bench/detector_calibration.py)
+            found = {"peak_significance": round(peak_significance(det), 4), "area_mm2": det.area_mm2,
+                     "threshold_snr": round(det.threshold_snr, 4)}
             self._publish_belief(snap, final=True)
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes; "
             title += detection_summary(det, p.false_alarm_per_map)
@@ -330,7 +334,8 @@ class AdaptivePlanner(palpa.Node):
             "probes": len(self.probed), "refused": self.refused, "sim_s": elapsed, "stop": why,
             "swept_mm": len(self.probed) * (p.length_mm if p.mode == "sweep" else 0.0),
             "points": self.probed, "why": self.why, "given_up": self.given_up, "incomplete": lost,
-            "unsensed": [{"reach_mm": r, "fraction": round(f, 4)} for r, f in hiding]}, indent=1) + "\n")
+            "unsensed": [{"reach_mm": r, "fraction": round(f, 4)} for r, f in hiding], "detection": found},
+            indent=1) + "\n")
         self.timer(0.2, lambda: self.request_shutdown(1 if lost else 0), oneshot=True)
 
     def _losses(self) -> str:
