@@ -154,6 +154,10 @@ class PlannerConfig:
     (models.adaptive_budget.with_budget: its swept length at ``raster_line_mm`` over ``sweep_mm``; the planner's
     node lowers ``max_probes`` to it), and when the open points outnumber the probes left, the most likely
     candidates' first (models.adaptive_budget.most_likely; 0: ``max_probes`` alone)."""
+    spend_budget: bool = False
+    """detect, with ``budget_fraction``: the stop rule's ``miss_probability`` only ends the coarse pass; the planner
+    then resolves the likeliest candidates and covers with whatever is left (the sweep revealing the most hidden
+    area), stopping when the budget is spent or nothing of interest could hide anywhere."""
     raster_line_mm: float = 3.0
     """The raster's line spacing (launch/scan_sim.yaml's ``spacing_mm``) that ``budget_fraction`` is a fraction of."""
 

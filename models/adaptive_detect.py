@@ -354,7 +354,9 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     state = f"miss probability {miss:.3f}, {len(found)} candidates, {n_open} boundary sides open"
     if n >= cfg.max_probes:
         return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, n_open)
-    if n >= len(seed_design(cfg)) and miss < cfg.miss_probability and not n_open:
+    # with a budget to spend, covering goes on past the tolerance while any inclusion of interest could still hide
+    covered_enough = miss < cfg.miss_probability and not (cfg.spend_budget and cfg.budget_fraction > 0 and miss > 0)
+    if n >= len(seed_design(cfg)) and covered_enough and not n_open:
         return Decision(True, f"found: {state} after {n - len(given_up)} probes", None, False, miss, n_open)
     if n_open:
         # every open point is asked for before the stop; the nearest first along a short route through them all

@@ -93,3 +93,21 @@ def test_a_binding_budget_confirms_the_likelier_detection_before_a_nearer_weaker
     assert tight.kind == "measuring a detection's disc"
     roomy = replace(one_left, max_probes=60)   # the budget does not bind: the route's order as without it
     assert decide(b, measured, counts, SEEDS, roomy, last).point == free.point
+
+
+def test_a_budget_to_spend_covers_past_the_tolerance_until_it_is_spent_or_nothing_can_hide() -> None:
+    cfg = _cfg(reach_mm=4.0, miss_probability=0.5)   # a loose tolerance: a corner left unmeasured is within it
+    xs, ys = cfg.grid()
+    b = Belief(xs, ys, np.full((20, 20), 10.0), np.full((20, 20), 0.5), 10.0, 12.0)
+    measured = np.full((20, 20), 10.0)   # soft tissue, nothing to resolve
+    measured[12:, 12:] = np.nan   # but a 16 mm corner never measured
+    counts = np.ones((20, 20), dtype=np.int64)
+    assert decide(b, measured, counts, SEEDS, cfg).stop   # within the tolerance: the rule stops
+    spend = replace(cfg, budget_fraction=0.2, spend_budget=True, max_probes=len(SEEDS) + 1)
+    d = decide(b, measured, counts, SEEDS, spend)
+    assert not d.stop and d.blind and d.point is not None and d.point[0] > 24.0 and d.point[1] > 24.0   # the corner
+    assert decide(b, measured, counts, SEEDS, replace(spend, spend_budget=False)).stop
+    assert decide(b, measured, counts, SEEDS, replace(spend, budget_fraction=0.0)).stop   # no budget, nothing to spend
+    assert decide(b, measured, counts, [*SEEDS, (1.0, 1.0)], spend).stop   # spent
+    measured[12:, 12:] = 10.0
+    assert decide(b, measured, counts, SEEDS, spend).stop   # nothing of interest could hide anywhere

@@ -76,6 +76,9 @@ class PlannerParams(palpa.Params):
     budget_fraction: float = 0.0
     """detect, > 0: the probes at most this fraction of the raster's probe equivalents over the region, the most
     likely candidates confirmed first when it binds (models.adaptive_budget; 0: ``max_probes`` alone)."""
+    spend_budget: bool = False
+    """detect, with ``budget_fraction``: after the coarse pass and the likeliest candidates, cover with what is left
+    of the budget instead of stopping at ``miss_probability`` (PlannerConfig)."""
     raster_line_mm: float = 3.0
     """The raster's line spacing ``budget_fraction`` is a fraction of (launch/scan_sim.yaml's)."""
     mode: Literal["sweep", "indent"] = "sweep"
