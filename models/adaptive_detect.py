@@ -66,6 +66,7 @@ from models.adaptive import (
     next_probe,
     probe_points,
 )
+from models.adaptive_budget import most_likely
 from models.adaptive_cover import (
     cover_lattice,
     coverage_gain,
@@ -76,7 +77,7 @@ from models.adaptive_cover import (
     seed_design,
 )
 from models.adaptive_route import order_route
-from models.adaptive_split import split_detections
+from models.adaptive_split import merge_fragments, split_detections
 from models.detector import (
     PARTIAL_MAP_LAWS,
     Detection,
@@ -143,6 +144,8 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     det = detect(snap, dcfg, estimate_from=estimate, unmeasured=unseen)
     if cfg.split_prominence > 0 and not suspect:
         det = replace(det, inclusions=split_detections(det, snap, observed, dcfg, prominence_k=cfg.split_prominence))
+    if cfg.merge_mm > 0 and not suspect:
+        det = replace(det, inclusions=merge_fragments(det.inclusions, cfg.merge_mm))
     return snap, det
 
 
@@ -276,6 +279,35 @@ def unsensed(observed: BoolArray, x_mm: FloatArray, y_mm: FloatArray, probed: Se
     return fractions, hidden(covered, cfg.resolution_mm, cfg.reach_mm)
 
 
+def _priorities(points: Sequence[tuple[float, float]], suspects: Sequence[Inclusion], detected: Detection,
+                observed: BoolArray, belief: Belief, cfg: PlannerConfig) -> dict[tuple[float, float], float]:
+    """For each open point, the smallest false-alarm probability (the detector's law on ``detected``'s map) of the
+    candidates it serves: a suspect's open sides, a detection's disc or region, a near miss's disc (one candidate at
+    a time, as :func:`decide` finds them together). A point no candidate claims (none should) ranks last (1)."""
+    dcfg = detector_config(cfg)
+    area = detected.area_mm2 if np.isfinite(detected.area_mm2) else float(observed.size) * cfg.resolution_mm**2
+    args = (observed, belief.x_mm, belief.y_mm, cfg.region_mm, cfg.resolution_mm)
+    k = footprint_cells(cfg)
+    prio = dict.fromkeys(points, 1.0)
+
+    def claim(found: Sequence[tuple[float, float]], c: Inclusion) -> None:
+        p = false_alarm_probability(c.snr, area, dcfg)
+        for q in found:
+            if q in prio:
+                prio[q] = min(prio[q], p)
+
+    for c in suspects:
+        claim(open_sides([c], *args), c)
+        claim(interior_gaps([c], *args, cfg.near_miss_gap_mm, k), c)   # as a near miss
+    for c in detected.inclusions:
+        claim(interior_gaps([c], *args, cfg.interior_gap_mm, k), c)
+    if cfg.region_gaps:
+        by_centre = {(c.x_mm, c.y_mm): c for c in detected.inclusions}
+        for mask, centre in region_masks(detected, belief.x_mm, belief.y_mm):
+            claim(mask_gaps([(mask, centre)], *args, cfg.interior_gap_mm, k), by_centre[centre])
+    return prio
+
+
 @dataclass(frozen=True)
 class Decision:
     """What the detection stop rule says after a probe: stop (and why), or the next probe point."""
@@ -334,14 +366,19 @@ def decide(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64], 
     state = f"miss probability {miss:.3f}, {len(found)} candidates, {n_open} boundary sides open"
     if n >= cfg.max_probes:
         return Decision(True, f"probe budget spent ({n} probes; {state})", None, False, miss, n_open)
-    if n >= len(seed_design(cfg)) and miss < cfg.miss_probability and not n_open:
+    # with a budget to spend, covering goes on past the tolerance while any inclusion of interest could still hide
+    covered_enough = miss < cfg.miss_probability and not (cfg.spend_budget and cfg.budget_fraction > 0 and miss > 0)
+    if n >= len(seed_design(cfg)) and covered_enough and not n_open:
         return Decision(True, f"found: {state} after {n - len(given_up)} probes", None, False, miss, n_open)
     if n_open:
         # every open point is asked for before the stop; the nearest first along a short route through them all
         # (models.adaptive_route), not candidate by candidate across the specimen and back
         kinds = {**{p: "measuring a near miss's disc" for p in second},
                  **{p: "measuring a detection's disc" for p in interior}, **{p: "resolving a candidate" for p in sides}}
-        point = order_route(list(kinds), last)[0]
+        todo = list(kinds)
+        if cfg.budget_fraction > 0 and cfg.max_probes - n < len(todo):   # the most likely candidates' first
+            todo = most_likely(_priorities(todo, found, detected, observed, belief, cfg), cfg.max_probes - n)
+        point = order_route(todo, last)[0]
         kind = kinds[point]
         return Decision(False, f"{kind} ({state})", point, False, miss, n_open, kind)
     x0, y0, x1, y1 = cfg.region_mm

@@ -54,6 +54,7 @@ from models.adaptive import (
     next_probe,
     should_stop,
 )
+from models.adaptive_budget import with_budget
 from models.adaptive_cover import seed_design
 from models.adaptive_detect import (
     candidate_map,
@@ -103,7 +104,10 @@ class AdaptivePlanner(palpa.Node):
                                      near_miss_gap_mm=p.near_miss_gap_mm, split_prominence=p.split_prominence,
                                      near_best=p.near_best, cover_column_mm=p.cover_column_mm, region_gaps=p.region_gaps,
                                      cover_period_mm=p.cover_period_mm, fair_halo_mm=p.fair_halo_mm,
+                                     budget_fraction=p.budget_fraction, raster_line_mm=p.raster_line_mm,
+                                     spend_budget=p.spend_budget, merge_mm=p.merge_mm,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
+            self.cfg = with_budget(self.cfg)   # max_probes: a fraction of the raster's over this region, if asked
         except (ValueError, GeometryError) as exc:
             raise palpa.ParamError(f"{self.name}: {exc}") from None
         x0, y0, x1, y1 = region

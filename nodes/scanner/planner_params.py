@@ -74,6 +74,16 @@ class PlannerParams(palpa.Params):
     """detect: measure a detection's whole region above the threshold to ``interior_gap_mm``, not only its disc."""
     fair_halo_mm: float = 0.0
     """detect, > 0: blind cells this far past a detection's radius are left out of its background (PlannerConfig)."""
+    merge_mm: float = 0.0
+    """detect, > 0: a detection centred within a more significant one's radius plus this is its fragment, dropped."""
+    budget_fraction: float = 0.0
+    """detect, > 0: the probes at most this fraction of the raster's probe equivalents over the region, the most
+    likely candidates confirmed first when it binds (models.adaptive_budget; 0: ``max_probes`` alone)."""
+    spend_budget: bool = False
+    """detect, with ``budget_fraction``: after the coarse pass and the likeliest candidates, cover with what is left
+    of the budget instead of stopping at ``miss_probability`` (PlannerConfig)."""
+    raster_line_mm: float = 3.0
+    """The raster's line spacing ``budget_fraction`` is a fraction of (launch/scan_sim.yaml's)."""
     mode: Literal["sweep", "indent"] = "sweep"
     """sweep (air-float probe: a short line) or indent (camera probe: a press)."""
     length_mm: float = 6.0
