@@ -95,7 +95,8 @@ def planner_law(runs: list[Path]) -> int:
           f"{top.min():.2f}..{top.max():.2f} σ; valid area {area.min():.0f}..{area.max():.0f} mm²")
     for f, t, a in zip(files, top, area, strict=True):
         print(f"  {f.parent.parent.name:24s} {t:5.2f} ({a:.0f} mm²)")
-    print(f"ADAPTIVE_GUMBEL_LOC = {loc:.3f}\nADAPTIVE_GUMBEL_SCALE = {scale:.3f}\nADAPTIVE_REFERENCE_AREA_MM2 = {ref_area:.0f}")
+    print(f"ADAPTIVE_GUMBEL_LOC = {loc:.3f}\nADAPTIVE_GUMBEL_SCALE = {scale:.3f}\n"
+          f"ADAPTIVE_REFERENCE_AREA_MM2 = {ref_area:.0f}")
     print(f"maps over the threshold they were detected with: {sum(was)} of {len(files)}; over this law's at "
           f"{100 * cfg.false_alarm_per_map:g} %: {sum(over)}")
     print(json.dumps({"model": "adaptive", "loc": loc, "scale": scale, "ref_area_mm2": ref_area,

@@ -60,8 +60,8 @@ from models.peaks import joined_across, peak_parts
 from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, nanmedian_stack
 
 __all__ = ["ADAPTIVE_GUMBEL_LOC", "ADAPTIVE_GUMBEL_SCALE", "ADAPTIVE_REFERENCE_AREA_MM2", "BACKGROUND_DEGREE",
-           "CAMERA_GUMBEL_LOC", "CAMERA_GUMBEL_SCALE", "CAMERA_REFERENCE_AREA_MM2",
-           "FALSE_ALARM_LAWS", "GUMBEL_LOC", "PARTIAL_MAP_LAWS", "GUMBEL_SCALE", "REFERENCE_AREA_MM2", "DetectorConfig", "Detection",
+           "CAMERA_GUMBEL_LOC", "CAMERA_GUMBEL_SCALE", "CAMERA_REFERENCE_AREA_MM2", "FALSE_ALARM_LAWS", "GUMBEL_LOC",
+           "GUMBEL_SCALE", "PARTIAL_MAP_LAWS", "REFERENCE_AREA_MM2", "DetectorConfig", "Detection",
            "describe", "detect", "false_alarm_law", "with_law_of", "false_alarm_probability", "fit_false_alarm_law", "peak_significance", "significance",
            "threshold_for"]
 
@@ -140,15 +140,15 @@ class DetectorConfig:
     """The filtered noise scale is at least this (relative): a map smoother than the probe can measure (a synthetic
     one, a quantised one) does not make every wrinkle significant."""
     join_gap_mm: float = 6.0
-    join_span_mm: float = 10.0
-    """Pieces joined across unmeasured tissue (:attr:`join_gap_mm`) have their peaks this close or closer: the
-    pieces of one inclusion lie within its breadth, two neighbours' farther apart."""
     """On a partial map (:func:`detect`'s ``unmeasured``), regions above the threshold that only unmeasured tissue
     parts, by this much or less, are one inclusion seen in pieces (two segments of a sparse lattice across one
     inclusion, the cells between never measured) and are reported once, not cut by maxima (0: off). 6 mm: the
-    blind columns between every other line of the raster (bench/adaptive_staged.py: on its sparse lattices' maps
-    the false positives, mostly such pieces, fell from 59 to 13-38 on 63 maps at 0.20 of the raster's probes, the
-    misses the same; 10 mm found no more)."""
+    blind columns between every other line of the raster (bench/adaptive_staged.py, fresh set 14500: over its ten
+    sparse lattices' maps the false positives, mostly such pieces, fell from 315 to 113; at 0.20 of the raster's
+    probes from 59 to 38, the misses the same; 10 mm found no more)."""
+    join_span_mm: float = 10.0
+    """Pieces joined across unmeasured tissue (:attr:`join_gap_mm`) have their peaks this close or closer: the
+    pieces of one inclusion lie within its breadth, two neighbours' farther apart."""
 
     def __post_init__(self) -> None:
         if not self.radii_mm or min(self.radii_mm) <= 0:
@@ -296,12 +296,12 @@ def detect(snapshot: MapSnapshot, cfg: DetectorConfig | None = None, *, threshol
 
     ``threshold_scale`` multiplies the threshold (below 1: the suspects worth a closer look, as an adaptive planner
     asks for). ``estimate_from``: the cells whose values are a fair sample of the tissue, the only ones the
-    background and noise may be estimated from (an adaptive planner's blind sweeps; default: every valid cell); when they
-    leave out a valid cell the map is partial, and the background's fit starts robustly (:func:`models.background.fit_background`).
-    ``unmeasured``: cells of the tissue nobody measured (an adaptive planner's blind cells; not cells off the
-    specimen), across which regions :attr:`DetectorConfig.join_gap_mm` apart or less are one inclusion (default:
-    none; a whole map's detections do not depend on it). Non-positive stiffness values are not valid cells (eq. 7 gives none on a sound map). Raises ValueError on a
-    config it cannot use."""
+    background and noise may be estimated from (an adaptive planner's blind sweeps; default: every valid cell);
+    when they leave out a valid cell the map is partial, and the background's fit starts robustly
+    (models.background.fit_background). ``unmeasured``: cells of the tissue nobody measured (an adaptive planner's
+    blind cells; not cells off the specimen), across which regions :attr:`DetectorConfig.join_gap_mm` apart or less
+    are one inclusion (default: none; a whole map's detections do not depend on it). Non-positive stiffness values
+    are not valid cells (eq. 7 gives none on a sound map). Raises ValueError on a config it cannot use."""
     cfg = cfg or DetectorConfig()
     grid = fill_gaps(_drop_spikes(np.asarray(snapshot.stiffness, dtype=np.float64), cfg.spike_ratio))
     valid = np.isfinite(grid) & (grid > 0)

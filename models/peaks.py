@@ -71,9 +71,10 @@ def peak_parts(level: FloatArray, region: BoolArray, peaks: BoolArray, prominenc
 def joined_across(labels: npt.NDArray[np.int_], keep: list[int], blind: BoolArray, gap: int,
                    near: Callable[[int, int], bool]) -> list[list[int]]:
     """The regions ``keep`` of ``labels`` in groups, in label order: two regions are one group when a path of at most
-    ``gap`` ``blind`` cells (8-connected) links them and ``near`` says they may be one, or a chain of such links. A search from every region through
-    the blind cells around it, each reached cell owned by the region that reached it first, as far as ``gap``;
-    wherever two owners' cells (or a region's own) touch within ``gap`` blind cells in all, their regions join."""
+    ``gap`` ``blind`` cells (8-connected) links them and ``near`` says they may be one, or a chain of such links. A
+    search from every region through the blind cells around it, each reached cell owned by the region that reached
+    it first, as far as ``gap``; wherever two owners' cells (or a region's own) touch within ``gap`` blind cells in
+    all, their regions join (models.detector: the pieces of one inclusion on a partial map)."""
     parent = {k: k for k in keep}
 
     def root(k: int) -> int:
