@@ -344,26 +344,35 @@ def detect(snapshot: MapSnapshot, cfg: DetectorConfig | None = None, *, threshol
     baseline = float(np.median(background[valid]))
     det = Detection([], baseline, noise, threshold, best, background, candidates, grid, residual, area)
     labels, n = label8(np.nan_to_num(best, nan=-np.inf) > threshold)
-    gap = int(round(cfg.join_gap_mm / cell)) if unmeasured is not None else 0
-    # an edge row is dropped before any joining (its reading is the table's, it is no piece of anything)
-    keep = [k for k in range(1, n + 1) if gap == 0 or not _edge_row(det, labels == k)]
-    blind = np.zeros(shape, dtype=bool) if unmeasured is None else np.asarray(unmeasured, dtype=bool) & ~valid
     # the smallest disc's significance separates neighbours whose larger discs' halos join
     finest = np.nan_to_num(sig[int(np.argmin(cfg.radii_mm))], nan=-np.inf)
     found = []
-    peaks = {k: np.unravel_index(int(np.argmax(np.where(labels == k, best, -np.inf))), shape) for k in keep}
-    span = (cfg.join_span_mm / cell) ** 2
-
-    def near(a: int, b: int) -> bool:
-        return float((peaks[a][0] - peaks[b][0]) ** 2 + (peaks[a][1] - peaks[b][1]) ** 2) <= span + 1e-9
-
-    for members in joined_across(labels, keep, blind, gap, near):
+    for members in _groups(det, labels, n, valid, unmeasured, cell, cfg):
         region = np.isin(labels, members)
         parts = peak_parts(finest, region, region, cfg.split_snr) if len(members) == 1 else [region]
         if len(parts) < 2 or any(p.sum() < 2 for p in parts):
             parts = [region]
         found += [describe(det, snapshot, p, cfg, part=len(parts) > 1) for p in parts if not _edge_row(det, p)]
     return replace(det, inclusions=sorted(found, key=lambda inc: -inc.snr))
+
+
+def _groups(det: Detection, labels: npt.NDArray[np.int_], n: int, valid: BoolArray, unmeasured: BoolArray | None,
+            cell: float, cfg: DetectorConfig) -> list[list[int]]:
+    """The regions 1..n above the threshold, each alone (a whole map: nothing is named unmeasured), or on a partial
+    map joined where only unmeasured tissue parts them (module doc, step 5; models.peaks.joined_across), an edge
+    row dropped first (its reading is the table's, no piece of anything)."""
+    gap = int(round(cfg.join_gap_mm / cell))
+    if unmeasured is None or gap == 0 or n < 2:
+        return [[k] for k in range(1, n + 1)]
+    keep = [k for k in range(1, n + 1) if not _edge_row(det, labels == k)]
+    best = np.nan_to_num(det.significance, nan=-np.inf)
+    peaks = {k: np.unravel_index(int(np.argmax(np.where(labels == k, best, -np.inf))), labels.shape) for k in keep}
+    span = (cfg.join_span_mm / cell) ** 2
+
+    def near(a: int, b: int) -> bool:
+        return float((peaks[a][0] - peaks[b][0]) ** 2 + (peaks[a][1] - peaks[b][1]) ** 2) <= span + 1e-9
+
+    return joined_across(labels, keep, np.asarray(unmeasured, dtype=bool) & ~valid, gap, near)
 
 
 def peak_significance(det: Detection, floor: float = 2.0) -> float:

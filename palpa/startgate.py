@@ -2,8 +2,9 @@
 meanwhile and builds nothing until the launcher says go.
 
 A composed simulation (``palpa launch --in-process``) spends ~0.3 s importing its node classes, while the launcher
-spends ~0.2 s checking the same classes' parameters and ~0.2 s on the file's ``prepare`` step (palpa.launch.prepare, started
-beside the checks): on two cores they run side by side instead of one after the other.
+spends ~0.2 s checking the same classes' parameters and ~0.2 s on the file's ``prepare`` step
+(palpa.launch.prepare, started beside the checks): on two cores they run side by side instead of one after the
+other.
 The launcher starts such a child before its bus exists and passes it the read end of a pipe in
 ``PALPA_START_GATE``; ``go <bus address>`` and the end of the pipe let the child build its nodes on that bus, an
 end without it (the launcher gave up: a check or a prepare step failed, or it died) makes the child leave having
@@ -40,9 +41,10 @@ def release(w: int, bus: str | None) -> None:
 
 
 def wait_for_go() -> bool:
-    """In the child, its node classes imported: wait for the launcher's word and take the bus it names (``PALPA_BUS``). True at once without a gate (``PALPA_START_GATE`` unset);
-    False if the launcher called the start off. The wait needs no deadline of its own: the launcher closes the
-    pipe when it gives up, and its death closes it too."""
+    """In the child, its node classes imported: wait for the launcher's word and take the bus it names
+    (``PALPA_BUS``). True at once without a gate (``PALPA_START_GATE`` unset); False if the launcher called the
+    start off. The wait needs no deadline of its own: the launcher closes the pipe when it gives up, and its death
+    closes it too."""
     fd_text = palpa_env.get(palpa_env.START_GATE)
     if not fd_text:
         return True

@@ -183,7 +183,8 @@ def test_an_inclusion_seen_in_pieces_across_unmeasured_cells_is_one_inclusion() 
     two = [(29.0, 15.0, 3.0, 2.0), (37.0, 45.0, 3.0, 2.0)]
     for seed in range(3):
         snap = _snap(_columns_map(two, seed))
-        found = detect(snap, replace(_calibrated(), join_gap_mm=6.0), unmeasured=~np.isfinite(snap.stiffness)).inclusions
+        cfg = replace(_calibrated(), join_gap_mm=6.0)
+        found = detect(snap, cfg, unmeasured=~np.isfinite(snap.stiffness)).inclusions
         assert sorted((round(i.x_mm), round(i.y_mm)) for i in found) == [(29, 15), (37, 45)], seed
     # two inclusions, one on each column, 6 mm of blind cells apart on the diagonal but their peaks 11 mm apart:
     # more than one inclusion's breadth (join_span_mm), two; with a span that allows it they would be one
