@@ -150,9 +150,6 @@ class PlannerConfig:
     """detect, > 0: the blind cells within a detection's radius plus this of its centre are no fair sample of the
     tissue (the indenter, 4 mm in radius, reads part of the inclusion there) and are left out of the detector's
     background and noise, which are then estimated again (models.adaptive_detect.detect_candidates; 0: off)."""
-    merge_mm: float = 0.0
-    """detect, > 0: a detection whose centre lies within a more significant one's radius plus this is a fragment of
-    it and is dropped (models.adaptive_split.merge_fragments; 0: off)."""
     budget_fraction: float = 0.0
     """detect, > 0: the probes, all told, at most this fraction of the raster's probe equivalents over the region
     (models.adaptive_budget.with_budget: its swept length at ``raster_line_mm`` over ``sweep_mm``; the planner's
@@ -182,9 +179,9 @@ class PlannerConfig:
         if not (self.cover_column_mm >= 0 and self.cover_period_mm >= 0 and self.fair_halo_mm >= 0):
             raise ValueError(f"PlannerConfig: cover_column_mm, cover_period_mm and fair_halo_mm >= 0 needed, got "
                              f"{self.cover_column_mm}, {self.cover_period_mm}, {self.fair_halo_mm}")
-        if not (self.budget_fraction >= 0 and self.raster_line_mm > 0 and self.merge_mm >= 0):
-            raise ValueError(f"PlannerConfig: budget_fraction >= 0, raster_line_mm > 0 and merge_mm >= 0 needed, got "
-                             f"{self.budget_fraction}, {self.raster_line_mm}, {self.merge_mm}")
+        if not (self.budget_fraction >= 0 and self.raster_line_mm > 0):
+            raise ValueError(f"PlannerConfig: budget_fraction >= 0 and raster_line_mm > 0 needed, got "
+                             f"{self.budget_fraction}, {self.raster_line_mm}")
         if not (0 <= self.near_miss_false_alarm < 1 and self.near_miss_gap_mm > 0):
             raise ValueError(f"PlannerConfig.near_miss_false_alarm: expected 0 <= near_miss_false_alarm < 1 and "
                              f"near_miss_gap_mm > 0, got {self.near_miss_false_alarm}, {self.near_miss_gap_mm}")

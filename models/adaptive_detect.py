@@ -77,7 +77,7 @@ from models.adaptive_cover import (
     seed_design,
 )
 from models.adaptive_route import order_route
-from models.adaptive_split import merge_fragments, split_detections
+from models.adaptive_split import split_detections
 from models.detector import (
     PARTIAL_MAP_LAWS,
     Detection,
@@ -144,8 +144,6 @@ def detect_candidates(belief: Belief, measured: FloatArray, counts: npt.NDArray[
     det = detect(snap, dcfg, estimate_from=estimate, unmeasured=unseen)
     if cfg.split_prominence > 0 and not suspect:
         det = replace(det, inclusions=split_detections(det, snap, observed, dcfg, prominence_k=cfg.split_prominence))
-    if cfg.merge_mm > 0 and not suspect:
-        det = replace(det, inclusions=merge_fragments(det.inclusions, cfg.merge_mm))
     return snap, det
 
 

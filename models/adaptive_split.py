@@ -25,7 +25,7 @@ from models.detector import Detection, DetectorConfig, describe
 from models.peaks import peak_parts
 from models.stiffness_map import Inclusion, MapSnapshot
 
-__all__ = ["bridge_levels", "merge_fragments", "peak_parts", "split_detections"]
+__all__ = ["bridge_levels", "peak_parts", "split_detections"]
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -64,17 +64,3 @@ def split_detections(det: Detection, snap: MapSnapshot, measured: BoolArray, cfg
         return found
     out = [describe(det, snap, part, cfg, part=len(cut) > 1) for cut in pieces for part in cut]
     return sorted(out, key=lambda i: -i.snr)
-
-
-def merge_fragments(found: list[Inclusion], merge_mm: float) -> list[Inclusion]:
-    """``found`` (most significant first) less every detection whose centre lies within a more significant kept
-    one's radius plus ``merge_mm``: on a sparse map one inclusion crossed by two sweeps, blind cells between them, can
-    stand as two regions above the threshold, the second a fragment of the first (tuning seed 101: an r 6.4 seen as
-    r 5.5 and r 4.1 detections 5.8 mm apart, in every draw). ``found`` itself when ``merge_mm`` <= 0."""
-    if merge_mm <= 0:
-        return found
-    kept: list[Inclusion] = []
-    for inc in sorted(found, key=lambda i: -i.snr):
-        if not any((inc.x_mm - k.x_mm) ** 2 + (inc.y_mm - k.y_mm) ** 2 <= (k.radius_mm + merge_mm) ** 2 for k in kept):
-            kept.append(inc)
-    return kept

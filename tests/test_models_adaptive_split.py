@@ -12,9 +12,9 @@ import pytest
 
 from models.adaptive import Belief, PlannerConfig
 from models.adaptive_detect import detect_candidates
-from models.adaptive_split import bridge_levels, merge_fragments, peak_parts, split_detections
+from models.adaptive_split import bridge_levels, peak_parts, split_detections
 from models.detector import Detection, DetectorConfig, detect
-from models.stiffness_map import Inclusion, MapSnapshot
+from models.stiffness_map import MapSnapshot
 
 BASE, SIGMA = 20.0, 1.0
 NOISE = SIGMA / BASE
@@ -151,44 +151,3 @@ def test_a_one_cell_maximum_leaves_its_region_whole() -> None:
 def test_a_negative_prominence_is_refused() -> None:
     with pytest.raises(ValueError, match="split_prominence"):
         PlannerConfig((0.0, 0.0, 40.0, 40.0), split_prominence=-1.0)
-
-
-def _inc(x: float, y: float, r: float, snr: float) -> Inclusion:
-    return Inclusion(x_mm=x, y_mm=y, radius_mm=r, contrast=2.0, peak=40.0, area_mm2=math.pi * r * r, cells=3, snr=snr)
-
-
-def test_a_weaker_detection_centred_within_a_stronger_ones_radius_plus_merge_mm_is_its_fragment() -> None:
-    strong, fragment = _inc(27.0, 39.0, 5.5, 40.0), _inc(32.0, 42.0, 4.1, 38.0)   # tuning seed 101: 5.8 mm apart
-    neighbour = _inc(27.0, 55.0, 3.0, 50.0)   # 16 mm away: an inclusion of its own
-    found = [neighbour, strong, fragment]
-    inner, edge = _inc(29.0, 39.0, 2.0, 5.0), _inc(33.0, 39.0, 3.0, 10.0)   # 2 mm and 6 mm from the strong one
-    assert merge_fragments([strong, inner], 0.0) == [strong, inner]   # off, even inside the disc
-    assert merge_fragments([strong, edge], 0.5) == [strong]   # 6.0 mm <= 5.5 + 0.5: the edge counts
-    assert merge_fragments([strong, edge], 0.49) == [strong, edge]
-    assert merge_fragments(found, 0.0) == found   # off
-    assert merge_fragments(found, 0.2) == found   # 5.8 mm > 5.5 + 0.2: apart
-    assert merge_fragments(found, 0.5) == [neighbour, strong]   # 5.8 <= 6.0: the weaker is a fragment
-    assert merge_fragments([fragment, strong], 0.5) == [strong]   # the more significant is kept, whatever the order
-    louder = replace(fragment, snr=41.0)   # the smaller disc kept first: its radius is the one that counts
-    assert merge_fragments([strong, louder], 0.5) == [louder, strong]   # 5.8 mm > 4.1 + 0.5
-    assert merge_fragments([strong, louder], 2.0) == [louder]
-    with pytest.raises(ValueError, match="merge_mm"):
-        PlannerConfig((0.0, 0.0, 40.0, 40.0), merge_mm=-1.0)
-
-
-def test_the_planners_detection_drops_fragments_only_when_asked() -> None:
-    """Two stiff sweeps 8 mm apart with a soft one between them are two detections; with ``merge_mm`` past their
-    spacing the weaker is taken for the stronger's fragment (what the option trades: a true neighbour that close is
-    lost too)."""
-    cfg = PlannerConfig((0.0, 0.0, 40.0, 40.0), sweep_mm=6.0, radius_span_mm=0.0, interior_gap_mm=0.0,
-                        cover_column_mm=0.0, near_miss_false_alarm=0.0, split_prominence=0.0)
-    xs, ys = cfg.grid()
-    b = Belief(xs, ys, np.full((20, 20), 10.0), np.full((20, 20), 0.5), 10.0, 12.0)
-    measured = np.full((20, 20), 10.0)
-    measured[7:14, 8], measured[7:14, 12] = 20.0, 19.0
-    counts = np.ones((20, 20), dtype=np.int64)
-    two = detect_candidates(b, measured, counts, cfg)[1].inclusions
-    assert len(two) == 2
-    one = detect_candidates(b, measured, counts, replace(cfg, merge_mm=8.0))[1].inclusions
-    assert one == [max(two, key=lambda i: i.snr)]
-    assert len(detect_candidates(b, measured, counts, replace(cfg, merge_mm=8.0), suspect=True)[1].inclusions) == 2

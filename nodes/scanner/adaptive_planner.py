@@ -105,7 +105,7 @@ class AdaptivePlanner(palpa.Node):
                                      near_best=p.near_best, cover_column_mm=p.cover_column_mm, region_gaps=p.region_gaps,
                                      cover_period_mm=p.cover_period_mm, fair_halo_mm=p.fair_halo_mm,
                                      budget_fraction=p.budget_fraction, raster_line_mm=p.raster_line_mm,
-                                     spend_budget=p.spend_budget, merge_mm=p.merge_mm,
+                                     spend_budget=p.spend_budget,
                                      sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
             self.cfg = with_budget(self.cfg)   # max_probes: a fraction of the raster's over this region, if asked
         except (ValueError, GeometryError) as exc:

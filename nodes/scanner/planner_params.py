@@ -74,8 +74,6 @@ class PlannerParams(palpa.Params):
     """detect: measure a detection's whole region above the threshold to ``interior_gap_mm``, not only its disc."""
     fair_halo_mm: float = 0.0
     """detect, > 0: blind cells this far past a detection's radius are left out of its background (PlannerConfig)."""
-    merge_mm: float = 0.0
-    """detect, > 0: a detection centred within a more significant one's radius plus this is its fragment, dropped."""
     budget_fraction: float = 0.0
     """detect, > 0: the probes at most this fraction of the raster's probe equivalents over the region, the most
     likely candidates confirmed first when it binds (models.adaptive_budget; 0: ``max_probes`` alone)."""
