@@ -78,14 +78,7 @@ from models.adaptive_cover import (
 )
 from models.adaptive_route import order_route
 from models.adaptive_split import split_detections
-from models.detector import (
-    PARTIAL_MAP_LAWS,
-    Detection,
-    DetectorConfig,
-    detect,
-    false_alarm_probability,
-    with_law_of,
-)
+from models.detector import Detection, DetectorConfig, detect, false_alarm_probability, with_law_of
 from models.stiffness_map import Inclusion, MapSnapshot
 
 __all__ = ["Decision", "candidate_map", "decide", "detect_candidates", "detection_map", "detector_config", "interior_gaps",
@@ -108,9 +101,8 @@ def detector_config(cfg: PlannerConfig, suspect: bool = False) -> DetectorConfig
     """The map detector's settings the planner detects with (the raster's own, its false-alarm rate the planner's;
     ``suspect``: at ``cfg.suspect_false_alarm``, the bar a region must pass to be worth resolving)."""
     rate = cfg.suspect_false_alarm if suspect else cfg.false_alarm_per_map
-    base = DetectorConfig(false_alarm_per_map=rate)
-    own = PARTIAL_MAP_LAWS.get(cfg.model)   # the planner's maps are partial: the law of its own blank maps
-    return replace(base, gumbel=own) if own is not None else with_law_of(base, cfg.model)
+    # the planner's maps are partial: the law of its own blank maps where one was measured
+    return with_law_of(DetectorConfig(false_alarm_per_map=rate), cfg.model, partial=True)
 
 
 def candidate_map(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64],

@@ -192,16 +192,19 @@ class Detection:
     """The map's valid area (the false-alarm law's)."""
 
 
-def false_alarm_law(model: str) -> tuple[float, float, float] | None:
-    """The false-alarm law measured for the probe whose estimator states ``model`` (:data:`FALSE_ALARM_LAWS`);
+def false_alarm_law(model: str, *, partial: bool = False) -> tuple[float, float, float] | None:
+    """The false-alarm law measured for the probe whose estimator states ``model`` (:data:`FALSE_ALARM_LAWS`; with
+    ``partial``, an adaptive planner's maps: :data:`PARTIAL_MAP_LAWS` where one was measured, else the whole map's);
     None for a probe no law was measured for (the caller says so and falls back on the default's)."""
-    return FALSE_ALARM_LAWS.get(model)
+    own = PARTIAL_MAP_LAWS.get(model) if partial else None
+    return own if own is not None else FALSE_ALARM_LAWS.get(model)
 
 
-def with_law_of(cfg: DetectorConfig, model: str) -> DetectorConfig:
-    """``cfg`` with the false-alarm law measured for ``model``'s probe (:func:`false_alarm_law`); ``cfg`` as it is for
-    a probe no law was measured for (the caller says so: its stated false-alarm rate is then not that map's)."""
-    law = false_alarm_law(model)
+def with_law_of(cfg: DetectorConfig, model: str, *, partial: bool = False) -> DetectorConfig:
+    """``cfg`` with the false-alarm law measured for ``model``'s probe (:func:`false_alarm_law`, ``partial`` as
+    there); ``cfg`` as it is for a probe no law was measured for (the caller says so: its stated false-alarm rate is
+    then not that map's)."""
+    law = false_alarm_law(model, partial=partial)
     return cfg if law is None else replace(cfg, gumbel=law)
 
 
