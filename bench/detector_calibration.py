@@ -1,6 +1,6 @@
 """The detector's false-alarm law, measured on blank specimens (issue 37): derives models.detector's GUMBEL_LOC,
 GUMBEL_SCALE and REFERENCE_AREA_MM2 (the air-float probe's sweep maps), or CAMERA_GUMBEL_* (the camera probe's
-press grids): each probe's law from its own blank maps (models.detector.FALSE_ALARM_LAWS).
+press grids): each probe's law from its own blank maps (models.false_alarm.FALSE_ALARM_LAWS).
 
 Scan the blank specimens once (a flat 3 mm sheet and the demo's dome without tumours, twenty noise draws each: the
 device's errors, the sensor noise and the thickness measurement all drawn from the seed):
@@ -35,7 +35,7 @@ The largest of many weakly dependent significances follows a Gumbel law whose lo
 detector leaves out of its background depend on its threshold, so the fit is repeated with the constants it found
 until they stop moving. Prints the constants, the per-map maxima, the threshold at the detector's default
 false-alarm rate and how many of these blank maps it would call anything on; the constants go into
-models/detector.py by hand (the printed result goes into BENCHMARKS.md).
+models/false_alarm.py by hand (the printed result goes into BENCHMARKS.md).
 """
 
 from __future__ import annotations
@@ -63,7 +63,7 @@ from models.stiffness_map import MapSnapshot  # noqa: E402
 from nodes.mapping.map_output import map_model, read_map  # noqa: E402
 
 _NAMES = {"airfloat": "", "multi_indenter": "CAMERA_"}
-"""Prefix of each probe's constants in models/detector.py."""
+"""Prefix of each probe's constants in models/false_alarm.py."""
 
 
 def peaks(maps: list[MapSnapshot], cfg: DetectorConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -117,7 +117,7 @@ def main() -> int:
         raise SystemExit(f"no runs/*/map/map.npz under {', '.join(map(str, args.runs))}")
     models = {map_model(f) for f in files}
     if len(models) != 1 or next(iter(models)) not in _NAMES:
-        raise SystemExit(f"the maps must all be of one probe with a law in models.detector ({', '.join(_NAMES)}): "
+        raise SystemExit(f"the maps must all be of one probe with a law in models.false_alarm ({', '.join(_NAMES)}): "
                          f"they are of {', '.join(sorted(m or '?' for m in models))}")
     model = models.pop()
     maps = [read_map(f) for f in files]

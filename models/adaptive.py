@@ -116,7 +116,7 @@ class PlannerConfig:
     """detect: the detection map takes the GP mean only this close to a measured cell."""
     false_alarm_per_map: float = 0.003
     """detect: the map detector's false-alarm rate per map (models.detector.DetectorConfig), by the law of the
-    planner's own blank maps where one was measured (models.detector.PARTIAL_MAP_LAWS); its background and noise
+    planner's own blank maps where one was measured (models.false_alarm.PARTIAL_MAP_LAWS); its background and noise
     come from the cells measured by stiffness-blind sweeps."""
     split_prominence: float = 1.5
     """detect: a detection whose measured cells show two maxima, each standing this many times the map's relative

@@ -223,7 +223,7 @@ class MapAggregator(palpa.Node):
         """The samples come from ``model``'s estimator: detect with the false-alarm law measured for that probe."""
         self.model = model
         if false_alarm_law(model) is None:
-            self.log.warning("no false-alarm law was measured for %r maps (models.detector.FALSE_ALARM_LAWS): the "
+            self.log.warning("no false-alarm law was measured for %r maps (models.false_alarm.FALSE_ALARM_LAWS): the "
                              "air-float probe's is used, so the stated false-alarm rate is not this map's "
                              "(bench/detector_calibration.py measures one on blank scans)", model)
         self.detector = with_law_of(replace(self.detector, gumbel=DetectorConfig().gumbel), model)

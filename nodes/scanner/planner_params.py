@@ -55,7 +55,7 @@ class PlannerParams(palpa.Params):
     """detect: the detection map takes the GP mean only this close to a measured cell."""
     false_alarm_per_map: float = 0.003
     """The map detector's false-alarm rate per map (models.detector), as the map aggregator's; the air-float
-    planner's maps are partial and are judged by the law of its own blank maps (models.detector.PARTIAL_MAP_LAWS)."""
+    planner's maps are partial and are judged by the law of its own blank maps (models.false_alarm.PARTIAL_MAP_LAWS)."""
     split_prominence: float = 1.5
     """detect: split a detection whose measured cells show two maxima this many noise scales above the measured
     level joining them (PlannerConfig; 0: off)."""
