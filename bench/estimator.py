@@ -31,7 +31,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from models.multi_indenter import CENTROID_NOISE_PX, PAPER_GEOMETRY, PX_PER_MM, forward  # noqa: E402
-from models.multi_indenter_solve import StiffnessSolution, solve_batch, solve_exact, solve_lm  # noqa: E402
+from models.multi_indenter_batch import solve_batch  # noqa: E402
+from models.multi_indenter_solve import StiffnessSolution, solve_exact, solve_lm  # noqa: E402
 
 T = TypeVar("T")
 

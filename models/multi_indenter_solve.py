@@ -11,6 +11,8 @@ Four indenters in contact give three equations: solved in closed form (Cramer, s
 single and the batch solver so both give the same floats). With more indenters in contact we
 solve the symmetric form ``c - (k_i dx_i)/K_t - x_i tan(pan) - y_i tan(tilt) = dx_i`` (one row
 per indenter, c = advance past the surface at the probe origin) by least squares.
+
+The batch solver (an (N, n) array at once) is ``models.multi_indenter_batch``.
 """
 
 from __future__ import annotations
@@ -29,9 +31,8 @@ BoolArray = npt.NDArray[np.bool_]
 
 __all__ = [
     "REASONS",
-    "BatchSolution",
     "StiffnessSolution",
-    "solve_batch",
+    "solve3",
     "solve_exact",
     "solve_lm",
 ]
@@ -52,7 +53,7 @@ REASONS: tuple[str, ...] = (
 )
 
 
-def _solve3(
+def solve3(
     sqrt: Callable[[Any], Any],
     p2: Any,
     p3: Any,
@@ -67,7 +68,7 @@ def _solve3(
     the matrix with its columns scaled to unit norm).
 
     Only + - * / abs and ``sqrt`` are used, so Python floats and numpy arrays give identical
-    results. With floats a singular system raises ZeroDivisionError (the caller's to catch).
+    results (the batch solver, models.multi_indenter_batch, calls it on arrays). With floats a singular system raises ZeroDivisionError (the caller's to catch).
     """
     x2, x3, x4, y2, y3, y4, n2, n3, n4, xx, yy, nn = g
     det = p2 * n2 + p3 * n3 + p4 * n4
@@ -98,22 +99,6 @@ class StiffnessSolution(NamedTuple):
     tilt_rad: float
     dt_mm: tuple[float, ...]
     condition: float
-
-
-class BatchSolution(NamedTuple):
-    """Vectorised solutions for N samples; ``reason_code`` indexes ``REASONS``."""
-
-    valid: BoolArray  # (N,)
-    reason_code: npt.NDArray[np.int8]  # (N,)
-    k_t_n_per_mm: FloatArray  # (N,)
-    pan_rad: FloatArray  # (N,)
-    tilt_rad: FloatArray  # (N,)
-    dt_mm: FloatArray  # (N, n)
-    condition: FloatArray  # (N,)
-
-    def reason(self, i: int) -> str:
-        """Reason text for sample ``i``."""
-        return REASONS[int(self.reason_code[i])]
 
 
 def _invalid(code: int, n: int, detail: str = "", condition: float = math.nan) -> StiffnessSolution:
@@ -161,7 +146,7 @@ def _linear_solve(
         p = [k[j] * dx[j] - k[ia] * dx[ia] for j in rest]
         b = [dx[ia] - dx[j] for j in rest]
         try:
-            u, tp, tt, cond = _solve3(
+            u, tp, tt, cond = solve3(
                 math.sqrt, p[0], p[1], p[2], b[0], b[1], b[2], geometry_columns(x, y, touching)
             )
         except ZeroDivisionError:
@@ -232,7 +217,7 @@ def solve_exact(
             f1 = k1 * d1
             b2, b3, b4 = d1 - d2, d1 - d3, d1 - d4
             try:
-                u, tp, tt, cond = _solve3(
+                u, tp, tt, cond = solve3(
                     math.sqrt, k2 * d2 - f1, k3 * d3 - f1, k4 * d4 - f1, b2, b3, b4, geometry.columns
                 )
             except ZeroDivisionError:
@@ -331,102 +316,3 @@ def solve_lm(
     # LM works on the angles themselves; fold them into (-pi/2, pi/2) like the exact solve.
     pan, tilt = math.atan(math.tan(res.x[m])), math.atan(math.tan(res.x[m + 1]))
     return StiffnessSolution(True, REASONS[OK], kt, pan, tilt, tuple(dt_all), cond)
-
-
-def solve_batch(
-    dx_mm: npt.ArrayLike,
-    geometry: ProbeGeometry = PAPER_GEOMETRY,
-    *,
-    contact_threshold_mm: float = 0.05,
-    max_condition: float = 1e4,
-    equal_tol_mm: float = 1e-9,
-) -> BatchSolution:
-    """:func:`solve_exact` over an (N, n) array of displacements (mm), vectorised.
-
-    Samples are grouped by contact pattern (at most 2**n groups, one numpy pass each, no
-    loop per sample). Four contacts: the same closed form with the same floats as the
-    single solve; more: stacked SVD least squares (agrees with lstsq to rounding).
-    """
-    dx = np.asarray(dx_mm, dtype=np.float64)
-    n = geometry.n
-    if dx.ndim != 2 or dx.shape[1] != n:
-        raise ValueError(
-            f"solve_batch: expected an (N, {n}) array of displacements, got shape {dx.shape}"
-        )
-    big_n = dx.shape[0]
-    code = np.full(big_n, OK, dtype=np.int8)
-    u = np.full(big_n, np.nan)
-    tp = np.full(big_n, np.nan)
-    tt = np.full(big_n, np.nan)
-    cond = np.full(big_n, np.nan)
-    # Work on columns: numpy reductions along a short last axis are slow.
-    cols = [np.ascontiguousarray(dx[:, i]) for i in range(n)]
-    finite = np.ones(big_n, dtype=bool)
-    saturated = np.zeros(big_n, dtype=bool)
-    n_contact = np.zeros(big_n, dtype=np.int64)
-    pattern = np.zeros(big_n, dtype=np.int64)
-    for i, col in enumerate(cols):
-        finite &= np.isfinite(col)
-        saturated |= col >= geometry.stroke_mm
-        touching = col > contact_threshold_mm
-        n_contact += touching
-        pattern |= touching.astype(np.int64) << i
-    code[~finite] = NAN
-    code[finite & saturated] = SATURATED
-    code[(code == OK) & (n_contact < 4)] = CONTACT
-    x, y, k = (np.asarray(v) for v in (geometry.x_mm, geometry.y_mm, geometry.k_n_per_mm))
-    with np.errstate(all="ignore"):
-        ok_patterns = pattern[code == OK]
-        same = ok_patterns.size > 0 and bool((ok_patterns == ok_patterns[0]).all())
-        for pat in ok_patterns[:1] if same else np.unique(ok_patterns):
-            rows = np.flatnonzero((pattern == pat) & (code == OK))
-            idx = np.flatnonzero((int(pat) >> np.arange(n)) & 1)
-            every = rows.size == big_n  # the common case: no fancy indexing needed
-            d = [cols[j] if every else cols[j][rows] for j in idx]
-            rigid = np.ones(rows.size, dtype=bool)
-            for dj in d[1:]:
-                rigid &= np.abs(d[0] - dj) <= equal_tol_mm
-            if idx.size == 4:
-                p = [k[j] * d[pos] - k[idx[0]] * d[0] for pos, j in enumerate(idx[1:], start=1)]
-                b = [d[0] - d[pos] for pos in (1, 2, 3)]
-                g = geometry_columns(geometry.x_mm, geometry.y_mm, idx.tolist())
-                zu, zp, zt, c = _solve3(np.sqrt, p[0], p[1], p[2], b[0], b[1], b[2], g)
-            else:
-                dd = np.column_stack(d)
-                mat = np.stack(
-                    [
-                        np.ones_like(dd),
-                        -k[idx] * dd,
-                        np.broadcast_to(-x[idx], dd.shape),
-                        np.broadcast_to(-y[idx], dd.shape),
-                    ],
-                    axis=-1,
-                )
-                scale = np.linalg.norm(mat, axis=1, keepdims=True)
-                uu, sv, vt = np.linalg.svd(mat / scale, full_matrices=False)
-                z = np.einsum("gji,gj->gi", vt, np.einsum("gmj,gm->gj", uu, dd) / sv) / scale[:, 0]
-                zu, zp, zt, c = z[:, 1], z[:, 2], z[:, 3], sv[:, 0] / sv[:, -1]
-            c = np.where(np.isfinite(c), c, np.inf)
-            u[rows], tp[rows], tt[rows], cond[rows] = zu, zp, zt, c
-            code[rows[rigid]] = RIGID
-            cond[rows[rigid]] = np.nan
-    ok = code == OK
-    code[ok & ~(cond <= max_condition)] = ILL
-    ok = code == OK
-    physical = (u > 0) & np.isfinite(u) & np.isfinite(tp) & np.isfinite(tt)
-    code[ok & ~physical] = NONPHYSICAL
-    valid = code == OK
-    nan = np.full(big_n, np.nan)
-    with np.errstate(all="ignore"):
-        k_t = np.where(valid, 1.0 / u, nan)
-        contact = dx > contact_threshold_mm
-        dt = np.where(valid[:, None], np.where(contact, dx * k * u[:, None], 0.0), np.nan)
-    return BatchSolution(
-        valid,
-        code,
-        k_t,
-        np.where(valid, np.arctan(tp), nan),
-        np.where(valid, np.arctan(tt), nan),
-        dt,
-        np.where(valid | (code == ILL) | (code == NONPHYSICAL), cond, nan),
-    )

@@ -15,10 +15,10 @@ from models.multi_indenter import (
     advance_range_mm,
     forward,
 )
+from models.multi_indenter_batch import solve_batch
 from models.multi_indenter_solve import (
     REASONS,
     StiffnessSolution,
-    solve_batch,
     solve_exact,
     solve_lm,
 )

@@ -441,12 +441,12 @@ def test_a_kick_gap_near_the_watchdog_s_limit_is_told_as_the_watchdog() -> None:
     drv = URRtdeDriver("127.0.0.1", watchdog_hz=1.0, clock=clock.now_ns)  # kicks are timed on the node's clock
     now = clock.now_ns()
     for gap, watchdog in ((1.2, True), (0.99, True), (0.91, True), (0.85, False), (0.3, False)):
-        drv._last_kick, drv._kick_gap = now - 100_000_000, round(gap * 1e9)
+        drv._watchdog.last_kick, drv._watchdog.kick_gap = now - 100_000_000, round(gap * 1e9)
         cause = drv._stop_cause(now)
         assert cause.startswith("RTDE watchdog") is watchdog and f"{gap:.2f} s" in cause, (gap, cause)
-    drv._kick_gap = 990_000_000
+    drv._watchdog.kick_gap = 990_000_000
     assert "within 0.1 s of the 1 s it allows" in drv._stop_cause(now)
-    drv._kick_gap = 1_200_000_000
+    drv._watchdog.kick_gap = 1_200_000_000
     assert "over the 1 s it allows" in drv._stop_cause(now)
     clock.advance(1.5)  # and a stall since the last kick counts, read on the same clock
     assert drv._stop_cause().startswith("RTDE watchdog: this driver did not kick it for 1.60 s")

@@ -15,7 +15,7 @@ the launch file the phantom (``phantom:=``), a simulated thickness measurement o
 the sim's measurer, ``models.geometry.measure_phantom``), the seed (``seed:=``), and, unless set with ``--arg``,
 a raster region inside the phantom (``region_mm:=``, ``--margin`` from its true edges; without ``--margin`` the
 launch file's own region) and a probe height above its top (``contact_z_mm:=``, 1 mm above the thickest point):
-each only if the launch file declares that arg.
+each only if the launch file declares that arg (``tools.evaluate_plan`` makes the runs).
 
 ``--generate N`` makes N random phantoms (``models.phantom_gen``, seeds ``--phantom-seed``..+N-1) into
 ``OUT/phantoms``. After the runs, each one's ``inclusions.json`` and ``map.npz`` are scored with
@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import ctypes
-import itertools
 import json
 import math
 import resource
@@ -39,7 +38,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -48,33 +47,20 @@ import numpy as np
 import yaml
 
 from messages import RobotPose, ScanStatus, StiffnessSample
-from models.geometry import measure_phantom
 from models.phantom import Phantom, load_phantom
 from models.phantom_gen import PhantomRanges, random_phantom
 from models.scoring import Detection, score_scan
+from tools.evaluate_plan import RunSpec, plan_runs  # re-exported: they were defined here
 from tools.evaluate_tables import read_tables, summarize, write_tables
 from tools.sweep import Cluster, Store, Task, content_key, file_digest, run_sweep, tree_digest
 from yamlstruct import Source, YamlError
 
-__all__ = ["RunJob", "RunSpec", "main", "run_and_score", "run_tasks", "scan_facts", "score_run", "summarize"]
+__all__ = ["RunJob", "RunSpec", "main", "plan_runs", "run_and_score", "run_tasks", "scan_facts", "score_run",
+           "summarize"]
 
 REPO = Path(__file__).resolve().parent.parent
 CODE = ("palpa", "nodes", "tools", "models", "messages", "devices", "yamlstruct", "launch")
 """What the code version of a run's key covers (``tools.sweep.tree_digest``)."""
-
-
-@dataclass
-class RunSpec:
-    """One launch of the batch: which phantom, seed and arg values, and where it runs."""
-
-    id: str
-    phantom: Path
-    seed: int
-    args: dict[str, Any]
-    """The varied ``--arg`` values of this run (the combination it belongs to)."""
-    overrides: dict[str, Any] = field(default_factory=dict)
-    """Every ``name:=value`` given to the launch (the varied args included)."""
-    run_dir: Path = Path()
 
 
 def scan_facts(recording: Path) -> dict[str, float]:
@@ -166,48 +152,6 @@ def score_outputs(spec: RunSpec, phantom: Phantom, redetect: bool = False
         dets.append({"run": spec.id, "detection": i, "x_mm": d.x_mm, "y_mm": d.y_mm, "radius_mm": d.radius_mm,
                      "contrast": d.contrast, "inclusion": -1 if hit is None else hit[1]})
     return row, incs, dets
-
-
-def _declared_args(launch: Path) -> set[str]:
-    from palpa.launch import load_launch
-
-    return set(load_launch(launch, {}, run_dir=Path("runs") / "unused").args)
-
-
-def plan_runs(launch: Path, phantoms: Sequence[Path], seeds: Sequence[int], grid: dict[str, list[Any]],
-              out: Path, *, margin_mm: float | None, geometry_error_mm: float) -> list[RunSpec]:
-    """Every phantom x seed x arg combination, with the overrides the launch file can take (module doc)."""
-    declared = _declared_args(launch)
-    unknown = sorted(set(grid) - declared)
-    if unknown:
-        raise SystemExit(f"{launch}: no arg named {', '.join(unknown)} (it declares {', '.join(sorted(declared))})")
-    if "phantom" not in declared:
-        raise SystemExit(f"{launch}: declares no 'phantom' arg: the runner cannot give it a world")
-    combos = [dict(zip(grid, values, strict=True)) for values in itertools.product(*grid.values())] or [{}]
-    (out / "geometry").mkdir(parents=True, exist_ok=True)
-    specs = []
-    for ph_path in phantoms:
-        ph = load_phantom(ph_path)
-        for seed in seeds:
-            base: dict[str, Any] = {"phantom": str(ph_path.resolve())}
-            if "geometry" in declared:
-                geo = out / "geometry" / f"{ph_path.stem}-seed{seed}.yaml"
-                measured = measure_phantom(ph, error_mm=geometry_error_mm, seed=seed)
-                geo.write_text(yaml.safe_dump(measured.to_yaml_data(), sort_keys=False), encoding="utf-8")
-                base["geometry"] = str(geo.resolve())
-            if "seed" in declared:
-                base["seed"] = seed
-            if "region_mm" in declared and margin_mm is not None:
-                w, h = ph.size_mm
-                base["region_mm"] = [margin_mm, margin_mm, round(w - margin_mm, 3), round(h - margin_mm, 3)]
-            if "contact_z_mm" in declared:
-                top = float(np.nanmax(ph.thickness(np.linspace(0, ph.size_mm[0], 25)[:, None],
-                                                   np.linspace(0, ph.size_mm[1], 25)[None, :])))
-                base["contact_z_mm"] = round(top + 1.0, 3)
-            for i, combo in enumerate(combos):
-                rid = f"{ph_path.stem}-s{seed}" + (f"-a{i}" if len(combos) > 1 else "")
-                specs.append(RunSpec(rid, ph_path, seed, combo, {**base, **combo}, out / "runs" / rid))
-    return specs
 
 
 def launch_one(launch: Path, spec: RunSpec, *, in_process: bool, timeout_s: float) -> dict[str, Any]:

@@ -1,39 +1,32 @@
 """The emulated controller: arm model, RTDE registers, program, safety state, faults.
 
 No sockets here (see server.py). Every method expects the caller to hold `lock`; `tick()`
-advances everything by one 2 ms controller cycle.
+advances everything by one 2 ms controller cycle. What the tip feels of the specimen and what
+the force sensor reads are in contact.py.
 """
 
 from __future__ import annotations
 
 import math
-import random
 import threading
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
 
+from emulators.ur.contact import (  # BACKING_N_PER_MM, SurfaceLike: re-exported, they were defined here
+    BACKING_N_PER_MM as BACKING_N_PER_MM,
+)
+from emulators.ur.contact import ForceSensor, SpecimenContact
+from emulators.ur.contact import SurfaceLike as SurfaceLike
 from emulators.ur.rtde import OUTPUT_TYPES
 from emulators.ur.script import RtdeControlProgram, ScriptError, program_name
 from models.arm import TICK_S, ArmModel, ArmTarget, Pose
 
 RUNTIME_STOPPED, RUNTIME_PLAYING = 1, 2  # RTDE runtime_state (0, "stopping", is never reported here)
 ROBOT_MODE_RUNNING = 7
-# The rigid table under a specimen, felt once the tissue has bottomed out (pressed past the world's tables): steep,
-# so a touch-off or a press that goes too deep trips the force limit within a fraction of a millimetre.
-BACKING_N_PER_MM = 50.0
 SAFETY_MODE_NORMAL, SAFETY_MODE_PROTECTIVE_STOP = 1, 3
 SAFETY_BIT_NORMAL, SAFETY_BIT_PROTECTIVE_STOP, SAFETY_BIT_STOPPED_DUE_TO_SAFETY = 1 << 0, 1 << 2, 1 << 10
 ROBOT_BIT_POWER_ON, ROBOT_BIT_PROGRAM_RUNNING = 1 << 0, 1 << 1
-
-
-class SurfaceLike(Protocol):
-    """What the contact model needs from a phantom (models.phantom.Phantom): the height (mm)
-    of the tissue surface above the table at (x, y) in the phantom frame (mm). A Phantom's tissue gives the
-    contact force through models.world's FE-grounded world; anything else is a rigid surface."""
-
-    def surface_z(self, x_mm: Any, y_mm: Any, /) -> Any: ...
 
 
 @dataclass
@@ -98,13 +91,9 @@ class UrController:
         self.protective_stopped = False
         self._pstop_tick = 0
         self.force = [0.0] * 6
-        self._world: Any = None
-        self._world_made = False
-        self._force_offset = [0.0] * 6
-        self._sensor_rng = random.Random(self.config.sensor_seed)
-        bias = self.config.force_bias_n
-        self._force_bias = [self._sensor_rng.uniform(-bias, bias) for _ in range(3)] + [0.0] * 3
-        self._force_noise = [0.0] * 6
+        """The true contact force on the tip (N); what the sensor reads of it is :meth:`sensed_force`."""
+        self._contact = SpecimenContact(phantom) if phantom is not None else None
+        self._sensor = ForceSensor(self.config.force_bias_n, self.config.sensor_seed)
         self._watchdog: tuple[str, int] | None = None
         self._input_tick: dict[str, int] = {}
         self.input_writes = 0  # input data packages applied so far
@@ -245,15 +234,15 @@ class UrController:
 
     def zero_ft_sensor(self) -> None:
         """URScript's zero_ftsensor(): the reading now (its noise included) becomes the zero."""
-        self._force_offset = list(self._raw_force())
+        self._sensor.zero(self.force)
 
     def _raw_force(self) -> tuple[float, ...]:
         """The sensor's reading before zeroing: the contact force, its bias and this cycle's noise."""
-        return tuple(f + b + n for f, b, n in zip(self.force, self._force_bias, self._force_noise, strict=True))
+        return self._sensor.raw(self.force)
 
     def sensed_force(self) -> tuple[float, ...]:
         """actual_TCP_force: what the sensor reads (``force`` is the true contact force)."""
-        return tuple(r - o for r, o in zip(self._raw_force(), self._force_offset, strict=True))
+        return self._sensor.sensed(self.force)
 
     def arm_faults(self, plan: FaultPlan | None) -> None:
         self.faults, self._fault_t0 = plan, None
@@ -375,60 +364,12 @@ class UrController:
         self.stream_paused_until = self.ticks + math.ceil(duration_s / TICK_S)
         self.log(f"RTDE streaming paused for {duration_s} s")
 
-    def _tissue_world(self) -> Any:
-        """models.world.TissueWorld over the phantom (None for a surface without tissue, or a spring sample)."""
-        if not self._world_made:
-            self._world_made = True
-            try:
-                from models.world import TissueWorld
-
-                self._world = TissueWorld(self.phantom)  # type: ignore[arg-type]
-            except (ImportError, ValueError, TypeError, AttributeError):
-                self._world = None
-        return self._world
-
-    def _contact_force(self, x: float, y: float, depth: float, r: float) -> float:
-        """Force (N) on the tip pressed depth mm into the specimen at (x, y), from the simulated world only.
-
-        The FE-grounded tissue world (models.world) within its tables; past them (deeper than min(r, 0.75 t), or a
-        layer thinner than the tables) the tissue has bottomed out on the rigid table under it, which pushes back
-        at BACKING_N_PER_MM. A spring sample is its spring. Nothing here is an estimator's formula.
-        """
-        phantom = self.phantom
-        if getattr(phantom, "is_spring_sample", False):  # a reference spring sample: its spring, linear
-            return float(phantom.spring_constant(x, y, r, depth)) * depth  # type: ignore[union-attr]
-        world = self._tissue_world()
-        if world is None:  # a surface without tissue (a test's plane): rigid
-            return BACKING_N_PER_MM * depth
-        # past the tables only (any other error is a bug and is raised); imported lazily, as in _tissue_world
-        from models.world import WorldRangeError
-
-        try:
-            f = float(world.force_n(x, y, depth, indenter_radius_mm=r))
-            return f if math.isfinite(f) else 0.0  # nan: off the footprint
-        except WorldRangeError:
-            pass
-        try:
-            deepest = float(world.deepest_mm(x, y, indenter_radius_mm=r))
-            base = float(world.force_n(x, y, deepest, indenter_radius_mm=r))
-        except WorldRangeError:  # a layer thinner than the tables: the table is right under the tip
-            deepest, base = 0.0, 0.0
-        return base + BACKING_N_PER_MM * max(0.0, depth - deepest)
-
     def _update_force(self) -> None:
-        sigma = self.config.force_noise_n
-        self._force_noise = [self._sensor_rng.gauss(0.0, sigma) if sigma > 0 else 0.0 for _ in range(3)] + [0.0] * 3
-        if self.phantom is None:
+        self._sensor.draw_noise(self.config.force_noise_n)
+        if self._contact is None:
             return
-        p, o, c = self.arm.pose, self.config.phantom_origin_mm, self.config
-        try:
-            surface = float(self.phantom.surface_z(p[0] - o[0], p[1] - o[1]))
-        except (ValueError, IndexError):
-            surface = math.nan  # outside the phantom
-        depth = surface - (p[2] - o[2]) if math.isfinite(surface) else 0.0
-        fz = 0.0
-        if depth > 0:
-            fz = self._contact_force(p[0] - o[0], p[1] - o[1], depth, c.tip_radius_mm)
+        c = self.config
+        fz = self._contact.press_force(self.arm.pose, c.phantom_origin_mm, c.tip_radius_mm)
         self.force = [0.0, 0.0, fz, 0.0, 0.0, 0.0]
         if fz > c.force_limit_n:
             self.protective_stop(f"contact force {fz:.1f} N exceeds the {c.force_limit_n:g} N limit")

@@ -9,7 +9,7 @@ one movel per waypoint); progress comes from the script's async progress registe
 thread polls the robot every ``poll_s`` and kicks an RTDE watchdog: if this process stalls or
 the link drops, the controller stops the program (and so the arm) within ``1/watchdog_hz`` s.
 The kicks are timed on the clock handed in (the node's), which is the controller's too: the wall
-for a robot, the graph's for an emulated controller stepped on it.
+for a robot, the graph's for an emulated controller stepped on it (nodes.drivers.rtde_watchdog).
 
 ``interfaces`` makes the two interfaces: ur_rtde's by default; emulators.ur.local's stand-ins run
 an emulated controller in process on the node's clock (no thread of theirs moves between calls,
@@ -20,7 +20,7 @@ a protective stop, a lost connection, or a control script that stopped under us 
 motion, and only ``connect()`` (called by the user) connects again. ur_rtde's control
 interface does try one reconnect of its own when its stream breaks; the receive interface
 does not, so the driver treats a dead receive stream as the loss of the robot whatever the
-control interface managed meanwhile.
+control interface managed meanwhile. Why a connect() failed is worded in nodes.drivers.rtde_errors.
 
 Beware: ur_rtde's Python calls hold the GIL while they block (connect ~50 ms, a path upload
 ~20-50 ms, disconnect 1 s); other threads of the process stall meanwhile.
@@ -40,13 +40,14 @@ from nodes.drivers.robot import (
     MotionStatus,
     PathPointLike,
     PathProgress,
-    RobotConnectionError,
     RobotDriverError,
     TcpState,
     Vec6,
     checked_path,
 )
+from nodes.drivers.rtde_errors import control_refused, in_protective_stop, unreachable
 from nodes.drivers.rtde_interfaces import RtdeInterfaces, UrRtde
+from nodes.drivers.rtde_watchdog import RtdeWatchdog
 
 __all__ = ["RtdeInterfaces", "URRtdeDriver"]
 
@@ -60,19 +61,6 @@ _RUNTIME_PLAYING = 2  # RTDE runtime_state
 _ARRIVED_MM = 0.01
 """A path whose every waypoint is this close to a TCP at rest (under 1 mm/s) goes nowhere: it is done without being
 sent (move_path)."""
-_WATCHDOG_LATENCY_S = 0.05
-"""The least slack granted between a kick's sending and its arrival when telling a watchdog stop (_stop_cause)."""
-_UNREACHABLE = ("connection refused", "timeout connecting", "timed out", "no route to host", "network is unreachable",
-                "connection reset", "host is unreachable")
-"""ur_rtde's words (its RuntimeError, or what it printed) for a controller that does not answer on a port: all it
-raises is RuntimeError, so only the text tells an unreachable robot from a refused script."""
-
-
-def _unreachable(host: str, ports: str, why: str, said: list[str]) -> RobotConnectionError:
-    """The one-line error of a robot that does not answer at ``host`` on ``ports``, with ur_rtde's own words."""
-    why = why + (f" ({said[0]})" if said and said[0] else "")
-    return RobotConnectionError(f"cannot reach the UR controller at {host} ({ports}): {why}. "
-                                "Check the network, the robot's IP and that it is powered on.")
 
 
 def _vec6(values: Sequence[float]) -> Vec6:
@@ -118,10 +106,7 @@ class URRtdeDriver:
         """When (clock ns) the current path was sent: its start is timed on the clock handed in (the node's), so
         that on a simulated clock a busy machine cannot fail a start that simulated time has not yet reached."""
         self._stop_requested = False
-        self._last_kick = 0
-        """When (clock ns) the watchdog was last kicked or armed."""
-        self._kick_gap = 0
-        """The longest time between two watchdog kicks since it was last armed (clock ns)."""
+        self._watchdog = RtdeWatchdog(watchdog_hz, clock)
         self._last = TcpState(0, (0.0,) * 6, (0.0,) * 6, (0.0,) * 6)  # stamp 0: never read
 
     # ------------------------------------------------------------ connection
@@ -136,26 +121,16 @@ class URRtdeDriver:
                 with native_stderr() as said:  # ur_rtde prints 'connect: Connection refused': into the one line
                     self._rr = self._interfaces.receive(self.host, self.frequency_hz, _RECEIVE_FIELDS)
             except RuntimeError as e:
-                raise _unreachable(self.host, "RTDE port 30004", str(e), said) from e
+                raise unreachable(self.host, "RTDE port 30004", str(e), said) from e
             if self._rr.isProtectiveStopped():
                 self._teardown_locked()
-                raise RobotConnectionError(
-                    f"the UR at {self.host} is in a protective stop: find the cause, unlock it on the teach pendant "
-                    "(or dashboard 'unlock protective stop'), then connect again")
+                raise in_protective_stop(self.host)
             try:
                 with native_stderr() as said:
                     self._rc = self._interfaces.control(self.host, self.frequency_hz)
             except RuntimeError as e:
                 self._teardown_locked()
-                text = str(e)
-                if any(word in f"{text} {said[0] if said else ''}".lower() for word in _UNREACHABLE):
-                    raise _unreachable(self.host, "control interface: RTDE 30004, dashboard 29999, script 30003",
-                                       text, said) from e
-                if "remote control" in text.lower():
-                    raise RobotConnectionError(
-                        f"the UR at {self.host} refuses remote control ({text}): on the teach pendant enable "
-                        "Settings > System > Remote Control, then switch the pendant from Local to Remote") from e
-                raise RobotConnectionError(f"cannot start ur_rtde's control script on the UR at {self.host}: {text}") from e
+                raise control_refused(self.host, str(e), said) from e
             self._set_watchdog()
             self._status, self._index, self._message = MotionStatus.IDLE, 0, ""
             self._moving = self._stop_requested = False
@@ -361,40 +336,16 @@ class URRtdeDriver:
             self._status, self._index = MotionStatus.DONE, self._count - 1
 
     def _kick(self, rc: Any) -> None:
-        """Kick the RTDE watchdog at four times the rate it asks for (a clock that stepped back kicks at once)."""
-        if self.watchdog_hz is None:
-            return
-        now = self._clock()
-        if not 0 <= now - self._last_kick < 0.25e9 / self.watchdog_hz:
-            self._kick_gap = max(self._kick_gap, now - self._last_kick)
-            rc.kickWatchdog()
-            self._last_kick = now
+        """Kick the RTDE watchdog if it is due (RtdeWatchdog.kick)."""
+        self._watchdog.kick(rc)
 
     def _set_watchdog(self) -> None:
-        if self.watchdog_hz is not None and self._rc is not None:
-            self._rc.setWatchdog(self.watchdog_hz)
-            self._last_kick = self._clock()
-            self._kick_gap = 0
+        if self._rc is not None:
+            self._watchdog.arm(self._rc)
 
     def _stop_cause(self, now: int | None = None) -> str:
-        """Why the program may have stopped: whether this driver let the watchdog starve (its longest gap between
-        kicks since the watchdog was armed: a stalled process or link) or kept it fed (the pendant, the dashboard,
-        another client)."""
-        if self.watchdog_hz is None:
-            return "stopped from the pendant or dashboard; no RTDE watchdog was set"
-        # the controller times its watchdog on its own clock, which the clock handed in follows (the wall for a
-        # robot): so are the kicks, here and in _kick
-        now = self._clock() if now is None else now
-        gap, allowed = max(self._kick_gap, now - self._last_kick) / 1e9, 1.0 / self.watchdog_hz
-        # the controller times a kick from its arrival, this driver from its sending: a kick that left on time can
-        # arrive late over a busy link or to a busy controller, so a gap this near the limit may have starved it
-        near = max(_WATCHDOG_LATENCY_S, 0.1 * allowed)
-        if gap > allowed - near:
-            over = "over" if gap > allowed else f"within {near:.2g} s of"
-            return (f"RTDE watchdog: this driver did not kick it for {gap:.2f} s, {over} the {allowed:.2g} s it "
-                    "allows: this process stalled (CPU starved, or a blocking call) or the link did")
-        return (f"not the RTDE watchdog: this driver kicked it at least every {gap:.2f} s (it allows {allowed:.2g} s); "
-                "stopped from the pendant or dashboard, or by another client")
+        """Why the program may have stopped: the watchdog starved or not (RtdeWatchdog.stop_cause)."""
+        return self._watchdog.stop_cause(now)
 
     def _monitor_loop(self) -> None:
         while not self._halt.wait(self.poll_s):

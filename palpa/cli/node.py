@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from palpa.cli.common import add_bus_arg
-from palpa.cli.topic import WAIT_HELP, WAIT_S, collect_heartbeats, tool_node
+from palpa.cli.heard import WAIT_HELP, WAIT_S, collect_heartbeats, tool_node
 from palpa.errors import PalpaError
 from palpa.launch.validate import did_you_mean
 from palpa.runtime_msgs import Heartbeat

@@ -11,8 +11,8 @@ from typing import Any
 import yaml
 
 from palpa.cli.common import add_bus_arg
+from palpa.cli.heard import WAIT_HELP, WAIT_S, collect_heartbeats, tool_node
 from palpa.cli.service import call_service
-from palpa.cli.topic import WAIT_HELP, WAIT_S, collect_heartbeats, tool_node
 from palpa.errors import PalpaError
 from palpa.launch.validate import did_you_mean
 from palpa.message import Message

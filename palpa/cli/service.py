@@ -10,7 +10,7 @@ import msgspec
 import yaml
 
 from palpa.cli.common import add_bus_arg, message_from_yaml
-from palpa.cli.topic import collect_heartbeats, tool_node
+from palpa.cli.heard import collect_heartbeats, tool_node
 from palpa.errors import DecodeError, PalpaError
 from palpa.message import Message, lookup
 from palpa.net.wire import decode_any

@@ -16,16 +16,16 @@ graph whose time stood still for its clock's ``frozen_after_s`` (wall seconds) i
 stopped by Ctrl-C while its time stood still (palpa.launch.clockwatch).
 
 This module decides (when to spawn, respawn, stop, escalate, end the launch); palpa.launch.nodeproc keeps each
-node's record, reads its output and carries out its staged stop, palpa.launch.respawn is the respawn policy,
-palpa.launch.observer the launcher's own node on the bus (heartbeats, progress, the clock's ticks),
-palpa.launch.signals brings the signals into the loop, palpa.launch.summary words the outcomes and makes the exit
-code.
+node's record, reads its output and carries out its staged stop, palpa.launch.spawn starts a node's process (its
+environment, its start gate), palpa.launch.exits answers a node's end (its outcome, a respawn, a stop of the
+launch), palpa.launch.respawn is the respawn policy, palpa.launch.observer the launcher's own node on the bus
+(heartbeats, progress, the clock's ticks), palpa.launch.signals brings the signals into the loop,
+palpa.launch.summary words the outcomes and makes the exit code.
 """
 
 from __future__ import annotations
 
 import contextlib
-import os
 import secrets
 import selectors
 import signal
@@ -35,12 +35,11 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
-from palpa import env as palpa_env
 from palpa.atomic import write_beside
 from palpa.current import announce, withdraw
 from palpa.errors import LaunchError
 from palpa.launch.clockwatch import ClockWatch
-from palpa.launch.compose import CLOCK_TARGET
+from palpa.launch.exits import ended_by_itself, ended_when_asked
 from palpa.launch.nodeproc import NodeProc
 from palpa.launch.observer import Observer
 from palpa.launch.output import Screen
@@ -48,13 +47,12 @@ from palpa.launch.plan import RECORDER_NAME, LaunchPlan, NodeSpec
 from palpa.launch.prepare import Prepare
 from palpa.launch.process import Child
 from palpa.launch.reaper import Reaper
-from palpa.launch.respawn import next_respawn
 from palpa.launch.signals import SignalInbox
+from palpa.launch.spawn import child_env, start_child
 from palpa.launch.summary import exit_text, report_hidden, summarize
 from palpa.net.address import BusAddress
 from palpa.net.bus import Bus
-from palpa.startgate import open_gate, release
-from palpa.timing.acksign import node_key
+from palpa.startgate import release
 
 __all__ = ["Supervisor", "exit_text"]
 
@@ -285,12 +283,8 @@ class Supervisor:
     def child_env(self, spec: NodeSpec) -> dict[str, str]:
         """The environment ``spec``'s process starts with (:meth:`NodeSpec.child_env`) and its key to sign its
         clock acks; the clock entry also gets the run's master key, to check them (palpa.timing.acksign)."""
-        env = spec.child_env(dict(os.environ), bus=self.address, run_dir=self.plan.run_dir,
-                             python_path=self.plan.python_path)
-        env[palpa_env.CLOCK_KEY] = node_key(self._clock_master, spec.name).hex()
-        if spec.target == CLOCK_TARGET:
-            env[palpa_env.CLOCK_MASTER_KEY] = self._clock_master.hex()
-        return env
+        return child_env(spec, bus=self.address, run_dir=self.plan.run_dir, python_path=self.plan.python_path,
+                         clock_master=self._clock_master)
 
     def _spawn(self, p: NodeProc, gated: bool = False) -> None:
         spec = p.spec
@@ -299,23 +293,14 @@ class Supervisor:
         p.starts += 1
         p.started_at = time.monotonic()
         p.buf = b""
-        r = w = -1
-        if gated:
-            r, w = open_gate()
-            env[palpa_env.START_GATE] = str(r)
         try:
-            p.child = Child(argv, env, pass_fds=(r,) if gated else ())
+            p.child, w = start_child(argv, env, gated=gated)
         except OSError as exc:
-            if gated:
-                os.close(w)
             p.child = None
             self._screen.say(f"cannot start {spec.name}: {argv[0]}: {exc.strerror or exc}", "ERROR")
             p.state = "running"
             self._after_exit(p, 127)
             return
-        finally:
-            if gated:
-                os.close(r)
         if gated:
             self._gates.append(w)
         p.state = "running"
@@ -340,13 +325,7 @@ class Supervisor:
         code = child.returncode
         p.log.write(f"[launch] pid {child.pid} ended: {exit_text(code)}\n")
         if p.state == "stopping":
-            p.state = "done"
-            p.outcome = {1: "stopped on SIGINT", 2: "needed SIGTERM", 3: "needed SIGKILL"}[p.stage]
-            if 0 < code < 128:  # it stopped when asked, but reports that its work failed (an incomplete map);
-                # 128+N is the signal's own exit status (stopped before its handler was in place), not a report
-                p.failed, p.why = True, p.last_error()
-                p.outcome += f", reporting failure ({exit_text(code)})"
-            self._screen.say(f"{p.spec.name} {p.outcome} ({exit_text(code)})", "WARNING" if p.escalated else "INFO")
+            ended_when_asked(p, code, self._screen)
             return
         if self._stopping:
             p.state, p.outcome = "done", f"exited while stopping ({exit_text(code)})"
@@ -360,44 +339,13 @@ class Supervisor:
             child.close_exit_fd()
 
     def _after_exit(self, p: NodeProc, code: int) -> None:
-        """A node ended on its own: respawn it (if it failed and asks for it), end the launch (required), or
-        carry on without it (the respawn policy: palpa.launch.respawn)."""
-        spec, now = p.spec, time.monotonic()
-        delay = next_respawn(p, code, now)
-        retries = spec.respawn_max_retries
-        if code != 0 and (spec.output == "log" or self._screen.view is not None):
-            for line in p.tail:  # what it said last, since its lines were not on screen
-                self._screen.show(f"[{spec.name}] {line}", loud=True)
-        if delay is not None:
-            p.state, p.respawn_at = "backoff", now + delay
-            p.outcome = f"{exit_text(code)}; respawning"
-            of = f"{p.failures}/{retries}" if retries >= 0 else f"{p.failures}"
-            self._screen.say(f"{spec.name} ended ({exit_text(code)}); respawning in {delay:.2f} s (retry {of})",
-                      "WARNING")
-            return
-        p.state = "done"
-        p.failed = code != 0
-        p.why = p.last_error() if p.failed else ""
-        gave_up = spec.respawn and code != 0
-        if gave_up:
-            p.outcome = f"gave up after {p.failures} retries (last: {exit_text(code)})"
-            self._screen.say(f"{spec.name}: giving up after {p.failures} retries (last: {exit_text(code)})", "ERROR")
-        else:
-            p.outcome = f"ended by itself ({exit_text(code)})"
-        if spec.required:
-            status = 128 - code if code < 0 else code
-            self._request_stop(f"required node {spec.name} ended ({exit_text(code)})", status)
-        elif p is self._recorder:
-            self._screen.say(f"the recorder ended ({exit_text(code)}): the recording is incomplete", "ERROR")
-            p.failed = True
-            if self.plan.record is not None and self.plan.record.required:
-                self._request_stop(f"the recorder ended ({exit_text(code)}); record.required: the rest of the "
-                                   "run would go unrecorded", 1)
-        elif not gave_up:
-            level = "INFO" if code == 0 else "WARNING"
-            self._screen.say(f"{spec.name} ended ({exit_text(code)}); it is not required, the graph keeps "
-                             "running", level)
-        self._check_all_exited()
+        """A node ended on its own: respawn it, end the launch, or carry on without it (palpa.launch.exits)."""
+        record_required = self.plan.record is not None and self.plan.record.required
+        stop = ended_by_itself(p, code, self._screen, recorder=p is self._recorder, record_required=record_required)
+        if stop is not None:
+            self._request_stop(*stop)
+        if p.state != "backoff":  # a respawn is pending: the node has not ended for good
+            self._check_all_exited()
 
     def _check_all_exited(self) -> None:
         if self._all_started and not self._stopping and all(p.state == "done" for p in self._procs):
