@@ -176,10 +176,11 @@ WORLD = ("models.world", "models.airfloat_device", "models.camera_world", "model
          "nodes.drivers.robot_sim", "emulators")
 # models.fibre_calibration is not among them: it is the DAQ's own counts <-> mm curve, which the emulated DAQ
 # encodes with as the real one does (fibre_sim's world adds the sensor's gain and bow errors on top)
-ESTIMATORS = {"models.contact", "models.multi_indenter_solve", "models.stiffness_map", "models.detector",
-              "models.calibration_airfloat",
+ESTIMATORS = {"models.contact", "models.multi_indenter_solve", "models.multi_indenter_batch", "models.stiffness_map",
+              "models.detector", "models.false_alarm", "models.background", "models.peaks", "models.calibration_airfloat",
               "models.camera_calibration", "models.tracker", "models.kalman",
-              "models.adaptive", "models.scoring", "nodes.probe.stiffness_estimator", "nodes.probe.estimator_multi",
+              "models.adaptive", "models.adaptive_detect", "models.adaptive_budget", "models.adaptive_cover",
+              "models.adaptive_split", "models.scoring", "nodes.probe.stiffness_estimator", "nodes.probe.estimator_multi",
               "nodes.mapping.map_aggregator"}
 AIRFLOAT_GEOMETRY = {"DEFAULT_INDENTER_RADIUS_MM", "DEFAULT_SPS_RADIUS_MM", "heights_over_phantom"}
 
