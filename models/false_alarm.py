@@ -36,19 +36,22 @@ CAMERA_REFERENCE_AREA_MM2 = 2112.0
 """The valid area of the blank camera maps it was fitted on (their 4 mm grid of presses over a 60 mm specimen)."""
 # the adaptive planner's maps (air-float): fitted by bench/detector_calibration.py --planner on 40 blank adaptive
 # scans (the same sheet and dome, seeds 0-19; runs of 28 Nov 2026, BENCHMARKS.md "The planner's own false-alarm law")
-ADAPTIVE_GUMBEL_LOC = 2.683
+ADAPTIVE_GUMBEL_LOC = 2.654
 """Location (σ) of the Gumbel law of a blank adaptive map's largest significance, at
-:data:`ADAPTIVE_REFERENCE_AREA_MM2`."""
-ADAPTIVE_GUMBEL_SCALE = 0.640
-"""Scale (σ) of that Gumbel law: twice a whole map's, its tail heavier (a partial map's background and noise come from
-a sparse lattice, the GP's mean fills the cells between)."""
+:data:`ADAPTIVE_REFERENCE_AREA_MM2`: the planner's maps as ``launch/scan_adaptive_sim.yaml`` makes them, eq. 7's
+thickness measured by the probe at every sample (``bench/detector_calibration.py --planner``, BENCHMARKS.md)."""
+ADAPTIVE_GUMBEL_SCALE = 0.328
+"""Scale (σ) of that Gumbel law, as a whole map's (0.344). With the thickness read from a measured-geometry file
+(its calliper's 0.2 mm errors on a 5 mm grid, interpolated) the same blank scans gave 2.683 and 0.640: a heavy tail,
+the dome's thin edge read as an inclusion at 6.7-7.7 σ on two maps of forty."""
 ADAPTIVE_REFERENCE_AREA_MM2 = 2080.0
 """The valid area of the blank adaptive maps it was fitted on."""
 PARTIAL_MAP_LAWS: dict[str, tuple[float, float, float]] = {
     "airfloat": (ADAPTIVE_GUMBEL_LOC, ADAPTIVE_GUMBEL_SCALE, ADAPTIVE_REFERENCE_AREA_MM2),
 }
-"""The false-alarm law of an adaptive planner's maps, by probe (models.adaptive_detect.detector_config): detected with
-a whole map's law, the planner's blank maps showed a detection in 4 of 40 where 0.3 % was stated."""
+"""The false-alarm law of an adaptive planner's maps, by probe (models.adaptive_detect.detector_config), measured on its
+own blank maps (a partial map's background and noise come from a sparse lattice, the GP's mean fills the cells
+between)."""
 FALSE_ALARM_LAWS: dict[str, tuple[float, float, float]] = {
     "airfloat": (GUMBEL_LOC, GUMBEL_SCALE, REFERENCE_AREA_MM2),
     "multi_indenter": (CAMERA_GUMBEL_LOC, CAMERA_GUMBEL_SCALE, CAMERA_REFERENCE_AREA_MM2),
