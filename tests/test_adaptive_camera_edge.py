@@ -111,3 +111,61 @@ def test_lse_cells_of_a_press_given_up_do_not_hold_the_stop(tmp_path: Path) -> N
     stop, why = p._decide()
     assert stop and why.startswith("map classified"), why
     h.close()
+
+
+def test_the_camera_sim_launch_plans_on_the_detection_rule_with_the_presses_reach() -> None:
+    """BENCHMARKS.md, "Camera probe": the detection rule with a 3 mm reach found 16 of 16 (the raster 13) where LSE
+    found 9-10 of 11 on its budget; the air-float sweeps' 4 mm reach missed 2."""
+    from palpa.launch import load_launch
+    from tests.procs import REPO
+
+    launch = load_launch(REPO / "launch" / "scan_adaptive_camera_sim.yaml", {}, run_dir=Path("runs") / "unused")
+    planner = next(n for n in launch.nodes if n.name == "planner")
+    assert planner.params["stop_rule"] == "detect" and planner.params["reach_mm"] == 3.0
+
+
+def test_the_detection_rule_plans_presses_and_stops_by_itself(tmp_path: Path) -> None:
+    """Presses (no sweep, so no covering lattice nor coarse pass) on the detection rule: a seed grid, covering and
+    resolving presses, then the stop on detection, before the budget, with the inclusion found where it is. The
+    scanner is played by the test: each press answered with the tissue's value at the point."""
+    import json
+    import math
+
+    import palpa
+    from messages import ProbeAt, ProbeResult, ScanStatus, StiffnessSample
+    from nodes.scanner.adaptive_planner import AdaptivePlanner
+    from palpa.testing import GraphHarness
+
+    g = GraphHarness()
+    planner = g.add(AdaptivePlanner, {"region_mm": [0.0, 0.0, 32.0, 32.0], "mode": "indent", "stop_rule": "detect",
+                                      "resolution_mm": 4.0, "radius_mm": 2.0, "seed_spacing_mm": 16.0,
+                                      "reach_mm": 3.0, "max_probes": 60, "output_dir": str(tmp_path)}, name="planner")
+    scanner = g.add(palpa.Node, name="scanner")
+    status = scanner.publisher("robot/scan_status", ScanStatus, latched=True)
+    status.publish(ScanStatus(stamp_ns=g.clock.now_ns(), state="idle", line=0, lines=0, progress=0.0, eta_s=0.0))
+    samples = scanner.publisher("stiffness/sample", StiffnessSample)
+    asked: list[tuple[float, float]] = []
+
+    def probe_at(req: ProbeAt) -> ProbeResult:
+        asked.append((req.x_mm, req.y_mm))
+        d2 = (req.x_mm - 13.0) ** 2 + (req.y_mm - 19.0) ** 2
+        value = 0.15 * (1.0 + 2.0 * math.exp(-d2 / 20.0)) * (1.0 + 0.01 * math.sin(7.0 * len(asked)))
+        for _ in range(5):
+            samples.publish(StiffnessSample(stamp_ns=g.clock.now_ns(), model="multi_indenter", x_mm=req.x_mm,
+                                            y_mm=req.y_mm, z_mm=4.0, value=value, unit="N/mm", valid=True))
+        return ProbeResult(x_mm=req.x_mm, y_mm=req.y_mm, value=value, unit="N/mm", samples=5, mad=0.0,
+                           duration_s=1.0)
+
+    scanner.service("scanner/probe_at", ProbeAt, ProbeResult, probe_at)
+    for _ in range(8000):
+        if planner.done:
+            break
+        g.advance(0.05)
+    assert planner.done
+    g.close()
+    report = json.loads((tmp_path / "planner.json").read_text())
+    assert report["stop"].startswith("found:"), report["stop"]
+    assert report["probes"] < 60 and report["refused"] == 0
+    assert "resolving a candidate" in report["why"] and "covering" in report["why"]
+    found = json.loads((tmp_path / "inclusions.json").read_text())
+    assert len(found) == 1 and math.dist((found[0]["x_mm"], found[0]["y_mm"]), (13.0, 19.0)) < 3.0, found
