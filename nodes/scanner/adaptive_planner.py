@@ -4,7 +4,10 @@ Drives the scanner through ``scanner/probe_at`` (the scanner on ``autostart: fal
 the non-blocking call form: the reply arrives in a callback, the node keeps running meanwhile. The scanner checks
 every request against its workspace box, speed caps and watchdog; a refused request is logged, the point is
 retried up to ``retries`` times (the scanner may be busy or still waiting for probe data) and then given up, and
-the planner carries on with the next best point.
+the planner carries on with the next best point; the cells a point given up would have measured count as covered
+(detect) or resolved (lse), so that tissue the probe cannot answer from holds no stop rule. Presses (``mode:
+indent``) with ``tip_circle_mm`` go only where every tip of the camera probe lands on the measured footprint
+(models.adaptive_edge): a tip off the specimen leaves no valid estimate.
 
 What it learns from: every valid ``stiffness/sample`` its probes measured (nodes.scanner.probe_samples), binned
 into the belief grid (the per-cell median, as the map aggregator's), so a sweep teaches it the cells it crossed,
@@ -61,8 +64,10 @@ from models.adaptive_detect import (
     decide,
     detect_candidates,
     detector_config,
+    swept_cells,
     unsensed,
 )
+from models.adaptive_edge import press_region, probe_tips
 from models.adaptive_route import coarse_pass
 from models.detector import Detection, detect, peak_significance
 from models.geometry import GeometryError, load_geometry
@@ -151,16 +156,32 @@ class AdaptivePlanner(palpa.Node):
         self.timer(0.05, self.step)
 
     def _region(self) -> tuple[float, float, float, float]:
+        """The region the planner presses or sweeps in: ``region_mm``, else the measured footprint less
+        ``edge_margin_mm``; for presses with ``tip_circle_mm``, cut to where every tip lands on the footprint
+        (models.adaptive_edge: elsewhere no estimate is valid)."""
         p = self.params
+        footprint = load_geometry(p.geometry).footprint_mm() if p.geometry else None
         if p.region_mm:
             if len(p.region_mm) != 4:
                 raise ValueError(f"region_mm needs x0, y0, x1, y1, got {p.region_mm}")
             x0, y0, x1, y1 = (float(v) for v in p.region_mm)
-            return x0, y0, x1, y1
-        footprint = load_geometry(p.geometry).footprint_mm() if p.geometry else None
-        if footprint is None:
+            region = x0, y0, x1, y1
+        elif footprint is None:
             raise ValueError("no region: give region_mm, or a geometry file with the specimen's footprint")
-        return region_in_footprint(footprint, p.edge_margin_mm)
+        else:
+            region = region_in_footprint(footprint, p.edge_margin_mm)
+        if p.mode != "indent" or p.tip_circle_mm <= 0:
+            return region
+        if footprint is None:
+            self.log.warning("tip_circle_mm without a footprint (geometry): presses at the region's edge may have a "
+                             "tip off the specimen and no valid estimate")
+            return region
+        cut = press_region(region, footprint, probe_tips(p.tip_circle_mm), p.tip_margin_mm)
+        if cut != region:
+            self.log.info("pressing in x %.1f..%.1f, y %.1f..%.1f mm, not x %.1f..%.1f, y %.1f..%.1f: there every tip "
+                          "lands %.1f mm inside the measured footprint (models.adaptive_edge)",
+                          cut[0], cut[2], cut[1], cut[3], region[0], region[2], region[1], region[3], p.tip_margin_mm)
+        return cut
 
     def on_status(self, s: ScanStatus) -> None:
         self.scanner_state = s.state
@@ -259,7 +280,9 @@ class AdaptivePlanner(palpa.Node):
             if not d.stop and d.point is not None:
                 self.queue.append((d.point, d.blind, d.kind))
             return d.stop, d.why
-        observed = snap.count >= self.params.min_count
+        # the edge rule (as the detect rule's): the cells of a point given up count as resolved, or LSE would hold
+        # its stop for tissue the probe cannot answer from and ask for the next press beside it
+        observed = swept_cells(snap.count >= self.params.min_count, snap.x_mm, snap.y_mm, self.given_up, self.cfg)
         stop, why = should_stop(b, len(self.probed), self.cfg, observed)
         if not stop:
             self.queue.append((next_probe(b, self.probed + self.given_up, self.cfg, observed), False, "straddle"))

@@ -19,6 +19,12 @@ class PlannerParams(palpa.Params):
     geometry: str = ""
     """Measured-geometry file (models.geometry), for the footprint when no region is given."""
     edge_margin_mm: float = 6.0
+    tip_circle_mm: float = 0.0
+    """indent, > 0: the camera probe's soft tips lie on a circle of this radius (models.multi_indenter.ProbeGeometry.
+    paper); the planner presses only where every tip lands ``tip_margin_mm`` inside the measured footprint
+    (``geometry``), since a press with a tip off the specimen has no valid estimate (models.adaptive_edge)."""
+    tip_margin_mm: float = 1.0
+    """indent: how far inside the measured footprint's edge every tip must land (its edges' error is 0.2-0.5 mm)."""
     resolution_mm: float = 2.0
     initial: int = 4
     """An initial x initial grid of probes first (unless seed_spacing_mm)."""
