@@ -30,14 +30,14 @@ from typing import Any, Protocol
 import palpa
 from messages import ProbeAt, ProbeResult, StiffnessSample, Trigger, TriggerResult
 from models.following import is_slide
-from models.raster import RasterPlan, Waypoint, indent_raster, sweep_raster
+from models.raster import RasterPlan, Surface, Waypoint, indent_raster, sweep_raster
 from nodes.drivers.robot import RobotDriver
 from nodes.scanner.scanner_params import ScannerParams
 from nodes.scanner.specimen import SpecimenPlanner
 from nodes.scanner.states import FINAL, Event, State
 from palpa.node.service import RequestRefused, Responder, Service
 
-__all__ = ["ControlledScanner", "ScanControl", "ScannerCore", "lift_first", "measuring_moves"]
+__all__ = ["ControlledScanner", "ScanControl", "ScannerCore", "lift_first", "measuring_moves", "sweep_ends"]
 
 _LIFT_TOLERANCE_MM = 0.5
 """An arm this much below a probe's first waypoint is lifted straight up to it first (:func:`lift_first`)."""
@@ -141,18 +141,15 @@ class ScanControl:
         half = req.length_mm / 2
         ends = (req.x_mm, req.y_mm - half, req.x_mm, req.y_mm + half) if p.axis == "y" else \
             (req.x_mm - half, req.y_mm, req.x_mm + half, req.y_mm)
-        # a sweep starts from the end of its line nearer the arm: a planner going down a column of short sweeps
-        # would otherwise travel past each line to come back up it (a line is read alike both ways, as a raster's)
-        here = self.node.driver.state().pose[:2]
-        if math.dist(here, ends[2:]) < math.dist(here, ends[:2]):
-            ends = (*ends[2:], *ends[:2])
+        spec = self.node.specimen
+        surface = spec.surface if req.mode == p.mode else None
+        if req.mode == "sweep":
+            ends = sweep_ends(ends, self.node.driver.state().pose[:2], surface, p.sweep_climb_mm)
         common: dict[str, Any] = dict(spacing_mm=p.spacing_mm, axis=p.axis, accel_mm_s2=p.accel_mm_s2,
                       approach_clearance_mm=p.approach_clearance_mm, retract_clearance_mm=p.retract_clearance_mm,
                       transit_speed_mm_s=p.transit_speed_mm_s)
         # over the surface the touch-off found (when one ran), as the scan's own lines would be (SpecimenPlanner.
         # plan_heights: a sweep at the working offset above it, a press from it); flat contact_z_mm otherwise
-        spec = self.node.specimen
-        surface = spec.surface if req.mode == p.mode else None
         if req.mode == "sweep":
             return sweep_raster(*ends, contact_z_mm=p.working_offset_mm if surface else p.contact_z_mm,
                                 surface=surface, speed_mm_s=p.speed_mm_s, approach_speed_mm_s=p.approach_speed_mm_s,
@@ -282,6 +279,20 @@ class ScanControl:
             what = "scanning" if status in (State.SCAN_PAUSED, State.SCAN_HELD) else status.wire
             node.halt(Event.ABORT, "scan aborted by scanner/abort")
         return TriggerResult(message=f"aborted ({what})", state=node.status.wire)
+
+
+def sweep_ends(ends: tuple[float, float, float, float], here: Sequence[float], surface: Surface | None,
+               climb_mm: float) -> tuple[float, float, float, float]:
+    """A probe's sweep line ``ends`` (x0, y0, x1, y1) in the order it is swept: up the ``surface`` when the line
+    rises by more than ``climb_mm`` (the air-float indenter's bore friction reads a thinning layer softer than a
+    thickening one: ScannerParams.sweep_climb_mm), else from the end nearer the arm at ``here`` (x, y), so that a
+    planner going down a column of short sweeps does not travel past each line to come back up it."""
+    a, b = ends[:2], ends[2:]
+    if surface is not None:
+        rise = surface(*b) - surface(*a)
+        if abs(rise) > climb_mm:
+            return ends if rise > 0 else (*b, *a)
+    return (*b, *a) if math.dist(here, b) < math.dist(here, a) else ends
 
 
 def lift_first(plan: RasterPlan, at: Sequence[float]) -> RasterPlan:

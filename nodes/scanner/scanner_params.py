@@ -61,6 +61,14 @@ class ScannerParams(palpa.Params):
     """Sweep: speed along a line. Indent: press and lift speed."""
     axis: Literal["x", "y"] = "y"
     """Lines run parallel to this axis (the paper's Fig. 12 scan: y)."""
+    sweep_climb_mm: palpa.NonNegative = 0.05
+    """``scanner/probe_at``: a sweep whose line rises by more than this over the found surface starts at its lower
+    end and climbs; a flatter one starts at the end nearer the arm. The air-float indenter's bore friction holds it
+    on the extending side of its play while the layer under it thickens (as it lands), and pushes it to the other
+    side while it thins: on the 4-2 mm dome a descending sweep read 9-10 % softer than a climbing one (BENCHMARKS.md,
+    "The planner's own false-alarm law"), so a lattice of short sweeps taken both ways made 7 σ bumps on blank maps
+    (nodes.scanner.scan_control.sweep_ends). A raster's serpentine lines still alternate (they average out in its
+    dense map)."""
     contact_z_mm: float = 5.0
     """Probe face height while sweeping (sweep), or the surface height pressed from (indent)."""
     indent_depth_mm: palpa.Positive = 3.0
