@@ -101,8 +101,10 @@ def detector_config(cfg: PlannerConfig, suspect: bool = False) -> DetectorConfig
     """The map detector's settings the planner detects with (the raster's own, its false-alarm rate the planner's;
     ``suspect``: at ``cfg.suspect_false_alarm``, the bar a region must pass to be worth resolving)."""
     rate = cfg.suspect_false_alarm if suspect else cfg.false_alarm_per_map
-    # the planner's maps are partial: the law of its own blank maps where one was measured
-    return with_law_of(DetectorConfig(false_alarm_per_map=rate), cfg.model, partial=True)
+    # the planner's maps are partial: the law of its own blank maps where one was measured, a budgeted planner's own
+    # (its sparser maps keep suspects it could not afford to resolve: a heavier tail)
+    return with_law_of(DetectorConfig(false_alarm_per_map=rate), cfg.model, partial=True,
+                       budget=cfg.budget_fraction > 0)
 
 
 def candidate_map(belief: Belief, measured: FloatArray, counts: npt.NDArray[np.int64],

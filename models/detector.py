@@ -168,11 +168,11 @@ class Detection:
     """The map's valid area (the false-alarm law's)."""
 
 
-def with_law_of(cfg: DetectorConfig, model: str, *, partial: bool = False) -> DetectorConfig:
-    """``cfg`` with the false-alarm law measured for ``model``'s probe (:func:`false_alarm_law`, ``partial`` as
-    there); ``cfg`` as it is for a probe no law was measured for (the caller says so: its stated false-alarm rate is
-    then not that map's)."""
-    law = false_alarm_law(model, partial=partial)
+def with_law_of(cfg: DetectorConfig, model: str, *, partial: bool = False, budget: bool = False) -> DetectorConfig:
+    """``cfg`` with the false-alarm law measured for ``model``'s probe (:func:`false_alarm_law`, ``partial`` and
+    ``budget`` as there); ``cfg`` as it is for a probe no law was measured for (the caller says so: its stated
+    false-alarm rate is then not that map's)."""
+    law = false_alarm_law(model, partial=partial, budget=budget)
     return cfg if law is None else replace(cfg, gumbel=law)
 
 

@@ -12,9 +12,10 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["ADAPTIVE_GUMBEL_LOC", "ADAPTIVE_GUMBEL_SCALE", "ADAPTIVE_REFERENCE_AREA_MM2", "CAMERA_GUMBEL_LOC",
-           "CAMERA_GUMBEL_SCALE", "CAMERA_REFERENCE_AREA_MM2", "FALSE_ALARM_LAWS", "GUMBEL_LOC", "GUMBEL_SCALE",
-           "PARTIAL_MAP_LAWS", "REFERENCE_AREA_MM2", "false_alarm_law", "fit_false_alarm_law"]
+__all__ = ["ADAPTIVE_GUMBEL_LOC", "ADAPTIVE_GUMBEL_SCALE", "ADAPTIVE_REFERENCE_AREA_MM2", "BUDGET_GUMBEL_LOC",
+           "BUDGET_GUMBEL_SCALE", "CAMERA_GUMBEL_LOC", "CAMERA_GUMBEL_SCALE", "CAMERA_REFERENCE_AREA_MM2",
+           "FALSE_ALARM_LAWS", "GUMBEL_LOC", "GUMBEL_SCALE", "PARTIAL_MAP_LAWS", "REFERENCE_AREA_MM2",
+           "false_alarm_law", "fit_false_alarm_law"]
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -35,23 +36,31 @@ CAMERA_GUMBEL_SCALE = 0.321
 CAMERA_REFERENCE_AREA_MM2 = 2112.0
 """The valid area of the blank camera maps it was fitted on (their 4 mm grid of presses over a 60 mm specimen)."""
 # the adaptive planner's maps (air-float): fitted by bench/detector_calibration.py --planner on 40 blank adaptive
-# scans (the same sheet and dome, seeds 0-19; runs of 28 Nov 2026, BENCHMARKS.md "The planner's own false-alarm law")
-ADAPTIVE_GUMBEL_LOC = 2.654
+# scans (the same sheet and dome, seeds 0-19; runs of 29 Nov 2026, BENCHMARKS.md "The planner's own false-alarm law")
+ADAPTIVE_GUMBEL_LOC = 2.483
 """Location (σ) of the Gumbel law of a blank adaptive map's largest significance, at
-:data:`ADAPTIVE_REFERENCE_AREA_MM2`: the planner's maps as ``launch/scan_adaptive_sim.yaml`` makes them, eq. 7's
-thickness measured by the probe at every sample (``bench/detector_calibration.py --planner``, BENCHMARKS.md)."""
-ADAPTIVE_GUMBEL_SCALE = 0.328
-"""Scale (σ) of that Gumbel law, as a whole map's (0.344). With the thickness read from a measured-geometry file
-(its calliper's 0.2 mm errors on a 5 mm grid, interpolated) the same blank scans gave 2.683 and 0.640: a heavy tail,
-the dome's thin edge read as an inclusion at 6.7-7.7 σ on two maps of forty."""
+:data:`ADAPTIVE_REFERENCE_AREA_MM2`: the planner's maps as ``launch/scan_adaptive_sim.yaml`` makes them (eq. 7's
+thickness measured by the probe at every sample, every sweep on a slope climbing: nodes.scanner.scan_control)."""
+ADAPTIVE_GUMBEL_SCALE = 0.303
+"""Scale (σ) of that Gumbel law, about a whole map's (0.344). With the thickness read from a measured-geometry file
+(its calliper's 0.2 mm errors on a 5 mm grid, interpolated) and sweeps taken both ways on the dome, the same blank
+scans gave 2.683 and 0.640: a heavy tail, the dome's thin edge read as an inclusion at 6.7-7.7 σ on two maps of
+forty."""
 ADAPTIVE_REFERENCE_AREA_MM2 = 2080.0
 """The valid area of the blank adaptive maps it was fitted on."""
+BUDGET_GUMBEL_LOC = 3.203
+"""Location (σ) of the law of a *budgeted* planner's blank maps (``budget_fraction`` 0.2 of the raster's probes,
+models.adaptive_budget), at :data:`ADAPTIVE_REFERENCE_AREA_MM2`: with its budget spent on the coarse pass, the
+suspects it cannot afford to resolve stay on a sparse map (6 of the 40 blank maps over the default planner's bar)."""
+BUDGET_GUMBEL_SCALE = 0.703
+"""Scale (σ) of that law: twice the default planner's."""
 PARTIAL_MAP_LAWS: dict[str, tuple[float, float, float]] = {
     "airfloat": (ADAPTIVE_GUMBEL_LOC, ADAPTIVE_GUMBEL_SCALE, ADAPTIVE_REFERENCE_AREA_MM2),
+    "airfloat+budget": (BUDGET_GUMBEL_LOC, BUDGET_GUMBEL_SCALE, ADAPTIVE_REFERENCE_AREA_MM2),
 }
 """The false-alarm law of an adaptive planner's maps, by probe (models.adaptive_detect.detector_config), measured on its
 own blank maps (a partial map's background and noise come from a sparse lattice, the GP's mean fills the cells
-between)."""
+between); ``MODEL+budget``: a planner held to a probe budget (measured at 0.2 of the raster's probes)."""
 FALSE_ALARM_LAWS: dict[str, tuple[float, float, float]] = {
     "airfloat": (GUMBEL_LOC, GUMBEL_SCALE, REFERENCE_AREA_MM2),
     "multi_indenter": (CAMERA_GUMBEL_LOC, CAMERA_GUMBEL_SCALE, CAMERA_REFERENCE_AREA_MM2),
@@ -61,11 +70,15 @@ states on ``stiffness/sample``: the air-float's sweep maps (2 mm cells, E in kPa
 (4 mm cells, K_t in N/mm) differ in noise, cell size and correlation, so one's law says nothing of the other's rate."""
 
 
-def false_alarm_law(model: str, *, partial: bool = False) -> tuple[float, float, float] | None:
+def false_alarm_law(model: str, *, partial: bool = False, budget: bool = False) -> tuple[float, float, float] | None:
     """The false-alarm law measured for the probe whose estimator states ``model`` (:data:`FALSE_ALARM_LAWS`; with
-    ``partial``, an adaptive planner's maps: :data:`PARTIAL_MAP_LAWS` where one was measured, else the whole map's);
-    None for a probe no law was measured for (the caller says so and falls back on the default's)."""
-    own = PARTIAL_MAP_LAWS.get(model) if partial else None
+    ``partial``, an adaptive planner's maps: :data:`PARTIAL_MAP_LAWS` where one was measured, its ``+budget`` law
+    for a planner held to a probe budget with ``budget``, else the whole map's); None for a probe no law was measured
+    for (the caller says so and falls back on the default's)."""
+    own = None
+    if partial:
+        own = PARTIAL_MAP_LAWS.get(f"{model}+budget") if budget else None
+        own = own if own is not None else PARTIAL_MAP_LAWS.get(model)
     return own if own is not None else FALSE_ALARM_LAWS.get(model)
 
 

@@ -398,12 +398,17 @@ def test_the_planner_detects_with_the_law_of_the_probe_its_samples_come_from() -
     assert camera.gumbel == FALSE_ALARM_LAWS["multi_indenter"] != DetectorConfig().gumbel
     assert detector_config(_cfg(model="multi_indenter"), suspect=True).gumbel == camera.gumbel
     assert detector_config(_cfg(model="")).gumbel == DetectorConfig().gumbel
-    # the air-float planner's maps are partial: the law of its own blank maps, not a whole map's (heavier-tailed: at
-    # the same rate its threshold is higher)
+    # the air-float planner's maps are partial: the law of its own blank maps, not a whole map's
     own = detector_config(_cfg(model="airfloat"))
     assert own.gumbel == PARTIAL_MAP_LAWS["airfloat"] != FALSE_ALARM_LAWS["airfloat"]
     assert detector_config(_cfg(model="airfloat"), suspect=True).gumbel == own.gumbel
-    assert threshold_for(2080.0, own) > threshold_for(2080.0, replace(own, gumbel=FALSE_ALARM_LAWS["airfloat"]))
+    # a planner held to a probe budget leaves suspects unresolved on sparser maps: its own, heavier-tailed law (at
+    # the same rate its threshold is higher); a probe with no budgeted law measured keeps its planner's
+    budgeted = detector_config(_cfg(model="airfloat", budget_fraction=0.2))
+    assert budgeted.gumbel == PARTIAL_MAP_LAWS["airfloat+budget"] != own.gumbel
+    assert detector_config(_cfg(model="airfloat", budget_fraction=0.2), suspect=True).gumbel == budgeted.gumbel
+    assert threshold_for(2080.0, budgeted) > threshold_for(2080.0, own) + 1.0
+    assert detector_config(_cfg(model="multi_indenter", budget_fraction=0.2)).gumbel == camera.gumbel
 
 
 def _detected_at(x: float, y: float, r: float) -> Detection:
