@@ -21,8 +21,9 @@ The camera probe's, the same way on its blank specimens (its scan target without
     .venv/bin/python bench/detector_calibration.py runs/camblank
 
 The adaptive planner's maps (issue 41) are partial: its lattice, what it measured around suspects, the GP's mean
-within ``fill_mm``. Their noise is not a whole map's, so they get a law of their own (``ADAPTIVE_*``), fitted on the
-planner's final detections of the same blank specimens as its planner.json states them:
+within ``fill_mm``. Their noise is not a whole map's, so they get a law of their own (``ADAPTIVE_*``; a planner held to
+a probe budget, ``--arg budget_fraction=...``, its own: ``BUDGET_*``), fitted on the planner's final detections of
+the same blank specimens as its planner.json states them:
 
     python -m tools.evaluate launch/scan_adaptive_sim.yaml --phantom phantoms/blank/flat_3mm.yaml \
         --phantom phantoms/blank/dome_4_2.yaml --seeds $(seq 0 19) --margin 7 -o runs/blank_adaptive --workers 1
@@ -84,6 +85,11 @@ def planner_law(runs: list[Path]) -> int:
     found = [json.loads(f.read_text(encoding="utf-8")).get("detection") or {} for f in files]
     if not files or not all("peak_significance" in d for d in found):
         raise SystemExit(f"need runs/*/map/planner.json with a 'detection' under {', '.join(map(str, runs))}")
+    budgeted = {float(d.get("budget_fraction", 0.0)) > 0 for d in found}
+    if len(budgeted) != 1:
+        raise SystemExit("the runs mix budgeted and unbudgeted planners: each has a law of its own "
+                         "(models.false_alarm.PARTIAL_MAP_LAWS), fit them apart")
+    name = "BUDGET" if budgeted.pop() else "ADAPTIVE"
     top = np.array([d["peak_significance"] for d in found])
     area = np.array([d["area_mm2"] for d in found])
     ref_area = float(np.median(area))
@@ -95,11 +101,11 @@ def planner_law(runs: list[Path]) -> int:
           f"{top.min():.2f}..{top.max():.2f} σ; valid area {area.min():.0f}..{area.max():.0f} mm²")
     for f, t, a in zip(files, top, area, strict=True):
         print(f"  {f.parent.parent.name:24s} {t:5.2f} ({a:.0f} mm²)")
-    print(f"ADAPTIVE_GUMBEL_LOC = {loc:.3f}\nADAPTIVE_GUMBEL_SCALE = {scale:.3f}\n"
+    print(f"{name}_GUMBEL_LOC = {loc:.3f}\n{name}_GUMBEL_SCALE = {scale:.3f}\n"
           f"ADAPTIVE_REFERENCE_AREA_MM2 = {ref_area:.0f}")
     print(f"maps over the threshold they were detected with: {sum(was)} of {len(files)}; over this law's at "
           f"{100 * cfg.false_alarm_per_map:g} %: {sum(over)}")
-    print(json.dumps({"model": "adaptive", "loc": loc, "scale": scale, "ref_area_mm2": ref_area,
+    print(json.dumps({"model": name.lower(), "loc": loc, "scale": scale, "ref_area_mm2": ref_area,
                       "maxima": [round(float(t), 3) for t in top], "maps_over_their_threshold": int(sum(was))}))
     return 0
 

@@ -345,7 +345,7 @@ class AdaptivePlanner(palpa.Node):
             snap, det = self._detection(self.belief)
             # what a false-alarm law of the planner's own maps is fitted on (bench/detector_calibration.py)
             found = {"peak_significance": round(peak_significance(det), 4), "area_mm2": det.area_mm2,
-                     "threshold_snr": round(det.threshold_snr, 4)}
+                     "threshold_snr": round(det.threshold_snr, 4), "budget_fraction": self.cfg.budget_fraction}
             self._publish_belief(snap, final=True)
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes; "
             title += detection_summary(det, p.false_alarm_per_map)
