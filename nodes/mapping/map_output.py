@@ -27,7 +27,7 @@ import math
 import subprocess
 import sys
 import textwrap
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import IO, Any
 
@@ -189,13 +189,16 @@ def _serve() -> int:
 
 def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str,
                   title: str, unsensed: npt.NDArray[np.bool_] | None = None, incomplete: str = "",
-                  helper: PngHelper | None = None, model: str = "") -> list[Path]:
+                  helper: PngHelper | None = None, model: str = "",
+                  layers: Mapping[str, npt.NDArray[np.float64]] | None = None) -> list[Path]:
     """Write the three files (each atomically: a reader never sees half a file); returns their paths.
     ``model``: the estimator's model (kept in ``map.npz`` when given: it picks the false-alarm law a redetection uses).
     ``unsensed``: a bool grid of the map's shape, kept in ``map.npz`` and greyed in ``map.png`` (module doc).
     ``incomplete``: why the map lacks part of what it was to hold ('' when it does not): kept in ``map.npz``
     (``incomplete``) and written over ``map.png``'s title, so that a partial map read later says so.
-    ``helper``: draws ``map.png`` if it can (:class:`PngHelper`)."""
+    ``helper``: draws ``map.png`` if it can (:class:`PngHelper`). ``layers``: more grids of the map's shape kept in
+    ``map.npz`` under their names (an adaptive planner's measured and stiffness-blind cells: what its detection
+    used, so that it can be run again offline)."""
     if unsensed is not None and np.shape(unsensed) != np.shape(snap.stiffness):
         raise ValueError(f"unsensed: shape {np.shape(unsensed)} is not the map's {np.shape(snap.stiffness)}")
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -207,6 +210,10 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
         arrays["model"] = np.array(model)
     if unsensed is not None:
         arrays["unsensed"] = np.asarray(unsensed, dtype=bool)
+    for name, grid in (layers or {}).items():
+        if np.shape(grid) != np.shape(snap.stiffness) or name in arrays:
+            raise ValueError(f"layer {name!r}: a name taken or a shape {np.shape(grid)} not the map's")
+        arrays[name] = np.asarray(grid, dtype=np.float64)
     if incomplete:
         arrays["incomplete"] = np.array(incomplete)
         title = "\n".join(textwrap.wrap(f"INCOMPLETE: {incomplete}", 90)) + "\n" + title

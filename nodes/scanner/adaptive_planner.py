@@ -22,8 +22,9 @@ ILS-UCB acquisition (:func:`models.adaptive.next_probe`) and LSE's ambiguous are
 on the GP mean.
 
 Publishes ``planner/mean``, ``planner/std`` and ``planner/map`` (the map inclusions are detected on; StiffnessMap,
-latched) after every probe, and at the end writes the same files as a raster scan's map (``map.npz`` of that map,
-``map.png``, ``inclusions.json``: nodes.mapping.map_output) plus ``planner.json`` (probes, refusals, simulated time, why it
+latched) after every probe, and at the end writes the same files as a raster scan's map (``map.npz`` of that map
+with the grids its detection used, ``measured`` and the stiffness-blind ``fair`` cells; ``map.png``;
+``inclusions.json``: nodes.mapping.map_output) plus ``planner.json`` (probes, refusals, simulated time, why it
 stopped, and with the detect rule ``unsensed``: per reach of interest the fraction of the region where an inclusion
 sensed from that far could still lie unseen; the smallest's cells are ``map.npz``'s ``unsensed`` and ``map.png``'s
 grey), publishes ``map/inclusions`` and exits: it is the launch's required node. It exits 0 only when nothing was
@@ -350,7 +351,8 @@ class AdaptivePlanner(palpa.Node):
             title = (p.title or "adaptive palpation") + f"\n{len(self.probed)} probes; "
             title += detection_summary(det, p.false_alarm_per_map)
             write_outputs(out, snap, det.inclusions, unit=self.unit or "?", title=title, unsensed=mask,
-                          incomplete=lost, model=self.cfg.model)
+                          incomplete=lost, model=self.cfg.model,
+                          layers={"measured": self.grid.snapshot().stiffness, "fair": self.fair.snapshot().stiffness})
             self.inc_pub.publish(inclusions_message(det, stamp_ns=self.clock.now_ns(), unit=self.unit,
                                                     false_alarm_per_map=p.false_alarm_per_map, final=True))
         else:
