@@ -137,7 +137,8 @@ def test_a_partial_maps_background_does_not_bend_to_a_fair_segment_over_an_inclu
     inclusion at the map's corner, whose disc is revealed at full density (bench/adaptive_staged.py's oracle on
     fresh seed 14506: 25 σ on the raster, 0.7 σ on such a map). From a least-squares start the quadratic through 24
     cells sits at the segment's level and the inclusion vanishes; started from the biweights of the cells'
-    deviations from their median, it is found on every draw."""
+    deviations from their median, it is found on every draw. (The quadratic's start is the subject, so the
+    quadratic is asked for: ``partial_curve_ratio`` 1.)"""
     xs, ys = np.arange(21) * CELL + 7.0, np.arange(19) * CELL + 7.0
     gy, gx = np.meshgrid(ys, xs, indexing="ij")
     fair = np.zeros(gx.shape, dtype=bool)
@@ -149,7 +150,7 @@ def test_a_partial_maps_background_does_not_bend_to_a_fair_segment_over_an_inclu
         noise = np.exp(0.03 * np.random.default_rng(seed).standard_normal(gx.shape))
         grid = np.where(shown, BASE * np.where(inclusion, 1.4, 1.0) * noise, np.nan)
         snap = MapSnapshot(grid, xs, ys, np.ones(gx.shape, dtype=np.int64), np.zeros(gx.shape), CELL)
-        det = detect(snap, estimate_from=fair)
+        det = detect(snap, DetectorConfig(partial_curve_ratio=1.0), estimate_from=fair)
         assert [round(i.x_mm / 4) for i in det.inclusions] == [11], seed
         assert abs(math.log(float(det.background[13, 18]) / BASE)) < 0.1, seed   # under the inclusion: the tissue's
 
