@@ -124,15 +124,11 @@ class DetectorConfig:
     sparse lattices' maps the false positives, mostly such pieces, fell from 315 to 113; at 0.20 of the raster's
     probes from 59 to 38, the misses the same; 10 mm found no more)."""
     partial_curve_ratio: float = 0.6
-    """On a partial map (an adaptive planner's: its background and noise from a sparse lattice's fair cells), the
-    background is a plane unless the quadratic leaves a noise scale (steps 1-3 run with each) below this fraction of
-    the plane's; 1: the quadratic always, as on a whole map. A quadratic's six terms on a sparse lattice's few dozen
-    cells are pinned at the map's corners by a handful of cells, and where an inclusion lies there the surface bends
-    up to it even from a robust start (spent set 15000's random_15005: four inclusions at the corners, none found in
-    any draw, its noise 0.098 against the plane's 0.035); a curvature a plane cannot follow leaves it a noise several
-    times the quadratic's (spent set 16000's random_16015: 0.14 against 0.02). Chosen on the tuning set 100-119 and
-    the spent sets 14500-16000 (BENCHMARKS.md); a blank dome's maps have the quadratic at 0.8 of the plane's noise,
-    and at a ratio of 0.85 they took it and showed a 5 σ false alarm."""
+    """A partial map's background (steps 1-3 run with each) is a plane unless the quadratic leaves a noise below this
+    fraction of the plane's (1: the quadratic always, as on a whole map): a sparse lattice's few cells at a corner
+    let a quadratic bend up to an inclusion there (spent random_15005: noise 0.098, the plane's 0.035), while a
+    steep curve leaves a plane several times the quadratic's (spent random_16015: 0.14 against 0.02). A blank dome's
+    maps have the quadratic at 0.8 of the plane's, and took it at 0.85 with a 5 σ false alarm (BENCHMARKS.md)."""
     join_span_mm: float = 10.0
     """Pieces joined across unmeasured tissue (:attr:`join_gap_mm`) have their peaks this close or closer: the
     pieces of one inclusion lie within its breadth, two neighbours' farther apart."""

@@ -86,6 +86,11 @@ def test_planner_probes_through_the_scanner_carries_on_after_refusals_and_is_det
     assert np.mean(fractions) > miss + 0.01
     grid = np.load(tmp_path / "a" / "map" / "map.npz")
     assert grid["unsensed"].shape == grid["stiffness"].shape
+    # beside it, the grids its detection used: the measured cells (values where the map has them) and, of those,
+    # the stiffness-blind sweeps' (the coarse pass's), so that the detection can be run again offline
+    measured, fair = np.isfinite(grid["measured"]), np.isfinite(grid["fair"])
+    assert fair.any() and np.all(measured[fair]) and np.all(np.isfinite(grid["stiffness"])[measured])
+    assert np.array_equal(grid["measured"][measured], grid["stiffness"][measured])
     assert grid["unsensed"].mean() == pytest.approx(fractions[0], abs=1e-4)
     far = [(x, y) for x, y in a["given_up"] if x > max(px for px, _ in a["points"]) + 4.0]  # no probe near them
     assert far and all(grid["unsensed"][int(np.argmin(np.abs(grid["y_mm"] - y))), int(np.argmin(np.abs(grid["x_mm"] - x)))]

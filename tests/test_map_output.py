@@ -34,3 +34,19 @@ def test_the_unsensed_cells_are_kept_in_map_npz_and_greyed_in_map_png(tmp_path: 
     with pytest.raises(ValueError, match=r"unsensed: shape \(4, 5\) is not the map's \(4, 6\)"):
         write_outputs(tmp_path / "bad", _snap(), found, unit="kPa", title="t", unsensed=mask[:, :5])
     assert not (tmp_path / "bad").exists()   # nothing half-written
+
+
+def test_layers_are_kept_in_map_npz_under_their_names_and_a_bad_one_writes_nothing(tmp_path: Path) -> None:
+    """An adaptive planner keeps the grids its detection used beside its map (its measured cells and its
+    stiffness-blind ones), so the detection can be run again offline; a layer that would shadow one of the map's
+    own arrays, or is not the map's shape, is refused before anything is written."""
+    measured = np.where(np.arange(24).reshape(4, 6) % 2 == 0, 12.0, np.nan)
+    write_outputs(tmp_path / "a", _snap(), [], unit="kPa", title="t", layers={"measured": measured})
+    with np.load(tmp_path / "a" / "map.npz") as kept:
+        assert np.array_equal(kept["measured"], measured, equal_nan=True)
+        assert np.array_equal(kept["stiffness"], _snap().stiffness)   # the map itself as it was
+    with pytest.raises(ValueError, match=r"layer 'stiffness': map.npz has an array of that name"):
+        write_outputs(tmp_path / "b", _snap(), [], unit="kPa", title="t", layers={"stiffness": measured})
+    with pytest.raises(ValueError, match=r"layer 'fair': shape \(4, 5\) is not the map's \(4, 6\)"):
+        write_outputs(tmp_path / "c", _snap(), [], unit="kPa", title="t", layers={"fair": measured[:, :5]})
+    assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()

@@ -187,6 +187,10 @@ def _serve() -> int:
     return 0
 
 
+_ARRAYS = ("stiffness", "x_mm", "y_mm", "count", "spread", "unit", "model", "unsensed", "incomplete")
+"""The arrays :func:`write_outputs` writes to ``map.npz`` itself: no layer may take their names."""
+
+
 def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str,
                   title: str, unsensed: npt.NDArray[np.bool_] | None = None, incomplete: str = "",
                   helper: PngHelper | None = None, model: str = "",
@@ -201,6 +205,11 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
     used, so that it can be run again offline)."""
     if unsensed is not None and np.shape(unsensed) != np.shape(snap.stiffness):
         raise ValueError(f"unsensed: shape {np.shape(unsensed)} is not the map's {np.shape(snap.stiffness)}")
+    for name, grid in (layers or {}).items():
+        if name in _ARRAYS:
+            raise ValueError(f"layer {name!r}: map.npz has an array of that name")
+        if np.shape(grid) != np.shape(snap.stiffness):
+            raise ValueError(f"layer {name!r}: shape {np.shape(grid)} is not the map's {np.shape(snap.stiffness)}")
     out_dir.mkdir(parents=True, exist_ok=True)
     npz = out_dir / "map.npz"
     arrays: dict[str, Any] = {
@@ -210,10 +219,7 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
         arrays["model"] = np.array(model)
     if unsensed is not None:
         arrays["unsensed"] = np.asarray(unsensed, dtype=bool)
-    for name, grid in (layers or {}).items():
-        if np.shape(grid) != np.shape(snap.stiffness) or name in arrays:
-            raise ValueError(f"layer {name!r}: a name taken or a shape {np.shape(grid)} not the map's")
-        arrays[name] = np.asarray(grid, dtype=np.float64)
+    arrays.update({name: np.asarray(grid, dtype=np.float64) for name, grid in (layers or {}).items()})
     if incomplete:
         arrays["incomplete"] = np.array(incomplete)
         title = "\n".join(textwrap.wrap(f"INCOMPLETE: {incomplete}", 90)) + "\n" + title
