@@ -10,7 +10,7 @@ works on ``log(stiffness)``:
    by iteratively reweighted least squares (Tukey's biweight) to the cells that are *not candidates*, so a dome's
    slope or an edge's drift is followed while an inclusion's cells do not pull the baseline up (on a partial map,
    the fit starts from the median's biweights, so a few fair cells over an inclusion cannot hold the surface up, and
-   the surface is a plane unless a quadratic leaves far less noise: :attr:`DetectorConfig.partial_curve_ratio`). The
+   optionally a plane unless a quadratic leaves far less noise: :attr:`DetectorConfig.partial_curve_ratio`). The
    residual is the log-contrast.
 2. **Matched filter.** The residual summed over a disc of each radius of interest (:attr:`DetectorConfig.radii_mm`:
    the sizes of inclusions the scan should find), over the valid cells only, divided by the square root of how many
@@ -123,12 +123,12 @@ class DetectorConfig:
     blind columns between every other line of the raster (bench/adaptive_staged.py, fresh set 14500: over its ten
     sparse lattices' maps the false positives, mostly such pieces, fell from 315 to 113; at 0.20 of the raster's
     probes from 59 to 38, the misses the same; 10 mm found no more)."""
-    partial_curve_ratio: float = 0.6
-    """A partial map's background (steps 1-3 run with each) is a plane unless the quadratic leaves a noise below this
-    fraction of the plane's (1: the quadratic always, as on a whole map): a sparse lattice's few cells at a corner
-    let a quadratic bend up to an inclusion there (spent random_15005: noise 0.098, the plane's 0.035), while a
-    steep curve leaves a plane several times the quadratic's (spent random_16015: 0.14 against 0.02). A blank dome's
-    maps have the quadratic at 0.8 of the plane's, and took it at 0.85 with a 5 σ false alarm (BENCHMARKS.md)."""
+    partial_curve_ratio: float = 1.0
+    """Below 1, a partial map's background (steps 1-3 run with each) is a plane unless the quadratic leaves a noise
+    below this fraction of the plane's; 1 (default): the quadratic, as a whole map's. A sparse lattice's few cells at
+    a corner let a quadratic bend up to an inclusion there (spent random_15005: noise 0.098, a plane's 0.035); a
+    steep curve leaves a plane several times the quadratic's (spent random_16015: 0.14 against 0.02). Off: at 0.6
+    the planner missed more on a fresh set, its law a wider one (BENCHMARKS.md, "A partial map's background")."""
     join_span_mm: float = 10.0
     """Pieces joined across unmeasured tissue (:attr:`join_gap_mm`) have their peaks this close or closer: the
     pieces of one inclusion lie within its breadth, two neighbours' farther apart."""

@@ -37,24 +37,23 @@ CAMERA_REFERENCE_AREA_MM2 = 2112.0
 """The valid area of the blank camera maps it was fitted on (their 4 mm grid of presses over a 60 mm specimen)."""
 # the adaptive planner's maps (air-float): fitted by bench/detector_calibration.py --planner on 40 blank adaptive
 # scans (the same sheet and dome, seeds 0-19; runs of 29 Nov 2026, BENCHMARKS.md "The planner's own false-alarm law")
-ADAPTIVE_GUMBEL_LOC = 1.800
+ADAPTIVE_GUMBEL_LOC = 2.483
 """Location (σ) of the Gumbel law of a blank adaptive map's largest significance, at
 :data:`ADAPTIVE_REFERENCE_AREA_MM2`: the planner's maps as ``launch/scan_adaptive_sim.yaml`` makes them (eq. 7's
-thickness measured by the probe at every sample, every sweep on a slope climbing: nodes.scanner.scan_control; the
-background a plane unless a quadratic leaves far less noise: models.detector.DetectorConfig.partial_curve_ratio)."""
-ADAPTIVE_GUMBEL_SCALE = 0.486
-"""Scale (σ) of that Gumbel law. The forty maxima are two groups: the sheet's 2.13-2.67 σ, the dome's 1.21-2.77 (its
-curve, followed by a plane, widens the noise the significance is measured in); one Gumbel over both is wider than
-either, and its bar at 0.3 % per map (4.6 σ) stands well above every blank map's largest (2.8 σ). With the quadratic
-background on every partial map the same scans gave 2.483 and 0.303, and their dome a 5 σ false alarm."""
-ADAPTIVE_REFERENCE_AREA_MM2 = 2072.0
+thickness measured by the probe at every sample, every sweep on a slope climbing: nodes.scanner.scan_control)."""
+ADAPTIVE_GUMBEL_SCALE = 0.303
+"""Scale (σ) of that Gumbel law, about a whole map's (0.344). With the thickness read from a measured-geometry file
+(its calliper's 0.2 mm errors on a 5 mm grid, interpolated) and sweeps taken both ways on the dome, the same blank
+scans gave 2.683 and 0.640: a heavy tail, the dome's thin edge read as an inclusion at 6.7-7.7 σ on two maps of
+forty."""
+ADAPTIVE_REFERENCE_AREA_MM2 = 2080.0
 """The valid area of the blank adaptive maps it was fitted on."""
-BUDGET_GUMBEL_LOC = 2.250
+BUDGET_GUMBEL_LOC = 3.203
 """Location (σ) of the law of a *budgeted* planner's blank maps (``budget_fraction`` 0.2 of the raster's probes,
 models.adaptive_budget), at :data:`ADAPTIVE_REFERENCE_AREA_MM2`: with its budget spent on the coarse pass, the
-suspects it cannot afford to resolve stay on a sparse map (the sheet's maxima 3.13-4.76 σ, the dome's 1.21-3.28)."""
-BUDGET_GUMBEL_SCALE = 1.085
-"""Scale (σ) of that law: twice the default planner's (its bar at 0.3 % per map: 8.5 σ)."""
+suspects it cannot afford to resolve stay on a sparse map (6 of the 40 blank maps over the default planner's bar)."""
+BUDGET_GUMBEL_SCALE = 0.703
+"""Scale (σ) of that law: twice the default planner's."""
 PARTIAL_MAP_LAWS: dict[str, tuple[float, float, float]] = {
     "airfloat": (ADAPTIVE_GUMBEL_LOC, ADAPTIVE_GUMBEL_SCALE, ADAPTIVE_REFERENCE_AREA_MM2),
     "airfloat+budget": (BUDGET_GUMBEL_LOC, BUDGET_GUMBEL_SCALE, ADAPTIVE_REFERENCE_AREA_MM2),
