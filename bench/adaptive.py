@@ -111,16 +111,18 @@ MARGIN_MM = 7.0
 the nearest 0.5 mm after 0.2 mm of error, models.geometry). At 6 mm the ring crossed the measured edge along whole
 lines, and 17 of 63 raster runs a set ended "incomplete" (ring_off_specimen over 20 %)."""
 LENGTH_MM = 6.0
+"""The planner's sweep length when its run does not set ``length_mm`` (launch/scan_adaptive_sim.yaml's default)."""
 
 
-def raster_probe_equivalents(spec: RunSpec, camera: bool = False) -> float:
-    """The raster's swept length in contact over the planner's sweep length (lines every SPACING_MM along x); for
-    the camera probe its presses (a grid every CAMERA_SPACING_MM)."""
+def raster_probe_equivalents(spec: RunSpec, camera: bool = False, sweep_mm: float = LENGTH_MM) -> float:
+    """The raster's swept length in contact over the planner's sweep length ``sweep_mm`` (its run's ``length_mm``:
+    a probe is one sweep, so shorter sweeps are more of them; lines every SPACING_MM along x); for the camera probe
+    its presses (a grid every CAMERA_SPACING_MM)."""
     x0, y0, x1, y1 = spec.overrides["region_mm"]
     if camera:
         return float(math.prod(math.floor(span / CAMERA_SPACING_MM + 1e-9) + 1 for span in (x1 - x0, y1 - y0)))
     lines = math.floor((x1 - x0) / SPACING_MM + 1e-9) + 1
-    return lines * (y1 - y0) / LENGTH_MM
+    return float(lines * (y1 - y0) / sweep_mm)
 
 
 def map_curve(spec: RunSpec, topic: str) -> list[tuple[float, float, int]]:
@@ -256,7 +258,8 @@ def main(argv: list[str] | None = None) -> int:
             rate["runs"] += 1
             rate["raster"] += int(x["found"])
             rate["adaptive"] += int(y["found"])
-        eq = raster_probe_equivalents(r_spec, camera=opts.probe == "camera")
+        eq = raster_probe_equivalents(r_spec, camera=opts.probe == "camera",
+                                      sweep_mm=float(a_spec.overrides.get("length_mm", LENGTH_MM)))
         rows.append({
             "run": r_spec.id, "phantom": r_spec.phantom.stem, "seed": r_spec.seed, "inclusions": r["true_inclusions"],
             "found_raster": r["found"], "found_adaptive": a["found"], "missed_vs_raster": missed,
