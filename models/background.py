@@ -23,9 +23,9 @@ BACKGROUND_DEGREE = 2
 
 def fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArray, *,
                    robust_start: bool = False, degree: int = BACKGROUND_DEGREE) -> FloatArray:
-    """A quadratic surface (``degree`` 1: a plane) fitted to ``logs`` on the ``use`` cells by Tukey-biweight IRLS, evaluated everywhere;
-    no slope or curve along an axis the ``use`` cells span less than half the map of (it would be extrapolated
-    from nothing), a constant (the median) when too few cells support the surface.
+    """A quadratic surface (``degree`` 1: a plane) fitted to ``logs`` on the ``use`` cells by Tukey-biweight IRLS,
+    evaluated everywhere; no slope or curve along an axis the ``use`` cells span less than half the map of (it would
+    be extrapolated from nothing), a constant (the median) when too few cells support the surface.
 
     The IRLS starts from the least-squares fit (every weight one), unless ``robust_start``: then from the biweights
     of the cells' deviations from their median, so a cluster of raised cells is down-weighted before the surface
@@ -51,19 +51,20 @@ def fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArra
         w = biweight(target - float(np.median(target)), w)
     coef: FloatArray = np.zeros(len(terms))
     exact = False
+    tiny = 1e-9 * max(float(np.max(np.abs(target))), 1e-300)   # a scale below this is rounding, not noise
     for _ in range(8):
         sw = np.sqrt(w)
         coef = np.asarray(np.linalg.lstsq(design * sw[:, None], target * sw, rcond=None)[0], dtype=np.float64)
         r = target - design @ coef
         dev = np.abs(r - np.median(r))
         s = MAD_TO_SIGMA * float(np.median(dev))
-        if not s > 0:
+        if not s > tiny:
             if not robust_start or exact:
                 break
             # most cells fit exactly (a map without noise): the surface through them alone, the rest weigh nothing
             # (the least-squares surface a zero scale leaves would be lifted by the raised cells it has not weighed)
             exact = True
-            w = np.asarray(dev <= 1e-12 + 1e-9 * float(np.max(np.abs(target))), dtype=np.float64)
+            w = np.asarray(dev <= tiny, dtype=np.float64)
             continue
         t = r / (4.685 * s)
         w = np.asarray(np.where(np.abs(t) < 1, (1 - t**2) ** 2, 0.0), dtype=np.float64)
