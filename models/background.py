@@ -22,10 +22,10 @@ BACKGROUND_DEGREE = 2
 
 
 def fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArray, *,
-                   robust_start: bool = False, degree: int = BACKGROUND_DEGREE) -> FloatArray:
-    """A quadratic surface (``degree`` 1: a plane) fitted to ``logs`` on the ``use`` cells by Tukey-biweight IRLS,
-    evaluated everywhere; no slope or curve along an axis the ``use`` cells span less than half the map of (it would
-    be extrapolated from nothing), a constant (the median) when too few cells support the surface.
+                    robust_start: bool = False) -> FloatArray:
+    """A quadratic surface fitted to ``logs`` on the ``use`` cells by Tukey-biweight IRLS, evaluated everywhere;
+    no slope or curve along an axis the ``use`` cells span less than half the map of (it would be extrapolated
+    from nothing), a constant (the median) when too few cells support the surface.
 
     The IRLS starts from the least-squares fit (every weight one), unless ``robust_start``: then from the biweights
     of the cells' deviations from their median, so a cluster of raised cells is down-weighted before the surface
@@ -40,7 +40,7 @@ def fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArra
     u, v = (gx - float(np.mean(x))) / sx, (gy - float(np.mean(y))) / sy
     along_x = float(np.ptp(gx[use])) >= sx if use.any() else False
     along_y = float(np.ptp(gy[use])) >= sy if use.any() else False
-    terms = [np.ones_like(u)] + [u**i * v**j for d in range(1, degree + 1) for i in range(d + 1)
+    terms = [np.ones_like(u)] + [u**i * v**j for d in range(1, BACKGROUND_DEGREE + 1) for i in range(d + 1)
                                  for j in [d - i] if (along_x or i == 0) and (along_y or j == 0)]
     design = np.stack([t[use] for t in terms], axis=1)
     target = logs[use]
@@ -50,22 +50,13 @@ def fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArra
     if robust_start:
         w = biweight(target - float(np.median(target)), w)
     coef: FloatArray = np.zeros(len(terms))
-    exact = False
-    tiny = 1e-9 * max(float(np.max(np.abs(target))), 1e-300)   # a scale below this is rounding, not noise
     for _ in range(8):
         sw = np.sqrt(w)
         coef = np.asarray(np.linalg.lstsq(design * sw[:, None], target * sw, rcond=None)[0], dtype=np.float64)
         r = target - design @ coef
-        dev = np.abs(r - np.median(r))
-        s = MAD_TO_SIGMA * float(np.median(dev))
-        if not s > tiny:
-            if not robust_start or exact:
-                break
-            # most cells fit exactly (a map without noise): the surface through them alone, the rest weigh nothing
-            # (the least-squares surface a zero scale leaves would be lifted by the raised cells it has not weighed)
-            exact = True
-            w = np.asarray(dev <= tiny, dtype=np.float64)
-            continue
+        s = MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r))))
+        if not s > 0:
+            break
         t = r / (4.685 * s)
         w = np.asarray(np.where(np.abs(t) < 1, (1 - t**2) ** 2, 0.0), dtype=np.float64)
     return np.asarray(sum(c * t for c, t in zip(coef, terms, strict=True)), dtype=np.float64)

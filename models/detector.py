@@ -9,8 +9,7 @@ works on ``log(stiffness)``:
 1. **Background.** A smooth surface (a quadratic in x and y, :data:`BACKGROUND_DEGREE`: models.background) fitted
    by iteratively reweighted least squares (Tukey's biweight) to the cells that are *not candidates*, so a dome's
    slope or an edge's drift is followed while an inclusion's cells do not pull the baseline up (on a partial map,
-   the fit starts from the median's biweights, so a few fair cells over an inclusion cannot hold the surface up, and
-   optionally a plane unless a quadratic leaves far less noise: :attr:`DetectorConfig.partial_curve_ratio`). The
+   the fit starts from the median's biweights, so a few fair cells over an inclusion cannot hold the surface up). The
    residual is the log-contrast.
 2. **Matched filter.** The residual summed over a disc of each radius of interest (:attr:`DetectorConfig.radii_mm`:
    the sizes of inclusions the scan should find), over the valid cells only, divided by the square root of how many
@@ -123,12 +122,6 @@ class DetectorConfig:
     blind columns between every other line of the raster (bench/adaptive_staged.py, fresh set 14500: over its ten
     sparse lattices' maps the false positives, mostly such pieces, fell from 315 to 113; at 0.20 of the raster's
     probes from 59 to 38, the misses the same; 10 mm found no more)."""
-    partial_curve_ratio: float = 1.0
-    """Below 1, a partial map's background (steps 1-3 run with each) is a plane unless the quadratic leaves a noise
-    below this fraction of the plane's; 1 (default): the quadratic, as a whole map's. A sparse lattice's few cells at
-    a corner let a quadratic bend up to an inclusion there (spent random_15005: noise 0.098, a plane's 0.035); a
-    steep curve leaves a plane several times the quadratic's (spent random_16015: 0.14 against 0.02). Off: at 0.6
-    the planner missed more on a fresh set, its law a wider one (BENCHMARKS.md, "A partial map's background")."""
     join_span_mm: float = 10.0
     """Pieces joined across unmeasured tissue (:attr:`join_gap_mm`) have their peaks this close or closer: the
     pieces of one inclusion lie within its breadth, two neighbours' farther apart."""
@@ -148,8 +141,6 @@ class DetectorConfig:
             raise ValueError(f"DetectorConfig.join_span_mm: need >= 0, got {self.join_span_mm}")
         if self.iterations < 1:
             raise ValueError(f"DetectorConfig.iterations: need >= 1, got {self.iterations}")
-        if not 0 <= self.partial_curve_ratio <= 1:
-            raise ValueError(f"DetectorConfig.partial_curve_ratio: need 0 <= r <= 1, got {self.partial_curve_ratio}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -275,17 +266,31 @@ def detect(snapshot: MapSnapshot, cfg: DetectorConfig | None = None, *, threshol
     logs = np.where(valid, np.log(np.where(valid, grid, 1.0)), np.nan)
     area = float(valid.sum()) * cell * cell
     threshold = threshold_scale * threshold_for(area, cfg)
+    candidates = np.zeros(shape, dtype=bool)
     partial = not np.array_equal(fair, valid)   # some valid cell is no fair sample of the tissue
-    args = (logs, valid, fair, snapshot.x_mm, snapshot.y_mm, cell, cfg, partial)
-    candidates, bg, residual, sig, noise = _estimate(*args, BACKGROUND_DEGREE)
-    if partial and cfg.partial_curve_ratio < 1:
-        flat = _estimate(*args, 1)
-        if not noise < cfg.partial_curve_ratio * flat[4]:
-            candidates, bg, residual, sig, noise = flat
+    for _ in range(cfg.iterations):
+        use = fair & ~candidates
+        if use.sum() < cfg.min_valid_cells:
+            use = fair
+        bg = fit_background(logs, use, snapshot.x_mm, snapshot.y_mm, robust_start=partial)
+        residual = logs - bg
+        sig = significance(residual, valid, use, cell, cfg.radii_mm, cfg.noise_floor_rel)
+        hot = np.zeros(shape, dtype=bool)
+        for s in sig:
+            hot |= np.nan_to_num(s, nan=-np.inf) > cfg.candidate_snr
+        # of a significant region, the cells raised by more than a cell's noise: the inclusion and its halo, not
+        # the healthy cells a large disc reaches past it
+        spread = max(_spread(residual[use])[1], cfg.noise_floor_rel)
+        new = hot & valid & (np.nan_to_num(residual, nan=-np.inf) > spread)
+        if np.array_equal(new, candidates):
+            break
+        candidates = new
     best = np.full(shape, -np.inf)
     for s in sig:
         best = np.fmax(best, np.nan_to_num(s, nan=-np.inf))
     best = np.where(np.isfinite(best) & valid, best, np.nan)
+    use = fair & ~candidates
+    noise = _spread(residual[use] if use.any() else residual[fair])[1]
     background = np.where(valid, np.exp(bg), np.nan)
     baseline = float(np.median(background[valid]))
     det = Detection([], baseline, noise, threshold, best, background, candidates, grid, residual, area)
@@ -300,33 +305,6 @@ def detect(snapshot: MapSnapshot, cfg: DetectorConfig | None = None, *, threshol
             parts = [region]
         found += [describe(det, snapshot, p, cfg, part=len(parts) > 1) for p in parts if not _edge_row(det, p)]
     return replace(det, inclusions=sorted(found, key=lambda inc: -inc.snr))
-
-
-def _estimate(logs: FloatArray, valid: BoolArray, fair: BoolArray, x_mm: FloatArray, y_mm: FloatArray, cell: float,
-              cfg: DetectorConfig, partial: bool, degree: int
-              ) -> tuple[BoolArray, FloatArray, FloatArray, list[FloatArray], float]:
-    """Steps 1-3 of :func:`detect` with a background surface of ``degree``: (candidates, background (log), residual,
-    significance per radius, the noise scale of the fair cells left once the candidates are masked)."""
-    candidates = np.zeros(logs.shape, dtype=bool)
-    for _ in range(cfg.iterations):
-        use = fair & ~candidates
-        if use.sum() < cfg.min_valid_cells:
-            use = fair
-        bg = fit_background(logs, use, x_mm, y_mm, robust_start=partial, degree=degree)
-        residual = logs - bg
-        sig = significance(residual, valid, use, cell, cfg.radii_mm, cfg.noise_floor_rel)
-        hot = np.zeros(logs.shape, dtype=bool)
-        for s in sig:
-            hot |= np.nan_to_num(s, nan=-np.inf) > cfg.candidate_snr
-        # of a significant region, the cells raised by more than a cell's noise: the inclusion and its halo, not
-        # the healthy cells a large disc reaches past it
-        spread = max(_spread(residual[use])[1], cfg.noise_floor_rel)
-        new = hot & valid & (np.nan_to_num(residual, nan=-np.inf) > spread)
-        if np.array_equal(new, candidates):
-            break
-        candidates = new
-    use = fair & ~candidates
-    return candidates, bg, residual, sig, _spread(residual[use] if use.any() else residual[fair])[1]
 
 
 def _groups(det: Detection, labels: npt.NDArray[np.int_], n: int, valid: BoolArray, unmeasured: BoolArray | None,

@@ -137,8 +137,7 @@ def test_a_partial_maps_background_does_not_bend_to_a_fair_segment_over_an_inclu
     inclusion at the map's corner, whose disc is revealed at full density (bench/adaptive_staged.py's oracle on
     fresh seed 14506: 25 σ on the raster, 0.7 σ on such a map). From a least-squares start the quadratic through 24
     cells sits at the segment's level and the inclusion vanishes; started from the biweights of the cells'
-    deviations from their median, it is found on every draw. (The quadratic's start is the subject, so the
-    quadratic is asked for, whatever the default: ``partial_curve_ratio`` 1.)"""
+    deviations from their median, it is found on every draw."""
     xs, ys = np.arange(21) * CELL + 7.0, np.arange(19) * CELL + 7.0
     gy, gx = np.meshgrid(ys, xs, indexing="ij")
     fair = np.zeros(gx.shape, dtype=bool)
@@ -150,54 +149,9 @@ def test_a_partial_maps_background_does_not_bend_to_a_fair_segment_over_an_inclu
         noise = np.exp(0.03 * np.random.default_rng(seed).standard_normal(gx.shape))
         grid = np.where(shown, BASE * np.where(inclusion, 1.4, 1.0) * noise, np.nan)
         snap = MapSnapshot(grid, xs, ys, np.ones(gx.shape, dtype=np.int64), np.zeros(gx.shape), CELL)
-        det = detect(snap, DetectorConfig(partial_curve_ratio=1.0), estimate_from=fair)
+        det = detect(snap, estimate_from=fair)
         assert [round(i.x_mm / 4) for i in det.inclusions] == [11], seed
         assert abs(math.log(float(det.background[13, 18]) / BASE)) < 0.1, seed   # under the inclusion: the tissue's
-
-
-def _brick_lattice() -> npt.NDArray[np.bool_]:
-    """The planner's coarse pass on the 60 mm map: columns 8 mm apart, a 6 mm segment every 14 mm along each, the
-    next column's half a period along (models.adaptive_cover): 68 fair cells."""
-    gy, gx = np.meshgrid(XS, XS, indexing="ij")
-    fair = np.zeros(gx.shape, dtype=bool)
-    for k, cx in enumerate(np.arange(5.0, 60.0, 8.0)):
-        for cy in np.arange(4.0 + 7.0 * (k % 2), 60.0, 14.0):
-            fair |= (gx == cx) & (np.abs(gy - cy) <= 2.5)
-    return fair
-
-
-PLANE_UNLESS = 0.6
-"""``partial_curve_ratio`` as it was tried (off by default: BENCHMARKS.md, "A partial map's background")."""
-
-
-def test_a_partial_maps_background_can_be_a_plane_where_corner_inclusions_would_bend_a_quadratic() -> None:
-    """Four broad, weak inclusions (8 mm, x1.2) at the corners of a flat map whose fair cells are a sparse lattice
-    (spent set 15000's random_15005 had four at its corners, none found in any draw): the quadratic's corner terms
-    rest on the lattice's few cells there, the inclusions' own, and rise to them; the plane cannot. Over ten draws
-    the quadratic (the default) finds almost none, the plane-unless background almost all."""
-    fair = _brick_lattice()
-    corners = [(9.0, 9.0), (51.0, 9.0), (9.0, 51.0), (51.0, 51.0)]
-    found = {DetectorConfig().partial_curve_ratio: 0, PLANE_UNLESS: 0}
-    for seed in range(10):
-        snap = _snap(_field([(cx, cy, 8.0, 1.2) for cx, cy in corners], noise=0.03, seed=seed))
-        for ratio in found:
-            det = detect(snap, replace(_calibrated(), partial_curve_ratio=ratio), estimate_from=fair)
-            found[ratio] += sum(any(math.hypot(i.x_mm - cx, i.y_mm - cy) < 8.0 for i in det.inclusions)
-                                for cx, cy in corners)
-    assert found[DetectorConfig().partial_curve_ratio] <= 5 and found[PLANE_UNLESS] >= 35, found
-
-
-def test_the_plane_unless_background_keeps_the_quadratic_where_a_plane_cannot_follow_a_dome() -> None:
-    """A steep dome (60 % higher at the centre) seen on the same lattice, an inclusion at its top: a plane leaves the
-    dome in the residual, five times the noise, and finds nothing; the quadratic leaves the noise, and the
-    plane-unless background takes it: the inclusion is found on every draw and nothing else."""
-    fair = _brick_lattice()
-    for seed in range(6):
-        snap = _snap(_field([(30.0, 30.0, 5.0, 1.4)], noise=0.03, seed=seed, dome=0.6))
-        det = detect(snap, replace(_calibrated(), partial_curve_ratio=PLANE_UNLESS), estimate_from=fair)
-        assert [(round(i.x_mm), round(i.y_mm)) for i in det.inclusions] == [(30, 30)], seed
-        plane = detect(snap, replace(_calibrated(), partial_curve_ratio=0.0), estimate_from=fair)
-        assert plane.inclusions == [] and plane.noise_rel > 4 * det.noise_rel, seed
 
 
 def _columns_map(blobs: list[tuple[float, float, float, float]], seed: int) -> npt.NDArray[np.float64]:
