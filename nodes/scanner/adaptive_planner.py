@@ -23,7 +23,8 @@ on the GP mean.
 
 Publishes ``planner/mean``, ``planner/std`` and ``planner/map`` (the map inclusions are detected on; StiffnessMap,
 latched) after every probe, and at the end writes the same files as a raster scan's map (``map.npz`` of that map
-with the grids its detection used, ``measured`` and the stiffness-blind ``fair`` cells; ``map.png``;
+with the grids its detection used, ``measured`` and the stiffness-blind ``fair`` cells, and its parameters and
+region, ``planner``: what nodes.scanner.planner_map detects on it again by the planner's rule; ``map.png``;
 ``inclusions.json``: nodes.mapping.map_output) plus ``planner.json`` (probes, refusals, simulated time, why it
 stopped, and with the detect rule ``unsensed``: per reach of interest the fraction of the region where an inclusion
 sensed from that far could still lie unseen; the smallest's cells are ``map.npz``'s ``unsensed`` and ``map.png``'s
@@ -73,6 +74,7 @@ from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import MapSnapshot, StiffnessGrid
 from models.surface import region_in_footprint
 from nodes.mapping.map_output import detection_summary, inclusions_message, write_outputs
+from nodes.scanner.planner_map import planner_settings
 from nodes.scanner.planner_params import PlannerParams, planner_config
 from nodes.scanner.probe_samples import Point, ProbeSamples
 from palpa.node.service import ServiceError
@@ -332,7 +334,8 @@ class AdaptivePlanner(palpa.Node):
             title += detection_summary(det, p.false_alarm_per_map)
             write_outputs(out, snap, det.inclusions, unit=self.unit or "?", title=title, unsensed=mask,
                           incomplete=lost, model=self.cfg.model,
-                          layers={"measured": self.grid.snapshot().stiffness, "fair": self.fair.snapshot().stiffness})
+                          layers={"measured": self.grid.snapshot().stiffness, "fair": self.fair.snapshot().stiffness},
+                          planner=planner_settings(p, self.cfg.region_mm))
             self.inc_pub.publish(inclusions_message(det, stamp_ns=self.clock.now_ns(), unit=self.unit,
                                                     false_alarm_per_map=p.false_alarm_per_map, final=True))
         else:
