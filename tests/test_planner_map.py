@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from models.phantom import load_phantom
 from models.stiffness_map import MapSnapshot, to_inclusions_json
 from nodes.mapping.map_output import redetect, write_outputs
 from nodes.scanner.planner_map import PlannerMapError, redetect_map
@@ -125,3 +126,37 @@ def test_a_planners_map_without_what_its_rule_needs_is_refused_naming_the_file_a
     np.savez(npz, **{**arrays, "planner": np.array(json.dumps(kept))})
     with pytest.raises(PlannerMapError, match=r"settings \('planner'\) cannot be read: .*unknown field `sweep_speed`"):
         redetect_map(npz)
+
+
+def test_scan_report_and_evaluate_redetect_a_planners_map_by_its_rule_and_refuse_one_without_it(
+        planner_out: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``tools.scan_report --redetect`` lists the planner's own inclusions again and says by which rule;
+    ``tools.evaluate --redetect`` scores the planner's own detections. A planner's map without its layers: the report
+    exits 1 naming the map and what it lacks, the sweep records that as the run's error."""
+    from tests.test_evaluate import _fake_run
+    from tools.evaluate import redetected, score_outputs
+    from tools.scan_report import main
+
+    spec = _fake_run(tmp_path)   # a phantom and a recording; its map replaced by the planner's
+    shutil.rmtree(spec.run_dir / "map")
+    shutil.copytree(planner_out, spec.run_dir / "map")
+    assert main([str(spec.run_dir)]) == 0
+    as_written = capsys.readouterr().out.splitlines()
+    assert main([str(spec.run_dir), "--redetect"]) == 0
+    first, *rest = capsys.readouterr().out.splitlines()
+    assert first.startswith("redetected on map.npz by the adaptive planner's own rule (airfloat probe's")
+    assert rest == as_written
+    phantom = load_phantom(spec.phantom)
+    assert score_outputs(spec, phantom, redetect=True) == score_outputs(spec, phantom)
+    assert redetected(spec)["ok"]
+
+    npz = without(spec.run_dir / "map", tmp_path / "stripped", "fair")
+    shutil.rmtree(spec.run_dir / "map")
+    shutil.copytree(npz.parent, spec.run_dir / "map")
+    npz = spec.run_dir / "map" / "map.npz"
+    assert main([str(spec.run_dir), "--redetect"]) == 1
+    assert capsys.readouterr().err.startswith(f"scan_report: cannot detect again: {npz}: an adaptive planner's map "
+                                              "without the 'fair' layer(s), which its detection rule reads")
+    record = redetected(spec)
+    assert not record["ok"] and record["error"].startswith(
+        f"cannot score: {npz}: an adaptive planner's map without the 'fair' layer(s)")
