@@ -5,8 +5,9 @@ Layering (imports point downwards only)::
     palpa.cli        command-line verbs (bus, topic, node, service, param, launch, record, play, bag)
     palpa.launch     launch files and the process supervisor
     palpa.record     MCAP recording and replay
-    palpa.node.node       the Node API: publishers, subscriptions, timers, parameters (its time and lockstep side in
-                     palpa.node.node_time; readiness, heartbeats and bus logging in palpa.node.presence)
+    palpa.node.node       the Node API: publishers, subscriptions, timers, parameters (what it declares kept in
+                     palpa.node.inventory; its time and lockstep side in palpa.node.node_time; readiness,
+                     heartbeats and bus logging in palpa.node.presence)
     palpa.node.service    services (request/reply over the bus; callers in palpa.node.service_client), run-time
                      parameters on top of them (palpa.node.params_runtime)
     palpa.net.transport  ZeroMQ (and, in palpa.testing, in-memory) transports

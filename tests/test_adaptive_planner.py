@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pytest
@@ -16,6 +17,9 @@ from palpa.node.node import Node
 from palpa.timing.clock import MockClock
 from palpa.timing.compose import Composition
 from tests.procs import REPO
+
+if TYPE_CHECKING:
+    from nodes.scanner.adaptive_planner import AdaptivePlanner
 
 # contact_z_mm is the flat height a probe would sweep at without a touch-off: far above the dome (3-4 mm thick here)
 # reach_mm: 2 so that the detection rule has more than two sweeps' worth of tissue to cover in this small region
@@ -122,13 +126,11 @@ def test_the_planners_knobs_default_alike_in_the_model_the_node_and_the_launch_f
             assert plain(args[name]) == getattr(model, name), name
 
 
-def test_a_probes_late_estimates_count_as_that_probes_not_the_next_ones(tmp_path: Path) -> None:
-    """The scanner answers a while after a path ends, the probe resting on the tissue meanwhile: estimates of that
-    probe arrive after its answer and after the next request. They belong to the probe that measured them: a
-    resolving sweep's stiff end in the stiffness-blind baseline (when a covering sweep followed) raised the
-    detector's threshold and lost a weak inclusion. Here a scanner played by the test answers each sweep with its
-    line's estimates, then publishes the resting probe's estimates at the sweep's end; the tissue is stiff around
-    one point, so the planner resolves it, then covers the rest blind."""
+def scanned(tmp: Path, params: dict[str, Any], stiffness: Callable[[float, float], float]) -> AdaptivePlanner:
+    """An AdaptivePlanner of ``params`` (``output_dir``: ``tmp``) run to its end in memory (palpa.testing.GraphHarness)
+    against a scanner played here on tissue of ``stiffness`` (x, y in mm): each sweep answered with 25 air-float
+    estimates along its line, then, 0.2 s after the answer, 40 of the probe resting at the line's end, measured
+    before the answer and arriving after the planner asked for its next probe (as the estimator delivers them)."""
     import palpa
     from messages import ProbeAt, ProbeResult, StiffnessSample
     from nodes.scanner.adaptive_planner import AdaptivePlanner
@@ -136,16 +138,11 @@ def test_a_probes_late_estimates_count_as_that_probes_not_the_next_ones(tmp_path
     from palpa.testing import GraphHarness
 
     g = GraphHarness()
-    planner = g.add(AdaptivePlanner, {"region_mm": [0.0, 0.0, 30.0, 30.0], "seed_spacing_mm": 14.0,
-                                      "max_probes": 30, "output_dir": str(tmp_path),
-                                      "coarse_pass": False}, name="planner")   # blind and resolving sweeps mixed
+    planner = g.add(AdaptivePlanner, {**params, "output_dir": str(tmp)}, name="planner")
     scanner = g.add(palpa.Node, name="scanner")
     status = scanner.publisher("robot/scan_status", ScanStatus, latched=True)
     status.publish(ScanStatus(stamp_ns=g.clock.now_ns(), state="idle", line=0, lines=0, progress=0.0, eta_s=0.0))
     samples = scanner.publisher("stiffness/sample", StiffnessSample)
-
-    def stiffness(x: float, y: float) -> float:
-        return 10.0 + 8.0 * float(np.exp(-((x - 15.0) ** 2 + (y - 16.0) ** 2) / 8.0))
 
     def sample(x: float, y: float, stamp_ns: int) -> None:
         samples.publish(StiffnessSample(stamp_ns=stamp_ns, model="airfloat", x_mm=x, y_mm=y, z_mm=1.0,
@@ -173,6 +170,23 @@ def test_a_probes_late_estimates_count_as_that_probes_not_the_next_ones(tmp_path
             break
         g.advance(0.05)
     assert planner.done
+    g.advance(0.5)   # its map written, its exit asked for
+    g.close()
+    return planner
+
+
+def test_a_probes_late_estimates_count_as_that_probes_not_the_next_ones(tmp_path: Path) -> None:
+    """The scanner answers a while after a path ends, the probe resting on the tissue meanwhile: estimates of that
+    probe arrive after its answer and after the next request. They belong to the probe that measured them: a
+    resolving sweep's stiff end in the stiffness-blind baseline (when a covering sweep followed) raised the
+    detector's threshold and lost a weak inclusion. Here a scanner played by the test (:func:`scanned`) answers each
+    sweep with its line's estimates, then publishes the resting probe's estimates at the sweep's end; the tissue is
+    stiff around one point, so the planner resolves it, then covers the rest blind."""
+    def stiffness(x: float, y: float) -> float:
+        return 10.0 + 8.0 * float(np.exp(-((x - 15.0) ** 2 + (y - 16.0) ** 2) / 8.0))
+
+    planner = scanned(tmp_path, {"region_mm": [0.0, 0.0, 30.0, 30.0], "seed_spacing_mm": 14.0, "max_probes": 30,
+                                 "coarse_pass": False}, stiffness)   # blind and resolving sweeps mixed
     blind = planner.blind
     assert any(not a and b for a, b in zip(blind, blind[1:], strict=False))   # a blind sweep after a resolving one
     assert any(a and not b for a, b in zip(blind, blind[1:], strict=False))   # and the other way round
@@ -188,7 +202,6 @@ def test_a_probes_late_estimates_count_as_that_probes_not_the_next_ones(tmp_path
     for x, y in ends:
         i, j = int(np.argmin(np.abs(fair.y_mm - y))), int(np.argmin(np.abs(fair.x_mm - x)))
         assert np.isfinite(fair.stiffness[i, j]), (x, y)
-    g.close()
 
 
 def test_where_two_probes_lines_overlap_a_sample_is_the_one_measuring_at_its_stamp(tmp_path: Path) -> None:

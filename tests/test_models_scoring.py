@@ -151,7 +151,8 @@ def test_scan_report_redetects_with_the_map_detector(tmp_path, capsys) -> None: 
                  unit=np.array(unit))
         assert main([str(tmp_path), "--redetect"]) == 0
         first = capsys.readouterr().out.splitlines()[0]
-        assert first.startswith(f"redetected on map.npz ({model} probe's false-alarm law): threshold "), first
+        assert first.startswith(f"redetected on map.npz by the whole-map detector ({model} probe's false-alarm law): "
+                                f"threshold "), first
         thresholds[model] = first.split("threshold ")[1].split(" ")[0]
         law = replace(DetectorConfig(), gumbel=false_alarm_law(model) or DetectorConfig().gumbel)
         assert thresholds[model] == f"{detect(read_map(tmp_path / 'map' / 'map.npz'), law).threshold_snr:.2f}"

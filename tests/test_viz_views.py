@@ -128,7 +128,7 @@ def test_the_shipped_layout_opens_panels_on_topics_that_exist() -> None:
     walk(layout["layout"])
     assert sorted(ids) == sorted(layout["configById"])
     h = NodeHarness(ScanViews)
-    views = {p.topic for p in h.node._pubs.values()}
+    views = {p.topic for p in h.node._inventory.pubs.values()}
     h.close()
     three_d = layout["configById"]["3D!palpa-scan"]
     assert set(three_d["topics"]) <= views and three_d["followTf"] == "phantom"

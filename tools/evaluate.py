@@ -118,15 +118,17 @@ def score_run(spec: RunSpec, phantom: Phantom) -> tuple[dict[str, Any], list[dic
 def score_outputs(spec: RunSpec, phantom: Phantom, redetect: bool = False
                   ) -> tuple[dict[str, Any], list[dict[str, Any]], list[dict[str, Any]]]:
     """:func:`score_run`'s row and inclusions, and one row per detection (``inclusion``: the true one it matched,
-    -1 for a false positive). ``redetect``: the map detector (models.detector, the map aggregator's, with the map's
-    probe's false-alarm law) run on ``map.npz`` again instead of the run's ``inclusions.json``."""
+    -1 for a false positive). ``redetect``: the detection run on ``map.npz`` again, by the rule that made the map
+    (nodes.scanner.planner_map.redetect_map: a raster's map by the map detector with its probe's false-alarm law, an
+    adaptive planner's by the planner's own rule), instead of the run's ``inclusions.json``; a planner's map that
+    lacks what its rule needs raises ValueError (planner_map.PlannerMapError) naming the file and what is missing."""
     out = spec.run_dir / "map"
     detections = json.loads((out / "inclusions.json").read_text())
     if redetect:
         from models.stiffness_map import to_inclusions_json
-        from nodes.mapping.map_output import redetect as detect_again
+        from nodes.scanner.planner_map import redetect_map
 
-        detections = to_inclusions_json(detect_again(out / "map.npz").inclusions)
+        detections = to_inclusions_json(redetect_map(out / "map.npz")[0].inclusions)
     with np.load(out / "map.npz") as grid:
         score = score_scan(phantom, detections, dict(grid))
     errors = [s.centroid_error_mm for s in score.inclusions if s.found]
@@ -237,7 +239,8 @@ def run_and_score(job: RunJob) -> dict[str, Any]:
 
 def redetected(spec: RunSpec) -> dict[str, Any]:
     """A record as :func:`run_tasks` gives one, for a run an earlier sweep left in its run directory, scored with
-    the map detector run on its ``map.npz`` again (``--redetect``: nothing is launched)."""
+    the detection run on its ``map.npz`` again by the rule that made it (``--redetect``: nothing is launched;
+    :func:`score_outputs`); a map that cannot be detected on again is the run's error."""
     from nodes.mapping.map_output import map_incomplete
 
     try:
@@ -288,7 +291,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_cluster_args(ap)
     ap.add_argument("--rerun", action="store_true", help="run every run again, even those with a result")
     ap.add_argument("--redetect", action="store_true", help="launch nothing: score the runs already in OUT with the "
-                    "map detector (models.detector) run on each map.npz again (the detector is cheap, scans are not)")
+                    "detection run on each map.npz again by the rule that made it (a raster's map: models.detector; "
+                    "an adaptive planner's: its own; the detector is cheap, scans are not)")
     ap.add_argument("--multi-process", action="store_true", help="one process per node instead of --in-process")
     ap.add_argument("--margin", type=float, default=None,
                     help="raster margin inside the phantom's true edges (mm); default: the launch file's own region "

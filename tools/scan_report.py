@@ -1,9 +1,11 @@
 """Print where a scan wrote its map and what it found: ``python -m tools.scan_report RUN_DIR [--phantom FILE]``.
 
 Each inclusion is listed with the detector's significance (SNR) and per-map false-alarm probability when the map
-states them. ``--redetect`` runs the map detector (models.detector.detect, the map aggregator's own, with the
-false-alarm law of the probe that made the map) on ``map.npz`` again instead of reading ``inclusions.json``: what
-today's detector finds on a map written earlier.
+states them. ``--redetect`` runs the detection again on ``map.npz`` instead of reading ``inclusions.json``: what
+today's detector finds on a map written earlier, by the rule that made the map (nodes.scanner.planner_map.
+redetect_map): a raster's by the map detector (models.detector.detect, the map aggregator's own, with the false-alarm
+law of the probe that made the map), an adaptive planner's by the planner's own rule from the settings and layers
+its map keeps; a planner's map that lacks them is refused (exit 1), not detected by the raster's rule.
 
 With ``--phantom`` (simulation: the truth, read here after the run and never by the graph) the scan is scored by
 ``models.scoring.score_scan``: each true inclusion found or missed with its centroid and radius errors, false
@@ -25,7 +27,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("run_dir", type=Path)
     ap.add_argument("--map-dir", type=Path, help="default: RUN_DIR/map")
     ap.add_argument("--phantom", type=Path, help="score the scan against this phantom's true inclusions")
-    ap.add_argument("--redetect", action="store_true", help="detect on map.npz again (models.detector)")
+    ap.add_argument("--redetect", action="store_true", help="detect on map.npz again, by the rule that made it (a raster's "
+                    "map: models.detector; an adaptive planner's: its own)")
     args = ap.parse_args(argv)
     out = args.map_dir or args.run_dir / "map"
     inc_file = out / "inclusions.json"
@@ -35,16 +38,19 @@ def main(argv: list[str] | None = None) -> int:
     found = json.loads(inc_file.read_text())
     if args.redetect:
         from models.stiffness_map import to_inclusions_json
-        from nodes.mapping.map_output import map_model, redetect
+        from nodes.scanner.planner_map import PlannerMapError, redetect_map
 
         try:
-            det, model = redetect(out / "map.npz"), map_model(out / "map.npz")
+            det, rule = redetect_map(out / "map.npz")
+        except PlannerMapError as exc:   # it names the map and what it lacks
+            print(f"scan_report: cannot detect again: {exc}", file=sys.stderr)
+            return 1
         except (OSError, KeyError, ValueError) as exc:
             print(f"scan_report: cannot detect on {out / 'map.npz'}: {exc}", file=sys.stderr)
             return 1
         found = to_inclusions_json(det.inclusions)
-        print(f"redetected on map.npz ({model or 'unknown'} probe's false-alarm law): threshold "
-              f"{det.threshold_snr:.2f} σ, noise {100 * det.noise_rel:.1f} % a cell")
+        print(f"redetected on map.npz by {rule}: threshold {det.threshold_snr:.2f} σ, noise "
+              f"{100 * det.noise_rel:.1f} % a cell")
     print(f"map:        {out / 'map.png'}")
     print(f"grid:       {out / 'map.npz'}")
     print(f"inclusions: {inc_file}")

@@ -15,7 +15,10 @@ draws the picture from ``map.npz``; the picture is the same to the byte, and dra
 
 An adaptive scan also passes ``unsensed`` (the cells where an inclusion of the smallest size of interest could lie
 unseen when it stopped: models.adaptive_detect.unsensed): ``map.npz`` keeps it as a bool grid of that name and
-``map.png`` greys those cells over the map.
+``map.png`` greys those cells over the map. It keeps what its detection rule needs to run again too: the grids it
+detected from (``layers``: ``measured``, ``fair``) and its settings (``planner``, a 0-d JSON string of its parameters
+and region); :func:`redetect` is the whole-map detector and knows nothing of them: a planner's map is detected again
+by nodes.scanner.planner_map.
 """
 
 from __future__ import annotations
@@ -81,8 +84,9 @@ def map_incomplete(npz: Path) -> str:
 
 def redetect(npz: Path, cfg: DetectorConfig | None = None) -> Detection:
     """The map detector (models.detector.detect, the map aggregator's) run on a written ``map.npz`` again, with the
-    false-alarm law of the probe that made the map (:func:`map_model`; a probe without one: ``cfg``'s). Raises
-    OSError, KeyError or ValueError on a file that is not a map."""
+    false-alarm law of the probe that made the map (:func:`map_model`; a probe without one: ``cfg``'s): a raster's
+    rule, which an adaptive planner's map was not detected by (nodes.scanner.planner_map.redetect_map tells them
+    apart). Raises OSError, KeyError or ValueError on a file that is not a map."""
     return detect(read_map(npz), with_law_of(cfg or DetectorConfig(), map_model(npz)))
 
 
@@ -187,14 +191,14 @@ def _serve() -> int:
     return 0
 
 
-_ARRAYS = ("stiffness", "x_mm", "y_mm", "count", "spread", "unit", "model", "unsensed", "incomplete")
+_ARRAYS = ("stiffness", "x_mm", "y_mm", "count", "spread", "unit", "model", "unsensed", "incomplete", "planner")
 """The arrays :func:`write_outputs` writes to ``map.npz`` itself: no layer may take their names."""
 
 
 def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str,
                   title: str, unsensed: npt.NDArray[np.bool_] | None = None, incomplete: str = "",
                   helper: PngHelper | None = None, model: str = "",
-                  layers: Mapping[str, npt.NDArray[np.float64]] | None = None) -> list[Path]:
+                  layers: Mapping[str, npt.NDArray[np.float64]] | None = None, planner: str = "") -> list[Path]:
     """Write the three files (each atomically: a reader never sees half a file); returns their paths.
     ``model``: the estimator's model (kept in ``map.npz`` when given: it picks the false-alarm law a redetection uses).
     ``unsensed``: a bool grid of the map's shape, kept in ``map.npz`` and greyed in ``map.png`` (module doc).
@@ -202,7 +206,9 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
     (``incomplete``) and written over ``map.png``'s title, so that a partial map read later says so.
     ``helper``: draws ``map.png`` if it can (:class:`PngHelper`). ``layers``: more grids of the map's shape kept in
     ``map.npz`` under their names (an adaptive planner's measured and stiffness-blind cells: what its detection
-    used, so that it can be run again offline)."""
+    used, so that it can be run again offline). ``planner``: an adaptive planner's settings (JSON,
+    nodes.scanner.planner_map.planner_settings), kept in ``map.npz`` under that name when given: with the layers,
+    what its detection rule is rebuilt from."""
     if unsensed is not None and np.shape(unsensed) != np.shape(snap.stiffness):
         raise ValueError(f"unsensed: shape {np.shape(unsensed)} is not the map's {np.shape(snap.stiffness)}")
     for name, grid in (layers or {}).items():
@@ -217,6 +223,8 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
         "spread": snap.spread, "unit": np.array(unit)}
     if model:
         arrays["model"] = np.array(model)
+    if planner:
+        arrays["planner"] = np.array(planner)
     if unsensed is not None:
         arrays["unsensed"] = np.asarray(unsensed, dtype=bool)
     arrays.update({name: np.asarray(grid, dtype=np.float64) for name, grid in (layers or {}).items()})

@@ -23,7 +23,8 @@ on the GP mean.
 
 Publishes ``planner/mean``, ``planner/std`` and ``planner/map`` (the map inclusions are detected on; StiffnessMap,
 latched) after every probe, and at the end writes the same files as a raster scan's map (``map.npz`` of that map
-with the grids its detection used, ``measured`` and the stiffness-blind ``fair`` cells; ``map.png``;
+with the grids its detection used, ``measured`` and the stiffness-blind ``fair`` cells, and its parameters and
+region, ``planner``: what nodes.scanner.planner_map detects on it again by the planner's rule; ``map.png``;
 ``inclusions.json``: nodes.mapping.map_output) plus ``planner.json`` (probes, refusals, simulated time, why it
 stopped, and with the detect rule ``unsensed``: per reach of interest the fraction of the region where an inclusion
 sensed from that far could still lie unseen; the smallest's cells are ``map.npz``'s ``unsensed`` and ``map.png``'s
@@ -52,13 +53,11 @@ from messages import (
 )
 from models.adaptive import (
     Belief,
-    PlannerConfig,
     fit_belief,
     initial_design,
     next_probe,
     should_stop,
 )
-from models.adaptive_budget import with_budget
 from models.adaptive_cover import seed_design
 from models.adaptive_detect import (
     candidate_map,
@@ -75,7 +74,8 @@ from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import MapSnapshot, StiffnessGrid
 from models.surface import region_in_footprint
 from nodes.mapping.map_output import detection_summary, inclusions_message, write_outputs
-from nodes.scanner.planner_params import PlannerParams
+from nodes.scanner.planner_map import planner_settings
+from nodes.scanner.planner_params import PlannerParams, planner_config
 from nodes.scanner.probe_samples import Point, ProbeSamples
 from palpa.node.service import ServiceError
 from palpa.node.service_client import Future
@@ -95,25 +95,7 @@ class AdaptivePlanner(palpa.Node):
             raise palpa.ParamError(f"{self.name}: mode must be sweep or indent, got {p.mode!r}")
         try:
             region = self._region()
-            self.cfg = PlannerConfig(region, resolution_mm=p.resolution_mm, initial=p.initial,
-                                     beta=p.beta, implicit_fraction=p.implicit_fraction, epsilon=p.epsilon,
-                                     rel_threshold=p.rel_threshold, stop_area_mm2=p.stop_area_mm2,
-                                     max_probes=p.max_probes, seed_spacing_mm=p.seed_spacing_mm,
-                                     length_scale_mm=(1.0, p.max_length_scale_mm), stop_rule=p.stop_rule,
-                                     reach_mm=p.reach_mm, radius_span_mm=p.radius_span_mm,
-                                     reach_spread_mm=tuple(float(v) for v in p.reach_spread_mm),
-                                     interior_gap_mm=p.interior_gap_mm,
-                                     miss_probability=p.miss_probability, fill_mm=p.fill_mm,
-                                     suspect_false_alarm=p.suspect_false_alarm,
-                                     false_alarm_per_map=p.false_alarm_per_map,
-                                     near_miss_false_alarm=p.near_miss_false_alarm,
-                                     near_miss_gap_mm=p.near_miss_gap_mm, split_prominence=p.split_prominence,
-                                     near_best=p.near_best, cover_column_mm=p.cover_column_mm, region_gaps=p.region_gaps,
-                                     cover_period_mm=p.cover_period_mm, fair_halo_mm=p.fair_halo_mm,
-                                     budget_fraction=p.budget_fraction, raster_line_mm=p.raster_line_mm,
-                                     spend_budget=p.spend_budget,
-                                     sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
-            self.cfg = with_budget(self.cfg)   # max_probes: a fraction of the raster's over this region, if asked
+            self.cfg = planner_config(p, region)
         except (ValueError, GeometryError) as exc:
             raise palpa.ParamError(f"{self.name}: {exc}") from None
         x0, y0, x1, y1 = region
@@ -352,7 +334,8 @@ class AdaptivePlanner(palpa.Node):
             title += detection_summary(det, p.false_alarm_per_map)
             write_outputs(out, snap, det.inclusions, unit=self.unit or "?", title=title, unsensed=mask,
                           incomplete=lost, model=self.cfg.model,
-                          layers={"measured": self.grid.snapshot().stiffness, "fair": self.fair.snapshot().stiffness})
+                          layers={"measured": self.grid.snapshot().stiffness, "fair": self.fair.snapshot().stiffness},
+                          planner=planner_settings(p, self.cfg.region_mm))
             self.inc_pub.publish(inclusions_message(det, stamp_ns=self.clock.now_ns(), unit=self.unit,
                                                     false_alarm_per_map=p.false_alarm_per_map, final=True))
         else:

@@ -1,13 +1,17 @@
 """The adaptive planner's parameters (nodes.scanner.adaptive_planner.AdaptivePlanner.Params): a module of their own,
-as the scanner's (nodes.scanner.scanner_params), so that the node's module holds its behaviour."""
+as the scanner's (nodes.scanner.scanner_params), so that the node's module holds its behaviour; and
+:func:`planner_config`, the one translation of them into the planner's models.adaptive.PlannerConfig, which the node
+plans and detects with and a re-detection of its written map (nodes.scanner.planner_map) rebuilds."""
 
 from __future__ import annotations
 
 from typing import Literal
 
 import palpa
+from models.adaptive import PlannerConfig
+from models.adaptive_budget import with_budget
 
-__all__ = ["PlannerParams"]
+__all__ = ["PlannerParams", "planner_config"]
 
 
 class PlannerParams(palpa.Params):
@@ -103,3 +107,25 @@ class PlannerParams(palpa.Params):
     simulated clock)."""
     output_dir: str = "out"
     title: str = ""
+
+
+def planner_config(params: PlannerParams, region: tuple[float, float, float, float]) -> PlannerConfig:
+    """The planner's settings from its parameters and the region it probes in (the node's set-up works the region
+    out: ``region_mm``, or the measured footprint, cut for the camera probe's tips), ``max_probes`` lowered as
+    ``budget_fraction`` asks (models.adaptive_budget.with_budget). ``model`` is left '': the estimator's samples
+    name it. Raises ValueError on settings PlannerConfig refuses."""
+    p = params
+    cfg = PlannerConfig(region, resolution_mm=p.resolution_mm, initial=p.initial, beta=p.beta,
+                        implicit_fraction=p.implicit_fraction, epsilon=p.epsilon, rel_threshold=p.rel_threshold,
+                        stop_area_mm2=p.stop_area_mm2, max_probes=p.max_probes, seed_spacing_mm=p.seed_spacing_mm,
+                        length_scale_mm=(1.0, p.max_length_scale_mm), stop_rule=p.stop_rule, reach_mm=p.reach_mm,
+                        radius_span_mm=p.radius_span_mm, reach_spread_mm=tuple(float(v) for v in p.reach_spread_mm),
+                        interior_gap_mm=p.interior_gap_mm, miss_probability=p.miss_probability, fill_mm=p.fill_mm,
+                        suspect_false_alarm=p.suspect_false_alarm, false_alarm_per_map=p.false_alarm_per_map,
+                        near_miss_false_alarm=p.near_miss_false_alarm, near_miss_gap_mm=p.near_miss_gap_mm,
+                        split_prominence=p.split_prominence, near_best=p.near_best,
+                        cover_column_mm=p.cover_column_mm, region_gaps=p.region_gaps,
+                        cover_period_mm=p.cover_period_mm, fair_halo_mm=p.fair_halo_mm,
+                        budget_fraction=p.budget_fraction, raster_line_mm=p.raster_line_mm,
+                        spend_budget=p.spend_budget, sweep_mm=p.length_mm if p.mode == "sweep" else 0.0)
+    return with_budget(cfg)

@@ -1,1 +1,1 @@
-"""The node: its publishers, subscriptions and timers (endpoints), receiving and dispatch, its time side, presence (readiness, heartbeats), services and run-time parameters, and the runner that hosts it."""
+"""The node: its publishers, subscriptions and timers (endpoints) and what it has declared (inventory), receiving and dispatch, its time side, presence (readiness, heartbeats), services and run-time parameters, and the runner that hosts it."""

@@ -19,8 +19,10 @@ and ``palpa.run_node(Talker)`` is its ``main()``. A bare ``Node(name="script")``
 Bad input never kills a node: a malformed frame, an unknown or wrong type, or a payload that does not validate is
 counted on its topic and logged at most every few seconds with what was wrong (the field path).
 
-The node's collaborators live apart: its timers and simulation-clock side in :mod:`palpa.node.node_time`, its
-readiness, heartbeats and bus logging in :mod:`palpa.node.presence`, topic naming in :mod:`palpa.node.naming`.
+The node's collaborators live apart, and its declarations go to them: its publishers, subscriptions and services,
+and the rules of declaring them, in :mod:`palpa.node.inventory`; its timers and simulation-clock side in
+:mod:`palpa.node.node_time`; its readiness, heartbeats and bus logging in :mod:`palpa.node.presence`; topic naming in
+:mod:`palpa.node.naming`.
 """
 
 from __future__ import annotations
@@ -28,25 +30,18 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, ClassVar, TypeVar, cast
+from typing import Any, ClassVar, TypeVar
 
 from palpa import env as palpa_env
 from palpa.message import Message
 from palpa.net.address import BusAddress
 from palpa.net.connect import bus_transport
 from palpa.net.transport import Transport, TransportOptions
-from palpa.net.wire import Header, TopicStats, encode_header
+from palpa.net.wire import Header, TopicStats
 from palpa.node.dispatch import Dispatch
-from palpa.node.endpoints import (
-    DEFAULT_BATCH,
-    MsgInfo,
-    Publisher,
-    RawMessage,
-    Subscription,
-    Timer,
-    handler_type,
-)
-from palpa.node.naming import RUNTIME_PREFIX, default_node_name, resolve_topic
+from palpa.node.endpoints import DEFAULT_BATCH, MsgInfo, Publisher, RawMessage, Subscription, Timer
+from palpa.node.inventory import Inventory
+from palpa.node.naming import default_node_name, resolve_topic
 from palpa.node.node_time import SimTime, Timers, clock_timeout_ns
 from palpa.node.params import Params as ParamsBase
 from palpa.node.params import convert_params
@@ -128,26 +123,23 @@ class Node:
         """Runs every callback of this node (exception isolation, batches flushed when callbacks return)."""
         options = getattr(transport, "options", None)
         self._rx = Receiver(self.dispatch, self.log, getattr(options, "max_msg_bytes", 0))
-        self._pubs: dict[str, Publisher[Any]] = {}
+        self._inventory = Inventory(self, self._rx, self.incarnation, self._topic_clock is not None)
         self._timers = Timers(self)
-        self._services: dict[str, Service[Any, Any]] = {}
         self._shutdown = False
         self._closed = False
         self.exit_code = 0
         self._bus_handler = BusLogHandler(self)
         self.log.addHandler(self._bus_handler)
-        self._heartbeats = Heartbeats(self, heartbeat_s, self._rx, self._pubs, self._services)
+        self._heartbeats = Heartbeats(self, heartbeat_s, self._rx, self._inventory.pubs, self._inventory.services)
         take_reach_answers(self, self._rx)
         self._set_up = False
         self._probe = ""
         """This node's readiness probe once the bus echoed it (``<name>/<pid>.<incarnation>``; ClockAck.probe)."""
-        self._raw_sent: dict[str, int] = {}
-        """Messages published with :meth:`publish_raw` per topic (service requests and replies among them)."""
         self._sim_time: SimTime | None = None
         """This node's side of the simulation clock (on one): ticks, instants, lockstep acks."""
         if self._topic_clock is not None:
-            self._sim_time = SimTime(self, self._topic_clock, self._timers, self._rx, self._pubs, self._raw_sent,
-                                     timeout_ns)
+            self._sim_time = SimTime(self, self._topic_clock, self._timers, self._rx, self._inventory.pubs,
+                                     self._inventory.raw_sent, timeout_ns)
             self._sim_time.await_first_tick(wait_for_clock_s)
         if heartbeat_s > 0 if serve_params is None else serve_params:
             ParamServer(self, lambda: self.params, self._change_params)
@@ -213,10 +205,7 @@ class Node:
         self, name: str, request_type: type[Q], response_type: type[R], handler: Callable[[Q], R | Responder[R]]
     ) -> Service[Q, R]:
         """Serve ``name`` with ``handler(request) -> response`` (deferred answers, refusals: :mod:`palpa.node.service`)."""
-        if self.resolve(name) in self._services:
-            raise ValueError(f"node {self.name!r} already serves {self.resolve(name)!r}")
-        srv = self._services[self.resolve(name)] = Service(self, name, request_type, response_type, handler)
-        return srv
+        return self._inventory.service(name, request_type, response_type, handler)
 
     def client(
         self, name: str, request_type: type[Q], response_type: type[R], *, timeout_s: float = DEFAULT_TIMEOUT_S
@@ -241,26 +230,14 @@ class Node:
         ``direct=True`` sends straight to the subscribers instead of through the bus's proxy (lower latency, see
         :mod:`palpa.net.direct`); None leaves it to the transport options (launch ``transport: {direct: [...]}``).
         """
-        resolved = self.resolve(topic)
-        existing = self._pubs.get(resolved)
-        if existing is not None:
-            if existing.type is not msg_type:
-                raise TypeError(f"topic {resolved!r} already published as {existing.type.type_name}")
-            return existing
-        instant = self._topic_clock is not None and not resolved.startswith(RUNTIME_PREFIX)
-        pub = Publisher(self._transport, self.clock, self.dispatch, self, (self.name, self.incarnation), resolved,
-                        msg_type, latched, batch, direct, instant)
-        self._pubs[resolved] = pub
-        return pub
+        return self._inventory.publisher(topic, msg_type, latched=latched, batch=batch, direct=direct)
 
     def publish_raw(
         self, topic: str, header: Header, payload: bytes, blobs: Sequence[bytes] = (), *, latched: bool = False
     ) -> None:
         """Send an already-encoded payload with a caller-made header (the player keeps recorded sequence numbers,
         types and publisher names). ``topic`` is used as given (no remapping); nothing is validated."""
-        self._transport.send([topic.encode(), encode_header(header), payload, *blobs], latched)
-        if not topic.startswith(RUNTIME_PREFIX):
-            self._raw_sent[topic] = self._raw_sent.get(topic, 0) + 1
+        self._inventory.publish_raw(topic, header, payload, blobs, latched=latched)
 
     def subscribe(
         self,
@@ -274,41 +251,21 @@ class Node:
         ``subscribe(t, Type, cb)``, or ``subscribe(t, Type)`` to iterate. A callback with a second parameter
         annotated :class:`MsgInfo` gets ``(msg, info)``: the header and blobs of that very message (rather than
         ``sub.last_header`` / ``sub.last_blobs``, which only say what came last)."""
-        if isinstance(type_or_callback, type):
-            msg_type: type[Any] = type_or_callback
-        else:
-            callback = type_or_callback
-            msg_type = handler_type(callback)
-        if not (isinstance(msg_type, type) and issubclass(msg_type, Message)):
-            raise TypeError(f"subscribe({topic!r}): {msg_type!r} is not a palpa Message type")
-        resolved = self.resolve(topic)
-        key = resolved.encode()
-        if key in self._rx.subs:
-            raise ValueError(f"node {self.name!r} already subscribes to {resolved!r}")
-        sub: Subscription[M] = Subscription(self, resolved, cast("type[M]", msg_type), callback, queue_size)
-        self._rx.add(key, sub)
-        self._transport.subscribe(key, request_latched=True)
-        return sub
+        return self._inventory.subscribe(topic, type_or_callback, callback, queue_size=queue_size)
 
     def subscribe_raw(self, prefix: str, callback: Callable[[RawMessage], object], *,
                       topics: Callable[[str], bool] | None = None) -> None:
         """Every envelope whose topic starts with ``prefix`` (``""`` for all), undecoded; with ``topics``, only
         those on a topic it accepts (asked once per topic: the others are dropped before any decoding, unseen
         and uncounted, and no direct publisher of them is connected to)."""
-        key = prefix.encode()
-        self._rx.add_raw(key, callback, topics)
-        self._transport.subscribe(key, request_latched=True, wants=topics)
+        self._inventory.subscribe_raw(prefix, callback, topics=topics)
 
     def timer(
         self, period_s: float, callback: Callable[[], object], *, oneshot: bool = False,
         first_in_s: float | None = None,
     ) -> Timer:
         """Call ``callback`` every ``period_s`` seconds of node-clock time (first after ``first_in_s``)."""
-        if period_s <= 0:
-            raise ValueError(f"timer period must be > 0 s, got {period_s}")
-        period_ns = int(period_s * 1e9)
-        first = period_ns if first_in_s is None else int(first_in_s * 1e9)
-        return self._timers.add(Timer(period_ns, callback, self.clock.now_ns() + first, oneshot))
+        return self._timers.add(period_s, callback, oneshot, first_in_s)
 
     # -- running -----------------------------------------------------------------------------------
     @property
@@ -381,7 +338,7 @@ class Node:
         self._shutdown = True
         try:
             self.on_shutdown()
-            for srv in self._services.values():
+            for srv in self._inventory.services.values():
                 srv.withdraw()
             if self._set_up:
                 self._heartbeats.leave()

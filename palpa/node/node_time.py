@@ -11,7 +11,7 @@ at that time. The node's loop calls in with :meth:`SimTime.report` (before it bl
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 import msgspec
@@ -96,7 +96,14 @@ class Timers:
         """Timers not yet dropped (a cancelled one goes at the next pass)."""
         return len(self._timers)
 
-    def add(self, timer: Timer) -> Timer:
+    def add(self, period_s: float, callback: Callable[[], object], oneshot: bool, first_in_s: float | None) -> Timer:
+        """``Node.timer``: a timer every ``period_s`` of the node's clock from now, first after ``first_in_s``
+        (None: one period)."""
+        if period_s <= 0:
+            raise ValueError(f"timer period must be > 0 s, got {period_s}")
+        period_ns = int(period_s * 1e9)
+        first = period_ns if first_in_s is None else int(first_in_s * 1e9)
+        timer = Timer(period_ns, callback, self._node.clock.now_ns() + first, oneshot)
         self._timers.append(timer)
         return timer
 

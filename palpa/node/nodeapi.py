@@ -1,4 +1,5 @@
-"""What the runtime's helpers (services, service clients, the parameter server) use of a node, as a Protocol.
+"""What the runtime's helpers (its inventory, services, service clients, the parameter server) use of a node, as a
+Protocol.
 
 They are made by :class:`palpa.node.node.Node` and given the node, but they depend on this surface only, so that
 ``node.py`` can import them without them importing ``node.py`` back (no import cycle in the core).
@@ -23,7 +24,8 @@ M = TypeVar("M", bound=Message)
 
 
 class NodeApi(Protocol):
-    """The part of :class:`palpa.node.node.Node` that services, clients and the parameter server call."""
+    """The part of :class:`palpa.node.node.Node` that its inventory, services, clients and the parameter server
+    call."""
 
     name: str
     clock: Clock

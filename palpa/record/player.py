@@ -312,7 +312,7 @@ class Player(Node):
                 continue
             exact = hb.subscribes.keys()
             prefixes = [t[:-1] for t in exact if t.endswith("*")]
-            for topic, n in self._raw_sent.items():
+            for topic, n in self._inventory.raw_sent.items():
                 if topic in exact or any(topic.startswith(p) for p in prefixes):
                     c = hb.counters.get(topic)
                     got = c.received + c.decode_errors if c is not None else 0
