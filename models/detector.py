@@ -124,16 +124,12 @@ class DetectorConfig:
     sparse lattices' maps the false positives, mostly such pieces, fell from 315 to 113; at 0.20 of the raster's
     probes from 59 to 38, the misses the same; 10 mm found no more)."""
     guard_noise_ratio: float = 0.6
-    """On a partial map (a fair sample smaller than the valid cells: :func:`detect`'s ``estimate_from``), the
-    background is fitted a second time with the cells raised :attr:`guard_snr` above a plane left out
-    (models.background.raised_above_plane), and that fit is kept when its noise is below this fraction of the first
-    one's (0: off; a whole map never). Where a third of a sparse lattice's cells lie on inclusions near the
-    corners the quadratic bends to them and the noise grows four- to five-fold; where it is a dome's own top, leaving
-    it out lowers the noise little and extrapolates the dome's edges into false detections (spent seed 15016). On
-    the planner's final maps of five used sets (tuning 100, spent 14500-17000): 44 of 407 raster finds missed -> 34,
-    false positives 4 -> 3; on its 40 blank maps no guarded fit is kept (the false-alarm law stands)."""
+    """On a partial map (``estimate_from`` leaves out valid cells) the background is fitted again without the cells
+    :attr:`guard_snr` above a plane (models.background.raised_above_plane), kept when its noise is below this fraction
+    of the first fit's (0: off). Corner inclusions holding a third of a sparse lattice's cells bend the quadratic and
+    inflate the noise 3-5 fold (spent seed 15005); a dome's top left out lowers it little (15016). BENCHMARKS.md."""
     guard_snr: float = 2.5
-    """The guard's level (robust σ above the plane; 2.5-3 missed and false-alarmed the same on those sets)."""
+    """The guard's level in robust σ above the plane (2.5-3 scored the same on the planner's maps)."""
     join_span_mm: float = 10.0
     """Pieces joined across unmeasured tissue (:attr:`join_gap_mm`) have their peaks this close or closer: the
     pieces of one inclusion lie within its breadth, two neighbours' farther apart."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -202,6 +203,26 @@ def test_a_probes_late_estimates_count_as_that_probes_not_the_next_ones(tmp_path
     for x, y in ends:
         i, j = int(np.argmin(np.abs(fair.y_mm - y))), int(np.argmin(np.abs(fair.x_mm - x)))
         assert np.isfinite(fair.stiffness[i, j]), (x, y)
+
+
+def test_a_map_that_cannot_be_written_ends_the_planner_non_zero_saying_why(tmp_path: Path,
+                                                                         caplog: pytest.LogCaptureFixture) -> None:
+    """A full disk at the end of a scan (a bench set filled it: OSError 28 in map.npz) left the planner done and
+    silent, and the launch waited on it until it was killed. Its output folder here lies under a file, so nothing
+    can be written: the planner says where and why and asks to end with exit code 1; where it can write, 0."""
+    def stiffness(x: float, y: float) -> float:
+        return 10.0
+
+    params = {"region_mm": [0.0, 0.0, 20.0, 20.0], "seed_spacing_mm": 14.0, "max_probes": 8, "coarse_pass": False}
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    with caplog.at_level(logging.ERROR):
+        planner = scanned(blocker / "map", params, stiffness)
+    assert planner.exit_code == 1
+    assert any("the map could not be written to" in r.getMessage() and str(blocker / "map") in r.getMessage()
+               for r in caplog.records)
+    assert scanned(tmp_path / "map", params, stiffness).exit_code == 0
+    assert (tmp_path / "map" / "map.npz").exists()
 
 
 def test_where_two_probes_lines_overlap_a_sample_is_the_one_measuring_at_its_stamp(tmp_path: Path) -> None:

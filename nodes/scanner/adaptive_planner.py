@@ -323,6 +323,21 @@ class AdaptivePlanner(palpa.Node):
         lost = self._losses()
         if lost:
             self.log.error("the map is INCOMPLETE: %s", lost)
+        try:
+            self._write(out, why, elapsed, hiding, mask, lost)
+        except OSError as exc:
+            # a full disk, a read-only or vanished folder: without its map the scan has no result, and saying
+            # nothing would leave the graph waiting on a planner that is done (the launch hung until killed)
+            self.log.error("the map could not be written to %s: %s: the scan has no result (its samples are in the "
+                           "recording, if one was made)", out, exc)
+            lost = lost or f"the map could not be written ({exc})"
+        self.timer(0.2, lambda: self.request_shutdown(1 if lost else 0), oneshot=True)
+
+    def _write(self, out: Path, why: str, elapsed: float, hiding: list[tuple[float, float]],
+               mask: npt.NDArray[np.bool_] | None, lost: str) -> None:
+        """The final detection published and written with the map (map.npz, map.png, inclusions.json) and
+        planner.json; raises OSError when a file cannot be written."""
+        p = self.params
         found: dict[str, float] = {}
         if self.belief is not None:
             snap, det = self._detection(self.belief)
@@ -348,7 +363,6 @@ class AdaptivePlanner(palpa.Node):
             "points": self.probed, "why": self.why, "given_up": self.given_up, "incomplete": lost,
             "unsensed": [{"reach_mm": r, "fraction": round(f, 4)} for r, f in hiding], "detection": found},
             indent=1) + "\n")
-        self.timer(0.2, lambda: self.request_shutdown(1 if lost else 0), oneshot=True)
 
     def _losses(self) -> str:
         """What the map lacks of what was asked for or measured ('' when nothing): the map itself, probes given up
