@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from messages import ScanPlan, ScanStatus, StiffnessSample, Trigger
 from nodes.mapping.map_aggregator import MapAggregator
+from palpa.node.service import RequestRefused
 from palpa.testing import MemoryBus, NodeHarness
 
 
@@ -294,3 +297,25 @@ def test_each_probe_s_maps_are_detected_with_that_probe_s_false_alarm_law(tmp_pa
         warned = "no false-alarm law was measured for 'someone_elses' maps" in caplog.text
         assert warned == (model == "someone_elses")
     assert thresholds["multi_indenter"] != thresholds["airfloat"] == thresholds["someone_elses"]
+
+
+def test_a_map_that_cannot_be_written_ends_the_node_non_zero_saying_why(tmp_path: Path,
+                                                                      caplog: pytest.LogCaptureFixture) -> None:
+    """A full disk or a read-only folder at the end of a scan: the write failed inside the status callback, was
+    logged as a bare traceback, and the node ended 0, a scan without a map reported clean. Here the output folder lies
+    under a file: the node says where and why, its exit code is 1 (after the scan's end and again at shutdown), and
+    ``map/save`` is refused with the reason instead of answering with no paths."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    out = blocker / "map"
+    h = NodeHarness(MapAggregator, {"output_dir": str(out), "region_mm": [0, 0, 10, 10]})
+    for x in range(10):
+        h.publish("stiffness/sample", sample(x + 0.5, 5.0, 26.0))
+    with caplog.at_level(logging.ERROR):
+        h.publish("robot/scan_status", ScanStatus(stamp_ns=0, state="done", line=5, lines=5, progress=1.0, eta_s=0))
+    assert h.node.written == 0 and h.node.exit_code == 1
+    assert any(f"the map could not be written to {out}" in r.getMessage() for r in caplog.records)
+    with pytest.raises(RequestRefused, match="could not be written"):
+        h.node.on_save(Trigger())
+    h.close()
+    assert h.node.exit_code == 1

@@ -15,6 +15,7 @@ end clean with it.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -41,6 +42,10 @@ __all__ = ["MapAggregator"]
 _NOT_IN_CONTACT = ("no_contact", "too few indenters in contact")
 """Reasons (as they start) of a reading with the probe off the tissue, the air-float's and the camera probe's: a
 raster's moves between presses, not an exclusion."""
+
+
+class MapNotWritten(OSError):
+    """The map files could not be written (the message names the folder and the error)."""
 
 
 class MapAggregator(palpa.Node):
@@ -128,7 +133,10 @@ class MapAggregator(palpa.Node):
             raise RequestRefused("no map to save yet (no valid stiffness sample received)")
         self._bin_pending()
         snap = self.grid.snapshot()
-        paths = self.write(snap, self._detect(snap))
+        try:
+            paths = self.write(snap, self._detect(snap))
+        except MapNotWritten as exc:
+            raise RequestRefused(str(exc)) from None
         return MapSaved(paths=[str(p) for p in paths], samples=self.samples)
 
     def _make_grid(self, x0: float, y0: float, x1: float, y1: float) -> None:
@@ -249,7 +257,8 @@ class MapAggregator(palpa.Node):
         self.inc_pub.publish(inclusions_message(det, stamp_ns=now, unit=self.unit,
                                                 false_alarm_per_map=self.params.false_alarm_per_map, final=final))
         if final:
-            self.write(snap, det)
+            with contextlib.suppress(MapNotWritten):   # said, and the exit code is 1
+                self.write(snap, det)
 
     def write(self, snap: MapSnapshot, det: Detection) -> list[Path]:
         out = Path(self.params.output_dir)
@@ -260,8 +269,15 @@ class MapAggregator(palpa.Node):
         partial = self._partial()
         if partial:
             self.log.warning("the map written holds part of the scan: %s", partial)
-        paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title, incomplete=partial,
-                              helper=self.png_helper, model=self.model)
+        try:
+            paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title, incomplete=partial,
+                                  helper=self.png_helper, model=self.model)
+        except OSError as exc:
+            # a full disk, a read-only or vanished folder: the scan has no map, and must not end as if it had one
+            self.log.error("the map could not be written to %s: %s: the scan has no map (its samples are in the "
+                           "recording, if one was made)", out, exc)
+            self.exit_code = 1
+            raise MapNotWritten(f"the map could not be written to {out}: {exc}") from None
         self.written += 1
         self.unsaved = 0
         for inc in found:
