@@ -56,17 +56,26 @@ def fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArra
     w: FloatArray = np.ones(target.size)
     if robust_start:
         w = biweight(target - float(np.median(target)), w)
-    coef: FloatArray = np.zeros(len(terms))
+    coef, _, _ = _irls(design, target, w)
+    return np.asarray(sum(c * t for c, t in zip(coef, terms, strict=True)), dtype=np.float64)
+
+
+def _irls(design: FloatArray, target: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray, float]:
+    """Tukey-biweight IRLS of ``target`` on the columns of ``design`` from the weights ``w``, eight rounds (fewer
+    when the residuals' robust scale falls to zero): (coefficients, residuals, that scale) of the last round."""
+    coef: FloatArray = np.zeros(design.shape[1])
+    r: FloatArray = np.asarray(target, dtype=np.float64)
+    s = 0.0
     for _ in range(8):
         sw = np.sqrt(w)
         coef = np.asarray(np.linalg.lstsq(design * sw[:, None], target * sw, rcond=None)[0], dtype=np.float64)
-        r = target - design @ coef
+        r = np.asarray(target - design @ coef, dtype=np.float64)
         s = MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r))))
         if not s > 0:
             break
         t = r / (4.685 * s)
         w = np.asarray(np.where(np.abs(t) < 1, (1 - t**2) ** 2, 0.0), dtype=np.float64)
-    return np.asarray(sum(c * t for c, t in zip(coef, terms, strict=True)), dtype=np.float64)
+    return coef, r, s
 
 
 def biweight(r: FloatArray, otherwise: FloatArray) -> FloatArray:
@@ -97,17 +106,7 @@ def raised_above_plane(logs: FloatArray, use: BoolArray, x: FloatArray, y: Float
     gy, gx = np.meshgrid(y, x, indexing="ij")
     design = np.stack([np.ones(int(use.sum())), gx[use], gy[use]], axis=1)
     target = logs[use]
-    w = biweight(target - float(np.median(target)), np.ones(target.size))
-    r: FloatArray = target - float(np.median(target))
-    s = 0.0
-    for _ in range(8):
-        sw = np.sqrt(w)
-        coef = np.linalg.lstsq(design * sw[:, None], target * sw, rcond=None)[0]
-        r = np.asarray(target - design @ coef, dtype=np.float64)
-        s = MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r))))
-        if not s > 0:
-            return out
-        t = r / (4.685 * s)
-        w = np.asarray(np.where(np.abs(t) < 1, (1 - t**2) ** 2, 0.0), dtype=np.float64)
-    out[use] = r > k * s
+    _, r, s = _irls(design, target, biweight(target - float(np.median(target)), np.ones(target.size)))
+    if s > 0:
+        out[use] = r > k * s
     return out
