@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from models.stiffness_map import Inclusion, MapSnapshot
-from nodes.mapping.map_output import write_outputs
+from nodes.mapping.map_output import MapNotWritten, write_outputs
 
 
 def _snap() -> MapSnapshot:
@@ -50,3 +50,12 @@ def test_layers_are_kept_in_map_npz_under_their_names_and_a_bad_one_writes_nothi
     with pytest.raises(ValueError, match=r"layer 'fair': shape \(4, 5\) is not the map's \(4, 6\)"):
         write_outputs(tmp_path / "c", _snap(), [], unit="kPa", title="t", layers={"fair": measured[:, :5]})
     assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
+
+
+def test_a_folder_the_map_cannot_be_written_to_is_one_error_naming_it(tmp_path: Path) -> None:
+    """Whatever the OSError (here the folder lies under a file), the writers' callers get one kind of error, whose
+    message names the folder: the map aggregator and the adaptive planner end non-zero on it, saying so."""
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a folder")
+    with pytest.raises(MapNotWritten, match=f"the map could not be written to {blocker / 'map'}"):
+        write_outputs(blocker / "map", _snap(), [], unit="kPa", title="t")

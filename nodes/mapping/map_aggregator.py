@@ -34,7 +34,13 @@ from messages import (
 )
 from models.detector import Detection, DetectorConfig, detect, false_alarm_law, with_law_of
 from models.stiffness_map import MapSnapshot, StiffnessGrid, spacing_warning
-from nodes.mapping.map_output import PngHelper, detection_summary, inclusions_message, write_outputs
+from nodes.mapping.map_output import (
+    MapNotWritten,
+    PngHelper,
+    detection_summary,
+    inclusions_message,
+    write_outputs,
+)
 from palpa.node.service import RequestRefused
 
 __all__ = ["MapAggregator"]
@@ -42,10 +48,6 @@ __all__ = ["MapAggregator"]
 _NOT_IN_CONTACT = ("no_contact", "too few indenters in contact")
 """Reasons (as they start) of a reading with the probe off the tissue, the air-float's and the camera probe's: a
 raster's moves between presses, not an exclusion."""
-
-
-class MapNotWritten(OSError):
-    """The map files could not be written (the message names the folder and the error)."""
 
 
 class MapAggregator(palpa.Node):
@@ -272,12 +274,10 @@ class MapAggregator(palpa.Node):
         try:
             paths = write_outputs(out, snap, found, unit=self.unit or "?", title=title, incomplete=partial,
                                   helper=self.png_helper, model=self.model)
-        except OSError as exc:
-            # a full disk, a read-only or vanished folder: the scan has no map, and must not end as if it had one
-            self.log.error("the map could not be written to %s: %s: the scan has no map (its samples are in the "
-                           "recording, if one was made)", out, exc)
+        except MapNotWritten as exc:   # the scan has no map, and must not end as if it had one
+            self.log.error("%s: the scan has no map (its samples are in the recording, if one was made)", exc)
             self.exit_code = 1
-            raise MapNotWritten(f"the map could not be written to {out}: {exc}") from None
+            raise
         self.written += 1
         self.unsaved = 0
         for inc in found:

@@ -43,8 +43,8 @@ from models.stiffness_map import Inclusion, MapSnapshot, fill_gaps, to_inclusion
 from palpa.atomic import write_beside, written_beside
 from palpa.exiting import exit_now
 
-__all__ = ["PngHelper", "detection_summary", "inclusions_message", "map_incomplete", "map_model", "read_map", "redetect",
-           "write_outputs"]
+__all__ = ["MapNotWritten", "PngHelper", "detection_summary", "inclusions_message", "map_incomplete", "map_model",
+           "read_map", "redetect", "write_outputs"]
 
 
 def read_map(npz: Path) -> MapSnapshot:
@@ -191,6 +191,11 @@ def _serve() -> int:
     return 0
 
 
+class MapNotWritten(OSError):
+    """The map's files could not be written (a full disk, a read-only or vanished folder): the message names the
+    folder and the error. A node that gets it has no map to show for its scan and must not end as if it had one."""
+
+
 _ARRAYS = ("stiffness", "x_mm", "y_mm", "count", "spread", "unit", "model", "unsensed", "incomplete", "planner")
 """The arrays :func:`write_outputs` writes to ``map.npz`` itself: no layer may take their names."""
 
@@ -208,7 +213,7 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
     ``map.npz`` under their names (an adaptive planner's measured and stiffness-blind cells: what its detection
     used, so that it can be run again offline). ``planner``: an adaptive planner's settings (JSON,
     nodes.scanner.planner_map.planner_settings), kept in ``map.npz`` under that name when given: with the layers,
-    what its detection rule is rebuilt from."""
+    what its detection rule is rebuilt from. Raises :class:`MapNotWritten` when a file cannot be written."""
     if unsensed is not None and np.shape(unsensed) != np.shape(snap.stiffness):
         raise ValueError(f"unsensed: shape {np.shape(unsensed)} is not the map's {np.shape(snap.stiffness)}")
     for name, grid in (layers or {}).items():
@@ -216,7 +221,6 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
             raise ValueError(f"layer {name!r}: map.npz has an array of that name")
         if np.shape(grid) != np.shape(snap.stiffness):
             raise ValueError(f"layer {name!r}: shape {np.shape(grid)} is not the map's {np.shape(snap.stiffness)}")
-    out_dir.mkdir(parents=True, exist_ok=True)
     npz = out_dir / "map.npz"
     arrays: dict[str, Any] = {
         "stiffness": snap.stiffness, "x_mm": snap.x_mm, "y_mm": snap.y_mm, "count": snap.count,
@@ -231,15 +235,19 @@ def write_outputs(out_dir: Path, snap: MapSnapshot, inclusions: Sequence[Inclusi
     if incomplete:
         arrays["incomplete"] = np.array(incomplete)
         title = "\n".join(textwrap.wrap(f"INCOMPLETE: {incomplete}", 90)) + "\n" + title
-    with written_beside(npz) as tmp, open(tmp, "wb") as fh:  # a file, not a name: np.savez would add .npz
-        np.savez_compressed(fh, **arrays)
-    js = out_dir / "inclusions.json"
-    write_beside(js, json.dumps(to_inclusions_json(inclusions), indent=2) + "\n")
-    png = out_dir / "map.png"
-    if helper is None or not helper.render(npz, png, inclusions, unit=unit, title=title,
-                                           resolution_mm=snap.resolution_mm):
-        write_beside(png, _render_png(snap, inclusions, unit=unit, title=title, unsensed=unsensed))
-    return [npz, png, js]
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        with written_beside(npz) as tmp, open(tmp, "wb") as fh:  # a file, not a name: np.savez would add .npz
+            np.savez_compressed(fh, **arrays)
+        js = out_dir / "inclusions.json"
+        write_beside(js, json.dumps(to_inclusions_json(inclusions), indent=2) + "\n")
+        png = out_dir / "map.png"
+        if helper is None or not helper.render(npz, png, inclusions, unit=unit, title=title,
+                                               resolution_mm=snap.resolution_mm):
+            write_beside(png, _render_png(snap, inclusions, unit=unit, title=title, unsensed=unsensed))
+        return [npz, png, js]
+    except OSError as exc:   # a full disk, a read-only or vanished folder
+        raise MapNotWritten(f"the map could not be written to {out_dir}: {exc}") from exc
 
 
 def _render_png(snap: MapSnapshot, inclusions: Sequence[Inclusion], *, unit: str, title: str,

@@ -73,7 +73,12 @@ from models.detector import Detection, detect, peak_significance
 from models.geometry import GeometryError, load_geometry
 from models.stiffness_map import MapSnapshot, StiffnessGrid
 from models.surface import region_in_footprint
-from nodes.mapping.map_output import detection_summary, inclusions_message, write_outputs
+from nodes.mapping.map_output import (
+    MapNotWritten,
+    detection_summary,
+    inclusions_message,
+    write_outputs,
+)
 from nodes.scanner.planner_map import planner_settings
 from nodes.scanner.planner_params import PlannerParams, planner_config
 from nodes.scanner.probe_samples import Point, ProbeSamples
@@ -325,12 +330,12 @@ class AdaptivePlanner(palpa.Node):
             self.log.error("the map is INCOMPLETE: %s", lost)
         try:
             self._write(out, why, elapsed, hiding, mask, lost)
-        except OSError as exc:
-            # a full disk, a read-only or vanished folder: without its map the scan has no result, and saying
-            # nothing would leave the graph waiting on a planner that is done (the launch hung until killed)
-            self.log.error("the map could not be written to %s: %s: the scan has no result (its samples are in the "
-                           "recording, if one was made)", out, exc)
-            lost = lost or f"the map could not be written ({exc})"
+        except OSError as exc:   # map_output.MapNotWritten, or planner.json's own
+            # without its map the scan has no result, and saying nothing would leave the graph waiting on a planner
+            # that is done (the launch hung until killed)
+            why_not = exc if isinstance(exc, MapNotWritten) else f"the map could not be written to {out}: {exc}"
+            self.log.error("%s: the scan has no map (its samples are in the recording, if one was made)", why_not)
+            lost = lost or str(why_not)
         self.timer(0.2, lambda: self.request_shutdown(1 if lost else 0), oneshot=True)
 
     def _write(self, out: Path, why: str, elapsed: float, hiding: list[tuple[float, float]],
