@@ -20,6 +20,9 @@ MAD_TO_SIGMA = 1.4826
 BACKGROUND_DEGREE = 2
 """Degree of the background surface in x and y (2: a dome, a tilt, a drift towards an edge)."""
 
+_GUARD_MIN_CELLS = 18
+"""The guard leaves at least this many cells (three per term of the quadratic) or leaves the cells as they are."""
+
 
 def fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArray, *,
                     robust_start: bool = False, guard_snr: float = 0.0) -> FloatArray:
@@ -86,10 +89,6 @@ def biweight(r: FloatArray, otherwise: FloatArray) -> FloatArray:
         return otherwise
     t = r / (4.685 * s)
     return np.asarray(np.where(np.abs(t) < 1, (1 - t**2) ** 2, 0.0), dtype=np.float64)
-
-
-_GUARD_MIN_CELLS = 18
-"""The guard leaves at least this many cells (three per term of the quadratic) or leaves the cells as they are."""
 
 
 def raised_above_plane(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArray, k: float) -> BoolArray:
