@@ -82,6 +82,7 @@ from nodes.mapping.map_output import (
 from nodes.scanner.planner_map import planner_settings
 from nodes.scanner.planner_params import PlannerParams, planner_config
 from nodes.scanner.probe_samples import Point, ProbeSamples
+from palpa.atomic import write_beside
 from palpa.node.service import ServiceError
 from palpa.node.service_client import Future
 
@@ -362,7 +363,7 @@ class AdaptivePlanner(palpa.Node):
             self.inc_pub.publish(Inclusions(stamp_ns=self.clock.now_ns(), unit=self.unit, final=True,
                                             baseline=float("nan"), inclusions=[]))
         out.mkdir(parents=True, exist_ok=True)
-        (out / "planner.json").write_text(json.dumps({
+        write_beside(out / "planner.json", json.dumps({
             "probes": len(self.probed), "refused": self.refused, "sim_s": elapsed, "stop": why,
             "swept_mm": len(self.probed) * (p.length_mm if p.mode == "sweep" else 0.0),
             "points": self.probed, "why": self.why, "given_up": self.given_up, "incomplete": lost,
