@@ -198,3 +198,23 @@ def test_evaluate_redetect_scores_the_runs_left_in_out_with_the_map_detector(tmp
     assert main([launch, "--phantom", str(spec.phantom), "--seeds", "0", "-o", str(out), "--redetect"]) == 1
     runs = list(csv.DictReader((out / "runs.csv").open()))
     assert runs[0]["error"] == "the map is INCOMPLETE: the scan did not finish: last heard scanning at 14 % of its path"
+
+
+def test_generated_blank_phantoms_are_the_random_ones_without_their_inclusions(tmp_path: Path) -> None:
+    """--generate N --blank: each blank_SEED is random_SEED's specimen with no inclusion (a false-alarm check on the
+    same varied specimens the sets are judged on); without --blank the files are the generator's as before."""
+    from tools.evaluate import generate_phantoms
+
+    blank = generate_phantoms(tmp_path / "b", 30000, 3, blank=True)
+    rand = generate_phantoms(tmp_path / "r", 30000, 3)
+    assert [p.name for p in blank] == [f"blank_{s}.yaml" for s in range(30000, 30003)]
+    assert [p.name for p in rand] == [f"random_{s}.yaml" for s in range(30000, 30003)]
+    with_inclusions = 0
+    for b, r, seed in zip(blank, rand, range(30000, 30003), strict=True):
+        pb, pr = load_phantom(b), load_phantom(r)
+        assert pb.inclusions == ()
+        assert (pb.size_mm, pb.thickness_mm, pb.youngs_modulus_kpa) == (pr.size_mm, pr.thickness_mm,
+                                                                          pr.youngs_modulus_kpa)
+        assert parse_phantom(random_phantom(seed, PhantomRanges()), "x") == pr
+        with_inclusions += len(pr.inclusions) > 0
+    assert with_inclusions   # the comparison is not between two blank sets

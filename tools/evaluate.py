@@ -18,7 +18,7 @@ launch file's own region) and a probe height above its top (``contact_z_mm:=``, 
 each only if the launch file declares that arg (``tools.evaluate_plan`` makes the runs).
 
 ``--generate N`` makes N random phantoms (``models.phantom_gen``, seeds ``--phantom-seed``..+N-1) into
-``OUT/phantoms``. After the runs, each one's ``inclusions.json`` and ``map.npz`` are scored with
+``OUT/phantoms`` (with ``--blank``, the same specimens without their inclusions: any detection is a false alarm). After the runs, each one's ``inclusions.json`` and ``map.npz`` are scored with
 ``models.scoring.score_scan``, and its recording gives the scan time, the path length and the number of probe
 samples. Written to OUT: the tables ``runs``, ``inclusions`` and ``detections`` as Parquet and CSV, ``runs.json``
 (``tools.evaluate_tables``) and ``summary.txt`` (per arg combination; also printed; ``--summary OUT`` prints it
@@ -61,6 +61,24 @@ __all__ = ["RunJob", "RunSpec", "main", "plan_runs", "run_and_score", "run_tasks
 REPO = Path(__file__).resolve().parent.parent
 CODE = ("palpa", "nodes", "tools", "models", "messages", "devices", "yamlstruct", "launch")
 """What the code version of a run's key covers (``tools.sweep.tree_digest``)."""
+
+
+def generate_phantoms(folder: Path, first_seed: int, n: int, *, blank: bool = False) -> list[Path]:
+    """Write ``n`` random phantom files (models.phantom_gen, seeds ``first_seed``..+n-1) into ``folder``:
+    ``random_SEED.yaml``, or with ``blank`` ``blank_SEED.yaml``: random_SEED's specimen (its size, thickness profile
+    and moduli: the generator draws the inclusions last) without its inclusions. Returns their paths."""
+    folder.mkdir(parents=True, exist_ok=True)
+    ranges = PhantomRanges(inclusions=(0, 0)) if blank else PhantomRanges()
+    paths = []
+    for seed in range(first_seed, first_seed + n):
+        name = f"{'blank' if blank else 'random'}_{seed}"
+        data = random_phantom(seed, ranges, name=name)
+        if blank:
+            data["description"] = f"generated blank phantom, seed {seed} (models.phantom_gen, no inclusions)"
+        path = folder / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(data, sort_keys=False), encoding="utf-8")
+        paths.append(path)
+    return paths
 
 
 def scan_facts(recording: Path) -> dict[str, float]:
@@ -285,6 +303,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--phantom", action="append", type=Path, default=[], help="a phantom file (repeatable)")
     ap.add_argument("--generate", type=int, default=0, metavar="N", help="also N random phantoms")
     ap.add_argument("--phantom-seed", type=int, default=0, help="seed of the first generated phantom")
+    ap.add_argument("--blank", action="store_true", help="the generated phantoms without inclusions (blank_SEED: "
+                    "every detection on them is false, a check of the stated false-alarm rate on varied specimens)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0], help="run seeds (sensor noise, measurement)")
     ap.add_argument("--arg", action="append", default=[], metavar="NAME=V1,V2",
                     help="vary a launch arg over these values (repeatable: the runs take every combination)")
@@ -316,11 +336,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     # every phantom by its absolute path (a worker's working directory is its own), shown in the tables as given
     # (a generated one: relative to OUT, so two output folders of the same sweep give the same tables)
     phantoms = {p.resolve(): str(p) for p in opts.phantom}
+    if opts.blank and not opts.generate:
+        ap.error("--blank makes the generated phantoms blank: give --generate N")
     if opts.generate:
-        (out / "phantoms").mkdir(exist_ok=True)
-        for seed in range(opts.phantom_seed, opts.phantom_seed + opts.generate):
-            path = out / "phantoms" / f"random_{seed}.yaml"
-            path.write_text(yaml.safe_dump(random_phantom(seed, PhantomRanges()), sort_keys=False), encoding="utf-8")
+        for path in generate_phantoms(out / "phantoms", opts.phantom_seed, opts.generate, blank=opts.blank):
             phantoms[path] = str(path.relative_to(out))
     if not phantoms:
         ap.error("give --phantom FILE and/or --generate N")
