@@ -218,3 +218,16 @@ def test_generated_blank_phantoms_are_the_random_ones_without_their_inclusions(t
         assert parse_phantom(random_phantom(seed, PhantomRanges()), "x") == pr
         with_inclusions += len(pr.inclusions) > 0
     assert with_inclusions   # the comparison is not between two blank sets
+
+
+def test_blank_without_generate_is_refused_before_anything_is_written(tmp_path: Path,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    from tools.evaluate import main
+
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        main([str(REPO / "launch" / "scan_sim.yaml"), "--phantom", str(REPO / "phantoms" / "airfloat_tumours.yaml"),
+              "--blank", "-o", str(out)])
+    assert exc.value.code == 2
+    assert "--blank makes the generated phantoms blank: give --generate N" in capsys.readouterr().err
+    assert not out.exists()

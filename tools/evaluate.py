@@ -18,9 +18,9 @@ launch file's own region) and a probe height above its top (``contact_z_mm:=``, 
 each only if the launch file declares that arg (``tools.evaluate_plan`` makes the runs).
 
 ``--generate N`` makes N random phantoms (``models.phantom_gen``, seeds ``--phantom-seed``..+N-1) into
-``OUT/phantoms`` (with ``--blank``, the same specimens without their inclusions: any detection is a false alarm). After the runs, each one's ``inclusions.json`` and ``map.npz`` are scored with
-``models.scoring.score_scan``, and its recording gives the scan time, the path length and the number of probe
-samples. Written to OUT: the tables ``runs``, ``inclusions`` and ``detections`` as Parquet and CSV, ``runs.json``
+``OUT/phantoms`` (with ``--blank``, the same specimens without their inclusions: any detection is a false alarm).
+After the runs, each one's ``inclusions.json`` and ``map.npz`` are scored with ``models.scoring.score_scan``, and
+its recording gives the scan time, the path length and the number of probe samples. Written to OUT: the tables ``runs``, ``inclusions`` and ``detections`` as Parquet and CSV, ``runs.json``
 (``tools.evaluate_tables``) and ``summary.txt`` (per arg combination; also printed; ``--summary OUT`` prints it
 again from the Parquet tables). The truth is read here, after the runs, never by the graph's estimators.
 """
@@ -331,13 +331,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     if opts.launch is None or opts.out is None:
         ap.error("give a launch file and -o OUT (or --summary DIR)")
+    if opts.blank and not opts.generate:
+        ap.error("--blank makes the generated phantoms blank: give --generate N")
     out: Path = opts.out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     # every phantom by its absolute path (a worker's working directory is its own), shown in the tables as given
     # (a generated one: relative to OUT, so two output folders of the same sweep give the same tables)
     phantoms = {p.resolve(): str(p) for p in opts.phantom}
-    if opts.blank and not opts.generate:
-        ap.error("--blank makes the generated phantoms blank: give --generate N")
     if opts.generate:
         for path in generate_phantoms(out / "phantoms", opts.phantom_seed, opts.generate, blank=opts.blank):
             phantoms[path] = str(path.relative_to(out))
