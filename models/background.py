@@ -64,17 +64,21 @@ def fit_background(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArra
 
 
 def _irls(design: FloatArray, target: FloatArray, w: FloatArray) -> tuple[FloatArray, FloatArray, float]:
-    """Tukey-biweight IRLS of ``target`` on the columns of ``design`` from the weights ``w``, eight rounds (fewer
-    when the residuals' robust scale falls to zero): (coefficients, residuals, that scale) of the last round."""
+    """Tukey-biweight IRLS of ``target`` on the columns of ``design`` from the weights ``w``, eight rounds: (coefficients,
+    residuals, their robust scale) of the last round. A scale at rounding (1e-9 of the target's size: a map without
+    noise, a synthetic or quantised one) is no noise: biweights scaled by it would all be zero and the next fit a
+    surface of 0, so the fit stops there with the surface it has, and the scale returned is that rounding level."""
+    tiny = 1e-9 * max(float(np.max(np.abs(target))), 1e-300) if target.size else 1e-300
     coef: FloatArray = np.zeros(design.shape[1])
     r: FloatArray = np.asarray(target, dtype=np.float64)
-    s = 0.0
+    s = tiny
     for _ in range(8):
         sw = np.sqrt(w)
         coef = np.asarray(np.linalg.lstsq(design * sw[:, None], target * sw, rcond=None)[0], dtype=np.float64)
         r = np.asarray(target - design @ coef, dtype=np.float64)
         s = MAD_TO_SIGMA * float(np.median(np.abs(r - np.median(r))))
-        if not s > 0:
+        if not s > tiny:
+            s = tiny
             break
         t = r / (4.685 * s)
         w = np.asarray(np.where(np.abs(t) < 1, (1 - t**2) ** 2, 0.0), dtype=np.float64)
@@ -93,7 +97,7 @@ def biweight(r: FloatArray, otherwise: FloatArray) -> FloatArray:
 
 def raised_above_plane(logs: FloatArray, use: BoolArray, x: FloatArray, y: FloatArray, k: float) -> BoolArray:
     """The ``use`` cells of ``logs`` lying more than ``k`` robust σ above a plane fitted to them (Tukey-biweight IRLS
-    from the median's biweights); none when fewer than :data:`_GUARD_MIN_CELLS` are given or the scale is zero.
+    from the median's biweights); none when fewer than :data:`_GUARD_MIN_CELLS` are given.
 
     Why a plane: a quadratic's corner terms rest on a few cells, and where a third of a sparse lattice's cells lie
     on inclusions near the map's corners the quadratic bends up to them even from a robust start, and the noise
@@ -106,6 +110,5 @@ def raised_above_plane(logs: FloatArray, use: BoolArray, x: FloatArray, y: Float
     design = np.stack([np.ones(int(use.sum())), gx[use], gy[use]], axis=1)
     target = logs[use]
     _, r, s = _irls(design, target, biweight(target - float(np.median(target)), np.ones(target.size)))
-    if s > 0:
-        out[use] = r > k * s
+    out[use] = r > k * s
     return out
